@@ -1,0 +1,34 @@
+# Two entry points (see README): `make demo` and `make test`. Both set up .venv first.
+PYTHON ?= python3.11
+VENV   := .venv
+BIN    := $(VENV)/bin
+OUT    ?= out/demo
+DEMO_CFG ?= networks/intersection/intersection.sumocfg
+
+.PHONY: setup demo test test-slow lint clean
+
+# CPU torch first, from a pinned version: a bare `torch` would pull a multi-GB CUDA build.
+$(BIN)/coster-sumo: pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q torch==2.13.0
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $@
+
+setup: $(BIN)/coster-sumo
+
+demo: setup
+	$(BIN)/coster-sumo run $(DEMO_CFG) -o $(OUT)
+
+lint: setup
+	$(BIN)/ruff check coster_sumo converters tests bench networks
+	$(BIN)/mypy coster_sumo converters
+
+test: lint
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-slow: setup
+	$(BIN)/python -m pytest -q -m "slow" || [ $$? -eq 5 ]  # 5 = no slow tests collected
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,1 @@
+"""Readers and writers at the boundary: WOMD TFRecords, ScenarioNet pickles, SUMO networks."""

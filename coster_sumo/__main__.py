@@ -1,0 +1,5 @@
+import sys
+
+from coster_sumo.cli import main
+
+sys.exit(main())

@@ -1,0 +1,74 @@
+"""The ``coster-sumo`` command line: thin parsing, then a call into the library.
+
+Every module in :mod:`coster_sumo.commands` exposes ``register(cli: CommandLine)``, which adds its
+subcommand(s) with ``set_defaults(func=...)``; ``func(args) -> int`` returns the exit code.
+Nested groups (``train prior``, ``eval rollout``) come from :meth:`CommandLine.group`.
+
+Exit codes (DESIGN contracts): 0 success; 1 the work ran but some inputs failed; 2 usage or input
+error before any work. Errors print as one line ``coster-sumo: error: ...``; ``--debug`` shows the
+traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from coster_sumo.errors import CosterError
+
+
+class CommandLine:
+    """Holds the top-level parser and lazily created command groups."""
+
+    def __init__(self) -> None:
+        self.parser = argparse.ArgumentParser(
+            prog="coster-sumo",
+            description="COSTER safety-critical scenario generation for SUMO.")
+        self.parser.add_argument("--debug", action="store_true", help="show tracebacks")
+        self.parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+        self.commands = self.parser.add_subparsers(dest="command", metavar="COMMAND")
+        self._groups: dict[str, argparse._SubParsersAction] = {}
+
+    def group(self, name: str, help: str) -> argparse._SubParsersAction:
+        """Subcommands under ``coster-sumo NAME ...`` (created on first use)."""
+        if name not in self._groups:
+            p = self.commands.add_parser(name, help=help)
+            self._groups[name] = p.add_subparsers(dest=f"{name}_command", metavar="WHAT", required=True)
+        return self._groups[name]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    import coster_sumo.commands as commands
+
+    cli = CommandLine()
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        module = importlib.import_module(f"coster_sumo.commands.{info.name}")
+        register = getattr(module, "register", None)
+        if register is not None:
+            register(cli)
+    return cli.parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except CosterError as exc:
+        if args.debug:
+            raise
+        print(f"coster-sumo: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("coster-sumo: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

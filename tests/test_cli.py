@@ -1,0 +1,17 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from coster_sumo.cli import main
+
+
+def test_help_lists_commands(capsys):
+    assert main([]) == 2
+    assert "coster-sumo" in capsys.readouterr().out
+
+
+def test_import_does_not_load_sumo_or_torch():
+    code = "import sys, coster_sumo, coster_sumo.cli; print('libsumo' in sys.modules, 'torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "False"]

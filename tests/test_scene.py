@@ -1,0 +1,58 @@
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from coster_sumo import InputError, load_scene, resample, save_scene, synthetic
+from coster_sumo.scene import Ragged
+
+
+def test_synthetic_scenes_validate(synthetic_scene):
+    synthetic_scene.validate()
+    assert synthetic_scene.num_steps == 91
+    assert synthetic_scene.sdc_index == 0
+
+
+def test_resample_to_2hz_keeps_every_fifth_step(synthetic_scene):
+    low = resample(synthetic_scene, 2.0)
+    assert low.num_steps == 19
+    np.testing.assert_allclose(np.diff(low.timestamps), 0.5)
+    assert low.current_time_index == 2  # step 10 at 10 Hz is step 2 at 2 Hz
+    np.testing.assert_array_equal(low.tracks.x, synthetic_scene.tracks.x[:, ::5])
+    low.validate()
+
+
+def test_save_load_round_trip(tmp_path, synthetic_scene):
+    path = save_scene(synthetic_scene, tmp_path / "s.npz")
+    back = load_scene(path)
+    assert back.scenario_id == synthetic_scene.scenario_id
+    np.testing.assert_array_equal(back.tracks.x, synthetic_scene.tracks.x)
+    np.testing.assert_array_equal(back.tracks.ids, synthetic_scene.tracks.ids)
+    np.testing.assert_array_equal(back.road_map.lanes.centerline.values,
+                                  synthetic_scene.road_map.lanes.centerline.values)
+    np.testing.assert_array_equal(back.signals.state, synthetic_scene.signals.state)
+    back.validate()
+
+
+def test_load_scene_rejects_other_files(tmp_path):
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="bad.npz"):
+        load_scene(bad)
+
+
+def test_validate_catches_shape_mismatch():
+    scene = synthetic.two_lane_road()
+    broken = dataclasses.replace(scene, timestamps=scene.timestamps[:-1])
+    with pytest.raises(InputError, match="timestamps"):
+        broken.validate()
+
+
+def test_ragged_round_trip():
+    items = [np.zeros((3, 2)), np.ones((0, 2)), np.full((2, 2), 5.0)]
+    r = Ragged.from_list(items, np.float64, (2,))
+    assert len(r) == 3
+    assert [len(x) for x in r] == [3, 0, 2]
+    np.testing.assert_array_equal(r.item_index(), [0, 0, 0, 2, 2])
