@@ -1,0 +1,86 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coster_sumo import metrics
+
+
+def test_jsd_identical_is_zero_and_disjoint_is_ln2():
+    h = np.array([1.0, 2.0, 3.0, 0.0])
+    assert metrics.js_divergence(h, h) == pytest.approx(0.0, abs=1e-15)
+    assert metrics.js_divergence(np.array([1.0, 0.0]), np.array([0.0, 1.0])) == pytest.approx(np.log(2))
+
+
+def test_vdd_of_same_speeds_is_zero_and_of_far_speeds_is_ln2():
+    rng = np.random.default_rng(0)
+    v = rng.uniform(0, 30, 1000)
+    assert metrics.velocity_distribution_divergence(v, v) == pytest.approx(0.0, abs=1e-12)
+    assert metrics.velocity_distribution_divergence(np.full(10, 1.0), np.full(10, 40.0)) == pytest.approx(
+        np.log(2))
+
+
+def test_add_uses_200_bins_over_pm10():
+    # 0.05 and 0.15 m/s^2 fall into different 0.1-wide bins -> disjoint
+    assert metrics.acceleration_distribution_divergence(np.array([0.05]), np.array([0.15])) == pytest.approx(
+        np.log(2))
+
+
+@pytest.mark.parametrize(("adv", "angle"), [((5, 0), 0.0), ((0, 3), 90.0), ((0, -3), -90.0), ((-5, 0), 180.0)])
+def test_impact_angle_in_target_frame(adv, angle):
+    assert metrics.impact_angle_deg(np.zeros(2), 0.0, np.asarray(adv, float)) == pytest.approx(angle)
+
+
+def test_impact_angle_rotates_with_target():
+    # target facing north: an adversary to the east is on its right
+    assert metrics.impact_angle_deg(np.zeros(2), np.pi / 2, np.array([4.0, 0.0])) == pytest.approx(-90.0)
+
+
+def test_cpd_of_symmetric_impacts():
+    assert metrics.collision_position_diversity([90.0, -90.0]) == pytest.approx(90.0)
+    assert metrics.collision_position_diversity([30.0, 30.0, 30.0]) == pytest.approx(0.0)
+    # circular std sees 179 and -179 as 2 degrees apart, the linear std does not
+    assert metrics.circular_std_deg([179.0, -179.0]) == pytest.approx(1.0, abs=0.01)
+    assert metrics.collision_position_diversity([179.0, -179.0]) == pytest.approx(179.0)
+
+
+def test_csd_and_relative_speed():
+    rel = metrics.relative_speed(np.array([[10.0, 0.0], [0.0, 0.0]]), np.array([[0.0, 0.0], [3.0, 4.0]]))
+    np.testing.assert_allclose(rel, [10.0, 5.0])
+    assert metrics.collision_speed_diversity(rel) == pytest.approx(2.5)
+
+
+def test_rates():
+    assert metrics.collision_rate([True, False, True, True]) == pytest.approx(0.75)
+    assert metrics.off_road_rate([False, False]) == 0.0
+    assert metrics.success_rate(4, 3) == pytest.approx(0.75)
+    assert np.isnan(metrics.collision_rate([]))
+
+
+def test_ade_fde_min_and_avg():
+    truth = np.zeros((4, 2))
+    pred = np.stack([np.zeros((4, 2)), np.ones((4, 2))])  # (2 samples, 4 steps, 2)
+    mn_ade, mn_fde = metrics.min_ade_fde(pred, truth)
+    av_ade, av_fde = metrics.avg_ade_fde(pred, truth)
+    assert mn_ade == pytest.approx(0.0)
+    assert mn_fde == pytest.approx(0.0)
+    assert av_ade == pytest.approx(np.sqrt(2) / 2)
+    assert av_fde == pytest.approx(np.sqrt(2) / 2)
+
+
+def test_fde_uses_last_valid_step():
+    truth = np.zeros((3, 2))
+    pred = np.array([[[0.0, 0.0], [1.0, 0.0], [9.0, 0.0]]])
+    _, fde = metrics.ade_fde(pred, truth, valid=np.array([True, True, False]))
+    assert fde[0] == pytest.approx(1.0)
+
+
+def test_mmd_zero_for_same_samples_positive_for_shifted():
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(200, 2))
+    assert metrics.mmd(x, x) == pytest.approx(0.0, abs=1e-12)
+    assert metrics.mmd(x, x + 3.0) > 0.3
+
+
+def test_registry_has_all_seven_scenario_metrics():
+    assert {"SUR", "CR", "ORR", "VDD", "ADD", "CSD", "CPD"} <= set(metrics.REGISTRY)
