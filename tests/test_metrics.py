@@ -26,7 +26,8 @@ def test_add_uses_200_bins_over_pm10():
         np.log(2))
 
 
-@pytest.mark.parametrize(("adv", "angle"), [((5, 0), 0.0), ((0, 3), 90.0), ((0, -3), -90.0), ((-5, 0), 180.0)])
+@pytest.mark.parametrize(("adv", "angle"),
+                         [((5, 0), 0.0), ((0, 3), 90.0), ((0, -3), -90.0), ((-5, 0), 180.0)])
 def test_impact_angle_in_target_frame(adv, angle):
     assert metrics.impact_angle_deg(np.zeros(2), 0.0, np.asarray(adv, float)) == pytest.approx(angle)
 

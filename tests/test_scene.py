@@ -56,3 +56,18 @@ def test_ragged_round_trip():
     assert len(r) == 3
     assert [len(x) for x in r] == [3, 0, 2]
     np.testing.assert_array_equal(r.item_index(), [0, 0, 0, 2, 2])
+
+
+def test_collision_snapshot_json_is_lossless(tmp_path):
+    from coster_sumo.scene import AgentState, CollisionSnapshot
+
+    snap = CollisionSnapshot(
+        scenario_id="s", target_id="ego", t_index=7, time=3.5,
+        target=AgentState(1.0 / 3.0, -7785.123456789, 0.1, 9.87654321, 4.5, 1.9),
+        adversary=AgentState(2.0, 3.0, -np.pi, 0.0, 4.1, 1.8), region_id=12, presence_prob=0.25,
+        position_logprob=-3.3, signed_distance=1e-9, entropy=(float("nan"), 1.5, 2.25),
+        collision_time_method="entropy", init_method="snapshot", seed=3)
+    back = CollisionSnapshot.load(snap.save(tmp_path / "snap.json"))
+    assert back.target == snap.target and back.adversary == snap.adversary
+    assert np.isnan(back.entropy[0]) and back.entropy[1:] == snap.entropy[1:]
+    assert back.to_dict() == snap.to_dict()

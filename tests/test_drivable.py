@@ -1,0 +1,32 @@
+from __future__ import annotations
+
+import numpy as np
+
+from coster_sumo import synthetic
+from coster_sumo.drivable import DrivableArea
+
+
+def test_vehicles_of_synthetic_scenes_are_on_road(synthetic_scene):
+    area = DrivableArea.from_road_map(synthetic_scene.road_map)
+    t = synthetic_scene.tracks
+    off = area.off_road(t.x[t.valid], t.y[t.valid], t.heading[t.valid], t.length[t.valid], t.width[t.valid])
+    assert not off.any()
+
+
+def test_box_beside_the_road_is_off_road():
+    scene = synthetic.two_lane_road()
+    area = DrivableArea.from_road_map(scene.road_map)
+    x0, y0 = scene.road_map.lanes.centerline[0][10]
+    # 10 m to the right of the right lane: fully off; 1.2 m: mostly on (within tolerance)
+    off = area.off_road(np.array([x0, x0, x0]), np.array([y0 - 10.0, y0 - 1.2, y0 - 0.5]),
+                        np.zeros(3), np.full(3, 4.5), np.full(3, 1.9))
+    np.testing.assert_array_equal(off, [True, True, False])
+    out = area.outside_area(x0, y0 - 10.0, 0.0, 4.5, 1.9)
+    assert abs(float(out) - 4.5 * 1.9) < 1e-9
+
+
+def test_junction_interior_is_drivable():
+    scene = synthetic.four_way_junction()
+    area = DrivableArea.from_road_map(scene.road_map)
+    cx, cy = 8123.45, -3456.78
+    assert not area.off_road(np.array([cx]), np.array([cy]), np.zeros(1), np.full(1, 4.5), np.full(1, 1.9))[0]
