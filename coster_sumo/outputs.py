@@ -1,0 +1,195 @@
+"""What ``coster-sumo run`` writes into OUTDIR (documented in the README).
+
+```
+OUTDIR/
+  summary.json            target, t_col, per-variant results, timings (units: s, m, m/s, deg)
+  snapshot.json           the collision snapshot (CollisionSnapshot JSON)
+  events.jsonl            one event per line, every variant ("variant" key)
+  collisions.xml          SUMO-style collision list (our box check and SUMO's own)
+  overview.png            map, agents at t_col, ellipse, all variants, heatmap of oversampled paths
+  variants/<i>/trajectory.csv   time, vehicle, x, y, yaw_deg, speed of target and adversary (10 Hz)
+  variants/<i>/render.png       the variant
+  variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg;
+                                `coster-sumo replay variants/<i>/export/<name>.sumocfg` plays it back
+```
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from coster_sumo import viz
+from coster_sumo.errors import InputError
+from coster_sumo.sim.inject import InjectionResult
+from coster_sumo.sim.plan import AdversaryPlan
+
+if TYPE_CHECKING:
+    from coster_sumo.pipeline import PlannedScenario, RunOptions
+
+VARIANT_FILE = "variant.json"
+
+
+def _dump(path: Path, obj: Any) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, default=_json_default))
+    tmp.replace(path)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float
+                   ) -> dict[str, Any]:
+    """Per-variant entry of summary.json."""
+    c = res.contact
+    pair = {plan.vehicle_id, target_id}
+    others = [e for e in res.events if e.kind == "collision" and set(e.vehicles) != pair]
+    return {
+        "variant": i, "adversary_id": plan.vehicle_id,
+        "collision": c is not None, "collision_time": c.time if c else None,
+        "contact_offset_s": round(c.time - t_col, 6) if c else None,
+        "relative_speed": c.relative_speed if c else None, "impact_angle": c.impact_angle if c else None,
+        "adversary_off_road": res.adversary_off_road, "target_off_road": res.target_off_road,
+        "route_completed": res.route_completed, "target_arrived": res.target_arrived,
+        "min_ttc": res.min_ttc if np.isfinite(res.min_ttc) else None,
+        "other_collisions": len(others),
+        "sumo_reported_contact": any(e.kind == "sumo_collision" and set(e.vehicles) == pair for e in res.events),
+        "wall_time_s": round(res.wall_time_s, 3),
+    }
+
+
+def trajectory_csv(path: Path, res: InjectionResult, ids: list[str]) -> None:
+    t = res.scene.tracks
+    lines = ["time,vehicle,x,y,yaw_deg,speed"]
+    for vid in ids:
+        if vid not in set(t.ids.tolist()):
+            continue
+        a = t.index_of(vid)
+        for s in np.flatnonzero(t.valid[a]):
+            lines.append(f"{res.scene.timestamps[s]:.2f},{vid},{t.x[a, s]:.4f},{t.y[a, s]:.4f},"
+                         f"{np.degrees(t.heading[a, s]):.3f},{np.hypot(t.vx[a, s], t.vy[a, s]):.4f}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def collisions_xml(path: Path, results: list[InjectionResult]) -> None:
+    """SUMO's collision-output layout, one element per collision event, plus a variant attribute."""
+    root = ET.Element("collisions")
+    for i, res in enumerate(results):
+        for e in res.events:
+            if e.kind not in ("collision", "sumo_collision") or len(e.vehicles) < 2:
+                continue
+            ET.SubElement(root, "collision", {
+                "time": f"{e.time:.2f}", "type": str(e.detail.get("type", "collision")),
+                "lane": str(e.detail.get("lane", "")), "collider": e.vehicles[1], "victim": e.vehicles[0],
+                "source": "coster" if e.kind == "collision" else "sumo", "variant": str(i),
+                "relativeSpeed": f"{e.relative_speed:.3f}", "impactAngle": f"{e.impact_angle:.2f}"})
+    ET.indent(root)
+    ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)
+
+
+def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[str, Any]) -> Path:
+    """Copy the configuration's inputs and the plan into ``folder``; return the new .sumocfg."""
+    from coster_sumo.sim.session import read_sumocfg_inputs
+
+    folder.mkdir(parents=True, exist_ok=True)
+    inputs = read_sumocfg_inputs(config)
+    names: dict[str, list[str]] = {}
+    for key, paths in inputs.items():
+        for p in paths:
+            shutil.copy2(p, folder / p.name)
+            names.setdefault(key, []).append(p.name)
+    for extra in ("scene.npz", "lane_map.json"):  # converted WOMD scenes carry their log
+        if (config.parent / extra).exists():
+            shutil.copy2(config.parent / extra, folder / extra)
+    root = ET.Element("configuration")
+    inp = ET.SubElement(root, "input")
+    for key in ("net-file", "route-files", "additional-files"):
+        if names.get(key):
+            ET.SubElement(inp, key, {"value": ",".join(names[key])})
+    tm = ET.SubElement(root, "time")
+    ET.SubElement(tm, "step-length", {"value": "0.1"})
+    if meta.get("end") is not None:
+        ET.SubElement(tm, "end", {"value": f"{meta['end']:.3f}"})
+    ET.indent(root)
+    cfg = folder / config.name
+    ET.ElementTree(root).write(cfg, encoding="unicode", xml_declaration=True)
+    _dump(folder / VARIANT_FILE, {**meta, "plan": plan.to_dict()})
+    return cfg
+
+
+def write_run_outputs(out: Path, opts: RunOptions, planned: PlannedScenario, results: list[InjectionResult],
+                      timings: dict[str, float]) -> dict[str, Any]:
+    from coster_sumo.pipeline import options_to_json
+
+    scene, target = planned.scene, planned.target_index
+    target_id = str(scene.tracks.ids[target])
+    snap = planned.snapshot
+    snap.save(out / "snapshot.json")
+    variants = []
+    with (out / "events.jsonl").open("w") as fh:
+        for i, res in enumerate(results):
+            for e in res.events:
+                fh.write(json.dumps({"variant": i, **e.to_dict()}, default=_json_default) + "\n")
+    collisions_xml(out / "collisions.xml", results)
+    t_col = snap.time
+    t_col_step = int(np.argmin(np.abs(scene.timestamps - t_col)))
+    planner = opts.planner or ("replay" if (opts.config.parent / "scene.npz").exists() else "sumo")
+    for i, (plan, res) in enumerate(zip(planned.plans, results, strict=True)):
+        vdir = out / "variants" / str(i)
+        vdir.mkdir(parents=True)
+        rec = variant_record(i, plan, res, target_id, t_col)
+        variants.append(rec)
+        trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
+        export_variant(vdir / "export", opts.config, plan,
+                       {"target_id": target_id, "planner": planner, "seed": opts.seed,
+                        "begin": opts.begin, "end": float(scene.timestamps[-1])})
+        if opts.render:
+            xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
+            c = res.contact
+            viz.render_variant(vdir / "render.png", scene, target, np.stack([xs, ys], 1), snap.adversary,
+                               t_col_step,
+                               f"variant {i}: " + (f"contact at {c.time:.1f} s, {c.relative_speed:.1f} m/s, "
+                                                   f"{c.impact_angle:.0f} deg" if c else "no contact"),
+                               contact_xy=c.positions[1] if c else None)
+    if opts.render:
+        reps = [np.stack([p.x, p.y], 1) for p in planned.plans]
+        viz.render_overview(out / "overview.png", scene, target, t_col_step, snap.target, reps,
+                            planned.samples_xy, snap.entropy or None, planned.scene_2hz.timestamps, t_col)
+    n = len(variants)
+    summary = {
+        "config": str(opts.config), "scenario_id": scene.scenario_id, "target": target_id,
+        "planner": planner, "seed": opts.seed, "t_col": t_col, "t_col_index_2hz": snap.t_index,
+        "collision_time_method": snap.collision_time_method, "init_method": snap.init_method,
+        "snapshot_signed_distance": snap.signed_distance,
+        "num_variants": n,
+        "collision_rate": sum(v["collision"] for v in variants) / n if n else None,
+        "off_road_rate": sum(v["adversary_off_road"] for v in variants) / n if n else None,
+        "variants": variants, "generation": planned.info,
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "options": options_to_json(opts),
+        "renders": (["overview.png"] + [f"variants/{i}/render.png" for i in range(n)]) if opts.render else [],
+    }
+    _dump(out / "summary.json", summary)
+    return summary
+
+
+def load_variant(config: Path) -> dict[str, Any] | None:
+    """The variant.json beside an exported variant's .sumocfg, or None."""
+    p = Path(config).parent / VARIANT_FILE
+    if not p.exists():
+        return None
+    try:
+        return json.loads(p.read_text())
+    except ValueError as exc:
+        raise InputError(f"{p}: not a variant file ({exc})") from None

@@ -1,0 +1,147 @@
+"""Planners: who drives the target during an injection pass.
+
+A planner is any object with the three methods of :class:`Planner`; implement it in your own
+module and pass ``--planner yourmodule:YourClass`` (the class is constructed without arguments).
+Each simulation step the session calls ``before_step`` with the time the step will reach, so a
+planner that commands the target (``session.move_to_xy``, ``session.api.vehicle.setSpeed``...) does
+it for that time.
+
+Built-ins:
+- ``replay``: the target follows its nominal trajectory exactly (moveToXY every step). With a
+  replay target, contact happens at t_col by construction.
+- ``sumo``: SUMO's own driver model keeps control of the target, so it may react to the adversary.
+- ``sumo:<model>``: the same with SUMO car-following model ``<model>`` (Krauss, IDM, EIDM, ACC,
+  CACC, ...), set through a vType written to an additional file and given to the target when it
+  departs (TraCI cannot change a type's car-following model at run time).
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
+
+import numpy as np
+
+from coster_sumo.errors import InputError
+
+if TYPE_CHECKING:
+    from coster_sumo.sim.session import SumoSession
+
+CAR_FOLLOWING_MODELS = ("Krauss", "KraussPS", "KraussOrig1", "IDM", "IDMM", "EIDM", "ACC", "CACC", "W99",
+                        "Wiedemann", "BKerner", "SmartSK", "Daniel1", "PWagner2009", "PWagner2010")
+
+
+@runtime_checkable
+class Planner(Protocol):
+    """Drives the target vehicle of an injection pass."""
+
+    name: str
+
+    def additional_files(self, workdir: Path) -> list[Path]:
+        """Files to add to SUMO's ``--additional-files`` before the session starts."""
+        ...
+
+    def setup(self, session: SumoSession, target_id: str) -> None:
+        """Called once after the session has started."""
+        ...
+
+    def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
+        """Command the target for simulation time ``t_next``; ``present``: it is in the network."""
+        ...
+
+
+class ReplayPlanner:
+    """The target replays a recorded trajectory (10 Hz, our frame) with moveToXY.
+
+    Args:
+        times: (T,) [s] simulation times of the recording.
+        x, y, yaw: (T,) centre [m] and heading [rad].
+        speed: (T,) [m/s].
+        valid: (T,) bool.
+        length: [m] the target's length.
+    """
+
+    name = "replay"
+
+    def __init__(self, times: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray,
+                 speed: np.ndarray, valid: np.ndarray, length: float) -> None:
+        self.times = np.asarray(times, float)
+        self.x, self.y, self.yaw, self.speed = x, y, yaw, speed
+        self.valid = np.asarray(valid, bool)
+        self.length = float(length)
+
+    def additional_files(self, workdir: Path) -> list[Path]:
+        return []
+
+    def setup(self, session: SumoSession, target_id: str) -> None:
+        pass
+
+    def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
+        if not present:
+            return
+        k = int(np.searchsorted(self.times, t_next - 1e-6))
+        if k >= len(self.times) or abs(self.times[k] - t_next) > 1e-3 or not self.valid[k]:
+            return  # outside the recording: SUMO drives it
+        session.move_to_xy(target_id, float(self.x[k]), float(self.y[k]), float(self.yaw[k]),
+                           self.length, speed=float(self.speed[k]))
+
+
+class SumoPlanner:
+    """SUMO's own driver (optionally with another car-following model) keeps the target."""
+
+    def __init__(self, car_following_model: str | None = None) -> None:
+        if car_following_model is not None and car_following_model not in CAR_FOLLOWING_MODELS:
+            raise InputError(f"unknown SUMO car-following model {car_following_model!r}; "
+                             f"choose one of {', '.join(CAR_FOLLOWING_MODELS)}")
+        self.model = car_following_model
+        self.name = "sumo" if car_following_model is None else f"sumo:{car_following_model}"
+        self._type_id = f"coster_cf_{car_following_model}"
+        self._switched = False
+
+    def additional_files(self, workdir: Path) -> list[Path]:
+        if self.model is None:
+            return []
+        path = Path(workdir) / f"{self._type_id}.add.xml"
+        path.write_text(f'<additional>\n    <vType id="{self._type_id}" carFollowModel="{self.model}"/>\n'
+                        "</additional>\n")
+        return [path]
+
+    def setup(self, session: SumoSession, target_id: str) -> None:
+        self._switched = False
+
+    def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
+        if self.model is None or self._switched or not present:
+            return
+        veh = session.api.vehicle
+        length, width = veh.getLength(target_id), veh.getWidth(target_id)
+        vclass = veh.getVehicleClass(target_id)
+        veh.setType(target_id, self._type_id)
+        # keep the target's own size and class: only its driver changes
+        veh.setLength(target_id, length)
+        veh.setWidth(target_id, width)
+        veh.setVehicleClass(target_id, vclass)
+        self._switched = True
+
+
+def make_planner(spec: str, replay: ReplayPlanner | None = None) -> Planner:
+    """``replay`` | ``sumo`` | ``sumo:<carFollowModel>`` | ``module:Class``."""
+    if spec == "replay":
+        if replay is None:
+            raise InputError("planner 'replay' needs the target's nominal trajectory")
+        return replay
+    if spec == "sumo":
+        return SumoPlanner()
+    if spec.startswith("sumo:"):
+        return SumoPlanner(spec.split(":", 1)[1])
+    if ":" in spec:
+        module_name, cls_name = spec.split(":", 1)
+        try:
+            cls = getattr(importlib.import_module(module_name), cls_name)
+        except (ImportError, AttributeError) as exc:
+            raise InputError(f"planner {spec!r}: cannot import ({exc})") from None
+        planner = cls()
+        if not isinstance(planner, Planner):
+            raise InputError(f"planner {spec!r} lacks additional_files/setup/before_step")
+        return planner
+    raise InputError(f"unknown planner {spec!r}: use replay, sumo, sumo:<carFollowModel> or module:Class")

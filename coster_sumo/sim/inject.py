@@ -1,0 +1,199 @@
+"""One injection pass: restart the configuration, add the adversary, drive it, log events.
+
+Order inside every simulation step (all commands are for the time the step reaches, t_next):
+1. the log replayer (converted WOMD scenes) places every logged agent;
+2. the planner commands the target (or leaves it to SUMO);
+3. the adversary controller places the adversary (moveToXY, every step, SUMO_FACTS §3);
+4. SUMO steps; the pass is recorded into a Scene (all vehicles, signals);
+5. events: our box check + SUMO's collision list + off-road (:mod:`coster_sumo.sim.events`).
+
+The adversary is added when the plan starts (t_col - horizon) with its sampled length and width
+as a private vehicle type, on the edge under its first position (SUMO_FACTS §3: a first placement
+off every lane can crash libsumo). It follows the plan exactly, arriving in the snapshot state at
+t_col. After its first contact with any vehicle it is **frozen**: it stays at the contact pose at
+zero speed until the end of the pass (a wreck, not a vehicle that drives on). If no contact
+happens (the planner avoided it), it continues at constant velocity (see
+:class:`~coster_sumo.sim.plan.AdversaryPlan`) until a contact or the end of the pass.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time as _time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.frames import centre_to_front
+from coster_sumo.planners import Planner
+from coster_sumo.scene import Scene
+from coster_sumo.sim.events import Event, EventDetector
+from coster_sumo.sim.plan import AdversaryPlan
+from coster_sumo.sim.record import record
+from coster_sumo.sim.session import SumoSession, VehicleStates
+
+ADVERSARY_COLOR = (220, 30, 30, 255)  # RGBA: red in sumo-gui
+TIME_EPS = 1e-6  # [s]
+
+
+class StepActor(Protocol):
+    """Anything that commands vehicles before a step (e.g. the log replayer of converted scenes)."""
+
+    def before_step(self, session: SumoSession, t_next: float) -> None: ...
+
+
+class AdversaryController:
+    """Drives the adversary along its plan with moveToXY; freezes it after its first contact."""
+
+    def __init__(self, plan: AdversaryPlan, step_length: float = 0.1) -> None:
+        self.plan = plan
+        self.step_length = step_length
+        self.added = False
+        self.frozen_pose: tuple[float, float, float] | None = None
+        self.gone = False
+
+    def _route_edges(self, session: SumoSession, x: float, y: float, yaw: float) -> list[str] | None:
+        fx, fy = centre_to_front(x, y, yaw, self.plan.length)
+        with contextlib.suppress(Exception):
+            edge, _, _ = session.api.simulation.convertRoad(float(fx), float(fy), False, "passenger")
+            if edge and not str(edge).startswith(":"):
+                return [str(edge)]
+        return None
+
+    def before_step(self, session: SumoSession, t_next: float) -> None:
+        if self.gone or t_next < self.plan.t_start - TIME_EPS:
+            return
+        vid = self.plan.vehicle_id
+        if self.frozen_pose is not None:
+            x, y, yaw = self.frozen_pose
+            session.move_to_xy(vid, x, y, yaw, self.plan.length, speed=0.0)
+            return
+        xs, ys, yaws, speeds = self.plan.sample(np.array([t_next]))
+        x, y, yaw, speed = float(xs[0]), float(ys[0]), float(yaws[0]), float(speeds[0])
+        if not self.added:
+            session.add_vehicle(vid, self.plan.length, self.plan.width, "passenger",
+                                route_edges=self._route_edges(session, x, y, yaw), color=ADVERSARY_COLOR)
+            self.added = True
+        session.move_to_xy(vid, x, y, yaw, self.plan.length, speed=speed)
+
+    def on_events(self, states: VehicleStates, events: list[Event]) -> None:
+        vid = self.plan.vehicle_id
+        if self.frozen_pose is None and any(e.kind == "collision" and vid in e.vehicles for e in events):
+            i = int(np.flatnonzero(states.ids == vid)[0])
+            self.frozen_pose = (float(states.x[i]), float(states.y[i]), float(states.yaw[i]))
+
+
+@dataclass
+class InjectionResult:
+    """What one pass produced.
+
+    Attributes:
+        scene: the pass recorded at 10 Hz (all vehicles, the adversary included).
+        events: every event, in time order.
+        contact: the first adversary-target collision (our box check), or None.
+        adversary_off_road / target_off_road: whether it left the drivable area at any step.
+        target_arrived: the target reached the end of its route.
+        route_completed: arrived, or still running at the window's end, without collision or
+            off-road.
+        min_ttc: [s] smallest time-to-collision of the target with the adversary before contact
+            (constant-velocity extrapolation; inf when never closing).
+        wall_time_s: [s] wall-clock time of the pass.
+    """
+
+    scene: Scene
+    events: list[Event]
+    contact: Event | None
+    adversary_off_road: bool
+    target_off_road: bool
+    target_arrived: bool
+    route_completed: bool
+    min_ttc: float
+    wall_time_s: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _ttc(states: VehicleStates, a: int, b: int, radius: float) -> float:
+    """Time until two discs of combined ``radius`` [m] meet at constant velocity [s] (inf if never)."""
+    dp = np.array([states.x[b] - states.x[a], states.y[b] - states.y[a]])
+    va = states.speed[a] * np.array([np.cos(states.yaw[a]), np.sin(states.yaw[a])])
+    vb = states.speed[b] * np.array([np.cos(states.yaw[b]), np.sin(states.yaw[b])])
+    dv = vb - va
+    aa = float(dv @ dv)
+    bb = 2.0 * float(dp @ dv)
+    cc = float(dp @ dp) - radius * radius
+    if cc <= 0:
+        return 0.0
+    disc = bb * bb - 4 * aa * cc
+    if aa <= 1e-12 or disc < 0 or bb >= 0:
+        return float("inf")
+    return (-bb - np.sqrt(disc)) / (2 * aa)
+
+
+def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
+                  seed: int | None, end: float, begin: float | None = None,
+                  drivable: DrivableArea | None = None, actors: tuple[StepActor, ...] = (),
+                  detect_events: bool = True, traci: bool = False, workdir: Path | None = None,
+                  session_kwargs: dict[str, Any] | None = None) -> InjectionResult:
+    """Run one pass of ``config`` from a fresh start with the adversary ``plan`` injected.
+
+    ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner).
+    ``detect_events=False`` skips event detection (for the overhead benchmark).
+    """
+    workdir = Path(workdir) if workdir is not None else Path(".")
+    kwargs = dict(session_kwargs or {})
+    additional = planner.additional_files(workdir)
+    if additional:
+        kwargs["additional"] = [*kwargs.get("additional", []), *additional]
+    adversary = AdversaryController(plan) if plan is not None else None
+    adv_id = plan.vehicle_id if plan is not None else "__none__"
+    detector = EventDetector(target_id, adv_id, drivable)
+    flags = {"arrived": False, "min_ttc": float("inf")}
+    t0 = _time.perf_counter()
+    with SumoSession(config, seed=seed, end=end, traci=traci, **kwargs) as session:
+        planner.setup(session, target_id)
+
+        def before(sess: SumoSession) -> None:
+            t_next = round(sess.time + sess.step_length, 9)
+            for actor in actors:
+                actor.before_step(sess, t_next)
+            present = target_id in sess.vehicle_ids()
+            planner.before_step(sess, target_id, t_next, present)
+            if adversary is not None:
+                adversary.before_step(sess, t_next)
+
+        def after(sess: SumoSession, states: VehicleStates) -> bool:
+            if target_id in sess.arrived_ids():
+                flags["arrived"] = True
+            if adversary is not None and adversary.added and adv_id in sess.arrived_ids():
+                adversary.gone = True  # SUMO removed it (should not happen while we drive it)
+            if not detect_events:
+                return False
+            new = detector.check(sess.time, states, sess.collisions())
+            if adversary is not None:
+                adversary.on_events(states, new)
+                if detector.first("collision", adv_id, target_id) is None:
+                    ia, it = np.flatnonzero(states.ids == adv_id), np.flatnonzero(states.ids == target_id)
+                    if len(ia) and len(it):
+                        a, b = int(ia[0]), int(it[0])
+                        radius = 0.5 * (np.hypot(states.length[a], states.width[a])
+                                        + np.hypot(states.length[b], states.width[b]))
+                        flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, b, a, radius))
+            return False
+
+        scene = record(session, begin=begin, end=end, before_step=before, after_step=after)
+    wall = _time.perf_counter() - t0
+    contact = detector.first("collision", adv_id, target_id)
+    target_collided = any(e.kind == "collision" and target_id in e.vehicles for e in detector.events)
+    adv_off = detector.first("off_road", adv_id) is not None
+    tgt_off = detector.first("off_road", target_id) is not None
+    in_scene = target_id in set(scene.tracks.ids.tolist())
+    still_running = in_scene and bool(scene.tracks.valid[scene.tracks.index_of(target_id), -1])
+    completed = (bool(flags["arrived"]) or still_running) and not target_collided and not tgt_off
+    return InjectionResult(scene=scene, events=list(detector.events), contact=contact,
+                           adversary_off_road=adv_off, target_off_road=tgt_off,
+                           target_arrived=bool(flags["arrived"]), route_completed=completed,
+                           min_ttc=float(flags["min_ttc"]) if contact is None else 0.0,
+                           wall_time_s=wall)

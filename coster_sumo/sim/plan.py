@@ -1,0 +1,124 @@
+"""The adversary's plan: a 2 Hz trajectory ending in the collision snapshot, densified for SUMO.
+
+The rollout produces knots at 2 Hz from ``t_start`` to ``t_col`` (the last knot is the snapshot
+state, exactly). SUMO steps at 0.1 s, so the controller needs the state at every step:
+
+- position: cubic spline through the knots in time, clamped at ``t_col`` to the snapshot velocity
+  (so the adversary arrives at contact with the speed and direction the snapshot says) and natural
+  at the start; the knots themselves are hit exactly;
+- heading: the knots' headings, unwrapped, interpolated with a shape-preserving (PCHIP) spline, so
+  turning never overshoots;
+- after ``t_col`` (no knots): constant velocity along the final heading. The controller stops
+  following the plan at the first contact (see :mod:`coster_sumo.sim.inject`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import CubicSpline, PchipInterpolator
+
+from coster_sumo.errors import InputError
+from coster_sumo.scene import AgentState
+
+
+@dataclass(frozen=True)
+class AdversaryPlan:
+    """Knots of the adversary trajectory and its size.
+
+    Attributes:
+        times: (num_knots,) float64 [s] simulation times, increasing; the last is t_col.
+        x, y: (num_knots,) float64 [m] box centre.
+        yaw: (num_knots,) float64 [rad] CCW from +x.
+        final_speed: [m/s] speed at t_col (the snapshot's).
+        length, width: [m].
+        vehicle_id: the SUMO id used when it is injected.
+    """
+
+    times: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    final_speed: float
+    length: float
+    width: float
+    vehicle_id: str = "adversary"
+
+    @property
+    def t_start(self) -> float:
+        return float(self.times[0])
+
+    @property
+    def t_col(self) -> float:
+        return float(self.times[-1])
+
+    @classmethod
+    def from_knots(cls, times: np.ndarray, xy_yaw: np.ndarray, snapshot_state: AgentState,
+                   vehicle_id: str = "adversary") -> AdversaryPlan:
+        """Build from (num_knots, 3) x, y, yaw; the last knot is replaced by the snapshot exactly."""
+        k = np.array(xy_yaw, dtype=np.float64, copy=True)
+        k[-1] = (snapshot_state.x, snapshot_state.y, snapshot_state.yaw)
+        return cls(times=np.asarray(times, np.float64), x=k[:, 0], y=k[:, 1], yaw=k[:, 2],
+                   final_speed=float(snapshot_state.speed), length=float(snapshot_state.length),
+                   width=float(snapshot_state.width), vehicle_id=vehicle_id)
+
+    def sample(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """State at times ``t`` (T,) [s]: centre x, y [m], yaw [rad], speed [m/s].
+
+        Before ``t_start`` the values are those of the first knot (callers do not drive the
+        vehicle then); after ``t_col`` the adversary continues at constant velocity.
+        """
+        t = np.asarray(t, np.float64)
+        x = np.empty_like(t)
+        y = np.empty_like(t)
+        yaw = np.empty_like(t)
+        speed = np.empty_like(t)
+        fin_v = self.final_speed * np.array([np.cos(self.yaw[-1]), np.sin(self.yaw[-1])])
+        inside = t <= self.t_col
+        tc = np.clip(t[inside], self.t_start, self.t_col)
+        if len(self.times) >= 2:
+            bc = ((2, 0.0), (1, float(fin_v[0])))
+            sx = CubicSpline(self.times, self.x, bc_type=bc)
+            sy = CubicSpline(self.times, self.y, bc_type=((2, 0.0), (1, float(fin_v[1]))))
+            x[inside], y[inside] = sx(tc), sy(tc)
+            speed[inside] = np.hypot(sx(tc, 1), sy(tc, 1))
+            yaw[inside] = PchipInterpolator(self.times, np.unwrap(self.yaw))(tc)
+        else:
+            x[inside], y[inside], yaw[inside] = self.x[0], self.y[0], self.yaw[0]
+            speed[inside] = self.final_speed
+        after = ~inside
+        dt = t[after] - self.t_col
+        x[after] = self.x[-1] + fin_v[0] * dt
+        y[after] = self.y[-1] + fin_v[1] * dt
+        yaw[after] = self.yaw[-1]
+        speed[after] = self.final_speed
+        return x, y, (yaw + np.pi) % (2 * np.pi) - np.pi, speed
+
+    def to_dict(self) -> dict:
+        return {"vehicle_id": self.vehicle_id, "length": self.length, "width": self.width,
+                "final_speed": self.final_speed, "times": self.times.tolist(), "x": self.x.tolist(),
+                "y": self.y.tolist(), "yaw": self.yaw.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> AdversaryPlan:
+        return cls(times=np.asarray(d["times"], float), x=np.asarray(d["x"], float),
+                   y=np.asarray(d["y"], float), yaw=np.asarray(d["yaw"], float),
+                   final_speed=float(d["final_speed"]), length=float(d["length"]),
+                   width=float(d["width"]), vehicle_id=str(d.get("vehicle_id", "adversary")))
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=1))
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> AdversaryPlan:
+        try:
+            return cls.from_dict(json.loads(Path(path).read_text()))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise InputError(f"{path}: not an adversary plan ({exc})") from None

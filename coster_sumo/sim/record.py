@@ -1,0 +1,277 @@
+"""Nominal pass: step a :class:`SumoSession` and record every vehicle and every signal into a Scene.
+
+One recorded step per simulation step (10 Hz by default), taken **after** the step: the first
+recorded timestamp is ``begin + step_length``. Vehicles come and go; ``Tracks.valid`` says when
+each one was in the network. Agents are ordered by first appearance.
+
+Signals (SUMO link state letters -> :class:`SignalState`):
+
+====================  ===================  =====================================================
+SUMO letter           meaning              ours
+====================  ===================  =====================================================
+``G``, ``g``          green (major/minor)  GO
+``y``, ``Y``          yellow               CAUTION
+``r``, ``R``, ``u``   red, red-yellow      STOP
+``s``                 stop, then go        FLASHING_STOP (a right turn on red)
+``o``                 off, blinking        FLASHING_CAUTION
+``O``                 off, no signal       UNKNOWN
+====================  ===================  =====================================================
+
+Controlled lanes: each link (connection) of a traffic light has one internal ``via`` lane inside
+the junction, which carries **exactly** that link's state (like WOMD, whose signal lanes start at
+the stop line). The incoming lane that ends at the stop line usually has several links (left,
+straight, right) with different states; it gets the **most permissive** of them (order GO >
+FLASHING_CAUTION > CAUTION > FLASHING_STOP > STOP > UNKNOWN), so a vehicle waiting on it sees
+"go" as soon as any of its movements may go. Pass ``incoming_lanes=False`` to record only the
+internal lanes. Nets without internal lanes only have the incoming lanes. Stop points: the start
+of the internal lane, the end of the incoming lane (both are the stop line).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from converters.sumo_net import SumoNet, load_sumo_net
+from coster_sumo.errors import InputError
+from coster_sumo.scene import ObjectType, Scene, SignalState, SignalStates, Tracks
+from coster_sumo.sim.session import SumoSession, VehicleStates, read_sumocfg_inputs
+
+# SUMO link state letter -> SignalState (see the module docstring)
+LINK_STATE: dict[str, SignalState] = {
+    "G": SignalState.GO, "g": SignalState.GO,
+    "y": SignalState.CAUTION, "Y": SignalState.CAUTION,
+    "r": SignalState.STOP, "R": SignalState.STOP, "u": SignalState.STOP,
+    "s": SignalState.FLASHING_STOP,
+    "o": SignalState.FLASHING_CAUTION,
+    "O": SignalState.UNKNOWN,
+}
+# How permissive each state is, for lanes with several links (higher = more permissive).
+_PERMISSIVE_ORDER = [SignalState.UNKNOWN, SignalState.STOP, SignalState.ARROW_STOP,
+                     SignalState.FLASHING_STOP, SignalState.CAUTION, SignalState.ARROW_CAUTION,
+                     SignalState.FLASHING_CAUTION, SignalState.GO, SignalState.ARROW_GO]
+_RANK_TO_STATE = np.array([int(s) for s in _PERMISSIVE_ORDER], np.int8)
+_CHAR_TO_RANK = np.zeros(256, np.int8)  # unknown letters -> rank 0 = UNKNOWN
+for _ch, _st in LINK_STATE.items():
+    _CHAR_TO_RANK[ord(_ch)] = _PERMISSIVE_ORDER.index(_st)
+
+# SUMO vehicle class -> WOMD object type (everything else on wheels is a VEHICLE)
+_OBJECT_TYPE = {"bicycle": ObjectType.CYCLIST, "pedestrian": ObjectType.PEDESTRIAN,
+                "wheelchair": ObjectType.PEDESTRIAN}
+
+BeforeStep = Callable[[SumoSession], None]
+AfterStep = Callable[[SumoSession, VehicleStates], bool | None]
+
+
+def link_state_to_signal(state: str) -> np.ndarray:
+    """(len(state),) int8 :class:`SignalState` of each letter of a red-yellow-green string."""
+    ranks = _CHAR_TO_RANK[np.frombuffer(state.encode("ascii", "replace"), np.uint8)]
+    return _RANK_TO_STATE[ranks]
+
+
+@dataclass(frozen=True, slots=True)
+class SignalTable:
+    """Where each traffic-light link's state goes in ``SignalStates``.
+
+    Attributes:
+        lane_index: (num_controlled,) int64 map lane index of each controlled lane.
+        stop_point: (num_controlled, 2) float64 [m].
+        tls_ids: (num_links,) str traffic light of each link.
+        link_index: (num_links,) int64 position in that light's state string.
+        slot: (num_links,) int64 controlled-lane row that the link feeds.
+        tls_order: the traffic lights in the order their state strings are concatenated.
+        tls_num_links: link count of each light in ``tls_order`` (its state string length).
+        flat_link: (num_links,) int64 position of each link in the concatenated state strings.
+    """
+
+    lane_index: np.ndarray
+    stop_point: np.ndarray
+    tls_ids: np.ndarray
+    link_index: np.ndarray
+    slot: np.ndarray
+    tls_order: tuple[str, ...]
+    tls_num_links: tuple[int, ...]
+    flat_link: np.ndarray
+
+    @classmethod
+    def build(cls, net: SumoNet, incoming_lanes: bool = True) -> SignalTable:
+        lanes = net.road_map.lanes
+        index = {str(lane_id): i for i, lane_id in enumerate(lanes.ids)}
+        shapes = lanes.centerline
+        slots: dict[int, int] = {}
+        lane_index: list[int] = []
+        stop: list[np.ndarray] = []
+        tls_ids: list[str] = []
+        link_index: list[int] = []
+        link_slot: list[int] = []
+
+        def slot_of(lane: int, point: np.ndarray) -> int:
+            if lane not in slots:
+                slots[lane] = len(lane_index)
+                lane_index.append(lane)
+                stop.append(point)
+            return slots[lane]
+
+        for tls, links in sorted(net.signal_links.items()):
+            for link in links:
+                targets = []
+                via = index.get(link.via_lane) if link.via_lane else None
+                if via is not None and len(shapes[via]):
+                    targets.append(slot_of(via, shapes[via][0]))
+                frm = index.get(link.from_lane)
+                if frm is not None and len(shapes[frm]) and (incoming_lanes or not link.via_lane):
+                    targets.append(slot_of(frm, shapes[frm][-1]))
+                for s in targets:
+                    tls_ids.append(tls)
+                    link_index.append(link.link_index)
+                    link_slot.append(s)
+        order = sorted(net.signal_links)
+        sizes = [max((s.link_index for s in net.signal_links[t]), default=-1) + 1 for t in order]
+        start = dict(zip(order, np.cumsum([0, *sizes])[:-1].tolist(), strict=True))
+        return cls(lane_index=np.array(lane_index, np.int64),
+                   stop_point=np.array(stop, np.float64).reshape(-1, 2),
+                   tls_ids=np.array(tls_ids, dtype=str), link_index=np.array(link_index, np.int64),
+                   slot=np.array(link_slot, np.int64), tls_order=tuple(order), tls_num_links=tuple(sizes),
+                   flat_link=np.array([start[t] for t in tls_ids], np.int64) + np.array(link_index, np.int64))
+
+    def states(self, tls_states: dict[str, str]) -> np.ndarray:
+        """(num_controlled,) int8 SignalState of every controlled lane for one step."""
+        rank = np.zeros(len(self.lane_index), np.int8)
+        if len(self.slot) == 0:
+            return rank
+        # all state strings side by side, each padded / cut to its link count ("O" = no signal)
+        text = "".join(tls_states.get(t, "")[:n].ljust(n, "O")
+                       for t, n in zip(self.tls_order, self.tls_num_links, strict=True))
+        codes = _CHAR_TO_RANK[np.frombuffer(text.encode("ascii", "replace"), np.uint8)]
+        np.maximum.at(rank, self.slot, codes[self.flat_link])
+        return _RANK_TO_STATE[rank]
+
+
+def net_file_of(session: SumoSession) -> Path:
+    """The net file a session runs on (its ``net`` argument, else its config's net-file)."""
+    if session.net is not None:
+        return session.net
+    if session.config is not None:
+        nets = read_sumocfg_inputs(session.config)["net-file"]
+        if nets:
+            return nets[0]
+    raise InputError(f"{session.name}: cannot tell which net file it runs on; pass net=...")
+
+
+def record(session: SumoSession, *, end: float | None = None, begin: float | None = None,
+           max_steps: int | None = None, net: SumoNet | None = None, incoming_lanes: bool = True,
+           before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
+           scenario_id: str | None = None, meta: dict[str, Any] | None = None) -> Scene:
+    """Step a running session and record it into a :class:`Scene` (``source="sumo"``).
+
+    Stepping stops at the first of: the time reaches ``end`` [s] (default: the session's own
+    ``end``); ``max_steps`` steps were taken; ``after_step`` returns True; no vehicle is running or
+    waiting any more (only when neither ``end`` nor ``max_steps`` bounds the run).
+    Only steps whose time lies in [``begin``, ``end``] are recorded; earlier steps are simulated.
+
+    Args:
+        session: a started session; it is left running (the caller closes it).
+        net: the converted network; default :func:`load_sumo_net` of the session's net (cached).
+        incoming_lanes: also give incoming lanes a signal state (see the module docstring).
+        before_step: called before every simulation step, e.g. to ``move_to_xy`` an adversary.
+        after_step: called after every step with the vehicle states just read; return True to stop.
+        scenario_id: default ``<config or net stem>_seed<seed>``.
+        meta: extra metadata merged into ``Scene.meta``.
+    """
+    if not session.is_running:
+        raise InputError(f"{session.name}: start the session before recording it")
+    end = session.end if end is None else end
+    if end is None and max_steps is None and session.min_expected_number() == 0 and before_step is None:
+        raise InputError(f"{session.name}: nothing to record (no vehicles expected); pass end= or max_steps=")
+    net_path: Path | None = None
+    if net is None:
+        net_path = net_file_of(session)
+        net = load_sumo_net(net_path)
+    table = SignalTable.build(net, incoming_lanes=incoming_lanes)
+    eps = 1e-6 * session.step_length
+
+    agent: dict[str, int] = {}
+    kinds: list[int] = []
+    times: list[float] = []
+    rows: list[tuple[np.ndarray, VehicleStates]] = []
+    signal_rows: list[np.ndarray] = []
+    steps = 0
+    while True:
+        if max_steps is not None and steps >= max_steps:
+            break
+        if end is not None and session.time >= end - eps:
+            break
+        if end is None and max_steps is None and steps > 0 and session.min_expected_number() == 0:
+            break
+        if before_step is not None:
+            before_step(session)
+        t = session.step()
+        steps += 1
+        st = session.vehicle_states()
+        stop = bool(after_step(session, st)) if after_step is not None else False
+        if begin is None or t >= begin - eps:
+            idx = np.empty(len(st), np.int64)
+            for i, vid in enumerate(st.ids.tolist()):
+                k = agent.get(vid)
+                if k is None:
+                    k = agent[vid] = len(agent)
+                    kinds.append(int(_OBJECT_TYPE.get(str(st.vclass[i]), ObjectType.VEHICLE)))
+                idx[i] = k
+            times.append(t)
+            rows.append((idx, st))
+            signal_rows.append(table.states(session.tls_states()) if len(table.lane_index) else
+                               np.zeros(0, np.int8))
+        if stop:
+            break
+
+    num_agents, num_steps = len(agent), len(times)
+    arrays = {f: np.zeros((num_agents, num_steps), np.float64)
+              for f in ("x", "y", "heading", "vx", "vy", "length", "width")}
+    valid = np.zeros((num_agents, num_steps), bool)
+    for s, (idx, st) in enumerate(rows):
+        arrays["x"][idx, s] = st.x
+        arrays["y"][idx, s] = st.y
+        arrays["heading"][idx, s] = st.yaw
+        arrays["vx"][idx, s] = st.vx
+        arrays["vy"][idx, s] = st.vy
+        arrays["length"][idx, s] = st.length
+        arrays["width"][idx, s] = st.width
+        valid[idx, s] = True
+    ids = np.array(list(agent), dtype=str) if agent else np.zeros(0, dtype=str)
+    tracks = Tracks(ids=ids, object_type=np.array(kinds, np.int8), valid=valid, **arrays)
+    signals = SignalStates(
+        lane_index=table.lane_index,
+        state=(np.stack(signal_rows) if signal_rows else np.zeros((0, len(table.lane_index)), np.int8)),
+        stop_point=table.stop_point)
+    source_file = session.config or session.net or net.path
+    info: dict[str, Any] = {
+        "sumocfg": str(session.config) if session.config is not None else None,
+        "net": str(net_path or net.path), "seed": session.seed, "backend": session.backend,
+        "step_length": session.step_length,
+        "begin": times[0] if times else None, "end": times[-1] if times else None,
+        "location_offset": [float(v) for v in net.location_offset],
+    }
+    info.update(meta or {})
+    sid = scenario_id or f"{Path(str(source_file)).name.split('.')[0]}_seed{session.seed}"
+    sdc = agent.get("ego", -1)
+    return Scene(scenario_id=sid, timestamps=np.array(times, np.float64), tracks=tracks,
+                 road_map=net.road_map, signals=signals, sdc_index=sdc, current_time_index=0,
+                 source="sumo", meta=info).validate()
+
+
+def record_config(config: str | Path, *, seed: int | None = None, begin: float | None = None,
+                  end: float | None = None, traci: bool = False, max_steps: int | None = None,
+                  before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
+                  **session_kwargs: Any) -> Scene:
+    """Open a session on ``config``, record [begin, end], close it. See :func:`record`.
+
+    The simulation itself starts at the configuration's own begin; ``begin`` only trims the
+    recording (vehicles in the network at ``begin`` are then recorded from their current state).
+    """
+    with SumoSession(config, seed=seed, end=end, traci=traci, **session_kwargs) as session:
+        return record(session, begin=begin, end=end, max_steps=max_steps, before_step=before_step,
+                      after_step=after_step)

@@ -1,0 +1,736 @@
+"""The one object that owns a SUMO connection.
+
+Everything else in coster-sumo talks to SUMO through :class:`SumoSession`; nobody else imports
+libsumo or traci. Two back ends share one API:
+
+- **libsumo** (default): SUMO runs in this process. Fast (a getter costs about 0.5 us), but libsumo
+  holds **one simulation per process** and a second ``libsumo.start`` silently throws away the
+  first (SUMO_FACTS §6), so a second live libsumo session raises :class:`SumoError` instead.
+- **TraCI** (``traci=True``): SUMO runs as a separate process behind a socket (about 50-200 us per
+  call, so bulk reads use subscriptions). Needed for ``sumo-gui`` (``gui=True``) and for attaching
+  to a server somebody else started (``port=...``). Any number of TraCI sessions may be open.
+
+Frames: every array this class returns or takes is in **our** frame (box centre, heading in radians
+counter-clockwise from +x, see :mod:`coster_sumo.frames`); SUMO's front-bumper / degrees clockwise
+from north convention stays inside this module.
+
+Example::
+
+    with SumoSession("networks/x/x.sumocfg", seed=1) as sim:
+        while sim.min_expected_number() > 0:
+            sim.step()
+            states = sim.vehicle_states()
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gzip
+import io
+import itertools
+import math
+import subprocess
+import tempfile
+import time
+import xml.parsers.expat
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from coster_sumo import frames, sumo_env
+from coster_sumo.errors import CosterError, InputError, SumoError
+
+# Options always passed to SUMO unless the caller overrides them (SUMO_FACTS §7). Why each one:
+RECOMMENDED_OPTIONS: dict[str, str] = {
+    "--step-length": "0.1",                 # 10 Hz like WOMD; SUMO's default is 1 s
+    "--collision.action": "warn",           # the default "teleport" hides collisions caused by moveToXY
+    "--collision.mingap-factor": "0",       # collision = geometric overlap, not gap < minGap
+    "--collision.check-junctions": "true",  # also check inside junctions (approximate, see §4)
+    "--time-to-teleport": "-1",             # never teleport vehicles stuck behind a replayed agent
+    "--no-step-log": "true",
+    "--no-warnings": "true",                # collisions still come back through the API
+}
+
+# --- TraCI magic values ------------------------------------------------------------------------
+# moveToXY keepRoute is a bit set:
+#   bit0 (1): map onto the closest position *within the vehicle's current route*;
+#   bit1 (2): place the vehicle at the exact x, y (including its lateral offset), on any edge, and
+#             even off the road network: the vehicle then does not move by itself while off-road;
+#   bit2 (4): map onto the closest edge regardless of route and permissions.
+# We use 2: exact placement anywhere. SUMO rewrites the route to the edge(s) it maps onto, so the
+# lane and route SUMO reports for a moved vehicle mean little (SUMO_FACTS §3).
+KEEP_ROUTE_EXACT_ANYWHERE = 2
+# moveToXY matchThreshold [m]: how far from any lane a placement may be before the command fails;
+# with keepRoute=2 a placement off the network is legal, so the threshold only bounds lane matching.
+MOVE_MATCH_THRESHOLD_M = 100.0
+# speed mode is a bit set; bit set = "respect": bit0 safe speed (car following), bit1 max
+# acceleration, bit2 max deceleration, bit3 right of way at intersections, bit4 brake hard to not
+# pass a red light, bit5 *disregard* right of way within intersections, bit6 speed limits.
+# 0 = SUMO checks nothing for this vehicle: our commands are final.
+SPEED_MODE_ALL_CHECKS_OFF = 0
+# lane-change mode is a bit set (strategic, cooperative, speed gain, keep right, how TraCI requests
+# interact with the others, sublane); 0 = the vehicle never changes lanes on its own.
+LANE_CHANGE_MODE_NO_AUTONOMOUS = 0
+# Reported speed of a moveToXY vehicle = min(displacement / dt, lane limit * speedFactor, maxSpeed)
+# (SUMO_FACTS §7). Large values lift the cap so getSpeed (and followers) see the true speed.
+REMOTE_SPEED_FACTOR = 10.0  # [-]
+REMOTE_MAX_SPEED_MPS = 100.0  # [m/s]
+TRACI_CONNECT_TIMEOUT_S = 60.0  # [s] a big net takes a while to load before SUMO listens
+
+# SUMO vehicle classes mapped onto our object types elsewhere; kept as strings here.
+_SHORT_TO_LONG = {"-c": "--configuration-file", "-n": "--net-file", "-r": "--route-files",
+                  "-a": "--additional-files", "-b": "--begin", "-e": "--end"}
+
+_LIBSUMO_OWNER: SumoSession | None = None  # the live libsumo session of this process, if any
+_LABELS = itertools.count()
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleStates:
+    """State of every vehicle in the simulation at one step, in our frame.
+
+    Attributes:
+        ids: (N,) str SUMO vehicle ids.
+        x: (N,) float64 [m] box centre.
+        y: (N,) float64 [m] box centre.
+        yaw: (N,) float64 [rad] counter-clockwise from +x, in (-pi, pi].
+        speed: (N,) float64 [m/s] as SUMO reports it (longitudinal).
+        length: (N,) float64 [m].
+        width: (N,) float64 [m].
+        vclass: (N,) str SUMO vehicle class ("passenger", "bicycle", ...).
+        type_id: (N,) str SUMO vType id.
+    """
+
+    ids: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    speed: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    vclass: np.ndarray
+    type_id: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def vx(self) -> np.ndarray:
+        """(N,) float64 [m/s] velocity along +x (speed along the heading)."""
+        return self.speed * np.cos(self.yaw)
+
+    @property
+    def vy(self) -> np.ndarray:
+        """(N,) float64 [m/s] velocity along +y."""
+        return self.speed * np.sin(self.yaw)
+
+    def index_of(self, veh_id: str) -> int:
+        hits = np.flatnonzero(self.ids == veh_id)
+        if len(hits) == 0:
+            raise KeyError(veh_id)
+        return int(hits[0])
+
+
+def _empty_states() -> VehicleStates:
+    f = np.zeros(0, np.float64)
+    s = np.zeros(0, dtype=str)
+    return VehicleStates(ids=s, x=f, y=f, yaw=f, speed=f, length=f, width=f, vclass=s, type_id=s)
+
+
+def _option_key(arg: str) -> str:
+    key = arg.split("=", 1)[0]
+    return _SHORT_TO_LONG.get(key, key)
+
+
+def _check_xml(path: Path, what: str, referenced_by: Path | None = None) -> None:
+    """Existence and well-formedness of an input file (a truncated net crashes libsumo, rc 139).
+
+    A file that passed is not parsed again until it changes (restarts in a batch stay cheap).
+    """
+    via = f" (referenced by {referenced_by})" if referenced_by is not None else ""
+    if not path.is_file():
+        raise InputError(f"{path}: {what} not found{via}")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    if key in _XML_OK:
+        return
+    parser = xml.parsers.expat.ParserCreate()
+    try:
+        with (gzip.open(path, "rb") if path.suffix == ".gz" else path.open("rb")) as fh:
+            parser.ParseFile(fh)
+    except xml.parsers.expat.ExpatError as exc:
+        raise InputError(f"{path}: {what} is not valid XML ({exc}){via}") from None
+    except (OSError, EOFError) as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc}){via}") from None
+    _XML_OK.add(key)
+
+
+_XML_OK: set[tuple[str, int, int]] = set()
+
+
+def _split_files(value: str) -> list[str]:
+    return [v for v in value.replace(",", " ").split() if v]
+
+
+def read_sumocfg_inputs(cfg: str | Path) -> dict[str, list[Path]]:
+    """Input files a ``.sumocfg`` names, resolved against its folder, after checking it parses.
+
+    Returns ``{"net-file": [...], "route-files": [...], "additional-files": [...]}`` (missing keys
+    give empty lists). Raises :class:`InputError` naming the file when it is missing or not XML.
+    """
+    cfg = Path(cfg)
+    _check_xml(cfg, "SUMO configuration")
+    import xml.etree.ElementTree as ET  # small file: the tree API is fine
+
+    root = ET.parse(cfg).getroot()
+    out: dict[str, list[Path]] = {"net-file": [], "route-files": [], "additional-files": []}
+    for el in root.iter():
+        tag = el.tag.split("}")[-1]
+        if tag in out and el.get("value"):
+            out[tag] = [(cfg.parent / f) for f in _split_files(el.get("value", ""))]
+    return out
+
+
+class SumoSession:
+    """One SUMO simulation: start, step, read vehicles and signals, place vehicles.
+
+    Args:
+        config: a ``.sumocfg``; or leave it out and give ``net`` (and ``routes``/``additional``).
+        net: a ``.net.xml`` (used with or instead of ``config``; on the command line it overrides
+            the config's net).
+        routes: route file(s).
+        additional: additional file(s).
+        seed: SUMO's ``--seed``; None keeps the configuration's own (SUMO's default is fixed, so
+            runs are deterministic either way).
+        step_length: [s] simulation step (default 0.1 s = 10 Hz).
+        begin, end: [s] simulation begin / end (None keeps the configuration's).
+        options: SUMO options that override :data:`RECOMMENDED_OPTIONS`, e.g.
+            ``{"--collision.action": "remove"}`` (keys with leading dashes).
+        extra_args: more raw command-line arguments appended last (they also override the
+            recommended options they name).
+        traci: use a TraCI socket instead of in-process libsumo.
+        gui: run ``sumo-gui`` (implies ``traci``; needs a display, e.g. ``xvfb-run``).
+        port: attach to a SUMO server already listening on this port (implies ``traci``; the
+            files and options above are then ignored: the server was started by someone else).
+        host: host of that server.
+    """
+
+    def __init__(self, config: str | Path | None = None, *, net: str | Path | None = None,
+                 routes: str | Path | Sequence[str | Path] | None = None,
+                 additional: str | Path | Sequence[str | Path] | None = None,
+                 seed: int | None = None, step_length: float = 0.1,
+                 begin: float | None = None, end: float | None = None,
+                 options: Mapping[str, object] | None = None, extra_args: Sequence[str] = (),
+                 traci: bool = False, gui: bool = False, port: int | None = None,
+                 host: str = "localhost") -> None:
+        if config is None and net is None and port is None:
+            raise InputError("SumoSession needs a .sumocfg, a net file, or a port to attach to")
+        self.config = Path(config) if config is not None else None
+        self.net = Path(net) if net is not None else None
+        self.routes = [Path(p) for p in _as_list(routes)]
+        self.additional = [Path(p) for p in _as_list(additional)]
+        self.seed = seed
+        self.step_length = float(step_length)
+        self.begin = begin
+        self.end = end
+        self.options = {str(k): _fmt(v) for k, v in (options or {}).items()}
+        self.extra_args = [str(a) for a in extra_args]
+        self.gui = gui
+        self.port = port
+        self.host = host
+        self.uses_traci = bool(traci or gui or port is not None)
+        self._api: Any = None
+        self._label: str | None = None
+        self._static: dict[str, tuple[float, float, str, str]] = {}  # id -> length, width, vclass, type
+        self._remote: set[str] = set()  # vehicles we drive with moveToXY
+        self._pending_speed: dict[str, float] = {}  # move_to_xy speeds to report after the next step
+        self._speed_set: dict[str, float] = {}  # speeds set after the last step
+        self._arrived: tuple[str, ...] = ()
+        self._departed: tuple[str, ...] = ()
+        self._time = 0.0
+        self._stderr: IO[bytes] | None = None
+        self._tls_ids: tuple[str, ...] = ()
+
+    # ------------------------------------------------------------------------- life cycle
+
+    @property
+    def name(self) -> str:
+        """What this session runs, for messages: the config, else the net, else host:port."""
+        if self.config is not None:
+            return str(self.config)
+        if self.net is not None:
+            return str(self.net)
+        return f"{self.host}:{self.port}"
+
+    @property
+    def api(self) -> Any:
+        """The raw API for advanced callers: the ``libsumo`` module or a ``traci.Connection``.
+
+        Both expose the same domains (``api.vehicle``, ``api.simulation``, ``api.trafficlight``...).
+        Going around the session skips its bookkeeping: prefer the session's methods.
+        """
+        if self._api is None:
+            raise SumoError(f"{self.name}: the SUMO session is not running (call start() first)")
+        return self._api
+
+    @property
+    def is_running(self) -> bool:
+        return self._api is not None
+
+    @property
+    def backend(self) -> str:
+        """"libsumo" or "traci"."""
+        return "traci" if self.uses_traci else "libsumo"
+
+    def command(self) -> list[str]:
+        """The SUMO command line this session starts (binary first)."""
+        binary = sumo_env.binary("sumo-gui" if self.gui else "sumo")
+        cmd = [binary]
+        if self.config is not None:
+            cmd += ["-c", str(self.config)]
+        if self.net is not None:
+            cmd += ["-n", str(self.net)]
+        if self.routes:
+            cmd += ["-r", ",".join(str(p) for p in self.routes)]
+        if self.additional:
+            cmd += ["-a", ",".join(str(p) for p in self.additional)]
+        opts = dict(RECOMMENDED_OPTIONS)
+        opts["--step-length"] = _fmt(self.step_length)
+        if self.seed is not None:
+            opts["--seed"] = str(int(self.seed))
+        if self.begin is not None:
+            opts["--begin"] = _fmt(self.begin)
+        if self.end is not None:
+            opts["--end"] = _fmt(self.end)
+        if self.gui:
+            opts.update({"--start": "true", "--quit-on-end": "true"})
+        opts.update(self.options)
+        overridden = {_option_key(a) for a in self.extra_args if a.startswith("-")}
+        for key, value in opts.items():
+            if _option_key(key) not in overridden:
+                cmd += [key, value]
+        return cmd + self.extra_args
+
+    def check_inputs(self) -> None:
+        """Raise :class:`InputError` naming the file if an input is missing or not well-formed XML.
+
+        Done before SUMO starts: SUMO's own message is less clear, and a truncated net file
+        crashes libsumo (segmentation fault) instead of raising.
+        """
+        files: list[tuple[Path, str, Path | None]] = []
+        if self.config is not None:
+            ins = read_sumocfg_inputs(self.config)
+            if self.net is None:
+                files += [(p, "net file", self.config) for p in ins["net-file"]]
+            if not self.routes:
+                files += [(p, "route file", self.config) for p in ins["route-files"]]
+            if not self.additional:
+                files += [(p, "additional file", self.config) for p in ins["additional-files"]]
+            if self.net is None and not ins["net-file"]:
+                raise InputError(f"{self.config}: the configuration names no net-file")
+        if self.net is not None:
+            files.append((self.net, "net file", None))
+        files += [(p, "route file", None) for p in self.routes]
+        files += [(p, "additional file", None) for p in self.additional]
+        for path, what, ref in files:
+            _check_xml(path, what, ref)
+
+    def start(self) -> SumoSession:
+        """Start (or attach to) SUMO. Returns self."""
+        global _LIBSUMO_OWNER
+        if self._api is not None:
+            raise SumoError(f"{self.name}: this SUMO session is already running")
+        if self.port is None:
+            self.check_inputs()
+        if not self.uses_traci:
+            if _LIBSUMO_OWNER is not None:
+                raise SumoError(
+                    f"{self.name}: libsumo runs one simulation per process and {_LIBSUMO_OWNER.name} is "
+                    "still running; close it first, use traci=True, or use another process")
+            with contextlib.redirect_stdout(io.StringIO()):  # libsumo prints a pyarrow version notice
+                api = sumo_env.import_libsumo()
+            try:
+                api.start(self.command())
+            except Exception as exc:  # libsumo.TraCIException: SUMO refused the inputs
+                raise InputError(f"{self.name}: SUMO could not load it: {_one_line(exc)}") from None
+            _LIBSUMO_OWNER = self
+        else:
+            traci = sumo_env.import_traci()
+            self._label = f"coster{next(_LABELS)}"
+            try:
+                if self.port is not None:
+                    api = self._attach_traci(traci)
+                else:
+                    api = self._start_traci_server(traci)
+            except CosterError:
+                raise
+            except Exception as exc:  # FatalTraCIError / OSError
+                raise SumoError(f"{self.name}: SUMO did not start or accept the connection: "
+                                f"{_one_line(exc)}") from None
+        self._api = api
+        self._time = float(api.simulation.getTime())
+        self._tls_ids = tuple(api.trafficlight.getIDList())
+        if self.uses_traci:
+            self._subscribe_simulation()
+            for tls in self._tls_ids:
+                api.trafficlight.subscribe(tls, (self._tc().TL_RED_YELLOW_GREEN_STATE,))
+            for vid in api.vehicle.getIDList():  # attaching mid-run
+                self._subscribe_vehicle(vid)
+        return self
+
+    def _start_traci_server(self, traci: Any) -> Any:
+        """Popen SUMO with a free --remote-port and connect, polling every 20 ms.
+
+        ``traci.start`` would sleep a whole second before its first retry and print about it.
+        SUMO's stderr goes to a temporary file so that a failed start can say why.
+        """
+        sumolib = sumo_env.import_sumolib()
+        port = sumolib.miscutils.getFreeSocketPort()
+        self._stderr = tempfile.TemporaryFile()
+        proc = subprocess.Popen(self.command() + ["--remote-port", str(port)], stdout=subprocess.DEVNULL,
+                                stderr=self._stderr, env=sumo_env.subprocess_env())
+        deadline = time.monotonic() + TRACI_CONNECT_TIMEOUT_S
+        while True:
+            try:
+                return traci.connect(port=port, numRetries=0, proc=proc, label=self._label)
+            except Exception as exc:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    if proc.poll() is None:
+                        proc.kill()
+                    proc.wait()
+                    reason = self._server_error() or _one_line(exc)
+                    self._stderr.close()
+                    self._stderr = None
+                    raise InputError(f"{self.name}: SUMO could not load it: {reason}") from None
+                time.sleep(0.02)
+
+    def _attach_traci(self, traci: Any) -> Any:
+        """Connect to a server someone else started, polling quietly until it listens."""
+        deadline = time.monotonic() + TRACI_CONNECT_TIMEOUT_S
+        while True:
+            try:
+                return traci.connect(port=self.port, host=self.host, numRetries=0, label=self._label)
+            except Exception:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
+
+    def _server_error(self) -> str:
+        if self._stderr is None:
+            return ""
+        self._stderr.seek(0)
+        lines = self._stderr.read().decode(errors="replace").splitlines()
+        errors = [ln.strip() for ln in lines if ln.startswith("Error")]
+        return " ".join(errors[:2]) or " ".join(ln.strip() for ln in lines[-2:])
+
+    def close(self) -> None:
+        """Close the simulation (or the connection to an external server). Safe to call twice."""
+        global _LIBSUMO_OWNER
+        api, self._api = self._api, None
+        if api is None:
+            return
+        if _LIBSUMO_OWNER is self:
+            _LIBSUMO_OWNER = None
+        self._static.clear()
+        self._remote.clear()
+        self._pending_speed.clear()
+        with contextlib.suppress(Exception):  # SUMO may already be gone; closing must not mask that
+            api.close()
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+
+    def __enter__(self) -> SumoSession:
+        return self.start() if self._api is None else self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------------- stepping
+
+    def step(self) -> float:
+        """Advance one step; returns the new simulation time [s]."""
+        api = self.api
+        try:
+            api.simulationStep()
+        except Exception as exc:
+            self.close()
+            raise SumoError(f"{self.name}: SUMO failed during a step: {_one_line(exc)}") from None
+        sim = api.simulation
+        if self.uses_traci:
+            res = sim.getSubscriptionResults()
+            tc = self._tc()
+            self._time = float(res[tc.VAR_TIME])
+            self._departed = tuple(res[tc.VAR_DEPARTED_VEHICLES_IDS])
+            self._arrived = tuple(res[tc.VAR_ARRIVED_VEHICLES_IDS])
+            for vid in self._departed:
+                self._subscribe_vehicle(vid)
+        else:
+            self._time = float(sim.getTime())
+            self._departed = tuple(sim.getDepartedIDList())
+            self._arrived = tuple(sim.getArrivedIDList())
+        for vid in self._arrived:
+            self._static.pop(vid, None)
+            self._remote.discard(vid)
+        self._speed_set = {}
+        if self._pending_speed:
+            for vid, v in self._pending_speed.items():
+                if vid not in self._arrived:
+                    with contextlib.suppress(Exception):  # not inserted yet: nothing to report
+                        api.vehicle.setPreviousSpeed(vid, v)
+                        self._speed_set[vid] = v
+            self._pending_speed.clear()
+        return self._time
+
+    @property
+    def time(self) -> float:
+        """Current simulation time [s]."""
+        return self._time
+
+    def min_expected_number(self) -> int:
+        """Vehicles running plus those still waiting to depart (0 = the demand is exhausted)."""
+        return int(self.api.simulation.getMinExpectedNumber())
+
+    def departed_ids(self) -> tuple[str, ...]:
+        """Vehicles inserted in the last step."""
+        return self._departed
+
+    def arrived_ids(self) -> tuple[str, ...]:
+        """Vehicles that arrived (left the simulation) in the last step."""
+        return self._arrived
+
+    def collisions(self) -> list[dict[str, Any]]:
+        """SUMO's own collision list for the last step, as plain dicts.
+
+        Keys: collider, victim, collider_type, victim_type, collider_speed, victim_speed [m/s],
+        type ("collision" or "junction"), lane, pos [m along the lane]. SUMO repeats a collision
+        every step while the vehicles overlap, and misses lateral / cross-edge overlaps
+        (SUMO_FACTS §4): our own box check is the ground truth.
+        """
+        out = []
+        for c in self.api.simulation.getCollisions():
+            out.append({"collider": c.collider, "victim": c.victim, "collider_type": c.colliderType,
+                        "victim_type": c.victimType, "collider_speed": float(c.colliderSpeed),
+                        "victim_speed": float(c.victimSpeed), "type": c.type, "lane": c.lane,
+                        "pos": float(c.pos)})
+        return out
+
+    # ------------------------------------------------------------------------- vehicles
+
+    def vehicle_ids(self) -> tuple[str, ...]:
+        """Ids of the vehicles in the network now."""
+        if self.uses_traci:
+            return tuple(self.api.vehicle.getAllSubscriptionResults().keys())
+        return tuple(self.api.vehicle.getIDList())
+
+    def vehicle_states(self, ids: Iterable[str] | None = None) -> VehicleStates:
+        """Bulk read of all vehicles (or of ``ids``) in our frame; see :class:`VehicleStates`.
+
+        libsumo: plain getters (cheaper than subscriptions there); length, width, class and type
+        are cached per vehicle and refreshed only through :meth:`set_size` or when it arrives.
+        TraCI: the vehicle subscriptions this session made at departure, no extra round trip.
+        """
+        api = self.api
+        veh = api.vehicle
+        if self.uses_traci:
+            results = veh.getAllSubscriptionResults()
+            id_list = list(results.keys()) if ids is None else list(ids)
+            if not id_list:
+                return _empty_states()
+            tc = self._tc()
+            rows = [results[v] for v in id_list]
+            pos = np.array([r[tc.VAR_POSITION] for r in rows], np.float64).reshape(-1, 2)
+            angle = np.array([r[tc.VAR_ANGLE] for r in rows], np.float64)
+            speed = np.array([r[tc.VAR_SPEED] for r in rows], np.float64)
+            length = np.array([r[tc.VAR_LENGTH] for r in rows], np.float64)
+            width = np.array([r[tc.VAR_WIDTH] for r in rows], np.float64)
+            vclass = [r[tc.VAR_VEHICLECLASS] for r in rows]
+            type_id = [r[tc.VAR_TYPE] for r in rows]
+        else:
+            id_list = list(veh.getIDList()) if ids is None else list(ids)
+            if not id_list:
+                return _empty_states()
+            # list comprehensions over bound getters: about 2x faster than filling arrays per item
+            get_pos, get_angle, get_speed = veh.getPosition, veh.getAngle, veh.getSpeed
+            pos = np.array([get_pos(v) for v in id_list], np.float64).reshape(-1, 2)
+            angle = np.array([get_angle(v) for v in id_list], np.float64)
+            speed = np.array([get_speed(v) for v in id_list], np.float64)
+            static = self._static
+            for vid in id_list:
+                if vid not in static:
+                    static[vid] = (veh.getLength(vid), veh.getWidth(vid), veh.getVehicleClass(vid),
+                                   veh.getTypeID(vid))
+            rows_static = [static[v] for v in id_list]
+            length = np.array([r[0] for r in rows_static], np.float64)
+            width = np.array([r[1] for r in rows_static], np.float64)
+            vclass = [r[2] for r in rows_static]
+            type_id = [r[3] for r in rows_static]
+        if self._speed_set:  # TraCI subscription values predate setPreviousSpeed: same view for both
+            for i, vid in enumerate(id_list):
+                if vid in self._speed_set:
+                    speed[i] = self._speed_set[vid]
+        cx, cy, yaw = frames.from_sumo(pos[:, 0], pos[:, 1], angle, length)
+        return VehicleStates(ids=np.array(id_list, dtype=str), x=cx, y=cy, yaw=yaw, speed=speed,
+                             length=length, width=width, vclass=np.array(vclass, dtype=str),
+                             type_id=np.array(type_id, dtype=str))
+
+    def add_vehicle(self, veh_id: str, length: float, width: float, vclass: str = "passenger", *,
+                    route_edges: Sequence[str] | None = None, route_id: str | None = None,
+                    base_type: str = "DEFAULT_VEHTYPE", depart: str = "now",
+                    color: tuple[int, int, int, int] | None = None, remote: bool = True) -> None:
+        """Add a vehicle with a private vType ``"<veh_id>@coster"`` of the given size and class.
+
+        Route: ``route_edges`` (a private route is made), else ``route_id``, else ``""``, which lets
+        SUMO put it on a random edge (fine for a vehicle you place with :meth:`move_to_xy`).
+        ``remote=True`` prepares it for :meth:`move_to_xy`: speed mode and lane-change mode 0, and a
+        speed factor / max speed large enough that SUMO does not cap its reported speed. Place a
+        remote vehicle on a lane first: a vehicle first placed far from every lane can crash
+        libsumo on some getters (SUMO_FACTS §3).
+        """
+        api = self.api
+        type_id = f"{veh_id}@coster"
+        vt = api.vehicletype
+        vt.copy(base_type, type_id)
+        vt.setLength(type_id, float(length))
+        vt.setWidth(type_id, float(width))
+        vt.setVehicleClass(type_id, vclass)
+        if remote:
+            vt.setSpeedFactor(type_id, REMOTE_SPEED_FACTOR)
+            vt.setMaxSpeed(type_id, REMOTE_MAX_SPEED_MPS)
+            vt.setSpeedDeviation(type_id, 0.0)
+        if route_edges is not None:
+            route_id = f"{veh_id}@route"
+            api.route.add(route_id, list(route_edges))
+        try:
+            api.vehicle.add(veh_id, route_id or "", typeID=type_id, depart=depart)
+        except Exception as exc:
+            raise SumoError(f"{self.name}: cannot add vehicle {veh_id!r}: {_one_line(exc)}") from None
+        if color is not None:
+            api.vehicle.setColor(veh_id, color)
+        self._static[veh_id] = (float(length), float(width), vclass, type_id)
+        if remote:
+            self._make_remote(veh_id)
+        if self.uses_traci:
+            self._subscribe_vehicle(veh_id)
+
+    def set_size(self, veh_id: str, length: float, width: float) -> None:
+        """Change a vehicle's length and width [m] (SUMO gives it a private type)."""
+        veh = self.api.vehicle
+        veh.setLength(veh_id, float(length))
+        veh.setWidth(veh_id, float(width))
+        self._static.pop(veh_id, None)
+
+    def remove_vehicle(self, veh_id: str) -> None:
+        """Remove a vehicle now (no error if it is already gone)."""
+        with contextlib.suppress(Exception):
+            self.api.vehicle.remove(veh_id)
+        self._static.pop(veh_id, None)
+        self._remote.discard(veh_id)
+        self._pending_speed.pop(veh_id, None)
+
+    def move_to_xy(self, veh_id: str, cx: float, cy: float, yaw: float, length: float | None = None,
+                   speed: float | None = None) -> None:
+        """Place a vehicle so that its box centre is (cx, cy) [m] heading ``yaw`` [rad, CCW from x].
+
+        Takes effect at the next :meth:`step`, after which SUMO reports exactly this pose. Call it
+        **every** step for a vehicle you drive: one step without it hands the vehicle back to SUMO,
+        which may drive it off along a rewritten route or make it arrive (SUMO_FACTS §3).
+        ``length`` defaults to the vehicle's known length. ``speed`` [m/s], when given, becomes the
+        speed SUMO reports after the step (``setPreviousSpeed``); otherwise SUMO reports the
+        displacement over the step, uncapped for vehicles added with ``remote=True`` or moved
+        here before.
+        """
+        api = self.api
+        if veh_id not in self._remote:
+            self._make_remote(veh_id)
+        if length is None:
+            st = self._static.get(veh_id)
+            length = st[0] if st is not None else float(api.vehicle.getLength(veh_id))
+        fx, fy, angle = frames.to_sumo(cx, cy, yaw, length)
+        api.vehicle.moveToXY(veh_id, "", -1, float(fx), float(fy), angle=float(angle),
+                             keepRoute=KEEP_ROUTE_EXACT_ANYWHERE, matchThreshold=MOVE_MATCH_THRESHOLD_M)
+        if speed is not None:
+            self._pending_speed[veh_id] = float(speed)
+
+    def _make_remote(self, veh_id: str) -> None:
+        veh = self.api.vehicle
+        veh.setSpeedMode(veh_id, SPEED_MODE_ALL_CHECKS_OFF)
+        veh.setLaneChangeMode(veh_id, LANE_CHANGE_MODE_NO_AUTONOMOUS)
+        # per-vehicle too, for vehicles not added by us (their vType is shared, leave it alone)
+        veh.setSpeedFactor(veh_id, REMOTE_SPEED_FACTOR)
+        veh.setMaxSpeed(veh_id, REMOTE_MAX_SPEED_MPS)
+        self._remote.add(veh_id)
+
+    # ------------------------------------------------------------------------- traffic lights
+
+    def tls_ids(self) -> tuple[str, ...]:
+        """Ids of the traffic lights (fixed for a run)."""
+        _ = self.api  # raises when not running
+        return self._tls_ids
+
+    def tls_controlled_links(self, tls_id: str) -> list[list[tuple[str, str, str]]]:
+        """For each link index of ``tls_id``: the (from_lane, to_lane, via_lane) it controls.
+
+        Usually one triple per index; an index can control several links or none.
+        """
+        return [[(str(a), str(b), str(c)) for (a, b, c) in group]
+                for group in self.api.trafficlight.getControlledLinks(tls_id)]
+
+    def tls_state(self, tls_id: str) -> str:
+        """Red-yellow-green state string, one char per link index (SUMO link state letters)."""
+        return str(self.api.trafficlight.getRedYellowGreenState(tls_id))
+
+    def set_tls_state(self, tls_id: str, state: str) -> None:
+        """Force a red-yellow-green state (kept until the program is set again)."""
+        self.api.trafficlight.setRedYellowGreenState(tls_id, state)
+
+    def tls_states(self) -> dict[str, str]:
+        """State string of every traffic light (TraCI: from subscriptions, no extra round trip)."""
+        tl = self.api.trafficlight
+        if self.uses_traci:
+            var = self._tc().TL_RED_YELLOW_GREEN_STATE
+            res = tl.getAllSubscriptionResults()
+            if len(res) == len(self._tls_ids):
+                return {t: str(r[var]) for t, r in res.items()}
+        return {t: str(tl.getRedYellowGreenState(t)) for t in self._tls_ids}
+
+    # ------------------------------------------------------------------------- TraCI plumbing
+
+    def _tc(self) -> Any:
+        return sumo_env.import_traci().constants
+
+    def _subscribe_simulation(self) -> None:
+        tc = self._tc()
+        self._api.simulation.subscribe((tc.VAR_TIME, tc.VAR_DEPARTED_VEHICLES_IDS,
+                                        tc.VAR_ARRIVED_VEHICLES_IDS))
+
+    def _subscribe_vehicle(self, veh_id: str) -> None:
+        tc = self._tc()
+        with contextlib.suppress(Exception):  # a vehicle added but not yet inserted cannot be subscribed
+            self._api.vehicle.subscribe(veh_id, (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED,
+                                                 tc.VAR_LENGTH, tc.VAR_WIDTH, tc.VAR_VEHICLECLASS,
+                                                 tc.VAR_TYPE))
+
+
+def _as_list(v: str | Path | Sequence[str | Path] | None) -> list[str | Path]:
+    if v is None:
+        return []
+    if isinstance(v, str | Path):
+        return [v]
+    return list(v)
+
+
+def _fmt(v: object) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float) and math.isfinite(v) and v == int(v) and abs(v) < 1e15:
+        return str(int(v)) if abs(v) >= 1 else repr(v)
+    return str(v)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__

@@ -1,0 +1,161 @@
+"""Pictures: scene maps, snapshots, variants, heatmaps of generated trajectories.
+
+Matplotlib with the Agg backend (no display needed). Every function draws into a given axes or
+writes a PNG, and crops to a window around the scene's region of interest.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.patches import Ellipse, Polygon  # noqa: E402
+
+from coster_sumo.drivable import _corners  # noqa: E402
+from coster_sumo.scene import AgentState, RoadMap, Scene  # noqa: E402
+
+TARGET_COLOR = "#1f77b4"
+ADVERSARY_COLOR = "#d62728"
+OTHER_COLOR = "#7f7f7f"
+
+
+def draw_map(ax: Axes, road_map: RoadMap, window: tuple[float, float, float, float] | None = None) -> None:
+    """Lanes (thin grey centrelines), junctions (light fill), road edges (black)."""
+    for poly in road_map.junctions.points:
+        if len(poly) >= 3:
+            ax.add_patch(Polygon(poly, closed=True, facecolor="#eeeeee", edgecolor="none", zorder=0))
+    for i, pts in enumerate(road_map.lanes.centerline):
+        if window is not None and (pts[:, 0].max() < window[0] or pts[:, 0].min() > window[2]
+                                   or pts[:, 1].max() < window[1] or pts[:, 1].min() > window[3]):
+            continue
+        ax.plot(pts[:, 0], pts[:, 1], color="#bbbbbb", lw=road_map.lanes.width[i] * 2.0, alpha=0.35,
+                solid_capstyle="butt", zorder=1)
+        ax.plot(pts[:, 0], pts[:, 1], color="#999999", lw=0.4, zorder=1)
+    for pts in road_map.road_edges.points:
+        ax.plot(pts[:, 0], pts[:, 1], color="black", lw=0.6, zorder=1)
+
+
+def draw_box(ax: Axes, x: float, y: float, yaw: float, length: float, width: float, color: str,
+             alpha: float = 0.9, label: str | None = None, zorder: int = 5) -> None:
+    c = _corners(np.array(x), np.array(y), np.array(yaw), np.array(length), np.array(width))
+    ax.add_patch(Polygon(c, closed=True, facecolor=color, edgecolor="black", lw=0.5, alpha=alpha,
+                         label=label, zorder=zorder))
+    # heading tick
+    ax.plot([x, x + 0.5 * length * np.cos(yaw)], [y, y + 0.5 * length * np.sin(yaw)], color="black",
+            lw=0.6, zorder=zorder + 1)
+
+
+def draw_agents(ax: Axes, scene: Scene, step: int, highlight: dict[int, str] | None = None) -> None:
+    t = scene.tracks
+    highlight = highlight or {}
+    for a in np.flatnonzero(t.valid[:, step]):
+        draw_box(ax, t.x[a, step], t.y[a, step], t.heading[a, step], t.length[a, step], t.width[a, step],
+                 highlight.get(int(a), OTHER_COLOR), alpha=0.8 if a in highlight else 0.5)
+
+
+def window_around(points: np.ndarray, margin: float = 25.0) -> tuple[float, float, float, float]:
+    p = np.asarray(points, float).reshape(-1, 2)
+    p = p[np.isfinite(p).all(axis=1)]
+    lo, hi = p.min(axis=0) - margin, p.max(axis=0) + margin
+    span = max(hi[0] - lo[0], hi[1] - lo[1])
+    mid = 0.5 * (lo + hi)
+    return (mid[0] - span / 2, mid[1] - span / 2, mid[0] + span / 2, mid[1] + span / 2)
+
+
+def _finish(ax: Axes, window: tuple[float, float, float, float]) -> None:
+    ax.set_xlim(window[0], window[2])
+    ax.set_ylim(window[1], window[3])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+
+
+def draw_ellipse(ax: Axes, target: AgentState) -> None:
+    ax.add_patch(Ellipse((target.x, target.y), 4 * target.length, 4 * target.width,
+                         angle=float(np.degrees(target.yaw)), fill=False, ls="--", color=TARGET_COLOR,
+                         zorder=4))
+
+
+def heatmap(ax: Axes, xy: np.ndarray, window: tuple[float, float, float, float], cells: int = 200,
+            bandwidth_m: float = 1.0) -> None:
+    """Kernel-density heatmap (Gaussian kernel of ``bandwidth_m`` on a grid) of points (..., 2)."""
+    from scipy.ndimage import gaussian_filter
+
+    p = np.asarray(xy, float).reshape(-1, 2)
+    p = p[np.isfinite(p).all(axis=1)]
+    h, xe, ye = np.histogram2d(p[:, 0], p[:, 1], bins=cells,
+                               range=[[window[0], window[2]], [window[1], window[3]]])
+    cell = (window[2] - window[0]) / cells
+    dens = gaussian_filter(h.T, sigma=bandwidth_m / cell)
+    dens = np.ma.masked_less_equal(dens, dens.max() * 1e-3)
+    ax.imshow(dens, origin="lower", extent=(window[0], window[2], window[1], window[3]), cmap="magma_r",
+              alpha=0.75, zorder=2)
+
+
+def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarray, adversary_state: AgentState,
+                   t_col_step: int, title: str, contact_xy: Sequence[float] | None = None) -> Path:
+    """One variant: map, agents at t_col, the target's path, the adversary's path and box."""
+    t = scene.tracks
+    tv = t.valid[target]
+    window = window_around(np.concatenate([adversary_xy, np.stack([t.x[target, tv], t.y[target, tv]], 1)]),
+                           margin=15.0)
+    fig, ax = plt.subplots(figsize=(7, 7))
+    draw_map(ax, scene.road_map, window)
+    draw_agents(ax, scene, t_col_step, {target: TARGET_COLOR})
+    ax.plot(t.x[target, tv], t.y[target, tv], color=TARGET_COLOR, lw=1.2, label="target path", zorder=3)
+    ax.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, label="adversary path",
+            zorder=3)
+    s = adversary_state
+    draw_box(ax, s.x, s.y, s.yaw, s.length, s.width, ADVERSARY_COLOR, label="adversary at t_col")
+    if contact_xy is not None:
+        ax.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8, label="first contact")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(title, fontsize=10)
+    _finish(ax, window)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, target_state: AgentState,
+                    representatives: Sequence[np.ndarray], samples_xy: np.ndarray | None,
+                    entropy: Sequence[float] | None, times: np.ndarray | None, t_col: float) -> Path:
+    """Map, agents at t_col, the ellipse, all representatives, heatmap of samples, entropy curve."""
+    pts = [np.array([[target_state.x, target_state.y]])] + [r[:, :2] for r in representatives]
+    window = window_around(np.concatenate(pts), margin=25.0)
+    has_curve = entropy is not None and times is not None and np.isfinite(np.asarray(entropy, float)).any()
+    fig, axes = plt.subplots(1, 2 if has_curve else 1, figsize=(13 if has_curve else 7, 6.5),
+                             gridspec_kw={"width_ratios": [1.4, 1]} if has_curve else None)
+    ax = axes[0] if has_curve else axes
+    draw_map(ax, scene.road_map, window)
+    if samples_xy is not None and len(samples_xy):
+        heatmap(ax, samples_xy, window)
+    draw_agents(ax, scene, t_col_step, {target: TARGET_COLOR})
+    draw_ellipse(ax, target_state)
+    cmap = plt.get_cmap("tab10")
+    for i, r in enumerate(representatives):
+        ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=6)
+        ax.plot(r[-1, 0], r[-1, 1], "o", color=cmap(i % 10), ms=4, zorder=7)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(f"{scene.scenario_id}: target {scene.tracks.ids[target]}, t_col = {t_col:.1f} s",
+                 fontsize=10)
+    _finish(ax, window)
+    if has_curve:
+        ax2 = axes[1]
+        e = np.asarray(entropy, float)
+        ax2.plot(np.asarray(times), e, "o-", ms=3)
+        ax2.axvline(t_col, color=ADVERSARY_COLOR, ls="--", label="t_col")
+        ax2.set_xlabel("time [s]")
+        ax2.set_ylabel("entropy of mean velocity distribution [nats]")
+        ax2.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
