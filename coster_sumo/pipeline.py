@@ -135,13 +135,13 @@ def nominal_scene(opts: RunOptions) -> tuple[Scene, bool]:
 
 def constant_velocity_plan(snapshot: CollisionSnapshot, scene_2hz: Scene, horizon: int) -> AdversaryPlan:
     """Backward constant-velocity extrapolation from the snapshot (the CV baseline trajectory)."""
-    from coster_sumo.rollout.baselines import constant_velocity_backward
-
     t = scene_2hz.timestamps
     h = min(horizon, snapshot.t_index)
     times = t[snapshot.t_index - h: snapshot.t_index + 1]
-    traj = constant_velocity_backward(snapshot.adversary, times - times[-1])  # (h+1, 3)
-    return AdversaryPlan.from_knots(times, traj, snapshot.adversary)
+    adv = snapshot.adversary
+    back = (times - times[-1])[:, None] * adv.velocity[None, :]  # (h+1, 2), <= 0 s before t_col
+    traj = np.column_stack([adv.x + back[:, 0], adv.y + back[:, 1], np.full(len(times), adv.yaw)])
+    return AdversaryPlan.from_knots(times, traj, adv)
 
 
 def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: float = 0.1) -> float | None:
@@ -163,37 +163,55 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
     return float(times[sel][np.argmax(hit)]) if hit.any() else None
 
 
+SNAPSHOT_ATTEMPTS = 5  # snapshot + rollout attempts before a scene is declared unusable
+
+
 def plan_scenario(scene: Scene, target: int, opts: RunOptions, drivable: DrivableArea) -> PlannedScenario:
-    """Snapshot and adversary plans (steps 2-3)."""
+    """Snapshot and adversary plans (steps 2-3).
+
+    Plans that would hit the target before t_col are dropped; when none is left, a new snapshot
+    is drawn (the seeded generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times.
+    """
     rng = np.random.default_rng(opts.seed)
     low = resample(scene, PRIOR_RATE_HZ)
-    if opts.init == "random":
-        snap = random_snapshot(low, target, rng, drivable, collision_time=opts.collision_time,
-                               seed=opts.seed)
-    else:
-        snap = prior_snapshot(low, target, rng, drivable, collision_time=opts.collision_time,
-                              seed=opts.seed, models_dir=opts.models_dir)
-    samples_xy = None
-    if opts.rollout == "cv":
-        plans = [constant_velocity_plan(snap, low, ROLLOUT_HORIZON_STEPS)]
-        info: dict[str, Any] = {"rollout": "constant_velocity"}
-    else:
-        from coster_sumo.rollout.sample import plan_variants
-
-        plans, samples_xy, info = plan_variants(low, target, snap, drivable, n=opts.samples,
-                                                k=opts.variants, seed=opts.seed, models_dir=opts.models_dir)
-    kept: list[AdversaryPlan] = []
-    dropped: list[dict[str, Any]] = []
-    for i, plan in enumerate(plans):
-        early = early_contact(plan, scene, target)
-        if early is None:
-            kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
+    model = None
+    reasons: list[str] = []
+    for _attempt in range(SNAPSHOT_ATTEMPTS):
+        if opts.init == "random":
+            snap = random_snapshot(low, target, rng, drivable, collision_time=opts.collision_time,
+                                   seed=opts.seed)
         else:
-            dropped.append({"candidate": i, "reason": f"hits the target at {early:.1f} s, before t_col"})
-    info = {**info, "candidates": len(plans), "kept": len(kept), "dropped": dropped}
-    if not kept:
-        raise NoSnapshot("every adversary trajectory hits the target before t_col")
-    return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
+            if model is None:
+                from coster_sumo.models import model_path
+                from coster_sumo.prior.infer import load_prior
+                from coster_sumo.snapshot import DEFAULT_PRIOR
+
+                model = load_prior(model_path(DEFAULT_PRIOR, opts.models_dir))
+            snap = prior_snapshot(low, target, rng, drivable, collision_time=opts.collision_time,
+                                  seed=opts.seed, model=model)
+        samples_xy = None
+        if opts.rollout == "cv":
+            plans = [constant_velocity_plan(snap, low, ROLLOUT_HORIZON_STEPS)]
+            info: dict[str, Any] = {"rollout": "constant_velocity"}
+        else:
+            from coster_sumo.rollout.sample import plan_variants
+
+            plans, samples_xy, info = plan_variants(low, target, snap, drivable, n=opts.samples,
+                                                    k=opts.variants, seed=opts.seed, models_dir=opts.models_dir)
+        kept: list[AdversaryPlan] = []
+        dropped: list[dict[str, Any]] = []
+        for i, plan in enumerate(plans):
+            early = early_contact(plan, scene, target)
+            if early is None:
+                kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
+            else:
+                dropped.append({"candidate": i, "reason": f"hits the target at {early:.1f} s, before t_col"})
+        if kept:
+            info = {**info, "attempt": _attempt + 1, "candidates": len(plans), "kept": len(kept),
+                    "dropped": dropped}
+            return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
+        reasons.append(f"t_col {snap.time:.1f} s: every trajectory hits the target before t_col")
+    raise NoSnapshot(f"{SNAPSHOT_ATTEMPTS} attempts failed ({reasons[-1]})")
 
 
 # ----------------------------------------------------------------------------- injection

@@ -18,7 +18,8 @@ probability; heading, speed and size sampled from its heads; the candidate box t
 the target at fixed relative heading until the boxes touch; among the contact placements (from the
 expected position, and from each of the target's four sides) the one with the highest position
 log-probability is kept. Placements that overlap another agent or leave the drivable area are
-rejected and the next region is tried.
+rejected, and so are placements that do not close in on the target (relative velocity pointing
+away from it: the boxes would have overlapped just before); the next region is tried.
 
 **Random offset** (``--init random``, Adv-BMT-style baseline): at the fixed collision time, a random
 approach direction around the target and a random relative heading, the adversary (4.5 x 1.9 m
@@ -146,6 +147,18 @@ def acceptable(boxes: np.ndarray, obstacles: Obstacles, drivable: DrivableArea |
     return ok
 
 
+def closing(boxes: np.ndarray, speed: np.ndarray, target: AgentState) -> np.ndarray:
+    """(N,) bool: the placed adversaries (N, 5) at ``speed`` (N,) move towards the target.
+
+    A snapshot is a collision only if the two boxes approach each other at contact; otherwise they
+    were overlapping just before it (the relative velocity points from the target to the adversary).
+    """
+    v_adv = speed[:, None] * np.stack([np.cos(boxes[:, 2]), np.sin(boxes[:, 2])], axis=1)
+    rel = v_adv - target.velocity[None, :]  # (N, 2)
+    to_target = np.array([target.x, target.y])[None, :] - boxes[:, :2]
+    return np.sum(rel * to_target, axis=1) > 0.0
+
+
 def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                     collision_time: str = "last", seed: int = 0) -> CollisionSnapshot:
     """The Adv-BMT-style baseline: a random pose offset from the target, in contact at t_col."""
@@ -160,6 +173,7 @@ def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivabl
     boxes, sd = contact_placements(tgt, tgt.yaw + rel_heading, np.full(RANDOM_TRIES, ADV_LENGTH_M),
                                    np.full(RANDOM_TRIES, ADV_WIDTH_M), start)
     ok = acceptable(boxes, obstacles, drivable)
+    ok &= closing(np.nan_to_num(boxes), speed, tgt)
     if not ok.any():
         raise NoSnapshot(f"no random placement of {RANDOM_TRIES} tries is on the road and free of other agents")
     k = int(np.flatnonzero(ok)[0])
@@ -244,9 +258,10 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         logp = pred.position_log_prob(boxes[:, :2], np.full(5, t_col), np.full(5, k))
         logp = np.where(np.isnan(boxes).any(axis=1), np.nan, logp)
         ok = acceptable(boxes, obstacles, drivable)
+        ok &= closing(np.nan_to_num(boxes), np.full(5, float(s["speed"][0])), tgt)
         if not ok.any():
-            reasons.append(f"region {int(pred.region_index[t_col, k])}: every contact placement overlaps "
-                           "another agent or leaves the road")
+            reasons.append(f"region {int(pred.region_index[t_col, k])}: no contact placement is on the road, "
+                           "free of other agents and closing in on the target")
             continue
         score = np.where(ok, np.nan_to_num(logp, nan=-np.inf, neginf=-1e9), -np.inf)
         score[0] = score[0] + 1e-9 if ok[0] else score[0]  # ties: prefer the expected position's approach

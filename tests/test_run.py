@@ -1,0 +1,67 @@
+"""End to end: `coster-sumo run` on the project's networks with the weight-free baselines."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from coster_sumo.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.sumo
+
+
+def _run(tmp_path: Path, *extra: str) -> tuple[int, Path]:
+    out = tmp_path / "out"
+    rc = main(["-q", "run", str(REPO / "networks/intersection/intersection.sumocfg"), "--init", "random",
+               "--rollout", "cv", "--end", "45", "-o", str(out), *extra])
+    return rc, out
+
+
+def test_run_writes_every_output_and_contact_is_at_t_col(tmp_path):
+    rc, out = _run(tmp_path, "--planner", "replay", "--seed", "3", "--collision-time", "random")
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for name in ("snapshot.json", "events.jsonl", "collisions.xml", "overview.png"):
+        assert (out / name).exists(), name
+    assert summary["target"] == "ego"
+    assert 0.0 <= summary["snapshot_signed_distance"] <= 0.05
+    for v in summary["variants"]:
+        vdir = out / "variants" / str(v["variant"])
+        assert (vdir / "trajectory.csv").exists() and (vdir / "render.png").exists()
+        assert (vdir / "export" / "variant.json").exists()
+        if v["collision"]:
+            assert abs(v["contact_offset_s"]) <= 0.1 + 1e-6
+    assert not list(tmp_path.glob(".out.*")), "staging folder left behind"
+
+
+def test_same_seed_same_result(tmp_path):
+    a = json.loads((_run(tmp_path / "a", "--seed", "5", "--no-render")[1] / "summary.json").read_text())
+    b = json.loads((_run(tmp_path / "b", "--seed", "5", "--no-render")[1] / "summary.json").read_text())
+    strip = ("timings_s", "options", "wall_time_s")
+    for s in (a, b):
+        for k in strip:
+            s.pop(k, None)
+        for v in s["variants"]:
+            v.pop("wall_time_s", None)
+    assert a == b
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--target", "nobody"], "target 'nobody' never appears"),
+    (["--collision-time", "entropy", "--init", "snapshot", "--models", "/nonexistent"], "model weights not found"),
+])
+def test_bad_input_is_one_line_exit_2_and_no_output(tmp_path, capsys, args, message):
+    rc, out = _run(tmp_path, *args)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert message in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_missing_config_is_exit_2(tmp_path, capsys):
+    rc = main(["run", str(tmp_path / "nope.sumocfg"), "-o", str(tmp_path / "o")])
+    assert rc == 2
+    assert "nope.sumocfg" in capsys.readouterr().err
