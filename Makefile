@@ -21,7 +21,7 @@ demo: setup
 	$(BIN)/coster-sumo run $(DEMO_CFG) -o $(OUT)
 
 lint: setup
-	$(BIN)/ruff check coster_sumo converters tests bench networks
+	$(BIN)/ruff check .
 	$(BIN)/mypy coster_sumo converters
 
 test: lint

@@ -183,10 +183,12 @@ def plan_scenario(scene: Scene, target: int, opts: RunOptions, drivable: Drivabl
         else:
             if model is None:
                 from coster_sumo.models import model_path
-                from coster_sumo.prior.infer import load_prior
                 from coster_sumo.snapshot import DEFAULT_PRIOR
 
-                model = load_prior(model_path(DEFAULT_PRIOR, opts.models_dir))
+                weights = model_path(DEFAULT_PRIOR, opts.models_dir)  # a missing file is reported first
+                from coster_sumo.prior.infer import load_prior
+
+                model = load_prior(weights)
             snap = prior_snapshot(low, target, rng, drivable, collision_time=opts.collision_time,
                                   seed=opts.seed, model=model)
         samples_xy = None
