@@ -4,6 +4,8 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/demo
 DEMO_CFG ?= networks/intersection/intersection.sumocfg
+# weight-free baselines until the trained prior and CVAE ship in models/
+DEMO_ARGS ?= --init random --rollout cv --planner replay
 
 .PHONY: setup demo test test-slow lint clean
 
@@ -18,7 +20,7 @@ $(BIN)/coster-sumo: pyproject.toml
 setup: $(BIN)/coster-sumo
 
 demo: setup
-	$(BIN)/coster-sumo run $(DEMO_CFG) -o $(OUT)
+	$(BIN)/coster-sumo run $(DEMO_CFG) $(DEMO_ARGS) -o $(OUT)
 
 lint: setup
 	$(BIN)/ruff check .
