@@ -25,16 +25,20 @@ from coster_sumo.scene import RoadMap
 OFF_ROAD_TOLERANCE_M2 = 0.5  # [m^2] footprint area allowed outside the drivable area
 
 
+_UNIT_CORNERS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])  # FL, RL, RR, FR
+
+
 def _corners(cx: np.ndarray, cy: np.ndarray, yaw: np.ndarray, length: np.ndarray, width: np.ndarray
              ) -> np.ndarray:
     """(..., 4, 2) corners of oriented boxes (front-left, rear-left, rear-right, front-right)."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    hl, hw = 0.5 * np.asarray(length, float), 0.5 * np.asarray(width, float)
-    lon = np.stack([hl, -hl, -hl, hl], axis=-1)  # (..., 4)
-    lat = np.stack([hw, hw, -hw, -hw], axis=-1)
-    x = np.asarray(cx, float)[..., None] + lon * c[..., None] - lat * s[..., None]
-    y = np.asarray(cy, float)[..., None] + lon * s[..., None] + lat * c[..., None]
-    return np.stack([x, y], axis=-1)
+    yaw = np.asarray(yaw, float)
+    c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
+    lon = _UNIT_CORNERS[:, 0] * (0.5 * np.asarray(length, float))[..., None]  # (..., 4)
+    lat = _UNIT_CORNERS[:, 1] * (0.5 * np.asarray(width, float))[..., None]
+    out = np.empty(np.broadcast_shapes(lon.shape, c.shape) + (2,))
+    out[..., 0] = np.asarray(cx, float)[..., None] + lon * c - lat * s
+    out[..., 1] = np.asarray(cy, float)[..., None] + lon * s + lat * c
+    return out
 
 
 @dataclass
@@ -78,12 +82,14 @@ class DrivableArea:
         corners = _corners(np.asarray(cx, float), np.asarray(cy, float), np.asarray(yaw, float),
                            np.asarray(length, float), np.asarray(width, float))
         shape = corners.shape[:-2]
-        polys = shapely.polygons(corners.reshape(-1, 4, 2))
-        inside = shapely.contains(self.geometry, polys)
-        out = np.zeros(len(polys))
-        todo = ~inside
+        flat = corners.reshape(-1, 4, 2)
+        # fast path: all four corners inside (prepared point-in-polygon) -> treated as fully inside;
+        # the area is computed only for boxes with a corner out
+        corner_in = shapely.contains_xy(self.geometry, flat[..., 0], flat[..., 1]).all(axis=-1)
+        out = np.zeros(len(flat))
+        todo = ~corner_in
         if todo.any():
-            boxes = polys[todo]
+            boxes = shapely.polygons(flat[todo])
             out[todo] = shapely.area(boxes) - shapely.area(shapely.intersection(boxes, self.geometry))
         return out.reshape(shape)
 

@@ -91,29 +91,39 @@ class EventDetector:
         """Check one step; return (and keep) the events that start at this step."""
         new: list[Event] = []
         now: set[tuple[str, ...]] = set()
-        if len(states.ids):
-            boxes = make_boxes(states.x, states.y, states.yaw, states.length, states.width)  # (N, 5)
-            for ref in (self.adversary_id, self.target_id):
-                r = _index(states, ref)
-                if r < 0:
+        refs = [(ref, _index(states, ref)) for ref in (self.adversary_id, self.target_id)]
+        refs = [(ref, r) for ref, r in refs if r >= 0]
+        if refs:
+            rows = np.array([r for _, r in refs])
+            # bounding-circle prefilter: only vehicles whose circles meet a reference's go to SAT
+            radius = 0.5 * np.hypot(states.length, states.width)  # (N,)
+            dx = states.x[None, :] - states.x[rows, None]
+            dy = states.y[None, :] - states.y[rows, None]
+            near = dx * dx + dy * dy < (radius[None, :] + radius[rows, None]) ** 2  # (R, N)
+            near[np.arange(len(rows)), rows] = False
+            for (_ref, r), cand in zip(refs, near, strict=True):
+                idx = np.flatnonzero(cand)
+                if not len(idx):
                     continue
-                hit = boxes_overlap(boxes[r][None, :], boxes)  # (N,)
-                hit[r] = False
-                for j in np.flatnonzero(hit).tolist():
+                a_box = make_boxes(states.x[r], states.y[r], states.yaw[r], states.length[r], states.width[r])
+                b_box = make_boxes(states.x[idx], states.y[idx], states.yaw[idx], states.length[idx],
+                                   states.width[idx])
+                for j in idx[boxes_overlap(a_box[None, :], b_box)].tolist():
                     key = ("collision", *sorted((str(states.ids[r]), str(states.ids[j]))))
                     if key not in self._active and key not in now:  # adversary-target is seen twice
                         new.append(self._collision_event(time, states, r, j, "collision"))
                     now.add(key)
-                if self.drivable is not None:
-                    out = self.drivable.outside_area(states.x[r], states.y[r], states.yaw[r],
-                                                     states.length[r], states.width[r])
-                    if float(out) > self.drivable.tolerance_m2:
+            if self.drivable is not None:
+                out = self.drivable.outside_area(states.x[rows], states.y[rows], states.yaw[rows],
+                                                 states.length[rows], states.width[rows])  # one shapely call
+                for (ref, r), area in zip(refs, out.tolist(), strict=True):
+                    if area > self.drivable.tolerance_m2:
                         key = ("off_road", ref)
                         now.add(key)
                         if key not in self._active:
                             new.append(Event(time=float(time), kind="off_road", vehicles=[ref],
                                              positions=[[float(states.x[r]), float(states.y[r])]],
-                                             detail={"area_outside_m2": float(out)}))
+                                             detail={"area_outside_m2": float(area)}))
         for c in sumo_collisions or ():
             a, b = str(c.get("collider", "")), str(c.get("victim", ""))
             key = ("sumo_collision", *sorted((a, b)))

@@ -150,7 +150,7 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
     adversary = AdversaryController(plan) if plan is not None else None
     adv_id = plan.vehicle_id if plan is not None else "__none__"
     detector = EventDetector(target_id, adv_id, drivable)
-    flags = {"arrived": False, "min_ttc": float("inf")}
+    flags = {"arrived": False, "min_ttc": float("inf"), "event_s": 0.0}
     t0 = _time.perf_counter()
     with SumoSession(config, seed=seed, end=end, traci=traci, **kwargs) as session:
         planner.setup(session, target_id)
@@ -171,6 +171,7 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                 adversary.gone = True  # SUMO removed it (should not happen while we drive it)
             if not detect_events:
                 return False
+            t_ev = _time.perf_counter()
             new = detector.check(sess.time, states, sess.collisions())
             if adversary is not None:
                 adversary.on_events(states, new)
@@ -181,6 +182,7 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                         radius = 0.5 * (np.hypot(states.length[a], states.width[a])
                                         + np.hypot(states.length[b], states.width[b]))
                         flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, b, a, radius))
+            flags["event_s"] += _time.perf_counter() - t_ev
             return False
 
         scene = record(session, begin=begin, end=end, before_step=before, after_step=after)
@@ -196,4 +198,4 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                            adversary_off_road=adv_off, target_off_road=tgt_off,
                            target_arrived=bool(flags["arrived"]), route_completed=completed,
                            min_ttc=float(flags["min_ttc"]) if contact is None else 0.0,
-                           wall_time_s=wall)
+                           wall_time_s=wall, extra={"event_detection_s": float(flags["event_s"])})

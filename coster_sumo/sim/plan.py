@@ -14,6 +14,7 @@ state, exactly). SUMO steps at 0.1 s, so the controller needs the state at every
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +66,16 @@ class AdversaryPlan:
                    final_speed=float(snapshot_state.speed), length=float(snapshot_state.length),
                    width=float(snapshot_state.width), vehicle_id=vehicle_id)
 
+    @functools.cached_property
+    def _splines(self) -> tuple[CubicSpline, CubicSpline, PchipInterpolator] | None:
+        """x(t), y(t) clamped to the final velocity, yaw(t) shape-preserving; built once per plan."""
+        if len(self.times) < 2:
+            return None
+        fin_v = self.final_speed * np.array([np.cos(self.yaw[-1]), np.sin(self.yaw[-1])])
+        sx = CubicSpline(self.times, self.x, bc_type=((2, 0.0), (1, float(fin_v[0]))))
+        sy = CubicSpline(self.times, self.y, bc_type=((2, 0.0), (1, float(fin_v[1]))))
+        return sx, sy, PchipInterpolator(self.times, np.unwrap(self.yaw))
+
     def sample(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """State at times ``t`` (T,) [s]: centre x, y [m], yaw [rad], speed [m/s].
 
@@ -79,13 +90,12 @@ class AdversaryPlan:
         fin_v = self.final_speed * np.array([np.cos(self.yaw[-1]), np.sin(self.yaw[-1])])
         inside = t <= self.t_col
         tc = np.clip(t[inside], self.t_start, self.t_col)
-        if len(self.times) >= 2:
-            bc = ((2, 0.0), (1, float(fin_v[0])))
-            sx = CubicSpline(self.times, self.x, bc_type=bc)
-            sy = CubicSpline(self.times, self.y, bc_type=((2, 0.0), (1, float(fin_v[1]))))
+        splines = self._splines
+        if splines is not None:
+            sx, sy, syaw = splines
             x[inside], y[inside] = sx(tc), sy(tc)
             speed[inside] = np.hypot(sx(tc, 1), sy(tc, 1))
-            yaw[inside] = PchipInterpolator(self.times, np.unwrap(self.yaw))(tc)
+            yaw[inside] = syaw(tc)
         else:
             x[inside], y[inside], yaw[inside] = self.x[0], self.y[0], self.yaw[0]
             speed[inside] = self.final_speed

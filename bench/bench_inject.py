@@ -1,0 +1,56 @@
+"""Overhead of event detection and logging in an injection pass (goal: <= 5 % extra wall time).
+
+Runs the same injection pass (networks/intersection, a random-offset snapshot, constant-velocity
+plan, SUMO planner) with and without event detection, alternating, and prints the ratio of the
+median wall times. Usage: python bench/bench_inject.py [--repeats N] [--config CFG]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+from pathlib import Path
+
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.pipeline import RunOptions, choose_target, nominal_scene, plan_scenario
+from coster_sumo.planners import make_planner
+from coster_sumo.sim.inject import run_injection
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--config", type=Path, default=REPO / "networks/intersection/intersection.sumocfg")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--end", type=float, default=60.0)
+    args = ap.parse_args()
+    opts = RunOptions(config=args.config, out=Path(tempfile.mkdtemp()), init="random", rollout="cv",
+                      end=args.end, seed=1)
+    scene, _ = nominal_scene(opts)
+    target = choose_target(scene, None, args.config)
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    planned = plan_scenario(scene, target, opts, drivable)
+    plan = planned.plans[0]
+    target_id = str(scene.tracks.ids[target])
+    times: dict[bool, list[float]] = {True: [], False: []}
+    inside: list[float] = []
+    for _ in range(args.repeats):
+        for detect in (False, True):
+            res = run_injection(args.config, target_id, plan, make_planner("sumo"), seed=opts.seed,
+                                end=float(scene.timestamps[-1]) + 1e-9, drivable=drivable, detect_events=detect,
+                                workdir=opts.out)
+            times[detect].append(res.wall_time_s)
+            if detect:
+                inside.append(res.extra["event_detection_s"] / res.wall_time_s)
+    with_ev, without = statistics.median(times[True]), statistics.median(times[False])
+    steps = scene.num_steps
+    print(f"config {args.config.name}: {steps} steps, {scene.tracks.num_agents} vehicles, {args.repeats} repeats")
+    print(f"median wall time without events: {without:.3f} s, with events: {with_ev:.3f} s")
+    print(f"overhead ratio (with / without): {with_ev / without:.3f}  ({100 * (with_ev / without - 1):+.1f} %)")
+    print(f"time inside event detection, share of the pass (median): {100 * statistics.median(inside):.1f} %")
+
+
+if __name__ == "__main__":
+    main()
