@@ -1,0 +1,355 @@
+"""Reports of batch commands: Markdown + HTML pages with PNG plots (matplotlib, Agg).
+
+``coster-sumo regress`` -> ``OUT/report.md``, ``OUT/report.html``, ``OUT/plots/*.png`` and
+``OUT/examples/<run_key>.png``: the per-planner table (RCR / CR / ORR with Wilson 95 % intervals),
+failed runs with their reasons, per-planner failure examples (collision, off-road, route not
+completed), and the distributions of impact angle and relative speed at first contact.
+
+``coster-sumo eval scenarios`` -> ``OUT/metrics.json``, ``OUT/metrics.md``, ``OUT/metrics.png``:
+SUR, CR, ORR, VDD, ADD, CSD, CPD and circular CPD per generator; skipped methods with the reason.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+EXAMPLES_PER_PLANNER = 3
+
+
+def _pct(entry: dict[str, Any]) -> str:
+    if entry.get("rate") is None:
+        return "n/a"
+    return f"{100 * entry['rate']:.1f}% [{100 * entry['ci_low']:.1f}, {100 * entry['ci_high']:.1f}]"
+
+
+def _fmt(x: Any, digits: int = 3) -> str:
+    if x is None:
+        return "n/a"
+    if isinstance(x, float):
+        return f"{x:.{digits}f}"
+    return str(x)
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+# ============================================================================ regression
+
+
+def regression_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    head = ["planner", "runs", "failed", "RCR", "CR", "ORR", "adversary contact", "median min TTC [s]",
+            "mean rel. speed [m/s]"]
+    rows = []
+    for name, p in summary["planners"].items():
+        rows.append([name, str(p["runs"]), str(p["failed"]), _pct(p["RCR"]), _pct(p["CR"]), _pct(p["ORR"]),
+                     _pct(p["adversary_contact_rate"]), _fmt(p["median_min_ttc_s"], 2),
+                     _fmt(p["mean_relative_speed_mps"], 2)])
+    return head, rows
+
+
+def _md_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _html_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def plot_rates(path: Path, summary: dict[str, Any]) -> Path:
+    """Grouped bars of RCR / CR / ORR per planner with Wilson 95 % error bars."""
+    plt = _plt()
+    planners = list(summary["planners"])
+    metrics = ["RCR", "CR", "ORR"]
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.8 * len(planners) + 2), 4))
+    w = 0.8 / len(metrics)
+    for j, m in enumerate(metrics):
+        rate = np.array([summary["planners"][p][m]["rate"] or 0.0 for p in planners], float)
+        lo = np.array([summary["planners"][p][m]["ci_low"] or 0.0 for p in planners], float)
+        hi = np.array([summary["planners"][p][m]["ci_high"] or 0.0 for p in planners], float)
+        x = np.arange(len(planners)) + (j - 1) * w
+        ax.bar(x, rate, w, label=m, yerr=np.clip(np.stack([rate - lo, hi - rate]), 0, None), capsize=3)
+    ax.set_xticks(np.arange(len(planners)), planners)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("rate (Wilson 95% CI)")
+    ax.legend()
+    ax.set_title("route completion, collision and off-road rates per planner")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[dict[str, Any]],
+                  planners: Sequence[str]) -> tuple[Path, Path]:
+    """Impact-angle histogram (polar) and relative-speed histogram of first contacts, per planner."""
+    plt = _plt()
+    fig = plt.figure(figsize=(6, 6))
+    ax = fig.add_subplot(projection="polar")
+    bins = np.radians(np.linspace(-180, 180, 25))
+    for p in planners:
+        a = [r["impact_angle"] for r in rows if r["planner"] == p and r["impact_angle"] is not None]
+        if a:
+            h, _ = np.histogram(np.radians(a), bins=bins)
+            ax.bar(bins[:-1] + 0.5 * np.diff(bins), h, width=np.diff(bins), alpha=0.45, edgecolor="black",
+                   lw=0.5, label=f"{p} ({len(a)})")
+    ax.set_theta_zero_location("E")
+    ax.set_title("impact angle in the target frame (0 = ahead, 90 = left)", fontsize=10)
+    ax.legend(loc="lower left", fontsize=8, bbox_to_anchor=(-0.1, -0.15))
+    fig.tight_layout()
+    fig.savefig(angles_path, dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    speeds = {p: [r["relative_speed"] for r in rows if r["planner"] == p and r["relative_speed"] is not None]
+              for p in planners}
+    top = max([max(v) for v in speeds.values() if v] + [1.0])
+    edges = np.linspace(0, top * 1.05, 21)
+    for p, v in speeds.items():
+        if v:
+            ax.hist(v, bins=edges, histtype="step", lw=1.5, label=f"{p} ({len(v)})")
+    ax.set_xlabel("relative speed at first contact [m/s]")
+    ax.set_ylabel("runs")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(speeds_path, dpi=110)
+    plt.close(fig)
+    return angles_path, speeds_path
+
+
+def failure_examples(rows: Sequence[dict[str, Any]], planners: Sequence[str],
+                     per_planner: int = EXAMPLES_PER_PLANNER) -> dict[str, list[dict[str, Any]]]:
+    """Per planner, up to ``per_planner`` finished runs that failed the test: collision first, then
+    off-road, then route not completed (stable order by run key)."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    for p in planners:
+        mine = sorted((r for r in rows if r["planner"] == p and r["status"] == "ok"), key=lambda r: r["run_key"])
+
+        def rank(r: dict[str, Any]) -> int:
+            return 0 if r["collision"] else 1 if r["target_off_road"] else 2 if not r["route_completed"] else 3
+
+        out[p] = [r for r in sorted(mine, key=rank) if rank(r) < 3][:per_planner]
+    return out
+
+
+def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, Any]) -> Path | None:
+    """The scene at t_col, the target's nominal (dashed) and driven path, the adversary's plan and contact."""
+    from coster_sumo import viz
+    from coster_sumo.scene import load_scene
+    from coster_sumo.sim.plan import AdversaryPlan
+
+    plans_dir = out / "plans"
+    key = row["scene_key"]
+    if key not in cache:
+        doc = json.loads((plans_dir / f"{key}.json").read_text())
+        cache[key] = (doc, load_scene(plans_dir / doc["scene_file"]))
+    doc, scene = cache[key]
+    v = doc["variants"][row["variant"]]
+    plan = AdversaryPlan.from_dict(v["plan"])
+    t = scene.tracks
+    target = t.index_of(doc["target_id"])
+    tv = t.valid[target]
+    adv_t = np.arange(plan.t_start, plan.t_col + 1e-9, 0.1)
+    ax_, ay_, _, _ = plan.sample(adv_t)
+    driven = np.asarray(json.loads(row["target_path"] or "[]"), float).reshape(-1, 2)
+    t_col_step = int(np.argmin(np.abs(scene.timestamps - plan.t_col)))
+    near = tv & (scene.timestamps >= plan.t_start - 1.0) & (scene.timestamps <= plan.t_col + 2.0)
+    pts = np.concatenate([np.stack([ax_, ay_], 1), np.stack([t.x[target, near], t.y[target, near]], 1)])
+    window = viz.window_around(pts, margin=20.0)
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 6))
+    viz.draw_map(ax, scene.road_map, window)
+    viz.draw_agents(ax, scene, t_col_step, {target: viz.TARGET_COLOR})
+    ax.plot(t.x[target, tv], t.y[target, tv], "--", color=viz.TARGET_COLOR, lw=1.0, label="target nominal", zorder=3)
+    if len(driven):
+        ax.plot(driven[:, 0], driven[:, 1], color="#2ca02c", lw=1.6, label=f"target driven ({row['planner']})",
+                zorder=4)
+    ax.plot(ax_, ay_, color=viz.ADVERSARY_COLOR, lw=1.5, label="adversary plan", zorder=4)
+    s = v["snapshot"]["adversary"]
+    viz.draw_box(ax, s["x"], s["y"], s["yaw"], s["length"], s["width"], viz.ADVERSARY_COLOR, label="adversary at t_col")
+    if row["contact_time"] is not None:
+        cx, cy, _, _ = plan.sample(np.array([row["contact_time"]]))
+        ax.plot(cx[0], cy[0], marker="*", ms=14, color="gold", mec="black", zorder=8, label="first contact")
+    what = ("collision" if row["collision"] else "off-road" if row["target_off_road"] else "route not completed")
+    ax.set_title(f"{row['run_key']}\n{what}" + (f", {row['relative_speed']:.1f} m/s, {row['impact_angle']:.0f} deg"
+                                                if row["relative_speed"] is not None else ""), fontsize=8)
+    ax.legend(loc="upper right", fontsize=7)
+    ax.set_xlim(window[0], window[2])
+    ax.set_ylim(window[1], window[3])
+    ax.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[dict[str, Any]]) -> list[str]:
+    """report.md, report.html, plots/ and examples/ in ``out``; returns the written paths (relative)."""
+    out = Path(out)
+    planners = list(summary["planners"])
+    keys = {r["run_key"] for r in rows}
+    rows = [r for r in rows if r["planner"] in planners and r["run_key"] in keys]
+    (out / "plots").mkdir(exist_ok=True)
+    (out / "examples").mkdir(exist_ok=True)
+    written = ["report.md", "report.html"]
+    plot_rates(out / "plots" / "rates.png", summary)
+    ok_rows = [r for r in rows if r["status"] == "ok"]
+    plot_contacts(out / "plots" / "impact_angles.png", out / "plots" / "relative_speeds.png", ok_rows, planners)
+    written += ["plots/rates.png", "plots/impact_angles.png", "plots/relative_speeds.png"]
+    examples = failure_examples(ok_rows, planners)
+    cache: dict[str, Any] = {}
+    ex_files: dict[str, list[tuple[dict[str, Any], str]]] = {}
+    for p, chosen in examples.items():
+        for r in chosen:
+            rel = f"examples/{r['run_key']}.png"
+            try:
+                render_example(out / rel, out, r, cache)
+            except Exception as exc:  # noqa: BLE001 - a missing render never fails the report
+                rel = f"(render failed: {exc})"
+            ex_files.setdefault(p, []).append((r, rel))
+            if rel.startswith("examples/"):
+                written.append(rel)
+    head, table = regression_table(summary)
+    failures = summary["runs"]["failures"]
+    sc = summary["scenes"]
+    md = ["# Planner regression", "",
+          f"{sc['generated']} of {sc['total']} scenes generated, {summary['variants']} variants, "
+          f"{summary['runs']['recorded']} of {summary['runs']['expected']} runs recorded "
+          f"({summary['runs']['failed']} failed).", "",
+          "RCR: route completion rate; CR: collision rate (the target touches the adversary or anyone); "
+          "ORR: the target's off-road rate. Brackets: Wilson 95% interval. Failed runs are not in the rates.", "",
+          _md_table(head, table), "", "![rates](plots/rates.png)", "",
+          "## Contacts", "", "![impact angles](plots/impact_angles.png) ![relative speeds](plots/relative_speeds.png)",
+          ""]
+    if sc["failed"]:
+        md += ["## Scenes without variants", "", _md_table(["scene", "reason"],
+                                                            [[f["scene"], str(f["reason"])] for f in sc["failed"]]), ""]
+    if failures:
+        md += ["## Failed runs", "", _md_table(["run", "reason"], [[f["run_key"], str(f["reason"])] for f in failures]),
+               ""]
+    md += ["## Failure examples", ""]
+    for p in planners:
+        md.append(f"### {p}")
+        md.append("")
+        if not ex_files.get(p):
+            md += ["No collision, off-road or incomplete route.", ""]
+        for r, rel in ex_files.get(p, []):
+            md.append(f"- `{r['run_key']}`: " + ("collision" if r["collision"] else "off-road" if r["target_off_road"]
+                                                  else "route not completed")
+                      + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else ""))
+            if rel.startswith("examples/"):
+                md.append(f"\n  ![{r['run_key']}]({rel})")
+        md.append("")
+    _atomic_text(out / "report.md", "\n".join(md) + "\n")
+    h = ["<!doctype html><html><head><meta charset='utf-8'><title>coster-sumo regression</title>",
+         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
+         "td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}img{max-width:48%}</style></head><body>",
+         "<h1>Planner regression</h1>",
+         f"<p>{sc['generated']} of {sc['total']} scenes generated, {summary['variants']} variants, "
+         f"{summary['runs']['recorded']} of {summary['runs']['expected']} runs recorded "
+         f"({summary['runs']['failed']} failed). Rates with Wilson 95% intervals; failed runs excluded.</p>",
+         _html_table(head, table), "<p><img src='plots/rates.png'></p>", "<h2>Contacts</h2>",
+         "<p><img src='plots/impact_angles.png'> <img src='plots/relative_speeds.png'></p>"]
+    if sc["failed"]:
+        h += ["<h2>Scenes without variants</h2>",
+              _html_table(["scene", "reason"], [[f["scene"], str(f["reason"])] for f in sc["failed"]])]
+    if failures:
+        h += ["<h2>Failed runs</h2>", _html_table(["run", "reason"], [[f["run_key"], str(f["reason"])]
+                                                                     for f in failures])]
+    h.append("<h2>Failure examples</h2>")
+    for p in planners:
+        h.append(f"<h3>{html.escape(p)}</h3><p>")
+        for _r, rel in ex_files.get(p, []):
+            if rel.startswith("examples/"):
+                h.append(f"<img src='{html.escape(rel)}'>")
+        h.append("</p>")
+    h.append("</body></html>")
+    _atomic_text(out / "report.html", "\n".join(h) + "\n")
+    return written
+
+
+# ============================================================================ generator evaluation
+
+GENERATOR_COLUMNS = ("SUR", "CR", "ORR", "VDD", "ADD", "CSD", "CPD", "CPD_circular")
+
+
+def generator_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    head = ["method", "group", "scenes", "variants", "SUR", "CR", "ORR", "VDD", "ADD", "CSD [m/s]", "CPD [deg]",
+            "CPD circ. [deg]", "gen. s/variant"]
+    rows = []
+    for name, m in summary["methods"]["table"].items():
+        if m["status"] != "ok":
+            rows.append([name, m["group"], "-", "-"] + [f"skipped: {m['reason']}"] + [""] * 8)
+            continue
+        rows.append([name, m["group"], str(m["scenes"]), str(m["variants"]),
+                     *[_fmt(m[c], 3) for c in ("SUR", "CR", "ORR", "VDD", "ADD")],
+                     _fmt(m["CSD"], 2), _fmt(m["CPD"], 1), _fmt(m["CPD_circular"], 1),
+                     _fmt(m["generation_s_per_variant"], 3)])
+    return head, rows
+
+
+def plot_generator_metrics(path: Path, summary: dict[str, Any]) -> Path:
+    """One small bar chart per metric, the methods that ran side by side."""
+    plt = _plt()
+    table = {k: v for k, v in summary["methods"]["table"].items() if v["status"] == "ok"}
+    fig, axes = plt.subplots(2, 4, figsize=(14, 6))
+    names = list(table)
+    for ax, col in zip(axes.ravel(), GENERATOR_COLUMNS, strict=True):
+        vals = [table[n][col] if table[n][col] is not None else np.nan for n in names]
+        ax.bar(np.arange(len(names)), vals, color=[f"C{i}" for i in range(len(names))])
+        ax.set_xticks(np.arange(len(names)), names, rotation=35, ha="right", fontsize=7)
+        ax.set_title(col, fontsize=10)
+    skipped = [k for k, v in summary["methods"]["table"].items() if v["status"] != "ok"]
+    fig.suptitle("scenario generators" + (f" (skipped: {', '.join(skipped)})" if skipped else ""), fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
+    """metrics.json, metrics.md and metrics.png in ``out``; returns the written paths (relative)."""
+    out = Path(out)
+    table = summary["methods"]["table"]
+    slim = {k: {c: v for c, v in m.items() if c not in ("relative_speeds", "impact_angles")} for k, m in table.items()}
+    doc = {"methods": slim, "failed_scenes": summary["methods"]["failed_scenes"], "planner": summary["planner"],
+           "variants": summary["variants"], "units": summary["units"]}
+    _atomic_text(out / "metrics.json", json.dumps(doc, indent=1))
+    plot_generator_metrics(out / "metrics.png", summary)
+    head, rows = generator_table(summary)
+    md = ["# Scenario generators", "",
+          f"{len(summary['scenes'])} scenes, up to {summary['variants']} variants per scene and method, target "
+          f"driven by `{summary['planner']}`. Measured on these scenes with this installation; not the paper's "
+          "figures.", "",
+          "SUR: share of scenes with at least one colliding variant; CR: colliding variants; ORR: adversaries "
+          "leaving the road; VDD/ADD: Jensen-Shannon divergence (nats) of the adversaries' speed / acceleration "
+          "histograms (10 Hz, plan start to contact) against every vehicle of the raw scenes; CSD: std of the "
+          "relative speed at contact; CPD: std of the impact angle (linear and circular).", "",
+          _md_table(head, rows), "", "![metrics](metrics.png)", ""]
+    failed = summary["methods"]["failed_scenes"]
+    if failed:
+        md += ["## Scenes that failed", "", _md_table(["scene", "reason"],
+                                                       [[f["scene_key"], str(f["reason"])] for f in failed]), ""]
+    _atomic_text(out / "metrics.md", "\n".join(md) + "\n")
+    return ["metrics.json", "metrics.md", "metrics.png"]

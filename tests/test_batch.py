@@ -1,0 +1,184 @@
+"""The batch executor (process isolation, timeouts, crashes, resume), Wilson intervals, scene sources."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pyarrow.dataset as ds
+import pytest
+
+from coster_sumo.batch import (
+    Outcome,
+    ResultStore,
+    SceneSpec,
+    Task,
+    execute,
+    parse_sources,
+    probe_task,
+    rate_with_ci,
+    run_key,
+    scene_key,
+    wilson_interval,
+)
+from coster_sumo.errors import InputError
+
+REPO = Path(__file__).resolve().parents[1]
+INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"
+
+
+def _probe(name: str, mode: str = "ok", sleep: float = 0.0) -> Task:
+    return Task(name, probe_task, {"name": name, "mode": mode, "sleep": sleep})
+
+
+def _outcomes(finished: list[tuple[Task, Outcome]]) -> dict[str, Outcome]:
+    return {t.key: o for t, o in finished}
+
+
+def test_segfault_and_hang_become_failed_outcomes_and_the_rest_finish(tmp_path):
+    tasks = [_probe("a"), _probe("crash", "segfault"), _probe("b"), _probe("stuck", "hang"),
+             _probe("oops", "error"), _probe("quit", "exit"), _probe("c")]
+    t0 = time.monotonic()
+    out = _outcomes(execute(tasks, workers=3, timeout=2.0, log_dir=tmp_path / "logs"))
+    assert time.monotonic() - t0 < 20
+    assert set(out) == {t.key for t in tasks}
+    for k in ("a", "b", "c"):
+        assert out[k].ok and out[k].value["name"] == k
+    assert not out["crash"].ok and "SIGSEGV" in out["crash"].reason
+    assert not out["stuck"].ok and "timed out after 2 s" in out["stuck"].reason
+    assert not out["oops"].ok and "ValueError: probe oops failed on purpose" in out["oops"].reason
+    assert "Traceback" in out["oops"].detail
+    assert not out["quit"].ok and "code 3" in out["quit"].reason
+
+
+def test_each_task_runs_in_its_own_process_and_on_done_can_schedule_more():
+    seen: list[str] = []
+
+    def on_done(task: Task, outcome: Outcome) -> list[Task]:
+        seen.append(task.key)
+        return [_probe(f"{task.key}.child")] if "." not in task.key else []
+
+    finished = execute([_probe("p0"), _probe("p1")], on_done=on_done, workers=2)
+    pids = {o.value["pid"] for _, o in finished}
+    assert len(finished) == 4 and len(pids) == 4 and os.getpid() not in pids
+    assert sorted(seen) == ["p0", "p0.child", "p1", "p1.child"]
+
+
+def test_spawn_start_method_works_too():
+    out = _outcomes(execute([_probe("s"), _probe("boom", "segfault")], workers=2, start_method="spawn", timeout=30))
+    assert out["s"].ok and not out["boom"].ok
+
+
+def test_workers_run_in_parallel():
+    t0 = time.monotonic()
+    execute([_probe(f"t{i}", sleep=1.0) for i in range(4)], workers=4)
+    assert time.monotonic() - t0 < 3.5  # serial would be >= 4 s
+
+
+@pytest.mark.parametrize(("k", "n", "low", "high"), [
+    (0, 10, 0.0, 0.2775),  # Wilson 95 % for 0/10: [0, 0.2775]
+    (5, 10, 0.2366, 0.7634),
+    (10, 10, 0.7225, 1.0),
+    (1, 2, 0.0945, 0.9055),
+    (81, 263, 0.2553, 0.3662),  # Newcombe (1998) example 81/263: 0.2553-0.3662
+])
+def test_wilson_interval_known_values(k, n, low, high):
+    lo, hi = wilson_interval(k, n)
+    assert lo == pytest.approx(low, abs=1e-4)
+    assert hi == pytest.approx(high, abs=1e-4)
+
+
+def test_wilson_interval_empty_and_rate_helper():
+    lo, hi = wilson_interval(0, 0)
+    assert lo != lo and hi != hi  # nan
+    r = rate_with_ci([True, False, True, True])
+    assert r["rate"] == 0.75 and r["k"] == 3 and r["n"] == 4 and r["ci_low"] < 0.75 < r["ci_high"]
+    assert rate_with_ci([])["rate"] is None
+
+
+def test_result_store_writes_atomically_and_reads_as_a_dataset(tmp_path):
+    store = ResultStore(tmp_path / "results")
+    for i in range(3):
+        store.write({"run_key": run_key("scene", i, "sumo:IDM"), "scene_key": "scene", "variant": i,
+                     "planner": "sumo:IDM", "status": "ok", "reason": "", "collision": i == 1,
+                     "min_ttc": float("inf")})
+    (tmp_path / "results" / ".half-written.tmp").write_bytes(b"PAR1 garbage")  # a crash mid-write
+    rows = store.read()
+    assert len(rows) == 3 and store.keys() == {f"scene__v{i}__sumo-IDM" for i in range(3)}
+    assert sorted(r["collision"] for r in rows) == [False, False, True]
+    assert all(r["min_ttc"] is None and r["finished_at"] for r in rows)
+    assert ds.dataset(tmp_path / "results", format="parquet").count_rows() == 3
+    store.write({**rows[0], "status": "failed"})  # rewriting a key replaces its row
+    assert len(store.read()) == 3
+
+
+RESUMABLE_BATCH = textwrap.dedent("""
+    import sys
+    from pathlib import Path
+    from coster_sumo.batch import ResultStore, Task, execute, probe_task
+    store = ResultStore(Path(sys.argv[1]))
+    done = store.keys()
+    tasks = [Task(f"run{i:02d}", probe_task, {"name": i, "sleep": 0.4}) for i in range(12) if f"run{i:02d}" not in done]
+    def on_done(task, outcome):
+        store.write({"run_key": task.key, "scene_key": "s", "variant": 0, "planner": "p",
+                     "status": "ok" if outcome.ok else "failed", "reason": outcome.reason})
+        return []
+    execute(tasks, on_done=on_done, workers=2)
+    print(len(tasks))
+""")
+
+
+def test_sigkill_halfway_then_rerun_gives_every_run_exactly_once(tmp_path):
+    results = tmp_path / "results"
+    proc = subprocess.Popen([sys.executable, "-c", RESUMABLE_BATCH, str(results)], cwd=REPO)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(list(results.glob("*.parquet"))) < 4:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    done_before = len(list(results.glob("*.parquet")))
+    assert 4 <= done_before < 12
+    out = subprocess.run([sys.executable, "-c", RESUMABLE_BATCH, str(results)], cwd=REPO, capture_output=True,
+                         text=True, check=True)
+    assert int(out.stdout.split()[-1]) == 12 - done_before  # only the missing runs ran again
+    rows = ResultStore(results).read()
+    assert sorted(r["run_key"] for r in rows) == [f"run{i:02d}" for i in range(12)]
+    assert all(r["status"] == "ok" for r in rows)
+
+
+def test_parse_sources_overrides_seeds_lists_and_folders(tmp_path):
+    cfg = str(INTERSECTION)
+    specs = parse_sources([f"{cfg}@seed=3,begin=20,end=50", cfg], seeds=2, seed=10)
+    assert specs == [SceneSpec(INTERSECTION, 3, 20.0, 50.0), SceneSpec(INTERSECTION, 10), SceneSpec(INTERSECTION, 11)]
+    listing = tmp_path / "scenes.txt"
+    listing.write_text(f"# two scenes\n{cfg}@seed=1\n\n{cfg}@seed=1  # duplicate\n{REPO / 'networks' / 'merge'}\n")
+    specs = parse_sources([listing])
+    assert [s.config.stem for s in specs] == ["intersection", "merge"] and specs[0].seed == 1
+    assert len(parse_sources([REPO / "networks"])) == 3
+    with pytest.raises(InputError, match="no such scene source"):
+        parse_sources([tmp_path / "nope.sumocfg"])
+    with pytest.raises(InputError, match="bad override"):
+        parse_sources([f"{cfg}@speed=3"])
+
+
+def test_scene_keys_are_stable_and_distinct():
+    a = SceneSpec(INTERSECTION, 0)
+    assert scene_key(a) == scene_key(SceneSpec(INTERSECTION, 0))
+    assert scene_key(a).startswith("intersection_s0_")
+    assert len({scene_key(a), scene_key(SceneSpec(INTERSECTION, 1)), scene_key(a, {"init": "random"}),
+                scene_key(SceneSpec(INTERSECTION, 0, end=40.0))}) == 4
+
+
+@pytest.mark.slow
+def test_ray_executor_isolates_crashes_and_hangs():
+    pytest.importorskip("ray")
+    tasks = [_probe("a"), _probe("crash", "segfault"), _probe("stuck", "hang"), _probe("oops", "error"), _probe("b")]
+    out = _outcomes(execute(tasks, workers=2, timeout=5.0, executor="ray"))
+    assert out["a"].ok and out["b"].ok
+    assert not out["crash"].ok and not out["stuck"].ok and "timed out" in out["stuck"].reason
+    assert not out["oops"].ok and "probe oops failed on purpose" in out["oops"].reason

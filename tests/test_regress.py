@@ -1,0 +1,94 @@
+"""``coster-sumo regress`` and ``coster-sumo eval scenarios`` on a project network (SUMO)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from coster_sumo.batch import ResultStore
+from coster_sumo.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"
+# weight-free generation (random init, constant-velocity rollout) on a 40 s window
+SMALL = ["--end", "40", "--init", "random", "--rollout", "cv", "--variants", "2"]
+
+
+def test_regress_rejects_bad_input_before_any_work(tmp_path, capsys):
+    o = str(tmp_path / "o")
+    assert main(["regress", str(tmp_path / "missing.sumocfg"), *SMALL, "--planner", "replay", "-o", o]) == 2
+    assert "no such scene source" in capsys.readouterr().err
+    assert main(["regress", str(INTERSECTION), *SMALL, "--planner", "sumo:NoSuchModel", "-o", o]) == 2
+    assert "unknown SUMO car-following model" in capsys.readouterr().err
+    assert main(["regress", str(INTERSECTION), "--planner", "replay", "--models", str(tmp_path), "-o", o]) == 2
+    assert "model weights not found" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "results").exists()
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_regress_two_planners_same_variants_then_rerun_skips(tmp_path):
+    out = tmp_path / "reg"
+    argv = ["-q", "regress", str(INTERSECTION), *SMALL, "--planner", "replay", "--planner", "sumo:IDM",
+            "--workers", "2", "-o", str(out)]
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"] == {"expected": 4, "recorded": 4, "ok": 4, "failed": 0, "failures": []}
+    assert set(summary["planners"]) == {"replay", "sumo:IDM"}
+    for p in summary["planners"].values():
+        assert p["runs"] == 2 and p["RCR"]["n"] == 2 and 0 <= p["CR"]["ci_low"] <= p["CR"]["ci_high"] <= 1
+    rows = ResultStore(out / "results").read()
+    assert sorted((r["variant"], r["planner"]) for r in rows) == [(0, "replay"), (0, "sumo:IDM"),
+                                                                  (1, "replay"), (1, "sumo:IDM")]
+    assert len({r["t_col"] for r in rows if r["variant"] == 0}) == 1  # both planners saw the same variant
+    for f in ("report.md", "report.html", "plots/rates.png", "plots/impact_angles.png", "plots/relative_speeds.png"):
+        assert (out / f).stat().st_size > 0
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "results").glob("*.parquet")}
+    t0 = time.monotonic()
+    assert main(argv) == 0  # everything is done: nothing runs again
+    assert time.monotonic() - t0 < 10
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "results").glob("*.parquet")} == before
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_regress_killed_halfway_resumes_without_duplicates(tmp_path):
+    out = tmp_path / "reg"
+    cmd = [sys.executable, "-m", "coster_sumo.cli", "-q", "regress", str(INTERSECTION), *SMALL, "--variants", "3",
+           "--planner", "replay", "--planner", "sumo", "--workers", "2", "-o", str(out)]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len(list((out / "results").glob("*.parquet"))) < 2:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    first = len(list((out / "results").glob("*.parquet")))
+    assert 2 <= first < 6
+    assert subprocess.run(cmd, cwd=REPO, capture_output=True).returncode == 0
+    rows = ResultStore(out / "results").read()
+    keys = [r["run_key"] for r in rows]
+    assert len(keys) == 6 and len(set(keys)) == 6 and all(r["status"] == "ok" for r in rows)
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_eval_scenarios_reports_missing_weights_as_skipped(tmp_path):
+    out = tmp_path / "ev"
+    code = main(["-q", "eval", "scenarios", str(INTERSECTION), "--end", "40", "--variants", "2",
+                 "--models", str(tmp_path / "no_models"), "--method", "Random+CV", "--method", "Snapshot+CV",
+                 "-o", str(out)])
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())["methods"]
+    assert metrics["Snapshot+CV"]["status"] == "skipped" and "weights not found" in metrics["Snapshot+CV"]["reason"]
+    rc = metrics["Random+CV"]
+    assert rc["status"] == "ok" and rc["variants"] == 2 and rc["scenes"] == 1
+    for k in ("SUR", "CR", "ORR", "VDD", "ADD"):
+        assert rc[k] is not None and 0 <= rc[k] <= 1
+    assert (out / "metrics.md").read_text().count("skipped") >= 1
+    assert (out / "metrics.png").stat().st_size > 0
