@@ -64,8 +64,9 @@ RECOMMENDED_OPTIONS: dict[str, str] = {
 # lane and route SUMO reports for a moved vehicle mean little (SUMO_FACTS §3).
 KEEP_ROUTE_EXACT_ANYWHERE = 2
 # moveToXY matchThreshold [m]: how far from any lane a placement may be before the command fails;
-# with keepRoute=2 a placement off the network is legal, so the threshold only bounds lane matching.
-MOVE_MATCH_THRESHOLD_M = 100.0
+# with keepRoute=2 a placement off the network is legal, so the threshold only bounds lane matching;
+# 5 m keeps moveToXY at ~30 us on WOMD nets (100 m cost ~0.9 ms per call) and placements stay exact.
+MOVE_MATCH_THRESHOLD_M = 5.0
 # speed mode is a bit set; bit set = "respect": bit0 safe speed (car following), bit1 max
 # acceleration, bit2 max deceleration, bit3 right of way at intersections, bit4 brake hard to not
 # pass a red light, bit5 *disregard* right of way within intersections, bit6 speed limits.

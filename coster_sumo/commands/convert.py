@@ -1,0 +1,112 @@
+"""``coster-sumo convert INPUT... -o OUTDIR``: WOMD scenes -> converted SUMO scene folders.
+
+Every record of every input (WOMD TFRecord, gzip TFRecord, ScenarioNet pickle, our ``.npz``)
+becomes ``OUTDIR/<scenario_id>/`` (see :mod:`converters.to_sumo`). A bad input or record prints
+one line naming the file and record and the rest go on. ``OUTDIR/summary.json`` lists every scene
+with its fidelity figures and every failure. Exit code 0: all converted; 1: some failed; 2: usage
+error or nothing could be read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from coster_sumo.errors import CosterError, InputError
+
+
+def register(cli) -> None:  # type: ignore[no-untyped-def]
+    p = cli.commands.add_parser(
+        "convert", help="convert WOMD scenes (TFRecord / ScenarioNet pickle) into SUMO scenes",
+        description="Each scene becomes OUTDIR/<scenario_id>/ with <id>.net.xml, <id>.rou.xml, "
+                    "<id>.sumocfg, scene.npz, lane_map.json and summary.json (fidelity figures).")
+    p.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
+                   help="WOMD Scenario TFRecord (plain or gzip), ScenarioNet .pkl or scene .npz")
+    p.add_argument("-o", "--out", type=Path, required=True, metavar="OUTDIR", help="output folder")
+    p.set_defaults(func=run)
+
+
+def _fmt(v: float | None, unit: str = "", digits: int = 3) -> str:
+    return "n/a" if v is None else f"{v:.{digits}f}{unit}"
+
+
+def fidelity_line(summary: dict) -> str:
+    """One line of per-scene fidelity figures."""
+    f = summary["fidelity"]
+    return (f"{summary['scenario_id']}: lanes matched {f['lanes_matched']}/{f['lanes']} "
+            f"({100 * f['lanes_matched_share']:.1f}%), links realised {f['links_realised']}/{f['links']} "
+            f"({100 * f['links_realised_share']:.1f}%), centreline mean {_fmt(f['centreline_mean_m'], ' m', 4)} "
+            f"max {_fmt(f['centreline_max_m'], ' m', 4)}, {summary['conversion_s']:.2f} s")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from converters.read import iter_scenes
+    from converters.to_sumo import convert_scene
+
+    debug = bool(getattr(args, "debug", False))
+    quiet = bool(getattr(args, "quiet", False))
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    scenes: list[dict] = []
+    failures: list[dict] = []
+    read_any = False
+    bar = tqdm(desc="convert", unit="scene", disable=quiet, file=sys.stderr, dynamic_ncols=True)
+
+    def fail(where: str, message: str) -> None:
+        failures.append({"where": where, "error": message})
+        line = message if message.startswith(where) else f"{where}: {message}"
+        tqdm.write(f"coster-sumo: error: {line}", file=sys.stderr)
+
+    for path in args.inputs:
+        record = 0
+        try:
+            for scene in iter_scenes(path):
+                read_any = True
+                where = f"{path}: record {record} ({scene.scenario_id})"
+                record += 1
+                try:
+                    result = convert_scene(scene, out)
+                except CosterError as exc:
+                    if debug:
+                        raise
+                    fail(where, str(exc))
+                    continue
+                except Exception as exc:  # one bad scene must not stop the batch
+                    if debug:
+                        raise
+                    fail(where, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+                    continue
+                scenes.append({"input": str(path), "record": record - 1, "folder": str(result.folder),
+                               **{k: result.summary[k] for k in ("scenario_id", "fidelity", "conversion_s")},
+                               "warnings": len(result.summary["warnings"])})
+                if not quiet:
+                    tqdm.write(fidelity_line(result.summary))
+                bar.update(1)
+        except CosterError as exc:
+            if debug:
+                raise
+            fail(f"{path}: record {record}", str(exc))
+        except Exception as exc:  # a reader bug on one file must not stop the others
+            if debug:
+                raise
+            fail(f"{path}: record {record}", f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+    bar.close()
+    summary = {"outdir": str(out), "inputs": [str(p) for p in args.inputs], "converted": len(scenes),
+               "failed": len(failures), "scenes": scenes, "failures": failures,
+               "wall_s": round(time.perf_counter() - t0, 3)}
+    tmp = out / "summary.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=1))
+    tmp.replace(out / "summary.json")
+    if not quiet:
+        print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")
+    if not scenes and not read_any:
+        return 2
+    return 1 if failures else 0

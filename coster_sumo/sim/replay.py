@@ -1,0 +1,345 @@
+"""Log replay of a converted WOMD scene in SUMO, and a plain run of any SUMO configuration.
+
+Replay: SUMO steps the converted scene at the log's step length; every logged agent is added when
+its state first becomes valid, driven every step through ``moveToXY`` with SUMO's own control off
+(:meth:`SumoSession.move_to_xy`), removed when its state becomes invalid (and added again, under
+``<id>#<k>``, if it comes back). Traffic lights follow the logged signal states through the link
+mapping the converter wrote (``lane_map.json``). After each step the positions SUMO reports are read
+back and converted front-bumper -> box centre; the centre error against the log over every valid
+state is the replay's fidelity figure.
+
+Staging: a vehicle whose very first placement is off every lane crashes SUMO in its outputs (FCD)
+and in some getters (SUMO_FACTS §3), and logged agents often start off the lanes (parked cars,
+pedestrians). So every agent is added one step before it first appears, on an isolated staging lane
+the converter puts 1 km below the map, and moved to its logged pose in the next step.
+
+Time: the converter shifts the log onto SUMO's clock so that the first log step has a staging step
+before it: ``scene.npz``'s timestamps are SUMO times (``SumoSession.time`` after the step that
+shows them; ``scene.meta["sumo_time_offset_s"]`` = SUMO time - WOMD time, 2 steps = 0.2 s for a
+WOMD log starting at 0). SUMO's FCD output labels the same state one step earlier (``time - dt``).
+
+Nothing SUMO-specific is imported at module import time.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from coster_sumo.errors import InputError
+from coster_sumo.scene import ObjectType, Scene, SignalState, load_scene
+from coster_sumo.sim.session import SumoSession
+
+# WOMD signal state -> SUMO link state letter (r red, y yellow, G protected green, g green that
+# yields, o off-blinking (yield), O off (no signal)).
+SUMO_SIGNAL_LETTER: dict[int, str] = {
+    SignalState.UNKNOWN: "O", SignalState.ARROW_STOP: "r", SignalState.ARROW_CAUTION: "y",
+    SignalState.ARROW_GO: "G", SignalState.STOP: "r", SignalState.CAUTION: "y", SignalState.GO: "g",
+    SignalState.FLASHING_STOP: "r", SignalState.FLASHING_CAUTION: "o",
+}
+
+# WOMD object type -> (vType id in the converted .rou.xml, vClass, guiShape, default length [m],
+# default width [m]). Pedestrians and cyclists are vehicles of class pedestrian / bicycle: SUMO's
+# moveToXY drives vehicles, and the replay needs their exact boxes, not a pedestrian model.
+VTYPES: dict[int, tuple[str, str, str, float, float]] = {
+    ObjectType.VEHICLE: ("womd_vehicle", "passenger", "passenger", 4.5, 1.9),
+    ObjectType.PEDESTRIAN: ("womd_pedestrian", "pedestrian", "pedestrian", 0.5, 0.5),
+    ObjectType.CYCLIST: ("womd_cyclist", "bicycle", "bicycle", 1.8, 0.6),
+    ObjectType.OTHER: ("womd_other", "passenger", "passenger", 4.5, 1.9),
+    ObjectType.UNSET: ("womd_other", "passenger", "passenger", 4.5, 1.9),
+}
+STAGING_SPACING_M = 25.0  # [m] between agents parked on the staging lane (longer than any vehicle)
+TIME_EPS_S = 1e-6  # [s] two simulation times this close are the same step
+MIN_SIZE_M = 0.1  # [m] SUMO rejects zero-length types; WOMD zero-fills invalid sizes
+SCENE_FILES = ("scene.npz", "lane_map.json")
+
+
+def vtype_for(object_type: int) -> tuple[str, str, str, float, float]:
+    """The :data:`VTYPES` row of a WOMD object type (unknown codes count as OTHER)."""
+    return VTYPES.get(int(object_type), VTYPES[ObjectType.OTHER])
+
+
+def tls_state_strings(scene: Scene, tls: dict[str, dict]) -> dict[str, list[str]]:
+    """Per traffic light, the SUMO state string at every step of the log.
+
+    Args:
+        scene: the logged scene (its ``signals``).
+        tls: ``lane_map.json``'s ``"tls"``: per tls id ``{"links": [WOMD lane id or None, ...]}``,
+            one entry per SUMO link index.
+
+    Returns:
+        tls id -> (num_steps,) list of state strings; links without a logged signal are ``O``.
+    """
+    per_lane = scene.signals.per_lane(len(scene.road_map.lanes))  # (T, num_lanes)
+    col = {str(lid): i for i, lid in enumerate(scene.road_map.lanes.ids)}
+    letters = np.array([SUMO_SIGNAL_LETTER.get(v, "O") for v in range(256)])
+    out: dict[str, list[str]] = {}
+    for tid, entry in tls.items():
+        cols = np.array([col.get(str(lid), -1) if lid is not None else -1 for lid in entry["links"]],
+                        np.int64)
+        if len(cols) == 0:
+            continue
+        codes = per_lane[:, np.maximum(cols, 0)].astype(np.int64) % 256  # (T, L)
+        chars = letters[codes]
+        chars[:, cols < 0] = "O"
+        out[tid] = ["".join(row) for row in chars]
+    return out
+
+
+def is_converted_scene(folder: str | Path) -> bool:
+    """True when ``folder`` holds a ``.sumocfg`` plus ``scene.npz`` and ``lane_map.json``."""
+    folder = Path(folder)
+    return folder.is_dir() and all((folder / f).is_file() for f in SCENE_FILES) and \
+        any(folder.glob("*.sumocfg"))
+
+
+def agent_sizes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(num_agents,) length and width [m]: the median over valid steps (SUMO's size is fixed)."""
+    tr = scene.tracks
+    lengths = np.zeros(tr.num_agents)
+    widths = np.zeros(tr.num_agents)
+    for a in range(tr.num_agents):
+        v = tr.valid[a]
+        default = vtype_for(int(tr.object_type[a]))
+        lengths[a] = float(np.median(tr.length[a, v])) if v.any() else default[3]
+        widths[a] = float(np.median(tr.width[a, v])) if v.any() else default[4]
+    bad_l = ~np.isfinite(lengths) | (lengths < MIN_SIZE_M)
+    bad_w = ~np.isfinite(widths) | (widths < MIN_SIZE_M)
+    lengths[bad_l] = MIN_SIZE_M
+    widths[bad_w] = MIN_SIZE_M
+    return lengths, widths
+
+
+@dataclass(slots=True)
+class ReplayOptions:
+    """How to run a replay.
+
+    Attributes:
+        end: [s] stop at this simulation time (None: the configuration's end / the log's end).
+        fcd_output: SUMO ``--fcd-output`` file (None: none).
+        traci: use a TraCI socket instead of libsumo.
+        progress: called with (step, num_steps) after every step (for progress bars).
+    """
+
+    end: float | None = None
+    fcd_output: str | Path | None = None
+    traci: bool = False
+    progress: Callable[[int, int], None] | None = None
+
+
+def _session(cfg: Path, opts: ReplayOptions, end: float | None = None) -> SumoSession:
+    options = {"--fcd-output": str(Path(opts.fcd_output).resolve())} if opts.fcd_output else {}
+    return SumoSession(cfg, end=opts.end if end is None else end, options=options, traci=opts.traci)
+
+
+def _staging_slots(sim: SumoSession, lane_id: str | None) -> np.ndarray | None:
+    """(k, 2) points along the staging lane, STAGING_SPACING_M apart (None: the net has none)."""
+    if not lane_id:
+        return None
+    try:
+        shape = np.asarray(sim.api.lane.getShape(lane_id), np.float64)
+    except Exception:  # an older conversion without a staging lane
+        return None
+    a, b = shape[0], shape[-1]
+    length = float(np.hypot(*(b - a)))
+    s = np.arange(STAGING_SPACING_M, length - STAGING_SPACING_M, STAGING_SPACING_M)
+    if len(s) == 0:
+        return None
+    return a + (s / length)[:, None] * (b - a)
+
+
+class LogReplayer:
+    """Drives every logged agent of a converted scene (a :class:`~coster_sumo.sim.inject.StepActor`).
+
+    Call :meth:`before_step` with the simulation time the coming step ends at (``t_next``); at the
+    log step whose timestamp is ``t_next`` it removes agents that became invalid, moves every valid
+    one to its logged pose, stages the agents that appear at the next log step, and sets the
+    logged signal states.
+
+    Args:
+        scene: the converted scene (``scene.npz``: timestamps already on SUMO's clock).
+        tls: ``lane_map.json["tls"]`` (per tls id, the WOMD lane of each link index).
+        staging_lane: the converted network's staging lane (None: agents are added in place).
+        exclude: agent ids not to drive (e.g. the target, driven by a planner).
+    """
+
+    def __init__(self, scene: Scene, tls: dict[str, dict] | None = None, staging_lane: str | None = None,
+                 exclude: set[str] | frozenset[str] = frozenset()) -> None:
+        self.scene = scene
+        self.dt = round(scene.dt, 6)  # [s] the log's step (SUMO's step length must match it)
+        tr = scene.tracks
+        self.lengths, self.widths = agent_sizes(scene)
+        keep = np.array([str(i) not in exclude for i in tr.ids], bool)
+        self.valid = tr.valid & keep[:, None]  # (A, T)
+        self.tls_states = tls_state_strings(scene, tls or {})
+        self.staging_lane = staging_lane
+        self.active: dict[int, str] = {}  # agent index -> SUMO id while it is in the simulation
+        self.appearances = np.zeros(tr.num_agents, np.int64)
+        self.tls_changes = 0
+        self._tls_last: dict[str, str] = {}
+        self._slots: np.ndarray | None = None
+        self._slot = 0
+        self._staging_checked = False
+
+    @classmethod
+    def for_config(cls, config: str | Path, scene: Scene | None = None,
+                   exclude: set[str] | frozenset[str] = frozenset()) -> LogReplayer:
+        """The replayer of the converted scene whose ``.sumocfg`` is ``config``."""
+        folder = Path(config).parent
+        if scene is None:
+            scene = load_scene(folder / "scene.npz")
+        try:
+            lane_map = json.loads((folder / "lane_map.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{folder / 'lane_map.json'}: cannot read the lane mapping ({exc})") from None
+        return cls(scene, lane_map.get("tls", {}), lane_map.get("staging_lane"), exclude)
+
+    def step_at(self, t: float) -> int | None:
+        """Index of the log step at simulation time ``t`` [s], or None outside the log.
+
+        Steps are on the regular grid ``timestamps[0] + k * dt`` (WOMD timestamps jitter by a few
+        microseconds; SUMO's step is exact).
+        """
+        ts = self.scene.timestamps
+        if len(ts) == 0:
+            return None
+        dt = self.dt
+        k = int(round((t - ts[0]) / dt))
+        return k if 0 <= k < len(ts) and abs(t - ts[0] - k * dt) < 0.25 * dt else None
+
+    def _add(self, sim: SumoSession, a: int) -> str:
+        tr = self.scene.tracks
+        n = int(self.appearances[a])
+        sid = str(tr.ids[a]) if n == 0 else f"{tr.ids[a]}#{n}"
+        self.appearances[a] += 1
+        vt = vtype_for(int(tr.object_type[a]))
+        sim.add_vehicle(sid, float(self.lengths[a]), float(self.widths[a]), vt[1], base_type=vt[0])
+        self.active[a] = sid
+        if not self._staging_checked:
+            self._slots = _staging_slots(sim, self.staging_lane)
+            self._staging_checked = True
+        if self._slots is not None:  # park it on the staging lane until its first logged step
+            x, y = self._slots[self._slot % len(self._slots)]
+            self._slot += 1
+            sim.move_to_xy(sid, float(x), float(y), 0.0, length=float(self.lengths[a]))
+        return sid
+
+    def before_step(self, session: SumoSession, t_next: float) -> None:
+        """Command every logged agent (and the signals) for the step that ends at ``t_next`` [s]."""
+        tr = self.scene.tracks
+        k = self.step_at(t_next)
+        if k is not None:
+            valid = self.valid[:, k]
+            for a in np.flatnonzero(~valid).tolist():
+                sid = self.active.pop(a, None)
+                if sid is not None:
+                    session.remove_vehicle(sid)
+            for a in np.flatnonzero(valid).tolist():
+                sid = self.active.get(a) or self._add(session, a)  # not staged: added in place
+                session.move_to_xy(sid, float(tr.x[a, k]), float(tr.y[a, k]), float(tr.heading[a, k]),
+                                   length=float(self.lengths[a]),
+                                   speed=float(np.hypot(tr.vx[a, k], tr.vy[a, k])))
+            for tid, seq in self.tls_states.items():
+                if self._tls_last.get(tid) != seq[k]:
+                    session.set_tls_state(tid, seq[k])
+                    self._tls_last[tid] = seq[k]
+                    self.tls_changes += 1
+        nxt = self.step_at(t_next + self.dt)
+        if nxt is not None:  # stage the agents that appear at the next log step
+            for a in np.flatnonzero(self.valid[:, nxt]).tolist():
+                if a not in self.active:
+                    self._add(session, a)
+
+
+def replay_scene(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:
+    """Replay a converted scene (the folder of ``cfg``); returns the summary dict (see README)."""
+    opts = opts or ReplayOptions()
+    cfg = Path(cfg)
+    t0 = time.perf_counter()
+    replayer = LogReplayer.for_config(cfg)
+    scene = replayer.scene
+    tr = scene.tracks
+    dt = replayer.dt
+    t_first = float(scene.timestamps[0])
+    t_last = t_first + (scene.num_steps - 1) * dt
+    end = min(opts.end, t_last) if opts.end is not None else t_last
+    num_steps = max(0, int(round((end - t_first) / dt)) + 1)
+    err_sum, err_max, n_err = 0.0, 0.0, 0
+    worst = ("", -1)
+    collisions: set[tuple[str, str]] = set()
+    t_sim = time.perf_counter()
+    with _session(cfg, opts, end=end + TIME_EPS_S) as sim:
+        while sim.time < end - TIME_EPS_S:
+            replayer.before_step(sim, round(sim.time + dt, 9))
+            sim.step()
+            k = replayer.step_at(sim.time)
+            if k is None:
+                continue
+            for c in sim.collisions():
+                collisions.add((c["collider"], c["victim"]))
+            agents = np.array([a for a in np.flatnonzero(tr.valid[:, k]).tolist() if a in replayer.active],
+                              np.int64)
+            if len(agents):
+                states = sim.vehicle_states([replayer.active[int(a)] for a in agents])
+                err = np.hypot(states.x - tr.x[agents, k], states.y - tr.y[agents, k])
+                err_sum += float(err.sum())
+                n_err += len(err)
+                j = int(np.argmax(err))
+                if err[j] > err_max:
+                    err_max = float(err[j])
+                    worst = (str(tr.ids[agents[j]]), k)
+            if opts.progress is not None:
+                opts.progress(k + 1, num_steps)
+    sim_s = time.perf_counter() - t_sim
+    return {
+        "config": str(cfg), "scenario_id": scene.scenario_id, "mode": "replay",
+        "backend": "traci" if opts.traci else "libsumo",
+        "steps": num_steps, "step_length_s": dt, "end_s": end,
+        "log_time_offset_s": scene.meta.get("sumo_time_offset_s"),
+        "agents": int(np.sum(np.any(tr.valid[:, :num_steps], axis=1))),
+        "valid_states_compared": n_err,
+        "centre_error_max_m": err_max, "centre_error_mean_m": err_sum / n_err if n_err else 0.0,
+        "worst": {"agent": worst[0], "step": worst[1]},
+        "traffic_lights": len(replayer.tls_states), "tls_state_changes": replayer.tls_changes,
+        "sumo_collision_pairs": len(collisions),
+        "fcd_output": str(opts.fcd_output) if opts.fcd_output else None,
+        "wall_s": round(time.perf_counter() - t0, 4), "sim_s": round(sim_s, 4),
+        "steps_per_s": round(num_steps / max(sim_s, 1e-9), 1),
+    }
+
+
+def run_config(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:
+    """Run a plain SUMO configuration to its end (or ``opts.end``); returns a summary dict."""
+    opts = opts or ReplayOptions()
+    cfg = Path(cfg)
+    t0 = time.perf_counter()
+    steps = 0
+    seen: set[str] = set()
+    with _session(cfg, opts) as sim:
+        while sim.min_expected_number() > 0 and (opts.end is None or sim.time < opts.end - 1e-9):
+            sim.step()
+            steps += 1
+            seen.update(sim.departed_ids())
+            if opts.progress is not None:
+                opts.progress(steps, 0)
+        end_time = sim.time
+    wall = time.perf_counter() - t0
+    return {"config": str(cfg), "mode": "run", "backend": "traci" if opts.traci else "libsumo",
+            "steps": steps, "end_s": end_time, "vehicles": len(seen),
+            "fcd_output": str(opts.fcd_output) if opts.fcd_output else None,
+            "wall_s": round(wall, 4), "steps_per_s": round(steps / max(wall, 1e-9), 1)}
+
+
+def replay(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:
+    """Replay a converted scene, or just run a plain configuration."""
+    cfg = Path(cfg)
+    if not cfg.is_file():
+        raise InputError(f"{cfg}: SUMO configuration not found")
+    if is_converted_scene(cfg.parent):
+        return replay_scene(cfg, opts)
+    return run_config(cfg, opts)
