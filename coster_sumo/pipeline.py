@@ -24,9 +24,10 @@ import numpy as np
 
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import CosterError, InputError
-from coster_sumo.geometry import boxes_overlap, make_boxes
-from coster_sumo.planners import ReplayPlanner, make_planner
+from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
 from coster_sumo.scene import CollisionSnapshot, Scene, load_scene, resample
+from coster_sumo.sim.events import CONTACT_TOLERANCE_M
 from coster_sumo.sim.inject import InjectionResult, StepActor, run_injection
 from coster_sumo.sim.plan import AdversaryPlan
 from coster_sumo.snapshot import NoSnapshot, prior_snapshot, random_snapshot
@@ -159,7 +160,7 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
     adv = make_boxes(x, y, yaw, plan.length, plan.width)
     tgt = make_boxes(t.x[target, sel], t.y[target, sel], t.heading[target, sel], t.length[target, sel],
                      t.width[target, sel])
-    hit = boxes_overlap(adv, tgt)
+    hit = box_signed_distance(adv, tgt) <= CONTACT_TOLERANCE_M
     return float(times[sel][np.argmax(hit)]) if hit.any() else None
 
 
@@ -238,10 +239,17 @@ def inject_variants(planned: PlannedScenario, opts: RunOptions, converted: bool,
     planner_spec = opts.planner or ("replay" if converted else "sumo")
     end = float(scene.timestamps[-1]) + 1e-9
     results = []
+    if converted and planner_spec != "replay":
+        # the converted net has no routes for logged agents, so SUMO cannot take the target over
+        raise InputError(f"{opts.config}: converted WOMD scenes support --planner replay only "
+                         f"(got {planner_spec!r}); run the planner on a SUMO configuration with routes")
     for plan in planned.plans:
-        planner = make_planner(planner_spec, replay_planner_for(scene, target))
-        # converted scenes: the log drives everyone; the target too unless SUMO or the user drives it
-        actors = log_actors(opts.config, scene, exclude={target_id}) if converted else ()
+        if converted:  # the log drives everyone, the target included
+            planner: Planner = LoggedPlanner()
+            actors = log_actors(opts.config, scene, exclude=set())
+        else:
+            planner = make_planner(planner_spec, replay_planner_for(scene, target))
+            actors = ()
         results.append(run_injection(opts.config, target_id, plan, planner, seed=opts.seed, end=end,
                                      begin=opts.begin, drivable=drivable, actors=actors, traci=opts.traci,
                                      workdir=workdir))

@@ -70,6 +70,7 @@ class ReplayPlanner:
         self.x, self.y, self.yaw, self.speed = x, y, yaw, speed
         self.valid = np.asarray(valid, bool)
         self.length = float(length)
+        self.half_step = 0.5 * float(np.median(np.diff(self.times))) if len(self.times) > 1 else 0.05
 
     def additional_files(self, workdir: Path) -> list[Path]:
         return []
@@ -80,11 +81,28 @@ class ReplayPlanner:
     def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
         if not present:
             return
-        k = int(np.searchsorted(self.times, t_next - 1e-6))
-        if k >= len(self.times) or abs(self.times[k] - t_next) > 1e-3 or not self.valid[k]:
+        # nearest recorded step; WOMD timestamps are not exactly on SUMO's 0.1 s grid (ms jitter)
+        k = int(np.clip(np.searchsorted(self.times, t_next), 1, len(self.times) - 1))
+        k = k - 1 if abs(self.times[k - 1] - t_next) <= abs(self.times[k] - t_next) else k
+        if abs(self.times[k] - t_next) > self.half_step or not self.valid[k]:
             return  # outside the recording: SUMO drives it
         session.move_to_xy(target_id, float(self.x[k]), float(self.y[k]), float(self.yaw[k]),
                            self.length, speed=float(self.speed[k]))
+
+
+class LoggedPlanner:
+    """The target is one of the agents the log replayer of a converted scene already drives."""
+
+    name = "replay"
+
+    def additional_files(self, workdir: Path) -> list[Path]:
+        return []
+
+    def setup(self, session: SumoSession, target_id: str) -> None:
+        pass
+
+    def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
+        pass
 
 
 class SumoPlanner:

@@ -5,7 +5,9 @@ own check is lane-based and misses lateral and cross-edge overlaps (SUMO_FACTS Â
 logged beside it as ``sumo_collision`` events. Only pairs that involve the adversary or the target
 are checked (two rows of the pairwise matrix), vectorised over all other vehicles.
 
-An event is reported once when it starts; a pair that separates and overlaps again is a new
+Two boxes are in contact when their signed distance is at most ``CONTACT_TOLERANCE_M`` (5 cm, the
+tolerance a collision snapshot is placed with), so touching at t_col counts. An event is reported
+once when it starts; a pair that separates and overlaps again is a new
 event. Off-road is checked for the adversary and the target only (footprint against the drivable
 area, :class:`coster_sumo.drivable.DrivableArea`).
 """
@@ -17,9 +19,11 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.geometry import boxes_overlap, make_boxes
+from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.metrics import impact_angle_deg
 from coster_sumo.sim.session import VehicleStates
+
+CONTACT_TOLERANCE_M = 0.05  # [m] boxes closer than this are in contact (the snapshot's own tolerance)
 
 
 def _index(states: VehicleStates, vid: str) -> int:
@@ -108,7 +112,7 @@ class EventDetector:
                 a_box = make_boxes(states.x[r], states.y[r], states.yaw[r], states.length[r], states.width[r])
                 b_box = make_boxes(states.x[idx], states.y[idx], states.yaw[idx], states.length[idx],
                                    states.width[idx])
-                for j in idx[boxes_overlap(a_box[None, :], b_box)].tolist():
+                for j in idx[box_signed_distance(a_box[None, :], b_box) <= CONTACT_TOLERANCE_M].tolist():
                     key = ("collision", *sorted((str(states.ids[r]), str(states.ids[j]))))
                     if key not in self._active and key not in now:  # adversary-target is seen twice
                         new.append(self._collision_event(time, states, r, j, "collision"))
