@@ -4,8 +4,8 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/demo
 DEMO_CFG ?= networks/intersection/intersection.sumocfg
-# weight-free baselines until the trained prior and CVAE ship in models/
-DEMO_ARGS ?= --init random --rollout cv --planner replay
+# the constant-velocity rollout until the CVAE weights ship in models/
+DEMO_ARGS ?= --rollout cv --planner replay
 
 .PHONY: setup demo test test-slow lint clean
 

@@ -65,3 +65,17 @@ def test_missing_config_is_exit_2(tmp_path, capsys):
     rc = main(["run", str(tmp_path / "nope.sumocfg"), "-o", str(tmp_path / "o")])
     assert rc == 2
     assert "nope.sumocfg" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("network", ["intersection", "merge", "arterial"])
+def test_coster_snapshot_with_shipped_prior_contacts_at_t_col(tmp_path, network):
+    out = tmp_path / network
+    rc = main(["-q", "run", str(REPO / f"networks/{network}/{network}.sumocfg"), "--init", "snapshot",
+               "--collision-time", "entropy", "--rollout", "cv", "--planner", "replay", "--no-render",
+               "-o", str(out)])
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["init_method"] == "snapshot" and summary["collision_time_method"] == "entropy"
+    assert 0.0 <= summary["snapshot_signed_distance"] <= 0.05
+    for v in summary["variants"]:
+        assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6

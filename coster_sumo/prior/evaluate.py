@@ -1,0 +1,209 @@
+"""Evaluation of the prior against ground truth and two baselines.
+
+Samples: every step of every evaluated scene (at 2 Hz), centred on the scene's target
+(``sdc_index``) where it is a valid vehicle, otherwise on a random valid vehicle of that step
+(seeded). All regions of a neighbourhood are hidden ("map" mode: map and signals only), so the
+model and the baselines generate the whole neighbourhood's traffic from the same information.
+
+Generation: per region, presence ~ Bernoulli(p); for present ones every attribute is drawn from
+its categorical head and decoded to its bin centre. Ground truth: the agents assigned to the
+regions, with their exact attributes.
+
+MMD (per attribute, per scene, then averaged over scenes where both sets are non-empty): samples
+are pooled over the scene's steps, in the centre agent's frame: position (x, y) [m], heading as
+(cos, sin) of the heading relative to the centre, speed [m/s], size (length, width) [m]. One
+Gaussian kernel exp(-|a - b|^2 / h) with h = mean pairwise squared distance of the pooled samples;
+biased estimate mean(K_xx) + mean(K_yy) - 2 mean(K_xy).
+
+Presence calibration: reliability over 10 equal-width probability bins (count, mean predicted,
+observed frequency), expected calibration error, BCE, Brier score and ROC AUC, for the model in
+"map" mode, the model in "context" mode (only the tokens it predicts), and the bucket rates of the
+baselines.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from coster_sumo.prior.baselines import GMMBaseline, MeanValueBaseline
+from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
+from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples, scene_tokens
+from coster_sumo.prior.features import Tokens, centre_frame_attributes, token_buckets
+from coster_sumo.prior.infer import predict_tokens
+from coster_sumo.prior.model import TrafficPrior
+from coster_sumo.prior.train import evaluate_loss
+
+MMD_ATTRIBUTES = ("position", "heading", "speed", "size")
+
+
+def mmd(x: np.ndarray, y: np.ndarray) -> float:
+    """Biased MMD^2 of samples x (n, d) and y (m, d), one Gaussian kernel, bandwidth = mean pairwise
+    squared distance of the pooled samples (over distinct pairs)."""
+    x = np.asarray(x, np.float64).reshape(len(x), -1)
+    y = np.asarray(y, np.float64).reshape(len(y), -1)
+    z = np.concatenate([x, y])
+    sq = np.sum(z * z, axis=1)
+    d2 = np.maximum(sq[:, None] + sq[None, :] - 2.0 * z @ z.T, 0.0)
+    n = len(z)
+    bw = d2.sum() / max(n * (n - 1), 1)
+    k = np.exp(-d2 / bw) if bw > 0 else np.ones_like(d2)
+    nx = len(x)
+    return float(k[:nx, :nx].mean() + k[nx:, nx:].mean() - 2.0 * k[:nx, nx:].mean())
+
+
+def reliability(p: np.ndarray, y: np.ndarray, num_bins: int = 10) -> dict:
+    """Calibration of probabilities ``p`` (n,) against outcomes ``y`` (n,) bool."""
+    p = np.asarray(p, np.float64)
+    y = np.asarray(y, bool)
+    out: dict = {"count": int(len(p))}
+    if len(p) == 0:
+        return out
+    which = np.minimum((p * num_bins).astype(np.int64), num_bins - 1)
+    table, ece = [], 0.0
+    for b in range(num_bins):
+        sel = which == b
+        n = int(sel.sum())
+        row = {"lo": b / num_bins, "hi": (b + 1) / num_bins, "count": n}
+        if n:
+            row["mean_predicted"] = float(p[sel].mean())
+            row["observed"] = float(y[sel].mean())
+            ece += n / len(p) * abs(row["mean_predicted"] - row["observed"])
+        table.append(row)
+    eps = 1e-7
+    pc = np.clip(p, eps, 1 - eps)
+    out.update({"ece": ece, "bce": float(-np.mean(y * np.log(pc) + (~y) * np.log(1 - pc))),
+                "brier": float(np.mean((p - y) ** 2)), "rate_observed": float(y.mean()),
+                "rate_predicted": float(p.mean()), "reliability": table})
+    if 0 < y.sum() < len(y):
+        from sklearn.metrics import roc_auc_score
+
+        out["auc"] = float(roc_auc_score(y, p))
+    return out
+
+
+def evaluation_centres(data: ScenePriorData, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Steps (T,) and centre poses (T, 3): the target where valid, else a random valid vehicle."""
+    steps, poses = [], []
+    for t in np.unique(data.centres[:, 0]):
+        rows = np.flatnonzero(data.centres[:, 0] == t)
+        sdc = rows[data.centres[rows, 1] == data.sdc_index]
+        row = sdc[0] if len(sdc) else rng.choice(rows)
+        steps.append(int(t))
+        poses.append(data.centre_pose[row])
+    return np.asarray(steps, np.int64), np.asarray(poses, np.float64).reshape(-1, 3)
+
+
+def _mmd_features(tok: Tokens, sel: np.ndarray, values: np.ndarray, radius: float, width: float
+                  ) -> dict[str, np.ndarray]:
+    """Per-attribute MMD features of the tokens ``sel`` (n,) flat indices with attributes (n, 6)."""
+    mf = tok.map_features.reshape(-1, tok.map_features.shape[-1])[sel]
+    pos, head = centre_frame_attributes(mf, values[:, :2], values[:, 2], radius, width)
+    return {"position": pos, "heading": np.stack([np.cos(head), np.sin(head)], -1),
+            "speed": values[:, 3:4], "size": values[:, 4:6]}
+
+
+def _sample_model(presence: np.ndarray, probs: dict[str, np.ndarray], mask: np.ndarray, bins: AttributeBins,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices of generated agents and their (n, 6) attributes (bin centres)."""
+    gen = (rng.random(presence.shape) < presence) & mask
+    sel = np.flatnonzero(gen.ravel())
+    vals = np.zeros((len(sel), 6))
+    for a in ATTRIBUTES:
+        p = probs[a].reshape(-1, probs[a].shape[-1])[sel].astype(np.float64)
+        cdf = np.cumsum(p, axis=-1)
+        u = rng.random(len(sel)) * cdf[:, -1]
+        cls = np.minimum((cdf < u[:, None]).sum(axis=-1), p.shape[-1] - 1)
+        c = bins.centres(a)[cls]
+        if a == "position":
+            vals[:, 0:2] = c
+        else:
+            vals[:, 2 + ATTRIBUTES.index(a) - 1] = c
+    return sel, vals
+
+
+def fit_baselines(model: TrafficPrior, train: Sequence[ScenePriorData], seed: int = 0
+                  ) -> list[MeanValueBaseline | GMMBaseline]:
+    """Fit both baselines on one epoch of the model's training samples (all regions, map mode)."""
+    cfg = model.config
+    samples = epoch_samples(train, np.random.default_rng([seed, 0]), 1)
+    buckets, present, values = [], [], []
+    for i in range(0, len(samples), 256):
+        tok = batch_tokens(train, samples[i:i + 256], cfg.bins(), cfg.radius, cfg.max_regions, visible="map")
+        m = tok.mask
+        buckets.append(token_buckets(tok.map_features)[m])
+        present.append(tok.present[m])
+        values.append(tok.values[m].astype(np.float64))
+    b, p, v = np.concatenate(buckets), np.concatenate(present), np.concatenate(values)
+    return [MeanValueBaseline().fit(b, p, v), GMMBaseline(cfg.bins(), seed=seed).fit(b, p, v)]
+
+
+def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
+                   baselines: Sequence[MeanValueBaseline | GMMBaseline] = (), seed: int = 0,
+                   progress: bool = False) -> dict:
+    """MMD of generated vs ground-truth traffic, presence calibration and held-out losses."""
+    cfg = model.config
+    bins = cfg.bins()
+    rng = np.random.default_rng([seed, 7])
+    methods = ["prior", *[b.name for b in baselines]]
+    per_scene: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
+    counts: dict[str, list[int]] = {m: [] for m in ["ground_truth", *methods]}
+    cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
+        k: ([], []) for k in ("prior_map", "prior_context", "bucket_rate")}
+    it: Sequence[ScenePriorData] = scenes
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(scenes, desc="evaluating", unit="scene")  # type: ignore[assignment]
+    for data in it:
+        if len(data.centres) == 0:
+            continue
+        steps, poses = evaluation_centres(data, rng)
+        tok = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="map")
+        mask = tok.mask
+        flat_mask = mask.ravel()
+        gt_sel = np.flatnonzero((tok.present & mask).ravel())
+        gt_vals = tok.values.reshape(-1, 6)[gt_sel].astype(np.float64)
+        gt = _mmd_features(tok, gt_sel, gt_vals, cfg.radius, cfg.region_width)
+        counts["ground_truth"].append(len(gt_sel))
+        presence, probs = predict_tokens(model, tok)
+        cal["prior_map"][0].append(presence[mask])
+        cal["prior_map"][1].append(tok.present[mask])
+        generated: dict[str, tuple[np.ndarray, np.ndarray]] = {
+            "prior": _sample_model(presence, probs, mask, bins, rng)}
+        buckets = token_buckets(tok.map_features).ravel()
+        for b in baselines:
+            p = b.presence(buckets)
+            sel = np.flatnonzero((rng.random(len(p)) < p) & flat_mask)
+            generated[b.name] = (sel, b.sample_values(buckets[sel], rng))
+        if baselines:
+            cal["bucket_rate"][0].append(baselines[0].presence(buckets[flat_mask]))
+            cal["bucket_rate"][1].append(tok.present.ravel()[flat_mask])
+        for name, (sel, vals) in generated.items():
+            counts[name].append(len(sel))
+            if len(sel) == 0 or len(gt_sel) == 0:
+                continue
+            feats = _mmd_features(tok, sel, vals, cfg.radius, cfg.region_width)
+            for a in MMD_ATTRIBUTES:
+                per_scene[name][a].append(mmd(feats[a], gt[a]))
+        ctx = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="context",
+                           hide_radius=cfg.hide_radius)
+        p_ctx, _ = predict_tokens(model, ctx)
+        q = ctx.query & ctx.mask
+        cal["prior_context"][0].append(p_ctx[q])
+        cal["prior_context"][1].append(ctx.present[q])
+    result: dict = {"num_scenes": len(counts["ground_truth"]), "mmd": {}, "agents_per_scene": {}, "presence": {}}
+    for name in methods:
+        result["mmd"][name] = {a: (float(np.mean(v)) if v else None) for a, v in per_scene[name].items()}
+        result["mmd"][name]["scenes"] = len(per_scene[name]["position"])
+    for name, c in counts.items():
+        result["agents_per_scene"][name] = float(np.mean(c)) if c else 0.0
+    for name, (ps, ys) in cal.items():
+        if ps:
+            result["presence"][name] = reliability(np.concatenate(ps), np.concatenate(ys))
+    samples = epoch_samples(scenes, np.random.default_rng([seed, 10**6 + 1]), 1)
+    if len(samples):
+        result["heldout_loss"] = {
+            mode: evaluate_loss(model, scenes, samples, 64, seed, visible=mode) for mode in ("map", "context")}
+    return result

@@ -1,0 +1,217 @@
+"""Prior checkpoints and batched prediction over the steps of a scene.
+
+Checkpoint format (``torch.save`` of a plain dict, loadable with ``torch.load(weights_only=True)``):
+``{"format": "coster-sumo-prior", "version": 1, "config": PriorConfig as dict, "state_dict": ...,
+"metrics": dict, "meta": dict}``.
+
+:func:`predict_scene` runs the prior on every step of a (2 Hz) scene at once, centred on the
+target: one forward pass with the steps as the batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from coster_sumo.errors import InputError
+from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
+from coster_sumo.prior.data import ScenePriorData, at_prior_rate, prepare_scene, scene_tokens
+from coster_sumo.prior.features import Tokens
+from coster_sumo.prior.model import PriorConfig, TrafficPrior
+from coster_sumo.regions import Regions
+from coster_sumo.scene import Scene
+
+CHECKPOINT_FORMAT = "coster-sumo-prior"
+CHECKPOINT_VERSION = 1
+
+
+def save_prior(model: TrafficPrior, path: str | Path, metrics: dict | None = None, meta: dict | None = None,
+               extra: dict | None = None) -> Path:
+    """Write a checkpoint atomically (temporary name, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": model.config.to_dict(),
+               "state_dict": model.state_dict(), "metrics": metrics or {}, "meta": meta or {}}
+    payload.update(extra or {})
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def read_checkpoint(path: str | Path) -> dict:
+    """The raw checkpoint dict; :class:`InputError` (one line) when it is missing or not a prior."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: prior checkpoint not found (train one with `coster-sumo train prior`)")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for corrupt files
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{path}: not a readable prior checkpoint ({first})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"{path}: not a coster-sumo prior checkpoint")
+    if ckpt.get("version") != CHECKPOINT_VERSION:
+        raise InputError(f"{path}: prior checkpoint version {ckpt.get('version')} is not supported")
+    return ckpt
+
+
+def load_prior(path: str | Path) -> TrafficPrior:
+    """The model of a checkpoint, in eval mode on the CPU."""
+    ckpt = read_checkpoint(path)
+    model = TrafficPrior(PriorConfig.from_dict(ckpt["config"]))
+    try:
+        model.load_state_dict(ckpt["state_dict"])
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[0]
+        raise InputError(f"{path}: weights do not match the stored config ({first})") from None
+    return model.eval()
+
+
+@dataclass
+class PriorPrediction:
+    """Prior outputs for the target's neighbourhood at every step of a scene.
+
+    Attributes:
+        regions: the regions that ``region_index`` points into.
+        steps: (T,) step indices into the scene that was predicted.
+        region_index: (T, K) int64 region of each token, -1 padding.
+        mask: (T, K) bool real tokens.
+        query: (T, K) bool tokens that were predicted (hidden); others were given as context.
+        observed_agent: (T, K) int64 agent the scene has in that region (-1 none), for reference.
+        presence: (T, K) float32 presence probability (0 where not ``query``).
+        probs: attribute name -> (T, K, num_classes) float32 probabilities (position: 1600 classes,
+            ix * 40 + iy over the normalised region frame; heading relative to the region direction);
+            zeros where not ``query``.
+        bins: the discretisation (bin centres via ``bins.centres(name)``).
+    """
+
+    regions: Regions
+    steps: np.ndarray
+    region_index: np.ndarray
+    mask: np.ndarray
+    query: np.ndarray
+    observed_agent: np.ndarray
+    presence: np.ndarray
+    probs: dict[str, np.ndarray]
+    bins: AttributeBins
+
+    def expected(self, attribute: str) -> np.ndarray:
+        """(T, K) (position: (T, K, 2) normalised) expectation under the predicted distribution."""
+        c = self.bins.centres(attribute)
+        return np.asarray(self.probs[attribute] @ c)
+
+    def sample(self, rng: np.random.Generator, t: np.ndarray, k: np.ndarray) -> dict[str, np.ndarray]:
+        """Sample attributes of tokens (t, k) (arrays of equal shape S) from their categorical heads.
+
+        Returns:
+            name -> values (S,) ("position": (S, 2) normalised region frame, "heading" [rad] relative to
+            the region direction, "speed" [m/s], "length"/"width" [m]), plus "world_xy" (S, 2) [m] and
+            "world_heading" (S,) [rad].
+        """
+        t = np.asarray(t, np.int64).ravel()
+        k = np.asarray(k, np.int64).ravel()
+        out: dict[str, np.ndarray] = {}
+        for a in ATTRIBUTES:
+            p = self.probs[a][t, k].astype(np.float64)  # (S, C)
+            cdf = np.cumsum(p, axis=-1)
+            u = rng.random(len(t)) * cdf[:, -1]
+            cls = np.minimum((cdf < u[:, None]).sum(axis=-1), p.shape[-1] - 1)
+            out[a] = self.bins.centres(a)[cls]
+        ridx = self.region_index[t, k]
+        out["world_xy"] = self.regions.from_normalised(out["position"], ridx)
+        out["world_heading"] = self.regions.heading[ridx] + out["heading"]
+        return out
+
+    def position_log_prob(self, world_xy: np.ndarray, t: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Log probability of the position class containing each world point (..., 2) in token (t, k)
+        (...); -inf outside the region's rectangle."""
+        ridx = self.region_index[t, k]
+        loc = self.regions.to_region_frame(world_xy, ridx)
+        h = self.regions.height[ridx]
+        norm = np.stack([loc[..., 0] / self.regions.width, loc[..., 1] / h - 0.5], -1)
+        inside = np.all(np.abs(norm) <= 0.5, axis=-1)
+        cls = self.bins.position_class(norm)
+        p = self.probs["position"][t, k, cls]
+        with np.errstate(divide="ignore"):
+            return np.where(inside, np.log(np.maximum(p, 0.0)), -np.inf)
+
+
+@torch.no_grad()
+def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
+                   ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Presence probabilities (B, K) and attribute probabilities (B, K, C) of a token batch.
+
+    Padding is never computed (zeros there). ``only_query`` evaluates the heads on the query tokens
+    only (the others get zeros too), which saves most of the cost when few tokens are hidden.
+    """
+    mask = tokens.mask
+    h = model.encode_packed(torch.from_numpy(tokens.map_features), torch.from_numpy(tokens.agent_features),
+                            torch.from_numpy(mask))  # (N, 2D) real tokens only
+    sel = (tokens.query & mask) if only_query else mask  # (B, K)
+    out = model.decode(h[torch.from_numpy(sel[mask])])  # heads on the selected tokens only
+    presence = np.zeros(mask.shape, np.float32)
+    presence[sel] = torch.sigmoid(out.presence).numpy()
+    probs = {}
+    for a, v in out.attributes.items():
+        full = np.zeros(mask.shape + (v.shape[-1],), np.float32)
+        full[sel] = torch.softmax(v, dim=-1).numpy()
+        probs[a] = full
+    return presence, probs
+
+
+def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: int,
+                  steps: np.ndarray | None = None, mode: str = "context",
+                  pose: np.ndarray | None = None, hide_radius: float | None = None) -> PriorPrediction:
+    """Run the prior around ``target`` at every step (one batched forward pass).
+
+    Args:
+        model: a loaded prior.
+        scene: a scene (brought to 2 Hz first when finer) or its prepared data. A ``Scene`` needs
+            ``target`` to be a vehicle index in its tracks.
+        target: agent index of the target (neighbourhood centre).
+        steps: (T,) steps of the 2 Hz scene (default all).
+        mode: "context" (regions within ``hide_radius`` of the target are predicted, the traffic
+            outside is given) or "map" (every region predicted from map and signals only). Only the
+            ``query`` tokens of the result carry predictions.
+        pose: optional (T, 3) centre x, y, heading overriding the target's logged pose (needed where
+            the target is invalid; such steps otherwise get no regions).
+        hide_radius: [m] for "context" mode (default ``config.hide_radius``, 15 m); the region
+            centres to be predicted must lie within it.
+    """
+    cfg = model.config
+    if isinstance(scene, Scene):
+        scene2 = at_prior_rate(scene)
+        tr = scene2.tracks
+        st = np.arange(scene2.num_steps) if steps is None else np.asarray(steps, np.int64)
+        if pose is None:
+            pose = np.stack([tr.x[target, st], tr.y[target, st], tr.heading[target, st]], -1)
+            ok = tr.valid[target, st]
+        else:
+            ok = np.ones(len(st), bool)
+        # only the regions that some step's neighbourhood can reach (big SUMO maps stay cheap)
+        data = prepare_scene(scene2, radius=cfg.radius, spacing=cfg.region_spacing, width=cfg.region_width,
+                             crop=np.asarray(pose, np.float64)[ok, :2].reshape(-1, 2))
+    else:
+        data = scene
+        st = np.arange(data.num_steps) if steps is None else np.asarray(steps, np.int64)
+        if pose is None:
+            rows = {(int(t), int(a)): i for i, (t, a) in enumerate(data.centres)}
+            idx = np.array([rows.get((int(t), target), -1) for t in st])
+            ok = idx >= 0
+            pose = np.where(ok[:, None], data.centre_pose[np.maximum(idx, 0)], 0.0)
+        else:
+            ok = np.ones(len(st), bool)
+    if mode not in ("context", "map"):
+        raise ValueError(f"mode must be 'context' or 'map', got {mode!r}")
+    pose = np.where(ok[:, None], pose, 1e12)  # far away: no regions at steps without a target
+    tokens = scene_tokens(data, st, np.asarray(pose, np.float64), cfg.bins(), cfg.radius, cfg.max_regions,
+                          visible=mode, hide_radius=cfg.hide_radius if hide_radius is None else hide_radius)
+    presence, probs = predict_tokens(model, tokens, only_query=True)
+    agent, _, _ = data.occupancy.gather(st[:, None], np.maximum(tokens.region_index, 0))
+    return PriorPrediction(regions=data.regions, steps=st, region_index=tokens.region_index, mask=tokens.mask,
+                           query=tokens.query, observed_agent=np.where(tokens.mask, agent, -1),
+                           presence=presence * tokens.mask, probs=probs, bins=cfg.bins())

@@ -1,0 +1,194 @@
+"""Training loop of the traffic prior: deterministic per seed, resumable, with held-out metrics.
+
+Determinism: weights are initialised after ``torch.manual_seed(seed)``; the samples and the hidden
+sets of epoch e come from ``numpy.random.default_rng([seed, e])``; nothing else is random (no
+dropout). Training runs with ``torch.set_num_threads(threads)`` (1 by default: the same seed gives
+the same weights bit for bit on the same machine). The held-out samples and their visibility are
+fixed (``default_rng([seed, 10**6])``).
+
+Resuming: after every epoch the full training state (weights, optimiser, epoch, history, best
+weights) is written atomically to ``state_path``; a later run with the same output resumes from it,
+so an interrupted run loses at most one epoch and ends with the same weights as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from coster_sumo.errors import InputError
+from coster_sumo.prior.bins import ATTRIBUTES
+from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
+from coster_sumo.prior.features import Tokens
+from coster_sumo.prior.infer import save_prior
+from coster_sumo.prior.model import PriorConfig, TrafficPrior
+
+
+@dataclass
+class TrainConfig:
+    epochs: int = 20
+    batch_size: int = 32
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 100
+    grad_clip: float = 1.0
+    centres_per_step: int = 1  # neighbourhood centres per scene step and epoch
+    seed: int = 0
+    threads: int = 1
+    val_batches_max: int = 200  # cap on held-out batches evaluated per epoch
+
+
+def _torch_batch(tok: Tokens) -> tuple[torch.Tensor, ...]:
+    return tuple(torch.from_numpy(a) for a in (tok.map_features, tok.agent_features, tok.mask, tok.query,
+                                               tok.present, tok.classes))
+
+
+@torch.no_grad()
+def evaluate_loss(model: TrafficPrior, scenes: Sequence[ScenePriorData], samples: np.ndarray, batch_size: int,
+                  seed: int, visible: str = "random") -> dict[str, float]:
+    """Held-out loss (the training objective) and per-head mean losses, for fixed samples."""
+    model.eval()
+    cfg = model.config
+    rng = np.random.default_rng([seed, 10**6])
+    sums: dict[str, float] = {}
+    total, n_query = 0.0, 0.0
+    for i in range(0, len(samples), batch_size):
+        tok = batch_tokens(scenes, samples[i:i + batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
+                           visible=visible, rng=rng, hide_radius=cfg.hide_radius)
+        mf, af, mask, query, present, classes = _torch_batch(tok)
+        h = model.encode_packed(mf, af, mask)  # (N, 2D)
+        q, present, classes = query[mask], present[mask], classes[mask]
+        total += float(model.loss(h, q, present, classes)) * max(int(q.sum()), 1)
+        for k, v in model.attribute_losses(h, q, present, classes).items():
+            sums[k] = sums.get(k, 0.0) + float(v)
+        n_query += float(q.sum())
+    n_q, n_p = max(sums.get("num_query", 0.0), 1.0), max(sums.get("num_present", 0.0), 1.0)
+    out = {"loss": total / max(n_query, 1.0), "presence_bce": sums.get("presence", 0.0) / n_q,
+           "presence_rate": sums.get("num_present", 0.0) / n_q, "num_query": sums.get("num_query", 0.0)}
+    out.update({f"{a}_ce": sums.get(a, 0.0) / n_p for a in ATTRIBUTES})
+    return out
+
+
+def _lr_at(step: int, total: int, cfg: TrainConfig) -> float:
+    if step < cfg.warmup_steps:
+        return cfg.lr * (step + 1) / cfg.warmup_steps
+    frac = (step - cfg.warmup_steps) / max(1, total - cfg.warmup_steps)
+    return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(frac, 1.0)))
+
+
+def _write_json(path: Path, obj: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n")
+    tmp.replace(path)
+
+
+def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], output: str | Path,
+                model_config: PriorConfig | None = None, train_config: TrainConfig | None = None,
+                state_path: str | Path | None = None, resume: bool = True, progress: bool = True,
+                meta: dict | None = None, log: Callable[[str], None] | None = print) -> dict:
+    """Train the prior; write the best held-out checkpoint to ``output`` and metrics beside it
+    (``output`` with suffix ``.json``). Returns the metrics dict."""
+    mcfg = model_config or PriorConfig()
+    tcfg = train_config or TrainConfig()
+    if not train:
+        raise InputError("no training scenes")
+    output = Path(output)
+    state_path = Path(state_path) if state_path else output.with_name(output.name + ".state")
+    torch.set_num_threads(max(1, tcfg.threads))
+    torch.manual_seed(tcfg.seed)
+    model = TrafficPrior(mcfg)
+    opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
+    history: list[dict] = []
+    start_epoch, best, best_state = 0, math.inf, None
+    if resume and state_path.is_file():
+        state = torch.load(state_path, map_location="cpu", weights_only=True)
+        if state.get("config") == mcfg.to_dict() and state.get("train_config") == asdict(tcfg):
+            model.load_state_dict(state["model"])
+            opt.load_state_dict(state["optimizer"])
+            start_epoch, best = int(state["epoch"]), float(state["best"])
+            best_state = state.get("best_model")
+            history = json.loads(state["history"])
+            if log:
+                log(f"resuming from {state_path} after epoch {start_epoch}")
+        elif log:
+            log(f"ignoring {state_path}: it was written with another configuration")
+    # every epoch has the same number of samples (centres_per_step per scene step with a centre)
+    num_samples = len(epoch_samples(train, np.random.default_rng(0), tcfg.centres_per_step))
+    steps_per_epoch = max(1, math.ceil(num_samples / tcfg.batch_size))
+    total_steps = steps_per_epoch * tcfg.epochs
+    val_samples = epoch_samples(val, np.random.default_rng([tcfg.seed, 10**6 + 1]), 1) if val else None
+    if val_samples is not None:
+        val_samples = val_samples[: tcfg.val_batches_max * tcfg.batch_size]
+    cfg = mcfg
+    for epoch in range(start_epoch, tcfg.epochs):
+        t0 = time.perf_counter()
+        rng = np.random.default_rng([tcfg.seed, epoch])
+        samples = epoch_samples(train, rng, tcfg.centres_per_step)
+        batches = range(0, len(samples), tcfg.batch_size)
+        it = batches
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(batches, desc=f"epoch {epoch + 1}/{tcfg.epochs}", unit="batch", leave=False)
+            it = bar
+        model.train()
+        run_loss, n = 0.0, 0
+        for bi, i in enumerate(it):
+            step = epoch * steps_per_epoch + bi
+            for group in opt.param_groups:
+                group["lr"] = _lr_at(step, total_steps, tcfg)
+            tok = batch_tokens(train, samples[i:i + tcfg.batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
+                               visible="random", rng=rng, hide_radius=cfg.hide_radius)
+            _, loss = model(*_torch_batch(tok))
+            assert loss is not None
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
+            opt.step()
+            run_loss += float(loss.detach())
+            n += 1
+            if bar is not None:
+                bar.set_postfix(loss=f"{run_loss / n:.3f}")
+        if bar is not None:
+            bar.close()
+        record: dict = {"epoch": epoch + 1, "train_loss": run_loss / max(n, 1),
+                        "seconds": time.perf_counter() - t0}
+        if val_samples is not None and len(val_samples):
+            record["val"] = evaluate_loss(model, val, val_samples, tcfg.batch_size, tcfg.seed)
+            score = record["val"]["loss"]
+        else:
+            score = record["train_loss"]
+        if score < best:
+            best = score
+            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            record["best"] = True
+        history.append(record)
+        state_path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = state_path.with_name(state_path.name + ".tmp")
+        torch.save({"config": mcfg.to_dict(), "train_config": asdict(tcfg), "model": model.state_dict(),
+                    "optimizer": opt.state_dict(), "epoch": epoch + 1, "best": best, "best_model": best_state,
+                    "history": json.dumps(history)}, tmp)
+        tmp.replace(state_path)
+        if log:
+            val_txt = f" val {record['val']['loss']:.4f}" if "val" in record else ""
+            log(f"epoch {epoch + 1}/{tcfg.epochs}: train {record['train_loss']:.4f}{val_txt} "
+                f"({record['seconds']:.1f} s)")
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    best_epoch = next((h["epoch"] for h in reversed(history) if h.get("best")), None)
+    metrics = {"best_epoch": best_epoch, "best_score": best, "history": history,
+               "num_train_scenes": len(train), "num_val_scenes": len(val),
+               "train_config": asdict(tcfg), "model_config": mcfg.to_dict(),
+               "num_parameters": sum(p.numel() for p in model.parameters()), **(meta or {})}
+    save_prior(model, output, metrics={k: v for k, v in metrics.items() if k != "history"},
+               meta=meta or {})
+    _write_json(output.with_suffix(".json"), metrics)
+    return metrics

@@ -1,0 +1,281 @@
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from coster_sumo import synthetic
+from coster_sumo.cli import main
+from coster_sumo.errors import InputError
+from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
+from coster_sumo.prior.data import at_prior_rate, batch_tokens, epoch_samples, prepare_scene, scene_tokens
+from coster_sumo.prior.evaluate import mmd, reliability
+from coster_sumo.prior.infer import load_prior, predict_scene, predict_tokens, read_checkpoint, save_prior
+from coster_sumo.prior.model import PriorConfig, TrafficPrior
+from coster_sumo.prior.train import TrainConfig, train_prior
+from coster_sumo.scene import save_scene
+from tests.conftest import WOMD_PKL, WOMD_PROTO, requires_womd
+
+SMALL = PriorConfig(hidden=64, head_hidden=64, num_blocks=2)
+
+
+@pytest.fixture(autouse=True)
+def single_thread():
+    # tiny models: one thread avoids OpenMP contention on a busy 2-core machine (40x slower otherwise)
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def prepared():
+    scenes = [synthetic.two_lane_road(), synthetic.four_way_junction(), synthetic.merge()]
+    return [prepare_scene(at_prior_rate(s)) for s in scenes]
+
+
+def test_bins_round_trip():
+    bins = AttributeBins()
+    for a in ATTRIBUTES:
+        c = bins.centres(a)
+        assert len(c) == bins.num_classes()[a]
+    pos = bins.position_centres()
+    np.testing.assert_array_equal(bins.position_class(pos), np.arange(1600))
+    np.testing.assert_array_equal(bins.heading_class(bins.heading_centres()), np.arange(144))
+    np.testing.assert_array_equal(bins.speed_class(bins.speed_centres()), np.arange(61))
+    assert bins.speed_class(np.array([0.0, 0.49, 0.51, 45.0])).tolist() == [0, 0, 1, 60]
+    np.testing.assert_array_equal(bins.length_class(bins.length_centres()), np.arange(60))
+    assert bins.width_class(np.array([-1.0, 9.0])).tolist() == [0, 39]
+
+
+def test_hidden_regions_carry_no_agent_information(prepared):
+    cfg = PriorConfig()
+    rng = np.random.default_rng(0)
+    samples = epoch_samples(prepared, rng)
+    tok = batch_tokens(prepared, samples, cfg.bins(), cfg.radius, cfg.max_regions, visible="random", rng=rng)
+    assert tok.map_features.shape[:2] == tok.mask.shape and tok.map_features.shape[2] == cfg.map_features
+    assert np.all(tok.agent_features[tok.query] == 0.0)
+    assert np.all(tok.query <= tok.mask) and np.all(tok.present <= tok.mask)
+    assert tok.query.any() and (tok.mask & ~tok.query).any()
+    # each agent occupies at most one token per sample, so hiding it hides it everywhere
+    for b in range(len(samples)):
+        d = prepared[samples[b, 0]]
+        t = d.centres[samples[b, 1], 0]
+        agent, _, _ = d.occupancy.gather(t, np.maximum(tok.region_index[b], 0))
+        agent = agent[tok.present[b]]
+        assert len(agent) == len(np.unique(agent))
+    # the centre vehicle is in its own neighbourhood
+    assert tok.present.any(axis=1).all()
+
+
+def test_map_mode_hides_everything_and_context_mode_only_nearby(prepared):
+    cfg = PriorConfig()
+    d = prepared[1]  # the junction
+    rows = np.flatnonzero(d.centres[:, 0] == 5)
+    tok_map = scene_tokens(d, d.centres[rows, 0], d.centre_pose[rows], cfg.bins(), cfg.radius, cfg.max_regions)
+    assert np.array_equal(tok_map.query, tok_map.mask)
+    tok_ctx = scene_tokens(d, d.centres[rows, 0], d.centre_pose[rows], cfg.bins(), cfg.radius, cfg.max_regions,
+                           visible="context", hide_radius=10.0)
+    centre = d.regions.centre[np.maximum(tok_ctx.region_index, 0)]
+    dist = np.linalg.norm(centre - d.centre_pose[rows, None, :2], axis=-1)
+    assert np.array_equal(tok_ctx.query, tok_ctx.mask & (dist <= 10.0))
+
+
+def test_loss_decreases_and_model_overfits_one_batch(prepared):
+    torch.manual_seed(0)
+    model = TrafficPrior(dataclasses.replace(SMALL, num_blocks=5))
+    rng = np.random.default_rng(1)
+    samples = epoch_samples(prepared, rng)[:3]
+    tok = batch_tokens(prepared, samples, SMALL.bins(), SMALL.radius, SMALL.max_regions, visible="random", rng=rng)
+    batch = [torch.from_numpy(a) for a in (tok.map_features, tok.agent_features, tok.mask, tok.query,
+                                            tok.present, tok.classes)]
+    steps = 150
+    opt = torch.optim.Adam(model.parameters(), lr=5e-3)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)  # smooth convergence, no late spikes
+    losses = []
+    for _ in range(steps):
+        _, loss = model(*batch)
+        assert loss is not None
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        losses.append(float(loss.detach()))
+    assert losses[-1] < 0.25 * losses[0]
+    model.eval()
+    presence, probs = predict_tokens(model, tok)
+    q = tok.query & tok.mask
+    assert np.mean((presence[q] > 0.5) == tok.present[q]) >= 0.98
+    hit = q & tok.present
+    for i, a in enumerate(ATTRIBUTES):
+        acc = np.mean(np.argmax(probs[a][hit], -1) == tok.classes[hit][:, i])
+        assert acc > 0.9, a
+
+
+def test_checkpoint_round_trip(tmp_path, prepared):
+    torch.manual_seed(0)
+    model = TrafficPrior(SMALL).eval()
+    path = save_prior(model, tmp_path / "prior.pt", metrics={"x": 1.0})
+    raw = torch.load(path, weights_only=True)
+    assert raw["config"]["hidden"] == 64 and raw["metrics"] == {"x": 1.0}
+    loaded = load_prior(path)
+    assert loaded.config == model.config
+    tok = scene_tokens(prepared[0], np.array([3]), prepared[0].centre_pose[:1], SMALL.bins(), SMALL.radius,
+                       SMALL.max_regions)
+    p0, a0 = predict_tokens(model, tok)
+    p1, a1 = predict_tokens(loaded, tok)
+    np.testing.assert_array_equal(p0, p1)
+    for a in ATTRIBUTES:
+        np.testing.assert_array_equal(a0[a], a1[a])
+
+
+def test_bad_checkpoint_is_one_clear_line(tmp_path, capsys):
+    with pytest.raises(InputError, match="checkpoint not found"):
+        load_prior(tmp_path / "missing.pt")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="not a readable prior checkpoint"):
+        read_checkpoint(junk)
+    other = tmp_path / "other.pt"
+    torch.save({"state_dict": {}}, other)
+    with pytest.raises(InputError, match="not a coster-sumo prior checkpoint"):
+        read_checkpoint(other)
+    code = main(["eval", "prior", "--data", str(tmp_path), "--checkpoint", str(tmp_path / "missing.pt"),
+                 "--json", str(tmp_path / "out.json")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "missing.pt" in err[0]
+
+
+def test_predict_scene_batched_over_steps():
+    torch.manual_seed(0)
+    model = TrafficPrior(SMALL).eval()
+    scene = synthetic.four_way_junction()
+    pred = predict_scene(model, scene, target=0)
+    T = 19  # 91 steps at 10 Hz -> 2 Hz
+    assert pred.presence.shape == pred.mask.shape and pred.mask.shape[0] == T
+    assert pred.probs["position"].shape == pred.mask.shape + (1600,)
+    np.testing.assert_allclose(pred.probs["heading"].sum(-1)[pred.query], 1.0, rtol=1e-5)
+    assert np.all(pred.probs["heading"][~pred.query] == 0)
+    assert np.all(pred.query <= pred.mask) and np.all(pred.presence[~pred.query] == 0)
+    # context mode: exactly the regions within the hide radius are predicted
+    centre = pred.regions.centre[np.maximum(pred.region_index, 0)]
+    target_xy = at_prior_rate(scene).tracks.xy[0][:, None, :]
+    near = np.linalg.norm(centre - target_xy, axis=-1) <= model.config.hide_radius
+    assert np.array_equal(pred.query, pred.mask & near)
+    # the target sits in one of its own neighbourhood's regions at every step
+    assert np.all(np.any(pred.observed_agent == 0, axis=1))
+    rng = np.random.default_rng(0)
+    t, k = np.nonzero(pred.query)
+    s = pred.sample(rng, t[:50], k[:50])
+    assert s["world_xy"].shape == (50, 2)
+    lp = pred.position_log_prob(s["world_xy"], t[:50], k[:50])
+    assert np.all(np.isfinite(lp))
+    assert np.all(np.isneginf(pred.position_log_prob(s["world_xy"] + 100.0, t[:50], k[:50])))
+    # one step alone gives the same numbers as the batch
+    one = predict_scene(model, scene, target=0, steps=np.array([7]))
+    kk = one.mask.shape[1]
+    np.testing.assert_allclose(one.presence[0], pred.presence[7, :kk], atol=1e-5)
+    full = predict_scene(model, scene, target=0, mode="map")
+    assert np.array_equal(full.query, full.mask)
+
+
+def test_mmd_and_reliability():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(200, 2))
+    assert mmd(x, x) == pytest.approx(0.0, abs=1e-12)
+    assert mmd(x, x + 3.0) > 0.3
+    assert mmd(x, rng.normal(size=(200, 2))) < 0.05
+    p = rng.random(20000)
+    r = reliability(p, rng.random(20000) < p)
+    assert r["ece"] < 0.02 and len(r["reliability"]) == 10 and r["auc"] > 0.7
+
+
+def _tiny_dataset(root):
+    (root / "scenes").mkdir(parents=True)
+    for i in range(3):
+        origin = (100.0 * i, -50.0 * i)
+        for s in (synthetic.two_lane_road(origin), synthetic.four_way_junction(origin), synthetic.merge(origin)):
+            name = f"{s.scenario_id}_{i}"
+            save_scene(dataclasses.replace(s, scenario_id=name), root / "scenes" / f"{name}.npz")
+    return root
+
+
+def test_training_is_deterministic_and_resumes(tmp_path, prepared):
+    tcfg = TrainConfig(epochs=3, batch_size=8, warmup_steps=2)
+
+    def run(name: str, log=None) -> dict:
+        return train_prior(prepared[:2], prepared[2:], tmp_path / name, model_config=SMALL, train_config=tcfg,
+                           progress=False, log=log)
+
+    run("a.pt")
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_two(msg: str) -> None:
+        if msg.startswith("epoch 2/"):
+            raise Stop
+
+    with pytest.raises(Stop):
+        run("b.pt", stop_after_two)
+    assert not (tmp_path / "b.pt").exists() and (tmp_path / "b.pt.state").exists()
+    metrics = run("b.pt")
+    a = torch.load(tmp_path / "a.pt", weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert len(metrics["history"]) == 3 and "val" in metrics["history"][-1]
+    saved = json.loads((tmp_path / "b.json").read_text())
+    assert saved["best_epoch"] == metrics["best_epoch"]
+
+
+@pytest.mark.slow
+def test_cli_train_then_eval(tmp_path):
+    data = _tiny_dataset(tmp_path / "ds")
+    out = tmp_path / "prior.pt"
+    assert main(["-q", "train", "prior", "--data", str(data), "--epochs", "1", "--hidden", "16",
+                 "--blocks", "1", "-o", str(out)]) == 0
+    assert out.exists() and out.with_suffix(".json").exists()
+    res = tmp_path / "eval.json"
+    assert main(["-q", "eval", "prior", "--data", str(data), "--checkpoint", str(out), "--split", "all",
+                 "--json", str(res)]) == 0
+    r = json.loads(res.read_text())
+    assert set(r["mmd"]) == {"prior", "mean_value", "gmm"}
+    assert r["num_scenes"] == 9 and "prior_map" in r["presence"]
+
+
+def test_target_never_valid_gives_empty_prediction():
+    torch.manual_seed(0)
+    model = TrafficPrior(SMALL).eval()
+    scene = synthetic.two_lane_road()
+    tracks = dataclasses.replace(scene.tracks, valid=scene.tracks.valid & (np.arange(4) != 0)[:, None])
+    pred = predict_scene(model, dataclasses.replace(scene, tracks=tracks), target=0)
+    assert pred.mask.shape[0] == 19 and not pred.mask.any() and not pred.query.any()
+
+
+@pytest.mark.realdata
+@requires_womd()
+def test_prior_runs_on_real_womd_scenes(tmp_path):
+    from converters.read import read_scenes
+
+    torch.manual_seed(0)
+    ckpt = save_prior(TrafficPrior(SMALL).eval(), tmp_path / "prior.pt")
+    path = (WOMD_PROTO or WOMD_PKL)[0]
+    scene = read_scenes(path)[0]
+    pred = predict_scene(load_prior(ckpt), scene, target=scene.sdc_index)
+    assert pred.mask.shape[0] == at_prior_rate(scene).num_steps and pred.query.any()
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+@requires_womd()
+def test_eval_prior_on_a_womd_file(tmp_path):
+    torch.manual_seed(0)
+    ckpt = save_prior(TrafficPrior(SMALL).eval(), tmp_path / "prior.pt")
+    path = (WOMD_PROTO or WOMD_PKL)[0]
+    out = tmp_path / "eval.json"
+    assert main(["-q", "eval", "prior", "--data", str(path), "--checkpoint", str(ckpt), "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert r["num_scenes"] >= 1 and r["mmd"]["prior"]["scenes"] >= 0 and r["baselines_fitted_on"] is None
