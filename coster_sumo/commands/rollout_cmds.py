@@ -1,0 +1,220 @@
+"""``coster-sumo train rollout``, ``coster-sumo train vocab`` and ``coster-sumo eval rollout``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from coster_sumo.errors import InputError
+
+DEFAULT_CHECKPOINT = "models/rollout.pt"
+DEFAULT_CHECKPOINT_NO_DSA = "models/rollout_nodsa.pt"
+DEFAULT_VOCAB = "models/vocab.npz"
+
+
+def register(cli) -> None:  # type: ignore[no-untyped-def]
+    train = cli.group("train", help="train a model").add_parser(
+        "rollout", help="train the time-reversed CVAE rollout on a dataset of scenes",
+        description="Train the rollout CVAE on DATASET/scenes/*.npz (2 Hz, held-out split by file name). "
+                    "Writes the checkpoint to OUTPUT after every epoch, metrics to OUTPUT with .json and a "
+                    "training state to OUTPUT.state: rerun the same command to resume.")
+    train.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
+    train.add_argument("-o", "--output", default=DEFAULT_CHECKPOINT, help="checkpoint to write (%(default)s)")
+    train.add_argument("--no-dsa", action="store_true",
+                       help="the w/o-DSA ablation: neighbours only as they were at t_rev")
+    train.add_argument("--no-map-steps", action="store_true", help="attend to the map only for the first state")
+    train.add_argument("--epochs", type=int, default=20)
+    train.add_argument("--batch-size", type=int, default=64)
+    train.add_argument("--lr", type=float, default=5e-4)
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--hidden", type=int, default=256, help="model width (%(default)s)")
+    train.add_argument("--heads", type=int, default=8, help="attention heads (%(default)s)")
+    train.add_argument("--latent", type=int, default=32, help="per-step latent size (%(default)s)")
+    train.add_argument("--kl-weight", type=float, default=1.0, help="weight of the KL term (1 = ELBO)")
+    train.add_argument("--examples-per-epoch", type=int, default=20_000,
+                       help="a fresh seeded subset of the training examples each epoch (0 = all; %(default)s)")
+    train.add_argument("--val-fraction", type=float, default=0.1)
+    train.add_argument("--max-val-examples", type=int, default=500, help="held-out examples scored per epoch")
+    train.add_argument("--threads", type=int, default=1, help="torch threads (1: bitwise reproducible)")
+    train.add_argument("--restart", action="store_true", help="ignore an existing training state")
+    train.set_defaults(func=run_train)
+
+    vocab = cli.group("train", help="train a model").add_parser(
+        "vocab", help="build the motion vocabulary (k-disks over 0.5 s transitions)",
+        description="Collect every 2 Hz transition (dx, dy, dyaw) of the vehicles of DATASET (training split) "
+                    "and cover them with about SIZE tokens by k-disks on the mean box-corner error. Writes "
+                    "OUTPUT (.npz) and OUTPUT with .json (coverage).")
+    vocab.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
+    vocab.add_argument("-o", "--output", default=DEFAULT_VOCAB, help="vocabulary to write (%(default)s)")
+    vocab.add_argument("--size", type=int, default=384, help="number of tokens (%(default)s)")
+    vocab.add_argument("--seed", type=int, default=0)
+    vocab.add_argument("--max-transitions", type=int, default=50_000,
+                       help="seeded subset of transitions used by k-disks (%(default)s)")
+    vocab.add_argument("--val-fraction", type=float, default=0.1)
+    vocab.set_defaults(func=run_vocab)
+
+    ev = cli.group("eval", help="evaluate a model").add_parser(
+        "rollout", help="minADE/minFDE of the CVAE (with and w/o DSA) vs constant velocity / constant lane",
+        description="Reconstruct the 5 s past of every vehicle with a full 5 s past, at every 2 Hz step (or the "
+                    "last one, --t-rev last), with "
+                    "constant velocity, constant lane and the CVAE checkpoints; report minADE/minFDE over "
+                    "--samples samples, avgADE/avgFDE and the inference time per trajectory. --data takes a "
+                    "dataset folder (its held-out split unless --split all) or scene files (.npz, WOMD "
+                    ".tfrecord, ScenarioNet .pkl).")
+    ev.add_argument("--data", required=True, nargs="+", help="dataset folder or scene file(s)")
+    ev.add_argument("--checkpoint", default=None,
+                    help=f"CVAE with DSA (default {DEFAULT_CHECKPOINT} when it exists)")
+    ev.add_argument("--checkpoint-no-dsa", default=None,
+                    help=f"CVAE without DSA (default {DEFAULT_CHECKPOINT_NO_DSA} when it exists)")
+    ev.add_argument("--split", choices=("val", "all"), default="val",
+                    help="which scenes of a dataset folder to evaluate (%(default)s)")
+    ev.add_argument("--val-fraction", type=float, default=0.1)
+    ev.add_argument("--t-rev", choices=("all", "last"), default="all",
+                    help="reconstruct from every 2 Hz step with a full 5 s past, or only from each scene's "
+                         "last step (%(default)s)")
+    ev.add_argument("--samples", type=int, default=5, help="samples per vehicle for minADE/minFDE (%(default)s)")
+    ev.add_argument("--max-examples", type=int, default=0, help="score a seeded subset (0 = all)")
+    ev.add_argument("--batch-size", type=int, default=64)
+    ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--threads", type=int, default=1, help="torch threads (%(default)s)")
+    ev.add_argument("--json", required=True, help="where to write the results (JSON)")
+    ev.set_defaults(func=run_eval)
+
+
+def _command() -> str:
+    return "coster-sumo " + shlex.join(sys.argv[1:]) if sys.argv else ""
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1) + "\n")
+    tmp.replace(path)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from coster_sumo.rollout.model import RolloutConfig
+    from coster_sumo.rollout.train import TrainConfig, train_rollout
+
+    if args.epochs < 1 or args.batch_size < 1:
+        raise InputError("--epochs and --batch-size must be at least 1")
+    cfg = RolloutConfig(hidden=args.hidden, heads=args.heads, latent=args.latent, use_dsa=not args.no_dsa,
+                        map_every_step=not args.no_map_steps, kl_weight=args.kl_weight)
+    tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+                       val_fraction=args.val_fraction, examples_per_epoch=args.examples_per_epoch,
+                       max_val_examples=args.max_val_examples, threads=args.threads)
+    t0 = time.perf_counter()
+    metrics = train_rollout(args.data, args.output, cfg, tcfg, resume=not args.restart, quiet=args.quiet,
+                            command=_command())
+    if not args.quiet:
+        final = metrics.get("final", {})
+        shown = ", ".join(f"{k} {final[k]:.3f}" for k in ("val_minADE", "val_minFDE", "val_loss") if k in final)
+        print(f"wrote {args.output} ({shown or 'no held-out scenes'}; {time.perf_counter() - t0:.0f} s)",
+              file=sys.stderr)
+    return 0
+
+
+def run_vocab(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from coster_sumo.rollout.train import split_scene_files
+    from coster_sumo.rollout.vocab import build_vocab, collect_transitions
+    from coster_sumo.scene import load_scene
+
+    if args.size < 1:
+        raise InputError("--size must be at least 1")
+    train_files, _ = split_scene_files(args.data, args.val_fraction, args.seed)
+    t0 = time.perf_counter()
+    scenes = (load_scene(p) for p in tqdm(train_files, desc="transitions", disable=args.quiet, leave=False))
+    transitions = collect_transitions(scenes)
+    vocab = build_vocab(transitions, size=args.size, seed=args.seed, max_points=args.max_transitions)
+    meta = dict(vocab.meta)
+    meta.update({"data": str(Path(args.data).resolve()), "scenes": len(train_files), "command": _command()})
+    from dataclasses import replace
+
+    vocab = replace(vocab, meta=meta)
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    vocab.save(out)
+    report = {"format": "coster-sumo-vocab-metrics", "tokens": len(vocab), "epsilon_m": vocab.epsilon_m,
+              "box_m": [vocab.length, vocab.width], **meta, "wall_time_s": time.perf_counter() - t0,
+              "units": {"errors": "m, mean box-corner distance"}}
+    _write_json(out.with_suffix(".json"), report)
+    if not args.quiet:
+        print(f"wrote {out}: {len(vocab)} tokens, epsilon {vocab.epsilon_m:.3f} m, mean coverage error "
+              f"{meta['coverage_mean_error_m']:.3f} m ({len(transitions)} transitions)", file=sys.stderr)
+    return 0
+
+
+def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
+    from converters.read import iter_scenes
+    from coster_sumo.dataset import list_scenes, split
+    from coster_sumo.scene import load_scene
+
+    scenes = []
+    for src in args.data:
+        p = Path(src)
+        if p.is_dir():
+            files = list_scenes(p)
+            if args.split == "val":
+                _, files = split(files, args.val_fraction, seed=0)
+            scenes += [load_scene(f) for f in files]
+        elif p.is_file():
+            scenes += list(iter_scenes(p))
+        else:
+            raise InputError(f"{p}: no such file or folder")
+    return scenes
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    import torch
+
+    from coster_sumo.rollout.checkpoint import load_model
+    from coster_sumo.rollout.data import build_examples
+    from coster_sumo.rollout.evaluate import evaluate_rollout
+    from coster_sumo.rollout.model import RolloutConfig
+
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    models = {}
+    skipped = {}
+    for name, given, default in (("cvae_no_dsa", args.checkpoint_no_dsa, DEFAULT_CHECKPOINT_NO_DSA),
+                                 ("cvae_dsa", args.checkpoint, DEFAULT_CHECKPOINT)):
+        if given is not None:
+            models[name] = load_model(given)
+        elif Path(default).is_file():
+            models[name] = load_model(default)
+        else:
+            skipped[name] = f"no checkpoint ({default} not found)"
+    scenes = _eval_scenes(args)
+    if not scenes:
+        raise InputError("no scenes to evaluate (an empty held-out split? try --split all)")
+    # the scene caches depend on how lanes are cut into chunks: one setting for all models
+    cfg = next(iter(models.values())).cfg if models else RolloutConfig()
+    for name, m in models.items():
+        if (m.cfg.lane_spacing_m, m.cfg.chunk_vectors) != (cfg.lane_spacing_m, cfg.chunk_vectors):
+            raise InputError(f"{name}: its map chunking differs from the other checkpoint's; evaluate them apart")
+    examples = build_examples(scenes, cfg, full_only=True, t_indices=[-1] if args.t_rev == "last" else None)
+    t0 = time.perf_counter()
+    result = evaluate_rollout(examples, models, horizon=10, num_samples=args.samples, seed=args.seed,
+                              batch_size=args.batch_size, max_examples=args.max_examples)
+    report = {"format": "coster-sumo-rollout-eval", "data": [str(d) for d in args.data], "split": args.split,
+              "t_rev": args.t_rev,
+              "scenes": len(scenes), **result, "skipped": skipped,
+              "checkpoints": {"cvae_dsa": args.checkpoint or DEFAULT_CHECKPOINT,
+                              "cvae_no_dsa": args.checkpoint_no_dsa or DEFAULT_CHECKPOINT_NO_DSA},
+              "seed": args.seed, "threads": torch.get_num_threads(), "torch": torch.__version__,
+              "machine": platform.machine(), "wall_time_s": time.perf_counter() - t0, "command": _command(),
+              "units": {"ADE/FDE": "m", "time_per_trajectory_s": "s (CPU wall time)"}}
+    _write_json(Path(args.json), report)
+    if not args.quiet:
+        for name, m in result["methods"].items():
+            print(f"{name:18s} minADE {m['minADE']:.3f} minFDE {m['minFDE']:.3f} avgADE {m['avgADE']:.3f} "
+                  f"avgFDE {m['avgFDE']:.3f} m, {1e3 * m['time_per_trajectory_s']:.2f} ms/traj", file=sys.stderr)
+    return 0

@@ -1,0 +1,472 @@
+"""The time-reversed CVAE (DESIGN method step 5): :class:`RolloutConfig` and :class:`RolloutCVAE`.
+
+Inputs are contexts built by :mod:`coster_sumo.rollout.data` (the reconstructed vehicle's frame at
+t_rev); tensors carry two leading axes, contexts ``C`` (agents, scenes) and samples ``S`` per
+context, so that training (C = batch, S = 1), evaluation (C = agents, S = 5) and oversampling one
+snapshot (C = 1, S = 1000) run the same batched code without Python loops over samples.
+
+Architecture:
+
+- **first hidden state** ``h0``: the state embedding, joined to a cross-attention from it to the map
+  chunks (PointNet-style polyline encoder) and to the neighbours at t_rev;
+- **each reverse step** ``k = 1..H``: conditional prior ``p(z_k | h)``; during training the
+  posterior ``q(z_k | g_k, h)``, ``g_k`` the output at step k of a GRU run from the far end of the
+  true reverse segment back to step k (it summarises steps k..H); the decoder maps ``(h, z_k)`` to
+  the reverse displacement ``(dx, dy, dyaw)`` in the body frame of the current pose, as a
+  correction to a constant-velocity step (an untrained decoder continues the current motion);
+- **dynamic surrounding attention (DSA)**: at every step, attention from ``h`` (plus the new state
+  embedding) to the neighbours at that step, with keys and values from their positions and
+  velocities relative to the sample's new pose; joined (summed: the parts end in free linear maps,
+  so this is as expressive as a concatenation at a third of the cost) to the new state embedding and a
+  per-step map attention (``map_every_step``), it updates ``h`` through a GRU cell. ``use_dsa=False`` (the
+  "w/o DSA" ablation) feeds the t_rev neighbour attention at every step instead: neighbours are
+  seen only as they were at t_rev.
+
+Cost (DESIGN "where the rollout's time goes"): keys and values are linear in
+``(item - sample)`` features, so the item part is projected once per context (map: once; neighbours:
+once per step, all steps before the loop) and the sample part drops out of the softmax and is
+subtracted once from the weighted values (:class:`RelativeAttention`); no ``(S, items, D)`` tensor
+is ever built.
+
+Loss: the negative ELBO averaged over valid steps: Gaussian reconstruction of the displacement
+(fixed ``recon_sigma``) plus ``kl_weight`` times the per-step KL(q || p).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from coster_sumo.errors import InputError
+from coster_sumo.rollout.data import (
+    MAP_ATTR_FEATURES,
+    MAP_POS_FEATURES,
+    MAP_VEC_FEATURES,
+    NBR_FEATURES,
+    REL_FEATURES,
+    ROLLOUT_HZ,
+    STATE_FEATURES,
+)
+
+DT = 1.0 / ROLLOUT_HZ  # [s]
+STEP_FEATURES = 9  # x, y, cos, sin, vx, vy, normalised correction (3)
+POSTERIOR_FEATURES = 7  # x, y, cos, sin, displacement / POSTERIOR_DISP_SCALE (3)
+POSTERIOR_DISP_SCALE = (5.0, 0.5, 0.1)  # [m, m, rad]
+_MASKED = -1e9
+
+
+@dataclass
+class RolloutConfig:
+    """Model and input-encoding settings (saved in every checkpoint).
+
+    Attributes:
+        hidden: width D of every embedding and of the recurrent state.
+        heads: attention heads (D must be divisible by it).
+        latent: size of each per-step latent z_k.
+        posterior_hidden: width of the posterior GRU over the true reverse segment.
+        max_horizon: [2 Hz steps] longest reconstruction (10 = 5 s); shorter when t_rev is early.
+        use_dsa: dynamic surrounding attention (False: neighbours as at t_rev only).
+        map_every_step: attend to the map again at every step (factored like DSA; cheap).
+        max_neighbors, neighbor_radius_m: at most this many neighbours, within this distance of the
+            sample at every step (masked per sample).
+        neighbor_select_radius_m: [m] neighbours are chosen among agents this close to the t_rev
+            position (larger than ``neighbor_radius_m``: samples move).
+        max_map_chunks, map_radius_m: map chunks kept around the t_rev position.
+        lane_spacing_m, chunk_vectors: lanes resampled every ``lane_spacing_m``, chunks of this many
+            vectors.
+        pos_scale_m, vel_scale_mps: input normalisation.
+        disp_scale: (3,) scale of the decoder's output, the correction of (dx [m], dy [m], dyaw [rad])
+            to a constant-velocity step (see :meth:`RolloutCVAE.rollout`).
+        recon_sigma: (3,) fixed standard deviation of the Gaussian reconstruction term.
+        kl_weight: weight of the KL term (1 = the ELBO).
+        free_nats: per step, KL below this is not penalised (0 = the plain ELBO).
+    """
+
+    hidden: int = 256
+    heads: int = 8
+    latent: int = 32
+    posterior_hidden: int = 128
+    max_horizon: int = 10
+    use_dsa: bool = True
+    map_every_step: bool = True
+    max_neighbors: int = 32
+    neighbor_radius_m: float = 50.0
+    neighbor_select_radius_m: float = 80.0
+    max_map_chunks: int = 128
+    map_radius_m: float = 80.0
+    lane_spacing_m: float = 2.0
+    chunk_vectors: int = 5
+    pos_scale_m: float = 20.0
+    vel_scale_mps: float = 10.0
+    disp_scale: tuple[float, float, float] = (1.0, 0.3, 0.05)
+    recon_sigma: tuple[float, float, float] = (0.2, 0.1, 0.02)
+    kl_weight: float = 1.0
+    free_nats: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.hidden % self.heads:
+            raise InputError(f"rollout config: hidden {self.hidden} is not divisible by heads {self.heads}")
+        if self.max_horizon < 1:
+            raise InputError("rollout config: max_horizon must be >= 1")
+        self.disp_scale = tuple(float(v) for v in self.disp_scale)  # type: ignore[assignment]
+        self.recon_sigma = tuple(float(v) for v in self.recon_sigma)  # type: ignore[assignment]
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["disp_scale"] = list(self.disp_scale)
+        d["recon_sigma"] = list(self.recon_sigma)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RolloutConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise InputError (a mismatched checkpoint)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise InputError(f"unknown rollout config key(s): {', '.join(unknown)}")
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise InputError(f"bad rollout config: {exc}") from None
+
+
+def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(d_in, d_hidden), nn.ReLU(), nn.Linear(d_hidden, d_out))
+
+
+class RelativeAttention(nn.Module):
+    """Multi-head attention from per-sample queries to items shared by all samples of a context.
+
+    An item's key and value are ``W base_j + U (rel_j - s)``: ``base_j`` (D) an item embedding,
+    ``rel_j`` (R) its relative features (position, velocity) and ``s`` (R) the same features of
+    the sample. ``U s`` is constant over items: it drops out of the softmax and, since the weights
+    sum to one, is subtracted once from the weighted values. :meth:`keys_values` runs once per
+    context (per step for neighbours, before the loop); :meth:`forward` costs two (S x items)
+    matrix products per head.
+    """
+
+    def __init__(self, dim: int, heads: int, rel_dim: int) -> None:
+        super().__init__()
+        self.dim, self.heads = dim, heads
+        self.q = nn.Linear(dim, dim)
+        self.kv = nn.Linear(dim, 2 * dim)
+        self.kv_rel = nn.Linear(rel_dim, 2 * dim, bias=False)
+
+    def keys_values(self, base: Tensor, rel: Tensor) -> tuple[Tensor, Tensor]:
+        """base (..., M, D), rel (..., M, R) -> keys (..., heads, dh, M), values (..., heads, M, dh)."""
+        kv = self.kv(base) + self.kv_rel(rel)  # (..., M, 2D)
+        k, v = kv.chunk(2, dim=-1)
+        lead, m = k.shape[:-2], k.shape[-2]
+        dh = self.dim // self.heads
+        keys = k.reshape(*lead, m, self.heads, dh).permute(*range(len(lead)), -2, -1, -3)
+        values = v.reshape(*lead, m, self.heads, dh).transpose(-3, -2)
+        return keys, values
+
+    def forward(self, query: Tensor, keys: Tensor, values: Tensor, sample_rel: Tensor, mask: Tensor) -> Tensor:
+        """Attend.
+
+        Args:
+            query: (C, S, D) per-sample queries.
+            keys: (C, heads, dh, M); values: (C, heads, M, dh) from :meth:`keys_values`.
+            sample_rel: (C, S, R) the sample's relative features.
+            mask: (C, S, M) or (C, 1, M) bool, True = attend.
+
+        Returns:
+            (C, S, D) the heads' weighted values, concatenated; zero where a sample has no item to
+            attend to. There is no output projection: every caller feeds the result to a linear layer
+            (the GRU cell's input weights, an MLP), which absorbs it.
+        """
+        c, s, d = query.shape
+        dh = d // self.heads
+        q = (self.q(query) * (1.0 / math.sqrt(dh))).view(c, s, self.heads, dh).transpose(1, 2)  # (C, h, S, dh)
+        scores = torch.matmul(q, keys)  # (C, h, S, M)
+        if mask.shape[1] == 1:  # one mask for all samples: an additive bias is cheaper than a fill
+            bias = torch.zeros(mask.shape, dtype=scores.dtype, device=scores.device).masked_fill(~mask, _MASKED)
+            scores.add_(bias[:, None])
+        else:
+            scores.masked_fill_(~mask[:, None], _MASKED)
+        attn = torch.softmax(scores, dim=-1)
+        o = torch.matmul(attn, values).transpose(1, 2).reshape(c, s, d)  # (C, S, D)
+        o = o - F.linear(sample_rel, self.kv_rel.weight[d:])  # the sample's share of every value
+        any_item = mask.any(dim=-1, keepdim=True).to(o.dtype)  # (C, S or 1, 1)
+        return o * any_item
+
+
+class MapEncoder(nn.Module):
+    """PointNet-style chunk encoder: per-vector MLP, max-pool over the chunk, MLP with attributes."""
+
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        half = dim // 2
+        self.vec = mlp(MAP_VEC_FEATURES, half, half)
+        self.chunk = mlp(half + MAP_ATTR_FEATURES, dim, dim)
+
+    def forward(self, map_vec: Tensor, vec_mask: Tensor, attr: Tensor) -> Tensor:
+        """map_vec (C, M, P, 6), vec_mask (C, M, P), attr (C, M, 9) -> (C, M, D)."""
+        v = self.vec(map_vec).masked_fill(~vec_mask[..., None], _MASKED)  # (C, M, P, D/2)
+        pooled = v.max(dim=-2).values
+        pooled = torch.where(vec_mask.any(-1, keepdim=True), pooled, torch.zeros_like(pooled))
+        return self.chunk(torch.cat([pooled, attr], dim=-1))
+
+
+@dataclass
+class Encoded:
+    """Everything computed once per context before the step loop.
+
+    Attributes:
+        h0: (C, D) first hidden state.
+        map_kv: keys (C, h, dh, M), values (C, h, M, dh) of the per-step map attention (or None).
+        map_mask: (C, 1, M) bool.
+        nbr_kv: keys (C, H+1, h, dh, N), values (C, H+1, h, N, dh) (or None without DSA).
+        nbr_xy: (C, H+1, N, 2) [pos_scale] neighbour positions; nbr_mask: (C, H+1, N).
+        static_nbr: (C, D) neighbour attention at t_rev (the w/o-DSA input at every step).
+        speed: (C,) [m/s] speed at t_rev.
+    """
+
+    h0: Tensor
+    map_kv: tuple[Tensor, Tensor] | None
+    map_mask: Tensor
+    nbr_kv: tuple[Tensor, Tensor] | None
+    nbr_xy: Tensor
+    nbr_mask: Tensor
+    static_nbr: Tensor
+    speed: Tensor
+
+
+@dataclass
+class RolloutOutput:
+    """Result of :meth:`RolloutCVAE.forward`.
+
+    Attributes:
+        poses: (C, S, H, 3) x, y [m], yaw [rad] at reverse steps 1..H in the t_rev frame.
+        loss: scalar negative ELBO per valid step (None without targets); recon, kl: its parts.
+    """
+
+    poses: Tensor
+    loss: Tensor | None = None
+    recon: Tensor | None = None
+    kl: Tensor | None = None
+
+
+def _gaussian_kl(mu_q: Tensor, lv_q: Tensor, mu_p: Tensor, lv_p: Tensor) -> Tensor:
+    """KL(N(mu_q, exp lv_q) || N(mu_p, exp lv_p)) summed over the last axis."""
+    return 0.5 * (lv_p - lv_q + (lv_q.exp() + (mu_q - mu_p) ** 2) / lv_p.exp() - 1.0).sum(-1)
+
+
+def true_displacements(traj: Tensor) -> Tensor:
+    """(C, H, 3) true poses at reverse steps 1..H -> (C, H, 3) displacements, each in the body frame
+    of the previous pose (pose 0 is the origin)."""
+    prev = torch.cat([torch.zeros_like(traj[:, :1]), traj[:, :-1]], dim=1)
+    dxy = traj[..., :2] - prev[..., :2]
+    c, s = torch.cos(prev[..., 2]), torch.sin(prev[..., 2])
+    dx = c * dxy[..., 0] + s * dxy[..., 1]
+    dy = -s * dxy[..., 0] + c * dxy[..., 1]
+    dyaw = torch.atan2(torch.sin(traj[..., 2] - prev[..., 2]), torch.cos(traj[..., 2] - prev[..., 2]))
+    return torch.stack([dx, dy, dyaw], dim=-1)
+
+
+def _used_prefix(mask: Tensor, dim: int) -> int:
+    """1 + the last index along ``dim`` where any entry of ``mask`` is True (0 if none)."""
+    other = tuple(i for i in range(mask.dim()) if i != dim % mask.dim())
+    used = mask.any(dim=other) if other else mask
+    idx = torch.nonzero(used)
+    return int(idx.max()) + 1 if len(idx) else 0
+
+
+def trim_padding(ctx: dict[str, Tensor]) -> dict[str, Tensor]:
+    """Drop map chunks and neighbour slots that are padding in every context (fewer items to
+    attend to at every step; the result is the same)."""
+    out = dict(ctx)
+    m = max(1, _used_prefix(ctx["map_mask"], 1))
+    for k in ("map_vec", "map_vec_mask", "map_attr", "map_pos", "map_mask"):
+        out[k] = ctx[k][:, :m]
+    n = max(1, _used_prefix(ctx["nbr_mask"], 2))
+    out["nbr"] = ctx["nbr"][:, :, :n]
+    out["nbr_mask"] = ctx["nbr_mask"][:, :, :n]
+    return out
+
+
+class RolloutCVAE(nn.Module):
+    """The time-reversed CVAE with dynamic surrounding attention (see the module docstring)."""
+
+    disp_scale: Tensor  # (3,) buffers, see __init__
+    recon_sigma: Tensor
+
+    def __init__(self, cfg: RolloutConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        d, z = cfg.hidden, cfg.latent
+        self.state_enc = mlp(STATE_FEATURES, d, d)
+        self.map_enc = MapEncoder(d)
+        self.map_attn0 = RelativeAttention(d, cfg.heads, MAP_POS_FEATURES)
+        self.nbr_enc = mlp(NBR_FEATURES, d, d)
+        self.nbr_attn = RelativeAttention(d, cfg.heads, REL_FEATURES)
+        self.h0_net = mlp(3 * d, d, d)
+        self.map_attn = RelativeAttention(d, cfg.heads, MAP_POS_FEATURES) if cfg.map_every_step else None
+        self.step_enc = nn.Linear(STEP_FEATURES, d)  # the GRU that follows supplies the non-linearity
+        self.cell = nn.GRUCell(d, d)
+        self.prior = mlp(d, d // 2, 2 * z)
+        self.post_rnn = nn.GRU(POSTERIOR_FEATURES, cfg.posterior_hidden, batch_first=True)
+        self.posterior = mlp(d + cfg.posterior_hidden, d, 2 * z)
+        self.decoder = mlp(d + z, d // 2, 3)
+        self.register_buffer("disp_scale", torch.tensor(cfg.disp_scale, dtype=torch.float32), persistent=False)
+        self.register_buffer("recon_sigma", torch.tensor(cfg.recon_sigma, dtype=torch.float32), persistent=False)
+
+    # ------------------------------------------------------------------ encoding
+
+    def encode(self, ctx: dict[str, Tensor]) -> Encoded:
+        """Map embedding, neighbour keys/values for every step and ``h0`` (once per context)."""
+        cfg = self.cfg
+        ctx = trim_padding(ctx)
+        state = ctx["state"]  # (C, 4)
+        c = state.shape[0]
+        speed = state[:, 0] * cfg.vel_scale_mps
+        s_emb = self.state_enc(state)  # (C, D)
+        chunks = self.map_enc(ctx["map_vec"], ctx["map_vec_mask"], ctx["map_attr"])  # (C, M, D)
+        map_mask = ctx["map_mask"][:, None, :]  # (C, 1, M)
+        mk, mv = self.map_attn0.keys_values(chunks, ctx["map_pos"])
+        origin_rel = state.new_zeros(c, 1, MAP_POS_FEATURES)
+        m0 = self.map_attn0(s_emb[:, None], mk, mv, origin_rel, map_mask)[:, 0]  # (C, D)
+        nbr, nbr_mask = ctx["nbr"], ctx["nbr_mask"]  # (C, H+1, N, 12), (C, H+1, N)
+        nbr_xy = nbr[..., :2]
+        steps = nbr if cfg.use_dsa else nbr[:, :1]  # without DSA only t_rev is ever attended
+        nk, nv = self.nbr_attn.keys_values(self.nbr_enc(steps), steps[..., :REL_FEATURES])
+        # the neighbours at t_rev, seen from the origin with the t_rev velocity
+        rel0 = torch.stack([torch.zeros_like(speed), torch.zeros_like(speed), speed / cfg.vel_scale_mps,
+                            torch.zeros_like(speed)], -1)[:, None]  # (C, 1, 4)
+        near0 = nbr_mask[:, 0] & (nbr_xy[:, 0].norm(dim=-1) * cfg.pos_scale_m <= cfg.neighbor_radius_m)
+        static = self.nbr_attn(s_emb[:, None], nk[:, 0], nv[:, 0], rel0, near0[:, None])[:, 0]  # (C, D)
+        h0 = self.h0_net(torch.cat([s_emb, m0, static], dim=-1))
+        map_kv = self.map_attn.keys_values(chunks, ctx["map_pos"]) if self.map_attn is not None else None
+        return Encoded(h0=h0, map_kv=map_kv, map_mask=map_mask, nbr_kv=(nk, nv) if cfg.use_dsa else None,
+                       nbr_xy=nbr_xy, nbr_mask=nbr_mask, static_nbr=static, speed=speed)
+
+    def posterior_summary(self, traj: Tensor, disp: Tensor) -> Tensor:
+        """g: (C, H, Dg), g_k summarising the true reverse segment from step k to H."""
+        cfg = self.cfg
+        feats = torch.cat([traj[..., :2] / cfg.pos_scale_m, torch.cos(traj[..., 2:]), torch.sin(traj[..., 2:]),
+                           disp / disp.new_tensor(POSTERIOR_DISP_SCALE)], dim=-1)  # (C, H, 7)
+        out, _ = self.post_rnn(feats.flip(1))
+        return out.flip(1)
+
+    # ------------------------------------------------------------------ decoding
+
+    def rollout(self, enc: Encoded, num_samples: int, eps: Tensor, g: Tensor | None = None,
+                temperature: float = 1.0) -> tuple[Tensor, Tensor, Tensor | None]:
+        """Unroll H reverse steps for S samples per context.
+
+        Args:
+            enc: from :meth:`encode`.
+            num_samples: S.
+            eps: (H, C, S, Z) standard normal noise of the latents.
+            g: (C, H, Dg) posterior summaries (training) or None (sampling from the prior).
+            temperature: scales the prior's standard deviation when sampling.
+
+        Returns:
+            poses (C, S, H, 3), displacements (C, S, H, 3) [m, m, rad], KL per step (C, S, H) or None.
+
+        The decoder predicts a correction to a constant-velocity step: the displacement is
+        ``(-v dt, 0, 0) + disp_scale * output`` with ``v`` the speed of the previous step (at t_rev
+        the snapshot's speed), so that an untrained decoder already continues the current motion.
+        """
+        cfg = self.cfg
+        c, d = enc.h0.shape
+        s = num_samples
+        horizon = eps.shape[0]
+        h = enc.h0[:, None, :].expand(c, s, d)  # (C, S, D)
+        x = h.new_zeros(c, s)
+        y = h.new_zeros(c, s)
+        yaw = h.new_zeros(c, s)
+        vx = enc.speed[:, None].expand(c, s)
+        v_long = vx  # [m/s] forward speed along the body axis, for the constant-velocity step
+        vy = h.new_zeros(c, s)
+        static = enc.static_nbr[:, None, :].expand(c, s, d)
+        poses, disps, kls = [], [], []
+        for k in range(horizon):
+            mu_p, lv_p = self.prior(h).chunk(2, dim=-1)
+            lv_p = lv_p.clamp(-8.0, 8.0)
+            if g is not None:
+                gk = g[:, k, None, :].expand(c, s, g.shape[-1])
+                mu_q, lv_q = self.posterior(torch.cat([h, gk], dim=-1)).chunk(2, dim=-1)
+                lv_q = lv_q.clamp(-8.0, 8.0)
+                z = mu_q + torch.exp(0.5 * lv_q) * eps[k]
+                kls.append(_gaussian_kl(mu_q, lv_q, mu_p, lv_p))
+            else:
+                z = mu_p + temperature * torch.exp(0.5 * lv_p) * eps[k]
+            dn = self.decoder(torch.cat([h, z], dim=-1))  # (C, S, 3) normalised
+            dsp = dn * self.disp_scale
+            dsp = torch.cat([dsp[..., :1] - v_long[..., None] * DT, dsp[..., 1:]], dim=-1)
+            v_long = -dsp[..., 0] / DT
+            cy, sy = torch.cos(yaw), torch.sin(yaw)
+            nx = x + cy * dsp[..., 0] - sy * dsp[..., 1]
+            ny = y + sy * dsp[..., 0] + cy * dsp[..., 1]
+            yaw = yaw + dsp[..., 2]
+            vx, vy = (x - nx) / DT, (y - ny) / DT  # forward-in-time velocity at the new pose
+            x, y = nx, ny
+            poses.append(torch.stack([x, y, yaw], dim=-1))
+            disps.append(dsp)
+            px, py = x / cfg.pos_scale_m, y / cfg.pos_scale_m
+            pvx, pvy = vx / cfg.vel_scale_mps, vy / cfg.vel_scale_mps
+            e = self.step_enc(torch.cat([torch.stack([px, py, torch.cos(yaw), torch.sin(yaw), pvx, pvy], -1), dn],
+                                        dim=-1))  # (C, S, D)
+            query = h + e
+            if enc.nbr_kv is not None:
+                nk, nv = enc.nbr_kv[0][:, k + 1], enc.nbr_kv[1][:, k + 1]
+                sxy = torch.stack([px, py], -1)  # (C, S, 2)
+                gap = torch.cdist(sxy, enc.nbr_xy[:, k + 1]) * cfg.pos_scale_m  # (C, S, N)
+                mask = enc.nbr_mask[:, k + 1, None, :] & (gap <= cfg.neighbor_radius_m)
+                a_n = self.nbr_attn(query, nk, nv, torch.stack([px, py, pvx, pvy], -1), mask)
+            else:
+                a_n = static
+            # joined by a sum: the GRU's input weights act on it linearly, as they would on the
+            # concatenation, at a third of the cost (the parts' last layers are free linear maps)
+            joined = e + a_n
+            if self.map_attn is not None and enc.map_kv is not None:
+                rel = torch.stack([px, py, px, py], -1)
+                joined = joined + self.map_attn(query, enc.map_kv[0], enc.map_kv[1], rel, enc.map_mask)
+            h = self.cell(joined.reshape(c * s, d), h.reshape(c * s, d)).view(c, s, d)
+        kl = torch.stack(kls, dim=-1) if kls else None
+        return torch.stack(poses, dim=2), torch.stack(disps, dim=2), kl
+
+    # ------------------------------------------------------------------ API
+
+    def forward(self, ctx: dict[str, Tensor], traj: Tensor | None = None, step_mask: Tensor | None = None,
+                num_samples: int = 1, generator: torch.Generator | None = None,
+                temperature: float = 1.0) -> RolloutOutput:
+        """With ``traj`` (C, H, 3) and ``step_mask`` (C, H): posterior rollout and the loss.
+        Without: ``num_samples`` prior samples per context (horizon = ``ctx["nbr"].shape[1] - 1``)."""
+        enc = self.encode(ctx)
+        c = enc.h0.shape[0]
+        horizon = ctx["nbr"].shape[1] - 1 if traj is None else traj.shape[1]
+        eps = torch.randn(horizon, c, num_samples, self.cfg.latent, generator=generator,
+                          device=enc.h0.device, dtype=enc.h0.dtype)
+        if traj is None:
+            poses, _, _ = self.rollout(enc, num_samples, eps, temperature=temperature)
+            return RolloutOutput(poses=poses)
+        if step_mask is None:
+            step_mask = torch.ones(traj.shape[:2], dtype=torch.bool, device=traj.device)
+        disp = true_displacements(traj)  # (C, H, 3)
+        g = self.posterior_summary(traj, disp)
+        poses, dsp, kl = self.rollout(enc, num_samples, eps, g=g)
+        assert kl is not None
+        err = (dsp - disp[:, None]) / self.recon_sigma  # (C, S, H, 3)
+        recon = 0.5 * (err**2).sum(-1)  # (C, S, H)
+        kl_pen = kl.clamp(min=self.cfg.free_nats) if self.cfg.free_nats > 0 else kl
+        w = step_mask[:, None, :].to(recon.dtype).expand_as(recon)
+        denom = w.sum().clamp(min=1.0)
+        rec = (recon * w).sum() / denom
+        kl_mean = (kl * w).sum() / denom
+        loss = ((recon + self.cfg.kl_weight * kl_pen) * w).sum() / denom
+        return RolloutOutput(poses=poses, loss=loss, recon=rec.detach(), kl=kl_mean.detach())
+
+    @torch.inference_mode()
+    def sample(self, ctx: dict[str, Tensor], num_samples: int, generator: torch.Generator | None = None,
+               temperature: float = 1.0) -> Tensor:
+        """(C, S, H, 3) prior samples in each context's t_rev frame (reverse steps 1..H)."""
+        return self.forward(ctx, num_samples=num_samples, generator=generator, temperature=temperature).poses

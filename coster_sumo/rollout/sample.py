@@ -1,0 +1,427 @@
+"""Oversampling, clustering and refinement of adversary trajectories (DESIGN method step 6).
+
+The injection pipeline calls, for one collision snapshot:
+
+1. :func:`sample_trajectories`: N (default 1000) reverse rollouts of the CVAE in one batched pass,
+   as 2 Hz poses from ``t_col - H * 0.5 s`` to ``t_col`` whose last pose is the snapshot exactly;
+2. :func:`select_representatives`: K-means (K = 5) on lateral-displacement and arc-length features,
+   one representative per cluster (the member closest to its centroid), every transition snapped
+   to the motion vocabulary (chained back from the snapshot, so contact is kept exactly), and
+   rejection of representatives that leave the drivable area or overlap other agents before
+   t_col, falling back to the next member of the cluster;
+
+or both at once through :func:`plan_variants`, which loads the shipped models and returns
+:class:`~coster_sumo.sim.plan.AdversaryPlan` objects.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.errors import InputError
+from coster_sumo.geometry import boxes_overlap, make_boxes
+from coster_sumo.rollout.data import (
+    SceneCache,
+    build_cache,
+    check_rate,
+    encode_context,
+    from_frame,
+    stack_contexts,
+    to_tensors,
+)
+from coster_sumo.rollout.vocab import MotionVocab, project_backward
+from coster_sumo.scene import AgentState, CollisionSnapshot, Scene
+
+if TYPE_CHECKING:
+    from coster_sumo.rollout.model import RolloutCVAE
+    from coster_sumo.sim.plan import AdversaryPlan
+
+DEFAULT_SAMPLES = 1000
+DEFAULT_CLUSTERS = 5
+KMEANS_ITERATIONS = 50
+ROLLOUT_FILE = "rollout.pt"
+VOCAB_FILE = "vocab.npz"
+
+OffRoadFn = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def default_models_dir() -> Path:
+    """Where shipped weights live (:data:`coster_sumo.models.SHIPPED_MODELS`)."""
+    from coster_sumo.models import SHIPPED_MODELS
+
+    return SHIPPED_MODELS
+
+
+# ----------------------------------------------------------------------------- sampling
+
+def _snapshot_parts(snapshot: CollisionSnapshot | tuple[AgentState, int]) -> tuple[AgentState, int]:
+    if isinstance(snapshot, CollisionSnapshot):
+        return snapshot.adversary, int(snapshot.t_index)
+    state, t_index = snapshot
+    return state, int(t_index)
+
+
+def rollout_horizon(model: RolloutCVAE, t_index: int, horizon: int | None = None) -> int:
+    """Steps reconstructed before ``t_index``: ``min(max_horizon, t_index)`` (or ``horizon`` if
+    smaller): shorter when the collision is early in the scene."""
+    h = min(model.cfg.max_horizon, t_index)
+    return h if horizon is None else max(0, min(h, horizon))
+
+
+def trajectory_times(scene_2hz: Scene, t_index: int, horizon: int) -> np.ndarray:
+    """(H + 1,) [s] scene times of the trajectory's poses, t_col last."""
+    return np.asarray(scene_2hz.timestamps[t_index - horizon: t_index + 1], np.float64)
+
+
+def sample_trajectories(model: RolloutCVAE, scene_2hz: Scene, snapshot: CollisionSnapshot | tuple[AgentState, int],
+                        n: int = DEFAULT_SAMPLES, seed: int = 0, *, horizon: int | None = None,
+                        exclude: Iterable[int] = (), cache: SceneCache | None = None,
+                        temperature: float = 1.0) -> np.ndarray:
+    """Oversample the adversary's approach backwards from the collision snapshot, in one batched pass.
+
+    Args:
+        model: a trained :class:`~coster_sumo.rollout.model.RolloutCVAE` (see
+            :func:`coster_sumo.rollout.checkpoint.load_model`).
+        scene_2hz: the nominal scene at 2 Hz (:func:`coster_sumo.scene.resample`); its agents over
+            time are the neighbours, its map the map. The adversary is not one of its agents.
+        snapshot: the :class:`~coster_sumo.scene.CollisionSnapshot` (its ``adversary`` state and
+            ``t_index``), or ``(AgentState, t_index)``: centre x, y [m], yaw [rad], speed [m/s],
+            length, width [m] at step ``t_index`` (= t_col) of ``scene_2hz``.
+        n: number of trajectories N.
+        seed: seeds the latent noise; the same seed gives the same trajectories.
+        horizon: at most this many steps (default and upper bound ``min(max_horizon, t_index)``).
+        exclude: agent indices of ``scene_2hz`` that must not be neighbours (e.g. when the
+            adversary replaces a logged agent).
+        cache: :func:`~coster_sumo.rollout.data.build_cache` of ``scene_2hz`` when sampling several
+            snapshots of one scene.
+        temperature: scales the prior's standard deviation (1 = the model's distribution).
+
+    Returns:
+        (N, H + 1, 3) float64 centre x, y [m] and yaw [rad] (CCW from +x, unwrapped) in the scene's
+        coordinates, 2 Hz, in time order from ``t_col - H * 0.5 s`` to ``t_col``. ``[:, -1]`` is the
+        snapshot exactly. Times: :func:`trajectory_times`.
+    """
+    import torch
+
+    check_rate(scene_2hz)
+    state, t_index = _snapshot_parts(snapshot)
+    if not 0 <= t_index < scene_2hz.num_steps:
+        raise InputError(f"snapshot step {t_index} is outside the scene's {scene_2hz.num_steps} steps")
+    if n < 1:
+        raise InputError(f"number of samples must be >= 1, got {n}")
+    h = rollout_horizon(model, t_index, horizon)
+    last = np.array([state.x, state.y, state.yaw], np.float64)
+    if h == 0:
+        return np.broadcast_to(last, (n, 1, 3)).copy()
+    cache = cache if cache is not None else build_cache(scene_2hz, model.cfg)
+    ctx = encode_context(cache, last, state.speed, state.length, state.width, t_index, h, model.cfg,
+                         exclude=exclude)
+    arrays = stack_contexts([ctx])
+    arrays.pop("origin")
+    gen = torch.Generator().manual_seed(int(seed))
+    poses = model.sample(to_tensors(arrays), n, generator=gen, temperature=temperature)[0]  # (N, H, 3)
+    p = poses.double().numpy()
+    x, y, yaw = from_frame(p[..., 0], p[..., 1], p[..., 2], last)
+    out = np.empty((n, h + 1, 3))
+    out[:, :h] = np.stack([x, y, yaw], axis=-1)[:, ::-1]  # reverse steps H..1 = oldest first
+    out[:, h] = last
+    return out
+
+
+# ----------------------------------------------------------------------------- selection
+
+@dataclass(frozen=True)
+class Trajectory:
+    """One selected adversary trajectory (2 Hz, time order, the last pose is the snapshot).
+
+    Attributes:
+        times: (T,) [s] scene times (relative ``-(T-1) * 0.5 .. 0`` when none were given).
+        poses: (T, 3) centre x, y [m], yaw [rad] after refinement.
+        raw: (T, 3) the CVAE sample it came from.
+        cluster: rank of its cluster by size (0 = largest); cluster_size: members of that cluster.
+        rank: 0 for the member closest to the centroid, i for the i-th fallback.
+        sample_index: row of the sample in the input.
+        refine_error_m: [m] largest box-corner error between ``poses`` and ``raw`` (0 unrefined).
+        refined: whether the motion vocabulary was applied.
+    """
+
+    times: np.ndarray
+    poses: np.ndarray
+    raw: np.ndarray
+    cluster: int
+    cluster_size: int
+    rank: int
+    sample_index: int
+    refine_error_m: float
+    refined: bool
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.poses[:, 0]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.poses[:, 1]
+
+    @property
+    def yaw(self) -> np.ndarray:
+        return self.poses[:, 2]
+
+
+@dataclass(frozen=True)
+class OtherAgents:
+    """Other agents' boxes at the trajectory's times.
+
+    Attributes:
+        boxes: (A, T, 5) float64 (cx, cy, heading, length, width), see :mod:`coster_sumo.geometry`.
+        valid: (A, T) bool.
+        ids: (A,) str.
+    """
+
+    boxes: np.ndarray
+    valid: np.ndarray
+    ids: np.ndarray
+
+
+def others_from_scene(scene_2hz: Scene, t_index: int, horizon: int, exclude: Iterable[int] = ()) -> OtherAgents:
+    """Boxes of every agent of ``scene_2hz`` (the target too) at steps ``t_index - horizon .. t_index``."""
+    tr = scene_2hz.tracks
+    steps = np.arange(t_index - horizon, t_index + 1)
+    keep = np.ones(tr.num_agents, bool)
+    ex = np.fromiter(exclude, dtype=np.int64)
+    keep[ex[(ex >= 0) & (ex < tr.num_agents)]] = False
+    a = np.flatnonzero(keep)
+    sel = tr.select(agents=a, steps=steps)
+    return OtherAgents(boxes=make_boxes(sel.x, sel.y, sel.heading, sel.length, sel.width), valid=sel.valid,
+                       ids=sel.ids)
+
+
+def cluster_features(trajs: np.ndarray) -> np.ndarray:
+    """(N, T, 3) trajectories -> (N, 2 (T - 1)) standardised features.
+
+    In the frame of the last pose (the snapshot): the lateral displacement of every earlier pose
+    and the arc length travelled from it to t_col. Each feature is centred; each of the two groups
+    is divided by its overall standard deviation, so that lateral and longitudinal variation weigh
+    alike while the growth of the spread along the horizon is kept.
+    """
+    t = np.asarray(trajs, np.float64)
+    last = t[:, -1]  # (N, 3)
+    c, s = np.cos(last[:, 2])[:, None], np.sin(last[:, 2])[:, None]
+    dx, dy = t[:, :-1, 0] - last[:, None, 0], t[:, :-1, 1] - last[:, None, 1]
+    lateral = -s * dx + c * dy  # (N, T-1)
+    seg = np.linalg.norm(np.diff(t[..., :2], axis=1), axis=-1)  # (N, T-1)
+    arc = np.cumsum(seg[:, ::-1], axis=1)[:, ::-1]  # from each pose to t_col
+    feats = []
+    for block in (lateral, arc):
+        centred = block - block.mean(axis=0, keepdims=True)
+        sd = float(centred.std())
+        feats.append(centred / (sd if sd > 1e-9 else 1.0))
+    return np.concatenate(feats, axis=1)
+
+
+def farthest_point_init(x: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
+    """(k,) row indices: a seeded first row, then repeatedly the row farthest from those chosen."""
+    rng = np.random.default_rng(seed)
+    chosen = [int(rng.integers(len(x)))]
+    d = np.linalg.norm(x - x[chosen[0]], axis=1)
+    for _ in range(1, k):
+        j = int(np.argmax(d))
+        chosen.append(j)
+        d = np.minimum(d, np.linalg.norm(x - x[j], axis=1))
+    return np.asarray(chosen, np.int64)
+
+
+def cluster_trajectories(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: int = 0
+                         ) -> list[np.ndarray]:
+    """K-means (farthest-point initialisation, :data:`KMEANS_ITERATIONS` iterations) on
+    :func:`cluster_features`; deterministic per seed.
+
+    Returns:
+        one array of sample indices per cluster, largest cluster first, members ordered by distance
+        to the centroid (closest first). Fewer than ``k`` clusters when there are fewer distinct
+        trajectories.
+    """
+    from sklearn.cluster import KMeans
+
+    x = cluster_features(trajs)
+    n = len(x)
+    if n == 0:
+        return []
+    distinct = len(np.unique(np.round(x, 9), axis=0))
+    k = max(1, min(k, distinct))
+    init = x[farthest_point_init(x, k, seed)]
+    km = KMeans(n_clusters=k, init=init, n_init=1, max_iter=KMEANS_ITERATIONS, random_state=seed, tol=1e-6)
+    labels = km.fit_predict(x)
+    dist = np.linalg.norm(x - km.cluster_centers_[labels], axis=1)
+    clusters = []
+    for c in range(k):
+        members = np.flatnonzero(labels == c)
+        if len(members):
+            clusters.append(members[np.lexsort((members, dist[members]))])
+    clusters.sort(key=lambda m: (-len(m), int(m[0])))
+    return clusters
+
+
+def _off_road(drivable: DrivableArea | OffRoadFn, poses: np.ndarray, length: float, width: float) -> np.ndarray:
+    """(R,) any pose of (R, T, 3) off the drivable area."""
+    ln = np.full(poses.shape[:2], length)
+    wd = np.full(poses.shape[:2], width)
+    if isinstance(drivable, DrivableArea):
+        off = drivable.off_road(poses[..., 0], poses[..., 1], poses[..., 2], ln, wd)
+    else:
+        off = np.asarray(drivable(poses[..., 0], poses[..., 1], poses[..., 2], ln, wd), bool)
+    return np.any(np.asarray(off, bool).reshape(poses.shape[:2]), axis=1)  # type: ignore[no-any-return]
+
+
+def _hits_others(others: OtherAgents, poses: np.ndarray, length: float, width: float) -> np.ndarray:
+    """(R,) any pose of (R, T, 3) overlapping a valid other agent at the same step."""
+    if others.boxes.shape[0] == 0:
+        return np.zeros(len(poses), bool)
+    mine = make_boxes(poses[..., 0], poses[..., 1], poses[..., 2], length, width)  # (R, T, 5)
+    hit = boxes_overlap(mine[:, None], others.boxes[None])  # (R, A, T)
+    return np.asarray((hit & others.valid[None]).any(axis=(1, 2)), bool)
+
+
+def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: int = 0,
+                           vocab: MotionVocab | None = None, drivable: DrivableArea | OffRoadFn | None = None,
+                           others: OtherAgents | None = None, *, size: tuple[float, float],
+                           times: np.ndarray | None = None, max_tries: int | None = None) -> list[Trajectory]:
+    """Cluster oversampled trajectories and keep one feasible, refined representative per cluster.
+
+    Args:
+        trajs: (N, T, 3) from :func:`sample_trajectories` (time order; the last pose is the snapshot).
+        k: number of K-means clusters.
+        seed: seeds the farthest-point initialisation (deterministic per seed).
+        vocab: motion vocabulary; every transition is snapped to it (:func:`project_backward`),
+            keeping the last pose exactly. None: no refinement.
+        drivable: :class:`~coster_sumo.drivable.DrivableArea` or a function
+            ``(x, y, yaw, length, width) -> bool off-road`` on arrays; None: no off-road check.
+        others: other agents' boxes at the same T times (:func:`others_from_scene`); None: none.
+        size: (length, width) [m] of the adversary.
+        times: (T,) [s] stored in the results (default relative times, 0 at t_col).
+        max_tries: at most this many members of a cluster are tried (default all).
+
+    Returns:
+        Up to ``k`` :class:`Trajectory`, largest cluster first. A pose **before** t_col that is
+        off-road (:meth:`DrivableArea.off_road`) or overlaps a valid other agent rejects the
+        candidate; the cluster's next member (by distance to the centroid) is tried instead. A
+        cluster with no acceptable member yields nothing.
+    """
+    trajs = np.asarray(trajs, np.float64)
+    if trajs.ndim != 3 or trajs.shape[2] != 3:
+        raise InputError(f"trajectories must be (N, T, 3), got {trajs.shape}")
+    n, t, _ = trajs.shape
+    length, width = (float(v) for v in size)
+    if times is None:
+        times = (np.arange(t) - (t - 1)) * 0.5
+    times = np.asarray(times, np.float64)
+    if others is not None and others.boxes.shape[1] != t:
+        raise InputError(f"others have {others.boxes.shape[1]} steps but trajectories have {t}")
+    out: list[Trajectory] = []
+    for ci, members in enumerate(cluster_trajectories(trajs, k, seed)):
+        tries = members if max_tries is None else members[:max_tries]
+        for start in range(0, len(tries), 32):  # refine and check a few members at a time
+            chunk = tries[start:start + 32]
+            raw = trajs[chunk]
+            if vocab is not None and t >= 2:
+                poses, err = project_backward(raw, vocab, length, width)
+            else:
+                poses, err = raw.copy(), np.zeros(len(chunk))
+            bad = np.zeros(len(chunk), bool)
+            before = poses[:, :-1]  # contact at t_col is the point; only earlier poses are checked
+            if others is not None and t >= 2:
+                bad |= _hits_others(OtherAgents(others.boxes[:, :-1], others.valid[:, :-1], others.ids),
+                                    before, length, width)
+            if drivable is not None and t >= 2:
+                todo = ~bad
+                if todo.any():
+                    off = np.zeros(len(chunk), bool)
+                    off[todo] = _off_road(drivable, before[todo], length, width)
+                    bad |= off
+            ok = np.flatnonzero(~bad)
+            if len(ok):
+                j = int(ok[0])
+                out.append(Trajectory(times=times.copy(), poses=poses[j], raw=raw[j].copy(), cluster=ci,
+                                      cluster_size=len(members), rank=start + j, sample_index=int(chunk[j]),
+                                      refine_error_m=float(err[j]), refined=vocab is not None))
+                break
+    return out
+
+
+# ----------------------------------------------------------------------------- pipeline entry
+
+@functools.lru_cache(maxsize=4)
+def _load_model_cached(path: str, mtime_ns: int) -> Any:
+    from coster_sumo.rollout.checkpoint import load_model
+
+    return load_model(path)
+
+
+def load_rollout_model(models_dir: str | Path | None = None) -> RolloutCVAE:
+    """``MODELS/rollout.pt`` (cached per file version); InputError with the fix when missing."""
+    path = Path(models_dir or default_models_dir()) / ROLLOUT_FILE
+    if not path.is_file():
+        raise InputError(f"{path}: rollout model weights not found (train them with `coster-sumo train rollout "
+                         f"--data DATASET -o {path}`, pass --models DIR, or use --rollout cv)")
+    model: RolloutCVAE = _load_model_cached(str(path), path.stat().st_mtime_ns)
+    return model
+
+
+def load_vocab(models_dir: str | Path | None = None) -> MotionVocab | None:
+    """``MODELS/vocab.npz`` or None when there is none."""
+    path = Path(models_dir or default_models_dir()) / VOCAB_FILE
+    return MotionVocab.load(path) if path.is_file() else None
+
+
+def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
+                  drivable: DrivableArea | OffRoadFn | None, n: int = DEFAULT_SAMPLES, k: int = DEFAULT_CLUSTERS,
+                  seed: int = 0, models_dir: str | Path | None = None,
+                  exclude: Sequence[int] = ()) -> tuple[list[AdversaryPlan], np.ndarray, dict[str, Any]]:
+    """Oversample, cluster, refine and check: the adversary plans of one snapshot.
+
+    Args:
+        scene_2hz: the nominal scene at 2 Hz; target: the target's agent index (it stays a
+            neighbour and an obstacle before t_col).
+        snapshot: the collision snapshot.
+        drivable: the drivable area (or an off-road function) for rejection; None: no check.
+        n, k, seed: samples, clusters, seed.
+        models_dir: folder with ``rollout.pt`` and optionally ``vocab.npz`` (default ``models/``).
+        exclude: agents that are neither neighbours nor obstacles.
+
+    Returns:
+        (plans, samples_xy (N, T, 2) of all samples, info) with one
+        :class:`~coster_sumo.sim.plan.AdversaryPlan` per accepted representative (possibly none).
+    """
+    from coster_sumo.sim.plan import AdversaryPlan
+
+    t0 = time.perf_counter()
+    model = load_rollout_model(models_dir)
+    vocab = load_vocab(models_dir)
+    t1 = time.perf_counter()
+    trajs = sample_trajectories(model, scene_2hz, snapshot, n=n, seed=seed, exclude=exclude)
+    t2 = time.perf_counter()
+    h = trajs.shape[1] - 1
+    times = trajectory_times(scene_2hz, snapshot.t_index, h)
+    others = others_from_scene(scene_2hz, snapshot.t_index, h, exclude=exclude)
+    adv = snapshot.adversary
+    reps = select_representatives(trajs, k=k, seed=seed, vocab=vocab, drivable=drivable, others=others,
+                                  size=(adv.length, adv.width), times=times)
+    t3 = time.perf_counter()
+    plans = [AdversaryPlan.from_knots(r.times, r.poses, adv) for r in reps]
+    info: dict[str, Any] = {
+        "rollout": "cvae", "samples": n, "clusters": k, "horizon_steps": h, "target": int(target),
+        "use_dsa": bool(model.cfg.use_dsa), "vocab_tokens": len(vocab) if vocab is not None else None,
+        "representatives": [{"cluster": r.cluster, "cluster_size": r.cluster_size, "rank": r.rank,
+                             "sample_index": r.sample_index, "refine_error_m": r.refine_error_m} for r in reps],
+        "time_load_s": t1 - t0, "time_sample_s": t2 - t1, "time_select_s": t3 - t2,
+    }
+    return plans, trajs[..., :2].copy(), info
+

@@ -1,0 +1,246 @@
+"""Training of the rollout CVAE: ``coster-sumo train rollout --data DATASET -o models/rollout.pt``.
+
+Examples: every vehicle of every scene (resampled to 2 Hz) at every t_rev with at least
+``min_steps`` valid steps before it, the horizon ``min(max_horizon, t_rev)`` (shorter segments are
+masked: the model learns the adaptive horizon). Scenes are split into training and held-out sets
+by :func:`coster_sumo.dataset.split` (hash of the file name), never examples of one scene across
+both.
+
+Deterministic per seed (same thread count): the model initialisation, the example order and the
+latent noise of epoch ``e`` depend only on ``(seed, e)``. After every epoch the checkpoint
+(``OUT``), the metrics (``OUT`` with suffix ``.json``) and a training state (``OUT.state``:
+weights, optimiser state, history) are written atomically. Rerunning the same command resumes from
+the state (``--restart`` ignores it), also to more epochs than first asked for, and gives the same
+weights as an uninterrupted run; a state from other data or settings is an error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from coster_sumo.errors import InputError
+from coster_sumo.rollout.checkpoint import atomic_torch_save, read_torch_file, save_checkpoint
+from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
+from coster_sumo.rollout.evaluate import cvae_errors
+from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
+from coster_sumo.scene import load_scene
+
+RESUME_FORMAT = "coster-sumo-rollout-train"
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings (``coster-sumo train rollout --help``).
+
+    Attributes:
+        epochs: passes over the training examples (or ``examples_per_epoch`` of them).
+        batch_size: contexts per step.
+        lr, weight_decay, grad_clip: AdamW and gradient-norm clipping.
+        seed: drives everything random.
+        val_fraction: share of scene files held out.
+        examples_per_epoch: 0 = all training examples every epoch; else a seeded subset per epoch.
+        min_steps: [2 Hz steps] least valid past for an example.
+        eval_samples: samples per context for minADE / minFDE.
+        max_val_examples: held-out examples scored per epoch (seeded subset).
+        threads: torch CPU threads (1: bitwise reproducible; 0 = torch's default).
+    """
+
+    epochs: int = 20
+    batch_size: int = 64
+    lr: float = 5e-4
+    weight_decay: float = 1e-5
+    grad_clip: float = 5.0
+    seed: int = 0
+    val_fraction: float = 0.1
+    examples_per_epoch: int = 20_000
+    min_steps: int = 2
+    eval_samples: int = 5
+    max_val_examples: int = 500
+    threads: int = 1
+
+
+def split_scene_files(data: str | Path, val_fraction: float, seed: int) -> tuple[list[Path], list[Path]]:
+    """Training and held-out scene files of a dataset folder (see :mod:`coster_sumo.dataset`)."""
+    from coster_sumo.dataset import list_scenes, split
+
+    paths = list_scenes(data)
+    if not paths:
+        raise InputError(f"{data}: no scenes (expected DATASET/scenes/*.npz)")
+    train, val = split(paths, val_fraction, seed=0)  # the split is a property of the dataset, not of a run
+    if not train:  # tiny datasets: keep at least one training scene
+        train, val = val[:1], val[1:]
+    return train, val
+
+
+def load_examples(paths: Sequence[Path], cfg: RolloutConfig, min_steps: int, quiet: bool = True,
+                  what: str = "scenes") -> ExampleSet:
+    scenes = (load_scene(p) for p in tqdm(paths, desc=f"loading {what}", disable=quiet, leave=False))
+    return build_examples(scenes, cfg, min_steps=min_steps)
+
+
+def _epoch_rows(n: int, tcfg: TrainConfig, epoch: int) -> np.ndarray:
+    rng = np.random.default_rng([tcfg.seed, epoch])
+    order = rng.permutation(n)
+    if tcfg.examples_per_epoch > 0:
+        order = order[: tcfg.examples_per_epoch]
+    return order
+
+
+def _tensors(batch: dict[str, np.ndarray]) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+    t = to_tensors(batch)
+    traj, mask = t.pop("traj"), t.pop("step_mask")
+    t.pop("origin")
+    return t, traj, mask
+
+
+@torch.no_grad()
+def validation_loss(model: RolloutCVAE, examples: ExampleSet, rows: np.ndarray, batch_size: int, seed: int
+                    ) -> dict[str, float]:
+    """Posterior ELBO terms on ``rows`` (per valid step, averaged over examples)."""
+    model.eval()
+    gen = torch.Generator().manual_seed(seed)
+    tot = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
+    count = 0
+    for start in range(0, len(rows), batch_size):
+        ctx, traj, mask = _tensors(examples.batch(rows[start:start + batch_size], model.cfg))
+        out = model(ctx, traj, mask, generator=gen)
+        k = len(traj)
+        assert out.loss is not None and out.recon is not None and out.kl is not None
+        tot["loss"] += float(out.loss) * k
+        tot["recon"] += float(out.recon) * k
+        tot["kl"] += float(out.kl) * k
+        count += k
+    return {f"val_{k}": v / max(count, 1) for k, v in tot.items()}
+
+
+def state_path(out: Path) -> Path:
+    """The training state beside checkpoint ``out``."""
+    return out.with_name(out.name + ".state")
+
+
+def _metrics_path(out: Path) -> Path:
+    return out.with_suffix(".json")
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1) + "\n")
+    tmp.replace(path)
+
+
+def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None = None,
+                  tcfg: TrainConfig | None = None, *, resume: bool = True, quiet: bool = False,
+                  command: str | None = None) -> dict[str, Any]:
+    """Train (or resume training) and write the checkpoint, metrics and resume file.
+
+    Returns:
+        The metrics dictionary also written to ``OUT.json``.
+    """
+    cfg = cfg or RolloutConfig()
+    tcfg = tcfg or TrainConfig()
+    out = Path(out)
+    if tcfg.threads > 0:
+        torch.set_num_threads(tcfg.threads)
+    t_start = time.perf_counter()
+    train_paths, val_paths = split_scene_files(data, tcfg.val_fraction, tcfg.seed)
+    train_set = load_examples(train_paths, cfg, tcfg.min_steps, quiet, "training scenes")
+    val_set = load_examples(val_paths, cfg, tcfg.min_steps, quiet, "held-out scenes")
+    if len(train_set) == 0:
+        raise InputError(f"{data}: no training examples (no vehicle with {tcfg.min_steps} valid past steps)")
+    torch.manual_seed(tcfg.seed)
+    model = RolloutCVAE(cfg)
+    opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
+    history: list[dict[str, Any]] = []
+    first_epoch = 0
+    rpath = state_path(out)
+    if resume and rpath.is_file():
+        state = read_torch_file(rpath)
+        if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
+            raise InputError(f"{rpath}: not a rollout training state")
+        saved_t = dict(state.get("train_config", {}))
+        now_t = dataclasses.asdict(tcfg)
+        saved_t.pop("epochs", None)
+        now_t.pop("epochs", None)
+        if state.get("config") != cfg.to_dict() or saved_t != now_t or state.get("data") != str(Path(data).resolve()):
+            raise InputError(f"{rpath}: the run to resume used other data or settings; "
+                             "start afresh with --restart (or write to another -o)")
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        history = list(state.get("history", []))
+        first_epoch = int(state["epoch"])
+    g = torch.Generator().manual_seed(tcfg.seed + 7919)
+    val_rows = torch.randperm(len(val_set), generator=g).numpy()[: tcfg.max_val_examples]
+    full = np.flatnonzero(val_set.index[:, 3] == cfg.max_horizon) if len(val_set) else np.zeros(0, np.int64)
+    ade_rows = full[torch.randperm(len(full), generator=g).numpy()[: tcfg.max_val_examples]]
+    metrics: dict[str, Any] = {}
+    for epoch in range(first_epoch, tcfg.epochs):
+        t_epoch = time.perf_counter()
+        model.train()
+        torch.manual_seed(tcfg.seed * 1_000_003 + epoch)
+        rows = _epoch_rows(len(train_set), tcfg, epoch)
+        batches = range(0, len(rows), tcfg.batch_size)
+        sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
+        seen = 0
+        bar = tqdm(batches, desc=f"epoch {epoch + 1}/{tcfg.epochs}", disable=quiet, leave=False)
+        for start in bar:
+            ctx, traj, mask = _tensors(train_set.batch(rows[start:start + tcfg.batch_size], cfg))
+            res = model(ctx, traj, mask)
+            assert res.loss is not None and res.recon is not None and res.kl is not None
+            opt.zero_grad(set_to_none=True)
+            res.loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
+            opt.step()
+            k = len(traj)
+            sums["loss"] += float(res.loss.detach()) * k
+            sums["recon"] += float(res.recon) * k
+            sums["kl"] += float(res.kl) * k
+            seen += k
+            bar.set_postfix(loss=f"{sums['loss'] / seen:.3f}", kl=f"{sums['kl'] / seen:.3f}")
+        entry: dict[str, Any] = {"epoch": epoch + 1, **{f"train_{k}": v / max(seen, 1) for k, v in sums.items()}}
+        if len(val_rows):
+            entry.update(validation_loss(model, val_set, val_rows, tcfg.batch_size, tcfg.seed + epoch))
+        if len(ade_rows):
+            errs = cvae_errors(model, val_set, ade_rows, tcfg.eval_samples, seed=tcfg.seed, batch_size=tcfg.batch_size)
+            entry.update({f"val_{k}": v for k, v in errs.items() if k != "time_per_trajectory_s"})
+        entry["time_s"] = time.perf_counter() - t_epoch
+        history.append(entry)
+        meta = {"data": str(Path(data).resolve()), "epochs": epoch + 1, "seed": tcfg.seed,
+                "train_config": dataclasses.asdict(tcfg), "last": entry}
+        save_checkpoint(model, out, meta=meta)
+        atomic_torch_save({"format": RESUME_FORMAT, "epoch": epoch + 1, "model": model.state_dict(),
+                           "optimizer": opt.state_dict(), "config": cfg.to_dict(),
+                           "train_config": dataclasses.asdict(tcfg), "data": str(Path(data).resolve()),
+                           "history": history}, rpath)
+        metrics = {
+            "format": "coster-sumo-rollout-metrics", "data": str(Path(data).resolve()),
+            "scenes": {"train": len(train_paths), "val": len(val_paths)},
+            "examples": {"train": len(train_set), "val": len(val_set), "val_scored": int(len(val_rows)),
+                         "val_full_horizon_scored": int(len(ade_rows))},
+            "config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg),
+            "parameters": sum(p.numel() for p in model.parameters()),
+            "epochs": history, "final": history[-1],
+            "wall_time_s": time.perf_counter() - t_start, "torch": torch.__version__,
+            "threads": torch.get_num_threads(), "machine": platform.machine(),
+            "command": command if command is not None else " ".join(sys.argv),
+            "units": {"ADE/FDE": "m", "loss": "negative ELBO per valid step (nats)", "time_s": "s"},
+        }
+        _write_json(_metrics_path(out), metrics)
+        if not quiet:
+            shown = {k: round(v, 4) for k, v in entry.items() if isinstance(v, float)}
+            print(f"epoch {epoch + 1}: {shown}", file=sys.stderr)
+    if not metrics:  # nothing left to do (resumed a finished run)
+        mp = _metrics_path(out)
+        metrics = json.loads(mp.read_text()) if mp.is_file() else {"epochs": history}
+    return metrics

@@ -1,0 +1,98 @@
+"""``coster-sumo train rollout``, ``train vocab`` and ``eval rollout`` on a tiny dataset built in code."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from coster_sumo import synthetic
+from coster_sumo.cli import main
+from coster_sumo.rollout.checkpoint import load_model
+from coster_sumo.rollout.vocab import MotionVocab
+from coster_sumo.scene import save_scene
+
+TINY = ["--hidden", "16", "--heads", "2", "--latent", "4", "--batch-size", "32", "--examples-per-epoch", "64",
+        "--max-val-examples", "16"]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rollout_data")
+    (root / "scenes").mkdir()
+    for name, fn in synthetic.ALL.items():
+        save_scene(fn(), root / "scenes" / f"{name}.npz")
+    return root
+
+
+@pytest.fixture(autouse=True)
+def restore_threads():
+    n = torch.get_num_threads()
+    yield
+    torch.set_num_threads(n)
+
+
+def train(dataset, out, *extra):
+    return main(["-q", "train", "rollout", "--data", str(dataset), "-o", str(out), *TINY, *extra])
+
+
+def test_train_resume_and_determinism(dataset, tmp_path):
+    a, b = tmp_path / "a.pt", tmp_path / "b.pt"
+    assert train(dataset, a, "--epochs", "1") == 0
+    assert a.is_file() and (tmp_path / "a.json").is_file() and (tmp_path / "a.pt.state").is_file()
+    assert train(dataset, a, "--epochs", "2") == 0  # resumes at epoch 2
+    assert train(dataset, b, "--epochs", "2") == 0  # uninterrupted
+    metrics = json.loads((tmp_path / "a.json").read_text())
+    assert [e["epoch"] for e in metrics["epochs"]] == [1, 2]
+    assert metrics["examples"]["train"] > 0 and "train_loss" in metrics["final"]
+    ma, mb = load_model(a), load_model(b)
+    for k, v in ma.state_dict().items():
+        assert torch.equal(v, mb.state_dict()[k]), k
+    # a different setting does not silently resume the old state
+    assert train(dataset, a, "--epochs", "3", "--lr", "0.1") == 2
+
+
+def test_train_without_dsa_writes_that_config(dataset, tmp_path):
+    out = tmp_path / "nodsa.pt"
+    assert train(dataset, out, "--epochs", "1", "--no-dsa") == 0
+    assert load_model(out).cfg.use_dsa is False
+
+
+def test_vocab_command(dataset, tmp_path):
+    out = tmp_path / "vocab.npz"
+    assert main(["-q", "train", "vocab", "--data", str(dataset), "-o", str(out), "--size", "24"]) == 0
+    vocab = MotionVocab.load(out)
+    assert 1 <= len(vocab) <= 24
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert report["tokens"] == len(vocab) and report["coverage_max_error_m"] <= vocab.epsilon_m + 1e-9
+
+
+def test_eval_rollout_reports_every_method(dataset, tmp_path):
+    ck = tmp_path / "r.pt"
+    assert train(dataset, ck, "--epochs", "1") == 0
+    out = tmp_path / "eval.json"
+    assert main(["-q", "eval", "rollout", "--data", str(dataset), "--split", "all", "--checkpoint", str(ck),
+                 "--checkpoint-no-dsa", str(ck), "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert set(report["methods"]) == {"constant_velocity", "constant_lane", "cvae_no_dsa", "cvae_dsa"}
+    for m in report["methods"].values():
+        assert m["minADE"] <= m["avgADE"] + 1e-12 and m["minFDE"] <= m["avgFDE"] + 1e-12
+        assert m["time_per_trajectory_s"] > 0
+    assert report["methods"]["cvae_dsa"]["samples"] == 5
+    # synthetic agents follow their lanes at constant speed: the lane baseline beats straight lines
+    cl, cv = report["methods"]["constant_lane"], report["methods"]["constant_velocity"]
+    assert cl["minADE"] < cv["minADE"]
+    last = tmp_path / "last.json"
+    assert main(["-q", "eval", "rollout", "--data", str(dataset), "--split", "all", "--checkpoint", str(ck),
+                 "--t-rev", "last", "--json", str(last)]) == 0
+    assert json.loads(last.read_text())["num_examples"] < report["num_examples"]
+
+
+def test_bad_checkpoint_is_one_line_and_exit_code_2(dataset, tmp_path, capsys):
+    bad = tmp_path / "bad.pt"
+    bad.write_text("garbage")
+    code = main(["eval", "rollout", "--data", str(dataset), "--checkpoint", str(bad), "--json",
+                 str(tmp_path / "e.json")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and str(bad) in err
