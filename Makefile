@@ -4,8 +4,8 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/demo
 DEMO_CFG ?= networks/intersection/intersection.sumocfg
-# the constant-velocity rollout until the CVAE weights ship in models/
-DEMO_ARGS ?= --rollout cv --planner replay
+# full COSTER with the shipped weights; the target replays its nominal path so contact is at t_col
+DEMO_ARGS ?= --planner replay
 
 .PHONY: setup demo test test-slow lint clean
 

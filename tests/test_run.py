@@ -79,3 +79,15 @@ def test_coster_snapshot_with_shipped_prior_contacts_at_t_col(tmp_path, network)
     assert 0.0 <= summary["snapshot_signed_distance"] <= 0.05
     for v in summary["variants"]:
         assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6
+
+
+def test_full_coster_with_shipped_weights(tmp_path):
+    """Default run: entropy t_col, prior snapshot, CVAE oversampling, K-means, vocabulary."""
+    out = tmp_path / "full"
+    rc = main(["-q", "run", str(REPO / "networks/intersection/intersection.sumocfg"), "--planner", "replay",
+               "--samples", "200", "--variants", "3", "--no-render", "-o", str(out)])
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["generation"]["kept"] >= 1
+    for v in summary["variants"]:
+        assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6
