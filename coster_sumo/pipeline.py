@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import CosterError, InputError
+from coster_sumo.errors import InputError
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
 from coster_sumo.scene import CollisionSnapshot, Scene, load_scene, resample
@@ -285,7 +285,7 @@ def run(opts: RunOptions) -> dict[str, Any]:
     try:
         planned = plan_scenario(scene, target, opts, drivable)
     except NoSnapshot as exc:
-        raise CosterError(f"{opts.config}: no collision snapshot for target "
+        raise InputError(f"{opts.config}: no collision snapshot for target "
                           f"{str(scene.tracks.ids[target])!r}: {exc}") from None
     timings["generation_s"] = time.perf_counter() - t0
     opts.out.parent.mkdir(parents=True, exist_ok=True)
