@@ -1,0 +1,48 @@
+"""Python API: plan adversaries for a SUMO configuration, then drive them in your own loop.
+
+Example (also in the README, and run by tests/test_api.py)::
+
+    from coster_sumo.api import AdversaryController, SumoSession, plan_adversaries
+
+    planned = plan_adversaries("networks/intersection/intersection.sumocfg", seed=0, variants=3)
+    plan = planned.plans[0]                      # 2 Hz knots ending in the collision snapshot
+    adversary = AdversaryController(plan)
+    with SumoSession("networks/intersection/intersection.sumocfg", seed=0) as sim:
+        while sim.time < plan.t_col + 2.0:
+            adversary.before_step(sim, round(sim.time + sim.step_length, 9))  # every step
+            sim.step()
+            # ... your planner / logging here: sim.vehicle_states(), sim.api (libsumo or TraCI) ...
+
+For an external ``sumo`` or ``sumo-gui`` you started yourself with ``--remote-port P``, use
+``SumoSession(port=P)``: the session attaches over TraCI and the same loop works.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.pipeline import PlannedScenario, RunOptions, choose_target, nominal_scene, plan_scenario
+from coster_sumo.sim.inject import AdversaryController, run_injection
+from coster_sumo.sim.plan import AdversaryPlan
+from coster_sumo.sim.session import SumoSession
+
+__all__ = ["AdversaryController", "AdversaryPlan", "PlannedScenario", "SumoSession", "plan_adversaries",
+           "run_injection"]
+
+
+def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int = 0, samples: int = 1000,
+                     variants: int = 5, collision_time: str = "entropy", init: str = "snapshot",
+                     rollout: str = "cvae", begin: float | None = None, end: float | None = None,
+                     models_dir: str | Path | None = None) -> PlannedScenario:
+    """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
+
+    Returns the :class:`~coster_sumo.pipeline.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
+    :class:`~coster_sumo.sim.plan.AdversaryPlan` per kept variant, sim times in seconds).
+    """
+    opts = RunOptions(config=Path(config), out=Path("."), target=target, samples=samples, variants=variants,
+                      collision_time=collision_time, init=init, rollout=rollout, begin=begin, end=end,
+                      seed=seed, models_dir=Path(models_dir) if models_dir is not None else None)
+    scene, _ = nominal_scene(opts)
+    index = choose_target(scene, target, opts.config)
+    return plan_scenario(scene, index, opts, DrivableArea.from_road_map(scene.road_map))
