@@ -126,7 +126,8 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
 
 def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, target_state: AgentState,
                     representatives: Sequence[np.ndarray], samples_xy: np.ndarray | None,
-                    entropy: Sequence[float] | None, times: np.ndarray | None, t_col: float) -> Path:
+                    entropy: Sequence[float] | None, times: np.ndarray | None, t_col: float,
+                    adversary: AgentState | None = None) -> Path:
     """Map, agents at t_col, the ellipse, all representatives, heatmap of samples, entropy curve."""
     pts = [np.array([[target_state.x, target_state.y]])] + [r[:, :2] for r in representatives]
     window = window_around(np.concatenate(pts), margin=25.0)
@@ -139,6 +140,9 @@ def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, targ
         heatmap(ax, samples_xy, window)
     draw_agents(ax, scene, t_col_step, {target: TARGET_COLOR})
     draw_ellipse(ax, target_state)
+    if adversary is not None:
+        draw_box(ax, adversary.x, adversary.y, adversary.yaw, adversary.length, adversary.width, ADVERSARY_COLOR,
+                 label="adversary at t_col", zorder=7)
     cmap = plt.get_cmap("tab10")
     for i, r in enumerate(representatives):
         ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=6)

@@ -91,3 +91,20 @@ def test_full_coster_with_shipped_weights(tmp_path):
     assert summary["generation"]["kept"] >= 1
     for v in summary["variants"]:
         assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6
+
+
+def test_snapshot_command_writes_json_and_png(tmp_path):
+    out = tmp_path / "snap"
+    rc = main(["-q", "snapshot", str(REPO / "networks/merge/merge.sumocfg"), "--end", "40", "-o", str(out)])
+    assert rc == 0
+    snap = json.loads((out / "snapshot.json").read_text())
+    assert 0.0 <= snap["signed_distance"] <= 0.05 and snap["collision_time_method"] == "entropy"
+    assert (out / "snapshot.png").stat().st_size > 10_000
+
+
+def test_snapshot_same_seed_same_snapshot(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for o in (a, b):
+        assert main(["-q", "snapshot", str(REPO / "networks/merge/merge.sumocfg"), "--end", "40", "--seed", "7",
+                     "-o", str(o)]) == 0
+    assert (a / "snapshot.json").read_text() == (b / "snapshot.json").read_text()
