@@ -214,11 +214,12 @@ def velocity_entropy(pred: Any, ellipse: np.ndarray) -> np.ndarray:
 
 def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                    collision_time: str = "entropy", seed: int = 0, models_dir: Path | None = None,
-                   model: Any = None) -> CollisionSnapshot:
+                   model: Any = None, regions_out: dict[str, np.ndarray] | None = None) -> CollisionSnapshot:
     """COSTER's snapshot: t_col from the velocity entropy, placement from the prior (module docstring).
 
     ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in ``models_dir`` (default: the shipped
-    models folder).
+    models folder). ``regions_out``, when given, receives the region centres ``xy`` (K, 2) [m] and
+    presence probabilities ``presence`` (K,) around the target at t_col, for pictures.
     """
     from coster_sumo.models import model_path
     from coster_sumo.prior.infer import load_prior, predict_scene
@@ -239,6 +240,10 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     t_col = choose_collision_time(window, collision_time, rng, entropy)
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
+    if regions_out is not None:
+        real = pred.mask[t_col]
+        regions_out["xy"] = centres[t_col][real]
+        regions_out["presence"] = pred.presence[t_col][real]
     cands = np.flatnonzero(ellipse[t_col])
     if len(cands) == 0:
         raise NoSnapshot(f"no map region inside the target's ellipse at {scene.timestamps[t_col]:.1f} s")

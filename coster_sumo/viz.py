@@ -127,7 +127,8 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
 def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, target_state: AgentState,
                     representatives: Sequence[np.ndarray], samples_xy: np.ndarray | None,
                     entropy: Sequence[float] | None, times: np.ndarray | None, t_col: float,
-                    adversary: AgentState | None = None) -> Path:
+                    adversary: AgentState | None = None, region_xy: np.ndarray | None = None,
+                    region_presence: np.ndarray | None = None) -> Path:
     """Map, agents at t_col, the ellipse, all representatives, heatmap of samples, entropy curve."""
     pts = [np.array([[target_state.x, target_state.y]])] + [r[:, :2] for r in representatives]
     window = window_around(np.concatenate(pts), margin=25.0)
@@ -140,6 +141,10 @@ def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, targ
         heatmap(ax, samples_xy, window)
     draw_agents(ax, scene, t_col_step, {target: TARGET_COLOR})
     draw_ellipse(ax, target_state)
+    if region_xy is not None and region_presence is not None and len(region_xy):
+        sc = ax.scatter(region_xy[:, 0], region_xy[:, 1], c=region_presence, cmap="viridis", s=18, zorder=3,
+                        vmin=0.0, vmax=max(float(np.max(region_presence)), 1e-3))
+        ax.figure.colorbar(sc, ax=ax, fraction=0.04, label="predicted presence probability")
     if adversary is not None:
         draw_box(ax, adversary.x, adversary.y, adversary.yaw, adversary.length, adversary.width, ADVERSARY_COLOR,
                  label="adversary at t_col", zorder=7)

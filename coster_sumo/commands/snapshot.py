@@ -54,12 +54,13 @@ def run(args: argparse.Namespace) -> int:
     low = resample(scene, 2.0)
     drivable = DrivableArea.from_road_map(scene.road_map)
     rng = np.random.default_rng(args.seed)
+    regions: dict[str, np.ndarray] = {}
     try:
         if args.init == "random":
             snap = random_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed)
         else:
             snap = prior_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed,
-                                  models_dir=args.models)
+                                  models_dir=args.models, regions_out=regions)
     except NoSnapshot as exc:
         raise InputError(f"{args.source}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None
@@ -67,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
     snap.save(args.out / "snapshot.json")
     viz.render_overview(args.out / "snapshot.png", low, target, snap.t_index, snap.target,
                         [np.array([[snap.adversary.x, snap.adversary.y, snap.adversary.yaw]])], None,
-                        snap.entropy or None, low.timestamps, snap.time, adversary=snap.adversary)
+                        snap.entropy or None, low.timestamps, snap.time, adversary=snap.adversary,
+                        region_xy=regions.get("xy"), region_presence=regions.get("presence"))
     if not args.quiet:
         print(f"t_col {snap.time:.2f} s ({snap.collision_time_method}), adversary at ({snap.adversary.x:.2f}, "
               f"{snap.adversary.y:.2f}) heading {np.degrees(snap.adversary.yaw):.0f} deg, "
