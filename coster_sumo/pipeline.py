@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 import tempfile
 import time
@@ -307,9 +306,3 @@ def run(opts: RunOptions) -> dict[str, Any]:
 def options_to_json(opts: RunOptions) -> dict[str, Any]:
     d = dataclasses.asdict(opts)
     return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
-
-
-def dump_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=str))
-    tmp.replace(path)
