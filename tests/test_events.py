@@ -52,3 +52,39 @@ def test_off_road_and_sumo_collision_events():
     assert kinds == ["off_road", "sumo_collision"]
     assert det.first("off_road", "adv") is not None
     assert det.first("off_road", "ego") is None
+
+
+def test_sat_gap_bounds_the_exact_distance_and_agrees_on_overlap():
+    from coster_sumo.geometry import box_signed_distance, make_boxes
+    from coster_sumo.sim.events import _sat_gap
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    a = make_boxes(0.0, 0.0, rng.uniform(-np.pi, np.pi, n), rng.uniform(3, 6, n), rng.uniform(1.5, 2.5, n))
+    b = make_boxes(rng.uniform(-7, 7, n), rng.uniform(-7, 7, n), rng.uniform(-np.pi, np.pi, n),
+                   rng.uniform(3, 12, n), rng.uniform(1.5, 2.6, n))
+    exact = box_signed_distance(a, b)
+    gap = np.array([_sat_gap(*map(float, a[k]), *map(float, b[k])) for k in range(n)])
+    assert ((gap <= 0) == (exact <= 0)).all()  # SAT: overlap exactly when no axis separates
+    sep = exact > 0
+    assert (gap[sep] <= exact[sep] + 1e-9).all()  # an axis gap never exceeds the Euclidean gap
+    assert np.allclose(gap[~sep], exact[~sep])  # penetration depth = the smallest overlap
+
+
+def test_batched_off_road_matches_per_step():
+    scene = synthetic.two_lane_road()
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    x0, y0 = scene.road_map.lanes.centerline[0][20]
+    lateral = [0, 0, -8, -8, 0, -8, -8, -8, 0, 0]  # the adversary leaves the road twice
+    steps = [_states([("ego", x0 + k, y0, 0, 10), ("adv", x0 + 20 + k, y0 + dy, 0, 5)])
+             for k, dy in enumerate(lateral)]
+    now = EventDetector("ego", "adv", drivable)
+    batched = EventDetector("ego", "adv", drivable, offroad_batch=4)
+    for k, s in enumerate(steps):
+        now.check(0.1 * k, s)
+        batched.check(0.1 * k, s)
+    batched.flush()
+    times = [round(e.time, 3) for e in now.events]
+    assert [e.kind for e in now.events] == ["off_road", "off_road"] and times == [0.2, 0.5]
+    assert [(e.kind, round(e.time, 3), e.vehicles) for e in batched.events] == \
+        [(e.kind, round(e.time, 3), e.vehicles) for e in now.events]
