@@ -79,7 +79,7 @@ def test_batched_off_road_matches_per_step():
     steps = [_states([("ego", x0 + k, y0, 0, 10), ("adv", x0 + 20 + k, y0 + dy, 0, 5)])
              for k, dy in enumerate(lateral)]
     now = EventDetector("ego", "adv", drivable)
-    batched = EventDetector("ego", "adv", drivable, offroad_batch=4)
+    batched = EventDetector("ego", "adv", drivable, batch=4)
     for k, s in enumerate(steps):
         now.check(0.1 * k, s)
         batched.check(0.1 * k, s)
@@ -88,3 +88,42 @@ def test_batched_off_road_matches_per_step():
     assert [e.kind for e in now.events] == ["off_road", "off_road"] and times == [0.2, 0.5]
     assert [(e.kind, round(e.time, 3), e.vehicles) for e in batched.events] == \
         [(e.kind, round(e.time, 3), e.vehicles) for e in now.events]
+
+
+def test_batched_detector_finds_the_same_events_as_per_step():
+    rng = np.random.default_rng(7)
+    scene = synthetic.two_lane_road()
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    x0, y0 = scene.road_map.lanes.centerline[0][20]
+    names = ["ego", "adv", "a", "b"]
+    pos = np.array([[x0, y0], [x0 + 6, y0 + 3], [x0 - 5, y0], [x0 + 4, y0 - 3]], float)
+    steps = []
+    for _k in range(60):
+        pos += rng.normal(0, 1.2, pos.shape)
+        present = rng.random(4) > 0.1  # vehicles (the references too) miss some steps
+        steps.append(_states([(n, p[0], p[1], rng.uniform(-0.3, 0.3), 5.0)
+                              for n, p, ok in zip(names, pos, present, strict=True) if ok]))
+    ref = EventDetector("ego", "adv", drivable)
+    batched = EventDetector("ego", "adv", drivable, batch=7)
+    for k, s in enumerate(steps):
+        ref.check(0.1 * k, s)
+        batched.check(0.1 * k, s)
+    batched.flush()
+
+    def key(d: EventDetector) -> list:
+        return sorted((e.kind, round(e.time, 3), tuple(e.vehicles)) for e in d.events)
+
+    assert len(ref.events) >= 5 and {"collision", "off_road"} <= {e.kind for e in ref.events}
+    assert key(batched) == key(ref)
+
+
+def test_batched_target_contact_episodes_split_on_separation_and_absence():
+    near, far = ("a", 3.0, 0.5, 0, 5), ("a", 30.0, 0.5, 0, 5)
+    ego = ("ego", 0.0, 0.0, 0, 5)
+    seq = [[ego, far], [ego, near], [ego, near], [ego, far], [ego, near], [ego, near], [near], [ego, near]]
+    for batch in (1, 3, 100):
+        det = EventDetector("ego", "adv", None, batch=batch)
+        for k, rows in enumerate(seq):
+            det.check(0.1 * k, _states(rows))
+        det.flush()
+        assert [round(e.time, 3) for e in det.events] == [0.1, 0.4, 0.7], batch

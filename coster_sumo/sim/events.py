@@ -79,24 +79,25 @@ class Event:
 class EventDetector:
     """Stateful per-step detector for one injection pass.
 
-    Collisions are decided at the step they happen (the adversary controller reacts to contact).
-    Off-road checks are queued and evaluated in batches of ``offroad_batch`` steps with one
-    vectorised shapely call (about 20x cheaper per step than one call per step); their events
-    carry the time of the step they started, and are returned by the :meth:`check` call that
-    closes the batch or by :meth:`flush`. ``offroad_batch=1`` reports them at once.
+    The adversary's collisions are decided at the step they happen (its controller reacts to
+    contact). Everything nothing reacts to during a pass (the target's collisions with other
+    vehicles, off-road for both) is queued and evaluated ``batch`` steps at a time, vectorised over
+    the batch: a few numpy calls and one shapely call instead of that many per step. Queued events
+    carry the time of the step they started and are returned by the :meth:`check` call that closes
+    the batch, or by :meth:`flush` (call it at the end). ``batch=1`` reports every event at once.
     """
 
     def __init__(self, target_id: str, adversary_id: str, drivable: DrivableArea | None,
-                 offroad_batch: int = 1) -> None:
+                 batch: int = 1) -> None:
         self.target_id = target_id
         self.adversary_id = adversary_id
         self.drivable = drivable
-        self.offroad_batch = max(1, int(offroad_batch))
-        self._active: set[tuple[str, ...]] = set()
+        self.batch = max(1, int(batch))
+        self._active: set[tuple[str, ...]] = set()  # live pairs (adversary, SUMO's list) in contact
+        self._tgt_active: set[tuple[str, ...]] = set()  # queued target pairs in contact
         self._off_active: set[str] = set()
         self._off_last: dict[str, int] = {}  # step index of each reference's last off-road check
-        self._pending: list[tuple[int, float, str, float, float, float, float, float]] = []
-        self._pending_steps = 0
+        self._queue: list[tuple[int, float, VehicleStates, list[str]]] = []
         self._step = 0
         self.events: list[Event] = []
 
@@ -136,47 +137,39 @@ class EventDetector:
         b = make_boxes(s.x[j], s.y[j], s.yaw[j], s.length[j], s.width[j])
         return bool(box_signed_distance(a, b) <= CONTACT_TOLERANCE_M)
 
+    def _pairs_in_contact(self, time: float, s: VehicleStates, ids: list[str], r: int,
+                          skip: str | None, active: set[tuple[str, ...]], now: set[tuple[str, ...]],
+                          cand: list[int]) -> list[Event]:
+        """Contact of reference ``r`` with the candidate rows; new events for pairs not in ``active``."""
+        out: list[Event] = []
+        for j in cand:
+            if j == r or ids[j] == skip or not self._in_contact(s, r, j):
+                continue
+            key = ("collision", *sorted((ids[r], ids[j])))
+            if key not in active and key not in now:
+                out.append(self._collision_event(time, s, r, j, "collision"))
+            now.add(key)
+        return out
+
     def check(self, time: float, states: VehicleStates, sumo_collisions: list[dict] | None = None
               ) -> list[Event]:
-        """Check one step; return (and keep) the events that start at this step.
+        """Check one step; return (and keep) the events found now.
 
-        With ``offroad_batch > 1`` the list may also hold off-road events of earlier steps.
+        Those are the adversary's collisions and SUMO's list at this step and, when this step
+        closes a batch, the queued target collisions and off-road events of the batch.
         """
         new: list[Event] = []
         now: set[tuple[str, ...]] = set()
         ids = states.ids.tolist()
-        refs: list[tuple[str, int]] = []
-        for ref in (self.adversary_id, self.target_id):
-            if ref in ids:
-                refs.append((ref, ids.index(ref)))
-        if refs:
-            rows = [r for _, r in refs]
+        if self.adversary_id in ids:
+            r = ids.index(self.adversary_id)
             x, y = states.x, states.y
-            # bounding-circle prefilter: only vehicles whose circle meets a reference's circle go to
-            # the exact box check (rare: cars queued at SUMO's gaps do not meet)
-            rad = np.hypot(states.length, states.width)  # diameters
-            dx = x - x[rows][:, None]
-            dy = y - y[rows][:, None]
-            reach = 0.5 * (rad + rad[rows][:, None]) + CONTACT_TOLERANCE_M
-            ri, ci = np.nonzero(dx * dx + dy * dy < reach * reach)  # (R, N) -> pairs incl. self
-            if len(ri) > len(rows):
-                for k, (_ref, r) in enumerate(refs):
-                    for j in ci[(ri == k) & (ci != r)].tolist():
-                        if not self._in_contact(states, r, j):
-                            continue
-                        key = ("collision", *sorted((ids[r], ids[j])))
-                        if key not in self._active and key not in now:  # adversary-target is seen twice
-                            new.append(self._collision_event(time, states, r, j, "collision"))
-                        now.add(key)
-            if self.drivable is not None:
-                for ref, r in refs:
-                    self._pending.append((self._step, float(time), ref, float(x[r]), float(y[r]), float(states.yaw[r]),
-                                          float(states.length[r]), float(states.width[r])))
-        self._step += 1
-        if self.drivable is not None:
-            self._pending_steps += 1
-            if self._pending_steps >= self.offroad_batch:
-                new.extend(self._flush_off_road())
+            dx, dy = x - x[r], y - y[r]
+            diam = np.hypot(states.length, states.width)
+            reach = 0.5 * (diam + diam[r]) + CONTACT_TOLERANCE_M
+            cand = np.flatnonzero(dx * dx + dy * dy < reach * reach)  # bounding circles meet (self too)
+            if len(cand) > 1:
+                new.extend(self._pairs_in_contact(time, states, ids, r, None, self._active, now, cand.tolist()))
         for c in sumo_collisions or ():
             a, b = str(c.get("collider", "")), str(c.get("victim", ""))
             key = ("sumo_collision", *sorted((a, b)))
@@ -193,26 +186,75 @@ class EventDetector:
                            detail={"type": c.get("type", ""), "lane": c.get("lane", "")})
             new.append(ev)
         self._active = now
+        self._queue.append((self._step, float(time), states, ids))
+        self._step += 1
+        if len(self._queue) >= self.batch:
+            new.extend(self._flush_queue())
         self.events.extend(new)
         return new
 
-    def _flush_off_road(self) -> list[Event]:
-        """Evaluate the queued off-road checks (one shapely call), in step order."""
-        pending, self._pending, self._pending_steps = self._pending, [], 0
-        if not pending or self.drivable is None:
-            return []
-        step, t, ref, cx, cy, yaw, length, width = zip(*pending, strict=True)
-        area = self.drivable.outside_area(np.array(cx), np.array(cy), np.array(yaw), np.array(length),
-                                          np.array(width)).tolist()
+    def _flush_queue(self) -> list[Event]:
+        """Evaluate the queued steps: target collisions (not with the adversary), then off-road."""
+        queue, self._queue = self._queue, []
+        rows = [(k, ids.index(self.target_id)) for k, (_, _, _, ids) in enumerate(queue) if self.target_id in ids]
         out: list[Event] = []
-        for k in range(len(pending)):
-            vid = ref[k]
-            if self._off_last.get(vid, -2) != step[k] - 1:  # absent for a step: a new episode
+        if rows:
+            # one vectorised bounding-circle prefilter over every vehicle of every queued step
+            st = [queue[k][2] for k, _ in rows]
+            sizes = [len(s.ids) for s in st]
+            x = np.concatenate([s.x for s in st])
+            y = np.concatenate([s.y for s in st])
+            diam = np.hypot(np.concatenate([s.length for s in st]), np.concatenate([s.width for s in st]))
+            start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+            ref = start + np.array([r for _, r in rows])
+            rep = np.repeat(np.arange(len(rows)), sizes)
+            dx, dy = x - x[ref][rep], y - y[ref][rep]
+            reach = 0.5 * (diam + diam[ref][rep]) + CONTACT_TOLERANCE_M
+            near = dx * dx + dy * dy < reach * reach
+            counts = np.add.reduceat(near, start)
+            busy = counts > 1  # the target itself is always counted
+            row_of = {k: m for m, (k, _) in enumerate(rows)}
+            for k, (_step, t, s, ids) in enumerate(queue):  # in step order: episodes span steps
+                m = row_of.get(k, -1)
+                if m < 0 or not busy[m]:
+                    self._tgt_active = set()
+                    continue
+                cand = np.flatnonzero(near[start[m]:start[m] + sizes[m]]).tolist()
+                now: set[tuple[str, ...]] = set()
+                out.extend(self._pairs_in_contact(t, s, ids, rows[m][1], self.adversary_id, self._tgt_active,
+                                                  now, cand))
+                self._tgt_active = now
+        else:
+            self._tgt_active = set()
+        if self.drivable is not None:
+            out.extend(self._off_road(queue))
+        return out
+
+    def _off_road(self, queue: list[tuple[int, float, VehicleStates, list[str]]]) -> list[Event]:
+        """Off-road of the adversary and the target over the queued steps (one shapely call)."""
+        assert self.drivable is not None
+        pending: list[tuple[int, float, str, int, VehicleStates]] = []
+        for step, t, s, ids in queue:
+            for vid in (self.adversary_id, self.target_id):
+                if vid in ids:
+                    pending.append((step, t, vid, ids.index(vid), s))
+        if not pending:
+            return []
+        cx = np.array([s.x[r] for *_, r, s in pending])
+        cy = np.array([s.y[r] for *_, r, s in pending])
+        yaw = np.array([s.yaw[r] for *_, r, s in pending])
+        length = np.array([s.length[r] for *_, r, s in pending])
+        width = np.array([s.width[r] for *_, r, s in pending])
+        area = self.drivable.outside_area(cx, cy, yaw, length, width).tolist()
+        out: list[Event] = []
+        for k, (step, t, vid, _r, _s) in enumerate(pending):
+            if self._off_last.get(vid, -2) != step - 1:  # absent for a step: a new episode
                 self._off_active.discard(vid)
-            self._off_last[vid] = step[k]
+            self._off_last[vid] = step
             if area[k] > self.drivable.tolerance_m2:
                 if vid not in self._off_active:
-                    out.append(Event(time=t[k], kind="off_road", vehicles=[vid], positions=[[cx[k], cy[k]]],
+                    out.append(Event(time=t, kind="off_road", vehicles=[vid],
+                                     positions=[[float(cx[k]), float(cy[k])]],
                                      detail={"area_outside_m2": float(area[k])}))
                 self._off_active.add(vid)
             else:
@@ -220,8 +262,8 @@ class EventDetector:
         return out
 
     def flush(self) -> list[Event]:
-        """Evaluate queued off-road checks now; return (and keep) their events. Call at the end."""
-        new = self._flush_off_road()
+        """Evaluate the queued steps now; return (and keep) their events. Call at the end of a pass."""
+        new = self._flush_queue()
         self.events.extend(new)
         self.events.sort(key=lambda e: e.time)  # stable: same-step order kept
         return new

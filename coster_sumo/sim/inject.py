@@ -155,8 +155,8 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
         kwargs["additional"] = [*kwargs.get("additional", []), *additional]
     adversary = AdversaryController(plan) if plan is not None else None
     adv_id = plan.vehicle_id if plan is not None else "__none__"
-    # off-road in batches of 5 s: nothing reacts to it during the pass (collisions are per step)
-    detector = EventDetector(target_id, adv_id, drivable, offroad_batch=50)
+    # what nothing reacts to during the pass is checked in batches of 5 s (see EventDetector)
+    detector = EventDetector(target_id, adv_id, drivable, batch=50)
     flags: dict[str, Any] = {"arrived": False, "min_ttc": float("inf"), "event_s": 0.0, "contact": False}
     t0 = _time.perf_counter()
     with SumoSession(config, seed=seed, end=end, traci=traci, **kwargs) as session:
@@ -185,7 +185,7 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                     adversary.on_events(states, new)
                     flags["contact"] = flags["contact"] or any(
                         e.kind == "collision" and adv_id in e.vehicles and target_id in e.vehicles for e in new)
-                if not flags["contact"]:
+                if adversary.added and not flags["contact"]:
                     ids = states.ids.tolist()
                     if adv_id in ids and target_id in ids:
                         flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, ids.index(target_id), ids.index(adv_id)))
