@@ -108,3 +108,36 @@ def test_snapshot_same_seed_same_snapshot(tmp_path):
         assert main(["-q", "snapshot", str(REPO / "networks/merge/merge.sumocfg"), "--end", "40", "--seed", "7",
                      "-o", str(o)]) == 0
     assert (a / "snapshot.json").read_text() == (b / "snapshot.json").read_text()
+
+
+def _sumo_game(name: str) -> Path:
+    import sumo
+
+    return Path(sumo.__file__).parent / "tools" / "game" / f"{name}.sumocfg"
+
+
+@pytest.mark.parametrize(("config", "target"), [("square", "horiz.1"), ("grid6", "leftRight.1")])
+def test_scenarios_shipped_with_sumo_contact_at_t_col(tmp_path, config, target):
+    """Configurations we did not write (SUMO's own game scenarios, from the eclipse-sumo wheel)."""
+    cfg = _sumo_game(config)
+    if not cfg.is_file():
+        pytest.skip(f"{cfg} not in this SUMO build")
+    out = tmp_path / config
+    rc = main(["-q", "run", str(cfg), "--target", target, "--planner", "replay", "--samples", "200",
+               "--variants", "2", "--no-render", "-o", str(out)])
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["variants"]
+    for v in summary["variants"]:
+        assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6
+
+
+def test_sumo_scenario_without_ego_names_candidates(tmp_path, capsys):
+    cfg = _sumo_game("square")
+    if not cfg.is_file():
+        pytest.skip(f"{cfg} not in this SUMO build")
+    out = tmp_path / "o"
+    assert main(["run", str(cfg), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--target" in err[0] and "horiz.1" in err[0]
+    assert not out.exists() or not any(out.iterdir())
