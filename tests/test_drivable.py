@@ -30,3 +30,26 @@ def test_junction_interior_is_drivable():
     area = DrivableArea.from_road_map(scene.road_map)
     cx, cy = 8123.45, -3456.78
     assert not area.off_road(np.array([cx]), np.array([cy]), np.zeros(1), np.full(1, 4.5), np.full(1, 1.9))[0]
+
+
+def test_area_outside_from_pieces_equals_the_whole_area(monkeypatch):
+    import shapely
+
+    import coster_sumo.drivable as drivable_mod
+
+    for scene, min_pieces in ((synthetic.two_lane_road(), 1), (synthetic.four_way_junction(), 4)):
+        monkeypatch.setattr(drivable_mod, "PIECE_VERTICES", 12)  # force a deep split
+        area = DrivableArea.from_road_map(scene.road_map)
+        rng = np.random.default_rng(0)
+        xmin, ymin, xmax, ymax = area.geometry.bounds
+        n = 400
+        cx, cy = rng.uniform(xmin, xmax, n), rng.uniform(ymin, ymax, n)
+        yaw, length, width = rng.uniform(-np.pi, np.pi, n), np.full(n, 4.8), np.full(n, 2.0)
+        got = area.outside_area(cx, cy, yaw, length, width)
+        _, pieces = area._index()
+        assert len(pieces) >= min_pieces
+        assert np.isclose(shapely.area(pieces).sum(), area.geometry.area)
+        boxes = shapely.polygons(drivable_mod._corners(cx, cy, yaw, length, width))
+        want = shapely.area(boxes) - shapely.area(shapely.intersection(boxes, area.geometry))
+        assert np.allclose(got, want, atol=1e-6)
+        assert (got > 1.0).any() and (got < 1e-9).any()
