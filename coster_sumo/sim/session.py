@@ -52,6 +52,8 @@ RECOMMENDED_OPTIONS: dict[str, str] = {
     "--time-to-teleport": "-1",             # never teleport vehicles stuck behind a replayed agent
     "--no-step-log": "true",
     "--no-warnings": "true",                # collisions still come back through the API
+    "--verbose": "false",                   # configs that set it would print over the progress bars
+    "--duration-log.statistics": "false",
 }
 
 # --- TraCI magic values ------------------------------------------------------------------------
