@@ -375,8 +375,13 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
 
 
 def probe_task(payload: dict[str, Any]) -> dict[str, Any]:
-    """A task for testing executors: ``mode`` = ok | error | segfault | hang | exit; ``sleep`` [s] first."""
+    """A task for testing executors: ``mode`` = ok | error | segfault | hang | exit; ``sleep`` [s] first.
+
+    Returns its name, pid and the wall-clock interval [start, end] (epoch seconds) of its sleep.
+    """
+    start = time.time()
     time.sleep(float(payload.get("sleep", 0.0)))
+    end = time.time()
     mode = payload.get("mode", "ok")
     if mode == "segfault":
         os.kill(os.getpid(), signal.SIGSEGV)
@@ -386,7 +391,7 @@ def probe_task(payload: dict[str, Any]) -> dict[str, Any]:
         raise ValueError(f"probe {payload.get('name')} failed on purpose")
     if mode == "exit":
         os._exit(3)
-    return {"name": payload.get("name"), "pid": os.getpid()}
+    return {"name": payload.get("name"), "pid": os.getpid(), "start": start, "end": end}
 
 
 # modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)

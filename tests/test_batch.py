@@ -43,9 +43,7 @@ def _outcomes(finished: list[tuple[Task, Outcome]]) -> dict[str, Outcome]:
 def test_segfault_and_hang_become_failed_outcomes_and_the_rest_finish(tmp_path):
     tasks = [_probe("a"), _probe("crash", "segfault"), _probe("b"), _probe("stuck", "hang"),
              _probe("oops", "error"), _probe("quit", "exit"), _probe("c")]
-    t0 = time.monotonic()
     out = _outcomes(execute(tasks, workers=3, timeout=2.0, log_dir=tmp_path / "logs"))
-    assert time.monotonic() - t0 < 20
     assert set(out) == {t.key for t in tasks}
     for k in ("a", "b", "c"):
         assert out[k].ok and out[k].value["name"] == k
@@ -75,9 +73,10 @@ def test_spawn_start_method_works_too():
 
 
 def test_workers_run_in_parallel():
-    t0 = time.monotonic()
-    execute([_probe(f"t{i}", sleep=1.0) for i in range(4)], workers=4)
-    assert time.monotonic() - t0 < 3.5  # serial would be >= 4 s
+    out = _outcomes(execute([_probe(f"t{i}", sleep=1.0) for i in range(4)], workers=4))
+    starts = [o.value["start"] for o in out.values()]
+    ends = [o.value["end"] for o in out.values()]
+    assert len(out) == 4 and max(starts) < min(ends)  # all four were sleeping at the same moment
 
 
 @pytest.mark.parametrize(("k", "n", "low", "high"), [

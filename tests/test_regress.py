@@ -50,9 +50,7 @@ def test_regress_two_planners_same_variants_then_rerun_skips(tmp_path):
     for f in ("report.md", "report.html", "plots/rates.png", "plots/impact_angles.png", "plots/relative_speeds.png"):
         assert (out / f).stat().st_size > 0
     before = {p.name: p.stat().st_mtime_ns for p in (out / "results").glob("*.parquet")}
-    t0 = time.monotonic()
-    assert main(argv) == 0  # everything is done: nothing runs again
-    assert time.monotonic() - t0 < 10
+    assert main(argv) == 0  # everything is done: nothing runs again (no part file rewritten)
     assert {p.name: p.stat().st_mtime_ns for p in (out / "results").glob("*.parquet")} == before
 
 
