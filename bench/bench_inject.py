@@ -36,6 +36,7 @@ def main() -> None:
     target_id = str(scene.tracks.ids[target])
     times: dict[bool, list[float]] = {True: [], False: []}
     inside: list[float] = []
+    paired: list[float] = []  # with / without of back-to-back runs: drift of the machine cancels
     for _ in range(args.repeats):
         for detect in (False, True):
             res = run_injection(args.config, target_id, plan, make_planner("sumo"), seed=opts.seed,
@@ -44,11 +45,14 @@ def main() -> None:
             times[detect].append(res.wall_time_s)
             if detect:
                 inside.append(res.extra["event_detection_s"] / res.wall_time_s)
+                paired.append(times[True][-1] / times[False][-1])
     with_ev, without = statistics.median(times[True]), statistics.median(times[False])
     steps = scene.num_steps
     print(f"config {args.config.name}: {steps} steps, {scene.tracks.num_agents} vehicles, {args.repeats} repeats")
     print(f"median wall time without events: {without:.3f} s, with events: {with_ev:.3f} s")
     print(f"overhead ratio (with / without): {with_ev / without:.3f}  ({100 * (with_ev / without - 1):+.1f} %)")
+    q = statistics.quantiles(paired, n=4) if len(paired) > 1 else [paired[0]] * 3
+    print(f"paired ratio, median (quartiles): {statistics.median(paired):.3f} ({q[0]:.3f}-{q[2]:.3f})")
     print(f"time inside event detection, share of the pass (median): {100 * statistics.median(inside):.1f} %")
 
 

@@ -165,9 +165,13 @@ class EventDetector:
             r = ids.index(self.adversary_id)
             x, y = states.x, states.y
             dx, dy = x - x[r], y - y[r]
-            diam = np.hypot(states.length, states.width)
-            reach = 0.5 * (diam + diam[r]) + CONTACT_TOLERANCE_M
-            cand = np.flatnonzero(dx * dx + dy * dy < reach * reach)  # bounding circles meet (self too)
+            # bounding circles can meet (self too): one radius for all others, the largest now
+            reach = 0.5 * (math.hypot(states.length.max(), states.width.max())
+                           + math.hypot(states.length[r], states.width[r])) + CONTACT_TOLERANCE_M
+            dx *= dx
+            dy *= dy
+            dx += dy
+            cand = np.flatnonzero(dx < reach * reach)
             if len(cand) > 1:
                 new.extend(self._pairs_in_contact(time, states, ids, r, None, self._active, now, cand.tolist()))
         for c in sumo_collisions or ():
