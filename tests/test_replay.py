@@ -13,6 +13,7 @@ from converters.to_sumo import convert_scene
 from coster_sumo import frames, synthetic
 from coster_sumo.cli import main
 from coster_sumo.scene import load_scene
+from coster_sumo.sim.record import record
 from coster_sumo.sim.replay import LogReplayer, ReplayOptions, replay, tls_state_strings
 from coster_sumo.sim.session import SumoSession
 from tests.conftest import NO_WOMD_REASON, REPO, WOMD_PKL, WOMD_PROTO
@@ -40,6 +41,25 @@ def test_replay_follows_the_log_exactly(converted, name):
     assert summary["mode"] == "replay" and summary["steps"] == scene.num_steps
     assert summary["valid_states_compared"] == int(scene.tracks.valid.sum())
     assert summary["centre_error_max_m"] < 1e-6
+
+
+@pytest.mark.parametrize("name", sorted(synthetic.ALL))
+def test_recording_a_replay_leaves_out_agents_on_the_staging_lane(converted, name):
+    """Agents parked on the staging lane (one step before they appear) are not in the recording."""
+    cfg = cfg_of(converted[name])
+    replayer = LogReplayer.for_config(cfg)
+    log = replayer.scene
+
+    def before(sess: SumoSession) -> None:
+        replayer.before_step(sess, round(sess.time + sess.step_length, 9))
+
+    with SumoSession(cfg) as sim:
+        rec = record(sim, end=float(log.timestamps[-1]), before_step=before)
+    assert int(rec.tracks.valid.sum()) == int(log.tracks.valid.sum())
+    lo = np.array([log.tracks.x[log.tracks.valid].min(), log.tracks.y[log.tracks.valid].min()]) - 1.0
+    hi = np.array([log.tracks.x[log.tracks.valid].max(), log.tracks.y[log.tracks.valid].max()]) + 1.0
+    xy = np.stack([rec.tracks.x[rec.tracks.valid], rec.tracks.y[rec.tracks.valid]], axis=-1)
+    assert ((xy >= lo) & (xy <= hi)).all()  # the staging lane lies 1 km below the map
 
 
 def test_fcd_output_rows_are_the_log_one_step_earlier(converted, tmp_path):

@@ -11,7 +11,8 @@ state is the replay's fidelity figure.
 Staging: a vehicle whose very first placement is off every lane crashes SUMO in its outputs (FCD)
 and in some getters (SUMO_FACTS §3), and logged agents often start off the lanes (parked cars,
 pedestrians). So every agent is added one step before it first appears, on an isolated staging lane
-the converter puts 1 km below the map, and moved to its logged pose in the next step.
+the converter puts 1 km below the map, and moved to its logged pose in the next step. While parked
+there it is in ``SumoSession.hidden``: recordings and event checks do not see it.
 
 Time: the converter shifts the log onto SUMO's clock so that the first log step has a staging step
 before it: ``scene.npz``'s timestamps are SUMO times (``SumoSession.time`` after the step that
@@ -227,6 +228,7 @@ class LogReplayer:
             x, y = self._slots[self._slot % len(self._slots)]
             self._slot += 1
             sim.move_to_xy(sid, float(x), float(y), 0.0, length=float(self.lengths[a]))
+            sim.hidden.add(sid)  # not in the scene until its first logged step
         return sid
 
     def before_step(self, session: SumoSession, t_next: float) -> None:
@@ -241,6 +243,7 @@ class LogReplayer:
                     session.remove_vehicle(sid)
             for a in np.flatnonzero(valid).tolist():
                 sid = self.active.get(a) or self._add(session, a)  # not staged: added in place
+                session.hidden.discard(sid)  # at its logged pose after this step
                 session.move_to_xy(sid, float(tr.x[a, k]), float(tr.y[a, k]), float(tr.heading[a, k]),
                                    length=float(self.lengths[a]),
                                    speed=float(np.hypot(tr.vx[a, k], tr.vy[a, k])))

@@ -249,6 +249,9 @@ class SumoSession:
         self._label: str | None = None
         self._static: dict[str, tuple[float, float, str, str]] = {}  # id -> length, width, vclass, type
         self._remote: set[str] = set()  # vehicles we drive with moveToXY
+        # vehicles in the simulation that are not part of the scene yet (a log replayer's agents
+        # parked on the staging lane): left out of vehicle_states() and so of recordings and events
+        self.hidden: set[str] = set()
         self._pending_speed: dict[str, float] = {}  # move_to_xy speeds to report after the next step
         self._speed_set: dict[str, float] = {}  # speeds set after the last step
         self._arrived: tuple[str, ...] = ()
@@ -439,6 +442,7 @@ class SumoSession:
             _LIBSUMO_OWNER = None
         self._static.clear()
         self._remote.clear()
+        self.hidden.clear()
         self._pending_speed.clear()
         with contextlib.suppress(Exception):  # SUMO may already be gone; closing must not mask that
             api.close()
@@ -478,6 +482,7 @@ class SumoSession:
         for vid in self._arrived:
             self._static.pop(vid, None)
             self._remote.discard(vid)
+            self.hidden.discard(vid)
         self._speed_set = {}
         if self._pending_speed:
             for vid, v in self._pending_speed.items():
@@ -532,6 +537,8 @@ class SumoSession:
     def vehicle_states(self, ids: Iterable[str] | None = None) -> VehicleStates:
         """Bulk read of all vehicles (or of ``ids``) in our frame; see :class:`VehicleStates`.
 
+        Without ``ids``: every vehicle except the :attr:`hidden` ones.
+
         libsumo: plain getters (cheaper than subscriptions there); length, width, class and type
         are cached per vehicle and refreshed only through :meth:`set_size` or when it arrives.
         TraCI: the vehicle subscriptions this session made at departure, no extra round trip.
@@ -540,7 +547,7 @@ class SumoSession:
         veh = api.vehicle
         if self.uses_traci:
             results = veh.getAllSubscriptionResults()
-            id_list = list(results.keys()) if ids is None else list(ids)
+            id_list = [v for v in results if v not in self.hidden] if ids is None else list(ids)
             if not id_list:
                 return _empty_states()
             tc = self._tc()
@@ -553,7 +560,12 @@ class SumoSession:
             vclass = [r[tc.VAR_VEHICLECLASS] for r in rows]
             type_id = [r[tc.VAR_TYPE] for r in rows]
         else:
-            id_list = list(veh.getIDList()) if ids is None else list(ids)
+            if ids is not None:
+                id_list = list(ids)
+            elif self.hidden:
+                id_list = [v for v in veh.getIDList() if v not in self.hidden]
+            else:
+                id_list = list(veh.getIDList())
             if not id_list:
                 return _empty_states()
             # list comprehensions over bound getters: about 2x faster than filling arrays per item
@@ -632,6 +644,7 @@ class SumoSession:
             self.api.vehicle.remove(veh_id)
         self._static.pop(veh_id, None)
         self._remote.discard(veh_id)
+        self.hidden.discard(veh_id)
         self._pending_speed.pop(veh_id, None)
 
     def move_to_xy(self, veh_id: str, cx: float, cy: float, yaw: float, length: float | None = None,
