@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -43,6 +45,10 @@ def test_cpd_of_symmetric_impacts():
     # circular std sees 179 and -179 as 2 degrees apart, the linear std does not
     assert metrics.circular_std_deg([179.0, -179.0]) == pytest.approx(1.0, abs=0.01)
     assert metrics.collision_position_diversity([179.0, -179.0]) == pytest.approx(179.0)
+    # identical impacts: exactly +0 (rounding put R a hair past 1 and printed "-0.0")
+    for same in ([30.0] * 5, [-17.3] * 7, [123.4, 123.4]):
+        assert math.copysign(1.0, metrics.circular_std_deg(same)) == 1.0
+        assert metrics.circular_std_deg(same) == pytest.approx(0.0, abs=1e-6)
 
 
 def test_csd_and_relative_speed():
