@@ -97,17 +97,20 @@ def sumocfg_end(config: Path) -> float | None:
 def choose_target(scene: Scene, requested: str | None, config: Path) -> int:
     """Index of the target: ``requested``, else the SDC of a converted scene, else ``ego``."""
     ids = scene.tracks.ids.tolist()
+    ts = scene.timestamps
+    window = f"{float(ts[0]):.1f}-{float(ts[-1]):.1f} s" if len(ts) else "empty"
     if requested is None:
         if scene.sdc_index >= 0:
             return scene.sdc_index
         if "ego" in ids:
             return ids.index("ego")
         long_lived = np.argsort(-scene.tracks.valid.sum(axis=1))[:8]
-        raise InputError(f"{config}: no 'ego' vehicle; pick a target with --target, e.g. "
+        raise InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
+                         "--target, e.g. "
                          + ", ".join(ids[i] for i in long_lived))
     if requested not in ids:
         near = [i for i in ids if requested.lower() in i.lower()][:8] or ids[:8]
-        raise InputError(f"{config}: target {requested!r} never appears in [begin, end]; "
+        raise InputError(f"{config}: target {requested!r} never runs in the window ({window}); "
                          f"candidates: {', '.join(near)}")
     return ids.index(requested)
 

@@ -238,7 +238,9 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
           f"{summary['runs']['recorded']} of {summary['runs']['expected']} runs recorded "
           f"({summary['runs']['failed']} failed).", "",
           "RCR: route completion rate; CR: collision rate (the target touches the adversary or anyone); "
-          "ORR: the target's off-road rate. Brackets: Wilson 95% interval. Failed runs are not in the rates.", "",
+          "ORR: the target's off-road rate; median min TTC: over the runs where the adversary never touched "
+          "the target; mean rel. speed: at contact. Brackets: Wilson 95% interval. Failed runs are not in "
+          "the rates.", "",
           _md_table(head, table), "", "![rates](plots/rates.png)", "",
           "## Contacts", "", "![impact angles](plots/impact_angles.png) ![relative speeds](plots/relative_speeds.png)",
           ""]

@@ -50,7 +50,9 @@ def test_same_seed_same_result(tmp_path):
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["--target", "nobody"], "target 'nobody' never appears"),
+    (["--target", "nobody"], "target 'nobody' never runs in the window"),
+    (["--target", "ego", "--end", "1.5"], "target 'ego' never runs in the window (0.1-1.5 s)"),  # departs at 2 s
+    (["--end", "1.5"], "no vehicle 'ego' runs in the window"),
     (["--collision-time", "entropy", "--init", "snapshot", "--models", "/nonexistent"], "model weights not found"),
 ])
 def test_bad_input_is_one_line_exit_2_and_no_output(tmp_path, capsys, args, message):
@@ -58,6 +60,16 @@ def test_bad_input_is_one_line_exit_2_and_no_output(tmp_path, capsys, args, mess
     err = capsys.readouterr().err.strip()
     assert rc == 2
     assert message in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_broken_config_is_one_line_exit_2_and_no_output(tmp_path, capsys):
+    cfg = tmp_path / "broken.sumocfg"
+    cfg.write_text("<configuration><input><net-file value='x.net.xml'/></input>")  # cut off
+    out = tmp_path / "o"
+    assert main(["run", str(cfg), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "broken.sumocfg" in err[0]
     assert not out.exists()
 
 
