@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -52,6 +53,27 @@ def test_regress_two_planners_same_variants_then_rerun_skips(tmp_path):
     before = {p.name: p.stat().st_mtime_ns for p in (out / "results").glob("*.parquet")}
     assert main(argv) == 0  # everything is done: nothing runs again (no part file rewritten)
     assert {p.name: p.stat().st_mtime_ns for p in (out / "results").glob("*.parquet")} == before
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_regress_sumo_crash_or_hang_is_one_failed_row_and_the_rest_finish(tmp_path):
+    out = tmp_path / "reg"
+    cmd = [sys.executable, "-m", "coster_sumo.cli", "-q", "regress", str(INTERSECTION), *SMALL,
+           "--planner", "sumo", "--planner", "tests.misbehaving_planners:Abort",
+           "--planner", "tests.misbehaving_planners:Hang", "--timeout", "30", "--workers", "2", "-o", str(out)]
+    done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == 1, done.stderr  # the work ran, some runs failed
+    rows = {(r["variant"], r["planner"]): r for r in ResultStore(out / "results").read()}
+    assert len(rows) == 6
+    for v in (0, 1):
+        assert rows[(v, "sumo")]["status"] == "ok"
+        assert rows[(v, "tests.misbehaving_planners:Abort")]["status"] == "failed"
+        assert "SIGABRT" in rows[(v, "tests.misbehaving_planners:Abort")]["reason"]
+        assert rows[(v, "tests.misbehaving_planners:Hang")]["status"] == "failed"
+        assert "timed out" in rows[(v, "tests.misbehaving_planners:Hang")]["reason"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"]["ok"] == 2 and summary["runs"]["failed"] == 4
 
 
 @pytest.mark.sumo

@@ -99,6 +99,7 @@ class EventDetector:
         self._off_last: dict[str, int] = {}  # step index of each reference's last off-road check
         self._queue: list[tuple[int, float, VehicleStates, list[str]]] = []
         self._step = 0
+        self.last_ids: list[str] = []  # the ids of the last checked step, in state order
         self.events: list[Event] = []
 
     def _order(self, s: VehicleStates, i: int, j: int) -> tuple[int, int]:
@@ -161,17 +162,14 @@ class EventDetector:
         new: list[Event] = []
         now: set[tuple[str, ...]] = set()
         ids = states.ids.tolist()
+        self.last_ids = ids
         if self.adversary_id in ids:
             r = ids.index(self.adversary_id)
-            x, y = states.x, states.y
-            dx, dy = x - x[r], y - y[r]
+            xr, yr = float(states.x[r]), float(states.y[r])
             # bounding circles can meet (self too): one radius for all others, the largest now
             reach = 0.5 * (math.hypot(states.length.max(), states.width.max())
                            + math.hypot(states.length[r], states.width[r])) + CONTACT_TOLERANCE_M
-            dx *= dx
-            dy *= dy
-            dx += dy
-            cand = np.flatnonzero(dx < reach * reach)
+            cand = np.flatnonzero(np.hypot(states.x - xr, states.y - yr) < reach)
             if len(cand) > 1:
                 new.extend(self._pairs_in_contact(time, states, ids, r, None, self._active, now, cand.tolist()))
         for c in sumo_collisions or ():

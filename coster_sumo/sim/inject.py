@@ -186,7 +186,7 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                     flags["contact"] = flags["contact"] or any(
                         e.kind == "collision" and adv_id in e.vehicles and target_id in e.vehicles for e in new)
                 if adversary.added and not flags["contact"]:
-                    ids = states.ids.tolist()
+                    ids = detector.last_ids
                     if adv_id in ids and target_id in ids:
                         flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, ids.index(target_id), ids.index(adv_id)))
             flags["event_s"] += _time.perf_counter() - t_ev
