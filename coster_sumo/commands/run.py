@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
              f"({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
     for v in summary["variants"]:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
-               f"{v['relative_speed']:.1f} m/s, {v['impact_angle']:.0f} deg") if v["collision"] else "no contact"
+               f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
         lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else ""))
     lines.append(f"wrote {args.out}/summary.json; renders: {args.out}/overview.png, {args.out}/variants/*/render.png")
     if not args.quiet:
