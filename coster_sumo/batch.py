@@ -109,10 +109,26 @@ def _die_with_parent() -> None:
         libc.prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
 
 
+def _limit_threads(n: int) -> None:
+    """At most ``n`` compute threads in this process (torch and OpenMP/BLAS pools started later).
+
+    Several task processes each running torch with one thread per core oversubscribe the machine:
+    their threads spin-wait on each other and every task gets slower.
+    """
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = str(n)
+    torch = sys.modules.get("torch")  # already imported by the parent before the fork
+    if torch is not None:
+        with contextlib.suppress(Exception):
+            torch.set_num_threads(n)
+
+
 def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], writer: Connection,
-                log_path: str | None) -> None:
+                log_path: str | None, threads: int | None = None) -> None:
     """Body of a task process: run, send ("ok", value) or ("error", reason, traceback), exit hard."""
     _die_with_parent()
+    if threads is not None:
+        _limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     import faulthandler
 
@@ -174,6 +190,7 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
                    progress: Any, start_method: str | None, log_dir: Path | None) -> None:
     ctx: Any = mp.get_context(start_method or _default_start_method())
     running: list[_Running] = []
+    threads = max(1, (os.cpu_count() or 1) // max(1, workers))  # the cores shared among the workers
 
     def finish(r: _Running, outcome: Outcome) -> None:
         running.remove(r)
@@ -189,7 +206,7 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
                 reader, writer = ctx.Pipe(duplex=False)
                 log = (log_dir / f"{task.key}.log") if log_dir is not None else None
                 proc = ctx.Process(target=_child_main, args=(task.fn, task.payload, writer,
-                                                             str(log) if log else None),
+                                                             str(log) if log else None, threads),
                                    name=f"coster-{task.key}", daemon=True)
                 proc.start()
                 writer.close()  # the child holds the only writer: EOF when it dies

@@ -79,6 +79,20 @@ def test_workers_run_in_parallel():
     assert len(out) == 4 and max(starts) < min(ends)  # all four were sleeping at the same moment
 
 
+def _thread_limits(payload: dict) -> dict:
+    import torch
+
+    return {"torch": torch.get_num_threads(), "omp": os.environ.get("OMP_NUM_THREADS")}
+
+
+def test_workers_share_the_cores_instead_of_oversubscribing_them():
+    cores = os.cpu_count() or 1
+    for workers in (1, 2, 64):
+        out = _outcomes(execute([Task("t", _thread_limits, {})], workers=workers, timeout=120))
+        expect = max(1, cores // workers)
+        assert out["t"].ok and out["t"].value == {"torch": expect, "omp": str(expect)}, (workers, out["t"])
+
+
 @pytest.mark.parametrize(("k", "n", "low", "high"), [
     (0, 10, 0.0, 0.2775),  # Wilson 95 % for 0/10: [0, 0.2775]
     (5, 10, 0.2366, 0.7634),
