@@ -129,8 +129,9 @@ def circular_std_deg(angles_deg: Sequence[float] | np.ndarray) -> float:
     a = np.radians(np.asarray(angles_deg, float))
     if a.size == 0:
         return float("nan")
-    r = min(float(np.hypot(np.cos(a).mean(), np.sin(a).mean())), 1.0)  # rounding can push R past 1
-    return float(np.degrees(np.sqrt(max(0.0, -2.0 * np.log(max(r, 1e-300))))))  # never -0.0 or nan
+    r = np.hypot(np.cos(a).mean(), np.sin(a).mean())
+    # R rounds to 1 or a hair past it for identical angles: clamp so the result is +0, not -0.0 or nan
+    return float(np.degrees(np.sqrt(max(0.0, -2.0 * np.log(max(r, 1e-300))))))
 
 
 # ----------------------------------------------------------------------------- trajectories
