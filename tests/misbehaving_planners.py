@@ -1,35 +1,32 @@
-"""Planners that break the process they run in, for the batch isolation tests (``module:Class``)."""
+"""Planners that break the process they run in, for the batch isolation tests (``module:Class``).
+
+SUMO drives the target (as ``--planner sumo``) until 5 s into the pass, then the process fails.
+"""
 
 from __future__ import annotations
 
 import os
 import time
-from pathlib import Path
 
+from coster_sumo.planners import SumoPlanner
 from coster_sumo.sim.session import SumoSession
 
-
-class _Base:
-    name = "misbehaving"
-
-    def additional_files(self, workdir: Path) -> list[Path]:
-        return []
-
-    def setup(self, session: SumoSession, target_id: str) -> None:
-        pass
+FAIL_AFTER_S = 5.0  # [s] simulation time
 
 
-class Abort(_Base):
-    """Kills its process with SIGABRT a few seconds into the pass, the way a libsumo crash does."""
+class Abort(SumoPlanner):
+    """Kills its process with SIGABRT, the way a libsumo crash does."""
 
     def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
-        if t_next > 5.0:
+        if t_next > FAIL_AFTER_S:
             os.abort()
+        super().before_step(session, target_id, t_next, present)
 
 
-class Hang(_Base):
-    """Stops answering a few seconds into the pass (a SUMO that hangs)."""
+class Hang(SumoPlanner):
+    """Stops answering (a SUMO that hangs)."""
 
     def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
-        if t_next > 5.0:
+        if t_next > FAIL_AFTER_S:
             time.sleep(3600)
+        super().before_step(session, target_id, t_next, present)
