@@ -529,7 +529,7 @@ class SumoSession:
     # ------------------------------------------------------------------------- vehicles
 
     def vehicle_ids(self) -> tuple[str, ...]:
-        """Ids of the vehicles in the network now."""
+        """Ids of the vehicles in the network now (the :attr:`hidden` ones included)."""
         if self.uses_traci:
             return tuple(self.api.vehicle.getAllSubscriptionResults().keys())
         return tuple(self.api.vehicle.getIDList())
