@@ -56,7 +56,7 @@ def test_off_road_and_sumo_collision_events():
 
 def test_sat_gap_bounds_the_exact_distance_and_agrees_on_overlap():
     from coster_sumo.geometry import box_signed_distance, make_boxes
-    from coster_sumo.sim.events import _sat_gap
+    from coster_sumo.sim.events import _sat_gap, _sat_gaps
 
     rng = np.random.default_rng(3)
     n = 2000
@@ -69,6 +69,7 @@ def test_sat_gap_bounds_the_exact_distance_and_agrees_on_overlap():
     sep = exact > 0
     assert (gap[sep] <= exact[sep] + 1e-9).all()  # an axis gap never exceeds the Euclidean gap
     assert np.allclose(gap[~sep], exact[~sep])  # penetration depth = the smallest overlap
+    assert np.allclose(_sat_gaps(*a.T, *b.T), gap)  # the batched form computes the same gaps
 
 
 def test_batched_off_road_matches_per_step():
@@ -127,3 +128,52 @@ def test_batched_target_contact_episodes_split_on_separation_and_absence():
             det.check(0.1 * k, _states(rows))
         det.flush()
         assert [round(e.time, 3) for e in det.events] == [0.1, 0.4, 0.7], batch
+
+
+def _random_walk(seed: int, steps: int = 60) -> list[VehicleStates]:
+    rng = np.random.default_rng(seed)
+    scene = synthetic.two_lane_road()
+    x0, y0 = scene.road_map.lanes.centerline[0][20]
+    names = ["ego", "adv", "a", "b"]
+    pos = np.array([[x0, y0], [x0 + 6, y0 + 3], [x0 - 5, y0], [x0 + 4, y0 - 3]], float)
+    out = []
+    for _k in range(steps):
+        pos += rng.normal(0, 1.2, pos.shape)
+        present = rng.random(4) > 0.1
+        out.append(_states([(n, p[0], p[1], rng.uniform(-0.3, 0.3), 5.0)
+                            for n, p, ok in zip(names, pos, present, strict=True) if ok]))
+    return out
+
+
+@pytest.mark.parametrize("seed", [7, 11, 12])
+def test_settled_adversary_is_checked_in_batches_with_the_same_events(seed):
+    steps = _random_walk(seed)
+    drivable = DrivableArea.from_road_map(synthetic.two_lane_road().road_map)
+    ref = EventDetector("ego", "adv", drivable)
+    settled = EventDetector("ego", "adv", drivable, batch=7)
+    for k, s in enumerate(steps):
+        ref.check(0.1 * k, s)
+        settled.check(0.1 * k, s)
+        if k == 20:
+            settled.settle_adversary()  # from step 21 on its contacts are batched
+    settled.flush()
+
+    def key(d: EventDetector) -> list:
+        return sorted((e.kind, round(e.time, 3), tuple(e.vehicles)) for e in d.events)
+
+    late = [e for e in ref.events if e.kind == "collision" and "adv" in e.vehicles and e.time > 2.05]
+    assert late, "the walk should bring the adversary into contact after it settles"
+    assert key(settled) == key(ref)
+
+
+def test_contact_going_on_when_the_adversary_settles_is_not_a_new_event():
+    ego, touching, apart = ("ego", 0.0, 0.0, 0, 0), ("adv", 4.0, 0.0, 0, 0), ("adv", 20.0, 0.0, 0, 0)
+    seq = [[ego, apart], [ego, touching], [ego, touching], [ego, touching], [ego, apart], [ego, touching]]
+    det = EventDetector("ego", "adv", None, batch=50)
+    for k, rows in enumerate(seq):
+        new = det.check(0.1 * k, _states(rows))
+        if k == 1:
+            assert [e.vehicles for e in new] == [["ego", "adv"]]  # reported live, at once
+            det.settle_adversary()
+    det.flush()
+    assert [round(e.time, 3) for e in det.events] == [0.1, 0.5]

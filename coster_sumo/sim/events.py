@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -50,6 +51,33 @@ def _sat_gap(ax: float, ay: float, ayaw: float, alen: float, awid: float,
                abs(-dx * bs + dy * bc) - bhw - ahl * es - ahw * ec)   # b's lateral axis
 
 
+def _sat_gaps(ax: np.ndarray, ay: np.ndarray, ayaw: np.ndarray, alen: np.ndarray, awid: np.ndarray,
+              bx: np.ndarray, by: np.ndarray, byaw: np.ndarray, blen: np.ndarray, bwid: np.ndarray
+              ) -> np.ndarray:
+    """:func:`_sat_gap` of many pairs at once (arrays broadcast together)."""
+    ac, as_, bc, bs = np.cos(ayaw), np.sin(ayaw), np.cos(byaw), np.sin(byaw)
+    dx, dy = bx - ax, by - ay
+    ahl, ahw, bhl, bhw = 0.5 * alen, 0.5 * awid, 0.5 * blen, 0.5 * bwid
+    ec, es = np.abs(ac * bc + as_ * bs), np.abs(as_ * bc - ac * bs)
+    gap = np.abs(dx * ac + dy * as_) - ahl - bhl * ec - bhw * es
+    np.maximum(gap, np.abs(dy * ac - dx * as_) - ahw - bhl * es - bhw * ec, out=gap)
+    np.maximum(gap, np.abs(dx * bc + dy * bs) - bhl - ahl * ec - ahw * es, out=gap)
+    np.maximum(gap, np.abs(dy * bc - dx * bs) - bhw - ahl * es - ahw * ec, out=gap)
+    return gap
+
+
+class _Queued(NamedTuple):
+    """One step waiting for the batched checks."""
+
+    step: int
+    time: float
+    states: VehicleStates
+    ids: list[str]
+    target_row: int  # -1: absent
+    adversary_row: int  # -1: absent
+    adversary_live: bool  # its collisions were checked at the step itself
+
+
 @dataclass
 class Event:
     """One logged event (user-facing units: seconds, metres, degrees).
@@ -79,12 +107,13 @@ class Event:
 class EventDetector:
     """Stateful per-step detector for one injection pass.
 
-    The adversary's collisions are decided at the step they happen (its controller reacts to
-    contact). Everything nothing reacts to during a pass (the target's collisions with other
-    vehicles, off-road for both) is queued and evaluated ``batch`` steps at a time, vectorised over
-    the batch: a few numpy calls and one shapely call instead of that many per step. Queued events
-    carry the time of the step they started and are returned by the :meth:`check` call that closes
-    the batch, or by :meth:`flush` (call it at the end). ``batch=1`` reports every event at once.
+    The adversary's collisions are decided at the step they happen while its controller still
+    reacts to contact (until :meth:`settle_adversary`). Everything nothing reacts to during a pass
+    (the target's collisions with other vehicles, the settled adversary's, off-road for both) is
+    queued and evaluated ``batch`` steps at a time, vectorised over the batch: a few numpy calls and
+    one shapely call instead of that many per step. Queued events carry the time of the step they
+    started and are returned by the :meth:`check` call that closes the batch, or by :meth:`flush`
+    (call it at the end). ``batch=1`` reports every event at once.
     """
 
     def __init__(self, target_id: str, adversary_id: str, drivable: DrivableArea | None,
@@ -93,14 +122,26 @@ class EventDetector:
         self.adversary_id = adversary_id
         self.drivable = drivable
         self.batch = max(1, int(batch))
+        self.adversary_live = True
         self._active: set[tuple[str, ...]] = set()  # live pairs (adversary, SUMO's list) in contact
-        self._tgt_active: set[tuple[str, ...]] = set()  # queued target pairs in contact
+        self._batch_active: dict[str, set[tuple[str, ...]]] = {target_id: set(), adversary_id: set()}
         self._off_active: set[str] = set()
         self._off_last: dict[str, int] = {}  # step index of each reference's last off-road check
-        self._queue: list[tuple[int, float, VehicleStates, list[str]]] = []
+        self._queue: list[_Queued] = []
         self._step = 0
         self.last_ids: list[str] = []  # the ids of the last checked step, in state order
+        self.last_rows: tuple[int, int] = (-1, -1)  # target's and adversary's row there (-1: absent)
         self.events: list[Event] = []
+
+    def settle_adversary(self) -> None:
+        """Nothing reacts to the adversary's contacts any more (its controller froze it).
+
+        From the next step on, its collisions are checked in the batches like the target's; a
+        contact going on now continues as the same event.
+        """
+        if self.adversary_live:
+            self.adversary_live = False
+            self._batch_active[self.adversary_id] = {k for k in self._active if k[0] == "collision"}
 
     def _order(self, s: VehicleStates, i: int, j: int) -> tuple[int, int]:
         """Reference vehicle first: the target when involved, else the adversary."""
@@ -128,8 +169,9 @@ class EventDetector:
         The largest gap along the four box axes is a lower bound of the Euclidean gap, and <= 0
         exactly when the boxes overlap; only a gap in (0, tolerance] needs the exact distance.
         """
-        gap = _sat_gap(float(s.x[i]), float(s.y[i]), float(s.yaw[i]), float(s.length[i]), float(s.width[i]),
-                       float(s.x[j]), float(s.y[j]), float(s.yaw[j]), float(s.length[j]), float(s.width[j]))
+        x, y, yaw, length, width = s.x, s.y, s.yaw, s.length, s.width
+        gap = _sat_gap(x.item(i), y.item(i), yaw.item(i), length.item(i), width.item(i),
+                       x.item(j), y.item(j), yaw.item(j), length.item(j), width.item(j))
         if gap > CONTACT_TOLERANCE_M:
             return False
         if gap <= 0.0:
@@ -156,20 +198,23 @@ class EventDetector:
               ) -> list[Event]:
         """Check one step; return (and keep) the events found now.
 
-        Those are the adversary's collisions and SUMO's list at this step and, when this step
-        closes a batch, the queued target collisions and off-road events of the batch.
+        Those are the live adversary's collisions and SUMO's list at this step and, when this step
+        closes a batch, the queued collisions and off-road events of the batch.
         """
         new: list[Event] = []
         now: set[tuple[str, ...]] = set()
-        ids = states.ids.tolist()
-        self.last_ids = ids
-        if self.adversary_id in ids:
-            r = ids.index(self.adversary_id)
-            xr, yr = float(states.x[r]), float(states.y[r])
-            # bounding circles can meet (self too): one radius for all others, the largest now
-            reach = 0.5 * (math.hypot(states.length.max(), states.width.max())
-                           + math.hypot(states.length[r], states.width[r])) + CONTACT_TOLERANCE_M
-            cand = np.flatnonzero(np.hypot(states.x - xr, states.y - yr) < reach)
+        ids = states.id_list()
+        r = ids.index(self.adversary_id) if self.adversary_id in ids else -1
+        tr = ids.index(self.target_id) if self.target_id in ids else -1
+        self.last_ids, self.last_rows = ids, (tr, r)
+        live = self.adversary_live
+        if r >= 0 and live:
+            x, y, length, width = states.x, states.y, states.length, states.width
+            # bounding circles that can meet (self too): 2 * distance - diameter < own diameter + 2 tol
+            d2 = np.hypot(x - x.item(r), y - y.item(r))
+            d2 += d2
+            d2 -= np.hypot(length, width)
+            cand = (d2 < math.hypot(length.item(r), width.item(r)) + 2 * CONTACT_TOLERANCE_M).nonzero()[0]
             if len(cand) > 1:
                 new.extend(self._pairs_in_contact(time, states, ids, r, None, self._active, now, cand.tolist()))
         for c in sumo_collisions or ():
@@ -188,7 +233,7 @@ class EventDetector:
                            detail={"type": c.get("type", ""), "lane": c.get("lane", "")})
             new.append(ev)
         self._active = now
-        self._queue.append((self._step, float(time), states, ids))
+        self._queue.append(_Queued(self._step, float(time), states, ids, tr, r, live))
         self._step += 1
         if len(self._queue) >= self.batch:
             new.extend(self._flush_queue())
@@ -196,71 +241,129 @@ class EventDetector:
         return new
 
     def _flush_queue(self) -> list[Event]:
-        """Evaluate the queued steps: target collisions (not with the adversary), then off-road."""
+        """Evaluate the queued steps: collisions of the target and the settled adversary, off-road.
+
+        Every queued step's vehicles are laid end to end in one set of arrays, so the prefilter
+        and the off-road check are a few numpy calls for the whole batch.
+        """
         queue, self._queue = self._queue, []
-        rows = [(k, ids.index(self.target_id)) for k, (_, _, _, ids) in enumerate(queue) if self.target_id in ids]
+        if not queue:
+            return []
+        sizes = np.array([len(q.ids) for q in queue])
+        start = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+        x = np.concatenate([q.states.x for q in queue])
+        y = np.concatenate([q.states.y for q in queue])
+        length = np.concatenate([q.states.length for q in queue])
+        width = np.concatenate([q.states.width for q in queue])
+        yaw = np.concatenate([q.states.yaw for q in queue])
+        tgt = np.array([q.target_row for q in queue])
+        adv = np.array([q.adversary_row for q in queue])
+        live = np.array([q.adversary_live for q in queue])
+        tgt_g = np.where(tgt >= 0, start + tgt, -1)  # global rows, -1: absent
+        adv_g = np.where(adv >= 0, start + adv, -1)
         out: list[Event] = []
-        if rows:
-            # one vectorised bounding-circle prefilter over every vehicle of every queued step
-            st = [queue[k][2] for k, _ in rows]
-            sizes = [len(s.ids) for s in st]
-            x = np.concatenate([s.x for s in st])
-            y = np.concatenate([s.y for s in st])
-            diam = np.hypot(np.concatenate([s.length for s in st]), np.concatenate([s.width for s in st]))
-            start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-            ref = start + np.array([r for _, r in rows])
-            rep = np.repeat(np.arange(len(rows)), sizes)
-            dx, dy = x - x[ref][rep], y - y[ref][rep]
-            reach = 0.5 * (diam + diam[ref][rep]) + CONTACT_TOLERANCE_M
-            near = dx * dx + dy * dy < reach * reach
-            counts = np.add.reduceat(near, start)
-            busy = counts > 1  # the target itself is always counted
-            row_of = {k: m for m, (k, _) in enumerate(rows)}
-            for k, (_step, t, s, ids) in enumerate(queue):  # in step order: episodes span steps
-                m = row_of.get(k, -1)
-                if m < 0 or not busy[m]:
-                    self._tgt_active = set()
-                    continue
-                cand = np.flatnonzero(near[start[m]:start[m] + sizes[m]]).tolist()
-                now: set[tuple[str, ...]] = set()
-                out.extend(self._pairs_in_contact(t, s, ids, rows[m][1], self.adversary_id, self._tgt_active,
-                                                  now, cand))
-                self._tgt_active = now
-        else:
-            self._tgt_active = set()
+        arrays = (x, y, yaw, length, width, sizes, start)
+        # the target, except its pairs with the adversary (the adversary's own check has those)
+        out.extend(self._batch_collisions(queue, arrays, self.target_id, tgt_g, adv_g, np.zeros(len(queue), bool)))
+        if not live.all():
+            out.extend(self._batch_collisions(queue, arrays, self.adversary_id, np.where(live, -1, adv_g),
+                                              np.full(len(queue), -1), live))
         if self.drivable is not None:
-            out.extend(self._off_road(queue))
+            out.extend(self._off_road(queue, start, x, y, yaw, length, width))
         return out
 
-    def _off_road(self, queue: list[tuple[int, float, VehicleStates, list[str]]]) -> list[Event]:
-        """Off-road of the adversary and the target over the queued steps (one shapely call)."""
-        assert self.drivable is not None
-        pending: list[tuple[int, float, str, int, VehicleStates]] = []
-        for step, t, s, ids in queue:
-            for vid in (self.adversary_id, self.target_id):
-                if vid in ids:
-                    pending.append((step, t, vid, ids.index(vid), s))
-        if not pending:
-            return []
-        cx = np.array([s.x[r] for *_, r, s in pending])
-        cy = np.array([s.y[r] for *_, r, s in pending])
-        yaw = np.array([s.yaw[r] for *_, r, s in pending])
-        length = np.array([s.length[r] for *_, r, s in pending])
-        width = np.array([s.width[r] for *_, r, s in pending])
-        area = self.drivable.outside_area(cx, cy, yaw, length, width).tolist()
+    def _batch_collisions(self, queue: list[_Queued], arrays: tuple[np.ndarray, ...], ref_id: str,
+                          ref_g: np.ndarray, skip_g: np.ndarray, keep: np.ndarray) -> list[Event]:
+        """New contacts of ``ref_id`` over the queued steps.
+
+        ``ref_g`` / ``skip_g``: per step, the global row of the reference and of a vehicle left
+        out (-1: none). A step without the reference ends its contacts, unless ``keep`` says the
+        step was checked elsewhere (then the contacts carry over it).
+        """
+        x, y, yaw, length, width, sizes, start = arrays
+        active = self._batch_active[ref_id]
         out: list[Event] = []
-        for k, (step, t, vid, _r, _s) in enumerate(pending):
-            if self._off_last.get(vid, -2) != step - 1:  # absent for a step: a new episode
-                self._off_active.discard(vid)
-            self._off_last[vid] = step
-            if area[k] > self.drivable.tolerance_m2:
-                if vid not in self._off_active:
-                    out.append(Event(time=t, kind="off_road", vehicles=[vid],
-                                     positions=[[float(cx[k]), float(cy[k])]],
-                                     detail={"area_outside_m2": float(area[k])}))
+        if not (ref_g >= 0).any():
+            if not keep.all():
+                self._batch_active[ref_id] = set()
+            return out
+        # a bounding-circle prefilter, then the separating-axis gap of the pairs left, for every
+        # vehicle of every queued step at once
+        step_of = np.repeat(np.arange(len(queue)), sizes)
+        rg, sg = ref_g[step_of], skip_g[step_of]
+        own = np.arange(len(x))
+        diam = np.hypot(length, width)
+        dx, dy = x - x[rg], y - y[rg]
+        reach = 0.5 * (diam + diam[rg]) + CONTACT_TOLERANCE_M
+        pair = ((dx * dx + dy * dy < reach * reach) & (rg >= 0) & (own != rg) & (own != sg)).nonzero()[0]
+        if len(pair):
+            ref = rg[pair]
+            gap = _sat_gaps(x[ref], y[ref], yaw[ref], length[ref], width[ref],
+                            x[pair], y[pair], yaw[pair], length[pair], width[pair])
+            unsure = ((gap > 0) & (gap <= CONTACT_TOLERANCE_M)).nonzero()[0]
+            if len(unsure):  # the exact distance where the lower bound cannot decide
+                u, v = ref[unsure], pair[unsure]
+                gap[unsure] = box_signed_distance(make_boxes(x[u], y[u], yaw[u], length[u], width[u]),
+                                                  make_boxes(x[v], y[v], yaw[v], length[v], width[v]))
+            pair = pair[gap <= CONTACT_TOLERANCE_M]
+        touching: dict[int, list[int]] = {}
+        for g, k in zip(pair.tolist(), step_of[pair].tolist(), strict=True):
+            touching.setdefault(k, []).append(g)
+        keep_l, has = keep.tolist(), (ref_g >= 0).tolist()
+        for k, q in enumerate(queue):  # in step order: an episode spans steps
+            if keep_l[k]:
+                continue
+            now: set[tuple[str, ...]] = set()
+            if has[k]:
+                r = int(ref_g[k] - start[k])
+                for g in touching.get(k, ()):
+                    j = g - int(start[k])
+                    key = ("collision", *sorted((ref_id, q.ids[j])))
+                    if key not in active and key not in now:
+                        out.append(self._collision_event(q.time, q.states, r, j, "collision"))
+                    now.add(key)
+            active = now
+        self._batch_active[ref_id] = active
+        return out
+
+    def _off_road(self, queue: list[_Queued], start: np.ndarray, x: np.ndarray, y: np.ndarray,
+                  yaw: np.ndarray, length: np.ndarray, width: np.ndarray) -> list[Event]:
+        """Off-road of the adversary and the target over the queued steps (one shapely call).
+
+        ``start`` and the arrays are the queued steps' vehicles laid end to end (see
+        :meth:`_flush_queue`). An episode starts at a step off the road whose previous step was not
+        checked off the road (on it, or the vehicle absent).
+        """
+        assert self.drivable is not None
+        per_vid = []
+        for vid, attr in ((self.adversary_id, "adversary_row"), (self.target_id, "target_row")):
+            rows = np.array([getattr(q, attr) for q in queue])
+            ks = (rows >= 0).nonzero()[0]
+            if len(ks):
+                per_vid.append((vid, ks, start[ks] + rows[ks]))
+        if not per_vid:
+            return []
+        g = np.concatenate([gi for *_, gi in per_vid])
+        off = self.drivable.outside_area(x[g], y[g], yaw[g], length[g], width[g])
+        out: list[Event] = []
+        at = 0
+        for vid, ks, gi in per_vid:
+            area = off[at:at + len(ks)]
+            at += len(ks)
+            steps = np.array([queue[k].step for k in ks])
+            is_off = area > self.drivable.tolerance_m2
+            prev_step = np.concatenate(([self._off_last.get(vid, -2)], steps[:-1]))
+            prev_off = np.concatenate(([vid in self._off_active], is_off[:-1]))
+            for m in (is_off & ~(prev_off & (steps - prev_step == 1))).nonzero()[0].tolist():
+                out.append(Event(time=queue[ks[m]].time, kind="off_road", vehicles=[vid],
+                                 positions=[[float(x[gi[m]]), float(y[gi[m]])]],
+                                 detail={"area_outside_m2": float(area[m])}))
+            self._off_last[vid] = int(steps[-1])
+            if is_off[-1]:
                 self._off_active.add(vid)
             else:
                 self._off_active.discard(vid)
+        out.sort(key=lambda e: e.time)  # stable: the adversary first within a step
         return out
 
     def flush(self) -> list[Event]:

@@ -49,9 +49,10 @@ class StepActor(Protocol):
 class AdversaryController:
     """Drives the adversary along its plan with moveToXY; freezes it after its first contact."""
 
-    def __init__(self, plan: AdversaryPlan, step_length: float = 0.1) -> None:
+    def __init__(self, plan: AdversaryPlan, step_length: float = 0.1, freeze_at: float | None = None) -> None:
         self.plan = plan
         self.step_length = step_length
+        self.freeze_at = freeze_at
         self.added = False
         self.frozen_pose: tuple[float, float, float] | None = None
         self.gone = False
@@ -68,6 +69,9 @@ class AdversaryController:
         if self.gone or t_next < self.plan.t_start - TIME_EPS:
             return
         vid = self.plan.vehicle_id
+        if self.frozen_pose is None and self.freeze_at is not None and t_next > self.freeze_at + TIME_EPS:
+            xs, ys, yaws, _ = self.plan.sample(np.array([self.freeze_at]))
+            self.frozen_pose = (float(xs[0]), float(ys[0]), float(yaws[0]))
         if self.frozen_pose is not None:
             x, y, yaw = self.frozen_pose
             session.move_to_xy(vid, x, y, yaw, self.plan.length, speed=0.0)
@@ -141,19 +145,21 @@ def _ttc(states: VehicleStates, a: int, b: int) -> float:
 def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
                   seed: int | None, end: float, begin: float | None = None,
                   drivable: DrivableArea | None = None, actors: tuple[StepActor, ...] = (),
-                  detect_events: bool = True, traci: bool = False, workdir: Path | None = None,
-                  session_kwargs: dict[str, Any] | None = None) -> InjectionResult:
+                  detect_events: bool = True, freeze_at: float | None = None, traci: bool = False,
+                  workdir: Path | None = None, session_kwargs: dict[str, Any] | None = None) -> InjectionResult:
     """Run one pass of ``config`` from a fresh start with the adversary ``plan`` injected.
 
     ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner).
-    ``detect_events=False`` skips event detection (for the overhead benchmark).
+    ``detect_events=False`` skips event detection; with ``freeze_at`` [s] (the first contact of a
+    pass with detection) the adversary still becomes a wreck then, so the pass plays out the same
+    (the overhead benchmark compares the two).
     """
     workdir = Path(workdir) if workdir is not None else Path(".")
     kwargs = dict(session_kwargs or {})
     additional = planner.additional_files(workdir)
     if additional:
         kwargs["additional"] = [*kwargs.get("additional", []), *additional]
-    adversary = AdversaryController(plan) if plan is not None else None
+    adversary = AdversaryController(plan, freeze_at=freeze_at) if plan is not None else None
     adv_id = plan.vehicle_id if plan is not None else "__none__"
     # what nothing reacts to during the pass is checked in batches of 5 s (see EventDetector)
     detector = EventDetector(target_id, adv_id, drivable, batch=50)
@@ -183,12 +189,14 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
             if adversary is not None:
                 if new:
                     adversary.on_events(states, new)
+                    if adversary.frozen_pose is not None:
+                        detector.settle_adversary()  # a wreck now: nothing reacts to its contacts
                     flags["contact"] = flags["contact"] or any(
                         e.kind == "collision" and adv_id in e.vehicles and target_id in e.vehicles for e in new)
                 if adversary.added and not flags["contact"]:
-                    ids = detector.last_ids
-                    if adv_id in ids and target_id in ids:
-                        flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, ids.index(target_id), ids.index(adv_id)))
+                    tr, ar = detector.last_rows
+                    if tr >= 0 and ar >= 0:
+                        flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, tr, ar))
             flags["event_s"] += _time.perf_counter() - t_ev
             return False
 

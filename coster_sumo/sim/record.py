@@ -215,7 +215,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         stop = bool(after_step(session, st)) if after_step is not None else False
         if begin is None or t >= begin - eps:
             idx = np.empty(len(st), np.int64)
-            for i, vid in enumerate(st.ids.tolist()):
+            for i, vid in enumerate(st.id_list()):
                 k = agent.get(vid)
                 if k is None:
                     k = agent[vid] = len(agent)

@@ -34,7 +34,7 @@ import tempfile
 import time
 import xml.parsers.expat
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
@@ -105,6 +105,8 @@ class VehicleStates:
         width: (N,) float64 [m].
         vclass: (N,) str SUMO vehicle class ("passenger", "bicycle", ...).
         type_id: (N,) str SUMO vType id.
+        names: the same ids as a Python list when whoever built the states had one (the session
+            does), else None; read them with :meth:`id_list`.
     """
 
     ids: np.ndarray
@@ -116,6 +118,7 @@ class VehicleStates:
     width: np.ndarray
     vclass: np.ndarray
     type_id: np.ndarray
+    names: list[str] | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -129,6 +132,10 @@ class VehicleStates:
     def vy(self) -> np.ndarray:
         """(N,) float64 [m/s] velocity along +y."""
         return self.speed * np.sin(self.yaw)
+
+    def id_list(self) -> list[str]:
+        """The ids as a Python list (no conversion when :attr:`names` is set)."""
+        return self.names if self.names is not None else self.ids.tolist()
 
     def index_of(self, veh_id: str) -> int:
         hits = np.flatnonzero(self.ids == veh_id)
@@ -590,7 +597,7 @@ class SumoSession:
         cx, cy, yaw = frames.from_sumo(pos[:, 0], pos[:, 1], angle, length)
         return VehicleStates(ids=np.array(id_list, dtype=str), x=cx, y=cy, yaw=yaw, speed=speed,
                              length=length, width=width, vclass=np.array(vclass, dtype=str),
-                             type_id=np.array(type_id, dtype=str))
+                             type_id=np.array(type_id, dtype=str), names=id_list)
 
     def add_vehicle(self, veh_id: str, length: float, width: float, vclass: str = "passenger", *,
                     route_edges: Sequence[str] | None = None, route_id: str | None = None,

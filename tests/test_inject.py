@@ -1,0 +1,48 @@
+"""One injection pass: the adversary becomes a wreck at its first contact, with or without detection."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.pipeline import RunOptions, choose_target, nominal_scene, plan_scenario
+from coster_sumo.planners import make_planner
+from coster_sumo.sim.inject import run_injection
+
+REPO = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.sumo
+
+
+def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_path):
+    cfg = REPO / "networks/intersection/intersection.sumocfg"
+    opts = RunOptions(config=cfg, out=tmp_path, init="random", rollout="cv", end=50, seed=1)
+    scene, _ = nominal_scene(opts)
+    target = choose_target(scene, None, cfg)
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    plan = plan_scenario(scene, target, opts, drivable).plans[0]
+    tid = str(scene.tracks.ids[target])
+
+    def run(detect: bool, freeze_at: float | None = None):
+        return run_injection(cfg, tid, plan, make_planner("sumo"), seed=1, end=50.0, drivable=drivable,
+                             detect_events=detect, freeze_at=freeze_at, workdir=tmp_path)
+
+    detected = run(True)
+    first = next(e for e in detected.events if e.kind == "collision" and plan.vehicle_id in e.vehicles)
+    tr = detected.scene.tracks
+    a = tr.index_of(plan.vehicle_id)
+    after = detected.scene.timestamps > first.time + 1e-6
+    assert after.sum() > 10 and tr.valid[a, after].all()
+    assert np.ptp(tr.x[a, after]) < 1e-6 and np.ptp(tr.y[a, after]) < 1e-6  # a wreck: it stays put
+    assert np.allclose(tr.x[a, after], first.positions[first.vehicles.index(plan.vehicle_id)][0], atol=1e-6)
+
+    blind = run(False, freeze_at=first.time)
+    assert blind.events == []
+    assert list(blind.scene.tracks.ids) == list(tr.ids)
+    for field in ("x", "y", "heading"):
+        assert np.allclose(getattr(blind.scene.tracks, field), getattr(tr, field), atol=1e-6), field
+    free = run(False)  # not told: it drives on through the contact
+    assert not np.allclose(free.scene.tracks.x[free.scene.tracks.index_of(plan.vehicle_id)][after],
+                           tr.x[a, after], atol=1e-3)
