@@ -56,7 +56,7 @@ def test_off_road_and_sumo_collision_events():
 
 def test_sat_gap_bounds_the_exact_distance_and_agrees_on_overlap():
     from coster_sumo.geometry import box_signed_distance, make_boxes
-    from coster_sumo.sim.events import _sat_gap, _sat_gaps
+    from coster_sumo.sim.events import _box_gap, _sat_gap, _sat_gaps
 
     rng = np.random.default_rng(3)
     n = 2000
@@ -70,6 +70,8 @@ def test_sat_gap_bounds_the_exact_distance_and_agrees_on_overlap():
     assert (gap[sep] <= exact[sep] + 1e-9).all()  # an axis gap never exceeds the Euclidean gap
     assert np.allclose(gap[~sep], exact[~sep])  # penetration depth = the smallest overlap
     assert np.allclose(_sat_gaps(*a.T, *b.T), gap)  # the batched form computes the same gaps
+    box_gap = np.array([_box_gap(tuple(map(float, a[k])), tuple(map(float, b[k]))) for k in np.flatnonzero(sep)])
+    assert np.allclose(box_gap, exact[sep])  # the corner-to-box gap is the exact one
 
 
 def test_batched_off_road_matches_per_step():
@@ -177,3 +179,21 @@ def test_contact_going_on_when_the_adversary_settles_is_not_a_new_event():
             det.settle_adversary()
     det.flush()
     assert [round(e.time, 3) for e in det.events] == [0.1, 0.5]
+
+
+def test_parked_vehicle_keeps_its_off_road_state_across_batches_and_absence():
+    scene = synthetic.two_lane_road()
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    x0, y0 = scene.road_map.lanes.centerline[0][20]
+    ego = ("ego", x0, y0, 0, 0)
+    parked_off, on_road = ("adv", x0 + 20, y0 - 8, 0, 0), ("adv", x0 + 20, y0, 0, 0)
+    seq = [[ego, parked_off]] * 10 + [[ego]] * 2 + [[ego, parked_off]] * 4 + [[ego, on_road]] * 4 + \
+        [[ego, parked_off]] * 3
+    for batch in (1, 3, 100):
+        det = EventDetector("ego", "adv", drivable, batch=batch)
+        for k, rows in enumerate(seq):
+            det.check(0.1 * k, _states(rows))
+        det.flush()
+        off = [e for e in det.events if e.kind == "off_road"]
+        assert [(round(e.time, 3), e.vehicles) for e in off] == [(0.0, ["adv"]), (1.2, ["adv"]), (2.0, ["adv"])], batch
+        assert all(e.detail["area_outside_m2"] == pytest.approx(8.0) for e in off)

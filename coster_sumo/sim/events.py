@@ -16,12 +16,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.metrics import impact_angle_deg
 from coster_sumo.sim.session import VehicleStates
 
@@ -51,6 +49,28 @@ def _sat_gap(ax: float, ay: float, ayaw: float, alen: float, awid: float,
                abs(-dx * bs + dy * bc) - bhw - ahl * es - ahw * ec)   # b's lateral axis
 
 
+def _corner_gap(ox: float, oy: float, oyaw: float, olen: float, owid: float,
+                px: float, py: float, pyaw: float, plen: float, pwid: float) -> float:
+    """Smallest distance [m] from a corner of box p to box o (0 for a corner inside o)."""
+    c, s, pc, ps = math.cos(oyaw), math.sin(oyaw), math.cos(pyaw), math.sin(pyaw)
+    ohl, ohw, phl, phw = 0.5 * olen, 0.5 * owid, 0.5 * plen, 0.5 * pwid
+    best = math.inf
+    for u, v in ((phl, phw), (phl, -phw), (-phl, phw), (-phl, -phw)):
+        wx, wy = px + u * pc - v * ps - ox, py + u * ps + v * pc - oy
+        # distance from the corner to o, in o's frame where o is axis aligned
+        best = min(best, math.hypot(max(abs(wx * c + wy * s) - ohl, 0.0), max(abs(wy * c - wx * s) - ohw, 0.0)))
+    return best
+
+
+def _box_gap(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    """Euclidean gap [m] of two separated boxes (x, y, yaw, length, width).
+
+    Between two disjoint convex polygons the closest points include a corner of one of them, so
+    the gap is the smaller of the corner-to-box distances both ways.
+    """
+    return min(_corner_gap(*a, *b), _corner_gap(*b, *a))
+
+
 def _sat_gaps(ax: np.ndarray, ay: np.ndarray, ayaw: np.ndarray, alen: np.ndarray, awid: np.ndarray,
               bx: np.ndarray, by: np.ndarray, byaw: np.ndarray, blen: np.ndarray, bwid: np.ndarray
               ) -> np.ndarray:
@@ -66,16 +86,57 @@ def _sat_gaps(ax: np.ndarray, ay: np.ndarray, ayaw: np.ndarray, alen: np.ndarray
     return gap
 
 
-class _Queued(NamedTuple):
-    """One step waiting for the batched checks."""
+def _find(ids: list[str], vid: str, hint: int) -> int:
+    """Row of ``vid`` in ``ids`` (-1: absent); ``hint`` is its row a step before.
 
-    step: int
-    time: float
-    states: VehicleStates
-    ids: list[str]
-    target_row: int  # -1: absent
-    adversary_row: int  # -1: absent
-    adversary_live: bool  # its collisions were checked at the step itself
+    SUMO keeps its vehicles in departure order, so a vehicle stays on its row or moves up when
+    vehicles ahead of it leave: the hint usually saves scanning the list.
+    """
+    if 0 <= hint < len(ids) and ids[hint] == vid:
+        return hint
+    if 0 < hint <= len(ids) and ids[hint - 1] == vid:
+        return hint - 1
+    return ids.index(vid) if vid in ids else -1
+
+
+_NO_POSE = np.full(5, np.nan)  # differs from every footprint
+
+
+class _Batch:
+    """The steps waiting for the batched checks: one list per field, so a step costs a few appends."""
+
+    def __init__(self, first_step: int) -> None:
+        self.first_step = first_step  # the steps are consecutive
+        self.times: list[float] = []
+        self.states: list[VehicleStates] = []
+        self.ids: list[list[str]] = []
+        self.sizes: list[int] = []
+        self.target_rows: list[int] = []  # -1: absent
+        self.adversary_rows: list[int] = []
+        self.live: list[bool] = []  # the adversary's collisions were checked at the step itself
+        self.x: list[np.ndarray] = []
+        self.y: list[np.ndarray] = []
+        self.yaw: list[np.ndarray] = []
+        self.length: list[np.ndarray] = []
+        self.width: list[np.ndarray] = []
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def add(self, time: float, states: VehicleStates, ids: list[str], target_row: int, adversary_row: int,
+            live: bool) -> None:
+        self.times.append(time)
+        self.states.append(states)
+        self.ids.append(ids)
+        self.sizes.append(len(ids))
+        self.target_rows.append(target_row)
+        self.adversary_rows.append(adversary_row)
+        self.live.append(live)
+        self.x.append(states.x)
+        self.y.append(states.y)
+        self.yaw.append(states.yaw)
+        self.length.append(states.length)
+        self.width.append(states.width)
 
 
 @dataclass
@@ -127,7 +188,9 @@ class EventDetector:
         self._batch_active: dict[str, set[tuple[str, ...]]] = {target_id: set(), adversary_id: set()}
         self._off_active: set[str] = set()
         self._off_last: dict[str, int] = {}  # step index of each reference's last off-road check
-        self._queue: list[_Queued] = []
+        self._off_pose: dict[str, np.ndarray] = {}  # and its footprint (x, y, yaw, length, width) then
+        self._off_area: dict[str, float] = {}  # and the area of it outside the drivable area
+        self._queue = _Batch(0)
         self._step = 0
         self.last_ids: list[str] = []  # the ids of the last checked step, in state order
         self.last_rows: tuple[int, int] = (-1, -1)  # target's and adversary's row there (-1: absent)
@@ -176,9 +239,8 @@ class EventDetector:
             return False
         if gap <= 0.0:
             return True
-        a = make_boxes(s.x[i], s.y[i], s.yaw[i], s.length[i], s.width[i])
-        b = make_boxes(s.x[j], s.y[j], s.yaw[j], s.length[j], s.width[j])
-        return bool(box_signed_distance(a, b) <= CONTACT_TOLERANCE_M)
+        return _box_gap((x.item(i), y.item(i), yaw.item(i), length.item(i), width.item(i)),
+                        (x.item(j), y.item(j), yaw.item(j), length.item(j), width.item(j))) <= CONTACT_TOLERANCE_M
 
     def _pairs_in_contact(self, time: float, s: VehicleStates, ids: list[str], r: int,
                           skip: str | None, active: set[tuple[str, ...]], now: set[tuple[str, ...]],
@@ -204,8 +266,11 @@ class EventDetector:
         new: list[Event] = []
         now: set[tuple[str, ...]] = set()
         ids = states.id_list()
-        r = ids.index(self.adversary_id) if self.adversary_id in ids else -1
-        tr = ids.index(self.target_id) if self.target_id in ids else -1
+        tr, r = self.last_rows
+        if not (0 <= tr < len(ids) and ids[tr] == self.target_id):
+            tr = _find(ids, self.target_id, tr)
+        if not (0 <= r < len(ids) and ids[r] == self.adversary_id):
+            r = _find(ids, self.adversary_id, r)
         self.last_ids, self.last_rows = ids, (tr, r)
         live = self.adversary_live
         if r >= 0 and live:
@@ -217,7 +282,22 @@ class EventDetector:
             cand = (d2 < math.hypot(length.item(r), width.item(r)) + 2 * CONTACT_TOLERANCE_M).nonzero()[0]
             if len(cand) > 1:
                 new.extend(self._pairs_in_contact(time, states, ids, r, None, self._active, now, cand.tolist()))
-        for c in sumo_collisions or ():
+        if sumo_collisions:
+            new.extend(self._sumo_collisions(time, states, ids, sumo_collisions, now))
+        self._active = now
+        self._queue.add(time, states, ids, tr, r, live)
+        self._step += 1
+        if len(self._queue) >= self.batch:
+            new.extend(self._flush_queue())
+        if new:
+            self.events.extend(new)
+        return new
+
+    def _sumo_collisions(self, time: float, states: VehicleStates, ids: list[str], collisions: list[dict],
+                         now: set[tuple[str, ...]]) -> list[Event]:
+        """Events for the pairs of SUMO's collision list not already in it a step before."""
+        out: list[Event] = []
+        for c in collisions:
             a, b = str(c.get("collider", "")), str(c.get("victim", ""))
             key = ("sumo_collision", *sorted((a, b)))
             now.add(key)
@@ -225,20 +305,13 @@ class EventDetector:
                 continue
             i = ids.index(a) if a in ids else -1
             j = ids.index(b) if b in ids else -1
+            detail = {"type": c.get("type", ""), "lane": c.get("lane", "")}
             if i >= 0 and j >= 0:
-                ev = self._collision_event(time, states, i, j, "sumo_collision",
-                                           {"type": c.get("type", ""), "lane": c.get("lane", "")})
+                out.append(self._collision_event(time, states, i, j, "sumo_collision", detail))
             else:
-                ev = Event(time=float(time), kind="sumo_collision", vehicles=[a, b], positions=[],
-                           detail={"type": c.get("type", ""), "lane": c.get("lane", "")})
-            new.append(ev)
-        self._active = now
-        self._queue.append(_Queued(self._step, float(time), states, ids, tr, r, live))
-        self._step += 1
-        if len(self._queue) >= self.batch:
-            new.extend(self._flush_queue())
-        self.events.extend(new)
-        return new
+                out.append(Event(time=float(time), kind="sumo_collision", vehicles=[a, b], positions=[],
+                                 detail=detail))
+        return out
 
     def _flush_queue(self) -> list[Event]:
         """Evaluate the queued steps: collisions of the target and the settled adversary, off-road.
@@ -246,119 +319,144 @@ class EventDetector:
         Every queued step's vehicles are laid end to end in one set of arrays, so the prefilter
         and the off-road check are a few numpy calls for the whole batch.
         """
-        queue, self._queue = self._queue, []
+        queue, self._queue = self._queue, _Batch(self._step)
         if not queue:
             return []
-        sizes = np.array([len(q.ids) for q in queue])
-        start = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-        x = np.concatenate([q.states.x for q in queue])
-        y = np.concatenate([q.states.y for q in queue])
-        length = np.concatenate([q.states.length for q in queue])
-        width = np.concatenate([q.states.width for q in queue])
-        yaw = np.concatenate([q.states.yaw for q in queue])
-        tgt = np.array([q.target_row for q in queue])
-        adv = np.array([q.adversary_row for q in queue])
-        live = np.array([q.adversary_live for q in queue])
+        sizes, tgt, adv = np.array(queue.sizes), np.array(queue.target_rows), np.array(queue.adversary_rows)
+        live = np.array(queue.live, bool)
+        start = np.cumsum(sizes) - sizes
+        x, y, yaw = np.concatenate(queue.x), np.concatenate(queue.y), np.concatenate(queue.yaw)
+        length, width = np.concatenate(queue.length), np.concatenate(queue.width)
         tgt_g = np.where(tgt >= 0, start + tgt, -1)  # global rows, -1: absent
         adv_g = np.where(adv >= 0, start + adv, -1)
-        out: list[Event] = []
-        arrays = (x, y, yaw, length, width, sizes, start)
-        # the target, except its pairs with the adversary (the adversary's own check has those)
-        out.extend(self._batch_collisions(queue, arrays, self.target_id, tgt_g, adv_g, np.zeros(len(queue), bool)))
+        arrays = (x, y, yaw, length, width)
+        # the target, except its pairs with the adversary (the adversary's own check has those);
+        # the adversary once settled (its live steps are skipped, not ended)
+        refs = [(self.target_id, tgt_g, adv_g, np.zeros(len(queue), bool))]
         if not live.all():
-            out.extend(self._batch_collisions(queue, arrays, self.adversary_id, np.where(live, -1, adv_g),
-                                              np.full(len(queue), -1), live))
+            refs.append((self.adversary_id, np.where(live, -1, adv_g), np.full(len(queue), -1), live))
+        out = self._batch_collisions(queue, arrays, sizes, start, refs)
         if self.drivable is not None:
-            out.extend(self._off_road(queue, start, x, y, yaw, length, width))
+            out.extend(self._off_road(queue, arrays, ((self.adversary_id, adv_g), (self.target_id, tgt_g))))
         return out
 
-    def _batch_collisions(self, queue: list[_Queued], arrays: tuple[np.ndarray, ...], ref_id: str,
-                          ref_g: np.ndarray, skip_g: np.ndarray, keep: np.ndarray) -> list[Event]:
-        """New contacts of ``ref_id`` over the queued steps.
+    def _batch_collisions(self, queue: _Batch, arrays: tuple[np.ndarray, ...], sizes: np.ndarray,
+                          start: np.ndarray, refs: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
+                          ) -> list[Event]:
+        """New contacts of each reference over the queued steps.
 
-        ``ref_g`` / ``skip_g``: per step, the global row of the reference and of a vehicle left
-        out (-1: none). A step without the reference ends its contacts, unless ``keep`` says the
-        step was checked elsewhere (then the contacts carry over it).
+        ``refs``: (id, ref_g, skip_g, keep) with, per step, the global row of the reference and
+        of a vehicle left out (-1: none); a step without the reference ends its contacts, unless
+        ``keep`` says the step was checked elsewhere (then they carry over it).
         """
-        x, y, yaw, length, width, sizes, start = arrays
-        active = self._batch_active[ref_id]
-        out: list[Event] = []
-        if not (ref_g >= 0).any():
-            if not keep.all():
-                self._batch_active[ref_id] = set()
-            return out
-        # a bounding-circle prefilter, then the separating-axis gap of the pairs left, for every
-        # vehicle of every queued step at once
+        x, y, yaw, length, width = arrays
         step_of = np.repeat(np.arange(len(queue)), sizes)
-        rg, sg = ref_g[step_of], skip_g[step_of]
         own = np.arange(len(x))
         diam = np.hypot(length, width)
-        dx, dy = x - x[rg], y - y[rg]
-        reach = 0.5 * (diam + diam[rg]) + CONTACT_TOLERANCE_M
-        pair = ((dx * dx + dy * dy < reach * reach) & (rg >= 0) & (own != rg) & (own != sg)).nonzero()[0]
-        if len(pair):
-            ref = rg[pair]
-            gap = _sat_gaps(x[ref], y[ref], yaw[ref], length[ref], width[ref],
-                            x[pair], y[pair], yaw[pair], length[pair], width[pair])
-            unsure = ((gap > 0) & (gap <= CONTACT_TOLERANCE_M)).nonzero()[0]
-            if len(unsure):  # the exact distance where the lower bound cannot decide
-                u, v = ref[unsure], pair[unsure]
-                gap[unsure] = box_signed_distance(make_boxes(x[u], y[u], yaw[u], length[u], width[u]),
-                                                  make_boxes(x[v], y[v], yaw[v], length[v], width[v]))
-            pair = pair[gap <= CONTACT_TOLERANCE_M]
-        touching: dict[int, list[int]] = {}
-        for g, k in zip(pair.tolist(), step_of[pair].tolist(), strict=True):
-            touching.setdefault(k, []).append(g)
-        keep_l, has = keep.tolist(), (ref_g >= 0).tolist()
-        for k, q in enumerate(queue):  # in step order: an episode spans steps
-            if keep_l[k]:
-                continue
-            now: set[tuple[str, ...]] = set()
-            if has[k]:
-                r = int(ref_g[k] - start[k])
-                for g in touching.get(k, ()):
-                    j = g - int(start[k])
-                    key = ("collision", *sorted((ref_id, q.ids[j])))
-                    if key not in active and key not in now:
-                        out.append(self._collision_event(q.time, q.states, r, j, "collision"))
-                    now.add(key)
-            active = now
+        out: list[Event] = []
+        for ref_id, ref_g, skip_g, keep in refs:
+            pair = np.zeros(0, np.int64)
+            if (ref_g >= 0).any():
+                # a bounding-circle prefilter, then the separating-axis gap of the pairs left, for
+                # every vehicle of every queued step at once
+                rg, sg = ref_g[step_of], skip_g[step_of]
+                dx, dy = x - x[rg], y - y[rg]
+                reach = 0.5 * (diam + diam[rg]) + CONTACT_TOLERANCE_M
+                pair = ((dx * dx + dy * dy < reach * reach) & (rg >= 0) & (own != rg) & (own != sg)).nonzero()[0]
+            if len(pair):
+                ra = rg[pair]
+                gap = _sat_gaps(x[ra], y[ra], yaw[ra], length[ra], width[ra],
+                                x[pair], y[pair], yaw[pair], length[pair], width[pair])
+                unsure = ((gap > 0) & (gap <= CONTACT_TOLERANCE_M)).nonzero()[0]
+                for m in unsure.tolist():  # the exact gap where the lower bound cannot decide (few)
+                    u, v = int(ra[m]), int(pair[m])
+                    gap[m] = _box_gap((x.item(u), y.item(u), yaw.item(u), length.item(u), width.item(u)),
+                                      (x.item(v), y.item(v), yaw.item(v), length.item(v), width.item(v)))
+                pair = pair[gap <= CONTACT_TOLERANCE_M]
+            k = step_of[pair]
+            out.extend(self._episodes(queue, ref_id, ref_g - start, pair - start[k], k, keep))
+        return out
+
+    def _episodes(self, queue: _Batch, ref_id: str, ref_row: np.ndarray, rows: np.ndarray,
+                  steps: np.ndarray, keep: np.ndarray) -> list[Event]:
+        """Events for the contacts of ``ref_id`` (vehicle ``rows`` at batch ``steps``, in step order).
+
+        Contacts go on from step to step; a step without them ends them, unless ``keep`` (checked
+        elsewhere). Only the steps with a contact are visited: ``checked`` counts the steps that
+        end contacts, up to each step.
+        """
+        active = self._batch_active[ref_id]
+        checked = np.cumsum(~keep).tolist()
+        seen = -1  # the last visited step
+        now: set[tuple[str, ...]] = set()
+        out: list[Event] = []
+        for j, k in zip(rows.tolist(), steps.tolist(), strict=True):
+            if k != seen:
+                active, now = (now if seen >= 0 else active), set()
+                if checked[k] - (checked[seen] if seen >= 0 else 0) > 1:  # a step between had none
+                    active = set()
+                seen = k
+            key = ("collision", *sorted((ref_id, queue.ids[k][j])))
+            if key not in active and key not in now:
+                out.append(self._collision_event(queue.times[k], queue.states[k], int(ref_row[k]), j, "collision"))
+            now.add(key)
+        if seen >= 0:
+            active = now if checked[-1] == checked[seen] else set()
+        elif checked[-1] > 0:
+            active = set()
         self._batch_active[ref_id] = active
         return out
 
-    def _off_road(self, queue: list[_Queued], start: np.ndarray, x: np.ndarray, y: np.ndarray,
-                  yaw: np.ndarray, length: np.ndarray, width: np.ndarray) -> list[Event]:
+    def _off_road(self, queue: _Batch, arrays: tuple[np.ndarray, ...],
+                  rows: tuple[tuple[str, np.ndarray], ...]) -> list[Event]:
         """Off-road of the adversary and the target over the queued steps (one shapely call).
 
-        ``start`` and the arrays are the queued steps' vehicles laid end to end (see
-        :meth:`_flush_queue`). An episode starts at a step off the road whose previous step was not
-        checked off the road (on it, or the vehicle absent).
+        ``arrays`` (x, y, yaw, length, width) are the queued steps' vehicles laid end to end and
+        ``rows`` each vehicle's row there per step (-1: absent; see :meth:`_flush_queue`). An
+        episode starts at a step off the road whose previous step was not checked off the road (on
+        it, or the vehicle absent).
         """
         assert self.drivable is not None
+        x, y, yaw, length, width = arrays
+        first = queue.first_step
         per_vid = []
-        for vid, attr in ((self.adversary_id, "adversary_row"), (self.target_id, "target_row")):
-            rows = np.array([getattr(q, attr) for q in queue])
-            ks = (rows >= 0).nonzero()[0]
+        for vid, g in rows:
+            ks = (g >= 0).nonzero()[0]
             if len(ks):
-                per_vid.append((vid, ks, start[ks] + rows[ks]))
+                per_vid.append((vid, ks, g[ks]))
         if not per_vid:
             return []
         g = np.concatenate([gi for *_, gi in per_vid])
-        off = self.drivable.outside_area(x[g], y[g], yaw[g], length[g], width[g])
+        pose = np.stack([x[g], y[g], yaw[g], length[g], width[g]])  # (5, n)
+        # a footprint the same as the one checked before it (a wreck, a car waiting at a light) keeps
+        # that one's area: only the others go to shapely
+        seg = np.cumsum([0] + [len(ks) for _, ks, _ in per_vid])[:-1]  # where each vehicle's rows start
+        before = np.empty_like(pose)
+        before[:, 1:] = pose[:, :-1]
+        before[:, seg] = np.array([self._off_pose.get(vid, _NO_POSE) for vid, *_ in per_vid]).T
+        moved = (pose != before).any(axis=0)
+        off = np.zeros(len(g))
+        off[seg] = [self._off_area.get(vid, 0.0) for vid, *_ in per_vid]
+        todo = moved.nonzero()[0]
+        if len(todo):
+            off[todo] = self.drivable.outside_area(*pose[:, todo])
+        moved[seg] = True
+        off = off[np.maximum.accumulate(np.where(moved, np.arange(len(g)), 0))]
         out: list[Event] = []
         at = 0
         for vid, ks, gi in per_vid:
             area = off[at:at + len(ks)]
             at += len(ks)
-            steps = np.array([queue[k].step for k in ks])
+            steps = ks + first
             is_off = area > self.drivable.tolerance_m2
             prev_step = np.concatenate(([self._off_last.get(vid, -2)], steps[:-1]))
             prev_off = np.concatenate(([vid in self._off_active], is_off[:-1]))
             for m in (is_off & ~(prev_off & (steps - prev_step == 1))).nonzero()[0].tolist():
-                out.append(Event(time=queue[ks[m]].time, kind="off_road", vehicles=[vid],
+                out.append(Event(time=float(queue.times[ks[m]]), kind="off_road", vehicles=[vid],
                                  positions=[[float(x[gi[m]]), float(y[gi[m]])]],
                                  detail={"area_outside_m2": float(area[m])}))
             self._off_last[vid] = int(steps[-1])
+            self._off_pose[vid], self._off_area[vid] = pose[:, at - 1], float(area[-1])
             if is_off[-1]:
                 self._off_active.add(vid)
             else:

@@ -161,8 +161,8 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
         kwargs["additional"] = [*kwargs.get("additional", []), *additional]
     adversary = AdversaryController(plan, freeze_at=freeze_at) if plan is not None else None
     adv_id = plan.vehicle_id if plan is not None else "__none__"
-    # what nothing reacts to during the pass is checked in batches of 5 s (see EventDetector)
-    detector = EventDetector(target_id, adv_id, drivable, batch=50)
+    # what nothing reacts to during the pass is checked in batches of 20 s (see EventDetector)
+    detector = EventDetector(target_id, adv_id, drivable, batch=200)
     flags: dict[str, Any] = {"arrived": False, "min_ttc": float("inf"), "event_s": 0.0, "contact": False}
     t0 = _time.perf_counter()
     with SumoSession(config, seed=seed, end=end, traci=traci, **kwargs) as session:
