@@ -49,16 +49,26 @@ def _json_default(o: Any) -> Any:
     return str(o)
 
 
+def sim_time_of(t: float, step_length: float) -> float:
+    """The simulation step nearest to ``t`` [s]: where SUMO's fixed step puts a log time.
+
+    A converted WOMD scene's log times jitter around SUMO's grid by microseconds (some scenes by
+    up to a few milliseconds); the adversary reaches the snapshot state at this step.
+    """
+    return round(round(t / step_length) * step_length, 9)
+
+
 def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float
                    ) -> dict[str, Any]:
-    """Per-variant entry of summary.json."""
+    """Per-variant entry of summary.json; the contact offset is counted from t_col on SUMO's step grid."""
+    t_col_sim = sim_time_of(t_col, float(res.scene.meta.get("step_length") or 0.1))
     c = res.contact
     pair = {plan.vehicle_id, target_id}
     others = [e for e in res.events if e.kind == "collision" and set(e.vehicles) != pair]
     return {
         "variant": i, "adversary_id": plan.vehicle_id,
         "collision": c is not None, "collision_time": c.time if c else None,
-        "contact_offset_s": round(c.time - t_col, 6) if c else None,
+        "contact_offset_s": round(c.time - t_col_sim, 6) if c else None,
         "relative_speed": c.relative_speed if c else None, "impact_angle": c.impact_angle if c else None,
         "adversary_off_road": res.adversary_off_road, "target_off_road": res.target_off_road,
         "route_completed": res.route_completed, "target_arrived": res.target_arrived,
@@ -169,7 +179,9 @@ def write_run_outputs(out: Path, opts: RunOptions, planned: PlannedScenario, res
     n = len(variants)
     summary = {
         "config": str(opts.config), "scenario_id": scene.scenario_id, "target": target_id,
-        "planner": planner, "seed": opts.seed, "t_col": t_col, "t_col_index_2hz": snap.t_index,
+        "planner": planner, "seed": opts.seed, "t_col": t_col,
+        "t_col_sim": sim_time_of(t_col, float(results[0].scene.meta.get("step_length") or 0.1)) if results else None,
+        "t_col_index_2hz": snap.t_index,
         "collision_time_method": snap.collision_time_method, "init_method": snap.init_method,
         "snapshot_signed_distance": snap.signed_distance,
         "num_variants": n,

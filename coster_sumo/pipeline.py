@@ -151,11 +151,14 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
     """Time [s] at which ``plan`` would overlap the target's nominal path before t_col - tolerance.
 
     Checked at the nominal scene's own rate (10 Hz) against the target's logged boxes; a variant
-    that hits the target early is not the snapshot's collision and is not kept.
+    that hits the target early is not the snapshot's collision and is not kept. The steps within
+    ``tolerance_s`` of t_col are not checked, whatever the log's timestamp jitter (half a step of
+    margin): with the default, touching one step early is allowed, two steps is not.
     """
     t = scene.tracks
     times = scene.timestamps
-    sel = (times >= plan.t_start - 1e-9) & (times < plan.t_col - tolerance_s - 1e-9) & t.valid[target]
+    half_step = 0.5 * float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    sel = (times >= plan.t_start - 1e-9) & (times < plan.t_col - tolerance_s - half_step) & t.valid[target]
     if not sel.any():
         return None
     x, y, yaw, _ = plan.sample(times[sel])

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from coster_sumo.cli import main
+from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 REPO = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.sumo
@@ -153,3 +154,26 @@ def test_sumo_scenario_without_ego_names_candidates(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--target" in err[0] and "horiz.1" in err[0]
     assert not out.exists() or not any(out.iterdir())
+
+
+REAL = [*WOMD_PROTO, *WOMD_PKL]
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+@pytest.mark.skipif(not REAL, reason=NO_WOMD_REASON)
+def test_real_womd_scenes_contact_within_one_step_of_t_col(tmp_path, capsys):
+    """The issue's acceptance on the real samples: replay planner, every kept variant hits at t_col +- 0.1 s."""
+    assert main(["-q", "convert", *map(str, REAL), "-o", str(tmp_path / "conv")]) == 0
+    folders = sorted(p for p in (tmp_path / "conv").iterdir() if p.is_dir())
+    assert len(folders) == 4
+    for folder in folders:
+        out = tmp_path / "runs" / folder.name
+        rc = main(["-q", "run", str(folder / f"{folder.name}.sumocfg"), "--planner", "replay", "--samples", "300",
+                   "--no-render", "-o", str(out)])
+        assert rc == 0, (folder.name, capsys.readouterr().err)
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["num_variants"] >= 1 and summary["collision_rate"] == 1.0, folder.name
+        for v in summary["variants"]:
+            assert abs(v["contact_offset_s"]) <= 0.1 + 1e-9, (folder.name, v["variant"], v["contact_offset_s"])
+    capsys.readouterr()
