@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import shapely
 
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import CosterError
@@ -175,6 +176,11 @@ def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivabl
     ok = acceptable(boxes, obstacles, drivable)
     ok &= closing(np.nan_to_num(boxes), speed, tgt)
     if not ok.any():
+        if drivable is not None:
+            gap = float(drivable.geometry.distance(shapely.Point(tgt.x, tgt.y)))
+            if not np.isfinite(gap) or gap > START_DISTANCE_M:
+                raise NoSnapshot("no lanes near the target: the drivable area is "
+                                 + ("empty" if not np.isfinite(gap) else f"{gap:.0f} m away at t_col"))
         raise NoSnapshot(f"no random placement of {RANDOM_TRIES} tries is on the road and free of other agents")
     k = int(np.flatnonzero(ok)[0])
     b = boxes[k]
@@ -232,6 +238,8 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     tr = scene.tracks
     steps = np.arange(scene.num_steps)
     pred = predict_scene(model, scene, target, steps=steps)
+    if len(pred.regions.centre) == 0:
+        raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
     centres = pred.regions.centre[np.maximum(pred.region_index, 0)]  # (T, K, 2)
     ellipse = np.zeros(pred.mask.shape, bool)
     for t in np.flatnonzero(tr.valid[target]):

@@ -177,3 +177,22 @@ def test_real_womd_scenes_contact_within_one_step_of_t_col(tmp_path, capsys):
         for v in summary["variants"]:
             assert abs(v["contact_offset_s"]) <= 0.1 + 1e-9, (folder.name, v["variant"], v["contact_offset_s"])
     capsys.readouterr()
+
+
+@pytest.mark.parametrize("extra", [[], ["--init", "random", "--rollout", "cv"]], ids=["prior", "random"])
+def test_no_lanes_near_the_target_is_one_line_exit_2_and_no_output(tmp_path, capsys, extra):
+    """A converted scene whose map lies 2 km from the target: nothing to place an adversary on."""
+    from converters.to_sumo import convert_scene
+    from coster_sumo import synthetic
+    from coster_sumo.scene import load_scene, save_scene
+
+    folder = convert_scene(synthetic.two_lane_road(), tmp_path).folder
+    scene = load_scene(folder / "scene.npz")
+    scene.road_map.lanes.centerline.values[:, 1] += 2000.0
+    save_scene(scene, folder / "scene.npz")
+    (cfg,) = folder.glob("*.sumocfg")
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(cfg), "-o", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and cfg.name in err and "no lanes near the target" in err
+    assert not out.exists() and not list(tmp_path.glob(".out*"))
