@@ -197,3 +197,14 @@ def test_parked_vehicle_keeps_its_off_road_state_across_batches_and_absence():
         off = [e for e in det.events if e.kind == "off_road"]
         assert [(round(e.time, 3), e.vehicles) for e in off] == [(0.0, ["adv"]), (1.2, ["adv"]), (2.0, ["adv"])], batch
         assert all(e.detail["area_outside_m2"] == pytest.approx(8.0) for e in off)
+
+
+def test_row_hint_follows_a_vehicle_as_others_come_and_go():
+    from coster_sumo.sim.events import _find
+
+    ids = ["a", "c", "ego", "x"]
+    assert _find(ids, "ego", 2) == 2
+    assert _find(["a", "b", "c", "ego", "x"], "ego", 2) == 3  # "b" departed: one row down
+    assert _find(["c", "ego", "x"], "ego", 2) == 1  # "a" arrived: one row up
+    assert _find(["ego"], "ego", 7) == 0  # a stale hint falls back to a scan
+    assert _find(ids, "adv", 1) == -1 and _find([], "ego", 0) == -1

@@ -89,13 +89,14 @@ def _sat_gaps(ax: np.ndarray, ay: np.ndarray, ayaw: np.ndarray, alen: np.ndarray
 def _find(ids: list[str], vid: str, hint: int) -> int:
     """Row of ``vid`` in ``ids`` (-1: absent); ``hint`` is its row a step before.
 
-    SUMO keeps its vehicles in departure order, so a vehicle stays on its row or moves up when
-    vehicles ahead of it leave: the hint usually saves scanning the list.
+    SUMO lists its vehicles sorted by id, so from one step to the next a vehicle keeps its row or
+    moves by one when a vehicle sorted before it departs or arrives: the hint usually saves
+    scanning the list.
     """
-    if 0 <= hint < len(ids) and ids[hint] == vid:
-        return hint
-    if 0 < hint <= len(ids) and ids[hint - 1] == vid:
-        return hint - 1
+    n = len(ids)
+    for k in (hint, hint + 1, hint - 1):
+        if 0 <= k < n and ids[k] == vid:
+            return k
     return ids.index(vid) if vid in ids else -1
 
 
