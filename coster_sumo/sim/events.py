@@ -352,20 +352,31 @@ class EventDetector:
         """
         x, y, yaw, length, width = arrays
         step_of = np.repeat(np.arange(len(queue)), sizes)
-        own = np.arange(len(x))
         diam = np.hypot(length, width)
+        half_diam = 0.5 * diam
         out: list[Event] = []
         for ref_id, ref_g, skip_g, keep in refs:
             pair = np.zeros(0, np.int64)
-            if (ref_g >= 0).any():
-                # a bounding-circle prefilter, then the separating-axis gap of the pairs left, for
-                # every vehicle of every queued step at once
-                rg, sg = ref_g[step_of], skip_g[step_of]
-                dx, dy = x - x[rg], y - y[rg]
-                reach = 0.5 * (diam + diam[rg]) + CONTACT_TOLERANCE_M
-                pair = ((dx * dx + dy * dy < reach * reach) & (rg >= 0) & (own != rg) & (own != sg)).nonzero()[0]
+            here = ref_g >= 0
+            if here.any():
+                # a bounding-circle prefilter over every vehicle of every queued step at once (a step
+                # without the reference puts it infinitely far away), then the separating-axis gap
+                # of the few pairs left
+                g = np.where(here, ref_g, 0)
+                rx = np.repeat(np.where(here, x[g], np.inf), sizes)
+                dx = x - rx
+                dy = y - np.repeat(y[g], sizes)
+                reach = np.repeat(0.5 * diam[g] + CONTACT_TOLERANCE_M, sizes)
+                reach += half_diam
+                dx *= dx
+                dy *= dy
+                dx += dy
+                reach *= reach
+                pair = (dx < reach).nonzero()[0]
+                k = step_of[pair]
+                pair = pair[(pair != ref_g[k]) & (pair != skip_g[k])]  # not itself, not the one left out
             if len(pair):
-                ra = rg[pair]
+                ra = ref_g[step_of[pair]]
                 gap = _sat_gaps(x[ra], y[ra], yaw[ra], length[ra], width[ra],
                                 x[pair], y[pair], yaw[pair], length[pair], width[pair])
                 unsure = ((gap > 0) & (gap <= CONTACT_TOLERANCE_M)).nonzero()[0]
