@@ -288,7 +288,7 @@ class EventDetector:
         self._active = now
         self._queue.add(time, states, ids, tr, r, live)
         self._step += 1
-        if len(self._queue) >= self.batch:
+        if self._step - self._queue.first_step >= self.batch:
             new.extend(self._flush_queue())
         if new:
             self.events.extend(new)
