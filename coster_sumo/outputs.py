@@ -170,7 +170,7 @@ def write_run_outputs(out: Path, opts: RunOptions, planned: PlannedScenario, res
             viz.render_variant(vdir / "render.png", scene, target, np.stack([xs, ys], 1), snap.adversary,
                                t_col_step,
                                f"variant {i}: " + (f"contact at {c.time:.1f} s, {c.relative_speed:.1f} m/s, "
-                                                   f"{c.impact_angle:.0f} deg" if c else "no contact"),
+                                                   f"{round(c.impact_angle):d} deg" if c else "no contact"),
                                contact_xy=c.positions[1] if c else None)
     if opts.render:
         reps = [np.stack([p.x, p.y], 1) for p in planned.plans]

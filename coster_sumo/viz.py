@@ -105,17 +105,44 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
     tv = t.valid[target]
     window = window_around(np.concatenate([adversary_xy, np.stack([t.x[target, tv], t.y[target, tv]], 1)]),
                            margin=15.0)
-    fig, ax = plt.subplots(figsize=(7, 7))
-    draw_map(ax, scene.road_map, window)
-    draw_agents(ax, scene, t_col_step, {target: TARGET_COLOR})
-    ax.plot(t.x[target, tv], t.y[target, tv], color=TARGET_COLOR, lw=1.2, label="target path", zorder=3)
-    ax.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, label="adversary path",
-            zorder=3)
+    fig, ax = plt.subplots(figsize=(7, 7.6))
     s = adversary_state
-    draw_box(ax, s.x, s.y, s.yaw, s.length, s.width, ADVERSARY_COLOR, label="adversary at t_col")
-    if contact_xy is not None:
-        ax.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8, label="first contact")
-    ax.legend(loc="upper right", fontsize=8)
+    focus = np.asarray(contact_xy if contact_xy is not None else (s.x, s.y), float)
+
+    def draw(a: Axes, win: tuple[float, float, float, float], labels: bool) -> None:
+        draw_map(a, scene.road_map, win)
+        draw_agents(a, scene, t_col_step, {target: TARGET_COLOR})
+        a.plot(t.x[target, tv], t.y[target, tv], color=TARGET_COLOR, lw=1.2, zorder=3,
+               label="target path" if labels else None)
+        a.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, zorder=3,
+               label="adversary path" if labels else None)
+        draw_box(a, s.x, s.y, s.yaw, s.length, s.width, ADVERSARY_COLOR, label="adversary at t_col" if labels else None)
+        if contact_xy is not None:  # hollow in the close-up, so the boxes under it stay visible
+            a.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8,
+                   mfc="gold" if labels else "none", label="first contact" if labels else None)
+        a.set_xlim(win[0], win[2])
+        a.set_ylim(win[1], win[3])
+        a.set_aspect("equal")
+
+    draw(ax, window, True)
+    # a 40 m close-up of the contact, in the corner of the picture that hides the fewest path points
+    span = window[2] - window[0]
+    if span > 160.0:  # below that a 40 m close-up would hardly magnify
+        paths = np.concatenate([np.stack([t.x[target, tv], t.y[target, tv]], 1), adversary_xy[:, :2], focus[None]])
+        rel = (paths - np.array(window[:2])) / span  # (n, 2) in [0, 1] over the picture
+        corners = [(cx, cy) for cy in (0.02, 0.6) for cx in (0.02, 0.6)]
+        hidden = [int(np.sum((rel[:, 0] > cx) & (rel[:, 0] < cx + 0.38) & (rel[:, 1] > cy) & (rel[:, 1] < cy + 0.38)))
+                  for cx, cy in corners]
+        cx, cy = corners[int(np.argmin(hidden))]
+        inset = ax.inset_axes((cx, cy, 0.38, 0.38))
+        draw(inset, (focus[0] - 20.0, focus[1] - 20.0, focus[0] + 20.0, focus[1] + 20.0), False)
+        inset.set_xticks([])
+        inset.set_yticks([])
+        inset.text(0.03, 0.03, "40 m around the contact" if contact_xy is not None else "40 m around t_col",
+                   transform=inset.transAxes, fontsize=7, va="bottom",
+                   bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1.5})
+        ax.indicate_inset_zoom(inset, edgecolor="black")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4, fontsize=8, frameon=False)
     ax.set_title(title, fontsize=10)
     _finish(ax, window)
     fig.tight_layout()
