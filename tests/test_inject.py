@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.pipeline import RunOptions, choose_target, nominal_scene, plan_scenario
+from coster_sumo.pipeline import RunOptions, choose_target, nominal_scene, plan_scenario, replay_planner_for
 from coster_sumo.planners import make_planner
 from coster_sumo.sim.inject import run_injection
 
@@ -46,3 +46,17 @@ def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_pat
     free = run(False)  # not told: it drives on through the contact
     assert not np.allclose(free.scene.tracks.x[free.scene.tracks.index_of(plan.vehicle_id)][after],
                            tr.x[a, after], atol=1e-3)
+
+
+def test_traci_pass_finds_the_same_events_as_libsumo(tmp_path):
+    cfg = REPO / "networks/intersection/intersection.sumocfg"
+    opts = RunOptions(config=cfg, out=tmp_path, init="random", rollout="cv", end=45, seed=3)
+    scene, _ = nominal_scene(opts)
+    target = choose_target(scene, None, cfg)
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    plan = plan_scenario(scene, target, opts, drivable).plans[0]
+    runs = [run_injection(cfg, str(scene.tracks.ids[target]), plan, replay_planner_for(scene, target), seed=3, end=45.0,
+                          drivable=drivable, traci=traci, workdir=tmp_path) for traci in (False, True)]
+    events = [[(e.kind, round(e.time, 3), e.vehicles) for e in r.events] for r in runs]
+    assert runs[0].contact is not None and events[0]
+    assert events[0] == events[1]
