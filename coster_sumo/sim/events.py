@@ -1,9 +1,12 @@
 """Per-step event detection: collisions (our box check and SUMO's list) and off-road.
 
-Our oriented-box check (separating axes, :mod:`coster_sumo.geometry`) is the ground truth: SUMO's
-own check is lane-based and misses lateral and cross-edge overlaps (SUMO_FACTS §4). SUMO's list is
-logged beside it as ``sumo_collision`` events. Only pairs that involve the adversary or the target
-are checked (two rows of the pairwise matrix), vectorised over all other vehicles.
+Our oriented-box check is the ground truth: SUMO's own check is lane-based and misses lateral and
+cross-edge overlaps (SUMO_FACTS §4). SUMO's list is logged beside it as ``sumo_collision`` events.
+Only pairs that involve the adversary or the target are checked (two rows of the pairwise matrix):
+a bounding-circle prefilter over all other vehicles, the separating-axis gap of the pairs left (a
+lower bound of their distance, exact for overlaps), and the exact gap, corner to box, for the few
+within the contact tolerance. These are the tests of :mod:`coster_sumo.geometry`, written here for
+one pair (scalar) or a flat batch of pairs, which is what a step needs.
 
 Two boxes are in contact when their signed distance is at most ``CONTACT_TOLERANCE_M`` (5 cm, the
 tolerance a collision snapshot is placed with), so touching at t_col counts. An event is reported
@@ -24,11 +27,6 @@ from coster_sumo.metrics import impact_angle_deg
 from coster_sumo.sim.session import VehicleStates
 
 CONTACT_TOLERANCE_M = 0.05  # [m] boxes closer than this are in contact (the snapshot's own tolerance)
-
-
-def _index(states: VehicleStates, vid: str) -> int:
-    hit = np.flatnonzero(states.ids == vid)
-    return int(hit[0]) if len(hit) else -1
 
 
 def _velocity(states: VehicleStates, i: int) -> np.ndarray:
