@@ -127,8 +127,15 @@ def sat_overlap_depth(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         (...) float64.
     """
     a, b = _as_boxes(a), _as_boxes(b)
-    _, offset, radius = _sat_terms(a, b)
-    return np.min(radius - np.abs(offset), axis=-1)
+    ac, as_, bc, bs = np.cos(a[..., 2]), np.sin(a[..., 2]), np.cos(b[..., 2]), np.sin(b[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    ahl, ahw, bhl, bhw = 0.5 * a[..., 3], 0.5 * a[..., 4], 0.5 * b[..., 3], 0.5 * b[..., 4]
+    ec, es = np.abs(ac * bc + as_ * bs), np.abs(as_ * bc - ac * bs)  # |cos|, |sin| of the heading difference
+    # per axis: projected half extents of both boxes minus the projected centre offset
+    return np.minimum(np.minimum(ahl + bhl * ec + bhw * es - np.abs(dx * ac + dy * as_),    # a's heading axis
+                                 ahw + bhl * es + bhw * ec - np.abs(dy * ac - dx * as_)),   # a's left axis
+                      np.minimum(bhl + ahl * ec + ahw * es - np.abs(dx * bc + dy * bs),     # b's heading axis
+                                 bhw + ahl * es + ahw * ec - np.abs(dy * bc - dx * bs)))    # b's left axis
 
 
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -143,27 +150,21 @@ def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return sat_overlap_depth(a, b) > 0.0
 
 
-def _point_segment_distance(p: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
-    """Distance from points p to segments s0-s1 (all (..., 2), broadcast)."""
-    e = s1 - s0
-    t = np.sum((p - s0) * e, axis=-1) / np.maximum(np.sum(e * e, axis=-1), _EPS)
-    t = np.clip(t, 0.0, 1.0)
-    d = p - s0 - t[..., None] * e
-    return np.hypot(d[..., 0], d[..., 1])
-
-
-def _corner_edge_distance(pts: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """Min distance from the 4 points ``pts`` (..., 4, 2) to the 4 edges of ``corners`` (..., 4, 2)."""
-    s0 = corners[..., None, :, :]  # (..., 1, 4, 2)
-    s1 = np.roll(corners, -1, axis=-2)[..., None, :, :]
-    d = _point_segment_distance(pts[..., :, None, :], s0, s1)  # (..., 4, 4)
-    return np.min(d, axis=(-2, -1))
+def _corners_to_box(p: np.ndarray, o: np.ndarray) -> np.ndarray:
+    """Smallest distance from a corner of boxes ``p`` to boxes ``o`` (0 for a corner inside), (...)."""
+    rel = corners_of(p) - o[..., None, :2]  # (..., 4, 2)
+    c, s = np.cos(o[..., 2])[..., None], np.sin(o[..., 2])[..., None]
+    # in o's frame o is axis aligned: the distance to it is the part of |coordinate| beyond its half extent
+    lon = np.maximum(np.abs(rel[..., 0] * c + rel[..., 1] * s) - 0.5 * o[..., 3, None], 0.0)
+    lat = np.maximum(np.abs(rel[..., 1] * c - rel[..., 0] * s) - 0.5 * o[..., 4, None], 0.0)
+    return np.min(np.hypot(lon, lat), axis=-1)
 
 
 def box_signed_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Signed distance between oriented boxes [m].
 
-    > 0: the exact Euclidean gap between the rectangles (min over vertex-edge distances both ways);
+    > 0: the exact Euclidean gap between the rectangles (between disjoint convex polygons the
+    closest points include a vertex of one of them: min over corner-to-box distances both ways);
     < 0: minus the penetration depth (smallest overlap over the SAT axes, i.e. the minimum
     translation distance); 0 when touching.
 
@@ -175,9 +176,7 @@ def box_signed_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     a, b = _as_boxes(a), _as_boxes(b)
     depth = sat_overlap_depth(a, b)
-    ca, cb = corners_of(a), corners_of(b)
-    ca, cb = np.broadcast_arrays(ca, cb)
-    gap = np.minimum(_corner_edge_distance(ca, cb), _corner_edge_distance(cb, ca))
+    gap = np.minimum(_corners_to_box(a, b), _corners_to_box(b, a))
     return np.where(depth > 0.0, -depth, gap)
 
 
