@@ -4,9 +4,8 @@ Our oriented-box check is the ground truth: SUMO's own check is lane-based and m
 cross-edge overlaps (SUMO_FACTS §4). SUMO's list is logged beside it as ``sumo_collision`` events.
 Only pairs that involve the adversary or the target are checked (two rows of the pairwise matrix):
 a bounding-circle prefilter over all other vehicles, the separating-axis gap of the pairs left (a
-lower bound of their distance, exact for overlaps), and the exact gap, corner to box, for the few
-within the contact tolerance. These are the tests of :mod:`coster_sumo.geometry`, written here for
-one pair (scalar) or a flat batch of pairs, which is what a step needs.
+lower bound of their distance, exact for overlaps; :mod:`coster_sumo.geometry`, or a scalar copy
+for the one pair of a live step), and the exact distance for the few within the contact tolerance.
 
 Two boxes are in contact when their signed distance is at most ``CONTACT_TOLERANCE_M`` (5 cm, the
 tolerance a collision snapshot is placed with), so touching at t_col counts. An event is reported
@@ -23,6 +22,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.geometry import box_signed_distance, make_boxes, sat_overlap_depth
 from coster_sumo.metrics import impact_angle_deg
 from coster_sumo.sim.session import VehicleStates
 
@@ -45,43 +45,6 @@ def _sat_gap(ax: float, ay: float, ayaw: float, alen: float, awid: float,
                abs(-dx * as_ + dy * ac) - ahw - bhl * es - bhw * ec,  # a's lateral axis
                abs(dx * bc + dy * bs) - bhl - ahl * ec - ahw * es,    # b's longitudinal axis
                abs(-dx * bs + dy * bc) - bhw - ahl * es - ahw * ec)   # b's lateral axis
-
-
-def _corner_gap(ox: float, oy: float, oyaw: float, olen: float, owid: float,
-                px: float, py: float, pyaw: float, plen: float, pwid: float) -> float:
-    """Smallest distance [m] from a corner of box p to box o (0 for a corner inside o)."""
-    c, s, pc, ps = math.cos(oyaw), math.sin(oyaw), math.cos(pyaw), math.sin(pyaw)
-    ohl, ohw, phl, phw = 0.5 * olen, 0.5 * owid, 0.5 * plen, 0.5 * pwid
-    best = math.inf
-    for u, v in ((phl, phw), (phl, -phw), (-phl, phw), (-phl, -phw)):
-        wx, wy = px + u * pc - v * ps - ox, py + u * ps + v * pc - oy
-        # distance from the corner to o, in o's frame where o is axis aligned
-        best = min(best, math.hypot(max(abs(wx * c + wy * s) - ohl, 0.0), max(abs(wy * c - wx * s) - ohw, 0.0)))
-    return best
-
-
-def _box_gap(a: tuple[float, ...], b: tuple[float, ...]) -> float:
-    """Euclidean gap [m] of two separated boxes (x, y, yaw, length, width).
-
-    Between two disjoint convex polygons the closest points include a corner of one of them, so
-    the gap is the smaller of the corner-to-box distances both ways.
-    """
-    return min(_corner_gap(*a, *b), _corner_gap(*b, *a))
-
-
-def _sat_gaps(ax: np.ndarray, ay: np.ndarray, ayaw: np.ndarray, alen: np.ndarray, awid: np.ndarray,
-              bx: np.ndarray, by: np.ndarray, byaw: np.ndarray, blen: np.ndarray, bwid: np.ndarray
-              ) -> np.ndarray:
-    """:func:`_sat_gap` of many pairs at once (arrays broadcast together)."""
-    ac, as_, bc, bs = np.cos(ayaw), np.sin(ayaw), np.cos(byaw), np.sin(byaw)
-    dx, dy = bx - ax, by - ay
-    ahl, ahw, bhl, bhw = 0.5 * alen, 0.5 * awid, 0.5 * blen, 0.5 * bwid
-    ec, es = np.abs(ac * bc + as_ * bs), np.abs(as_ * bc - ac * bs)
-    gap = np.abs(dx * ac + dy * as_) - ahl - bhl * ec - bhw * es
-    np.maximum(gap, np.abs(dy * ac - dx * as_) - ahw - bhl * es - bhw * ec, out=gap)
-    np.maximum(gap, np.abs(dx * bc + dy * bs) - bhl - ahl * ec - ahw * es, out=gap)
-    np.maximum(gap, np.abs(dy * bc - dx * bs) - bhw - ahl * es - ahw * ec, out=gap)
-    return gap
 
 
 def _find(ids: list[str], vid: str, hint: int) -> int:
@@ -231,15 +194,12 @@ class EventDetector:
         The largest gap along the four box axes is a lower bound of the Euclidean gap, and <= 0
         exactly when the boxes overlap; only a gap in (0, tolerance] needs the exact distance.
         """
-        x, y, yaw, length, width = s.x, s.y, s.yaw, s.length, s.width
-        gap = _sat_gap(x.item(i), y.item(i), yaw.item(i), length.item(i), width.item(i),
-                       x.item(j), y.item(j), yaw.item(j), length.item(j), width.item(j))
+        a = (s.x.item(i), s.y.item(i), s.yaw.item(i), s.length.item(i), s.width.item(i))
+        b = (s.x.item(j), s.y.item(j), s.yaw.item(j), s.length.item(j), s.width.item(j))
+        gap = _sat_gap(*a, *b)
         if gap > CONTACT_TOLERANCE_M:
             return False
-        if gap <= 0.0:
-            return True
-        return _box_gap((x.item(i), y.item(i), yaw.item(i), length.item(i), width.item(i)),
-                        (x.item(j), y.item(j), yaw.item(j), length.item(j), width.item(j))) <= CONTACT_TOLERANCE_M
+        return gap <= 0.0 or bool(box_signed_distance(np.array(a), np.array(b)) <= CONTACT_TOLERANCE_M)
 
     def _pairs_in_contact(self, time: float, s: VehicleStates, ids: list[str], r: int,
                           skip: str | None, active: set[tuple[str, ...]], now: set[tuple[str, ...]],
@@ -265,11 +225,7 @@ class EventDetector:
         new: list[Event] = []
         now: set[tuple[str, ...]] = set()
         ids = states.id_list()
-        tr, r = self.last_rows
-        if not (0 <= tr < len(ids) and ids[tr] == self.target_id):
-            tr = _find(ids, self.target_id, tr)
-        if not (0 <= r < len(ids) and ids[r] == self.adversary_id):
-            r = _find(ids, self.adversary_id, r)
+        tr, r = _find(ids, self.target_id, self.last_rows[0]), _find(ids, self.adversary_id, self.last_rows[1])
         self.last_ids, self.last_rows = ids, (tr, r)
         live = self.adversary_live
         if r >= 0 and live:
@@ -375,13 +331,12 @@ class EventDetector:
                 pair = pair[(pair != ref_g[k]) & (pair != skip_g[k])]  # not itself, not the one left out
             if len(pair):
                 ra = ref_g[step_of[pair]]
-                gap = _sat_gaps(x[ra], y[ra], yaw[ra], length[ra], width[ra],
-                                x[pair], y[pair], yaw[pair], length[pair], width[pair])
-                unsure = ((gap > 0) & (gap <= CONTACT_TOLERANCE_M)).nonzero()[0]
-                for m in unsure.tolist():  # the exact gap where the lower bound cannot decide (few)
-                    u, v = int(ra[m]), int(pair[m])
-                    gap[m] = _box_gap((x.item(u), y.item(u), yaw.item(u), length.item(u), width.item(u)),
-                                      (x.item(v), y.item(v), yaw.item(v), length.item(v), width.item(v)))
+                a = make_boxes(x[ra], y[ra], yaw[ra], length[ra], width[ra])
+                b = make_boxes(x[pair], y[pair], yaw[pair], length[pair], width[pair])
+                gap = -sat_overlap_depth(a, b)  # a lower bound of the distance, <= 0 when overlapping
+                unsure = (gap > 0) & (gap <= CONTACT_TOLERANCE_M)
+                if unsure.any():  # the exact distance where the lower bound cannot decide
+                    gap[unsure] = box_signed_distance(a[unsure], b[unsure])
                 pair = pair[gap <= CONTACT_TOLERANCE_M]
             k = step_of[pair]
             out.extend(self._episodes(queue, ref_id, ref_g - start, pair - start[k], k, keep))
