@@ -13,20 +13,25 @@ from coster_sumo.planners import make_planner
 from coster_sumo.sim.inject import run_injection
 
 REPO = Path(__file__).resolve().parents[1]
+CFG = REPO / "networks/intersection/intersection.sumocfg"
 pytestmark = pytest.mark.sumo
 
 
-def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_path):
-    cfg = REPO / "networks/intersection/intersection.sumocfg"
-    opts = RunOptions(config=cfg, out=tmp_path, init="random", rollout="cv", end=50, seed=1)
+def _planned(tmp_path: Path, end: float, seed: int):
+    """The intersection's nominal scene, its target, drivable area and a constant-velocity plan."""
+    opts = RunOptions(config=CFG, out=tmp_path, init="random", rollout="cv", end=end, seed=seed)
     scene, _ = nominal_scene(opts)
-    target = choose_target(scene, None, cfg)
+    target = choose_target(scene, None, CFG)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    plan = plan_scenario(scene, target, opts, drivable).plans[0]
+    return scene, target, drivable, plan_scenario(scene, target, opts, drivable).plans[0]
+
+
+def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_path):
+    scene, target, drivable, plan = _planned(tmp_path, 50, seed=1)
     tid = str(scene.tracks.ids[target])
 
     def run(detect: bool, freeze_at: float | None = None):
-        return run_injection(cfg, tid, plan, make_planner("sumo"), seed=1, end=50.0, drivable=drivable,
+        return run_injection(CFG, tid, plan, make_planner("sumo"), seed=1, end=50.0, drivable=drivable,
                              detect_events=detect, freeze_at=freeze_at, workdir=tmp_path)
 
     detected = run(True)
@@ -49,13 +54,8 @@ def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_pat
 
 
 def test_traci_pass_finds_the_same_events_as_libsumo(tmp_path):
-    cfg = REPO / "networks/intersection/intersection.sumocfg"
-    opts = RunOptions(config=cfg, out=tmp_path, init="random", rollout="cv", end=45, seed=3)
-    scene, _ = nominal_scene(opts)
-    target = choose_target(scene, None, cfg)
-    drivable = DrivableArea.from_road_map(scene.road_map)
-    plan = plan_scenario(scene, target, opts, drivable).plans[0]
-    runs = [run_injection(cfg, str(scene.tracks.ids[target]), plan, replay_planner_for(scene, target), seed=3, end=45.0,
+    scene, target, drivable, plan = _planned(tmp_path, 45, seed=3)
+    runs = [run_injection(CFG, str(scene.tracks.ids[target]), plan, replay_planner_for(scene, target), seed=3, end=45.0,
                           drivable=drivable, traci=traci, workdir=tmp_path) for traci in (False, True)]
     events = [[(e.kind, round(e.time, 3), e.vehicles) for e in r.events] for r in runs]
     assert runs[0].contact is not None and events[0]
