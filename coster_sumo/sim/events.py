@@ -225,7 +225,12 @@ class EventDetector:
         new: list[Event] = []
         now: set[tuple[str, ...]] = set()
         ids = states.id_list()
-        tr, r = _find(ids, self.target_id, self.last_rows[0]), _find(ids, self.adversary_id, self.last_rows[1])
+        tr, r = self.last_rows
+        # this runs every step: the usual case (same row as a step before) without a call
+        if not (0 <= tr < len(ids) and ids[tr] == self.target_id):
+            tr = _find(ids, self.target_id, tr)
+        if not (0 <= r < len(ids) and ids[r] == self.adversary_id):
+            r = _find(ids, self.adversary_id, r)
         self.last_ids, self.last_rows = ids, (tr, r)
         live = self.adversary_live
         if r >= 0 and live:
