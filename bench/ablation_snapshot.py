@@ -13,13 +13,11 @@ import json
 from pathlib import Path
 
 import numpy as np
+from coster_sumo.converters.read import iter_scenes
 
-from converters.read import iter_scenes
-from coster_sumo import metrics
+from coster_sumo import metrics, weights
 from coster_sumo.dataset import list_scenes, split
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.models import model_path
-from coster_sumo.prior.infer import load_prior
 from coster_sumo.scene import load_scene, resample
 from coster_sumo.snapshot import NoSnapshot, prior_snapshot
 
@@ -35,7 +33,7 @@ def main() -> None:
     scenes = [load_scene(p) for p in val[: args.scenes]]
     for f in args.womd:
         scenes.extend(iter_scenes(f))
-    model = load_prior(model_path("prior.pt"))
+    model = weights.load_prior()
     table = {}
     for method in ("entropy", "last", "random"):
         rel, ang, ok = [], [], 0

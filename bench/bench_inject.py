@@ -14,10 +14,11 @@ import statistics
 import tempfile
 from pathlib import Path
 
+from coster_sumo.core import choose_target, nominal_scene, plan_scenario
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.pipeline import RunOptions, choose_target, nominal_scene, plan_scenario
-from coster_sumo.planners import make_planner
 from coster_sumo.sim.inject import InjectionResult, run_injection
+from coster_sumo.sim.planners import make_planner
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,19 +29,18 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--end", type=float, default=60.0)
     args = ap.parse_args()
-    opts = RunOptions(config=args.config, out=Path(tempfile.mkdtemp()), init="random", rollout="cv",
-                      end=args.end, seed=1)
-    scene, _ = nominal_scene(opts)
+    spec = ScenarioSpec(args.config, seed=1, end=args.end)
+    scene, _ = nominal_scene(spec)
     target = choose_target(scene, None, args.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    planned = plan_scenario(scene, target, opts, drivable)
+    planned = plan_scenario(scene, target, spec.seed, GenerationConfig(init="random", rollout="cv"), drivable)
     plan = planned.plans[0]
     target_id = str(scene.tracks.ids[target])
 
     def run(detect: bool, freeze_at: float | None = None) -> InjectionResult:
-        return run_injection(args.config, target_id, plan, make_planner("sumo"), seed=opts.seed,
+        return run_injection(args.config, target_id, plan, make_planner("sumo"), seed=spec.seed,
                              end=float(scene.timestamps[-1]) + 1e-9, drivable=drivable, detect_events=detect,
-                             freeze_at=freeze_at, workdir=opts.out)
+                             freeze_at=freeze_at, workdir=Path(tempfile.mkdtemp()))
 
     # the adversary becomes a wreck at its first contact; the pass without detection is told when,
     # so both passes play out the same and differ only by the detection and logging

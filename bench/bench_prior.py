@@ -35,7 +35,7 @@ GOAL_S = 0.2
 def _scene(path: str | None) -> Scene:
     if path is None:
         return synthetic.four_way_junction()
-    from converters.read import iter_scenes
+    from coster_sumo.converters.read import iter_scenes
 
     return next(iter(iter_scenes(path)))
 

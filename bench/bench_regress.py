@@ -4,7 +4,7 @@
 
 Both runs start from empty output folders (generation included) with the weight-free generator
 (random init, constant-velocity rollout), so the figures need no trained weights. Each run is one
-process per task (SUMO_FACTS §6), so the ideal ratio is min(workers, cores) minus scheduling tails.
+process per task (docs/sumo.md §6), so the ideal ratio is min(workers, cores) minus scheduling tails.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from coster_sumo.batch import RegressOptions, regress
+from coster_sumo.batch.regress import RegressOptions, regress
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_SOURCES = [str(REPO / "networks" / n / f"{n}.sumocfg") for n in ("intersection", "merge", "arterial")]

@@ -92,7 +92,7 @@ def main() -> None:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     if args.scene:
-        from converters.read import iter_scenes
+        from coster_sumo.converters.read import iter_scenes
 
         scene = next(iter(iter_scenes(args.scene)))
     else:

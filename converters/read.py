@@ -14,11 +14,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-from converters.scenarionet import PICKLE_MAGIC, iter_pickle_scenes
-from converters.tfrecord import GZIP_MAGIC
-from converters.womd import iter_tfrecord_scenes
 from coster_sumo.errors import InputError
 from coster_sumo.scene import Scene, load_scene
+
+from .scenarionet import PICKLE_MAGIC, iter_pickle_scenes
+from .tfrecord import GZIP_MAGIC
+from .womd import iter_tfrecord_scenes
 
 ZIP_MAGIC = b"PK\x03\x04"
 

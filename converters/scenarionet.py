@@ -29,9 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from converters.womd import FEATURE_TYPES, RawLane, build_lanes, polylines
 from coster_sumo.errors import InputError
 from coster_sumo.scene import LaneType, ObjectType, Ragged, RoadMap, Scene, SignalState, SignalStates, Tracks
+
+from .womd import FEATURE_TYPES, RawLane, build_lanes, polylines
 
 PICKLE_MAGIC = b"\x80"  # pickle protocol >= 2 starts with the PROTO opcode
 

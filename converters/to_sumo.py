@@ -5,7 +5,7 @@
 - ``<id>.net.xml``: the network, WOMD coordinates kept exactly (plain XML from
   :mod:`converters.to_sumo_net`, then netconvert with
   ``--offset.disable-normalization true --precision 4 --junctions.endpoint-shape true`` and
-  ``spreadType="center"``, SUMO_FACTS §2); lanes netconvert cut back to its junction polygons get
+  ``spreadType="center"``, docs/sumo.md §2); lanes netconvert cut back to its junction polygons get
   their WOMD polyline back (:func:`restore_womd_geometry`); a staging lane 1 km below the map is
   added for the replay;
 - ``<id>.rou.xml``: vTypes for the logged agents (``womd_vehicle`` passenger, ``womd_pedestrian``
@@ -40,7 +40,13 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from converters.to_sumo_net import (
+from coster_sumo import sumo_env
+from coster_sumo.errors import CosterError, InputError
+from coster_sumo.formats.scene_folder import is_converted_scene, tls_state_strings, vtype_for
+from coster_sumo.geometry import project_points
+from coster_sumo.scene import ObjectType, Scene, save_scene
+
+from .to_sumo_net import (
     PlainNet,
     build_plain_net,
     cut_polyline,
@@ -48,11 +54,6 @@ from converters.to_sumo_net import (
     lane_speed,
     lane_width,
 )
-from coster_sumo import sumo_env
-from coster_sumo.errors import CosterError, InputError
-from coster_sumo.geometry import project_points
-from coster_sumo.scene import ObjectType, Scene, save_scene
-from coster_sumo.sim.replay import is_converted_scene, tls_state_strings, vtype_for
 
 __all__ = ["ConversionError", "ConvertResult", "convert_scene", "is_converted_scene", "read_net"]
 
@@ -61,7 +62,7 @@ NETCONVERT_OPTIONS = [
     "--precision", "4",                        # 0.1 mm output instead of 1 cm
     # Junction polygons from the lane end points, and no pushing lane ends apart where they overlap:
     # the least cutting of WOMD lanes (on the real samples: 94-100 % of lanes within 0.5 m before
-    # restore_womd_geometry). --junctions.minimal-shape (SUMO_FACTS §2, right for lane-per-edge
+    # restore_womd_geometry). --junctions.minimal-shape (docs/sumo.md §2, right for lane-per-edge
     # chains) builds a tiny polygon around the node's centroid and *extends* every lane of an
     # intersection up to it (measured: 86 % / 72 % of lanes matched on the two TFRecord samples).
     "--junctions.endpoint-shape", "true",
@@ -71,7 +72,7 @@ NETCONVERT_OPTIONS = [
 ]
 # An isolated lane far below the map where the replay puts each agent for one step before it first
 # appears: a vehicle whose very first placement is off every lane crashes SUMO in its outputs
-# (FCD) and in some getters (SUMO_FACTS §3).
+# (FCD) and in some getters (docs/sumo.md §3).
 STAGING_EDGE = "coster_staging"
 STAGING_OFFSET_M = 1000.0  # [m] below the map
 STAGING_LENGTH_M = 15000.0  # [m] room for 600 agents appearing in one step

@@ -48,8 +48,6 @@ from typing import Any
 
 import numpy as np
 
-from converters import womd_schema
-from converters.tfrecord import iter_tfrecord
 from coster_sumo.errors import InputError
 from coster_sumo.frames import MPH_TO_MPS
 from coster_sumo.scene import (
@@ -61,6 +59,9 @@ from coster_sumo.scene import (
     SignalStates,
     Tracks,
 )
+
+from . import womd_schema
+from .tfrecord import iter_tfrecord
 
 DEFAULT_LANE_WIDTH = 3.7  # [m]
 LANE_WIDTH_RANGE = (2.5, 5.5)  # [m]

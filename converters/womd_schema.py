@@ -1,6 +1,6 @@
 """The WOMD ``waymo.open_dataset.Scenario`` protobuf schema, declared by this project in code.
 
-Built from the field numbers and wire types in ``shared/data/womd/WIRE_FORMAT.md`` (which match the
+Built from the field numbers and wire types in ``docs/womd.md`` ("The Scenario message") (which match the
 public ``scenario.proto`` / ``map.proto``) as a ``FileDescriptorProto`` in a private descriptor pool:
 no TensorFlow, no ``waymo-open-dataset`` package, no generated ``_pb2`` files. proto2; entry/exit
 lanes are packed. Fields this schema does not declare (camera/lidar fields 12, 13, anything newer)
@@ -8,7 +8,7 @@ are kept as unknown fields by the protobuf runtime and otherwise ignored.
 
 Usage::
 
-    from converters.womd_schema import Scenario
+    from .womd_schema import Scenario
     msg = Scenario.FromString(record_bytes)
 """
 

@@ -21,14 +21,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from coster_sumo.core import PlannedScenario, choose_target, nominal_scene, plan_scenario
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.pipeline import PlannedScenario, RunOptions, choose_target, nominal_scene, plan_scenario
-from coster_sumo.sim.inject import AdversaryController, run_injection
-from coster_sumo.sim.plan import AdversaryPlan
+from coster_sumo.plan import AdversaryPlan
+from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
-__all__ = ["AdversaryController", "AdversaryPlan", "PlannedScenario", "SumoSession", "plan_adversaries",
-           "run_injection"]
+__all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
+           "SumoSession", "inject_variant", "plan_adversaries", "run_injection"]
 
 
 def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int = 0, samples: int = 1000,
@@ -37,12 +38,13 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
                      models_dir: str | Path | None = None) -> PlannedScenario:
     """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
 
-    Returns the :class:`~coster_sumo.pipeline.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
-    :class:`~coster_sumo.sim.plan.AdversaryPlan` per kept variant, sim times in seconds).
+    Returns the :class:`~coster_sumo.core.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
+    :class:`~coster_sumo.plan.AdversaryPlan` per kept variant, sim times in seconds). Inject one
+    with :func:`~coster_sumo.sim.inject.inject_variant` or drive it in your own loop.
     """
-    opts = RunOptions(config=Path(config), out=Path("."), target=target, samples=samples, variants=variants,
-                      collision_time=collision_time, init=init, rollout=rollout, begin=begin, end=end,
-                      seed=seed, models_dir=Path(models_dir) if models_dir is not None else None)
-    scene, _ = nominal_scene(opts)
-    index = choose_target(scene, target, opts.config)
-    return plan_scenario(scene, index, opts, DrivableArea.from_road_map(scene.road_map))
+    spec = ScenarioSpec(Path(config), seed=seed, begin=begin, end=end, target=target)
+    gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
+                           variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
+    scene, _ = nominal_scene(spec)
+    index = choose_target(scene, target, spec.config)
+    return plan_scenario(scene, index, seed, gen, DrivableArea.from_road_map(scene.road_map))

@@ -4,7 +4,7 @@ Every module in :mod:`coster_sumo.commands` exposes ``register(cli: CommandLine)
 subcommand(s) with ``set_defaults(func=...)``; ``func(args) -> int`` returns the exit code.
 Nested groups (``train prior``, ``eval rollout``) come from :meth:`CommandLine.group`.
 
-Exit codes (DESIGN contracts): 0 success; 1 the work ran but some inputs failed; 2 usage or input
+Exit codes (docs/method.md, Contracts): 0 success; 1 the work ran but some inputs failed; 2 usage or input
 error before any work. Errors print as one line ``coster-sumo: error: ...``; ``--debug`` shows the
 traceback.
 """

@@ -1,4 +1,4 @@
-"""Exceptions that the CLI turns into one clear line and an exit code (see DESIGN contracts)."""
+"""Exceptions that the CLI turns into one clear line and an exit code (see docs/method.md, Contracts)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Scenario and model metrics, one function each, with one registry.
 
-Conventions (DESIGN.md "Metric conventions used by peers"): Jensen-Shannon divergence with the
+Conventions (docs/method.md, Reference figures (metric conventions)): Jensen-Shannon divergence with the
 natural log (maximum ln 2); speed histograms over 0-50 m/s in 100 bins; acceleration histograms
 over -10..10 m/s^2 in 200 bins; MMD with one Gaussian kernel whose bandwidth is the mean pairwise
 squared distance of the pooled samples, biased estimate; impact angle = atan2 of the adversary's

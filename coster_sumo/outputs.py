@@ -20,33 +20,20 @@ import json
 import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from coster_sumo import viz
-from coster_sumo.errors import InputError
+from coster_sumo.core import PlannedScenario
+from coster_sumo.formats.atomic import json_default, write_json
+from coster_sumo.formats.scene_folder import SCENE_FILES
+from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.plan import AdversaryPlan
 from coster_sumo.sim.inject import InjectionResult
-from coster_sumo.sim.plan import AdversaryPlan
-
-if TYPE_CHECKING:
-    from coster_sumo.pipeline import PlannedScenario, RunOptions
+from coster_sumo.spec import ScenarioSpec
 
 VARIANT_FILE = "variant.json"
-
-
-def _dump(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=_json_default))
-    tmp.replace(path)
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 def sim_time_of(t: float, step_length: float) -> float:
@@ -110,16 +97,14 @@ def collisions_xml(path: Path, results: list[InjectionResult]) -> None:
 
 def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[str, Any]) -> Path:
     """Copy the configuration's inputs and the plan into ``folder``; return the new .sumocfg."""
-    from coster_sumo.sim.session import read_sumocfg_inputs
-
     folder.mkdir(parents=True, exist_ok=True)
-    inputs = read_sumocfg_inputs(config)
+    inputs = read_sumocfg(config).inputs()
     names: dict[str, list[str]] = {}
     for key, paths in inputs.items():
         for p in paths:
             shutil.copy2(p, folder / p.name)
             names.setdefault(key, []).append(p.name)
-    for extra in ("scene.npz", "lane_map.json"):  # converted WOMD scenes carry their log
+    for extra in SCENE_FILES:  # converted WOMD scenes carry their log
         if (config.parent / extra).exists():
             shutil.copy2(config.parent / extra, folder / extra)
     root = ET.Element("configuration")
@@ -134,14 +119,14 @@ def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[s
     ET.indent(root)
     cfg = folder / config.name
     ET.ElementTree(root).write(cfg, encoding="unicode", xml_declaration=True)
-    _dump(folder / VARIANT_FILE, {**meta, "plan": plan.to_dict()})
+    write_json(folder / VARIANT_FILE, {**meta, "plan": plan.to_dict()})
     return cfg
 
 
-def write_run_outputs(out: Path, opts: RunOptions, planned: PlannedScenario, results: list[InjectionResult],
-                      timings: dict[str, float]) -> dict[str, Any]:
-    from coster_sumo.pipeline import options_to_json
-
+def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: PlannedScenario,
+                      results: list[InjectionResult], timings: dict[str, float], *, render: bool,
+                      options: dict[str, Any]) -> dict[str, Any]:
+    """Write everything of a run into ``out`` (the caller renames it into place); returns the summary."""
     scene, target = planned.scene, planned.target_index
     target_id = str(scene.tracks.ids[target])
     snap = planned.snapshot
@@ -150,21 +135,20 @@ def write_run_outputs(out: Path, opts: RunOptions, planned: PlannedScenario, res
     with (out / "events.jsonl").open("w") as fh:
         for i, res in enumerate(results):
             for e in res.events:
-                fh.write(json.dumps({"variant": i, **e.to_dict()}, default=_json_default) + "\n")
+                fh.write(json.dumps({"variant": i, **e.to_dict()}, default=json_default) + "\n")
     collisions_xml(out / "collisions.xml", results)
     t_col = snap.time
     t_col_step = int(np.argmin(np.abs(scene.timestamps - t_col)))
-    planner = opts.planner or ("replay" if (opts.config.parent / "scene.npz").exists() else "sumo")
     for i, (plan, res) in enumerate(zip(planned.plans, results, strict=True)):
         vdir = out / "variants" / str(i)
         vdir.mkdir(parents=True)
         rec = variant_record(i, plan, res, target_id, t_col)
         variants.append(rec)
         trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
-        export_variant(vdir / "export", opts.config, plan,
-                       {"target_id": target_id, "planner": planner, "seed": opts.seed,
-                        "begin": opts.begin, "end": float(scene.timestamps[-1])})
-        if opts.render:
+        export_variant(vdir / "export", spec.config, plan,
+                       {"target_id": target_id, "planner": planner, "seed": spec.seed,
+                        "begin": spec.begin, "end": float(scene.timestamps[-1])})
+        if render:
             xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
             c = res.contact
             viz.render_variant(vdir / "render.png", scene, target, np.stack([xs, ys], 1), snap.adversary,
@@ -172,14 +156,14 @@ def write_run_outputs(out: Path, opts: RunOptions, planned: PlannedScenario, res
                                f"variant {i}: " + (f"contact at {c.time:.1f} s, {c.relative_speed:.1f} m/s, "
                                                    f"{round(c.impact_angle):d} deg" if c else "no contact"),
                                contact_xy=c.positions[1] if c else None)
-    if opts.render:
+    if render:
         reps = [np.stack([p.x, p.y], 1) for p in planned.plans]
         viz.render_overview(out / "overview.png", scene, target, t_col_step, snap.target, reps,
                             planned.samples_xy, snap.entropy or None, planned.scene_2hz.timestamps, t_col)
     n = len(variants)
     summary = {
-        "config": str(opts.config), "scenario_id": scene.scenario_id, "target": target_id,
-        "planner": planner, "seed": opts.seed, "t_col": t_col,
+        "config": str(spec.config), "scenario_id": scene.scenario_id, "target": target_id,
+        "planner": planner, "seed": spec.seed, "t_col": t_col,
         "t_col_sim": sim_time_of(t_col, float(results[0].scene.meta.get("step_length") or 0.1)) if results else None,
         "t_col_index_2hz": snap.t_index,
         "collision_time_method": snap.collision_time_method, "init_method": snap.init_method,
@@ -189,19 +173,8 @@ def write_run_outputs(out: Path, opts: RunOptions, planned: PlannedScenario, res
         "off_road_rate": sum(v["adversary_off_road"] for v in variants) / n if n else None,
         "variants": variants, "generation": planned.info,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
-        "options": options_to_json(opts),
-        "renders": (["overview.png"] + [f"variants/{i}/render.png" for i in range(n)]) if opts.render else [],
+        "options": options,
+        "renders": (["overview.png"] + [f"variants/{i}/render.png" for i in range(n)]) if render else [],
     }
-    _dump(out / "summary.json", summary)
+    write_json(out / "summary.json", summary)
     return summary
-
-
-def load_variant(config: Path) -> dict[str, Any] | None:
-    """The variant.json beside an exported variant's .sumocfg, or None."""
-    p = Path(config).parent / VARIANT_FILE
-    if not p.exists():
-        return None
-    try:
-        return json.loads(p.read_text())
-    except ValueError as exc:
-        raise InputError(f"{p}: not a variant file ({exc})") from None

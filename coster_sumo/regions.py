@@ -1,4 +1,4 @@
-"""Local regions along lane centrelines: the traffic prior's tokens (DESIGN method step 1).
+"""Local regions along lane centrelines: the traffic prior's tokens (docs/method.md step 1).
 
 Construction
 ------------

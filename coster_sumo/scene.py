@@ -526,7 +526,7 @@ def _nan_to_none(values: Sequence[float]) -> list[float | None]:
 
 @dataclass(frozen=True, slots=True)
 class CollisionSnapshot:
-    """Where and when the adversary touches the target (DESIGN step 4).
+    """Where and when the adversary touches the target (docs/method.md step 4).
 
     Attributes:
         scenario_id: the scene's id.

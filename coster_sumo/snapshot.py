@@ -1,4 +1,4 @@
-"""Collision time and collision snapshot (DESIGN steps 3-4), and the random-offset baseline.
+"""Collision time and collision snapshot (docs/method.md steps 3-4), and the random-offset baseline.
 
 Everything works on a 2 Hz scene (:func:`coster_sumo.scene.resample`).
 
@@ -29,7 +29,7 @@ touches the target; same rejection rules, up to ``RANDOM_TRIES`` tries.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,8 +53,6 @@ MARGIN_END = 5  # [2 Hz steps] skipped at the end
 RANDOM_TRIES = 200
 START_DISTANCE_M = 30.0  # [m] candidates start this far out and are translated towards the target
 ADV_LENGTH_M, ADV_WIDTH_M = 4.5, 1.9  # [m] the baseline's adversary size (a sedan)
-COLLISION_TIME_METHODS = ("entropy", "last", "random")
-INIT_METHODS = ("snapshot", "random")
 
 
 class NoSnapshot(CosterError):
@@ -73,23 +71,42 @@ def search_window(scene: Scene, target: int) -> np.ndarray:
     return steps[ok]
 
 
+def _last_step(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
+    return int(window[-1])
+
+
+def _random_step(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
+    return int(rng.choice(window))
+
+
+def _highest_entropy(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
+    if entropy is None:
+        raise ValueError("collision time 'entropy' needs the entropy curve")
+    vals = np.where(np.isfinite(entropy[window]), entropy[window], -np.inf)
+    if not np.isfinite(vals).any():
+        raise NoSnapshot("no region near the target at any step of the window")
+    return int(window[int(np.argmax(vals))])
+
+
+CollisionTimeRule = Callable[[np.ndarray, np.random.Generator, "np.ndarray | None"], int]
+# Collision-time rules: (window (W,) 2 Hz step indices, rng, entropy (num_steps,) or None) -> step.
+# A new rule is one function and one line here; the CLI's --collision-time choices read this.
+COLLISION_TIME_RULES: dict[str, CollisionTimeRule] = {
+    "entropy": _highest_entropy,  # COSTER: the step of highest velocity entropy around the target
+    "last": _last_step,  # ablation: the last step of the window
+    "random": _random_step,  # ablation: a uniformly random step of the window
+}
+
+
 def choose_collision_time(window: np.ndarray, method: str, rng: np.random.Generator,
                           entropy: np.ndarray | None = None) -> int:
-    """Pick t_col among ``window`` by ``method`` (entropy needs ``entropy`` (num_steps,))."""
+    """Pick t_col among ``window`` by the rule ``method`` of :data:`COLLISION_TIME_RULES`."""
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")
-    if method == "last":
-        return int(window[-1])
-    if method == "random":
-        return int(rng.choice(window))
-    if method == "entropy":
-        if entropy is None:
-            raise ValueError("collision time 'entropy' needs the entropy curve")
-        vals = np.where(np.isfinite(entropy[window]), entropy[window], -np.inf)
-        if not np.isfinite(vals).any():
-            raise NoSnapshot("no region near the target at any step of the window")
-        return int(window[int(np.argmax(vals))])
-    raise ValueError(f"unknown collision-time method {method!r}; use one of {COLLISION_TIME_METHODS}")
+    rule = COLLISION_TIME_RULES.get(method)
+    if rule is None:
+        raise ValueError(f"unknown collision-time method {method!r}; use one of {', '.join(COLLISION_TIME_RULES)}")
+    return rule(window, rng, entropy)
 
 
 def in_ellipse(points: np.ndarray, target: AgentState) -> np.ndarray:
@@ -197,7 +214,6 @@ def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivabl
 
 SIDE_START_M = 12.0  # [m] the four-side candidates start this far from the target's centre
 MAX_REGIONS_TRIED = 24
-DEFAULT_PRIOR = "prior.pt"
 
 
 def velocity_entropy(pred: Any, ellipse: np.ndarray) -> np.ndarray:
@@ -227,11 +243,11 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     models folder). ``regions_out``, when given, receives the region centres ``xy`` (K, 2) [m] and
     presence probabilities ``presence`` (K,) around the target at t_col, for pictures.
     """
-    from coster_sumo.models import model_path
-    from coster_sumo.prior.infer import load_prior, predict_scene
+    from coster_sumo import weights
+    from coster_sumo.prior.infer import predict_scene
 
     if model is None:
-        model = load_prior(model_path(DEFAULT_PRIOR, models_dir))
+        model = weights.load_prior(models_dir)
     window = search_window(scene, target)
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")
@@ -290,3 +306,35 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
             entropy=tuple(float(v) for v in entropy), collision_time_method=collision_time,
             init_method="snapshot", seed=seed)
     raise NoSnapshot("; ".join(reasons[:3]) or "no acceptable placement")
+
+
+@dataclass(frozen=True)
+class SnapshotInit:
+    """A way to place the adversary at t_col.
+
+    Attributes:
+        place: (scene at 2 Hz, target index, rng, drivable area, collision-time rule, seed, models
+            folder) -> the snapshot; raises :class:`NoSnapshot` when the scene has none.
+        weights: files it needs from the models folder (checked before any work).
+    """
+
+    place: Callable[..., CollisionSnapshot]
+    weights: tuple[str, ...] = ()
+
+
+def _prior_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
+                collision_time: str, seed: int, models_dir: Path | None) -> CollisionSnapshot:
+    return prior_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed,
+                          models_dir=models_dir)
+
+
+def _random_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
+                 collision_time: str, seed: int, models_dir: Path | None) -> CollisionSnapshot:
+    return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed)
+
+
+# Snapshot inits (``--init``): a new one is one function and one line here.
+SNAPSHOT_INITS: dict[str, SnapshotInit] = {
+    "snapshot": SnapshotInit(_prior_init, weights=("prior.pt",)),  # COSTER: the traffic prior's placement
+    "random": SnapshotInit(_random_init),  # baseline: a random pose offset in contact with the target
+}

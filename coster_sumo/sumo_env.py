@@ -47,7 +47,7 @@ def subprocess_env() -> dict[str, str]:
 
 
 def import_libsumo() -> ModuleType:
-    """``import libsumo`` with a clear error; sets SUMO_HOME to the package first (see SUMO_FACTS §1)."""
+    """``import libsumo`` with a clear error; sets SUMO_HOME to the package first (see docs/sumo.md §1)."""
     os.environ.setdefault("SUMO_HOME", str(sumo_home()))
     try:
         return importlib.import_module("libsumo")

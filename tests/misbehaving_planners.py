@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 import time
 
-from coster_sumo.planners import SumoPlanner
+from coster_sumo.sim.planners import SumoPlanner
 from coster_sumo.sim.session import SumoSession
 
 FAIL_AFTER_S = 5.0  # [s] simulation time

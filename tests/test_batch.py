@@ -13,20 +13,12 @@ from pathlib import Path
 import pyarrow.dataset as ds
 import pytest
 
-from coster_sumo.batch import (
-    Outcome,
-    ResultStore,
-    SceneSpec,
-    Task,
-    execute,
-    parse_sources,
-    probe_task,
-    rate_with_ci,
-    run_key,
-    scene_key,
-    wilson_interval,
-)
+from coster_sumo.batch.executor import Outcome, Task, execute, probe_task
+from coster_sumo.batch.regress import run_key
+from coster_sumo.batch.sources import parse_sources, scene_key
+from coster_sumo.batch.store import ResultStore, rate_with_ci, wilson_interval
 from coster_sumo.errors import InputError
+from coster_sumo.spec import ScenarioSpec as SceneSpec
 
 REPO = Path(__file__).resolve().parents[1]
 INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"
@@ -133,7 +125,8 @@ def test_result_store_writes_atomically_and_reads_as_a_dataset(tmp_path):
 RESUMABLE_BATCH = textwrap.dedent("""
     import sys
     from pathlib import Path
-    from coster_sumo.batch import ResultStore, Task, execute, probe_task
+    from coster_sumo.batch.executor import Task, execute, probe_task
+    from coster_sumo.batch.store import ResultStore
     store = ResultStore(Path(sys.argv[1]))
     done = store.keys()
     tasks = [Task(f"run{i:02d}", probe_task, {"name": i, "sleep": 0.4}) for i in range(12) if f"run{i:02d}" not in done]

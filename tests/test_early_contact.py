@@ -1,4 +1,4 @@
-"""Which plans touch the target too early to be kept (pipeline.early_contact), on jittered log times."""
+"""Which plans touch the target too early to be kept (core.early_contact), on jittered log times."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from coster_sumo import synthetic
-from coster_sumo.pipeline import early_contact
-from coster_sumo.sim.plan import AdversaryPlan
+from coster_sumo.core import early_contact
+from coster_sumo.plan import AdversaryPlan
 
 K_COL = 60  # t_col's step in the scene
 

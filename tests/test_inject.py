@@ -7,10 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coster_sumo.core import choose_target, nominal_scene, plan_scenario
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.pipeline import RunOptions, choose_target, nominal_scene, plan_scenario, replay_planner_for
-from coster_sumo.planners import make_planner
+from coster_sumo.sim.inject import nominal_replay as replay_planner_for
 from coster_sumo.sim.inject import run_injection
+from coster_sumo.sim.planners import make_planner
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 REPO = Path(__file__).resolve().parents[1]
 CFG = REPO / "networks/intersection/intersection.sumocfg"
@@ -19,11 +21,12 @@ pytestmark = pytest.mark.sumo
 
 def _planned(tmp_path: Path, end: float, seed: int):
     """The intersection's nominal scene, its target, drivable area and a constant-velocity plan."""
-    opts = RunOptions(config=CFG, out=tmp_path, init="random", rollout="cv", end=end, seed=seed)
-    scene, _ = nominal_scene(opts)
+    spec = ScenarioSpec(CFG, seed=seed, end=end)
+    scene, _ = nominal_scene(spec)
     target = choose_target(scene, None, CFG)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    return scene, target, drivable, plan_scenario(scene, target, opts, drivable).plans[0]
+    gen = GenerationConfig(init="random", rollout="cv")
+    return scene, target, drivable, plan_scenario(scene, target, seed, gen, drivable).plans[0]
 
 
 def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_path):

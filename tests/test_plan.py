@@ -3,8 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import AgentState
-from coster_sumo.sim.plan import AdversaryPlan
 
 
 def _plan():

@@ -258,7 +258,7 @@ def test_target_never_valid_gives_empty_prediction():
 @pytest.mark.realdata
 @requires_womd()
 def test_prior_runs_on_real_womd_scenes(tmp_path):
-    from converters.read import read_scenes
+    from coster_sumo.converters.read import read_scenes
 
     torch.manual_seed(0)
     ckpt = save_prior(TrafficPrior(SMALL).eval(), tmp_path / "prior.pt")

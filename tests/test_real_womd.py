@@ -8,8 +8,8 @@ from collections import Counter
 import numpy as np
 import pytest
 from conftest import WOMD_PKL, WOMD_PROTO, requires_womd
+from coster_sumo.converters.read import read_scenes
 
-from converters.read import read_scenes
 from coster_sumo.scene import ObjectType, Scene, SignalState
 
 pytestmark = [pytest.mark.realdata, requires_womd()]

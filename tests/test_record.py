@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from converters.sumo_net import load_sumo_net
 from coster_sumo import sumo_env
+from coster_sumo.formats.sumo_net import load_sumo_net
 from coster_sumo.scene import ObjectType, SignalState, load_scene, save_scene
 from coster_sumo.sim.record import LINK_STATE, SignalTable, link_state_to_signal, record, record_config
 from coster_sumo.sim.session import SumoSession

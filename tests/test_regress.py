@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from coster_sumo.batch import ResultStore
+from coster_sumo.batch.store import ResultStore
 from coster_sumo.cli import main
 
 REPO = Path(__file__).resolve().parents[1]

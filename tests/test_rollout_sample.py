@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from coster_sumo import synthetic
+from coster_sumo import synthetic, weights
 from coster_sumo.errors import InputError
 from coster_sumo.rollout import sample as S
 from coster_sumo.rollout import vocab as V
@@ -195,9 +195,9 @@ def test_constant_lane_reconstructs_lane_following(scene_fn, agent, t_index):
 
 def test_plan_variants_uses_the_models_folder(tmp_path, junction, vocab, model):
     with pytest.raises(InputError, match="train rollout"):
-        S.load_rollout_model(tmp_path)
-    save_checkpoint(model, tmp_path / S.ROLLOUT_FILE)
-    vocab.save(tmp_path / S.VOCAB_FILE)
+        weights.load_rollout(tmp_path)
+    save_checkpoint(model, tmp_path / weights.ROLLOUT)
+    vocab.save(tmp_path / weights.VOCAB)
     adv = adversary_near_target(junction, 14)
     snap = CollisionSnapshot(scenario_id="x", target_id="sdc", t_index=14, time=7.0,
                              target=AgentState.from_tracks(junction.tracks, 0, 14), adversary=adv)

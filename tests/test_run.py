@@ -182,7 +182,8 @@ def test_real_womd_scenes_contact_within_one_step_of_t_col(tmp_path, capsys):
 @pytest.mark.parametrize("extra", [[], ["--init", "random", "--rollout", "cv"]], ids=["prior", "random"])
 def test_no_lanes_near_the_target_is_one_line_exit_2_and_no_output(tmp_path, capsys, extra):
     """A converted scene whose map lies 2 km from the target: nothing to place an adversary on."""
-    from converters.to_sumo import convert_scene
+    from coster_sumo.converters.to_sumo import convert_scene
+
     from coster_sumo import synthetic
     from coster_sumo.scene import load_scene, save_scene
 

@@ -1,4 +1,4 @@
-"""converters.sumo_net: any SUMO net -> RoadMap, and the traffic-light links."""
+"""coster_sumo.formats.sumo_net: any SUMO net -> RoadMap, and the traffic-light links."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from converters.sumo_net import (
+from coster_sumo import sumo_env
+from coster_sumo.errors import InputError
+from coster_sumo.formats.sumo_net import (
     ROAD_LINE_SOLID_DOUBLE_YELLOW,
     load_sumo_net,
     offset_polyline,
     read_sumo_net,
 )
-from coster_sumo import sumo_env
-from coster_sumo.errors import InputError
 from coster_sumo.scene import LaneType
 
 NETGENERATE = {

@@ -5,8 +5,8 @@ from __future__ import annotations
 import gzip
 
 import pytest
+from coster_sumo.converters.tfrecord import encode_record, iter_tfrecord, masked_crc32c, read_tfrecord, write_tfrecord
 
-from converters.tfrecord import encode_record, iter_tfrecord, masked_crc32c, read_tfrecord, write_tfrecord
 from coster_sumo.errors import InputError
 
 RECORDS = [b"", b"a", b"hello world" * 100, bytes(range(256)) * 3]

@@ -7,15 +7,15 @@ import pickle
 
 import numpy as np
 import pytest
-
-from converters.read import iter_scenes, read_scenes, sniff
-from converters.tfrecord import write_tfrecord
-from converters.womd import (
+from coster_sumo.converters.read import iter_scenes, read_scenes, sniff
+from coster_sumo.converters.tfrecord import write_tfrecord
+from coster_sumo.converters.womd import (
     point_polyline_distance,
     scenario_to_scene,
     scene_to_scenario,
 )
-from converters.womd_schema import Scenario
+from coster_sumo.converters.womd_schema import Scenario
+
 from coster_sumo import save_scene, synthetic
 from coster_sumo.errors import InputError
 from coster_sumo.scene import Scene, SignalState

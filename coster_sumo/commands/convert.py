@@ -1,7 +1,7 @@
 """``coster-sumo convert INPUT... -o OUTDIR``: WOMD scenes -> converted SUMO scene folders.
 
 Every record of every input (WOMD TFRecord, gzip TFRecord, ScenarioNet pickle, our ``.npz``)
-becomes ``OUTDIR/<scenario_id>/`` (see :mod:`converters.to_sumo`). A bad input or record prints
+becomes ``OUTDIR/<scenario_id>/`` (see :mod:`coster_sumo.converters.to_sumo`). A bad input or record prints
 one line naming the file and record and the rest go on. ``OUTDIR/summary.json`` lists every scene
 with its fidelity figures and every failure. Exit code 0: all converted; 1: some failed; 2: usage
 error or nothing could be read.
@@ -45,8 +45,8 @@ def fidelity_line(summary: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from converters.read import iter_scenes
-    from converters.to_sumo import convert_scene
+    from coster_sumo.converters.read import iter_scenes
+    from coster_sumo.converters.to_sumo import convert_scene
 
     debug = bool(getattr(args, "debug", False))
     quiet = bool(getattr(args, "quiet", False))

@@ -9,7 +9,7 @@ from coster_sumo.commands.regress import add_scene_source_arguments
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
-    from coster_sumo.batch import GENERATOR_METHODS
+    from coster_sumo.batch.evaluate import GENERATOR_METHODS
 
     p = cli.group("eval", "evaluate models and generators").add_parser(
         "scenarios", help="SUR, CR, ORR, VDD, ADD, CSD, CPD of scenario generators on the same scenes",
@@ -29,7 +29,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    from coster_sumo.batch import EvalOptions, eval_exit_code, evaluate_generators
+    from coster_sumo.batch.evaluate import EvalOptions, eval_exit_code, evaluate_generators
     from coster_sumo.report import generator_table
 
     opts = EvalOptions(sources=args.sources, out=args.out, methods=args.methods, planner=args.planner,

@@ -124,7 +124,7 @@ def run_eval(args: argparse.Namespace) -> int:
             scenes += load_prepared(_subset(files, args.max_scenes, args.seed), radius, progress)
             dataset_dir = dataset_dir or path
         elif path.is_file():
-            from converters.read import iter_scenes
+            from coster_sumo.converters.read import iter_scenes
 
             for scene in iter_scenes(path):
                 scenes.append(prepare_scene(at_prior_rate(scene), radius=radius))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from coster_sumo.commands.run import add_method_arguments
+
 
 def add_scene_source_arguments(p: argparse.ArgumentParser) -> None:
     """Scene-source arguments shared with ``eval scenarios``."""
@@ -37,9 +39,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                    help="replay | sumo | sumo:<carFollowModel> | module:Class; repeat for several")
     p.add_argument("--variants", type=int, default=3, help="adversary variants per scene (default 3)")
     p.add_argument("--samples", type=int, default=1000, help="CVAE trajectories oversampled (default 1000)")
-    p.add_argument("--init", default="snapshot", choices=("snapshot", "random"))
-    p.add_argument("--rollout", default="cvae", choices=("cvae", "cv"))
-    p.add_argument("--collision-time", default="entropy", choices=("entropy", "last", "random"))
+    add_method_arguments(p)
     p.add_argument("--retry-failed", action="store_true", help="run again what failed before (default: keep)")
     p.add_argument("--no-report", action="store_true", help="summary.json only (no Markdown/HTML/plots)")
     p.add_argument("-o", "--out", type=Path, default=Path("out/regress"), help="output folder (default out/regress)")
@@ -47,7 +47,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    from coster_sumo.batch import RegressOptions, regress, regression_exit_code
+    from coster_sumo.batch.regress import RegressOptions, regress, regression_exit_code
 
     opts = RegressOptions(sources=args.sources, planners=args.planners, out=args.out, variants=args.variants,
                           workers=args.workers, executor=args.executor, timeout=args.timeout or None,

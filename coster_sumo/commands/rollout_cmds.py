@@ -153,7 +153,7 @@ def run_vocab(args: argparse.Namespace) -> int:
 
 
 def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
-    from converters.read import iter_scenes
+    from coster_sumo.converters.read import iter_scenes
     from coster_sumo.dataset import list_scenes, split
     from coster_sumo.scene import load_scene
 

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from coster_sumo.pipeline import RunOptions
-from coster_sumo.pipeline import run as run_pipeline
+from coster_sumo.rollout.methods import ROLLOUTS
+from coster_sumo.run import RunOptions
+from coster_sumo.run import run as run_scenario
+from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -23,11 +25,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                                      "(default: replay for converted scenes, sumo otherwise)")
     p.add_argument("--samples", type=int, default=1000, help="trajectories oversampled (default 1000)")
     p.add_argument("--variants", type=int, default=5, help="representatives kept (K-means K, default 5)")
-    p.add_argument("--collision-time", default="entropy", choices=("entropy", "last", "random"))
-    p.add_argument("--init", default="snapshot", choices=("snapshot", "random"),
-                   help="snapshot = the prior's placement; random = random pose offset baseline")
-    p.add_argument("--rollout", default="cvae", choices=("cvae", "cv"),
-                   help="cvae = time-reversed CVAE; cv = constant-velocity baseline")
+    add_method_arguments(p)
     p.add_argument("--begin", type=float, help="[s] start of the recorded window")
     p.add_argument("--end", type=float, help="[s] end of the window (default: the configuration's, else begin+60)")
     p.add_argument("--seed", type=int, default=0)
@@ -38,13 +36,27 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.set_defaults(func=run)
 
 
+def add_method_arguments(p: argparse.ArgumentParser) -> None:
+    """--init, --collision-time and --rollout, with the choices of their registries."""
+    p.add_argument("--collision-time", default="entropy", choices=tuple(COLLISION_TIME_RULES),
+                   help="entropy = highest velocity entropy (COSTER); last / random = ablations")
+    p.add_argument("--init", default="snapshot", choices=tuple(SNAPSHOT_INITS),
+                   help="snapshot = the prior's placement; random = random pose offset baseline")
+    p.add_argument("--rollout", default="cvae", choices=tuple(ROLLOUTS),
+                   help="cvae = time-reversed CVAE; cv = constant-velocity baseline")
+
+
+def generation_config(args: argparse.Namespace) -> GenerationConfig:
+    """The generation config of parsed arguments (``--init``, ``--samples``, ``--models``...)."""
+    return GenerationConfig(init=args.init, collision_time=args.collision_time, rollout=args.rollout,
+                            samples=args.samples, variants=args.variants, models_dir=args.models)
+
+
 def run(args: argparse.Namespace) -> int:
-    opts = RunOptions(config=args.config, out=args.out, target=args.target, planner=args.planner,
-                      samples=args.samples, variants=args.variants, collision_time=args.collision_time,
-                      init=args.init, begin=args.begin, end=args.end, seed=args.seed, traci=args.traci,
-                      rollout=args.rollout, render=not args.no_render, quiet=args.quiet,
-                      models_dir=args.models)
-    summary = run_pipeline(opts)
+    spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=args.end, target=args.target)
+    opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
+                      traci=args.traci, render=not args.no_render, quiet=args.quiet)
+    summary = run_scenario(opts)
     lines = [f"target {summary['target']}: t_col = {summary['t_col']:.1f} s "
              f"({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
     for v in summary["variants"]:
@@ -54,6 +66,5 @@ def run(args: argparse.Namespace) -> int:
     lines.append(f"wrote {args.out}/summary.json; renders: {args.out}/overview.png, {args.out}/variants/*/render.png")
     if not args.quiet:
         print("\n".join(lines))
-    json.dumps(summary, default=str)
     sys.stdout.flush()
     return 0

@@ -346,7 +346,7 @@ def plan_runs(cfg: SimulateConfig, sources: list[Source]) -> list[RunTask]:
 
 
 def _context() -> Any:
-    # fork is cheapest and fine here (the parent never starts SUMO: SUMO_FACTS §6); spawn elsewhere
+    # fork is cheapest and fine here (the parent never starts SUMO: docs/sumo.md §6); spawn elsewhere
     return mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
 
 

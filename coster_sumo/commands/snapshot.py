@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS
+
 
 def register(cli: Any) -> None:
     p = cli.commands.add_parser(
@@ -17,8 +19,8 @@ def register(cli: Any) -> None:
                     "folder's .sumocfg, a scene .npz, or a WOMD .tfrecord / ScenarioNet .pkl (first record).")
     p.add_argument("source", type=Path, help=".sumocfg, scene .npz, WOMD .tfrecord or ScenarioNet .pkl")
     p.add_argument("--target", help="target id (default: the SDC / 'ego')")
-    p.add_argument("--collision-time", default="entropy", choices=("entropy", "last", "random"))
-    p.add_argument("--init", default="snapshot", choices=("snapshot", "random"))
+    p.add_argument("--collision-time", default="entropy", choices=tuple(COLLISION_TIME_RULES))
+    p.add_argument("--init", default="snapshot", choices=tuple(SNAPSHOT_INITS))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--end", type=float, help="[s] end of the recorded window for a .sumocfg")
     p.add_argument("--models", type=Path, help="folder with prior.pt (default: shipped)")
@@ -27,12 +29,13 @@ def register(cli: Any) -> None:
 
 
 def _scene(args: argparse.Namespace) -> Any:
-    from coster_sumo.pipeline import RunOptions, nominal_scene
+    from coster_sumo.core import nominal_scene
+    from coster_sumo.spec import ScenarioSpec
 
     src: Path = args.source
     if src.suffix == ".sumocfg":
-        return nominal_scene(RunOptions(config=src, out=args.out, end=args.end, seed=args.seed))[0]
-    from converters.read import iter_scenes
+        return nominal_scene(ScenarioSpec(src, seed=args.seed, end=args.end))[0]
+    from coster_sumo.converters.read import iter_scenes
 
     for scene in iter_scenes(src):
         return scene
@@ -43,11 +46,11 @@ def _scene(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     from coster_sumo import viz
+    from coster_sumo.core import choose_target
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.errors import InputError
-    from coster_sumo.pipeline import choose_target
     from coster_sumo.scene import resample
-    from coster_sumo.snapshot import NoSnapshot, prior_snapshot, random_snapshot
+    from coster_sumo.snapshot import NoSnapshot, prior_snapshot
 
     scene = _scene(args)
     target = choose_target(scene, args.target, args.source)
@@ -56,11 +59,12 @@ def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     regions: dict[str, np.ndarray] = {}
     try:
-        if args.init == "random":
-            snap = random_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed)
-        else:
+        if args.init == "snapshot":  # the prior's placement, with its regions for the picture
             snap = prior_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed,
                                   models_dir=args.models, regions_out=regions)
+        else:
+            snap = SNAPSHOT_INITS[args.init].place(low, target, rng, drivable, args.collision_time, args.seed,
+                                                   args.models)
     except NoSnapshot as exc:
         raise InputError(f"{args.source}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None

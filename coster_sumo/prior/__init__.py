@@ -1,4 +1,4 @@
-"""The regional traffic prior (DESIGN method step 2).
+"""The regional traffic prior (docs/method.md step 2).
 
 - :mod:`coster_sumo.prior.bins`: discretisation of agent attributes (value <-> class <-> bin centre);
 - :mod:`coster_sumo.prior.features`: region tokens (map part and observed-agent part) and targets;

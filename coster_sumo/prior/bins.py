@@ -1,6 +1,6 @@
 """Discretisation of the prior's agent attributes (numpy only).
 
-Classes (defaults from the DESIGN reference figures):
+Classes (defaults from the docs/method.md, Reference figures):
 - position: 40 x 40 cells over the region's normalised frame [-0.5, 0.5]^2 (x across, y along);
   class = ix * 40 + iy;
 - heading: 144 bins over [-heading_range, heading_range] of the heading relative to the region

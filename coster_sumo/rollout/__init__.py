@@ -1,4 +1,4 @@
-"""The time-reversed CVAE rollout (DESIGN method steps 5-6) and its baselines.
+"""The time-reversed CVAE rollout (docs/method.md steps 5-6) and its baselines.
 
 - :mod:`coster_sumo.rollout.model`: :class:`~coster_sumo.rollout.model.RolloutConfig` and the
   :class:`~coster_sumo.rollout.model.RolloutCVAE` module (map encoder, per-step latents, dynamic

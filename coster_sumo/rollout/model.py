@@ -1,4 +1,4 @@
-"""The time-reversed CVAE (DESIGN method step 5): :class:`RolloutConfig` and :class:`RolloutCVAE`.
+"""The time-reversed CVAE (docs/method.md step 5): :class:`RolloutConfig` and :class:`RolloutCVAE`.
 
 Inputs are contexts built by :mod:`coster_sumo.rollout.data` (the reconstructed vehicle's frame at
 t_rev); tensors carry two leading axes, contexts ``C`` (agents, scenes) and samples ``S`` per
@@ -22,7 +22,7 @@ Architecture:
   "w/o DSA" ablation) feeds the t_rev neighbour attention at every step instead: neighbours are
   seen only as they were at t_rev.
 
-Cost (DESIGN "where the rollout's time goes"): keys and values are linear in
+Cost (docs/method.md, "Where the rollout's time goes"): keys and values are linear in
 ``(item - sample)`` features, so the item part is projected once per context (map: once; neighbours:
 once per step, all steps before the loop) and the sample part drops out of the softmax and is
 subtracted once from the weighted values (:class:`RelativeAttention`); no ``(S, items, D)`` tensor

@@ -1,4 +1,4 @@
-"""Oversampling, clustering and refinement of adversary trajectories (DESIGN method step 6).
+"""Oversampling, clustering and refinement of adversary trajectories (docs/method.md step 6).
 
 The injection pipeline calls, for one collision snapshot:
 
@@ -11,12 +11,11 @@ The injection pipeline calls, for one collision snapshot:
    t_col, falling back to the next member of the cluster;
 
 or both at once through :func:`plan_variants`, which loads the shipped models and returns
-:class:`~coster_sumo.sim.plan.AdversaryPlan` objects.
+:class:`~coster_sumo.plan.AdversaryPlan` objects.
 """
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -41,23 +40,14 @@ from coster_sumo.rollout.vocab import MotionVocab, project_backward
 from coster_sumo.scene import AgentState, CollisionSnapshot, Scene
 
 if TYPE_CHECKING:
+    from coster_sumo.plan import AdversaryPlan
     from coster_sumo.rollout.model import RolloutCVAE
-    from coster_sumo.sim.plan import AdversaryPlan
 
 DEFAULT_SAMPLES = 1000
 DEFAULT_CLUSTERS = 5
 KMEANS_ITERATIONS = 50
-ROLLOUT_FILE = "rollout.pt"
-VOCAB_FILE = "vocab.npz"
 
 OffRoadFn = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-
-
-def default_models_dir() -> Path:
-    """Where shipped weights live (:data:`coster_sumo.models.SHIPPED_MODELS`)."""
-    from coster_sumo.models import SHIPPED_MODELS
-
-    return SHIPPED_MODELS
 
 
 # ----------------------------------------------------------------------------- sampling
@@ -358,29 +348,6 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
 
 # ----------------------------------------------------------------------------- pipeline entry
 
-@functools.lru_cache(maxsize=4)
-def _load_model_cached(path: str, mtime_ns: int) -> Any:
-    from coster_sumo.rollout.checkpoint import load_model
-
-    return load_model(path)
-
-
-def load_rollout_model(models_dir: str | Path | None = None) -> RolloutCVAE:
-    """``MODELS/rollout.pt`` (cached per file version); InputError with the fix when missing."""
-    path = Path(models_dir or default_models_dir()) / ROLLOUT_FILE
-    if not path.is_file():
-        raise InputError(f"{path}: rollout model weights not found (train them with `coster-sumo train rollout "
-                         f"--data DATASET -o {path}`, pass --models DIR, or use --rollout cv)")
-    model: RolloutCVAE = _load_model_cached(str(path), path.stat().st_mtime_ns)
-    return model
-
-
-def load_vocab(models_dir: str | Path | None = None) -> MotionVocab | None:
-    """``MODELS/vocab.npz`` or None when there is none."""
-    path = Path(models_dir or default_models_dir()) / VOCAB_FILE
-    return MotionVocab.load(path) if path.is_file() else None
-
-
 def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
                   drivable: DrivableArea | OffRoadFn | None, n: int = DEFAULT_SAMPLES, k: int = DEFAULT_CLUSTERS,
                   seed: int = 0, models_dir: str | Path | None = None,
@@ -398,13 +365,15 @@ def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
 
     Returns:
         (plans, samples_xy (N, T, 2) of all samples, info) with one
-        :class:`~coster_sumo.sim.plan.AdversaryPlan` per accepted representative (possibly none).
+        :class:`~coster_sumo.plan.AdversaryPlan` per accepted representative (possibly none).
     """
-    from coster_sumo.sim.plan import AdversaryPlan
+    from coster_sumo.plan import AdversaryPlan
 
     t0 = time.perf_counter()
-    model = load_rollout_model(models_dir)
-    vocab = load_vocab(models_dir)
+    from coster_sumo import weights
+
+    model = weights.load_rollout(models_dir)
+    vocab = weights.load_vocab(models_dir)
     t1 = time.perf_counter()
     trajs = sample_trajectories(model, scene_2hz, snapshot, n=n, seed=seed, exclude=exclude)
     t2 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Motion vocabulary (DESIGN method step 6): k-disks over 0.5 s transitions, and projection onto it.
+"""Motion vocabulary (docs/method.md step 6): k-disks over 0.5 s transitions, and projection onto it.
 
 A **transition** is the motion of a vehicle over one 2 Hz step, ``(dx, dy, dyaw)``: the later pose
 in the body frame of the earlier one (x forward [m], y left [m], dyaw [rad]). The distance between

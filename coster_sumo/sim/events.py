@@ -1,7 +1,7 @@
 """Per-step event detection: collisions (our box check and SUMO's list) and off-road.
 
 Our oriented-box check is the ground truth: SUMO's own check is lane-based and misses lateral and
-cross-edge overlaps (SUMO_FACTS §4). SUMO's list is logged beside it as ``sumo_collision`` events.
+cross-edge overlaps (docs/sumo.md §4). SUMO's list is logged beside it as ``sumo_collision`` events.
 Only pairs that involve the adversary or the target are checked (two rows of the pairwise matrix):
 a bounding-circle prefilter over all other vehicles, the separating-axis gap of the pairs left (a
 lower bound of their distance, exact for overlaps; :mod:`coster_sumo.geometry`, or a scalar copy

@@ -3,17 +3,17 @@
 Order inside every simulation step (all commands are for the time the step reaches, t_next):
 1. the log replayer (converted WOMD scenes) places every logged agent;
 2. the planner commands the target (or leaves it to SUMO);
-3. the adversary controller places the adversary (moveToXY, every step, SUMO_FACTS §3);
+3. the adversary controller places the adversary (moveToXY, every step, docs/sumo.md §3);
 4. SUMO steps; the pass is recorded into a Scene (all vehicles, signals);
 5. events: our box check + SUMO's collision list + off-road (:mod:`coster_sumo.sim.events`).
 
 The adversary is added when the plan starts (t_col - horizon) with its sampled length and width
-as a private vehicle type, on the edge under its first position (SUMO_FACTS §3: a first placement
+as a private vehicle type, on the edge under its first position (docs/sumo.md §3: a first placement
 off every lane can crash libsumo). It follows the plan exactly, arriving in the snapshot state at
 t_col. After its first contact with any vehicle it is **frozen**: it stays at the contact pose at
 zero speed until the end of the pass (a wreck, not a vehicle that drives on). If no contact
 happens (the planner avoided it), it continues at constant velocity (see
-:class:`~coster_sumo.sim.plan.AdversaryPlan`) until a contact or the end of the pass.
+:class:`~coster_sumo.plan.AdversaryPlan`) until a contact or the end of the pass.
 """
 
 from __future__ import annotations
@@ -28,13 +28,15 @@ from typing import Any, Protocol
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.frames import centre_to_front
-from coster_sumo.planners import Planner
+from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.events import Event, EventDetector
-from coster_sumo.sim.plan import AdversaryPlan
+from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
 from coster_sumo.sim.record import record
 from coster_sumo.sim.session import SumoSession, VehicleStates
+from coster_sumo.spec import ScenarioSpec
 
 ADVERSARY_COLOR = (220, 30, 30, 255)  # RGBA: red in sumo-gui
 TIME_EPS = 1e-6  # [s]
@@ -217,3 +219,53 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                            target_arrived=bool(flags["arrived"]), route_completed=completed,
                            min_ttc=float(flags["min_ttc"]) if contact is None else 0.0,
                            wall_time_s=wall, extra={"event_detection_s": float(flags["event_s"])})
+
+
+# ----------------------------------------------------------------------------- one variant
+
+def default_planner(converted: bool) -> str:
+    """The planner when none is named: the log's own (``replay``) on converted scenes, SUMO's otherwise."""
+    return "replay" if converted else "sumo"
+
+
+def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
+    """A planner that replays the target's nominal trajectory in ``scene``."""
+    t = scene.tracks
+    return ReplayPlanner(scene.timestamps, t.x[target], t.y[target], t.heading[target],
+                         t.speed[target], t.valid[target], float(np.median(t.length[target][t.valid[target]])))
+
+
+def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: AdversaryPlan, planner: str | None = None,
+                   *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
+                   detect_events: bool = True, freeze_at: float | None = None) -> InjectionResult:
+    """Inject one variant: the one place that decides who drives whom (every command goes through it).
+
+    Who drives the target: the ``planner`` spec (default :func:`default_planner`).
+
+    - Any SUMO configuration: the configuration's own traffic runs; ``replay`` moves the target
+      along its nominal trajectory (:func:`nominal_replay`), ``sumo[:<model>]`` leaves it to SUMO's
+      driver, ``module:Class`` to your planner.
+    - A converted WOMD scene (:func:`coster_sumo.formats.scene_folder.converted_scene_file`): the log
+      is the traffic, so the log replayer drives every logged agent. With ``replay`` it drives the
+      target too, for the whole pass. With any other planner it drives the target until the
+      adversary's plan starts and then hands it over: the planner commands it from then on, and
+      SUMO's driver (``sumo``) continues from the logged pose along the road the target is on.
+
+    The pass runs from the spec's begin with its seed to the end of the nominal scene.
+    """
+    converted = converted_scene_file(spec.config) is not None
+    planner_spec = planner or default_planner(converted)
+    target_id = str(scene.tracks.ids[target])
+    actors: tuple[StepActor, ...] = ()
+    if converted:
+        from coster_sumo.sim.replay import LogReplayer
+
+        handover = {} if planner_spec == "replay" else {target_id: plan.t_start}
+        actors = (LogReplayer.for_config(spec.config, scene, handover=handover),)
+        driver: Planner = LoggedPlanner() if planner_spec == "replay" else make_planner(planner_spec)
+    else:
+        driver = make_planner(planner_spec, nominal_replay(scene, target))
+    end = float(scene.timestamps[-1]) + 1e-9
+    return run_injection(spec.config, target_id, plan, driver, seed=spec.seed, end=end, begin=spec.begin,
+                         drivable=drivable, actors=actors, detect_events=detect_events, freeze_at=freeze_at,
+                         traci=traci, workdir=workdir)

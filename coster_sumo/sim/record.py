@@ -36,10 +36,11 @@ from typing import Any
 
 import numpy as np
 
-from converters.sumo_net import SumoNet, load_sumo_net
 from coster_sumo.errors import InputError
+from coster_sumo.formats.sumo_net import SumoNet, load_sumo_net
+from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.scene import ObjectType, Scene, SignalState, SignalStates, Tracks
-from coster_sumo.sim.session import SumoSession, VehicleStates, read_sumocfg_inputs
+from coster_sumo.sim.session import SumoSession, VehicleStates
 
 # SUMO link state letter -> SignalState (see the module docstring)
 LINK_STATE: dict[str, SignalState] = {
@@ -156,7 +157,7 @@ def net_file_of(session: SumoSession) -> Path:
     if session.net is not None:
         return session.net
     if session.config is not None:
-        nets = read_sumocfg_inputs(session.config)["net-file"]
+        nets = read_sumocfg(session.config).net_files
         if nets:
             return nets[0]
     raise InputError(f"{session.name}: cannot tell which net file it runs on; pass net=...")

@@ -9,7 +9,7 @@ back and converted front-bumper -> box centre; the centre error against the log 
 state is the replay's fidelity figure.
 
 Staging: a vehicle whose very first placement is off every lane crashes SUMO in its outputs (FCD)
-and in some getters (SUMO_FACTS §3), and logged agents often start off the lanes (parked cars,
+and in some getters (docs/sumo.md §3), and logged agents often start off the lanes (parked cars,
 pedestrians). So every agent is added one step before it first appears, on an isolated staging lane
 the converter puts 1 km below the map, and moved to its logged pose in the next step. While parked
 there it is in ``SumoSession.hidden``: recordings and event checks do not see it.
@@ -33,87 +33,19 @@ from pathlib import Path
 import numpy as np
 
 from coster_sumo.errors import InputError
-from coster_sumo.scene import ObjectType, Scene, SignalState, load_scene
+from coster_sumo.formats.scene_folder import (
+    LANE_MAP_FILE,
+    SCENE_FILE,
+    agent_sizes,
+    converted_scene_file,
+    tls_state_strings,
+    vtype_for,
+)
+from coster_sumo.scene import Scene, load_scene
 from coster_sumo.sim.session import SumoSession
 
-# WOMD signal state -> SUMO link state letter (r red, y yellow, G protected green, g green that
-# yields, o off-blinking (yield), O off (no signal)).
-SUMO_SIGNAL_LETTER: dict[int, str] = {
-    SignalState.UNKNOWN: "O", SignalState.ARROW_STOP: "r", SignalState.ARROW_CAUTION: "y",
-    SignalState.ARROW_GO: "G", SignalState.STOP: "r", SignalState.CAUTION: "y", SignalState.GO: "g",
-    SignalState.FLASHING_STOP: "r", SignalState.FLASHING_CAUTION: "o",
-}
-
-# WOMD object type -> (vType id in the converted .rou.xml, vClass, guiShape, default length [m],
-# default width [m]). Pedestrians and cyclists are vehicles of class pedestrian / bicycle: SUMO's
-# moveToXY drives vehicles, and the replay needs their exact boxes, not a pedestrian model.
-VTYPES: dict[int, tuple[str, str, str, float, float]] = {
-    ObjectType.VEHICLE: ("womd_vehicle", "passenger", "passenger", 4.5, 1.9),
-    ObjectType.PEDESTRIAN: ("womd_pedestrian", "pedestrian", "pedestrian", 0.5, 0.5),
-    ObjectType.CYCLIST: ("womd_cyclist", "bicycle", "bicycle", 1.8, 0.6),
-    ObjectType.OTHER: ("womd_other", "passenger", "passenger", 4.5, 1.9),
-    ObjectType.UNSET: ("womd_other", "passenger", "passenger", 4.5, 1.9),
-}
 STAGING_SPACING_M = 25.0  # [m] between agents parked on the staging lane (longer than any vehicle)
 TIME_EPS_S = 1e-6  # [s] two simulation times this close are the same step
-MIN_SIZE_M = 0.1  # [m] SUMO rejects zero-length types; WOMD zero-fills invalid sizes
-SCENE_FILES = ("scene.npz", "lane_map.json")
-
-
-def vtype_for(object_type: int) -> tuple[str, str, str, float, float]:
-    """The :data:`VTYPES` row of a WOMD object type (unknown codes count as OTHER)."""
-    return VTYPES.get(int(object_type), VTYPES[ObjectType.OTHER])
-
-
-def tls_state_strings(scene: Scene, tls: dict[str, dict]) -> dict[str, list[str]]:
-    """Per traffic light, the SUMO state string at every step of the log.
-
-    Args:
-        scene: the logged scene (its ``signals``).
-        tls: ``lane_map.json``'s ``"tls"``: per tls id ``{"links": [WOMD lane id or None, ...]}``,
-            one entry per SUMO link index.
-
-    Returns:
-        tls id -> (num_steps,) list of state strings; links without a logged signal are ``O``.
-    """
-    per_lane = scene.signals.per_lane(len(scene.road_map.lanes))  # (T, num_lanes)
-    col = {str(lid): i for i, lid in enumerate(scene.road_map.lanes.ids)}
-    letters = np.array([SUMO_SIGNAL_LETTER.get(v, "O") for v in range(256)])
-    out: dict[str, list[str]] = {}
-    for tid, entry in tls.items():
-        cols = np.array([col.get(str(lid), -1) if lid is not None else -1 for lid in entry["links"]],
-                        np.int64)
-        if len(cols) == 0:
-            continue
-        codes = per_lane[:, np.maximum(cols, 0)].astype(np.int64) % 256  # (T, L)
-        chars = letters[codes]
-        chars[:, cols < 0] = "O"
-        out[tid] = ["".join(row) for row in chars]
-    return out
-
-
-def is_converted_scene(folder: str | Path) -> bool:
-    """True when ``folder`` holds a ``.sumocfg`` plus ``scene.npz`` and ``lane_map.json``."""
-    folder = Path(folder)
-    return folder.is_dir() and all((folder / f).is_file() for f in SCENE_FILES) and \
-        any(folder.glob("*.sumocfg"))
-
-
-def agent_sizes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(num_agents,) length and width [m]: the median over valid steps (SUMO's size is fixed)."""
-    tr = scene.tracks
-    lengths = np.zeros(tr.num_agents)
-    widths = np.zeros(tr.num_agents)
-    for a in range(tr.num_agents):
-        v = tr.valid[a]
-        default = vtype_for(int(tr.object_type[a]))
-        lengths[a] = float(np.median(tr.length[a, v])) if v.any() else default[3]
-        widths[a] = float(np.median(tr.width[a, v])) if v.any() else default[4]
-    bad_l = ~np.isfinite(lengths) | (lengths < MIN_SIZE_M)
-    bad_w = ~np.isfinite(widths) | (widths < MIN_SIZE_M)
-    lengths[bad_l] = MIN_SIZE_M
-    widths[bad_w] = MIN_SIZE_M
-    return lengths, widths
 
 
 @dataclass(slots=True)
@@ -166,11 +98,14 @@ class LogReplayer:
         scene: the converted scene (``scene.npz``: timestamps already on SUMO's clock).
         tls: ``lane_map.json["tls"]`` (per tls id, the WOMD lane of each link index).
         staging_lane: the converted network's staging lane (None: agents are added in place).
-        exclude: agent ids not to drive (e.g. the target, driven by a planner).
+        exclude: agent ids not to drive at all.
+        handover: agent id -> time [s] from which the log stops driving it and hands it to SUMO (a
+            planner takes the target over this way); it is not removed when its log ends.
     """
 
     def __init__(self, scene: Scene, tls: dict[str, dict] | None = None, staging_lane: str | None = None,
-                 exclude: set[str] | frozenset[str] = frozenset()) -> None:
+                 exclude: set[str] | frozenset[str] = frozenset(),
+                 handover: dict[str, float] | None = None) -> None:
         self.scene = scene
         self.dt = round(scene.dt, 6)  # [s] the log's step (SUMO's step length must match it)
         tr = scene.tracks
@@ -186,19 +121,22 @@ class LogReplayer:
         self._slots: np.ndarray | None = None
         self._slot = 0
         self._staging_checked = False
+        self.handover = {tr.index_of(a): float(t) for a, t in (handover or {}).items()}
+        self.released: set[int] = set()
 
     @classmethod
     def for_config(cls, config: str | Path, scene: Scene | None = None,
-                   exclude: set[str] | frozenset[str] = frozenset()) -> LogReplayer:
+                   exclude: set[str] | frozenset[str] = frozenset(),
+                   handover: dict[str, float] | None = None) -> LogReplayer:
         """The replayer of the converted scene whose ``.sumocfg`` is ``config``."""
         folder = Path(config).parent
         if scene is None:
-            scene = load_scene(folder / "scene.npz")
+            scene = load_scene(folder / SCENE_FILE)
         try:
-            lane_map = json.loads((folder / "lane_map.json").read_text())
+            lane_map = json.loads((folder / LANE_MAP_FILE).read_text())
         except (OSError, ValueError) as exc:
-            raise InputError(f"{folder / 'lane_map.json'}: cannot read the lane mapping ({exc})") from None
-        return cls(scene, lane_map.get("tls", {}), lane_map.get("staging_lane"), exclude)
+            raise InputError(f"{folder / LANE_MAP_FILE}: cannot read the lane mapping ({exc})") from None
+        return cls(scene, lane_map.get("tls", {}), lane_map.get("staging_lane"), exclude, handover)
 
     def step_at(self, t: float) -> int | None:
         """Index of the log step at simulation time ``t`` [s], or None outside the log.
@@ -234,10 +172,17 @@ class LogReplayer:
     def before_step(self, session: SumoSession, t_next: float) -> None:
         """Command every logged agent (and the signals) for the step that ends at ``t_next`` [s]."""
         tr = self.scene.tracks
+        for a, t_hand in self.handover.items():
+            if a not in self.released and a in self.active and t_next > t_hand + TIME_EPS_S:
+                session.release_vehicle(self.active[a])  # SUMO's driver (or a planner) from here on
+                self.released.add(a)
         k = self.step_at(t_next)
         if k is not None:
-            valid = self.valid[:, k]
+            valid = self.valid[:, k].copy()
+            valid[list(self.released)] = False
             for a in np.flatnonzero(~valid).tolist():
+                if a in self.released:
+                    continue
                 sid = self.active.pop(a, None)
                 if sid is not None:
                     session.remove_vehicle(sid)
@@ -343,6 +288,6 @@ def replay(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:
     cfg = Path(cfg)
     if not cfg.is_file():
         raise InputError(f"{cfg}: SUMO configuration not found")
-    if is_converted_scene(cfg.parent):
+    if converted_scene_file(cfg) is not None:
         return replay_scene(cfg, opts)
     return run_config(cfg, opts)

@@ -5,7 +5,7 @@ libsumo or traci. Two back ends share one API:
 
 - **libsumo** (default): SUMO runs in this process. Fast (a getter costs about 0.5 us), but libsumo
   holds **one simulation per process** and a second ``libsumo.start`` silently throws away the
-  first (SUMO_FACTS §6), so a second live libsumo session raises :class:`SumoError` instead.
+  first (docs/sumo.md §6), so a second live libsumo session raises :class:`SumoError` instead.
 - **TraCI** (``traci=True``): SUMO runs as a separate process behind a socket (about 50-200 us per
   call, so bulk reads use subscriptions). Needed for ``sumo-gui`` (``gui=True``) and for attaching
   to a server somebody else started (``port=...``). Any number of TraCI sessions may be open.
@@ -25,14 +25,12 @@ Example::
 from __future__ import annotations
 
 import contextlib
-import gzip
 import io
 import itertools
 import math
 import subprocess
 import tempfile
 import time
-import xml.parsers.expat
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,13 +40,14 @@ import numpy as np
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.errors import CosterError, InputError, SumoError
+from coster_sumo.formats.sumocfg import check_xml, read_sumocfg
 
-# Options always passed to SUMO unless the caller overrides them (SUMO_FACTS §7). Why each one:
+# Options always passed to SUMO unless the caller overrides them (docs/sumo.md §7). Why each one:
 RECOMMENDED_OPTIONS: dict[str, str] = {
     "--step-length": "0.1",                 # 10 Hz like WOMD; SUMO's default is 1 s
     "--collision.action": "warn",           # the default "teleport" hides collisions caused by moveToXY
     "--collision.mingap-factor": "0",       # collision = geometric overlap, not gap < minGap
-    "--collision.check-junctions": "true",  # also check inside junctions (approximate, see §4)
+    "--collision.check-junctions": "true",  # also check inside junctions (approximate, see docs/sumo.md §4)
     "--time-to-teleport": "-1",             # never teleport vehicles stuck behind a replayed agent
     "--no-step-log": "true",
     "--no-warnings": "true",                # collisions still come back through the API
@@ -63,7 +62,7 @@ RECOMMENDED_OPTIONS: dict[str, str] = {
 #             even off the road network: the vehicle then does not move by itself while off-road;
 #   bit2 (4): map onto the closest edge regardless of route and permissions.
 # We use 2: exact placement anywhere. SUMO rewrites the route to the edge(s) it maps onto, so the
-# lane and route SUMO reports for a moved vehicle mean little (SUMO_FACTS §3).
+# lane and route SUMO reports for a moved vehicle mean little (docs/sumo.md §3).
 KEEP_ROUTE_EXACT_ANYWHERE = 2
 # moveToXY matchThreshold [m]: how far from any lane a placement may be before the command fails;
 # with keepRoute=2 a placement off the network is legal, so the threshold only bounds lane matching;
@@ -74,11 +73,13 @@ MOVE_MATCH_THRESHOLD_M = 5.0
 # pass a red light, bit5 *disregard* right of way within intersections, bit6 speed limits.
 # 0 = SUMO checks nothing for this vehicle: our commands are final.
 SPEED_MODE_ALL_CHECKS_OFF = 0
+SPEED_MODE_SUMO_DEFAULT = 31  # bits 0-4: what SUMO's own driver respects by default
 # lane-change mode is a bit set (strategic, cooperative, speed gain, keep right, how TraCI requests
 # interact with the others, sublane); 0 = the vehicle never changes lanes on its own.
 LANE_CHANGE_MODE_NO_AUTONOMOUS = 0
+LANE_CHANGE_MODE_SUMO_DEFAULT = 1621  # SUMO's default: every lane-change reason on, TraCI requests yield
 # Reported speed of a moveToXY vehicle = min(displacement / dt, lane limit * speedFactor, maxSpeed)
-# (SUMO_FACTS §7). Large values lift the cap so getSpeed (and followers) see the true speed.
+# (docs/sumo.md §7). Large values lift the cap so getSpeed (and followers) see the true speed.
 REMOTE_SPEED_FACTOR = 10.0  # [-]
 REMOTE_MAX_SPEED_MPS = 100.0  # [m/s]
 TRACI_CONNECT_TIMEOUT_S = 60.0  # [s] a big net takes a while to load before SUMO listens
@@ -153,55 +154,6 @@ def _empty_states() -> VehicleStates:
 def _option_key(arg: str) -> str:
     key = arg.split("=", 1)[0]
     return _SHORT_TO_LONG.get(key, key)
-
-
-def _check_xml(path: Path, what: str, referenced_by: Path | None = None) -> None:
-    """Existence and well-formedness of an input file (a truncated net crashes libsumo, rc 139).
-
-    A file that passed is not parsed again until it changes (restarts in a batch stay cheap).
-    """
-    via = f" (referenced by {referenced_by})" if referenced_by is not None else ""
-    if not path.is_file():
-        raise InputError(f"{path}: {what} not found{via}")
-    st = path.stat()
-    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
-    if key in _XML_OK:
-        return
-    parser = xml.parsers.expat.ParserCreate()
-    try:
-        with (gzip.open(path, "rb") if path.suffix == ".gz" else path.open("rb")) as fh:
-            parser.ParseFile(fh)
-    except xml.parsers.expat.ExpatError as exc:
-        raise InputError(f"{path}: {what} is not valid XML ({exc}){via}") from None
-    except (OSError, EOFError) as exc:
-        raise InputError(f"{path}: cannot read {what} ({exc}){via}") from None
-    _XML_OK.add(key)
-
-
-_XML_OK: set[tuple[str, int, int]] = set()
-
-
-def _split_files(value: str) -> list[str]:
-    return [v for v in value.replace(",", " ").split() if v]
-
-
-def read_sumocfg_inputs(cfg: str | Path) -> dict[str, list[Path]]:
-    """Input files a ``.sumocfg`` names, resolved against its folder, after checking it parses.
-
-    Returns ``{"net-file": [...], "route-files": [...], "additional-files": [...]}`` (missing keys
-    give empty lists). Raises :class:`InputError` naming the file when it is missing or not XML.
-    """
-    cfg = Path(cfg)
-    _check_xml(cfg, "SUMO configuration")
-    import xml.etree.ElementTree as ET  # small file: the tree API is fine
-
-    root = ET.parse(cfg).getroot()
-    out: dict[str, list[Path]] = {"net-file": [], "route-files": [], "additional-files": []}
-    for el in root.iter():
-        tag = el.tag.split("}")[-1]
-        if tag in out and el.get("value"):
-            out[tag] = [(cfg.parent / f) for f in _split_files(el.get("value", ""))]
-    return out
 
 
 class SumoSession:
@@ -335,7 +287,7 @@ class SumoSession:
         """
         files: list[tuple[Path, str, Path | None]] = []
         if self.config is not None:
-            ins = read_sumocfg_inputs(self.config)
+            ins = read_sumocfg(self.config).inputs()
             if self.net is None:
                 files += [(p, "net file", self.config) for p in ins["net-file"]]
             if not self.routes:
@@ -349,7 +301,7 @@ class SumoSession:
         files += [(p, "route file", None) for p in self.routes]
         files += [(p, "additional file", None) for p in self.additional]
         for path, what, ref in files:
-            _check_xml(path, what, ref)
+            check_xml(path, what, ref)
 
     def start(self) -> SumoSession:
         """Start (or attach to) SUMO. Returns self."""
@@ -523,7 +475,7 @@ class SumoSession:
         Keys: collider, victim, collider_type, victim_type, collider_speed, victim_speed [m/s],
         type ("collision" or "junction"), lane, pos [m along the lane]. SUMO repeats a collision
         every step while the vehicles overlap, and misses lateral / cross-edge overlaps
-        (SUMO_FACTS §4): our own box check is the ground truth.
+        (docs/sumo.md §4): our own box check is the ground truth.
         """
         out = []
         for c in self.api.simulation.getCollisions():
@@ -610,7 +562,7 @@ class SumoSession:
         ``remote=True`` prepares it for :meth:`move_to_xy`: speed mode and lane-change mode 0, and a
         speed factor / max speed large enough that SUMO does not cap its reported speed. Place a
         remote vehicle on a lane first: a vehicle first placed far from every lane can crash
-        libsumo on some getters (SUMO_FACTS §3).
+        libsumo on some getters (docs/sumo.md §3).
         """
         api = self.api
         type_id = f"{veh_id}@coster"
@@ -660,7 +612,7 @@ class SumoSession:
 
         Takes effect at the next :meth:`step`, after which SUMO reports exactly this pose. Call it
         **every** step for a vehicle you drive: one step without it hands the vehicle back to SUMO,
-        which may drive it off along a rewritten route or make it arrive (SUMO_FACTS §3).
+        which may drive it off along a rewritten route or make it arrive (docs/sumo.md §3).
         ``length`` defaults to the vehicle's known length. ``speed`` [m/s], when given, becomes the
         speed SUMO reports after the step (``setPreviousSpeed``); otherwise SUMO reports the
         displacement over the step, uncapped for vehicles added with ``remote=True`` or moved
@@ -677,6 +629,19 @@ class SumoSession:
                              keepRoute=KEEP_ROUTE_EXACT_ANYWHERE, matchThreshold=MOVE_MATCH_THRESHOLD_M)
         if speed is not None:
             self._pending_speed[veh_id] = float(speed)
+
+    def release_vehicle(self, veh_id: str) -> None:
+        """Hand a vehicle driven by :meth:`move_to_xy` back to SUMO's driver model.
+
+        Restores SUMO's default speed mode and lane-change mode and an ordinary speed factor, so
+        the driver model, safe gaps and speed limits apply again from the vehicle's current pose.
+        """
+        veh = self.api.vehicle
+        veh.setSpeedMode(veh_id, SPEED_MODE_SUMO_DEFAULT)
+        veh.setLaneChangeMode(veh_id, LANE_CHANGE_MODE_SUMO_DEFAULT)
+        veh.setSpeedFactor(veh_id, 1.0)
+        self._remote.discard(veh_id)
+        self._pending_speed.pop(veh_id, None)
 
     def _make_remote(self, veh_id: str) -> None:
         veh = self.api.vehicle

@@ -18,6 +18,7 @@ Built-ins:
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
@@ -142,24 +143,42 @@ class SumoPlanner:
         self._switched = True
 
 
+def _replay(arg: str | None, nominal: ReplayPlanner | None) -> Planner:
+    if nominal is None:
+        raise InputError("planner 'replay' needs the target's nominal trajectory")
+    return nominal
+
+
+def _sumo(arg: str | None, nominal: ReplayPlanner | None) -> Planner:
+    return SumoPlanner(arg)
+
+
+# Built-in planners (``--planner NAME[:ARG]``): (ARG or None, the target's nominal replay) -> planner.
+# A new built-in is one function and one line; anything else of the form module:Class is imported.
+PLANNERS: dict[str, Callable[[str | None, ReplayPlanner | None], Planner]] = {
+    "replay": _replay,  # the target follows its nominal trajectory (contact at t_col by construction)
+    "sumo": _sumo,  # SUMO's driver keeps the target; sumo:<carFollowModel> picks the model
+}
+
+
 def make_planner(spec: str, replay: ReplayPlanner | None = None) -> Planner:
-    """``replay`` | ``sumo`` | ``sumo:<carFollowModel>`` | ``module:Class``."""
-    if spec == "replay":
-        if replay is None:
-            raise InputError("planner 'replay' needs the target's nominal trajectory")
-        return replay
-    if spec == "sumo":
-        return SumoPlanner()
-    if spec.startswith("sumo:"):
-        return SumoPlanner(spec.split(":", 1)[1])
-    if ":" in spec:
-        module_name, cls_name = spec.split(":", 1)
+    """``replay`` | ``sumo`` | ``sumo:<carFollowModel>`` | ``module:Class`` (see :data:`PLANNERS`)."""
+    name, sep, arg = spec.partition(":")
+    if name in PLANNERS:
+        return PLANNERS[name](arg if sep else None, replay)
+    if sep:
         try:
-            cls = getattr(importlib.import_module(module_name), cls_name)
+            cls = getattr(importlib.import_module(name), arg)
         except (ImportError, AttributeError) as exc:
             raise InputError(f"planner {spec!r}: cannot import ({exc})") from None
         planner = cls()
         if not isinstance(planner, Planner):
             raise InputError(f"planner {spec!r} lacks additional_files/setup/before_step")
         return planner
-    raise InputError(f"unknown planner {spec!r}: use replay, sumo, sumo:<carFollowModel> or module:Class")
+    raise InputError(f"unknown planner {spec!r}: use {', '.join(PLANNERS)}, sumo:<carFollowModel> or module:Class")
+
+
+def check_planner(spec: str) -> None:
+    """Raise :class:`InputError` when ``spec`` names no planner (before any work starts)."""
+    dummy = ReplayPlanner(np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1), np.ones(1, bool), 4.5)
+    make_planner(spec, dummy)

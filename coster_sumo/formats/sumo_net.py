@@ -336,7 +336,3 @@ def load_sumo_net(path: str | Path, *, include_non_road: bool = False) -> SumoNe
     st = path.stat()
     return _cached(str(path), st.st_mtime_ns, st.st_size, include_non_road)
 
-
-def road_map_from_net(path: str | Path) -> RoadMap:
-    """The :class:`RoadMap` of a ``.net.xml`` (cached)."""
-    return load_sumo_net(path).road_map

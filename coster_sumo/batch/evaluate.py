@@ -1,0 +1,291 @@
+"""``coster-sumo eval scenarios``: scenario generators compared with the scenario metrics.
+
+Every generator of :data:`GENERATOR_METHODS` runs on every scene of the sources (same executor and
+scene sources as ``regress``); each variant is injected with the one injection path
+(:func:`coster_sumo.sim.inject.inject_variant`) and the seven metrics are aggregated per method.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.batch.executor import DEFAULT_TIMEOUT_S, SUMO_TASK_MODULES, Outcome, Task, execute
+from coster_sumo.batch.sources import nominal_for, parse_sources, scene_key, slug
+from coster_sumo.batch.store import rate_with_ci, read_json
+from coster_sumo.core import missing_weights
+from coster_sumo.errors import InputError
+from coster_sumo.formats.atomic import write_json
+from coster_sumo.sim.planners import check_planner
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
+
+
+@dataclass(frozen=True)
+class GeneratorMethod:
+    """One scenario generator of the evaluation table."""
+
+    name: str
+    init: str
+    rollout: str
+    collision_time: str = "entropy"
+    group: str = "main"  # "main" | "ablation" (collision time) | "baseline"
+
+
+GENERATOR_METHODS: tuple[GeneratorMethod, ...] = (
+    GeneratorMethod("COSTER", "snapshot", "cvae", "entropy"),
+    GeneratorMethod("Random+CVAE", "random", "cvae", "entropy"),
+    GeneratorMethod("Snapshot+CV", "snapshot", "cv", "entropy"),
+    GeneratorMethod("Random+CV", "random", "cv", "last", group="baseline"),
+    GeneratorMethod("COSTER t_col=last", "snapshot", "cvae", "last", group="ablation"),
+    GeneratorMethod("COSTER t_col=random", "snapshot", "cvae", "random", group="ablation"),
+)
+
+
+@dataclass
+class EvalOptions:
+    """Everything ``coster-sumo eval scenarios`` takes."""
+
+    sources: list[str]
+    out: Path
+    methods: list[str] | None = None  # names of GENERATOR_METHODS (default: all)
+    planner: str = "replay"
+    variants: int = 5
+    samples: int = 1000
+    workers: int = 1
+    executor: str = "local"
+    timeout: float | None = DEFAULT_TIMEOUT_S
+    seed: int = 0
+    seeds: int = 1
+    begin: float | None = None
+    end: float | None = None
+    target: str | None = None
+    models_dir: Path | None = None
+    quiet: bool = False
+    ray_address: str | None = None
+
+
+def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[int]:
+    return np.histogram(np.clip(values, lo, hi), bins=bins)[0].astype(int).tolist()
+
+
+def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
+    """Eval task: nominal pass of one scene (cached .npz) and its speed/acceleration histograms."""
+    from coster_sumo.core import choose_target
+    from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
+
+    spec = ScenarioSpec.from_dict(payload["spec"])
+    scene, _, path = nominal_for(spec, Path(payload["scenes_dir"]))
+    choose_target(scene, spec.target, spec.config)
+    t = scene.tracks
+    v, a = speeds_and_accels(t.xy, t.valid, scene.dt)
+    return {"scene_file": path.name, "speed_hist": _hist(v, SPEED_BINS, 0, 50),
+            "accel_hist": _hist(a, ACCEL_BINS, -10, 10)}
+
+
+def method_task(payload: dict[str, Any]) -> dict[str, Any]:
+    """Eval task: one generator on one scene; every variant injected; per-variant records + histograms."""
+    from coster_sumo.core import choose_target, generate_variants, missing_weights
+    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
+    from coster_sumo.scene import load_scene
+    from coster_sumo.sim.inject import inject_variant
+    from coster_sumo.snapshot import NoSnapshot
+
+    spec = ScenarioSpec.from_dict(payload["spec"])
+    scenes_dir = Path(payload["scenes_dir"])
+    scene = load_scene(scenes_dir / payload["scene_file"])
+    target = choose_target(scene, spec.target, spec.config)
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    m = payload["method"]
+    gen = GenerationConfig(init=m["init"], rollout=m["rollout"], collision_time=m["collision_time"],
+                           variants=payload["variants"], samples=payload["samples"],
+                           models_dir=Path(payload["models_dir"]) if payload.get("models_dir") else None)
+    reason = missing_weights(gen)
+    if reason:
+        return {"status": "skipped", "reason": reason}
+    t0 = time.perf_counter()
+    try:
+        variants, _ = generate_variants(scene, target, spec.seed, gen, drivable)
+    except NoSnapshot as exc:
+        return {"status": "no_scenario", "reason": str(exc), "generation_s": time.perf_counter() - t0,
+                "records": []}
+    gen_s = time.perf_counter() - t0
+    records = []
+    speeds, accels = [], []
+    for i, v in enumerate(variants):
+        plan = v.plan
+        with tempfile.TemporaryDirectory(prefix="coster-eval-") as wd:
+            res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
+        c = res.contact
+        records.append({"variant": i, "collision": c is not None, "adversary_off_road": res.adversary_off_road,
+                        "relative_speed": c.relative_speed if c else None,
+                        "impact_angle": c.impact_angle if c else None, "t_col": v.snapshot.time})
+        tr = res.scene.tracks
+        if plan.vehicle_id in set(tr.ids.tolist()):
+            a = tr.index_of(plan.vehicle_id)
+            stop = min(c.time if c else plan.t_col, plan.t_col)
+            window = (res.scene.timestamps >= plan.t_start - 1e-6) & (res.scene.timestamps <= stop + 1e-6)
+            sv, sa = speeds_and_accels(tr.xy[a:a + 1], (tr.valid[a] & window)[None], res.scene.dt)
+            speeds.append(sv)
+            accels.append(sa)
+    sv = np.concatenate(speeds) if speeds else np.zeros(0)
+    sa = np.concatenate(accels) if accels else np.zeros(0)
+    return {"status": "ok", "records": records, "generation_s": gen_s,
+            "speed_hist": _hist(sv, SPEED_BINS, 0, 50), "accel_hist": _hist(sa, ACCEL_BINS, -10, 10)}
+
+
+def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
+    """``coster-sumo eval scenarios``: every generator on every scene; metrics table (JSON, Markdown, PNG)."""
+    t_start = time.perf_counter()
+    names = opts.methods or [m.name for m in GENERATOR_METHODS]
+    by_name = {m.name: m for m in GENERATOR_METHODS}
+    unknown = [n for n in names if n not in by_name]
+    if unknown:
+        raise InputError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(by_name)}")
+    methods = [by_name[n] for n in names]
+    check_planner(opts.planner)
+    specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
+                          target=opts.target)
+    out = Path(opts.out)
+    scenes_dir, parts_dir = out / "scenes", out / "parts"
+    parts_dir.mkdir(parents=True, exist_ok=True)
+    scenes_dir.mkdir(parents=True, exist_ok=True)
+    skipped: dict[str, str] = {}
+    for m in methods:
+        reason = missing_weights(GenerationConfig(init=m.init, rollout=m.rollout, models_dir=opts.models_dir))
+        if reason:
+            skipped[m.name] = reason
+    active = [m for m in methods if m.name not in skipped]
+    keys = {scene_key(s): s for s in specs}
+
+    def method_tasks(key: str, scene_file: str) -> list[Task]:
+        tasks = []
+        for m in active:
+            pk = f"{key}__{slug(m.name)}__k{opts.variants}"
+            if (parts_dir / f"{pk}.json").exists():
+                continue
+            tasks.append(Task(pk, method_task, {
+                "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
+                "scenes_dir": str(scenes_dir), "method": dataclasses.asdict(m), "variants": opts.variants,
+                "samples": opts.samples, "planner": opts.planner,
+                "models_dir": str(opts.models_dir) if opts.models_dir else None}, kind="method"))
+        return tasks
+
+    initial = []
+    for key, spec in keys.items():
+        sp = read_json(parts_dir / f"{key}__scene.json")
+        if sp is not None and sp.get("status") == "ok":
+            initial.extend(method_tasks(key, sp["scene_file"]))
+        elif sp is None:
+            initial.append(Task(f"{key}__scene", scene_task, {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir),
+                                                              "scene_key": key}, kind="scene"))
+
+    def on_done(task: Task, outcome: Outcome) -> list[Task]:
+        key = task.payload["scene_key"]
+        if task.kind == "scene":
+            doc = {"status": "ok", **outcome.value} if outcome.ok else {"status": "failed", "reason": outcome.reason}
+            write_json(parts_dir / f"{key}__scene.json", doc)
+            return method_tasks(key, doc["scene_file"]) if outcome.ok else []
+        doc = outcome.value if outcome.ok else {"status": "failed", "reason": outcome.reason}
+        write_json(parts_dir / f"{task.payload['part_key']}.json",
+                     {**doc, "method": task.payload["method"]["name"], "scene_key": key})
+        return []
+
+    execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
+            quiet=opts.quiet, desc="eval scenarios", expected_total=len(keys) * (1 + len(active)),
+            log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
+            preload=SUMO_TASK_MODULES)
+    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants)
+    summary = {"command": "eval scenarios", "scenes": {k: s.label() for k, s in keys.items()},
+               "planner": opts.planner, "variants": opts.variants, "samples": opts.samples,
+               "methods": table, "wall_time_s": round(time.perf_counter() - t_start, 3),
+               "units": {"SUR/CR/ORR": "fraction", "VDD/ADD": "Jensen-Shannon divergence, nats (max ln 2)",
+                         "CSD": "m/s", "CPD/CPD_circular": "deg", "generation_s_per_variant": "s"}}
+    write_json(out / "summary.json", summary)
+    from coster_sumo.report import write_generator_report
+
+    summary["report"] = write_generator_report(out, summary)
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], methods: Sequence[GeneratorMethod],
+                                skipped: dict[str, str], variants: int) -> dict[str, Any]:
+    """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD."""
+    from coster_sumo.metrics import (
+        circular_std_deg,
+        collision_position_diversity,
+        collision_speed_diversity,
+        js_divergence,
+    )
+
+    raw_v = raw_a = None
+    good_scenes = []
+    failed_scenes = []
+    for key in keys:
+        sp = read_json(parts_dir / f"{key}__scene.json")
+        if sp is None or sp.get("status") != "ok":
+            failed_scenes.append({"scene_key": key, "reason": (sp or {}).get("reason", "not run")})
+            continue
+        good_scenes.append(key)
+        raw_v = np.add(raw_v, sp["speed_hist"]) if raw_v is not None else np.asarray(sp["speed_hist"])
+        raw_a = np.add(raw_a, sp["accel_hist"]) if raw_a is not None else np.asarray(sp["accel_hist"])
+    table: dict[str, Any] = {}
+    for m in methods:
+        entry: dict[str, Any] = {"group": m.group, "init": m.init, "rollout": m.rollout,
+                                 "collision_time": m.collision_time}
+        if m.name in skipped:
+            table[m.name] = {**entry, "status": "skipped", "reason": skipped[m.name]}
+            continue
+        loaded = [read_json(parts_dir / f"{k}__{slug(m.name)}__k{variants}.json") for k in good_scenes]
+        parts: list[dict[str, Any]] = [p for p in loaded if p is not None]
+        skip = [p for p in parts if p.get("status") == "skipped"]
+        if parts and len(skip) == len(parts):
+            table[m.name] = {**entry, "status": "skipped", "reason": skip[0]["reason"]}
+            continue
+        records = [r for p in parts if p.get("status") == "ok" for r in p["records"]]
+        n_scenes = len(good_scenes)
+        successes = sum(True for p in parts if p.get("status") == "ok" and any(r["collision"] for r in p["records"]))
+        gen_v = np.sum([p["speed_hist"] for p in parts if p.get("status") == "ok"], axis=0) if records else None
+        gen_a = np.sum([p["accel_hist"] for p in parts if p.get("status") == "ok"], axis=0) if records else None
+        rel = [r["relative_speed"] for r in records if r["collision"]]
+        ang = [r["impact_angle"] for r in records if r["collision"]]
+        gen_time = [p["generation_s"] / max(1, len(p["records"])) for p in parts
+                    if p.get("status") == "ok" and p["records"]]
+        cr = rate_with_ci([r["collision"] for r in records])
+        orr = rate_with_ci([r["adversary_off_road"] for r in records])
+        sur = rate_with_ci([True] * successes + [False] * (n_scenes - successes))
+
+        def f(x: float | None) -> float | None:
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        table[m.name] = {
+            **entry, "status": "ok", "scenes": n_scenes, "variants": len(records),
+            "failed_tasks": [{"scene_key": p["scene_key"], "reason": p.get("reason")} for p in parts
+                             if p.get("status") == "failed"],
+            "SUR": sur["rate"], "CR": cr["rate"], "ORR": orr["rate"],
+            "SUR_ci": [sur["ci_low"], sur["ci_high"]], "CR_ci": [cr["ci_low"], cr["ci_high"]],
+            "ORR_ci": [orr["ci_low"], orr["ci_high"]],
+            "VDD": f(js_divergence(raw_v, gen_v)) if gen_v is not None and raw_v is not None else None,
+            "ADD": f(js_divergence(raw_a, gen_a)) if gen_a is not None and raw_a is not None else None,
+            "CSD": f(collision_speed_diversity(rel)) if rel else None,
+            "CPD": f(collision_position_diversity(ang)) if ang else None,
+            "CPD_circular": f(circular_std_deg(ang)) if ang else None,
+            "generation_s_per_variant": float(np.mean(gen_time)) if gen_time else None,
+            "relative_speeds": rel, "impact_angles": ang,
+        }
+    return {"table": table, "failed_scenes": failed_scenes}
+
+
+def eval_exit_code(summary: dict[str, Any]) -> int:
+    t = summary["methods"]
+    bad = bool(t["failed_scenes"]) or any(m.get("failed_tasks") for m in t["table"].values())
+    return 1 if bad else 0

@@ -1,0 +1,389 @@
+"""The one executor for everything parallel: regressions, evaluations, dataset simulation.
+
+:func:`execute` runs :class:`Task` s (a top-level function and a JSON-able payload) with at most
+``workers`` at a time, **one fresh process per task** (libsumo holds one simulation per process,
+docs/sumo.md §6), each under a wall-clock timeout. A task that raises, hangs past its timeout, or
+kills its process (a SUMO segfault) becomes one failed :class:`Outcome` with the reason; the batch
+goes on. A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
+runs start as soon as its variants exist. ``executor="ray"`` runs the same functions on a Ray
+cluster (``ray.init()`` locally when no address is given; one worker process per task through
+``max_calls=1``; files in OUT must be on a file system the workers share).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import os
+import signal
+import sys
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from multiprocessing.connection import wait as mp_wait
+from pathlib import Path
+from typing import Any
+
+from coster_sumo.errors import InputError
+
+DEFAULT_TIMEOUT_S = 900.0  # [s] wall clock per task
+
+
+
+@dataclass
+class Task:
+    """One unit of work: ``fn(payload)`` in its own process.
+
+    Attributes:
+        key: unique name (file names, logs, progress).
+        fn: a module-level function (picklable by reference for ``spawn`` and Ray).
+        payload: its single argument (plain, picklable data).
+        kind: free label the caller uses to dispatch results ("plan", "run", ...).
+    """
+
+    key: str
+    fn: Callable[[dict[str, Any]], Any]
+    payload: dict[str, Any]
+    kind: str = "task"
+
+
+@dataclass
+class Outcome:
+    """What became of a task: ``ok`` with ``value``, or not with a one-line ``reason``."""
+
+    ok: bool
+    value: Any = None
+    reason: str = ""
+    wall_time_s: float = 0.0
+    detail: str = ""  # traceback or log tail, for the log file
+
+
+OnDone = Callable[[Task, Outcome], Iterable[Task]]
+
+
+def _signal_name(code: int) -> str:
+    with contextlib.suppress(ValueError):
+        return signal.Signals(code).name
+    return f"signal {code}"
+
+
+def _die_with_parent() -> None:
+    """Linux: have the kernel SIGKILL this process when its parent dies (a killed batch leaves no orphans)."""
+    if not sys.platform.startswith("linux"):
+        return
+    with contextlib.suppress(Exception):
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+
+
+def _limit_threads(n: int) -> None:
+    """At most ``n`` compute threads in this process (torch and OpenMP/BLAS pools started later).
+
+    Several task processes each running torch with one thread per core oversubscribe the machine:
+    their threads spin-wait on each other and every task gets slower.
+    """
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = str(n)
+    torch = sys.modules.get("torch")  # already imported by the parent before the fork
+    if torch is not None:
+        with contextlib.suppress(Exception):
+            torch.set_num_threads(n)
+
+
+def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], writer: Connection,
+                log_path: str | None, threads: int | None = None) -> None:
+    """Body of a task process: run, send ("ok", value) or ("error", reason, traceback), exit hard."""
+    _die_with_parent()
+    if threads is not None:
+        _limit_threads(threads)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    import faulthandler
+
+    faulthandler.disable()  # a crash is reported as one line by the parent, not a dump on its terminal
+    if log_path is not None:
+        with contextlib.suppress(OSError):
+            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(fd, 1)
+            os.dup2(fd, 2)
+            os.close(fd)
+            faulthandler.enable(file=2)  # the Python stack of a crash goes to the task's log
+    try:
+        msg: tuple[Any, ...] = ("ok", fn(payload))
+    except BaseException as exc:  # noqa: BLE001 - every failure becomes a row
+        msg = ("error", _one_line(exc), traceback.format_exc())
+    try:
+        writer.send(msg)
+    except Exception as exc:  # noqa: BLE001 - e.g. an unpicklable value
+        with contextlib.suppress(Exception):
+            writer.send(("error", f"result could not be sent back: {_one_line(exc)}", ""))
+    writer.close()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)  # skip atexit handlers inherited from the parent (libsumo, tqdm)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _log_tail(path: Path | None, lines: int = 3) -> str:
+    if path is None or not path.exists():
+        return ""
+    with contextlib.suppress(OSError):
+        noise = ("File ", "Extension modules", "Current thread", "Thread 0x", "Fatal Python error", "<no Python")
+        tail = [ln.strip() for ln in path.read_text(errors="replace").splitlines()
+                if ln.strip() and not ln.strip().startswith(noise)][-lines:]
+        return " | ".join(tail)[-300:]
+    return ""
+
+
+@dataclass
+class _Running:
+    task: Task
+    proc: Any  # multiprocessing.Process
+    reader: Connection
+    started: float
+    log: Path | None
+
+
+def _default_start_method() -> str:
+    return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+
+
+def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
+                   progress: Any, start_method: str | None, log_dir: Path | None) -> None:
+    ctx: Any = mp.get_context(start_method or _default_start_method())
+    running: list[_Running] = []
+    threads = max(1, (os.cpu_count() or 1) // max(1, workers))  # the cores shared among the workers
+
+    def finish(r: _Running, outcome: Outcome) -> None:
+        running.remove(r)
+        with contextlib.suppress(Exception):
+            r.reader.close()
+        pending.extend(on_done(r.task, outcome))
+        progress.update(1)
+
+    try:
+        while pending or running:
+            while pending and len(running) < workers:
+                task = pending.popleft()
+                reader, writer = ctx.Pipe(duplex=False)
+                log = (log_dir / f"{task.key}.log") if log_dir is not None else None
+                proc = ctx.Process(target=_child_main, args=(task.fn, task.payload, writer,
+                                                             str(log) if log else None, threads),
+                                   name=f"coster-{task.key}", daemon=True)
+                proc.start()
+                writer.close()  # the child holds the only writer: EOF when it dies
+                running.append(_Running(task, proc, reader, time.monotonic(), log))
+            now = time.monotonic()
+            wait_s = 1.0
+            if timeout is not None:
+                wait_s = max(0.01, min([wait_s] + [r.started + timeout - now for r in running]))
+            mp_wait([r.reader for r in running], timeout=wait_s)
+            now = time.monotonic()
+            for r in list(running):
+                wall = now - r.started
+                if r.reader.poll():
+                    try:
+                        msg = r.reader.recv()
+                    except (EOFError, OSError):
+                        msg = None
+                    r.proc.join(timeout=30)
+                    if r.proc.is_alive():
+                        r.proc.kill()
+                        r.proc.join()
+                    if msg is None:
+                        code = r.proc.exitcode
+                        why = (f"crashed ({_signal_name(-code)})" if code is not None and code < 0
+                               else f"exited with code {code} without a result")
+                        tail = _log_tail(r.log)
+                        finish(r, Outcome(False, reason=why + (f"; log: {tail}" if tail else ""), wall_time_s=wall))
+                    elif msg[0] == "ok":
+                        finish(r, Outcome(True, value=msg[1], wall_time_s=wall))
+                    else:
+                        finish(r, Outcome(False, reason=msg[1], wall_time_s=wall, detail=msg[2]))
+                elif timeout is not None and wall > timeout:
+                    r.proc.kill()
+                    r.proc.join()
+                    finish(r, Outcome(False, reason=f"timed out after {timeout:g} s (killed)", wall_time_s=wall))
+    finally:
+        for r in running:
+            with contextlib.suppress(Exception):
+                r.proc.kill()
+                r.proc.join()
+
+
+def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any]) -> Any:
+    return fn(payload)
+
+
+def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
+                 progress: Any, ray_address: str | None) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise InputError("--executor ray needs Ray: pip install 'coster-sumo[ray]' (or pip install ray)") from None
+    started_here = False
+    if not ray.is_initialized():
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+        if ray_address:
+            kwargs["address"] = ray_address
+        else:
+            kwargs["num_cpus"] = workers
+        ray.init(**kwargs)
+        started_here = True
+    remote = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_entry)
+    running: dict[Any, tuple[Task, float]] = {}
+    try:
+        while pending or running:
+            while pending and len(running) < workers:
+                task = pending.popleft()
+                running[remote.remote(task.fn, task.payload)] = (task, time.monotonic())
+            now = time.monotonic()
+            wait_s = 1.0
+            if timeout is not None:
+                wait_s = max(0.01, min([wait_s] + [s + timeout - now for _, s in running.values()]))
+            ready, _ = ray.wait(list(running), num_returns=1, timeout=wait_s)
+            now = time.monotonic()
+            for ref in list(running):
+                task, start = running[ref]
+                outcome: Outcome | None = None
+                if ref in ready:
+                    try:
+                        outcome = Outcome(True, value=ray.get(ref), wall_time_s=now - start)
+                    except ray.exceptions.RayTaskError as exc:
+                        cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
+                        outcome = Outcome(False, reason=_one_line(getattr(cause, "cause", None) or cause),
+                                          wall_time_s=now - start, detail=str(exc))
+                    except Exception as exc:  # noqa: BLE001 - WorkerCrashedError, ...
+                        outcome = Outcome(False, reason=f"crashed ({_one_line(exc)[:200]})", wall_time_s=now - start)
+                elif timeout is not None and now - start > timeout:
+                    with contextlib.suppress(Exception):
+                        ray.cancel(ref, force=True)
+                    outcome = Outcome(False, reason=f"timed out after {timeout:g} s (killed)", wall_time_s=now - start)
+                if outcome is not None:
+                    del running[ref]
+                    pending.extend(on_done(task, outcome))
+                    progress.update(1)
+    finally:
+        for ref in running:
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
+        if started_here:
+            ray.shutdown()
+
+
+class _NoProgress:
+    total = 0
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def refresh(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: int = 1,
+            executor: str = "local", timeout: float | None = DEFAULT_TIMEOUT_S, quiet: bool = True,
+            desc: str = "tasks", expected_total: int | None = None, start_method: str | None = None,
+            log_dir: Path | None = None, ray_address: str | None = None,
+            preload: Sequence[str] = ()) -> list[tuple[Task, Outcome]]:
+    """Run ``tasks`` (and whatever ``on_done`` schedules) and return every (task, outcome) in finish order.
+
+    Args:
+        on_done: called in this process as each task finishes; returns further tasks.
+        workers: tasks at a time.
+        executor: "local" (one ``multiprocessing`` process per task) or "ray".
+        timeout: [s] wall clock per task; None = unlimited.
+        quiet: no progress bar.
+        expected_total: the progress bar's first total estimate (it grows when needed).
+        start_method: "fork" (default where available) or "spawn" (local executor).
+        log_dir: the local executor sends each task's stdout/stderr to ``log_dir/<key>.log``.
+        ray_address: Ray cluster address (default: start a local Ray instance).
+        preload: modules imported here first, so that forked task processes inherit them instead of
+            importing them again (about 1 s per task for the SUMO side of the package).
+    """
+    if workers < 1:
+        raise InputError(f"--workers must be >= 1, not {workers}")
+    if executor not in ("local", "ray"):
+        raise InputError(f"--executor must be local or ray, not {executor!r}")
+    pending = deque(tasks)
+    finished: list[tuple[Task, Outcome]] = []
+    if executor == "local" and (start_method or _default_start_method()) == "fork":
+        import importlib
+        import io
+
+        for name in preload:  # quietly: libsumo prints a version warning about pyarrow on import
+            with contextlib.suppress(Exception), contextlib.redirect_stdout(io.StringIO()), \
+                    contextlib.redirect_stderr(io.StringIO()):
+                importlib.import_module(name)
+    progress: Any
+    if quiet:
+        progress = _NoProgress()
+    else:
+        from tqdm import tqdm
+
+        tqdm.monitor_interval = 0  # no monitor thread in a process that forks
+        progress = tqdm(total=max(expected_total or 0, len(pending)), desc=desc, unit="task", dynamic_ncols=True)
+
+    def done(task: Task, outcome: Outcome) -> list[Task]:
+        finished.append((task, outcome))
+        more = list(on_done(task, outcome)) if on_done is not None else []
+        # the bar's total: finished + queued (running ones are not counted: a lower bound)
+        need = len(finished) + len(pending) + len(more)
+        if need > progress.total:
+            progress.total = need
+            progress.refresh()
+        return more
+
+    try:
+        if log_dir is not None:
+            log_dir.mkdir(parents=True, exist_ok=True)
+        if executor == "local":
+            _execute_local(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
+                           start_method=start_method, log_dir=log_dir)
+        else:
+            _execute_ray(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
+                         ray_address=ray_address)
+    finally:
+        progress.total = len(finished)  # the estimate may have been high (fewer variants than asked)
+        progress.refresh()
+        progress.close()
+    return finished
+
+
+def probe_task(payload: dict[str, Any]) -> dict[str, Any]:
+    """A task for testing executors: ``mode`` = ok | error | segfault | hang | exit; ``sleep`` [s] first.
+
+    Returns its name, pid and the wall-clock interval [start, end] (epoch seconds) of its sleep.
+    """
+    start = time.time()
+    time.sleep(float(payload.get("sleep", 0.0)))
+    end = time.time()
+    mode = payload.get("mode", "ok")
+    if mode == "segfault":
+        os.kill(os.getpid(), signal.SIGSEGV)
+    if mode == "hang":
+        time.sleep(3600)
+    if mode == "error":
+        raise ValueError(f"probe {payload.get('name')} failed on purpose")
+    if mode == "exit":
+        os._exit(3)
+    return {"name": payload.get("name"), "pid": os.getpid(), "start": start, "end": end}
+
+
+# modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
+# modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
+SUMO_TASK_MODULES = ("libsumo", "coster_sumo.core", "coster_sumo.sim.inject", "coster_sumo.outputs",
+                     "coster_sumo.drivable", "pyarrow.parquet")

@@ -1,0 +1,280 @@
+"""``coster-sumo regress``: planners on the same generated variants, each run isolated.
+
+For each scene the variants are generated **once** (a task writing ``OUT/plans/<scene_key>.json``
+and the nominal scene ``OUT/plans/<scene_key>.npz``), then every planner runs on the same variants
+(:func:`coster_sumo.sim.inject.inject_variant`). One row per (scene, variant, planner) goes into a
+Parquet dataset ``OUT/results/`` as one small part file per run, written atomically, so a rerun
+skips what is done and never duplicates a row.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.batch.executor import DEFAULT_TIMEOUT_S, SUMO_TASK_MODULES, Outcome, Task, execute
+from coster_sumo.batch.sources import nominal_for, parse_sources, scene_key, slug
+from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
+from coster_sumo.core import Variant, check_generation
+from coster_sumo.errors import InputError
+from coster_sumo.formats.atomic import write_json
+from coster_sumo.sim.planners import check_planner
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
+
+GENERATION_KEYS = ("init", "rollout", "collision_time", "variants", "samples")
+
+
+def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
+    """Task: nominal pass + variants of one scene -> ``plans/<scene_key>.json`` (+ the scene's .npz)."""
+    from coster_sumo.core import choose_target, generate_variants
+    from coster_sumo.drivable import DrivableArea
+
+    t0 = time.perf_counter()
+    spec = ScenarioSpec.from_dict(payload["spec"])
+    plans_dir = Path(payload["plans_dir"])
+    gen = GenerationConfig.from_dict(payload["generation"])
+    scene, converted, scene_file = nominal_for(spec, plans_dir)
+    target = choose_target(scene, spec.target, spec.config)
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    t1 = time.perf_counter()
+    variants, info = generate_variants(scene, target, spec.seed, gen, drivable)
+    doc = {"scene_key": payload["scene_key"], "status": "ok", "spec": spec.to_dict(), "converted": converted,
+           "scene_file": scene_file.name, "target_id": str(scene.tracks.ids[target]),
+           "end": float(scene.timestamps[-1]), "generation": payload["generation"],
+           "variants": [v.to_dict() for v in variants], "info": info,
+           "timings_s": {"nominal": round(t1 - t0, 3), "generation": round(time.perf_counter() - t1, 3)}}
+    write_json(plans_dir / f"{payload['scene_key']}.json", doc)
+    return {"scene_key": payload["scene_key"], "variants": len(variants)}
+
+
+
+
+def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
+    t = res.scene.tracks
+    if target_id not in set(t.ids.tolist()):
+        return []
+    a = t.index_of(target_id)
+    steps = np.flatnonzero(t.valid[a])[::every]
+    return [[round(float(t.x[a, s]), 2), round(float(t.y[a, s]), 2)] for s in steps]
+
+
+def run_task(payload: dict[str, Any]) -> dict[str, Any]:
+    """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
+    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.outputs import variant_record
+    from coster_sumo.scene import load_scene
+    from coster_sumo.sim.inject import inject_variant
+
+    plans_dir = Path(payload["plans_dir"])
+    doc = json.loads((plans_dir / f"{payload['scene_key']}.json").read_text())
+    scene = load_scene(plans_dir / doc["scene_file"])
+    spec = ScenarioSpec.from_dict(doc["spec"])
+    i = int(payload["variant"])
+    variant = Variant.from_dict(doc["variants"][i])
+    plan, t_col = variant.plan, variant.snapshot.time
+    target_id = doc["target_id"]
+    target = scene.tracks.index_of(target_id)
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
+        res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
+    rec = variant_record(i, plan, res, target_id, t_col)
+    target_any = any(e.kind == "collision" and target_id in e.vehicles for e in res.events)
+    return result_row(payload, status="ok", reason="", collision=bool(rec["collision"]) or target_any,
+                      adversary_contact=bool(rec["collision"]),
+                      target_other_collision=any(e.kind == "collision" and target_id in e.vehicles
+                                                 and plan.vehicle_id not in e.vehicles for e in res.events),
+                      target_off_road=bool(res.target_off_road), adversary_off_road=bool(res.adversary_off_road),
+                      route_completed=bool(res.route_completed), target_arrived=bool(res.target_arrived),
+                      min_ttc=rec["min_ttc"], contact_time=rec["collision_time"],
+                      contact_offset_s=rec["contact_offset_s"], relative_speed=rec["relative_speed"],
+                      impact_angle=rec["impact_angle"], sumo_reported_contact=bool(rec["sumo_reported_contact"]),
+                      t_col=t_col, sim_wall_time_s=float(res.wall_time_s),
+                      target_path=json.dumps(_target_path(res, target_id)))
+
+
+@dataclass
+class RegressOptions:
+    """Everything ``coster-sumo regress`` takes (see its --help)."""
+
+    sources: list[str]
+    planners: list[str]
+    out: Path
+    variants: int = 3
+    workers: int = 1
+    executor: str = "local"
+    timeout: float | None = DEFAULT_TIMEOUT_S
+    seed: int = 0
+    seeds: int = 1
+    begin: float | None = None
+    end: float | None = None
+    target: str | None = None
+    init: str = "snapshot"
+    rollout: str = "cvae"
+    collision_time: str = "entropy"
+    samples: int = 1000
+    models_dir: Path | None = None
+    retry_failed: bool = False
+    report: bool = True
+    quiet: bool = False
+    ray_address: str | None = None
+    start_method: str | None = None
+
+
+def check_planners(planners: Sequence[str]) -> None:
+    """At least one planner, all distinct (also as file names), each one that exists."""
+    if not planners:
+        raise InputError("give at least one --planner")
+    if len(set(planners)) != len(planners) or len({slug(p) for p in planners}) != len(planners):
+        raise InputError(f"--planner values must be distinct: {', '.join(planners)}")
+    for p in planners:
+        check_planner(p)
+
+
+def run_key(scene: str, variant: int, planner: str) -> str:
+    return f"{scene}__v{variant}__{slug(planner)}"
+
+
+def regress(opts: RegressOptions) -> dict[str, Any]:
+    """Run the regression (module docstring); returns the summary (also OUT/summary.json)."""
+    t_start = time.perf_counter()
+    check_planners(opts.planners)
+    generation = GenerationConfig(init=opts.init, collision_time=opts.collision_time, rollout=opts.rollout,
+                                  samples=opts.samples, variants=opts.variants, models_dir=opts.models_dir)
+    check_generation(generation)
+    specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
+                          target=opts.target)
+    out = Path(opts.out)
+    plans_dir, logs_dir = out / "plans", out / "logs"
+    plans_dir.mkdir(parents=True, exist_ok=True)
+    store = ResultStore(out / "results")
+    gen = generation.to_dict()
+    keys = {scene_key(s, gen): s for s in specs}
+    write_json(out / "regress.json", {"options": {k: (str(v) if isinstance(v, Path) else v)
+                                                    for k, v in dataclasses.asdict(opts).items()},
+                                        "scenes": {k: s.label() for k, s in keys.items()}})
+    existing = store.read() if opts.retry_failed else []
+    failed_runs = {r["run_key"] for r in existing if r["status"] != "ok"}
+    done = store.keys() - failed_runs
+    n_runs_expected = len(keys) * opts.variants * len(opts.planners)
+
+    def run_tasks_for(key: str, doc: dict[str, Any]) -> list[Task]:
+        spec = keys[key]
+        tasks = []
+        for i in range(len(doc["variants"])):
+            for p in opts.planners:
+                rk = run_key(key, i, p)
+                if rk not in done:
+                    tasks.append(Task(rk, run_task, {"run_key": rk, "scene_key": key, "variant": i, "planner": p,
+                                                     "plans_dir": str(plans_dir), "config": str(spec.config),
+                                                     "seed": spec.seed}, kind="run"))
+        return tasks
+
+    initial: list[Task] = []
+    for key, spec in keys.items():
+        pf = plans_dir / f"{key}.json"
+        doc = read_json(pf)
+        if doc is not None and (doc.get("status") == "ok" or not opts.retry_failed):
+            if doc.get("status") == "ok":
+                initial.extend(run_tasks_for(key, doc))
+            continue
+        initial.append(Task(f"plan__{key}", generation_task, {"scene_key": key, "spec": spec.to_dict(),
+                                                             "plans_dir": str(plans_dir), "generation": gen},
+                            kind="plan"))
+
+    def on_done(task: Task, outcome: Outcome) -> list[Task]:
+        key = task.payload["scene_key"]
+        if task.kind == "plan":
+            if outcome.ok:
+                doc = read_json(plans_dir / f"{key}.json")
+                return run_tasks_for(key, doc) if doc else []
+            write_json(plans_dir / f"{key}.json", {"scene_key": key, "status": "failed", "reason": outcome.reason,
+                                                     "spec": task.payload["spec"], "generation": gen})
+            _append_log(logs_dir / f"{task.key}.log", outcome)
+            return []
+        if outcome.ok:
+            row = {**outcome.value, "wall_time_s": round(outcome.wall_time_s, 3)}
+        else:
+            _append_log(logs_dir / f"{task.key}.log", outcome)
+            row = result_row(task.payload, status="failed", reason=outcome.reason,
+                             wall_time_s=round(outcome.wall_time_s, 3))
+        store.write(row)
+        return []
+
+    execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
+            quiet=opts.quiet, desc="regress", expected_total=len(initial) + n_runs_expected - len(done),
+            start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
+            ray_address=opts.ray_address, preload=SUMO_TASK_MODULES)
+    summary = summarize_regression(out, keys, opts.planners)
+    summary["wall_time_s"] = round(time.perf_counter() - t_start, 3)
+    summary["options"] = {"variants": opts.variants, "workers": opts.workers, "executor": opts.executor,
+                          "timeout_s": opts.timeout, **{k: gen[k] for k in GENERATION_KEYS}, "seed": opts.seed}
+    write_json(out / "summary.json", summary)  # before the report: a plotting failure loses no result
+    if opts.report:
+        from coster_sumo.report import write_regression_report
+
+        summary["report"] = write_regression_report(out, summary, store.read())
+        write_json(out / "summary.json", summary)
+    return summary
+
+
+def _append_log(path: Path, outcome: Outcome) -> None:
+    if not outcome.detail:
+        return
+    with contextlib.suppress(OSError):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("a") as fh:
+            fh.write("\n--- batch: task failed ---\n" + outcome.detail)
+
+
+def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Sequence[str]) -> dict[str, Any]:
+    """summary.json content of a regression over ``keys`` x ``planners`` (rows already in OUT/results)."""
+    plans_dir = out / "plans"
+    rows = [r for r in ResultStore(out / "results").read() if r["scene_key"] in keys and r["planner"] in planners]
+    scenes_failed, n_variants = [], 0
+    for key, spec in keys.items():
+        doc = read_json(plans_dir / f"{key}.json") or {"status": "failed", "reason": "not generated"}
+        if doc.get("status") == "ok":
+            n_variants += len(doc["variants"])
+        else:
+            scenes_failed.append({"scene_key": key, "scene": spec.label(), "reason": doc.get("reason")})
+    per_planner: dict[str, Any] = {}
+    for p in planners:
+        mine = [r for r in rows if r["planner"] == p]
+        ok = [r for r in mine if r["status"] == "ok"]
+        ttc = [r["min_ttc"] for r in ok if r["min_ttc"] is not None and not r["adversary_contact"]]
+        rel = [r["relative_speed"] for r in ok if r["relative_speed"] is not None]
+        per_planner[p] = {
+            "runs": len(mine), "failed": len(mine) - len(ok),
+            "RCR": rate_with_ci([r["route_completed"] for r in ok]),
+            "CR": rate_with_ci([r["collision"] for r in ok]),
+            "ORR": rate_with_ci([r["target_off_road"] for r in ok]),
+            "adversary_contact_rate": rate_with_ci([r["adversary_contact"] for r in ok]),
+            "median_min_ttc_s": float(np.median(ttc)) if ttc else None,
+            "mean_relative_speed_mps": float(np.mean(rel)) if rel else None,
+        }
+    failures = [{"run_key": r["run_key"], "reason": r["reason"]} for r in rows if r["status"] != "ok"]
+    return {
+        "command": "regress",
+        "scenes": {"total": len(keys), "generated": len(keys) - len(scenes_failed), "failed": scenes_failed},
+        "variants": n_variants,
+        "runs": {"expected": n_variants * len(planners), "recorded": len(rows), "ok": len(rows) - len(failures),
+                 "failed": len(failures), "failures": failures},
+        "planners": per_planner,
+        "results": "results/ (Parquet dataset, one part per run)",
+        "units": {"rates": "fraction of runs, Wilson 95% interval", "min_ttc": "s", "relative_speed": "m/s",
+                  "impact_angle": "deg"},
+    }
+
+
+def regression_exit_code(summary: dict[str, Any]) -> int:
+    """0 when every scene generated and every run finished; 1 otherwise (docs/method.md, Contracts)."""
+    return 1 if summary["scenes"]["failed"] or summary["runs"]["failed"] else 0

@@ -1,0 +1,108 @@
+"""Results of a batch: one Parquet part file per run (written atomically), and rates with intervals."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from coster_sumo.formats.atomic import atomic_path
+
+WILSON_Z = 1.959963984540054  # two-sided 95 %
+
+def wilson_interval(successes: int, n: int, z: float = WILSON_Z) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % by default); (nan, nan) when n = 0."""
+    if n <= 0:
+        return float("nan"), float("nan")
+    p = successes / n
+    z2 = z * z
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = z / (1 + z2 / n) * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def rate_with_ci(flags: Sequence[bool]) -> dict[str, Any]:
+    """{"rate", "ci_low", "ci_high", "k", "n"} of boolean outcomes (Wilson 95 %)."""
+    n = len(flags)
+    k = int(sum(bool(f) for f in flags))
+    lo, hi = wilson_interval(k, n)
+    return {"rate": k / n if n else None, "ci_low": lo if n else None, "ci_high": hi if n else None, "k": k, "n": n}
+
+
+RESULT_FIELDS: dict[str, str] = {
+    # name: pyarrow type name; see the README "regress" section for meanings and units
+    "run_key": "string", "scene_key": "string", "config": "string", "seed": "int64", "variant": "int64",
+    "planner": "string", "status": "string", "reason": "string",
+    "collision": "bool", "adversary_contact": "bool", "target_other_collision": "bool",
+    "target_off_road": "bool", "adversary_off_road": "bool", "route_completed": "bool", "target_arrived": "bool",
+    "min_ttc": "float64", "contact_time": "float64", "contact_offset_s": "float64", "relative_speed": "float64",
+    "impact_angle": "float64", "sumo_reported_contact": "bool", "t_col": "float64",
+    "sim_wall_time_s": "float64", "wall_time_s": "float64", "target_path": "string", "finished_at": "string",
+}
+
+
+def result_row(payload: dict[str, Any], **values: Any) -> dict[str, Any]:
+    row: dict[str, Any] = dict.fromkeys(RESULT_FIELDS)
+    row.update({"run_key": payload["run_key"], "scene_key": payload["scene_key"], "config": payload.get("config"),
+                "seed": payload.get("seed"), "variant": int(payload["variant"]), "planner": payload["planner"]})
+    row.update(values)
+    return row
+
+
+def result_schema() -> Any:
+    import pyarrow as pa
+
+    types = {"string": pa.string(), "int64": pa.int64(), "float64": pa.float64(), "bool": pa.bool_()}
+    return pa.schema([(k, types[t]) for k, t in RESULT_FIELDS.items()])
+
+
+class ResultStore:
+    """``OUT/results/``: one Parquet part file per run, ``<run_key>.parquet``, written atomically.
+
+    Temporary files start with "." so that readers (``pyarrow.dataset``) ignore them.
+    """
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def path(self, run_key: str) -> Path:
+        return self.folder / f"{run_key}.parquet"
+
+    def write(self, row: dict[str, Any]) -> Path:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        row = {**dict.fromkeys(RESULT_FIELDS), **row,
+               "finished_at": row.get("finished_at") or time.strftime("%Y-%m-%dT%H:%M:%S")}
+        for k in ("min_ttc", "contact_time", "contact_offset_s", "relative_speed", "impact_angle"):
+            if isinstance(row[k], float) and not math.isfinite(row[k]):
+                row[k] = None
+        table = pa.Table.from_pylist([row], schema=result_schema())
+        final = self.path(row["run_key"])
+        with atomic_path(final) as tmp:  # hidden while written: readers skip names starting with "."
+            pq.write_table(table, tmp)
+        return final
+
+    def keys(self) -> set[str]:
+        return {p.stem for p in self.folder.glob("*.parquet") if not p.name.startswith(".")}
+
+    def read(self) -> list[dict[str, Any]]:
+        import pyarrow.dataset as ds
+
+        if not self.keys():
+            return []
+        return ds.dataset(self.folder, format="parquet", schema=result_schema()).to_table().to_pylist()
+
+
+def read_json(path: Path) -> dict[str, Any] | None:
+    """A JSON file written by a batch, or None when it is missing or unreadable (not done yet)."""
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None

@@ -1,0 +1,250 @@
+"""The generation core: from a scenario spec and a generation config to adversary plans.
+
+Used by ``coster-sumo run``, ``regress``, ``eval scenarios`` and the Python API alike:
+
+1. :func:`nominal_scene`: the nominal traffic at 10 Hz. A converted WOMD scene is its log
+   (``scene.npz``, see :mod:`coster_sumo.formats.scene_folder`); any other configuration is
+   simulated with libsumo and recorded with the spec's seed (the injection passes use the same);
+2. :func:`choose_target`: the spec's target, else the SDC of a converted scene, else ``ego``;
+3. :func:`plan_scenario`: the 2 Hz scene, the collision snapshot (a snapshot init of
+   :data:`~coster_sumo.snapshot.SNAPSHOT_INITS` with a rule of
+   :data:`~coster_sumo.snapshot.COLLISION_TIME_RULES`), the adversary plans (a rollout of
+   :data:`~coster_sumo.rollout.methods.ROLLOUTS`), and the early-contact filter;
+4. :func:`generate_variants`: up to K variants, drawing more snapshots when a rollout gives one
+   trajectory per snapshot.
+
+Injection of a plan is :func:`coster_sumo.sim.inject.inject_variant`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from coster_sumo import weights
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_folder import converted_scene_file
+from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.plan import AdversaryPlan
+from coster_sumo.rollout.methods import ROLLOUTS
+from coster_sumo.scene import CollisionSnapshot, Scene, load_scene, resample
+from coster_sumo.sim.events import CONTACT_TOLERANCE_M
+from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS, NoSnapshot
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
+
+DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
+PRIOR_RATE_HZ = 2.0  # [1/s] the prior and the rollout work at 2 Hz
+SNAPSHOT_ATTEMPTS = 5  # snapshot + rollout attempts before a scene is declared unusable
+
+
+@dataclass
+class PlannedScenario:
+    """The generation half of a run: snapshot and adversary plans for one target.
+
+    Attributes:
+        scene: the nominal scene at 10 Hz; scene_2hz: the same at 2 Hz.
+        target_index: the target's agent index in both.
+        snapshot: the collision snapshot.
+        plans: one plan per kept variant (ids ``adversary0``, ``adversary1``, ...).
+        samples_xy: (N, T, 2) [m] every oversampled trajectory (for the heatmap), or None.
+        info: what the rollout reports (timings, clusters, dropped candidates).
+    """
+
+    scene: Scene
+    scene_2hz: Scene
+    target_index: int
+    snapshot: CollisionSnapshot
+    plans: list[AdversaryPlan]
+    samples_xy: np.ndarray | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- checks
+
+def check_generation(gen: GenerationConfig) -> None:
+    """Method names against the registries, counts, and the weights the methods need (exit 2 before work)."""
+    for flag, value, registry in (("--init", gen.init, SNAPSHOT_INITS),
+                                  ("--collision-time", gen.collision_time, COLLISION_TIME_RULES),
+                                  ("--rollout", gen.rollout, ROLLOUTS)):
+        if value not in registry:
+            raise InputError(f"{flag} must be one of {', '.join(registry)}, not {value!r}")
+    if gen.variants < 1:
+        raise InputError(f"--variants must be >= 1, not {gen.variants}")
+    if gen.samples < 1:
+        raise InputError(f"--samples must be >= 1, not {gen.samples}")
+    reason = missing_weights(gen)
+    if reason:
+        raise InputError(reason)
+
+
+def missing_weights(gen: GenerationConfig) -> str | None:
+    """Why the methods of ``gen`` cannot run with its models folder, or None."""
+    needed = SNAPSHOT_INITS[gen.init].weights + ROLLOUTS[gen.rollout].weights
+    return weights.missing_weights(needed, gen.models_dir)
+
+
+# ----------------------------------------------------------------------------- nominal scene
+
+def nominal_scene(spec: ScenarioSpec, *, traci: bool = False) -> tuple[Scene, bool]:
+    """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log)."""
+    cfg = spec.config
+    if not cfg.exists():
+        raise InputError(f"{cfg}: no such SUMO configuration")
+    log = converted_scene_file(cfg)
+    if log is not None:
+        return load_scene(log), True
+    from coster_sumo.sim.record import record_config
+
+    end = spec.end if spec.end is not None else read_sumocfg(cfg).end
+    if end is None:
+        end = (spec.begin or 0.0) + DEFAULT_DURATION_S
+    scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci)
+    if scene.num_steps == 0:
+        raise InputError(f"{cfg}: the simulation recorded no step in [{spec.begin}, {end}]")
+    return scene, False
+
+
+def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
+    """Index of the target: ``requested``, else the SDC of a converted scene, else ``ego``.
+
+    Raises :class:`InputError` (naming ``config`` and candidate ids) when there is none, or when
+    the target runs for fewer than two steps of the window.
+    """
+    ids = scene.tracks.ids.tolist()
+    ts = scene.timestamps
+    window = f"{float(ts[0]):.1f}-{float(ts[-1]):.1f} s" if len(ts) else "empty"
+    if requested is None:
+        if scene.sdc_index >= 0:
+            index = scene.sdc_index
+        elif "ego" in ids:
+            index = ids.index("ego")
+        else:
+            long_lived = np.argsort(-scene.tracks.valid.sum(axis=1))[:8]
+            raise InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
+                             "--target, e.g. " + ", ".join(ids[i] for i in long_lived))
+    elif requested in ids:
+        index = ids.index(requested)
+    else:
+        near = [i for i in ids if requested.lower() in i.lower()][:8] or ids[:8]
+        raise InputError(f"{config}: target {requested!r} never runs in the window ({window}); "
+                         f"candidates: {', '.join(near)}")
+    if scene.tracks.valid[index].sum() < 2:
+        raise InputError(f"{config}: target {ids[index]!r} never departs in the window")
+    return index
+
+
+# ----------------------------------------------------------------------------- generation
+
+def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: float = 0.1) -> float | None:
+    """Time [s] at which ``plan`` would overlap the target's nominal path before t_col - tolerance.
+
+    Checked at the nominal scene's own rate (10 Hz) against the target's logged boxes; a variant
+    that hits the target early is not the snapshot's collision and is not kept. The steps within
+    ``tolerance_s`` of t_col are not checked, whatever the log's timestamp jitter (half a step of
+    margin): with the default, touching one step early is allowed, two steps is not.
+    """
+    t = scene.tracks
+    times = scene.timestamps
+    half_step = 0.5 * float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    sel = (times >= plan.t_start - 1e-9) & (times < plan.t_col - tolerance_s - half_step) & t.valid[target]
+    if not sel.any():
+        return None
+    x, y, yaw, _ = plan.sample(times[sel])
+    adv = make_boxes(x, y, yaw, plan.length, plan.width)
+    tgt = make_boxes(t.x[target, sel], t.y[target, sel], t.heading[target, sel], t.length[target, sel],
+                     t.width[target, sel])
+    hit = box_signed_distance(adv, tgt) <= CONTACT_TOLERANCE_M
+    return float(times[sel][np.argmax(hit)]) if hit.any() else None
+
+
+def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
+                  drivable: DrivableArea) -> PlannedScenario:
+    """Snapshot and adversary plans for ``target`` (one draw of the seeded generator).
+
+    Plans that would hit the target before t_col are dropped; when none is left, a new snapshot
+    is drawn (the generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times; then :class:`NoSnapshot`.
+    """
+    rng = np.random.default_rng(seed)
+    low = resample(scene, PRIOR_RATE_HZ)
+    init, rollout = SNAPSHOT_INITS[gen.init], ROLLOUTS[gen.rollout]
+    reasons: list[str] = []
+    for attempt in range(SNAPSHOT_ATTEMPTS):
+        snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir)
+        plans, samples_xy, info = rollout.generate(low, target, snap, drivable, samples=gen.samples,
+                                                   variants=gen.variants, seed=seed, models_dir=gen.models_dir)
+        kept: list[AdversaryPlan] = []
+        dropped: list[dict[str, Any]] = []
+        for i, plan in enumerate(plans):
+            early = early_contact(plan, scene, target)
+            if early is None:
+                kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
+            else:
+                dropped.append({"candidate": i, "reason": f"hits the target at {early:.1f} s, before t_col"})
+        if kept:
+            info = {**info, "attempt": attempt + 1, "candidates": len(plans), "kept": len(kept), "dropped": dropped}
+            return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
+        reasons.append(f"t_col {snap.time:.1f} s: every trajectory hits the target before t_col")
+    raise NoSnapshot(f"{SNAPSHOT_ATTEMPTS} attempts failed ({reasons[-1]})")
+
+
+def derived_seed(seed: int, j: int) -> int:
+    """The seed of extra draw ``j`` (j >= 1) of a scene: deterministic, far from seed + small ints."""
+    return int.from_bytes(hashlib.sha1(f"{seed}/{j}".encode()).digest()[:4], "little")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One generated variant: its plan, the snapshot it ends in, and the draw that made it."""
+
+    plan: AdversaryPlan
+    snapshot: CollisionSnapshot
+    draw: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"plan": self.plan.to_dict(), "snapshot": self.snapshot.to_dict(), "draw": self.draw}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Variant:
+        return cls(AdversaryPlan.from_dict(d["plan"]), CollisionSnapshot.from_dict(d["snapshot"]), int(d["draw"]))
+
+
+def generate_variants(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
+                      max_draws: int | None = None) -> tuple[list[Variant], dict[str, Any]]:
+    """Up to ``gen.variants`` variants and an info dict.
+
+    A rollout that gives K representatives per snapshot fills them in one draw. One that gives a
+    single trajectory per snapshot (the constant-velocity baseline) draws again with derived seeds
+    (a new snapshot each) up to K. Draw 0 uses ``seed`` itself, so its variants equal
+    :func:`plan_scenario` with the same seed.
+    """
+    one_each = ROLLOUTS[gen.rollout].one_per_snapshot
+    variants: list[Variant] = []
+    infos: list[dict[str, Any]] = []
+    reasons: list[str] = []
+    max_draws = max_draws if max_draws is not None else 3 * gen.variants
+    for j in range(max_draws):
+        if len(variants) >= gen.variants:
+            break
+        draw_seed = seed if j == 0 else derived_seed(seed, j)
+        try:
+            planned = plan_scenario(scene, target, draw_seed, gen, drivable)
+        except NoSnapshot as exc:
+            reasons.append(f"draw {j}: {exc}")
+            if not one_each:
+                break  # the CVAE already tried its K; another seed rarely changes a scene without snapshot
+            continue
+        infos.append({k: v for k, v in planned.info.items() if k != "dropped"} | {"draw": j, "seed": draw_seed})
+        for plan in planned.plans[:gen.variants - len(variants)]:
+            plan = dataclasses.replace(plan, vehicle_id=f"adversary{len(variants)}")
+            variants.append(Variant(plan, planned.snapshot, j))
+        if not one_each:
+            break  # the rollout's K representatives are the variants
+    if not variants:
+        raise NoSnapshot("; ".join(reasons[:3]) or "no variant")
+    return variants, {"draws": infos, "rejected_draws": reasons}

@@ -1,0 +1,106 @@
+"""The converted-scene folder: what makes a folder "a converted WOMD scene", and its conventions.
+
+``coster-sumo convert`` writes one folder per scenario: ``<id>.sumocfg`` with its net and routes,
+``scene.npz`` (the logged scene, timestamps on SUMO's clock) and ``lane_map.json`` (WOMD lane id per
+SUMO lane, and per traffic light the WOMD lane of every SUMO link index). A configuration is a
+converted scene exactly when ``scene.npz`` and ``lane_map.json`` lie beside it; everything that asks
+"is this a converted scene" asks :func:`converted_scene_file`.
+
+What it means for a run: the log is the nominal traffic (no SUMO demand exists for its agents), and
+every logged agent is driven from the log by moveToXY; the target follows its log too unless a
+planner takes it over (see :mod:`coster_sumo.sim.inject`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from coster_sumo.scene import ObjectType, Scene, SignalState
+
+SCENE_FILE = "scene.npz"
+LANE_MAP_FILE = "lane_map.json"
+SCENE_FILES = (SCENE_FILE, LANE_MAP_FILE)
+MIN_SIZE_M = 0.1  # [m] SUMO rejects zero-length types; WOMD zero-fills invalid sizes
+
+
+def converted_scene_file(config: str | Path) -> Path | None:
+    """``scene.npz`` of the converted scene ``config`` belongs to, or None for any other configuration."""
+    folder = Path(config).parent
+    return folder / SCENE_FILE if all((folder / f).is_file() for f in SCENE_FILES) else None
+
+
+def is_converted_scene(folder: str | Path) -> bool:
+    """True when ``folder`` holds a ``.sumocfg`` of a converted scene."""
+    folder = Path(folder)
+    return folder.is_dir() and any(converted_scene_file(c) is not None for c in folder.glob("*.sumocfg"))
+
+
+# WOMD signal state -> SUMO link state letter (r red, y yellow, G protected green, g green that
+# yields, o off-blinking (yield), O off (no signal)).
+SUMO_SIGNAL_LETTER: dict[int, str] = {
+    SignalState.UNKNOWN: "O", SignalState.ARROW_STOP: "r", SignalState.ARROW_CAUTION: "y",
+    SignalState.ARROW_GO: "G", SignalState.STOP: "r", SignalState.CAUTION: "y", SignalState.GO: "g",
+    SignalState.FLASHING_STOP: "r", SignalState.FLASHING_CAUTION: "o",
+}
+
+# WOMD object type -> (vType id in the converted .rou.xml, vClass, guiShape, default length [m],
+# default width [m]). Pedestrians and cyclists are vehicles of class pedestrian / bicycle: SUMO's
+# moveToXY drives vehicles, and the replay needs their exact boxes, not a pedestrian model.
+VTYPES: dict[int, tuple[str, str, str, float, float]] = {
+    ObjectType.VEHICLE: ("womd_vehicle", "passenger", "passenger", 4.5, 1.9),
+    ObjectType.PEDESTRIAN: ("womd_pedestrian", "pedestrian", "pedestrian", 0.5, 0.5),
+    ObjectType.CYCLIST: ("womd_cyclist", "bicycle", "bicycle", 1.8, 0.6),
+    ObjectType.OTHER: ("womd_other", "passenger", "passenger", 4.5, 1.9),
+    ObjectType.UNSET: ("womd_other", "passenger", "passenger", 4.5, 1.9),
+}
+
+
+def vtype_for(object_type: int) -> tuple[str, str, str, float, float]:
+    """The :data:`VTYPES` row of a WOMD object type (unknown codes count as OTHER)."""
+    return VTYPES.get(int(object_type), VTYPES[ObjectType.OTHER])
+
+
+def tls_state_strings(scene: Scene, tls: dict[str, dict]) -> dict[str, list[str]]:
+    """Per traffic light, the SUMO state string at every step of the log.
+
+    Args:
+        scene: the logged scene (its ``signals``).
+        tls: ``lane_map.json``'s ``"tls"``: per tls id ``{"links": [WOMD lane id or None, ...]}``,
+            one entry per SUMO link index.
+
+    Returns:
+        tls id -> (num_steps,) list of state strings; links without a logged signal are ``O``.
+    """
+    per_lane = scene.signals.per_lane(len(scene.road_map.lanes))  # (T, num_lanes)
+    col = {str(lid): i for i, lid in enumerate(scene.road_map.lanes.ids)}
+    letters = np.array([SUMO_SIGNAL_LETTER.get(v, "O") for v in range(256)])
+    out: dict[str, list[str]] = {}
+    for tid, entry in tls.items():
+        cols = np.array([col.get(str(lid), -1) if lid is not None else -1 for lid in entry["links"]],
+                        np.int64)
+        if len(cols) == 0:
+            continue
+        codes = per_lane[:, np.maximum(cols, 0)].astype(np.int64) % 256  # (T, L)
+        chars = letters[codes]
+        chars[:, cols < 0] = "O"
+        out[tid] = ["".join(row) for row in chars]
+    return out
+
+
+def agent_sizes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(num_agents,) length and width [m]: the median over valid steps (SUMO's size is fixed)."""
+    tr = scene.tracks
+    lengths = np.zeros(tr.num_agents)
+    widths = np.zeros(tr.num_agents)
+    for a in range(tr.num_agents):
+        v = tr.valid[a]
+        default = vtype_for(int(tr.object_type[a]))
+        lengths[a] = float(np.median(tr.length[a, v])) if v.any() else default[3]
+        widths[a] = float(np.median(tr.width[a, v])) if v.any() else default[4]
+    bad_l = ~np.isfinite(lengths) | (lengths < MIN_SIZE_M)
+    bad_w = ~np.isfinite(widths) | (widths < MIN_SIZE_M)
+    lengths[bad_l] = MIN_SIZE_M
+    widths[bad_w] = MIN_SIZE_M
+    return lengths, widths

@@ -1,0 +1,153 @@
+"""The one reader of SUMO configuration files (``.sumocfg``) and the well-formedness check of inputs.
+
+A ``.sumocfg`` is small XML: ``<input>`` names the net, route and additional files (comma or space
+separated, relative to the configuration's folder), ``<time>`` the begin, end and step length. Any
+element may also carry its value as an attribute of the same name; both spellings are read. Files
+may be gzip-compressed (SUMO reads ``.gz`` inputs, and so do we). Parsing goes through
+``defusedxml``: configuration files are user input and may come from anywhere.
+"""
+
+from __future__ import annotations
+
+import gzip
+import xml.parsers.expat
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+from defusedxml import ElementTree as SafeET
+
+from coster_sumo.errors import InputError
+
+INPUT_KEYS = ("net-file", "route-files", "additional-files")
+
+
+@dataclass(frozen=True)
+class SumoConfig:
+    """What coster-sumo reads from a ``.sumocfg``.
+
+    Attributes:
+        path: the configuration file.
+        net_files, route_files, additional_files: inputs, resolved against the file's folder.
+        begin, end: [s] the configured simulation window (None where the file does not say).
+        step_length: [s] the configured step (None: SUMO's default, 1 s).
+    """
+
+    path: Path
+    net_files: tuple[Path, ...] = ()
+    route_files: tuple[Path, ...] = ()
+    additional_files: tuple[Path, ...] = ()
+    begin: float | None = None
+    end: float | None = None
+    step_length: float | None = None
+
+    def inputs(self) -> dict[str, list[Path]]:
+        """``{"net-file": [...], "route-files": [...], "additional-files": [...]}``."""
+        return {"net-file": list(self.net_files), "route-files": list(self.route_files),
+                "additional-files": list(self.additional_files)}
+
+    @property
+    def net_file(self) -> Path:
+        """The (first) net file; :class:`InputError` when the configuration names none."""
+        if not self.net_files:
+            raise InputError(f"{self.path}: the configuration names no net-file")
+        return self.net_files[0]
+
+    @property
+    def has_demand(self) -> bool:
+        """True when the configuration names route files (its own traffic)."""
+        return bool(self.route_files)
+
+
+def open_maybe_gzip(path: Path) -> IO[bytes]:
+    """``path`` opened for binary reading, decompressed when it is gzip (by its magic bytes)."""
+    with path.open("rb") as fh:
+        magic = fh.read(2)
+    if magic == b"\x1f\x8b":
+        return gzip.open(path, "rb")  # type: ignore[return-value]  # GzipFile reads bytes like any IO
+    return path.open("rb")
+
+
+_XML_OK: set[tuple[str, int, int]] = set()
+
+
+def check_xml(path: Path, what: str, referenced_by: Path | None = None) -> None:
+    """Existence and well-formedness of an XML input (a truncated net crashes libsumo, rc 139).
+
+    A file that passed is not parsed again until it changes (restarts in a batch stay cheap).
+    Entity declarations are refused (no input of SUMO's needs them; they are how XML bombs work).
+    """
+    via = f" (referenced by {referenced_by})" if referenced_by is not None else ""
+    if not path.is_file():
+        raise InputError(f"{path}: {what} not found{via}")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    if key in _XML_OK:
+        return
+    parser = xml.parsers.expat.ParserCreate()
+
+    def refuse_entity(name: str, *_args: object) -> None:
+        raise InputError(f"{path}: {what} declares an XML entity ({name!r}); refused{via}")
+
+    parser.EntityDeclHandler = refuse_entity
+    try:
+        with open_maybe_gzip(path) as fh:
+            parser.ParseFile(fh)
+    except xml.parsers.expat.ExpatError as exc:
+        raise InputError(f"{path}: {what} is not valid XML ({exc}){via}") from None
+    except (OSError, EOFError) as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc}){via}") from None
+    _XML_OK.add(key)
+
+
+def split_files(value: str) -> list[str]:
+    """File names of a SUMO list option (comma and/or space separated)."""
+    return [v for v in value.replace(",", " ").split() if v]
+
+
+def parse_time(text: str, where: str) -> float:
+    """A SUMO time value: seconds (``"3600"``, ``"0.1"``) or ``[[D:]H:]M:S``."""
+    try:
+        parts = [float(p) for p in text.strip().split(":")]
+    except ValueError:
+        parts = []
+    if not 1 <= len(parts) <= 4:
+        raise InputError(f"{where}: {text!r} is not a time (seconds or H:M:S)")
+    factors = (86400.0, 3600.0, 60.0, 1.0)[4 - len(parts):]  # D:H:M:S, H:M:S, M:S or S
+    return float(sum(f * v for f, v in zip(factors, parts, strict=True)))
+
+
+_CACHE: dict[tuple[str, int, int], SumoConfig] = {}
+
+
+def read_sumocfg(path: str | Path) -> SumoConfig:
+    """Read a ``.sumocfg`` (cached per file version). One :class:`InputError` line per problem."""
+    path = Path(path)
+    check_xml(path, "SUMO configuration")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    if key in _CACHE:
+        return _CACHE[key]
+    try:
+        with open_maybe_gzip(path) as fh:
+            root = SafeET.parse(fh, forbid_dtd=True).getroot()
+    except Exception as exc:  # noqa: BLE001 - defusedxml raises several types; all mean "bad file"
+        raise InputError(f"{path}: not a readable SUMO configuration ({type(exc).__name__}: {exc})") from None
+    values: dict[str, str] = {}
+    for el in root.iter():
+        tag = str(el.tag).split("}")[-1]
+        if el.get("value") is not None:
+            values[tag] = str(el.get("value"))
+        for attr, val in el.attrib.items():  # <input net-file="..."/> spelling
+            if attr in INPUT_KEYS or attr in ("begin", "end", "step-length"):
+                values.setdefault(attr, val)
+    files = {k: tuple(path.parent / f for f in split_files(values.get(k, ""))) for k in INPUT_KEYS}
+
+    def time_of(k: str) -> float | None:
+        return parse_time(values[k], f"{path}: <{k}>") if values.get(k, "").strip() else None
+
+    cfg = SumoConfig(path=path, net_files=files["net-file"], route_files=files["route-files"],
+                     additional_files=files["additional-files"], begin=time_of("begin"), end=time_of("end"),
+                     step_length=time_of("step-length"))
+    _CACHE[key] = cfg
+    return cfg

@@ -1,0 +1,83 @@
+"""``coster-sumo run``: the generation core, one injection pass per variant, and the outputs.
+
+1. the nominal scene, the target and the plans come from :mod:`coster_sumo.core`;
+2. every plan is injected with :func:`coster_sumo.sim.inject.inject_variant` (same seed, so the
+   traffic is the nominal one until the adversary appears);
+3. everything is written into a hidden staging folder beside OUT and renamed into place at the
+   end (see :mod:`coster_sumo.outputs` and the README): an interrupted or failed run leaves no
+   half-written OUT.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenario
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.errors import InputError
+from coster_sumo.outputs import write_run_outputs
+from coster_sumo.sim.inject import default_planner, inject_variant
+from coster_sumo.sim.planners import check_planner
+from coster_sumo.snapshot import NoSnapshot
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
+
+
+@dataclass
+class RunOptions:
+    """Everything ``coster-sumo run`` takes (see ``coster-sumo run --help``)."""
+
+    spec: ScenarioSpec
+    out: Path
+    generation: GenerationConfig = field(default_factory=GenerationConfig)
+    planner: str | None = None
+    traci: bool = False
+    render: bool = True
+    quiet: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        """The options as summary.json records them."""
+        return {**self.spec.to_dict(), **self.generation.to_dict(), "out": str(self.out), "planner": self.planner,
+                "traci": self.traci, "render": self.render}
+
+
+def run(opts: RunOptions) -> dict[str, Any]:
+    """Run the whole pipeline; returns the summary (also written to OUT/summary.json)."""
+    check_generation(opts.generation)
+    if opts.planner is not None:
+        check_planner(opts.planner)
+    spec = opts.spec
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    scene, converted = nominal_scene(spec, traci=opts.traci)
+    timings["nominal_s"] = time.perf_counter() - t0
+    target = choose_target(scene, spec.target, spec.config)
+    t0 = time.perf_counter()
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    try:
+        planned = plan_scenario(scene, target, spec.seed, opts.generation, drivable)
+    except NoSnapshot as exc:
+        raise InputError(f"{spec.config}: no collision snapshot for target "
+                         f"{str(scene.tracks.ids[target])!r}: {exc}") from None
+    timings["generation_s"] = time.perf_counter() - t0
+    planner = opts.planner or default_planner(converted)
+    opts.out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{opts.out.name}.", dir=opts.out.parent))
+    try:
+        t0 = time.perf_counter()
+        results = [inject_variant(spec, scene, target, plan, planner, drivable=drivable, traci=opts.traci,
+                                  workdir=staging) for plan in planned.plans]
+        timings["injection_s"] = time.perf_counter() - t0
+        summary = write_run_outputs(staging, spec, planner, planned, results, timings, render=opts.render,
+                                    options=opts.to_json())
+        if opts.out.exists():
+            shutil.rmtree(opts.out)
+        staging.replace(opts.out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return summary

@@ -1,0 +1,80 @@
+"""What to generate: one scenario spec (which simulation, which target) and one generation config
+(which methods, how many samples and variants). Plain data, shared by ``run``, ``regress``,
+``eval scenarios`` and the Python API; the generation core (:mod:`coster_sumo.core`) takes both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """One scene: a SUMO configuration, its seed and time window, and the target.
+
+    Attributes:
+        config: the ``.sumocfg`` (a converted WOMD scene or any SUMO configuration).
+        seed: SUMO's ``--seed`` and the seed of every random choice of the generation.
+        begin, end: [s] the recorded window (None: the configuration's own).
+        target: the target vehicle id (None: the SDC of a converted scene, else ``ego``).
+    """
+
+    config: Path
+    seed: int = 0
+    begin: float | None = None
+    end: float | None = None
+    target: str | None = None
+
+    def label(self) -> str:
+        """``CFG@seed=N[,begin=S][,end=S][,target=ID]``, the source syntax that gives this spec back."""
+        parts = [f"seed={self.seed}"]
+        if self.begin is not None:
+            parts.append(f"begin={self.begin:g}")
+        if self.end is not None:
+            parts.append(f"end={self.end:g}")
+        if self.target is not None:
+            parts.append(f"target={self.target}")
+        return f"{self.config}@{','.join(parts)}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"config": str(self.config), "seed": self.seed, "begin": self.begin, "end": self.end,
+                "target": self.target}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ScenarioSpec:
+        return cls(Path(d["config"]), int(d.get("seed", 0)), d.get("begin"), d.get("end"), d.get("target"))
+
+
+@dataclass(frozen=True)
+class GenerationConfig:
+    """How to generate adversaries (the method choices live in registries, see :mod:`coster_sumo.core`).
+
+    Attributes:
+        init: snapshot init, a key of :data:`coster_sumo.snapshot.SNAPSHOT_INITS`.
+        collision_time: a key of :data:`coster_sumo.snapshot.COLLISION_TIME_RULES`.
+        rollout: a key of :data:`coster_sumo.rollout.methods.ROLLOUTS`.
+        samples: trajectories oversampled per snapshot.
+        variants: representatives kept (K-means K).
+        models_dir: folder with the weights (None: the shipped ones).
+    """
+
+    init: str = "snapshot"
+    collision_time: str = "entropy"
+    rollout: str = "cvae"
+    samples: int = 1000
+    variants: int = 5
+    models_dir: Path | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["models_dir"] = str(self.models_dir) if self.models_dir is not None else None
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> GenerationConfig:
+        models = d.get("models_dir")
+        return cls(init=str(d.get("init", "snapshot")), collision_time=str(d.get("collision_time", "entropy")),
+                   rollout=str(d.get("rollout", "cvae")), samples=int(d.get("samples", 1000)),
+                   variants=int(d.get("variants", 5)), models_dir=Path(models) if models else None)
