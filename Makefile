@@ -3,9 +3,6 @@ PYTHON ?= python3.11
 VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/demo
-DEMO_CFG ?= networks/intersection/intersection.sumocfg
-# full COSTER with the shipped weights; the target replays its nominal path so contact is at t_col
-DEMO_ARGS ?= --planner replay
 
 .PHONY: setup demo test test-slow lint clean
 
@@ -19,8 +16,10 @@ $(BIN)/coster-sumo: pyproject.toml
 
 setup: $(BIN)/coster-sumo
 
+# full COSTER with the shipped weights on the package's own intersection network; the target replays
+# its nominal path so every contact is at t_col
 demo: setup
-	$(BIN)/coster-sumo run $(DEMO_CFG) $(DEMO_ARGS) -o $(OUT)
+	$(BIN)/coster-sumo demo -o $(OUT)
 
 lint: setup
 	$(BIN)/ruff check .

@@ -201,11 +201,6 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
     return scene.validate()
 
 
-def is_pickle(path: str | Path) -> bool:
-    with open(path, "rb") as f:
-        return f.read(1) == PICKLE_MAGIC
-
-
 def load_pickle_scene(path: str | Path) -> Scene:
     """Read one ScenarioNet pickle (a trusted file: pickle can run code) as a :class:`Scene`."""
     path = Path(path)

@@ -38,12 +38,6 @@ def masked_crc32c(data: bytes | memoryview) -> int:
     return (((crc >> 15) | (crc << 17)) + _MASK_DELTA) & 0xFFFFFFFF
 
 
-def is_gzip(path: str | Path) -> bool:
-    """True when the file starts with the gzip magic bytes."""
-    with open(path, "rb") as f:
-        return f.read(2) == GZIP_MAGIC
-
-
 def _open(path: Path) -> BinaryIO:
     try:
         f = open(path, "rb")

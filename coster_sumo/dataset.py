@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 from coster_sumo.scene import (
     Lanes,
@@ -180,12 +181,6 @@ def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None
 
 
 # ----------------------------------------------------------------------------- clips
-
-def path_length(tracks: Tracks, agent: int, steps: slice | np.ndarray = slice(None)) -> float:
-    """[m] distance travelled by ``agent`` over ``steps`` (valid steps only)."""
-    xy = tracks.xy[agent, steps][tracks.valid[agent, steps]]
-    return float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=-1))) if len(xy) > 1 else 0.0
-
 
 def eligible_targets(tracks: Tracks, start: int, num_steps: int = CLIP_STEPS,
                      min_path_m: float = MIN_TARGET_PATH_M) -> np.ndarray:
@@ -359,7 +354,4 @@ def write_manifest(dataset: str | Path, manifest: dict) -> Path:
     manifest["simulated_hours"] = round(sum(float(r.get("duration_s", 0.0)) for r in ok) / 3600.0, 6)
     path = Path(dataset) / MANIFEST
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(manifest, indent=1, sort_keys=False) + "\n")
-    tmp.replace(path)
-    return path
+    return write_json(path, manifest)

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from coster_sumo import viz
+from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
-from coster_sumo.formats.atomic import json_default, write_json
 from coster_sumo.formats.scene_folder import SCENE_FILES
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.plan import AdversaryPlan

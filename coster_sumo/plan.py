@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import CubicSpline, PchipInterpolator
 
+from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 from coster_sumo.scene import AgentState
 
@@ -120,11 +121,7 @@ class AdversaryPlan:
                    width=float(d["width"]), vehicle_id=str(d.get("vehicle_id", "adversary")))
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1))
-        tmp.replace(path)
-        return path
+        return write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> AdversaryPlan:

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import html
 import json
-import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from coster_sumo.atomic import write_text
 
 EXAMPLES_PER_PLANNER = 3
 
@@ -35,12 +36,6 @@ def _fmt(x: Any, digits: int = 3) -> str:
     if isinstance(x, float):
         return f"{x:.{digits}f}"
     return str(x)
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _plt() -> Any:
@@ -263,7 +258,7 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
             if rel.startswith("examples/"):
                 md.append(f"\n  ![{r['run_key']}]({rel})")
         md.append("")
-    _atomic_text(out / "report.md", "\n".join(md) + "\n")
+    write_text(out / "report.md", "\n".join(md) + "\n")
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>coster-sumo regression</title>",
          "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
          "td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}img{max-width:48%}</style></head><body>",
@@ -287,7 +282,7 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
                 h.append(f"<img src='{html.escape(rel)}'>")
         h.append("</p>")
     h.append("</body></html>")
-    _atomic_text(out / "report.html", "\n".join(h) + "\n")
+    write_text(out / "report.html", "\n".join(h) + "\n")
     return written
 
 
@@ -337,7 +332,7 @@ def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
     slim = {k: {c: v for c, v in m.items() if c not in ("relative_speeds", "impact_angles")} for k, m in table.items()}
     doc = {"methods": slim, "failed_scenes": summary["methods"]["failed_scenes"], "planner": summary["planner"],
            "variants": summary["variants"], "units": summary["units"]}
-    _atomic_text(out / "metrics.json", json.dumps(doc, indent=1))
+    write_text(out / "metrics.json", json.dumps(doc, indent=1))
     plot_generator_metrics(out / "metrics.png", summary)
     head, rows = generator_table(summary)
     md = ["# Scenario generators", "",
@@ -353,5 +348,5 @@ def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
     if failed:
         md += ["## Scenes that failed", "", _md_table(["scene", "reason"],
                                                        [[f["scene_key"], str(f["reason"])] for f in failed]), ""]
-    _atomic_text(out / "metrics.md", "\n".join(md) + "\n")
+    write_text(out / "metrics.md", "\n".join(md) + "\n")
     return ["metrics.json", "metrics.md", "metrics.png"]

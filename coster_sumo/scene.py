@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from coster_sumo.atomic import atomic_path, write_json
 from coster_sumo.errors import InputError
 
 
@@ -441,9 +442,8 @@ def save_scene(scene: Scene, path: str | Path) -> Path:
     for key, value in list(arrays.items()):
         if value.dtype.kind in "OU":  # store strings as fixed-width unicode, never pickled objects
             arrays[key] = value.astype(str)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
     return path
 
 
@@ -579,11 +579,7 @@ class CollisionSnapshot:
 
     def save(self, path: str | Path) -> Path:
         """Write JSON atomically. Floats are written with repr precision, so loading is lossless."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1))
-        tmp.replace(path)
-        return path
+        return write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> CollisionSnapshot:

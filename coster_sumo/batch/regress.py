@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import DEFAULT_TIMEOUT_S, SUMO_TASK_MODULES, Outcome, Task, execute
 from coster_sumo.batch.sources import nominal_for, parse_sources, scene_key, slug
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
 from coster_sumo.core import Variant, check_generation
 from coster_sumo.errors import InputError
-from coster_sumo.formats.atomic import write_json
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 

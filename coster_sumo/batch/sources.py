@@ -15,8 +15,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import InputError
-from coster_sumo.formats.atomic import atomic_path
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.scene import Scene
 from coster_sumo.spec import ScenarioSpec

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.formats.atomic import atomic_path
+from coster_sumo.atomic import atomic_path
 
 WILSON_Z = 1.959963984540054  # two-sided 95 %
 

@@ -10,11 +10,11 @@ error or nothing could be read.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
+from coster_sumo.atomic import write_json
 from coster_sumo.errors import CosterError, InputError
 
 
@@ -102,9 +102,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {"outdir": str(out), "inputs": [str(p) for p in args.inputs], "converted": len(scenes),
                "failed": len(failures), "scenes": scenes, "failures": failures,
                "wall_s": round(time.perf_counter() - t0, 3)}
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    tmp.replace(out / "summary.json")
+    write_json(out / "summary.json", summary)
     if not quiet:
         print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")
     if not scenes and not read_any:

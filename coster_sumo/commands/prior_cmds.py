@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
 import time
 from pathlib import Path
 
+from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 
 DEFAULT_CHECKPOINT = "models/prior.pt"
@@ -146,9 +146,7 @@ def run_eval(args: argparse.Namespace) -> int:
                    "split": args.split})
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(json.dumps(result, indent=2) + "\n")
-    tmp.replace(out)
+    write_json(out, result, indent=2)
     if not args.quiet:
         for name, m in result["mmd"].items():
             vals = " ".join(f"{a}={m[a]:.4f}" if m[a] is not None else f"{a}=n/a"

@@ -10,10 +10,10 @@ simply run (``--fcd-output`` passes through). ``summary.json`` goes to ``--out``
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
+from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 
 
@@ -56,9 +56,7 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     out: Path = args.out if args.out is not None else args.config.parent / "replay"
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    tmp.replace(out / "summary.json")
+    write_json(out / "summary.json", summary)
     if not quiet:
         if summary["mode"] == "replay":
             print(f"{summary['scenario_id']}: {summary['steps']} steps, {summary['agents']} agents, "

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import shlex
 import sys
@@ -11,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 
 DEFAULT_CHECKPOINT = "models/rollout.pt"
@@ -93,9 +93,7 @@ def _command() -> str:
 
 def _write_json(path: Path, obj: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1) + "\n")
-    tmp.replace(path)
+    write_json(path, obj)
 
 
 def run_train(args: argparse.Namespace) -> int:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import InputError
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import ScenePriorData, at_prior_rate, prepare_scene, scene_tokens
@@ -36,9 +37,8 @@ def save_prior(model: TrafficPrior, path: str | Path, metrics: dict | None = Non
     payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": model.config.to_dict(),
                "state_dict": model.state_dict(), "metrics": metrics or {}, "meta": meta or {}}
     payload.update(extra or {})
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
     return path
 
 

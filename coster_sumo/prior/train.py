@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from coster_sumo.atomic import atomic_path, write_json
 from coster_sumo.errors import InputError
 from coster_sumo.prior.bins import ATTRIBUTES
 from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
@@ -81,12 +82,6 @@ def _lr_at(step: int, total: int, cfg: TrainConfig) -> float:
         return cfg.lr * (step + 1) / cfg.warmup_steps
     frac = (step - cfg.warmup_steps) / max(1, total - cfg.warmup_steps)
     return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(frac, 1.0)))
-
-
-def _write_json(path: Path, obj: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n")
-    tmp.replace(path)
 
 
 def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], output: str | Path,
@@ -172,11 +167,10 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
             record["best"] = True
         history.append(record)
         state_path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = state_path.with_name(state_path.name + ".tmp")
-        torch.save({"config": mcfg.to_dict(), "train_config": asdict(tcfg), "model": model.state_dict(),
-                    "optimizer": opt.state_dict(), "epoch": epoch + 1, "best": best, "best_model": best_state,
-                    "history": json.dumps(history)}, tmp)
-        tmp.replace(state_path)
+        with atomic_path(state_path) as tmp:
+            torch.save({"config": mcfg.to_dict(), "train_config": asdict(tcfg), "model": model.state_dict(),
+                        "optimizer": opt.state_dict(), "epoch": epoch + 1, "best": best, "best_model": best_state,
+                        "history": json.dumps(history)}, tmp)
         if log:
             val_txt = f" val {record['val']['loss']:.4f}" if "val" in record else ""
             log(f"epoch {epoch + 1}/{tcfg.epochs}: train {record['train_loss']:.4f}{val_txt} "
@@ -190,5 +184,5 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
                "num_parameters": sum(p.numel() for p in model.parameters()), **(meta or {})}
     save_prior(model, output, metrics={k: v for k, v in metrics.items() if k != "history"},
                meta=meta or {})
-    _write_json(output.with_suffix(".json"), metrics)
+    write_json(output.with_suffix(".json"), metrics)
     return metrics

@@ -7,12 +7,12 @@ not fit the config) raises :class:`~coster_sumo.errors.InputError` with one line
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import InputError
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
 
@@ -24,9 +24,8 @@ def atomic_torch_save(obj: Any, path: str | Path) -> Path:
     """torch.save to a temporary name, then rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
     return path
 
 

@@ -36,12 +36,11 @@ import numpy as np
 
 from coster_sumo.errors import InputError
 from coster_sumo.geometry import resample_polylines
+from coster_sumo.rollout.config import RolloutConfig
 from coster_sumo.scene import ObjectType, Scene, SignalState
 
 if TYPE_CHECKING:
     import torch
-
-    from coster_sumo.rollout.model import RolloutConfig
 
 ROLLOUT_HZ = 2.0  # [1/s]
 STATE_FEATURES = 4

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 from coster_sumo.rollout.checkpoint import atomic_torch_save, read_torch_file, save_checkpoint
 from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
@@ -134,12 +135,6 @@ def _metrics_path(out: Path) -> Path:
     return out.with_suffix(".json")
 
 
-def _write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1) + "\n")
-    tmp.replace(path)
-
-
 def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None = None,
                   tcfg: TrainConfig | None = None, *, resume: bool = True, quiet: bool = False,
                   command: str | None = None) -> dict[str, Any]:
@@ -236,7 +231,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
             "command": command if command is not None else " ".join(sys.argv),
             "units": {"ADE/FDE": "m", "loss": "negative ELBO per valid step (nats)", "time_s": "s"},
         }
-        _write_json(_metrics_path(out), metrics)
+        write_json(_metrics_path(out), metrics)
         if not quiet:
             shown = {k: round(v, 4) for k, v in entry.items() if isinstance(v, float)}
             print(f"epoch {epoch + 1}: {shown}", file=sys.stderr)

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import InputError
 from coster_sumo.geometry import box_corners
 from coster_sumo.scene import ObjectType, Scene
@@ -57,14 +58,6 @@ def invert(delta: np.ndarray) -> np.ndarray:
     c, s = np.cos(delta[..., 2]), np.sin(delta[..., 2])
     return np.stack([-(c * delta[..., 0] + s * delta[..., 1]), -(-s * delta[..., 0] + c * delta[..., 1]),
                      -delta[..., 2]], axis=-1)
-
-
-def corner_error(a: np.ndarray, b: np.ndarray, length: float = REF_LENGTH_M, width: float = REF_WIDTH_M
-                 ) -> np.ndarray:
-    """Mean distance [m] between corresponding corners of boxes at poses ``a`` and ``b`` (..., 3)."""
-    ca = box_corners(a[..., 0], a[..., 1], a[..., 2], length, width)  # (..., 4, 2)
-    cb = box_corners(b[..., 0], b[..., 1], b[..., 2], length, width)
-    return np.linalg.norm(ca - cb, axis=-1).mean(axis=-1)
 
 
 def transition_error(d: np.ndarray, tokens: np.ndarray, length: float, width: float) -> np.ndarray:
@@ -105,10 +98,9 @@ class MotionVocab:
         path = Path(path)
         header = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "length": self.length, "width": self.width,
                   "epsilon_m": self.epsilon_m, "dt_s": self.dt_s, "meta": self.meta}
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, tokens=self.tokens.astype(np.float64),
-                            header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8))
-        tmp.replace(path)
+        with atomic_path(path) as tmp:
+            np.savez_compressed(tmp, tokens=self.tokens.astype(np.float64),
+                                header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8))
         return path
 
     @classmethod

@@ -28,11 +28,7 @@ import contextlib
 import io
 import itertools
 import math
-import subprocess
-import tempfile
-import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
@@ -41,119 +37,28 @@ import numpy as np
 from coster_sumo import frames, sumo_env
 from coster_sumo.errors import CosterError, InputError, SumoError
 from coster_sumo.formats.sumocfg import check_xml, read_sumocfg
-
-# Options always passed to SUMO unless the caller overrides them (docs/sumo.md §7). Why each one:
-RECOMMENDED_OPTIONS: dict[str, str] = {
-    "--step-length": "0.1",                 # 10 Hz like WOMD; SUMO's default is 1 s
-    "--collision.action": "warn",           # the default "teleport" hides collisions caused by moveToXY
-    "--collision.mingap-factor": "0",       # collision = geometric overlap, not gap < minGap
-    "--collision.check-junctions": "true",  # also check inside junctions (approximate, see docs/sumo.md §4)
-    "--time-to-teleport": "-1",             # never teleport vehicles stuck behind a replayed agent
-    "--no-step-log": "true",
-    "--no-warnings": "true",                # collisions still come back through the API
-    "--verbose": "false",                   # configs that set it would print over the progress bars
-    "--duration-log.statistics": "false",
-}
-
-# --- TraCI magic values ------------------------------------------------------------------------
-# moveToXY keepRoute is a bit set:
-#   bit0 (1): map onto the closest position *within the vehicle's current route*;
-#   bit1 (2): place the vehicle at the exact x, y (including its lateral offset), on any edge, and
-#             even off the road network: the vehicle then does not move by itself while off-road;
-#   bit2 (4): map onto the closest edge regardless of route and permissions.
-# We use 2: exact placement anywhere. SUMO rewrites the route to the edge(s) it maps onto, so the
-# lane and route SUMO reports for a moved vehicle mean little (docs/sumo.md §3).
-KEEP_ROUTE_EXACT_ANYWHERE = 2
-# moveToXY matchThreshold [m]: how far from any lane a placement may be before the command fails;
-# with keepRoute=2 a placement off the network is legal, so the threshold only bounds lane matching;
-# 5 m keeps moveToXY at ~30 us on WOMD nets (100 m cost ~0.9 ms per call) and placements stay exact.
-MOVE_MATCH_THRESHOLD_M = 5.0
-# speed mode is a bit set; bit set = "respect": bit0 safe speed (car following), bit1 max
-# acceleration, bit2 max deceleration, bit3 right of way at intersections, bit4 brake hard to not
-# pass a red light, bit5 *disregard* right of way within intersections, bit6 speed limits.
-# 0 = SUMO checks nothing for this vehicle: our commands are final.
-SPEED_MODE_ALL_CHECKS_OFF = 0
-SPEED_MODE_SUMO_DEFAULT = 31  # bits 0-4: what SUMO's own driver respects by default
-# lane-change mode is a bit set (strategic, cooperative, speed gain, keep right, how TraCI requests
-# interact with the others, sublane); 0 = the vehicle never changes lanes on its own.
-LANE_CHANGE_MODE_NO_AUTONOMOUS = 0
-LANE_CHANGE_MODE_SUMO_DEFAULT = 1621  # SUMO's default: every lane-change reason on, TraCI requests yield
-# Reported speed of a moveToXY vehicle = min(displacement / dt, lane limit * speedFactor, maxSpeed)
-# (docs/sumo.md §7). Large values lift the cap so getSpeed (and followers) see the true speed.
-REMOTE_SPEED_FACTOR = 10.0  # [-]
-REMOTE_MAX_SPEED_MPS = 100.0  # [m/s]
-TRACI_CONNECT_TIMEOUT_S = 60.0  # [s] a big net takes a while to load before SUMO listens
-
-# SUMO vehicle classes mapped onto our object types elsewhere; kept as strings here.
-_SHORT_TO_LONG = {"-c": "--configuration-file", "-n": "--net-file", "-r": "--route-files",
-                  "-a": "--additional-files", "-b": "--begin", "-e": "--end"}
+from coster_sumo.sim.states import VehicleStates, empty_states
+from coster_sumo.sim.sumo_options import (
+    KEEP_ROUTE_EXACT_ANYWHERE,
+    LANE_CHANGE_MODE_NO_AUTONOMOUS,
+    LANE_CHANGE_MODE_SUMO_DEFAULT,
+    MOVE_MATCH_THRESHOLD_M,
+    RECOMMENDED_OPTIONS,
+    REMOTE_MAX_SPEED_MPS,
+    REMOTE_SPEED_FACTOR,
+    SHORT_TO_LONG,
+    SPEED_MODE_ALL_CHECKS_OFF,
+    SPEED_MODE_SUMO_DEFAULT,
+)
+from coster_sumo.sim.traci_server import attach_traci, start_traci_server
 
 _LIBSUMO_OWNER: SumoSession | None = None  # the live libsumo session of this process, if any
 _LABELS = itertools.count()
 
 
-@dataclass(frozen=True, slots=True)
-class VehicleStates:
-    """State of every vehicle in the simulation at one step, in our frame.
-
-    Attributes:
-        ids: (N,) str SUMO vehicle ids.
-        x: (N,) float64 [m] box centre.
-        y: (N,) float64 [m] box centre.
-        yaw: (N,) float64 [rad] counter-clockwise from +x, in (-pi, pi].
-        speed: (N,) float64 [m/s] as SUMO reports it (longitudinal).
-        length: (N,) float64 [m].
-        width: (N,) float64 [m].
-        vclass: (N,) str SUMO vehicle class ("passenger", "bicycle", ...).
-        type_id: (N,) str SUMO vType id.
-        names: the same ids as a Python list when whoever built the states had one (the session
-            does), else None; read them with :meth:`id_list`.
-    """
-
-    ids: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    yaw: np.ndarray
-    speed: np.ndarray
-    length: np.ndarray
-    width: np.ndarray
-    vclass: np.ndarray
-    type_id: np.ndarray
-    names: list[str] | None = field(default=None, repr=False, compare=False)
-
-    def __len__(self) -> int:
-        return len(self.ids)
-
-    @property
-    def vx(self) -> np.ndarray:
-        """(N,) float64 [m/s] velocity along +x (speed along the heading)."""
-        return self.speed * np.cos(self.yaw)
-
-    @property
-    def vy(self) -> np.ndarray:
-        """(N,) float64 [m/s] velocity along +y."""
-        return self.speed * np.sin(self.yaw)
-
-    def id_list(self) -> list[str]:
-        """The ids as a Python list (no conversion when :attr:`names` is set)."""
-        return self.names if self.names is not None else self.ids.tolist()
-
-    def index_of(self, veh_id: str) -> int:
-        hits = np.flatnonzero(self.ids == veh_id)
-        if len(hits) == 0:
-            raise KeyError(veh_id)
-        return int(hits[0])
-
-
-def _empty_states() -> VehicleStates:
-    f = np.zeros(0, np.float64)
-    s = np.zeros(0, dtype=str)
-    return VehicleStates(ids=s, x=f, y=f, yaw=f, speed=f, length=f, width=f, vclass=s, type_id=s)
-
-
 def _option_key(arg: str) -> str:
     key = arg.split("=", 1)[0]
-    return _SHORT_TO_LONG.get(key, key)
+    return SHORT_TO_LONG.get(key, key)
 
 
 class SumoSession:
@@ -327,9 +232,9 @@ class SumoSession:
             self._label = f"coster{next(_LABELS)}"
             try:
                 if self.port is not None:
-                    api = self._attach_traci(traci)
+                    api = attach_traci(traci, self.port, self.host, self._label)
                 else:
-                    api = self._start_traci_server(traci)
+                    api, self._stderr = start_traci_server(traci, self.command(), self._label, self.name)
             except CosterError:
                 raise
             except Exception as exc:  # FatalTraCIError / OSError
@@ -345,51 +250,6 @@ class SumoSession:
             for vid in api.vehicle.getIDList():  # attaching mid-run
                 self._subscribe_vehicle(vid)
         return self
-
-    def _start_traci_server(self, traci: Any) -> Any:
-        """Popen SUMO with a free --remote-port and connect, polling every 20 ms.
-
-        ``traci.start`` would sleep a whole second before its first retry and print about it.
-        SUMO's stderr goes to a temporary file so that a failed start can say why.
-        """
-        sumolib = sumo_env.import_sumolib()
-        port = sumolib.miscutils.getFreeSocketPort()
-        self._stderr = tempfile.TemporaryFile()
-        proc = subprocess.Popen(self.command() + ["--remote-port", str(port)], stdout=subprocess.DEVNULL,
-                                stderr=self._stderr, env=sumo_env.subprocess_env())
-        deadline = time.monotonic() + TRACI_CONNECT_TIMEOUT_S
-        while True:
-            try:
-                return traci.connect(port=port, numRetries=0, proc=proc, label=self._label)
-            except Exception as exc:
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    if proc.poll() is None:
-                        proc.kill()
-                    proc.wait()
-                    reason = self._server_error() or _one_line(exc)
-                    self._stderr.close()
-                    self._stderr = None
-                    raise InputError(f"{self.name}: SUMO could not load it: {reason}") from None
-                time.sleep(0.02)
-
-    def _attach_traci(self, traci: Any) -> Any:
-        """Connect to a server someone else started, polling quietly until it listens."""
-        deadline = time.monotonic() + TRACI_CONNECT_TIMEOUT_S
-        while True:
-            try:
-                return traci.connect(port=self.port, host=self.host, numRetries=0, label=self._label)
-            except Exception:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.05)
-
-    def _server_error(self) -> str:
-        if self._stderr is None:
-            return ""
-        self._stderr.seek(0)
-        lines = self._stderr.read().decode(errors="replace").splitlines()
-        errors = [ln.strip() for ln in lines if ln.startswith("Error")]
-        return " ".join(errors[:2]) or " ".join(ln.strip() for ln in lines[-2:])
 
     def close(self) -> None:
         """Close the simulation (or the connection to an external server). Safe to call twice."""
@@ -508,7 +368,7 @@ class SumoSession:
             results = veh.getAllSubscriptionResults()
             id_list = [v for v in results if v not in self.hidden] if ids is None else list(ids)
             if not id_list:
-                return _empty_states()
+                return empty_states()
             tc = self._tc()
             rows = [results[v] for v in id_list]
             pos = np.array([r[tc.VAR_POSITION] for r in rows], np.float64).reshape(-1, 2)
@@ -526,7 +386,7 @@ class SumoSession:
             else:
                 id_list = list(veh.getIDList())
             if not id_list:
-                return _empty_states()
+                return empty_states()
             # list comprehensions over bound getters: about 2x faster than filling arrays per item
             get_pos, get_angle, get_speed = veh.getPosition, veh.getAngle, veh.getSpeed
             pos = np.array([get_pos(v) for v in id_list], np.float64).reshape(-1, 2)

@@ -1,0 +1,84 @@
+"""Settings of the rollout CVAE and its input encoding (saved in every checkpoint; no torch here)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from coster_sumo.errors import InputError
+
+
+@dataclass
+class RolloutConfig:
+    """Model and input-encoding settings (saved in every checkpoint).
+
+    Attributes:
+        hidden: width D of every embedding and of the recurrent state.
+        heads: attention heads (D must be divisible by it).
+        latent: size of each per-step latent z_k.
+        posterior_hidden: width of the posterior GRU over the true reverse segment.
+        max_horizon: [2 Hz steps] longest reconstruction (10 = 5 s); shorter when t_rev is early.
+        use_dsa: dynamic surrounding attention (False: neighbours as at t_rev only).
+        map_every_step: attend to the map again at every step (factored like DSA; cheap).
+        max_neighbors, neighbor_radius_m: at most this many neighbours, within this distance of the
+            sample at every step (masked per sample).
+        neighbor_select_radius_m: [m] neighbours are chosen among agents this close to the t_rev
+            position (larger than ``neighbor_radius_m``: samples move).
+        max_map_chunks, map_radius_m: map chunks kept around the t_rev position.
+        lane_spacing_m, chunk_vectors: lanes resampled every ``lane_spacing_m``, chunks of this many
+            vectors.
+        pos_scale_m, vel_scale_mps: input normalisation.
+        disp_scale: (3,) scale of the decoder's output, the correction of (dx [m], dy [m], dyaw [rad])
+            to a constant-velocity step (see :meth:`RolloutCVAE.rollout`).
+        recon_sigma: (3,) fixed standard deviation of the Gaussian reconstruction term.
+        kl_weight: weight of the KL term (1 = the ELBO).
+        free_nats: per step, KL below this is not penalised (0 = the plain ELBO).
+    """
+
+    hidden: int = 256
+    heads: int = 8
+    latent: int = 32
+    posterior_hidden: int = 128
+    max_horizon: int = 10
+    use_dsa: bool = True
+    map_every_step: bool = True
+    max_neighbors: int = 32
+    neighbor_radius_m: float = 50.0
+    neighbor_select_radius_m: float = 80.0
+    max_map_chunks: int = 128
+    map_radius_m: float = 80.0
+    lane_spacing_m: float = 2.0
+    chunk_vectors: int = 5
+    pos_scale_m: float = 20.0
+    vel_scale_mps: float = 10.0
+    disp_scale: tuple[float, float, float] = (1.0, 0.3, 0.05)
+    recon_sigma: tuple[float, float, float] = (0.2, 0.1, 0.02)
+    kl_weight: float = 1.0
+    free_nats: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.hidden % self.heads:
+            raise InputError(f"rollout config: hidden {self.hidden} is not divisible by heads {self.heads}")
+        if self.max_horizon < 1:
+            raise InputError("rollout config: max_horizon must be >= 1")
+        self.disp_scale = tuple(float(v) for v in self.disp_scale)  # type: ignore[assignment]
+        self.recon_sigma = tuple(float(v) for v in self.recon_sigma)  # type: ignore[assignment]
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["disp_scale"] = list(self.disp_scale)
+        d["recon_sigma"] = list(self.recon_sigma)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RolloutConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise InputError (a mismatched checkpoint)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise InputError(f"unknown rollout config key(s): {', '.join(unknown)}")
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise InputError(f"bad rollout config: {exc}") from None
