@@ -173,8 +173,12 @@ class LogReplayer:
         """Command every logged agent (and the signals) for the step that ends at ``t_next`` [s]."""
         tr = self.scene.tracks
         for a, t_hand in self.handover.items():
-            if a not in self.released and a in self.active and t_next > t_hand + TIME_EPS_S:
-                session.release_vehicle(self.active[a])  # SUMO's driver (or a planner) from here on
+            placed = a in self.active and self.active[a] not in session.hidden  # at a logged pose, not staged
+            if a not in self.released and placed and t_next > t_hand + TIME_EPS_S:
+                ahead = np.flatnonzero(tr.valid[a])[::-1][::5]  # heading for where the log ends
+                session.release_vehicle(self.active[a], [(float(tr.x[a, k]), float(tr.y[a, k]),
+                                                          float(tr.heading[a, k]), float(self.lengths[a]))
+                                                         for k in ahead[:20]])
                 self.released.add(a)
         k = self.step_at(t_next)
         if k is not None:

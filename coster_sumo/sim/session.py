@@ -490,16 +490,27 @@ class SumoSession:
         if speed is not None:
             self._pending_speed[veh_id] = float(speed)
 
-    def release_vehicle(self, veh_id: str) -> None:
+    def release_vehicle(self, veh_id: str, destinations: Sequence[tuple[float, float, float, float]] = ()) -> None:
         """Hand a vehicle driven by :meth:`move_to_xy` back to SUMO's driver model.
 
         Restores SUMO's default speed mode and lane-change mode and an ordinary speed factor, so
         the driver model, safe gaps and speed limits apply again from the vehicle's current pose.
+        moveToXY left it a route of the one edge it stands on; ``destinations`` (poses further on:
+        centre x, y [m], yaw [rad], length [m], best first) give it a route to the first normal
+        (not internal) edge under one of them that SUMO can route to.
         """
         veh = self.api.vehicle
         veh.setSpeedMode(veh_id, SPEED_MODE_SUMO_DEFAULT)
         veh.setLaneChangeMode(veh_id, LANE_CHANGE_MODE_SUMO_DEFAULT)
         veh.setSpeedFactor(veh_id, 1.0)
+        vclass = veh.getVehicleClass(veh_id) if destinations else ""
+        for pose in destinations:
+            fx, fy, _ = frames.to_sumo(*pose)
+            with contextlib.suppress(Exception):  # no edge there, or no route to it: try the next
+                edge, _, _ = self.api.simulation.convertRoad(float(fx), float(fy), False, vclass)
+                if edge and not str(edge).startswith(":"):
+                    veh.changeTarget(veh_id, str(edge))
+                    return
         self._remote.discard(veh_id)
         self._pending_speed.pop(veh_id, None)
 
