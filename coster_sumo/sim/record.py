@@ -41,6 +41,7 @@ from coster_sumo.formats.sumo_net import SumoNet, load_sumo_net
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.scene import ObjectType, Scene, SignalState, SignalStates, Tracks
 from coster_sumo.sim.session import SumoSession, VehicleStates
+from coster_sumo.sim.states import empty_states
 
 # SUMO link state letter -> SignalState (see the module docstring)
 LINK_STATE: dict[str, SignalState] = {
@@ -163,10 +164,28 @@ def net_file_of(session: SumoSession) -> Path:
     raise InputError(f"{session.name}: cannot tell which net file it runs on; pass net=...")
 
 
+@dataclass(frozen=True)
+class Focus:
+    """Record one vehicle's surroundings instead of the whole network.
+
+    Attributes:
+        target_id: the vehicle that matters; nothing is recorded before it departs.
+        radius_m: [m] vehicles this close to it are recorded (SUMO finds them).
+        extra_ids: recorded whenever they are in the simulation, wherever they are (the adversary).
+        until_arrival: stop stepping once the target has arrived.
+    """
+
+    target_id: str
+    radius_m: float = 150.0
+    extra_ids: tuple[str, ...] = ()
+    until_arrival: bool = True
+
+
 def record(session: SumoSession, *, end: float | None = None, begin: float | None = None,
            max_steps: int | None = None, net: SumoNet | None = None, incoming_lanes: bool = True,
            before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
-           scenario_id: str | None = None, meta: dict[str, Any] | None = None) -> Scene:
+           scenario_id: str | None = None, meta: dict[str, Any] | None = None,
+           focus: Focus | None = None) -> Scene:
     """Step a running session and record it into a :class:`Scene` (``source="sumo"``).
 
     Stepping stops at the first of: the time reaches ``end`` [s] (default: the session's own
@@ -180,6 +199,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         incoming_lanes: also give incoming lanes a signal state (see the module docstring).
         before_step: called before every simulation step, e.g. to ``move_to_xy`` an adversary.
         after_step: called after every step with the vehicle states just read; return True to stop.
+        focus: record only the surroundings of one vehicle while it runs (see :class:`Focus`); the
+            steps before it departs are simulated without reading anything.
         scenario_id: default ``<config or net stem>_seed<seed>``.
         meta: extra metadata merged into ``Scene.meta``.
     """
@@ -201,6 +222,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     rows: list[tuple[np.ndarray, VehicleStates]] = []
     signal_rows: list[np.ndarray] = []
     steps = 0
+    seen_target = focus is not None and focus.target_id in session.vehicle_ids()
     while True:
         if max_steps is not None and steps >= max_steps:
             break
@@ -212,7 +234,24 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
             before_step(session)
         t = session.step()
         steps += 1
-        st = session.vehicle_states()
+        if focus is None:
+            st = session.vehicle_states()
+        else:
+            if focus.target_id in session.arrived_ids():
+                seen_target = False
+                if focus.until_arrival and times:
+                    break
+            if not seen_target and focus.target_id in session.departed_ids():
+                seen_target = True
+            if not seen_target:
+                if after_step is not None and after_step(session, empty_states()):
+                    break
+                continue
+            near = session.vehicles_near(focus.target_id, focus.radius_m)
+            if focus.extra_ids:
+                running, present = set(session.vehicle_ids()), set(near)
+                near += [v for v in focus.extra_ids if v not in present and v in running and v not in session.hidden]
+            st = session.vehicle_states(near)
         stop = bool(after_step(session, st)) if after_step is not None else False
         if begin is None or t >= begin - eps:
             idx = np.empty(len(st), np.int64)

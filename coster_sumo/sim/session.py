@@ -113,6 +113,7 @@ class SumoSession:
         self._label: str | None = None
         self._static: dict[str, tuple[float, float, str, str]] = {}  # id -> length, width, vclass, type
         self._remote: set[str] = set()  # vehicles we drive with moveToXY
+        self._context: dict[str, float] = {}  # vehicle -> radius [m] of its context subscription
         # vehicles in the simulation that are not part of the scene yet (a log replayer's agents
         # parked on the staging lane): left out of vehicle_states() and so of recordings and events
         self.hidden: set[str] = set()
@@ -261,6 +262,7 @@ class SumoSession:
             _LIBSUMO_OWNER = None
         self._static.clear()
         self._remote.clear()
+        self._context.clear()
         self.hidden.clear()
         self._pending_speed.clear()
         with contextlib.suppress(Exception):  # SUMO may already be gone; closing must not mask that
@@ -302,6 +304,7 @@ class SumoSession:
             self._static.pop(vid, None)
             self._remote.discard(vid)
             self.hidden.discard(vid)
+            self._context.pop(vid, None)
         self._speed_set = {}
         if self._pending_speed:
             for vid, v in self._pending_speed.items():
@@ -410,6 +413,28 @@ class SumoSession:
         return VehicleStates(ids=np.array(id_list, dtype=str), x=cx, y=cy, yaw=yaw, speed=speed,
                              length=length, width=width, vclass=np.array(vclass, dtype=str),
                              type_id=np.array(type_id, dtype=str), names=id_list)
+
+    def vehicles_near(self, veh_id: str, radius_m: float) -> list[str]:
+        """Ids of the vehicles within ``radius_m`` of ``veh_id`` (itself included), hidden ones left out.
+
+        SUMO finds them (a context subscription made on the first call), so the cost does not grow
+        with the number of vehicles in the network.
+        """
+        veh = self.api.vehicle
+        if self._context.get(veh_id) != radius_m:
+            tc = self._tc()
+            veh.subscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m), [tc.VAR_POSITION])
+            self._context[veh_id] = radius_m
+            # results arrive with the next step; this once, measure the distances ourselves
+            cx, cy = veh.getPosition(veh_id)
+            near = {v: None for v in veh.getIDList()
+                    if math.dist(veh.getPosition(v), (cx, cy)) <= radius_m}
+        else:
+            near = veh.getContextSubscriptionResults(veh_id) or {}
+        ids = [v for v in near if v not in self.hidden]
+        if veh_id not in near and veh_id not in self.hidden:
+            ids.insert(0, veh_id)
+        return ids
 
     def add_vehicle(self, veh_id: str, length: float, width: float, vclass: str = "passenger", *,
                     route_edges: Sequence[str] | None = None, route_id: str | None = None,
