@@ -20,12 +20,15 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from coster_sumo import weights
+from coster_sumo.dataset import crop_scene
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
@@ -35,10 +38,12 @@ from coster_sumo.plan import AdversaryPlan
 from coster_sumo.rollout.methods import ROLLOUTS
 from coster_sumo.scene import CollisionSnapshot, Scene, load_scene, resample
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M
-from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS, NoSnapshot
+from coster_sumo.sim.hold import HeldStates
+from coster_sumo.snapshot import COLLISION_TIME_RULES, MARGIN_END, SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
+
 PRIOR_RATE_HZ = 2.0  # [1/s] the prior and the rollout work at 2 Hz
 SNAPSHOT_ATTEMPTS = 5  # snapshot + rollout attempts before a scene is declared unusable
 
@@ -91,20 +96,37 @@ def missing_weights(gen: GenerationConfig) -> str | None:
 
 # ----------------------------------------------------------------------------- nominal scene
 
-def nominal_scene(spec: ScenarioSpec, *, traci: bool = False) -> tuple[Scene, bool]:
-    """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log)."""
+def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates | None = None,
+                  additional: Sequence[Path] = ()) -> tuple[Scene, bool]:
+    """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
+
+    A SUMO configuration is recorded around the target only (see :data:`SURROUNDINGS_RADIUS_M`);
+    with ``hold`` the pass leaves held copies of itself for the variants (:mod:`coster_sumo.sim.hold`);
+    ``additional`` files are loaded as the variants' passes will load them (a planner's vType).
+    """
     cfg = spec.config
     if not cfg.exists():
         raise InputError(f"{cfg}: no such SUMO configuration")
     log = converted_scene_file(cfg)
     if log is not None:
         return load_scene(log), True
-    from coster_sumo.sim.record import record_config
+    from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
 
     end = spec.end if spec.end is not None else read_sumocfg(cfg).end
     if end is None:
         end = (spec.begin or 0.0) + DEFAULT_DURATION_S
-    scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci)
+    target = spec.target or "ego"
+    # recording goes on a little after the target arrives: the collision-time search keeps the last
+    # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
+    tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
+    extra: dict[str, Any] = {"additional": list(additional)} if additional else {}
+    scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
+                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s),
+                          after_step=hold.after_step if hold is not None else None, **extra)
+    if target in scene.tracks.ids.tolist():  # regions and the drivable area cover its surroundings only
+        return crop_scene(scene, SURROUNDINGS_RADIUS_M, scene.tracks.index_of(target)), False
+    # the target never ran: a whole recording, so that the error can name the vehicles that did
+    scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci, **extra)
     if scene.num_steps == 0:
         raise InputError(f"{cfg}: the simulation recorded no step in [{spec.begin}, {end}]")
     return scene, False

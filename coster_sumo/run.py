@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -20,9 +21,11 @@ from typing import Any
 from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenario
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.outputs import write_run_outputs
-from coster_sumo.sim.inject import default_planner, inject_variant
-from coster_sumo.sim.planners import check_planner
+from coster_sumo.sim.hold import HeldStates
+from coster_sumo.sim.inject import default_planner, inject_variants
+from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot import NoSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -38,6 +41,8 @@ class RunOptions:
     traci: bool = False
     render: bool = True
     quiet: bool = False
+    from_begin: bool = False  # every variant simulates from begin instead of a held copy of the nominal pass
+    workers: int = field(default_factory=lambda: os.cpu_count() or 1)  # variants run at a time (held copies)
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
@@ -52,25 +57,30 @@ def run(opts: RunOptions) -> dict[str, Any]:
         check_planner(opts.planner)
     spec = opts.spec
     timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    scene, converted = nominal_scene(spec, traci=opts.traci)
-    timings["nominal_s"] = time.perf_counter() - t0
-    target = choose_target(scene, spec.target, spec.config)
-    t0 = time.perf_counter()
-    drivable = DrivableArea.from_road_map(scene.road_map)
-    try:
-        planned = plan_scenario(scene, target, spec.seed, opts.generation, drivable)
-    except NoSnapshot as exc:
-        raise InputError(f"{spec.config}: no collision snapshot for target "
-                         f"{str(scene.tracks.ids[target])!r}: {exc}") from None
-    timings["generation_s"] = time.perf_counter() - t0
-    planner = opts.planner or default_planner(converted)
     opts.out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{opts.out.name}.", dir=opts.out.parent))
+    held = HeldStates(spec.target or "ego") if not (opts.from_begin or opts.traci) else None
     try:
         t0 = time.perf_counter()
-        results = [inject_variant(spec, scene, target, plan, planner, drivable=drivable, traci=opts.traci,
-                                  workdir=staging) for plan in planned.plans]
+        converted = converted_scene_file(spec.config) is not None
+        planner = opts.planner or default_planner(converted)
+        # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
+        # copies of it must have them
+        extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
+        scene, converted = nominal_scene(spec, traci=opts.traci, hold=None if converted else held, additional=extra)
+        timings["nominal_s"] = time.perf_counter() - t0
+        target = choose_target(scene, spec.target, spec.config)
+        t0 = time.perf_counter()
+        drivable = DrivableArea.from_road_map(scene.road_map)
+        try:
+            planned = plan_scenario(scene, target, spec.seed, opts.generation, drivable)
+        except NoSnapshot as exc:
+            raise InputError(f"{spec.config}: no collision snapshot for target "
+                             f"{str(scene.tracks.ids[target])!r}: {exc}") from None
+        timings["generation_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        results = inject_variants(spec, scene, target, planned.plans, planner, drivable=drivable, traci=opts.traci,
+                                  workdir=staging, held=held, workers=opts.workers)
         timings["injection_s"] = time.perf_counter() - t0
         summary = write_run_outputs(staging, spec, planner, planned, results, timings, render=opts.render,
                                     options=opts.to_json())
@@ -80,4 +90,7 @@ def run(opts: RunOptions) -> dict[str, Any]:
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    finally:
+        if held is not None:
+            held.close()
     return summary

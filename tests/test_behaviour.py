@@ -11,10 +11,8 @@ existed in the pass (no contact, route never completed); now the log drives it a
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
-
 from behaviour import EXPECTATIONS, WOMD, differences, record
 
 BEFORE = EXPECTATIONS.with_name("behaviour_before_redesign.json")

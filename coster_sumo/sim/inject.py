@@ -33,12 +33,14 @@ from coster_sumo.frames import centre_to_front
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.events import Event, EventDetector
+from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
-from coster_sumo.sim.record import record
+from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
 from coster_sumo.sim.session import SumoSession, VehicleStates
 from coster_sumo.spec import ScenarioSpec
 
 ADVERSARY_COLOR = (220, 30, 30, 255)  # RGBA: red in sumo-gui
+POST_CONTACT_S = 5.0  # [s] a pass goes on this long after the contact (the wreck, the target's reaction)
 TIME_EPS = 1e-6  # [s]
 
 
@@ -148,61 +150,89 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                   seed: int | None, end: float, begin: float | None = None,
                   drivable: DrivableArea | None = None, actors: tuple[StepActor, ...] = (),
                   detect_events: bool = True, freeze_at: float | None = None, traci: bool = False,
-                  workdir: Path | None = None, session_kwargs: dict[str, Any] | None = None) -> InjectionResult:
+                  workdir: Path | None = None, session_kwargs: dict[str, Any] | None = None,
+                  surroundings_m: float | None = None, post_contact_s: float | None = None) -> InjectionResult:
     """Run one pass of ``config`` from a fresh start with the adversary ``plan`` injected.
 
     ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner).
     ``detect_events=False`` skips event detection; with ``freeze_at`` [s] (the first contact of a
     pass with detection) the adversary still becomes a wreck then, so the pass plays out the same
     (the overhead benchmark compares the two).
+
+    ``surroundings_m`` [m]: record and check only the vehicles this close to the target (and the
+    adversary wherever it is), and stop once the target has arrived; None records everything.
+    ``post_contact_s`` [s]: stop this long after the adversary's first contact with the target.
     """
     workdir = Path(workdir) if workdir is not None else Path(".")
     kwargs = dict(session_kwargs or {})
     additional = planner.additional_files(workdir)
     if additional:
         kwargs["additional"] = [*kwargs.get("additional", []), *additional]
+    with SumoSession(config, seed=seed, end=end, traci=traci, **kwargs) as session:
+        return continue_injection(session, target_id, plan, planner, end=end, begin=begin, drivable=drivable,
+                                  actors=actors, detect_events=detect_events, freeze_at=freeze_at,
+                                  surroundings_m=surroundings_m, post_contact_s=post_contact_s)
+
+
+def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
+                       end: float, begin: float | None = None, drivable: DrivableArea | None = None,
+                       actors: tuple[StepActor, ...] = (), detect_events: bool = True,
+                       freeze_at: float | None = None, surroundings_m: float | None = None,
+                       post_contact_s: float | None = None) -> InjectionResult:
+    """The pass of :func:`run_injection` on a running session, from its current time on.
+
+    The planner's additional files must already be loaded (a forked copy of a session started with
+    them, see :mod:`coster_sumo.sim.hold`). Events are checked, and the pass recorded, from now on.
+    """
     adversary = AdversaryController(plan, freeze_at=freeze_at) if plan is not None else None
     adv_id = plan.vehicle_id if plan is not None else "__none__"
     # what nothing reacts to during the pass is checked in batches of 20 s (see EventDetector)
     detector = EventDetector(target_id, adv_id, drivable, batch=200)
-    flags: dict[str, Any] = {"arrived": False, "min_ttc": float("inf"), "event_s": 0.0, "contact": False}
+    flags: dict[str, Any] = {"arrived": False, "min_ttc": float("inf"), "event_s": 0.0, "contact": False,
+                             "contact_time": None}
     t0 = _time.perf_counter()
-    with SumoSession(config, seed=seed, end=end, traci=traci, **kwargs) as session:
-        planner.setup(session, target_id)
+    planner.setup(session, target_id)
+    takeover = plan.t_start if plan is not None else -math.inf  # [s] the planner drives the target from here
 
-        def before(sess: SumoSession) -> None:
-            t_next = round(sess.time + sess.step_length, 9)
-            for actor in actors:
-                actor.before_step(sess, t_next)
-            present = target_id in sess.vehicle_ids()
-            planner.before_step(sess, target_id, t_next, present)
-            if adversary is not None:
-                adversary.before_step(sess, t_next)
+    def before(sess: SumoSession) -> None:
+        t_next = round(sess.time + sess.step_length, 9)
+        for actor in actors:
+            actor.before_step(sess, t_next)
+        if t_next >= takeover - TIME_EPS:  # until the adversary appears the target drives as in the nominal pass
+            planner.before_step(sess, target_id, t_next, target_id in sess.vehicle_ids())
+        if adversary is not None:
+            adversary.before_step(sess, t_next)
 
-        def after(sess: SumoSession, states: VehicleStates) -> bool:
-            if target_id in sess.arrived_ids():
-                flags["arrived"] = True
-            if adversary is not None and adversary.added and adv_id in sess.arrived_ids():
-                adversary.gone = True  # SUMO removed it (should not happen while we drive it)
-            if not detect_events:
-                return False
-            t_ev = _time.perf_counter()
-            new = detector.check(sess.time, states, sess.collisions())
-            if adversary is not None:
-                if new:
-                    adversary.on_events(states, new)
-                    if adversary.frozen_pose is not None:
-                        detector.settle_adversary()  # a wreck now: nothing reacts to its contacts
-                    flags["contact"] = flags["contact"] or any(
-                        e.kind == "collision" and adv_id in e.vehicles and target_id in e.vehicles for e in new)
-                if adversary.added and not flags["contact"]:
-                    tr, ar = detector.last_rows
-                    if tr >= 0 and ar >= 0:
-                        flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, tr, ar))
-            flags["event_s"] += _time.perf_counter() - t_ev
+    def after(sess: SumoSession, states: VehicleStates) -> bool:
+        if target_id in sess.arrived_ids():
+            flags["arrived"] = True
+        if adversary is not None and adversary.added and adv_id in sess.arrived_ids():
+            adversary.gone = True  # SUMO removed it (should not happen while we drive it)
+        if not detect_events:
             return False
+        t_ev = _time.perf_counter()
+        new = detector.check(sess.time, states, sess.collisions())
+        if adversary is not None:
+            if post_contact_s is not None and flags["contact_time"] is not None and \
+                    sess.time > flags["contact_time"] + post_contact_s + TIME_EPS:
+                return True
+            if new:
+                adversary.on_events(states, new)
+                if adversary.frozen_pose is not None:
+                    detector.settle_adversary()  # a wreck now: nothing reacts to its contacts
+                flags["contact"] = flags["contact"] or any(
+                    e.kind == "collision" and adv_id in e.vehicles and target_id in e.vehicles for e in new)
+                if flags["contact"] and flags["contact_time"] is None:
+                    flags["contact_time"] = sess.time
+            if adversary.added and not flags["contact"]:
+                tr, ar = detector.last_rows
+                if tr >= 0 and ar >= 0:
+                    flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, tr, ar))
+        flags["event_s"] += _time.perf_counter() - t_ev
+        return False
 
-        scene = record(session, begin=begin, end=end, before_step=before, after_step=after)
+    focus = None if surroundings_m is None else Focus(target_id, surroundings_m, extra_ids=(adv_id,))
+    scene = record(session, begin=begin, end=end, before_step=before, after_step=after, focus=focus)
     t_ev = _time.perf_counter()
     detector.flush()
     flags["event_s"] += _time.perf_counter() - t_ev
@@ -237,7 +267,8 @@ def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
 
 def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: AdversaryPlan, planner: str | None = None,
                    *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
-                   detect_events: bool = True, freeze_at: float | None = None) -> InjectionResult:
+                   detect_events: bool = True, freeze_at: float | None = None,
+                   post_contact_s: float | None = POST_CONTACT_S) -> InjectionResult:
     """Inject one variant: the one place that decides who drives whom (every command goes through it).
 
     Who drives the target: the ``planner`` spec (default :func:`default_planner`).
@@ -251,7 +282,10 @@ def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: Adversar
       adversary's plan starts and then hands it over: the planner commands it from then on, and
       SUMO's driver (``sumo``) continues from the logged pose along the road the target is on.
 
-    The pass runs from the spec's begin with its seed to the end of the nominal scene.
+    The pass runs from the spec's begin with its seed to the end of the nominal scene, or until the
+    target has arrived, or ``post_contact_s`` after the adversary's contact with the target. On a
+    SUMO configuration only the target's surroundings are recorded and checked (the converted
+    scenes are small: everything is).
     """
     converted = converted_scene_file(spec.config) is not None
     planner_spec = planner or default_planner(converted)
@@ -268,4 +302,50 @@ def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: Adversar
     end = float(scene.timestamps[-1]) + 1e-9
     return run_injection(spec.config, target_id, plan, driver, seed=spec.seed, end=end, begin=spec.begin,
                          drivable=drivable, actors=actors, detect_events=detect_events, freeze_at=freeze_at,
-                         traci=traci, workdir=workdir)
+                         traci=traci, workdir=workdir, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M,
+                         post_contact_s=post_contact_s)
+
+
+def _continue_held(session: SumoSession, payload: dict[str, Any]) -> InjectionResult:
+    """A variant's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
+    driver = make_planner(payload["planner"], payload["nominal"])
+    return continue_injection(session, payload["target_id"], payload["plan"], driver, end=payload["end"],
+                              drivable=payload["drivable"], surroundings_m=SURROUNDINGS_RADIUS_M,
+                              post_contact_s=payload["post_contact_s"])
+
+
+def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[AdversaryPlan], planner: str | None,
+                    *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
+                    held: HeldStates | None = None, workers: int = 1,
+                    post_contact_s: float | None = POST_CONTACT_S) -> list[InjectionResult]:
+    """:func:`inject_variant` for every plan; from held copies of the nominal pass where there are.
+
+    With ``held`` (the nominal pass of a SUMO configuration run with it), each variant continues
+    from the latest held moment before its adversary appears, up to ``workers`` at a time, instead
+    of simulating from ``begin`` again; the outcome is the same (see :mod:`coster_sumo.sim.hold`).
+    Events before that moment are the nominal pass's and are not checked again.
+    """
+    converted = converted_scene_file(spec.config) is not None
+    planner_spec = planner or default_planner(converted)
+    results: list[InjectionResult | None] = [None] * len(plans)
+    groups: dict[int, list[int]] = {}
+    if held is not None and not converted and not traci:
+        for i, plan in enumerate(plans):
+            h = held.holder_before(plan.t_start - TIME_EPS)
+            if h is not None:
+                groups.setdefault(held.holders.index(h), []).append(i)
+    target_id = str(scene.tracks.ids[target])
+    nominal = nominal_replay(scene, target)
+    end = float(scene.timestamps[-1]) + 1e-9
+    for h_index, members in groups.items():
+        jobs = [(_continue_held, {"target_id": target_id, "plan": plans[i], "planner": planner_spec,
+                                  "nominal": nominal, "end": end, "drivable": drivable,
+                                  "post_contact_s": post_contact_s}) for i in members]
+        done = held.run(held.holders[h_index], jobs, workers) if held is not None else []
+        for i, res in zip(members, done, strict=True):
+            results[i] = res
+    for i, plan in enumerate(plans):
+        if results[i] is None:
+            results[i] = inject_variant(spec, scene, target, plan, planner_spec, drivable=drivable, traci=traci,
+                                        workdir=workdir, post_contact_s=post_contact_s)
+    return [r for r in results if r is not None]

@@ -2,9 +2,11 @@
 
 A planner is any object with the three methods of :class:`Planner`; implement it in your own
 module and pass ``--planner yourmodule:YourClass`` (the class is constructed without arguments).
-Each simulation step the session calls ``before_step`` with the time the step will reach, so a
-planner that commands the target (``session.move_to_xy``, ``session.api.vehicle.setSpeed``...) does
-it for that time.
+The planner takes the target over when the adversary's plan starts (until then the target drives
+as in the nominal pass, so the scene the adversary was planned on is the scene it meets): from that
+step on the pass calls ``before_step`` every step with the time the step will reach, so a planner
+that commands the target (``session.move_to_xy``, ``session.api.vehicle.setSpeed``...) does it for
+that time.
 
 Built-ins:
 - ``replay``: the target follows its nominal trajectory exactly (moveToXY every step). With a

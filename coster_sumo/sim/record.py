@@ -164,6 +164,11 @@ def net_file_of(session: SumoSession) -> Path:
     raise InputError(f"{session.name}: cannot tell which net file it runs on; pass net=...")
 
 
+# [m] what matters around a target: the vehicles recorded and checked, and the map kept (the prior
+# looks 40 m around it, the rollout 80 m around the adversary, which starts up to 5 s of driving away)
+SURROUNDINGS_RADIUS_M = 200.0
+
+
 @dataclass(frozen=True)
 class Focus:
     """Record one vehicle's surroundings instead of the whole network.
@@ -172,13 +177,14 @@ class Focus:
         target_id: the vehicle that matters; nothing is recorded before it departs.
         radius_m: [m] vehicles this close to it are recorded (SUMO finds them).
         extra_ids: recorded whenever they are in the simulation, wherever they are (the adversary).
-        until_arrival: stop stepping once the target has arrived.
+        until_arrival: stop stepping ``tail_s`` [s] after the target has arrived.
     """
 
     target_id: str
     radius_m: float = 150.0
     extra_ids: tuple[str, ...] = ()
     until_arrival: bool = True
+    tail_s: float = 0.0
 
 
 def record(session: SumoSession, *, end: float | None = None, begin: float | None = None,
@@ -200,7 +206,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         before_step: called before every simulation step, e.g. to ``move_to_xy`` an adversary.
         after_step: called after every step with the vehicle states just read; return True to stop.
         focus: record only the surroundings of one vehicle while it runs (see :class:`Focus`); the
-            steps before it departs are simulated without reading anything.
+            steps before it departs are recorded empty (nothing is read), so the time grid stays.
         scenario_id: default ``<config or net stem>_seed<seed>``.
         meta: extra metadata merged into ``Scene.meta``.
     """
@@ -223,6 +229,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     signal_rows: list[np.ndarray] = []
     steps = 0
     seen_target = focus is not None and focus.target_id in session.vehicle_ids()
+    end_at: float | None = None  # [s] when a focused recording stops (after the target arrived)
     while True:
         if max_steps is not None and steps >= max_steps:
             break
@@ -239,19 +246,21 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         else:
             if focus.target_id in session.arrived_ids():
                 seen_target = False
-                if focus.until_arrival and times:
-                    break
+                if focus.until_arrival and end_at is None:
+                    end_at = t + focus.tail_s
+            if end_at is not None and t > end_at + eps:
+                break
             if not seen_target and focus.target_id in session.departed_ids():
                 seen_target = True
-            if not seen_target:
-                if after_step is not None and after_step(session, empty_states()):
-                    break
-                continue
-            near = session.vehicles_near(focus.target_id, focus.radius_m)
-            if focus.extra_ids:
-                running, present = set(session.vehicle_ids()), set(near)
-                near += [v for v in focus.extra_ids if v not in present and v in running and v not in session.hidden]
-            st = session.vehicle_states(near)
+            if seen_target:
+                near = session.vehicles_near(focus.target_id, focus.radius_m)
+                if focus.extra_ids:
+                    running, present = set(session.vehicle_ids()), set(near)
+                    near += [v for v in focus.extra_ids
+                             if v not in present and v in running and v not in session.hidden]
+                st = session.vehicle_states(near)
+            else:  # the steps keep SUMO's time grid; nothing around the target to read yet
+                st = empty_states()
         stop = bool(after_step(session, st)) if after_step is not None else False
         if begin is None or t >= begin - eps:
             idx = np.empty(len(st), np.int64)
@@ -306,7 +315,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
 def record_config(config: str | Path, *, seed: int | None = None, begin: float | None = None,
                   end: float | None = None, traci: bool = False, max_steps: int | None = None,
                   before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
-                  **session_kwargs: Any) -> Scene:
+                  focus: Focus | None = None, **session_kwargs: Any) -> Scene:
     """Open a session on ``config``, record [begin, end], close it. See :func:`record`.
 
     The simulation itself starts at the configuration's own begin; ``begin`` only trims the
@@ -314,4 +323,4 @@ def record_config(config: str | Path, *, seed: int | None = None, begin: float |
     """
     with SumoSession(config, seed=seed, end=end, traci=traci, **session_kwargs) as session:
         return record(session, begin=begin, end=end, max_steps=max_steps, before_step=before_step,
-                      after_step=after_step)
+                      after_step=after_step, focus=focus)
