@@ -19,7 +19,7 @@ import pytest
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.cli import main
-from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE
+from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE, drop_vehicle
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.outputs import sim_time_of
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M
@@ -31,7 +31,6 @@ DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"
 WOMD_SAMPLE = WOMD_DIR / "scenarionet_pkl" / "sd_training.tfrecord-00000-of-01000_2a1e44d405a6833f.pkl"
 KNOT_TOLERANCE_M = 0.1
 CONTACT_OFFSET_TOLERANCE_S = 0.1
-pytestmark = pytest.mark.sumo
 
 States = dict[str, dict[float, tuple[float, float, float, float]]]  # id -> label [s] -> x, y, angle, speed
 
@@ -127,6 +126,21 @@ def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tup
     return errors[0], offset
 
 
+def test_drop_vehicle_removes_only_that_vehicle_or_trip(tmp_path):
+    rou = tmp_path / "r.rou.xml"
+    rou.write_text('<routes xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+                   'xsi:noNamespaceSchemaLocation="http://sumo.dlr.de/xsd/routes_file.xsd">\n'
+                   '  <vType id="car"/>\n  <flow id="f" type="car" begin="0" end="9" number="3" from="a" to="b"/>\n'
+                   '  <trip id="ego" type="car" depart="2" from="a" to="b"/>\n'
+                   '  <vehicle id="other" depart="1" route="r0"/>\n</routes>\n')
+    assert not drop_vehicle(rou, "f.1")  # a flow member cannot be dropped
+    assert drop_vehicle(rou, "ego")
+    root = ET.parse(rou).getroot()
+    assert [el.get("id") for el in root] == ["car", "f", "other"]
+    assert "noNamespaceSchemaLocation" in rou.read_text() and "xmlns:xsi" in rou.read_text()
+
+
+@pytest.mark.sumo
 def test_demo_variant_plays_in_plain_sumo_and_in_replay(tmp_path):
     """One variant of the shipped demo (weight-free generator: one variant, a few seconds)."""
     out = tmp_path / "run"
@@ -142,6 +156,7 @@ def test_demo_variant_plays_in_plain_sumo_and_in_replay(tmp_path):
     check_variant(out, 0, tmp_path / "replay" / "replay.fcd.xml", replay_cli=True)
 
 
+@pytest.mark.sumo
 @pytest.mark.slow
 def test_demo_all_variants_play_in_plain_sumo(tmp_path):
     """The demo exactly as shipped (`make demo` without renders): all five variants."""
@@ -153,6 +168,7 @@ def test_demo_all_variants_play_in_plain_sumo(tmp_path):
         check_variant(out, v["variant"], tmp_path / f"plain{v['variant']}.fcd.xml")
 
 
+@pytest.mark.sumo
 @pytest.mark.slow
 @pytest.mark.realdata
 @pytest.mark.skipif(not WOMD_SAMPLE.is_file(), reason=f"{WOMD_SAMPLE.name}: {NO_WOMD_REASON}")
