@@ -9,15 +9,15 @@ OUTDIR/
   overview.png            map, agents at t_col, ellipse, all variants, heatmap of oversampled paths
   variants/<i>/trajectory.csv   time, vehicle, x, y, yaw_deg, speed of target and adversary (10 Hz)
   variants/<i>/render.png       the variant
-  variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg;
-                                `coster-sumo replay variants/<i>/export/<name>.sumocfg` plays it back
+  variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg and
+                                traj.fcd.xml: `sumo -c` (or `coster-sumo replay`) plays it, adversary
+                                included (coster_sumo/exports/sumo.py)
 ```
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -27,8 +27,6 @@ import numpy as np
 from coster_sumo import viz
 from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
-from coster_sumo.formats.scene_folder import SCENE_FILES
-from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.sim.inject import InjectionResult
 from coster_sumo.spec import ScenarioSpec
@@ -95,31 +93,15 @@ def collisions_xml(path: Path, results: list[InjectionResult]) -> None:
     ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)
 
 
-def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[str, Any]) -> Path:
-    """Copy the configuration's inputs and the plan into ``folder``; return the new .sumocfg."""
-    folder.mkdir(parents=True, exist_ok=True)
-    inputs = read_sumocfg(config).inputs()
-    names: dict[str, list[str]] = {}
-    for key, paths in inputs.items():
-        for p in paths:
-            shutil.copy2(p, folder / p.name)
-            names.setdefault(key, []).append(p.name)
-    for extra in SCENE_FILES:  # converted WOMD scenes carry their log
-        if (config.parent / extra).exists():
-            shutil.copy2(config.parent / extra, folder / extra)
-    root = ET.Element("configuration")
-    inp = ET.SubElement(root, "input")
-    for key in ("net-file", "route-files", "additional-files"):
-        if names.get(key):
-            ET.SubElement(inp, key, {"value": ",".join(names[key])})
-    tm = ET.SubElement(root, "time")
-    ET.SubElement(tm, "step-length", {"value": "0.1"})
-    if meta.get("end") is not None:
-        ET.SubElement(tm, "end", {"value": f"{meta['end']:.3f}"})
-    ET.indent(root)
-    cfg = folder / config.name
-    ET.ElementTree(root).write(cfg, encoding="unicode", xml_declaration=True)
-    write_json(folder / VARIANT_FILE, {**meta, "plan": plan.to_dict()})
+def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[str, Any],
+                   result: InjectionResult) -> Path:
+    """Standalone SUMO export (:func:`coster_sumo.exports.sumo.write_sumo_export`) plus variant.json
+    (the plan and ``meta``); return the new .sumocfg."""
+    from coster_sumo.exports.sumo import write_sumo_export
+
+    cfg, info = write_sumo_export(folder, config, result, plan, target_id=str(meta["target_id"]),
+                                  planner=str(meta["planner"]), seed=meta.get("seed"))
+    write_json(folder / VARIANT_FILE, {**meta, "export": info, "plan": plan.to_dict()})
     return cfg
 
 
@@ -147,7 +129,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: Plan
         trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
         export_variant(vdir / "export", spec.config, plan,
                        {"target_id": target_id, "planner": planner, "seed": spec.seed,
-                        "begin": spec.begin, "end": float(scene.timestamps[-1])})
+                        "begin": spec.begin, "end": float(scene.timestamps[-1])}, res)
         if render:
             xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
             c = res.contact

@@ -41,6 +41,7 @@ from coster_sumo.formats.scene_folder import (
     tls_state_strings,
     vtype_for,
 )
+from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.scene import Scene, load_scene
 from coster_sumo.sim.session import SumoSession
 
@@ -266,14 +267,17 @@ def replay_scene(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:
 
 
 def run_config(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:
-    """Run a plain SUMO configuration to its end (or ``opts.end``); returns a summary dict."""
+    """Run a plain SUMO configuration to its end (``opts.end``, else the configuration's ``<end>``,
+    where ``sumo -c`` stops too; an exported variant's wreck and parked agents never leave) or
+    until no vehicle is left; returns a summary dict."""
     opts = opts or ReplayOptions()
     cfg = Path(cfg)
     t0 = time.perf_counter()
     steps = 0
     seen: set[str] = set()
-    with _session(cfg, opts) as sim:
-        while sim.min_expected_number() > 0 and (opts.end is None or sim.time < opts.end - 1e-9):
+    end = opts.end if opts.end is not None else read_sumocfg(cfg).end
+    with _session(cfg, opts, end=end) as sim:
+        while sim.min_expected_number() > 0 and (end is None or sim.time < end - 1e-9):
             sim.step()
             steps += 1
             seen.update(sim.departed_ids())

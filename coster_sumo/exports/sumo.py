@@ -1,0 +1,549 @@
+"""Standalone SUMO export of one variant: plain ``sumo -c <name>.sumocfg`` plays it, adversary included.
+
+No Python and no TraCI at play time: SUMO's FCD replay device (``device.fcd-replay.files``, set in
+the exported configuration) creates every vehicle id listed in ``traj.fcd.xml`` and moves it every
+step to the recorded front-bumper position, SUMO angle and speed; such a vehicle needs no route.
+
+Which vehicles the FCD file drives:
+
+- the adversary, always;
+- the target, when the variant was made with the ``replay`` planner (it followed its nominal path,
+  so the exported contact happens). Its ``<vehicle>``/``<trip>`` is dropped from the copied route
+  files: SUMO refuses two vehicles with one id. With any other planner, or a target that is a flow
+  member, SUMO drives the target from the copied route files, and whether it still meets the
+  adversary depends on SUMO repeating the pass;
+- in a converted WOMD scene (``scene.npz`` beside the .sumocfg) every vehicle of the pass: the
+  converted net has no routes for logged agents. ``scene.npz`` and ``lane_map.json`` are not
+  copied, so ``coster-sumo replay`` runs the export as the plain configuration it is.
+
+Source: the injection pass's recording (:attr:`InjectionResult.scene`: one state per simulation
+step; box centre, heading, speed, size). It is what the pass did: the adversary on its plan up to
+its first contact and frozen as a wreck at the contact pose after it
+(:class:`~coster_sumo.sim.inject.AdversaryController`), the replayed target, and only what the pass
+showed (agents parked on a converted net's staging lane are never recorded). Frames are converted
+with :mod:`coster_sumo.frames`.
+
+Device behaviour that shapes the file (measured on SUMO 1.28, see ``docs/sumo.md §11``):
+
+- time: the entry labelled ``L`` is the pose the vehicle has in SUMO's FCD output labelled ``L``,
+  i.e. after the step that starts at ``L``; libsumo's time after that step is ``L + dt``. A state
+  recorded at simulation time ``T`` is therefore written with the label ``T - dt``.
+- insertion: a vehicle's first entry only inserts it (on its lane, at the lane centre, along the
+  lane); exact placement starts with its second entry. Each vehicle gets one **staging entry** one
+  step before its first recorded state: on the converted net's staging lane (isolated, 1 km below
+  the map; the log replay stages there too), else at its first pose on the nearest lane it may use.
+- a blocked insertion delays the vehicle and its whole trajectory (entries are played in order):
+  converted scenes, where the FCD file drives everything, set ``insertion-checks`` to ``none``.
+- after its last entry a vehicle is SUMO's again and drives on at its last speed. In a converted
+  scene a vehicle whose recording ends early (the log lost it) gets one more entry that parks it on
+  the staging lane at speed 0; ``fcd-output.filter-edges.input-file`` keeps the staging lane out
+  of any FCD output, so neither staging nor parking shows up there.
+- placement: an entry with a ``lane`` attribute is placed exactly (moveToXY keepRoute 7: x, y and
+  lateral offset as given, also off the road); without one the device snaps the vehicle to the lane
+  centre unless the sublane model is on, and aborts the run at a position more than 100 m from every
+  lane. Every entry therefore names its nearest lane outside junctions (any class), and SUMO's
+  models stay those of the pass (no sublane model). The device routes the vehicle along the edges
+  its entries name (junction-internal ones skipped) and SUMO puts it on the route lane nearest to
+  its position, junction lanes between consecutive route edges included; a vehicle whose route
+  holds no lane of the map would count as off the network and drop out of filtered FCD output.
+- ``type=`` must name a vType loaded before the device reads the file: the per-vehicle vTypes
+  (recorded size, class, shape) are the first additional file of the configuration.
+"""
+
+from __future__ import annotations
+
+import functools
+import gzip
+import json
+import shutil
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+from defusedxml import ElementTree as SafeET
+
+from coster_sumo import frames
+from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_folder import LANE_MAP_FILE, MIN_SIZE_M, converted_scene_file, vtype_for
+from coster_sumo.formats.sumo_net import read_sumolib_net
+from coster_sumo.formats.sumocfg import open_maybe_gzip, read_sumocfg
+from coster_sumo.plan import AdversaryPlan
+from coster_sumo.scene import Scene
+from coster_sumo.sim.inject import ADVERSARY_COLOR, InjectionResult
+from coster_sumo.sim.replay import STAGING_SPACING_M
+from coster_sumo.sim.sumo_options import RECOMMENDED_OPTIONS
+
+FCD_FILE = "traj.fcd.xml"
+VTYPES_FILE = "fcd_vtypes.add.xml"
+FCD_FILTER_FILE = "fcd_filter.txt"  # edge selection without the staging edge (fcd-output filter)
+VTYPE_SUFFIX = "@fcd"  # vType id of an FCD vehicle: "<vehicle id>@fcd"
+# options of the injection pass (SumoSession passes them) that decide what a contact does
+PASS_OPTIONS = ("--collision.action", "--collision.mingap-factor", "--collision.check-junctions",
+                "--time-to-teleport")
+STAGING_POOL_MAX = 256  # staging-lane slots used round-robin for one-step staging; the rest park
+MAX_SPEED_MPS = 100.0  # [m/s] vType maxSpeed: no recorded speed is capped
+TIME_EPS_S = 1e-6  # [s]
+
+
+@dataclass(frozen=True)
+class LaneIndex:
+    """The lanes of a SUMO net for nearest-lane queries.
+
+    Attributes:
+        ids: (L,) SUMO lane ids, internal (junction) lanes included.
+        edges: (L,) the edge of each lane.
+        lines: (L,) shapely LineStrings of the lane shapes [m].
+        length: (L,) float64 [m] SUMO lane length (positions along a lane are in this unit).
+        internal: (L,) bool, a lane inside a junction.
+        permissions: the vehicle classes each lane allows.
+    """
+
+    ids: tuple[str, ...]
+    edges: tuple[str, ...]
+    lines: np.ndarray
+    length: np.ndarray
+    internal: np.ndarray
+    permissions: tuple[frozenset[str], ...]
+    seg_lane: np.ndarray = field(repr=False)  # (S,) int64 lane of each tree item (a 2-point segment)
+    tree: shapely.STRtree = field(repr=False)  # segments of the lanes outside junctions
+
+    @classmethod
+    def read(cls, net_file: Path) -> LaneIndex:
+        """Index every lane of ``net_file`` (cached per file version)."""
+        path = Path(net_file).resolve()
+        st = path.stat()
+        return _lane_index(str(path), st.st_mtime_ns, st.st_size)
+
+    def nearest(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(N,) int64 index of the lane outside junctions nearest to each point (x, y) (N,) [m].
+
+        Outside junctions: the device routes a vehicle along the edges its entries name and skips
+        junction-internal ones; SUMO then finds the junction lane between two route edges itself.
+        """
+        pts = shapely.points(np.asarray(x, np.float64), np.asarray(y, np.float64))
+        hit = self.tree.query_nearest(pts, all_matches=False)  # (2, N): point index, tree index
+        out = np.empty(len(pts), np.int64)
+        out[hit[0]] = self.seg_lane[hit[1]]
+        return out
+
+    def nearest_for(self, x: float, y: float, vclass: str) -> int:
+        """Nearest lane outside junctions that ``vclass`` may use (any lane outside junctions if none)."""
+        ok = np.array([not internal and vclass in perm
+                       for internal, perm in zip(self.internal, self.permissions, strict=True)])
+        if not ok.any():
+            ok = ~self.internal
+        if not ok.any():
+            ok[:] = True
+        cand = np.flatnonzero(ok)
+        d = shapely.distance(self.lines[cand], shapely.Point(x, y))
+        return int(cand[int(np.argmin(d))])
+
+    def lane_pos(self, i: int, x: float, y: float) -> float:
+        """[m] position along lane ``i`` of the point nearest to (x, y), in SUMO's lane length."""
+        line = self.lines[i]
+        geo = float(line.length)
+        s = float(line.project(shapely.Point(x, y)))
+        return s * float(self.length[i]) / geo if geo > 0 else 0.0
+
+    def slots(self, i: int, spacing: float = STAGING_SPACING_M) -> np.ndarray:
+        """(K, 4) x, y [m], lane position [m], SUMO angle [deg] every ``spacing`` m along lane ``i``."""
+        line = self.lines[i]
+        geo = float(line.length)
+        s = np.arange(spacing, geo - spacing + 1e-9, spacing)
+        if len(s) == 0:
+            return np.zeros((0, 4))
+        p = shapely.get_coordinates(shapely.line_interpolate_point(line, s))
+        q = shapely.get_coordinates(shapely.line_interpolate_point(line, np.minimum(s + 1.0, geo)))
+        yaw = np.arctan2(q[:, 1] - p[:, 1], q[:, 0] - p[:, 0])
+        return np.column_stack([p, s * float(self.length[i]) / geo, frames.yaw_to_sumo_angle(yaw)])
+
+
+@functools.lru_cache(maxsize=8)
+def _lane_index(path: str, mtime_ns: int, size: int) -> LaneIndex:
+    net = read_sumolib_net(path)
+    ids: list[str] = []
+    edges: list[str] = []
+    lines = []
+    length: list[float] = []
+    internal: list[bool] = []
+    perms: list[frozenset[str]] = []
+    for edge in net.getEdges(withInternal=True):
+        for lane in edge.getLanes():
+            shape = np.asarray(lane.getShape(), np.float64)[:, :2]
+            if len(shape) < 2:
+                continue
+            ids.append(lane.getID())
+            edges.append(edge.getID())
+            lines.append(shapely.LineString(shape))
+            length.append(float(lane.getLength()))
+            internal.append(edge.getID().startswith(":"))
+            perms.append(frozenset(lane.getPermissions()))
+    if not ids:
+        raise InputError(f"{path}: the net has no lanes")
+    arr = np.empty(len(lines), object)
+    arr[:] = lines
+    inside = np.array(internal, bool)
+    outside = np.flatnonzero(~inside) if (~inside).any() else np.arange(len(ids))
+    # one tree item per segment: tight boxes make nearest queries several times faster than whole lanes
+    coords = [shapely.get_coordinates(arr[j]) for j in outside]
+    segs = np.concatenate([np.stack([c[:-1], c[1:]], axis=1) for c in coords])  # (S, 2, 2)
+    seg_lane = np.repeat(outside, [len(c) - 1 for c in coords])
+    return LaneIndex(ids=tuple(ids), edges=tuple(edges), lines=arr, length=np.array(length), internal=inside,
+                     permissions=tuple(perms), seg_lane=seg_lane, tree=shapely.STRtree(shapely.linestrings(segs)))
+
+
+@dataclass
+class FcdVehicle:
+    """One vehicle of the FCD replay file, with its vType.
+
+    Attributes:
+        vehicle_id: SUMO id (the recorded one; ``<id>@<k>`` for the k-th later stretch of a recording
+            with gaps).
+        vclass, gui_shape: SUMO vehicle class and shape of its vType.
+        length, width: [m] recorded size.
+        color: RGBA 0-255, or None for SUMO's default.
+        labels: (N,) float64 [s] FCD time labels: the pose after the step starting at the label,
+            i.e. the recorded state at simulation time ``label + dt``.
+        x, y: (N,) float64 [m] front-bumper centre.
+        angle: (N,) float64 [deg] SUMO angle (0 = north, clockwise).
+        speed: (N,) float64 [m/s].
+        lane: (N,) lane index (into the :class:`LaneIndex`) each entry names.
+        pos: (N,) float64 [m] position along that lane (SUMO reads it for the first entry only).
+        staged: the first entry is a staging entry, not a recorded state.
+        parked: the last entry parks the vehicle on the staging lane.
+    """
+
+    vehicle_id: str
+    vclass: str
+    gui_shape: str
+    length: float
+    width: float
+    color: tuple[int, int, int, int] | None
+    labels: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    angle: np.ndarray
+    speed: np.ndarray
+    lane: np.ndarray
+    pos: np.ndarray
+    staged: bool = False
+    parked: bool = False
+
+    def add_entry(self, at_end: bool, label: float, x: float, y: float, angle: float, speed: float, lane: int,
+                  pos: float) -> None:
+        """Prepend (``at_end=False``) or append one entry."""
+
+        def cat(arr: np.ndarray, v: float | int) -> np.ndarray:
+            return np.append(arr, v) if at_end else np.insert(arr, 0, v)
+
+        self.labels, self.x, self.y = cat(self.labels, label), cat(self.x, x), cat(self.y, y)
+        self.angle, self.speed = cat(self.angle, angle), cat(self.speed, speed)
+        self.lane, self.pos = cat(self.lane, lane), cat(self.pos, pos)
+
+
+def _runs(valid: np.ndarray) -> list[tuple[int, int]]:
+    """[(first, last)] step indices of every stretch of True in ``valid`` (T,)."""
+    d = np.diff(np.concatenate([[0], valid.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), (np.flatnonzero(d == -1) - 1).tolist(), strict=True))
+
+
+def recorded_vehicles(scene: Scene, ids: list[str], lanes: LaneIndex, step_length: float,
+                      colors: dict[str, tuple[int, int, int, int]] | None = None) -> list[FcdVehicle]:
+    """The recorded states of ``ids`` as FCD vehicles (no staging or parking entries yet).
+
+    Args:
+        scene: a recorded pass (timestamps = simulation time after each step [s]; box centres).
+        ids: vehicles to take; ids not in the scene are skipped.
+        lanes: the net's lanes (each entry names its nearest lane).
+        step_length: [s] the pass's simulation step; labels are ``timestamps - step_length``.
+        colors: vType colour per vehicle id.
+    """
+    tr = scene.tracks
+    known = set(tr.ids.tolist())
+    speed = tr.speed  # (A, T), computed once
+    out: list[FcdVehicle] = []
+    for vid in ids:
+        if vid not in known:
+            continue
+        a = tr.index_of(vid)
+        v = tr.valid[a]
+        if not v.any():
+            continue
+        length = float(np.median(tr.length[a, v]))
+        width = float(np.median(tr.width[a, v]))
+        length = length if np.isfinite(length) and length >= MIN_SIZE_M else MIN_SIZE_M
+        width = width if np.isfinite(width) and width >= MIN_SIZE_M else MIN_SIZE_M
+        _, vclass, shape, _, _ = vtype_for(int(tr.object_type[a]))
+        for k, (s0, s1) in enumerate(_runs(v)):
+            sl = slice(s0, s1 + 1)
+            fx, fy, ang = frames.to_sumo(tr.x[a, sl], tr.y[a, sl], tr.heading[a, sl], length)
+            out.append(FcdVehicle(
+                vehicle_id=vid if k == 0 else f"{vid}@{k}", vclass=vclass, gui_shape=shape, length=length,
+                width=width, color=(colors or {}).get(vid),
+                labels=np.round(scene.timestamps[sl] - step_length, 6), x=fx, y=fy, angle=ang,
+                speed=np.asarray(speed[a, sl], np.float64), lane=np.zeros(len(fx), np.int64),
+                pos=np.full(len(fx), np.nan)))
+    if out:  # every entry names its nearest lane (one query for all)
+        lanes_all = lanes.nearest(np.concatenate([veh.x for veh in out]), np.concatenate([veh.y for veh in out]))
+        splits = np.cumsum([len(veh.x) for veh in out])[:-1]
+        for veh, lane in zip(out, np.split(lanes_all, splits), strict=True):
+            veh.lane = lane
+    return out
+
+
+def stage_and_park(vehicles: list[FcdVehicle], lanes: LaneIndex, staging_lane: str | None, step_length: float,
+                   last_label: float) -> int:
+    """Add every vehicle's staging entry and, with a staging lane, park those that end early.
+
+    Staging: one entry at ``labels[0] - step_length``, speed 0; on ``staging_lane`` (slots
+    :data:`~coster_sumo.sim.replay.STAGING_SPACING_M` apart, round-robin, so vehicles staged in one
+    step never share a slot), else at the first pose on the nearest lane outside junctions that the
+    vehicle's class may use. Parking: vehicles whose last label is before ``last_label`` get one
+    entry one step later on a slot of their own on the staging lane, speed 0. Returns the number
+    of parked vehicles.
+    """
+    slots = np.zeros((0, 4))
+    lane_i = -1
+    if staging_lane is not None and staging_lane in lanes.ids:
+        lane_i = lanes.ids.index(staging_lane)
+        slots = lanes.slots(lane_i)
+    if len(slots) >= 2:
+        n_stage = int(min(STAGING_POOL_MAX, max(1, len(slots) // 4)))
+        stage_slots, park_slots = slots[:n_stage], slots[n_stage:]
+    else:
+        stage_slots = park_slots = np.zeros((0, 4))
+    k = 0
+    for veh in sorted(vehicles, key=lambda v: float(v.labels[0])):
+        label = round(float(veh.labels[0]) - step_length, 6)
+        if len(stage_slots):
+            x, y, pos, ang = stage_slots[k % len(stage_slots)]
+            k += 1
+            veh.add_entry(False, label, x, y, ang, 0.0, lane_i, pos)
+        else:
+            x, y = float(veh.x[0]), float(veh.y[0])
+            i = lanes.nearest_for(x, y, veh.vclass)
+            veh.add_entry(False, label, x, y, float(veh.angle[0]), 0.0, i, lanes.lane_pos(i, x, y))
+        veh.staged = True
+    parked = 0
+    if len(park_slots):
+        for veh in sorted(vehicles, key=lambda v: float(v.labels[-1])):
+            if float(veh.labels[-1]) < last_label - TIME_EPS_S:
+                x, y, pos, ang = park_slots[parked % len(park_slots)]
+                veh.add_entry(True, round(float(veh.labels[-1]) + step_length, 6), x, y, ang, 0.0, lane_i, pos)
+                veh.parked = True
+                parked += 1
+    return parked
+
+
+def _vtype_id(vehicle_id: str) -> str:
+    return f"{vehicle_id}{VTYPE_SUFFIX}"
+
+
+def write_fcd(path: Path, vehicles: list[FcdVehicle], lanes: LaneIndex) -> int:
+    """Write the FCD replay file (timesteps in label order); returns the number of entries."""
+    rows: list[tuple[float, int, int]] = []  # label, vehicle, entry
+    for j, veh in enumerate(vehicles):
+        rows.extend((float(t), j, e) for e, t in enumerate(veh.labels))
+    rows.sort()
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>',
+             "<!-- coster-sumo export: read by SUMO's FCD replay device (device.fcd-replay.files); "
+             "x, y = front-bumper centre [m], angle [deg clockwise from north], speed [m/s]; "
+             "the entry labelled L is the pose after the step starting at L -->",
+             "<fcd-export>"]
+    current: float | None = None
+    for t, j, e in rows:
+        if current is None or abs(t - current) > TIME_EPS_S:
+            if current is not None:
+                lines.append("    </timestep>")
+            lines.append(f'    <timestep time="{t:.3f}">')
+            current = t
+        veh = vehicles[j]
+        pos = float(veh.pos[e])
+        pos_attr = f' pos="{pos:.3f}"' if np.isfinite(pos) else ""
+        lines.append(f'        <vehicle id="{_xml(veh.vehicle_id)}" x="{veh.x[e]:.4f}" y="{veh.y[e]:.4f}" '
+                     f'angle="{veh.angle[e]:.4f}" type="{_xml(_vtype_id(veh.vehicle_id))}" '
+                     f'speed="{veh.speed[e]:.4f}" lane="{_xml(lanes.ids[int(veh.lane[e])])}"{pos_attr}/>')
+    if current is not None:
+        lines.append("    </timestep>")
+    lines.append("</fcd-export>")
+    path.write_text("\n".join(lines) + "\n")
+    return len(rows)
+
+
+def write_vtypes(path: Path, vehicles: list[FcdVehicle]) -> None:
+    """One vType per FCD vehicle: its recorded size, class and shape, speeds never capped."""
+    root = ET.Element("additional")
+    root.append(ET.Comment(" coster-sumo export: the vTypes the FCD file names (loaded before the FCD "
+                           "replay device reads it) "))
+    for veh in vehicles:
+        attrs = {"id": _vtype_id(veh.vehicle_id), "vClass": veh.vclass, "guiShape": veh.gui_shape,
+                 "length": f"{veh.length:.4f}", "width": f"{veh.width:.4f}", "maxSpeed": f"{MAX_SPEED_MPS:g}",
+                 "speedFactor": "1", "speedDev": "0"}
+        if veh.color is not None:
+            attrs["color"] = ",".join(str(int(c)) for c in veh.color)
+        ET.SubElement(root, "vType", attrs)
+    ET.indent(root)
+    ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)
+
+
+def _xml(s: str) -> str:
+    return s.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def drop_vehicle(route_file: Path, vehicle_id: str) -> bool:
+    """Remove the top-level ``<vehicle>``/``<trip>`` with this id from a route file in place.
+
+    Returns True when one was removed (False: not there, e.g. a flow member).
+    """
+    opener: Any = gzip.open if route_file.suffix == ".gz" else open
+    with open_maybe_gzip(route_file) as fh:
+        tree = SafeET.parse(fh, forbid_dtd=True)
+    root = tree.getroot()
+    hits = [el for el in root if el.tag in ("vehicle", "trip") and el.get("id") == vehicle_id]
+    if not hits:
+        return False
+    for el in hits:
+        root.remove(el)
+    ET.register_namespace("xsi", "http://www.w3.org/2001/XMLSchema-instance")
+    with opener(route_file, "wb") as fh:
+        tree.write(fh, encoding="UTF-8", xml_declaration=True)
+    return True
+
+
+def _fmt_time(t: float | None) -> str | None:
+    return None if t is None else repr(float(t))
+
+
+def _staging_lane(config: Path) -> str | None:
+    """The staging lane a converted scene's ``lane_map.json`` names (None: not converted / none)."""
+    p = config.parent / LANE_MAP_FILE
+    if not p.is_file():
+        return None
+    try:
+        lane = json.loads(p.read_text()).get("staging_lane")
+    except ValueError:
+        return None
+    return str(lane) if lane else None
+
+
+def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan: AdversaryPlan, *,
+                      target_id: str, planner: str, seed: int | None) -> tuple[Path, dict[str, Any]]:
+    """Write a standalone SUMO folder for one variant; plain ``sumo -c`` plays it with the adversary.
+
+    Copies the configuration's net, route and additional files (basenames) into ``folder`` and
+    writes ``traj.fcd.xml`` (see the module docstring for what it holds), ``fcd_vtypes.add.xml``,
+    for converted scenes ``fcd_filter.txt``, and ``<config name>`` with the device options, the
+    pass's seed, step length, end and collision options. ``variant.json`` is the caller's.
+
+    Args:
+        folder: the export folder (created).
+        config: the .sumocfg the variant was generated on.
+        result: the variant's injection pass (its recording is what the FCD file replays).
+        plan: the variant's adversary plan (its ``vehicle_id`` is the adversary's id).
+        target_id: the target's id.
+        planner: the target's planner in the pass (``"replay"``: the FCD file drives the target too).
+        seed: SUMO seed of the pass (None: SUMO's default).
+
+    Returns:
+        The exported .sumocfg and a JSON-able description (which vehicles the FCD file drives, who
+        drives the target, the time-label convention).
+    """
+    folder = Path(folder)
+    config = Path(config)
+    folder.mkdir(parents=True, exist_ok=True)
+    scene = result.scene
+    step = float(scene.meta.get("step_length") or 0.1)
+    inputs = read_sumocfg(config).inputs()
+    if not inputs["net-file"]:
+        raise InputError(f"{config}: the configuration names no net-file")
+    names: dict[str, list[str]] = {}
+    for key, paths in inputs.items():
+        for p in paths:
+            shutil.copy2(p, folder / p.name)
+            names.setdefault(key, []).append(p.name)
+    converted = converted_scene_file(config) is not None
+    notes: list[str] = []
+    if converted:  # the log drives everyone: every vehicle of the pass
+        ids = [str(i) for i in scene.tracks.ids]
+        target_by = "fcd-replay"
+    else:
+        ids = [plan.vehicle_id]
+        target_by = "sumo"
+        if planner == "replay":
+            dropped = [drop_vehicle(folder / n, target_id) for n in names.get("route-files", [])]
+            if any(dropped):
+                ids.append(target_id)
+                target_by = "fcd-replay"
+            else:
+                notes.append(f"target {target_id!r} is no <vehicle>/<trip> of the route files (a flow "
+                             "member?): SUMO drives it, so the exported contact may not happen")
+    lanes = LaneIndex.read(inputs["net-file"][0])
+    vehicles = recorded_vehicles(scene, ids, lanes, step, colors={plan.vehicle_id: ADVERSARY_COLOR})
+    if plan.vehicle_id not in {v.vehicle_id for v in vehicles}:
+        notes.append(f"the adversary {plan.vehicle_id!r} never entered the pass: the export has none")
+    staging = _staging_lane(config) if converted else None
+    last_label = round(float(scene.timestamps[-1]) - step, 6) if scene.num_steps else 0.0
+    parked = stage_and_park(vehicles, lanes, staging, step, last_label)
+    n_entries = write_fcd(folder / FCD_FILE, vehicles, lanes)
+    write_vtypes(folder / VTYPES_FILE, vehicles)
+    filter_file = None
+    if staging is not None and staging in lanes.ids:
+        staging_edge = lanes.edges[lanes.ids.index(staging)]
+        edges = sorted(set(lanes.edges) - {staging_edge})
+        (folder / FCD_FILTER_FILE).write_text("".join(f"edge:{e}\n" for e in edges))
+        filter_file = FCD_FILTER_FILE
+    cfg = folder / config.name
+    end = float(scene.timestamps[-1]) if scene.num_steps else None
+    _write_sumocfg(cfg, names, begin=_fmt_time(read_sumocfg(config).begin), end=end, step=step, seed=seed,
+                   all_fcd=converted, filter_file=filter_file)
+    info: dict[str, Any] = {
+        "sumocfg": cfg.name, "fcd_file": FCD_FILE, "vtypes_file": VTYPES_FILE,
+        "fcd_vehicles": len(vehicles), "fcd_entries": n_entries,
+        "adversary": plan.vehicle_id, "target": target_id, "target_driven_by": target_by,
+        "staging_lane": staging if filter_file else None, "parked_early": parked,
+        "fcd_time_label": "simulation time - step_length", "step_length": step,
+        "notes": notes,
+    }
+    return cfg, info
+
+
+def _write_sumocfg(path: Path, names: dict[str, list[str]], *, begin: str | None, end: float | None, step: float,
+                   seed: int | None, all_fcd: bool, filter_file: str | None) -> None:
+    root = ET.Element("configuration")
+    root.append(ET.Comment(" coster-sumo export of one variant: `sumo -c " + path.name + "` plays it, the "
+                           "adversary driven by SUMO's FCD replay device from " + FCD_FILE + " "))
+    inp = ET.SubElement(root, "input")
+    ET.SubElement(inp, "net-file", {"value": ",".join(names["net-file"])})
+    if names.get("route-files"):
+        ET.SubElement(inp, "route-files", {"value": ",".join(names["route-files"])})
+    ET.SubElement(inp, "additional-files", {"value": ",".join([VTYPES_FILE, *names.get("additional-files", [])])})
+    tm = ET.SubElement(root, "time")
+    if begin is not None:
+        ET.SubElement(tm, "begin", {"value": begin})
+    if end is not None:
+        ET.SubElement(tm, "end", {"value": f"{end:.3f}"})
+    ET.SubElement(tm, "step-length", {"value": f"{step:g}"})
+    proc = ET.SubElement(root, "processing")
+    for key in PASS_OPTIONS:
+        ET.SubElement(proc, key.lstrip("-"), {"value": RECOMMENDED_OPTIONS[key]})
+    # the device routes a vehicle along the edges its entries name; staging, parking and logged
+    # agents that leave the lanes make that route disconnected, which SUMO refuses unless told so
+    # (route-file vehicles are unaffected: the pass ran them without the option)
+    ET.SubElement(proc, "ignore-route-errors", {"value": "true"})
+    if all_fcd:  # nothing else inserts vehicles: never delay an FCD vehicle (it would lag its file)
+        ET.SubElement(proc, "insertion-checks", {"value": "none"})
+    if seed is not None:
+        ET.SubElement(ET.SubElement(root, "random_number"), "seed", {"value": str(int(seed))})
+    if filter_file is not None:
+        ET.SubElement(ET.SubElement(root, "output"), "fcd-output.filter-edges.input-file", {"value": filter_file})
+    report = ET.SubElement(root, "report")
+    ET.SubElement(report, "no-step-log", {"value": "true"})
+    # as in the pass: the device's placements warn every step (jumps, emergency braking); contacts
+    # still reach --collision-output (pass --no-warnings false to see them all)
+    ET.SubElement(report, "no-warnings", {"value": "true"})
+    ET.SubElement(ET.SubElement(root, "fcd_replay_device"), "device.fcd-replay.files", {"value": FCD_FILE})
+    ET.indent(root)
+    ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)

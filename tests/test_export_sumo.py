@@ -1,0 +1,208 @@
+"""The standalone SUMO export of every variant plays in the plain ``sumo`` binary, adversary included.
+
+For each exported variant: ``sumo -c variants/<i>/export/<name>.sumocfg --fcd-output F`` (no Python,
+no TraCI), then from F (front-bumper positions): the adversary's box centre within 0.1 m of its plan
+at every 2 Hz knot, and its first oriented-box contact with the target within 0.1 s of t_col
+(``summary.json``'s ``t_col_sim``). SUMO's FCD output labels the state a step reaches with the time
+the step starts at; the tests check that convention instead of assuming it.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coster_sumo import frames, sumo_env
+from coster_sumo.cli import main
+from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE, drop_vehicle
+from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.outputs import sim_time_of
+from coster_sumo.plan import AdversaryPlan
+from coster_sumo.sim.events import CONTACT_TOLERANCE_M
+from conftest import NO_WOMD_REASON, WOMD_DIR
+
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"
+WOMD_SAMPLE = WOMD_DIR / "scenarionet_pkl" / "sd_training.tfrecord-00000-of-01000_2a1e44d405a6833f.pkl"
+KNOT_TOLERANCE_M = 0.1
+CONTACT_OFFSET_TOLERANCE_S = 0.1
+
+States = dict[str, dict[float, tuple[float, float, float, float]]]  # id -> label [s] -> x, y, angle, speed
+
+
+def read_fcd(path: Path) -> States:
+    """SUMO FCD output (or an FCD replay file): front-bumper x, y [m], SUMO angle [deg], speed [m/s]."""
+    out: States = {}
+    for ts in ET.parse(path).getroot().iter("timestep"):
+        t = round(float(ts.get("time", "nan")), 3)
+        for v in ts.iter("vehicle"):
+            out.setdefault(v.get("id", ""), {})[t] = (float(v.get("x", "nan")), float(v.get("y", "nan")),
+                                                      float(v.get("angle", "nan")), float(v.get("speed", "nan")))
+    return out
+
+
+def play(cfg: Path, fcd: Path) -> States:
+    """Run the plain sumo binary on ``cfg`` (no extra options but the FCD output) and read F."""
+    proc = subprocess.run([sumo_env.binary("sumo"), "-c", str(cfg), "--fcd-output", str(fcd)],
+                          capture_output=True, text=True, env=sumo_env.subprocess_env(), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return read_fcd(fcd)
+
+
+def centres(states: States, vid: str, length: float) -> dict[float, tuple[float, float, float]]:
+    """label -> box centre x, y [m], yaw [rad] of one vehicle."""
+    out = {}
+    for t, (x, y, angle, _) in states.get(vid, {}).items():
+        cx, cy, yaw = frames.from_sumo(x, y, angle, length)
+        out[t] = (float(cx), float(cy), float(yaw))
+    return out
+
+
+def knot_errors(plan: AdversaryPlan, adv: dict[float, tuple[float, float, float]], step: float,
+                shift_steps: int) -> float:
+    """Max centre distance [m] to the plan's knots when the knot at simulation time T is looked up
+    under the label ``T - step + shift_steps * step`` (inf when a knot has no such label)."""
+    kx, ky, _, _ = plan.sample(plan.times)
+    worst = 0.0
+    for t, x, y in zip(plan.times, kx, ky, strict=True):
+        label = round(sim_time_of(float(t), step) - step + shift_steps * step, 3)
+        if label not in adv:
+            return float("inf")
+        worst = max(worst, float(np.hypot(adv[label][0] - x, adv[label][1] - y)))
+    return worst
+
+
+def first_contact(adv: dict[float, tuple[float, float, float]], tgt: dict[float, tuple[float, float, float]],
+                  plan: AdversaryPlan, target_size: tuple[float, float], step: float) -> float | None:
+    """Simulation time [s] of the first step where the two oriented boxes touch (None: never)."""
+    for label in sorted(set(adv) & set(tgt)):
+        a, b = adv[label], tgt[label]
+        gap = box_signed_distance(make_boxes(a[0], a[1], a[2], plan.length, plan.width),
+                                  make_boxes(b[0], b[1], b[2], *target_size))
+        if float(gap) <= CONTACT_TOLERANCE_M:
+            return round(label + step, 6)
+    return None
+
+
+def vtype_sizes(export: Path) -> dict[str, tuple[float, float]]:
+    """Vehicle id -> (length, width) [m] of the vehicles the export's FCD file drives."""
+    return {v.get("id", "")[:-len(VTYPE_SUFFIX)]: (float(v.get("length", "nan")), float(v.get("width", "nan")))
+            for v in ET.parse(export / VTYPES_FILE).getroot().iter("vType")}
+
+
+def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tuple[float, float]:
+    """Play variant ``i`` of a run in plain sumo (or ``coster-sumo replay``); returns (max knot
+    error [m], contact offset from t_col_sim [s]) after asserting both are within tolerance."""
+    summary = json.loads((out / "summary.json").read_text())
+    export = out / "variants" / str(i) / "export"
+    variant = json.loads((export / "variant.json").read_text())
+    plan = AdversaryPlan.from_dict(variant["plan"])
+    step = float(variant["export"]["step_length"])
+    cfg = export / variant["export"]["sumocfg"]
+    if replay_cli:
+        assert main(["-q", "replay", str(cfg), "--fcd-output", str(fcd), "-o", str(fcd.parent / "replay")]) == 0
+        states = read_fcd(fcd)
+    else:
+        states = play(cfg, fcd)
+    adv = centres(states, plan.vehicle_id, plan.length)
+    assert adv, f"variant {i}: the adversary never shows up in the export"
+    errors = {shift: knot_errors(plan, adv, step, shift) for shift in (-1, 0, 1)}
+    # the state at simulation time T is labelled T - step: exact there, a step's motion off elsewhere
+    assert errors[0] <= KNOT_TOLERANCE_M, (i, errors)
+    assert errors[0] < min(errors[-1], errors[1]), (i, errors)
+    target = variant["target_id"]
+    assert variant["export"]["target_driven_by"] == "fcd-replay"
+    size = vtype_sizes(export)[target]
+    contact = first_contact(adv, centres(states, target, size[0]), plan, size, step)
+    assert contact is not None, f"variant {i}: no contact in the export"
+    offset = round(contact - float(summary["t_col_sim"]), 6)
+    assert abs(offset) <= CONTACT_OFFSET_TOLERANCE_S + 1e-6, (i, contact, summary["t_col_sim"])
+    print(f"variant {i}: max knot error {errors[0]:.4f} m, contact {contact:.2f} s, offset {offset:+.2f} s")
+    return errors[0], offset
+
+
+def test_drop_vehicle_removes_only_that_vehicle_or_trip(tmp_path):
+    rou = tmp_path / "r.rou.xml"
+    rou.write_text('<routes xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+                   'xsi:noNamespaceSchemaLocation="http://sumo.dlr.de/xsd/routes_file.xsd">\n'
+                   '  <vType id="car"/>\n  <flow id="f" type="car" begin="0" end="9" number="3" from="a" to="b"/>\n'
+                   '  <trip id="ego" type="car" depart="2" from="a" to="b"/>\n'
+                   '  <vehicle id="other" depart="1" route="r0"/>\n</routes>\n')
+    assert not drop_vehicle(rou, "f.1")  # a flow member cannot be dropped
+    assert drop_vehicle(rou, "ego")
+    root = ET.parse(rou).getroot()
+    assert [el.get("id") for el in root] == ["car", "f", "other"]
+    assert "noNamespaceSchemaLocation" in rou.read_text() and "xmlns:xsi" in rou.read_text()
+
+
+@pytest.mark.sumo
+def test_demo_variant_plays_in_plain_sumo_and_in_replay(tmp_path):
+    """One variant of the shipped demo (weight-free generator: one variant, a few seconds)."""
+    out = tmp_path / "run"
+    assert main(["-q", "run", str(DEMO), "--planner", "replay", "--init", "random", "--rollout", "cv",
+                 "--no-render", "-o", str(out)]) == 0
+    export = out / "variants" / "0" / "export"
+    names = {p.name for p in export.iterdir()}
+    assert {"intersection.sumocfg", "intersection.net.xml", "intersection.rou.xml", "variant.json", FCD_FILE,
+            VTYPES_FILE} <= names
+    assert "ego" not in {el.get("id") for el in ET.parse(export / "intersection.rou.xml").getroot()}, \
+        "the replayed target must leave the route file (SUMO refuses two vehicles with one id)"
+    check_variant(out, 0, tmp_path / "plain.fcd.xml")
+    check_variant(out, 0, tmp_path / "replay" / "replay.fcd.xml", replay_cli=True)
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_demo_all_variants_play_in_plain_sumo(tmp_path):
+    """The demo exactly as shipped (`make demo` without renders): all five variants."""
+    out = tmp_path / "run"
+    assert main(["-q", "run", str(DEMO), "--planner", "replay", "--no-render", "-o", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["num_variants"] == 5
+    for v in summary["variants"]:
+        check_variant(out, v["variant"], tmp_path / f"plain{v['variant']}.fcd.xml")
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+@pytest.mark.realdata
+@pytest.mark.skipif(not WOMD_SAMPLE.is_file(), reason=f"{WOMD_SAMPLE.name}: {NO_WOMD_REASON}")
+def test_womd_scene_variants_play_in_plain_sumo(tmp_path):
+    """A converted real WOMD scene: every logged agent replayed from the pass, nothing of the
+    staging lane in the output, and every variant's adversary and contact as planned."""
+    conv = tmp_path / "conv"
+    assert main(["-q", "convert", "-o", str(conv), str(WOMD_SAMPLE)]) == 0
+    (cfg,) = sorted(conv.glob("*/*.sumocfg"))
+    out = tmp_path / "run"
+    assert main(["-q", "run", str(cfg), "--no-render", "-o", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["planner"] == "replay" and summary["variants"]
+    for v in summary["variants"]:
+        i = v["variant"]
+        fcd = tmp_path / f"plain{i}.fcd.xml"
+        check_variant(out, i, fcd)
+        export = out / "variants" / str(i) / "export"
+        assert not (export / "scene.npz").exists(), "a log beside the export would make replay drive it twice"
+        # every vehicle SUMO shows is a replayed one, exactly where the FCD file puts it, and only at the
+        # steps the pass recorded it: a vehicle's first entry (staging) and a parking entry on the
+        # staging lane never show up
+        staging = json.loads((export / "variant.json").read_text())["export"]["staging_lane"]
+        assert staging
+        shown: States = {}
+        for ts in ET.parse(export / FCD_FILE).getroot().iter("timestep"):
+            for e in ts.iter("vehicle"):
+                if e.get("lane") != staging:
+                    shown.setdefault(e.get("id", ""), {})[round(float(ts.get("time", "nan")), 3)] = (
+                        float(e.get("x", "nan")), float(e.get("y", "nan")), 0.0, 0.0)
+        played = read_fcd(fcd)
+        assert set(played) == set(shown)
+        for vid, track in shown.items():
+            assert set(played[vid]) == set(track), vid
+            for t, (x, y, _, _) in track.items():
+                px, py, _, _ = played[vid][t]
+                assert np.hypot(px - x, py - y) < 0.02, (vid, t)
