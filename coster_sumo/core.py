@@ -96,6 +96,24 @@ def missing_weights(gen: GenerationConfig) -> str | None:
 
 # ----------------------------------------------------------------------------- nominal scene
 
+def simulation_window(spec: ScenarioSpec) -> tuple[float, float]:
+    """[begin, end] [s] of a SUMO configuration's run: the spec's, else the configuration's.
+
+    Both are absolute simulation times as SUMO reads them (a configuration may begin at 57600 s);
+    without any end the run lasts :data:`DEFAULT_DURATION_S`. An end not after the begin is one
+    :class:`InputError` line.
+    """
+    cfg = read_sumocfg(spec.config)
+    begin = spec.begin if spec.begin is not None else (cfg.begin or 0.0)
+    end = spec.end if spec.end is not None else cfg.end
+    if end is None:
+        end = begin + DEFAULT_DURATION_S
+    if end <= begin:
+        raise InputError(f"{spec.config}: end {end:g} s is not after begin {begin:g} s (SUMO's end is an absolute "
+                         "time; --duration gives a length from the begin)")
+    return begin, end
+
+
 def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates | None = None,
                   additional: Sequence[Path] = ()) -> tuple[Scene, bool]:
     """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
@@ -112,9 +130,7 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
         return load_scene(log), True
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
 
-    end = spec.end if spec.end is not None else read_sumocfg(cfg).end
-    if end is None:
-        end = (spec.begin or 0.0) + DEFAULT_DURATION_S
+    _, end = simulation_window(spec)
     target = spec.target or "ego"
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime

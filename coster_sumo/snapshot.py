@@ -66,8 +66,11 @@ def search_window(scene: Scene, target: int) -> np.ndarray:
     m1 = min(MARGIN_END, max(0, n // 4))
     steps = np.arange(m0, n - m1)
     valid = scene.tracks.valid[target]
-    # the target must be there at t_col and for the step after it (it has not just left the net)
+    # the target must be there at t_col and for the step after it (it has not just left the net),
+    # and for the MARGIN_START steps before it: the adversary's approach needs a target to meet
     ok = valid[steps] & valid[np.minimum(steps + 1, n - 1)]
+    since = np.concatenate([[0], np.cumsum(~valid)])  # invalid steps before each index
+    ok &= since[steps + 1] - since[np.maximum(steps - m0, 0)] == 0
     return steps[ok]
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import NO_WOMD_REASON, WOMD_DIR
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.cli import main
@@ -24,7 +25,6 @@ from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.outputs import sim_time_of
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M
-from conftest import NO_WOMD_REASON, WOMD_DIR
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"

@@ -119,7 +119,7 @@ def test_only_internal_signal_lanes(grid_cfg):
 
 @pytest.mark.sumo
 def test_window_and_callbacks_while_recording(grid_cfg, tmp_path):
-    """Record only [5, 8] s while a callback drives an injected vehicle every step."""
+    """Simulate and record [5, 8] s (SUMO's begin) while a callback drives an injected vehicle every step."""
     moved: list[float] = []
 
     def drive(sim: SumoSession) -> None:
@@ -131,12 +131,12 @@ def test_window_and_callbacks_while_recording(grid_cfg, tmp_path):
         moved.append(y)
 
     scene = record_config(grid_cfg, begin=5.0, end=8.0, before_step=drive)
-    assert scene.timestamps[0] == pytest.approx(5.0) and scene.timestamps[-1] == pytest.approx(8.0)
-    assert scene.num_steps == 31 and len(moved) == 80
+    assert scene.timestamps[0] == pytest.approx(5.1) and scene.timestamps[-1] == pytest.approx(8.0)
+    assert scene.num_steps == 30 and len(moved) == 30
     adv = scene.tracks.index_of("adv")
     assert scene.tracks.valid[adv].all()
-    np.testing.assert_allclose(scene.tracks.y[adv], moved[-31:], atol=1e-6)
-    np.testing.assert_allclose(scene.tracks.speed[adv], 15.0, atol=1e-6)  # 1.5 m per 0.1 s, uncapped
+    np.testing.assert_allclose(scene.tracks.y[adv], moved, atol=1e-6)
+    np.testing.assert_allclose(scene.tracks.speed[adv][1:], 15.0, atol=1e-6)  # 1.5 m per 0.1 s, uncapped
     back = load_scene(save_scene(scene, tmp_path / "s.npz"))
     np.testing.assert_array_equal(back.tracks.x, scene.tracks.x)
     assert back.meta == scene.meta

@@ -33,5 +33,5 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 def run(args: argparse.Namespace) -> int:
     args = argparse.Namespace(**vars(args), config=shipped_config(args.network), target=None, planner="replay",
                               samples=1000, collision_time="entropy", init="snapshot", rollout="cvae",
-                              begin=None, end=None, traci=False, no_render=False)
+                              begin=None, end=None, duration=None, traci=False, no_render=False)
     return run_command.run(args)

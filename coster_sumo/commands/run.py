@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from coster_sumo.errors import InputError
+from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.rollout.methods import ROLLOUTS
 from coster_sumo.run import RunOptions
 from coster_sumo.run import run as run_scenario
@@ -26,8 +28,12 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--samples", type=int, default=1000, help="trajectories oversampled (default 1000)")
     p.add_argument("--variants", type=int, default=5, help="representatives kept (K-means K, default 5)")
     add_method_arguments(p)
-    p.add_argument("--begin", type=float, help="[s] start of the recorded window")
-    p.add_argument("--end", type=float, help="[s] end of the window (default: the configuration's, else begin+60)")
+    p.add_argument("--begin", type=float, help="[s] simulation begin, absolute like SUMO's -b (default: the "
+                                                "configuration's)")
+    window = p.add_mutually_exclusive_group()
+    window.add_argument("--end", type=float, help="[s] simulation end, absolute like SUMO's -e (default: the "
+                                                  "configuration's, else begin + 60)")
+    window.add_argument("--duration", type=float, help="[s] simulation length from the begin (instead of --end)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--traci", action="store_true", help="use a TraCI socket instead of libsumo")
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
@@ -52,8 +58,18 @@ def generation_config(args: argparse.Namespace) -> GenerationConfig:
                             samples=args.samples, variants=args.variants, models_dir=args.models)
 
 
+def end_of(args: argparse.Namespace) -> float | None:
+    """``--end``, or the begin plus ``--duration`` (the begin: ``--begin``, else the configuration's)."""
+    if getattr(args, "duration", None) is None:
+        return args.end
+    if args.duration <= 0:
+        raise InputError(f"--duration must be positive, not {args.duration:g}")
+    begin = args.begin if args.begin is not None else (read_sumocfg(args.config).begin or 0.0)
+    return begin + args.duration
+
+
 def run(args: argparse.Namespace) -> int:
-    spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=args.end, target=args.target)
+    spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end_of(args), target=args.target)
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
                       traci=args.traci, render=not args.no_render, quiet=args.quiet)
     summary = run_scenario(opts)

@@ -125,7 +125,7 @@ def read_sumocfg(path: str | Path) -> SumoConfig:
     path = Path(path)
     check_xml(path, "SUMO configuration")
     st = path.stat()
-    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    key = (str(path), st.st_mtime_ns, st.st_size)  # as spelled: the inputs are resolved against it
     if key in _CACHE:
         return _CACHE[key]
     try:

@@ -10,8 +10,8 @@ do not), without simulating the prefix again.
 Holders are thinned as the pass goes on (every other one is dropped and the spacing doubles when
 there are too many), so their number and memory stay bounded. Only libsumo sessions are held: a
 TraCI connection cannot be shared by forked processes, so TraCI runs start every variant from
-``begin``. Forking needs a process without running torch threads: holders are made during the
-nominal pass, before any model is loaded.
+``begin``. What runs in a held copy is SUMO and numpy only: a forked process does not carry torch's
+thread pools over (holders are made during the nominal pass, before any model is loaded).
 """
 
 from __future__ import annotations
@@ -46,9 +46,11 @@ class _Holder:
 
 
 def can_hold(session: SumoSession) -> bool:
-    """Whether this session can be held: in-process libsumo, on a system with fork, torch not started."""
-    return (not session.uses_traci and hasattr(os, "fork") and "torch" not in sys.modules
-            and session.port is None)
+    """Whether this session can be held: in-process libsumo on a system with fork.
+
+    Jobs run in forked processes must not use torch (a fork does not carry its thread pools over).
+    """
+    return not session.uses_traci and hasattr(os, "fork") and session.port is None
 
 
 class HeldStates:

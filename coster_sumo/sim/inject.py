@@ -168,7 +168,7 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
     additional = planner.additional_files(workdir)
     if additional:
         kwargs["additional"] = [*kwargs.get("additional", []), *additional]
-    with SumoSession(config, seed=seed, end=end, traci=traci, **kwargs) as session:
+    with SumoSession(config, seed=seed, begin=begin, end=end, traci=traci, **kwargs) as session:
         return continue_injection(session, target_id, plan, planner, end=end, begin=begin, drivable=drivable,
                                   actors=actors, detect_events=detect_events, freeze_at=freeze_at,
                                   surroundings_m=surroundings_m, post_contact_s=post_contact_s)

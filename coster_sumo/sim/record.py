@@ -318,9 +318,8 @@ def record_config(config: str | Path, *, seed: int | None = None, begin: float |
                   focus: Focus | None = None, **session_kwargs: Any) -> Scene:
     """Open a session on ``config``, record [begin, end], close it. See :func:`record`.
 
-    The simulation itself starts at the configuration's own begin; ``begin`` only trims the
-    recording (vehicles in the network at ``begin`` are then recorded from their current state).
+    ``begin`` and ``end`` [s] are SUMO's (absolute simulation times; None: the configuration's).
     """
-    with SumoSession(config, seed=seed, end=end, traci=traci, **session_kwargs) as session:
+    with SumoSession(config, seed=seed, begin=begin, end=end, traci=traci, **session_kwargs) as session:
         return record(session, begin=begin, end=end, max_steps=max_steps, before_step=before_step,
                       after_step=after_step, focus=focus)
