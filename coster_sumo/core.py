@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -202,18 +202,19 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
 
 
 def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
-                  drivable: DrivableArea) -> PlannedScenario:
+                  drivable: DrivableArea, exclude: Collection[int] = ()) -> PlannedScenario:
     """Snapshot and adversary plans for ``target`` (one draw of the seeded generator).
 
     Plans that would hit the target before t_col are dropped; when none is left, a new snapshot
     is drawn (the generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times; then :class:`NoSnapshot`.
+    ``exclude``: 2 Hz steps not to take as t_col.
     """
     rng = np.random.default_rng(seed)
     low = resample(scene, PRIOR_RATE_HZ)
     init, rollout = SNAPSHOT_INITS[gen.init], ROLLOUTS[gen.rollout]
     reasons: list[str] = []
     for attempt in range(SNAPSHOT_ATTEMPTS):
-        snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir)
+        snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, exclude)
         plans, samples_xy, info = rollout.generate(low, target, snap, drivable, samples=gen.samples,
                                                    variants=gen.variants, seed=seed, models_dir=gen.models_dir)
         kept: list[AdversaryPlan] = []
@@ -229,6 +230,33 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
             return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
         reasons.append(f"t_col {snap.time:.1f} s: every trajectory hits the target before t_col")
     raise NoSnapshot(f"{SNAPSHOT_ATTEMPTS} attempts failed ({reasons[-1]})")
+
+
+SNAPSHOT_SEPARATION_STEPS = 4  # [2 Hz steps] the collision times of several snapshots lie 2 s apart or more
+
+
+def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
+                   snapshots: int = 1) -> list[PlannedScenario]:
+    """Up to ``snapshots`` snapshots for one target, each with its own plans: the best collision time
+    first, then the next best at least :data:`SNAPSHOT_SEPARATION_STEPS` away from those taken.
+
+    The first equals :func:`plan_scenario` with the same seed; the others draw with derived seeds.
+    Raises :class:`NoSnapshot` only when not even the first exists; fewer than asked is fine.
+    """
+    taken: list[PlannedScenario] = [plan_scenario(scene, target, seed, gen, drivable)]
+    excluded: set[int] = set()
+    for j in range(1, snapshots):
+        t = taken[-1].snapshot.t_index
+        excluded.update(range(t - SNAPSHOT_SEPARATION_STEPS + 1, t + SNAPSHOT_SEPARATION_STEPS))
+        try:
+            taken.append(plan_scenario(scene, target, derived_seed(seed, j), gen, drivable, exclude=excluded))
+        except NoSnapshot:
+            break
+    offset = 0
+    for p in taken:  # adversary ids unique across snapshots
+        p.plans = [dataclasses.replace(plan, vehicle_id=f"adversary{offset + i}") for i, plan in enumerate(p.plans)]
+        offset += len(p.plans)
+    return taken
 
 
 def derived_seed(seed: int, j: int) -> int:

@@ -105,58 +105,85 @@ def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[s
     return cfg
 
 
-def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: PlannedScenario,
+def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
                       results: list[InjectionResult], timings: dict[str, float], *, render: bool,
                       options: dict[str, Any]) -> dict[str, Any]:
-    """Write everything of a run into ``out`` (the caller renames it into place); returns the summary."""
-    scene, target = planned.scene, planned.target_index
+    """Write everything of a run into ``out`` (the caller renames it into place); returns the summary.
+
+    ``planned``: one entry per collision snapshot (``--snapshots``); ``results``: one per plan, in
+    the order of the snapshots' plans. Variants are numbered across snapshots.
+    """
+    first = planned[0]
+    scene, target = first.scene, first.target_index
     target_id = str(scene.tracks.ids[target])
-    snap = planned.snapshot
-    snap.save(out / "snapshot.json")
-    variants = []
+    step = float(results[0].scene.meta.get("step_length") or 0.1) if results else 0.1
     with (out / "events.jsonl").open("w") as fh:
         for i, res in enumerate(results):
             for e in res.events:
                 fh.write(json.dumps({"variant": i, **e.to_dict()}, default=json_default) + "\n")
     collisions_xml(out / "collisions.xml", results)
-    t_col = snap.time
-    t_col_step = int(np.argmin(np.abs(scene.timestamps - t_col)))
-    for i, (plan, res) in enumerate(zip(planned.plans, results, strict=True)):
-        vdir = out / "variants" / str(i)
-        vdir.mkdir(parents=True)
-        rec = variant_record(i, plan, res, target_id, t_col)
-        variants.append(rec)
-        trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
-        export_variant(vdir / "export", spec.config, plan,
-                       {"target_id": target_id, "planner": planner, "seed": spec.seed,
-                        "begin": spec.begin, "end": float(scene.timestamps[-1])}, res)
+    variants: list[dict[str, Any]] = []
+    snapshots: list[dict[str, Any]] = []
+    renders: list[str] = []
+    i = 0
+    for k, p in enumerate(planned):
+        snap = p.snapshot
+        snap.save(out / ("snapshot.json" if k == 0 else f"snapshot_{k}.json"))
+        t_col_step = int(np.argmin(np.abs(scene.timestamps - snap.time)))
+        mine = []
+        for plan in p.plans:
+            res = results[i]
+            vdir = out / "variants" / str(i)
+            vdir.mkdir(parents=True)
+            rec = {**variant_record(i, plan, res, target_id, snap.time), "snapshot": k, "t_col": snap.time}
+            variants.append(rec)
+            mine.append(rec)
+            trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
+            export_variant(vdir / "export", spec.config, plan,
+                           {"target_id": target_id, "planner": planner, "seed": spec.seed,
+                            "begin": spec.begin, "end": float(scene.timestamps[-1])}, res)
+            if render:
+                xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
+                c = res.contact
+                viz.render_variant(vdir / "render.png", scene, target, np.stack([xs, ys], 1), snap.adversary,
+                                   t_col_step,
+                                   f"variant {i}: " + (f"contact at {c.time:.1f} s, {c.relative_speed:.1f} m/s, "
+                                                       f"{round(c.impact_angle):d} deg" if c else "no contact"),
+                                   contact_xy=c.positions[1] if c else None)
+                renders.append(f"variants/{i}/render.png")
+            i += 1
         if render:
-            xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
-            c = res.contact
-            viz.render_variant(vdir / "render.png", scene, target, np.stack([xs, ys], 1), snap.adversary,
-                               t_col_step,
-                               f"variant {i}: " + (f"contact at {c.time:.1f} s, {c.relative_speed:.1f} m/s, "
-                                                   f"{round(c.impact_angle):d} deg" if c else "no contact"),
-                               contact_xy=c.positions[1] if c else None)
-    if render:
-        reps = [np.stack([p.x, p.y], 1) for p in planned.plans]
-        viz.render_overview(out / "overview.png", scene, target, t_col_step, snap.target, reps,
-                            planned.samples_xy, snap.entropy or None, planned.scene_2hz.timestamps, t_col)
+            name = "overview.png" if k == 0 else f"overview_{k}.png"
+            reps = [np.stack([q.x, q.y], 1) for q in p.plans]
+            viz.render_overview(out / name, scene, target, t_col_step, snap.target, reps, p.samples_xy,
+                                snap.entropy or None, p.scene_2hz.timestamps, snap.time)
+            renders.insert(k, name)
+        angles = [r["impact_angle"] for r in mine if r["collision"]]
+        snapshots.append({"snapshot": k, "t_col": snap.time, "t_col_sim": sim_time_of(snap.time, step),
+                          "t_col_index_2hz": snap.t_index, "collision_time_method": snap.collision_time_method,
+                          "init_method": snap.init_method, "signed_distance": snap.signed_distance,
+                          "adversary": {"x": snap.adversary.x, "y": snap.adversary.y,
+                                        "heading_deg": float(np.degrees(snap.adversary.yaw)),
+                                        "speed": snap.adversary.speed, "length": snap.adversary.length,
+                                        "width": snap.adversary.width},
+                          "variants": [r["variant"] for r in mine], "generation": p.info,
+                          "impact_angles_deg": angles})
     n = len(variants)
+    snap0 = first.snapshot
+    all_angles = [a for s in snapshots for a in s["impact_angles_deg"]]
     summary = {
         "config": str(spec.config), "scenario_id": scene.scenario_id, "target": target_id,
-        "planner": planner, "seed": spec.seed, "t_col": t_col,
-        "t_col_sim": sim_time_of(t_col, float(results[0].scene.meta.get("step_length") or 0.1)) if results else None,
-        "t_col_index_2hz": snap.t_index,
-        "collision_time_method": snap.collision_time_method, "init_method": snap.init_method,
-        "snapshot_signed_distance": snap.signed_distance,
-        "num_variants": n,
+        "planner": planner, "seed": spec.seed, "t_col": snap0.time, "t_col_sim": sim_time_of(snap0.time, step),
+        "t_col_index_2hz": snap0.t_index,
+        "collision_time_method": snap0.collision_time_method, "init_method": snap0.init_method,
+        "snapshot_signed_distance": snap0.signed_distance,
+        "num_snapshots": len(snapshots), "num_variants": n,
         "collision_rate": sum(v["collision"] for v in variants) / n if n else None,
         "off_road_rate": sum(v["adversary_off_road"] for v in variants) / n if n else None,
-        "variants": variants, "generation": planned.info,
+        "impact_angle_spread_deg": float(np.ptp(all_angles)) if all_angles else None,
+        "variants": variants, "snapshots": snapshots, "generation": first.info,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
-        "options": options,
-        "renders": (["overview.png"] + [f"variants/{i}/render.png" for i in range(n)]) if render else [],
+        "options": options, "renders": renders,
     }
     write_json(out / "summary.json", summary)
     return summary

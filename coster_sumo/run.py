@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenario
+from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenarios
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
@@ -41,18 +41,21 @@ class RunOptions:
     traci: bool = False
     render: bool = True
     quiet: bool = False
+    snapshots: int = 1  # collision snapshots (each with its variants) from the one nominal pass
     from_begin: bool = False  # every variant simulates from begin instead of a held copy of the nominal pass
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)  # variants run at a time (held copies)
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
         return {**self.spec.to_dict(), **self.generation.to_dict(), "out": str(self.out), "planner": self.planner,
-                "traci": self.traci, "render": self.render}
+                "traci": self.traci, "render": self.render, "snapshots": self.snapshots, "from_begin": self.from_begin}
 
 
 def run(opts: RunOptions) -> dict[str, Any]:
     """Run the whole pipeline; returns the summary (also written to OUT/summary.json)."""
     check_generation(opts.generation)
+    if opts.snapshots < 1:
+        raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
     if opts.planner is not None:
         check_planner(opts.planner)
     spec = opts.spec
@@ -73,13 +76,14 @@ def run(opts: RunOptions) -> dict[str, Any]:
         t0 = time.perf_counter()
         drivable = DrivableArea.from_road_map(scene.road_map)
         try:
-            planned = plan_scenario(scene, target, spec.seed, opts.generation, drivable)
+            planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots)
         except NoSnapshot as exc:
             raise InputError(f"{spec.config}: no collision snapshot for target "
                              f"{str(scene.tracks.ids[target])!r}: {exc}") from None
         timings["generation_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        results = inject_variants(spec, scene, target, planned.plans, planner, drivable=drivable, traci=opts.traci,
+        plans = [plan for p in planned for plan in p.plans]
+        results = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
                                   workdir=staging, held=held, workers=opts.workers)
         timings["injection_s"] = time.perf_counter() - t0
         summary = write_run_outputs(staging, spec, planner, planned, results, timings, render=opts.render,

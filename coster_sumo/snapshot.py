@@ -29,7 +29,7 @@ touches the target; same rejection rules, up to ``RANDOM_TRIES`` tries.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,8 +59,8 @@ class NoSnapshot(CosterError):
     """The scene yields no collision snapshot; the message says why."""
 
 
-def search_window(scene: Scene, target: int) -> np.ndarray:
-    """2 Hz step indices where t_col may fall (see the module docstring)."""
+def search_window(scene: Scene, target: int, exclude: Collection[int] = ()) -> np.ndarray:
+    """2 Hz step indices where t_col may fall (see the module docstring), without ``exclude``."""
     n = scene.num_steps
     m0 = min(MARGIN_START, max(1, n // 4))
     m1 = min(MARGIN_END, max(0, n // 4))
@@ -71,6 +71,8 @@ def search_window(scene: Scene, target: int) -> np.ndarray:
     ok = valid[steps] & valid[np.minimum(steps + 1, n - 1)]
     since = np.concatenate([[0], np.cumsum(~valid)])  # invalid steps before each index
     ok &= since[steps + 1] - since[np.maximum(steps - m0, 0)] == 0
+    if len(exclude):
+        ok &= ~np.isin(steps, np.fromiter(exclude, np.int64))
     return steps[ok]
 
 
@@ -181,9 +183,12 @@ def closing(boxes: np.ndarray, speed: np.ndarray, target: AgentState) -> np.ndar
 
 
 def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                    collision_time: str = "last", seed: int = 0) -> CollisionSnapshot:
-    """The Adv-BMT-style baseline: a random pose offset from the target, in contact at t_col."""
-    window = search_window(scene, target)
+                    collision_time: str = "last", seed: int = 0, exclude: Collection[int] = ()) -> CollisionSnapshot:
+    """The Adv-BMT-style baseline: a random pose offset from the target, in contact at t_col.
+
+    ``exclude``: 2 Hz steps not to choose as t_col (those of snapshots already taken).
+    """
+    window = search_window(scene, target, exclude)
     t_col = choose_collision_time(window, "last" if collision_time == "entropy" else collision_time, rng)
     tgt = AgentState.from_tracks(scene.tracks, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
@@ -239,7 +244,8 @@ def velocity_entropy(pred: Any, ellipse: np.ndarray) -> np.ndarray:
 
 def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                    collision_time: str = "entropy", seed: int = 0, models_dir: Path | None = None,
-                   model: Any = None, regions_out: dict[str, np.ndarray] | None = None) -> CollisionSnapshot:
+                   model: Any = None, regions_out: dict[str, np.ndarray] | None = None,
+                   exclude: Collection[int] = ()) -> CollisionSnapshot:
     """COSTER's snapshot: t_col from the velocity entropy, placement from the prior (module docstring).
 
     ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in ``models_dir`` (default: the shipped
@@ -251,7 +257,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
 
     if model is None:
         model = weights.load_prior(models_dir)
-    window = search_window(scene, target)
+    window = search_window(scene, target, exclude)
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")
     tr = scene.tracks
@@ -317,7 +323,8 @@ class SnapshotInit:
 
     Attributes:
         place: (scene at 2 Hz, target index, rng, drivable area, collision-time rule, seed, models
-            folder) -> the snapshot; raises :class:`NoSnapshot` when the scene has none.
+            folder, steps to exclude from t_col) -> the snapshot; raises :class:`NoSnapshot` when
+            the scene has none.
         weights: files it needs from the models folder (checked before any work).
     """
 
@@ -326,14 +333,16 @@ class SnapshotInit:
 
 
 def _prior_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                collision_time: str, seed: int, models_dir: Path | None) -> CollisionSnapshot:
+                collision_time: str, seed: int, models_dir: Path | None,
+                exclude: Collection[int] = ()) -> CollisionSnapshot:
     return prior_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed,
-                          models_dir=models_dir)
+                          models_dir=models_dir, exclude=exclude)
 
 
 def _random_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                 collision_time: str, seed: int, models_dir: Path | None) -> CollisionSnapshot:
-    return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed)
+                 collision_time: str, seed: int, models_dir: Path | None,
+                 exclude: Collection[int] = ()) -> CollisionSnapshot:
+    return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed, exclude=exclude)
 
 
 # Snapshot inits (``--init``): a new one is one function and one line here.

@@ -35,6 +35,12 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                                                   "configuration's, else begin + 60)")
     window.add_argument("--duration", type=float, help="[s] simulation length from the begin (instead of --end)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--snapshots", type=int, default=1,
+                   help="collision snapshots from the one nominal pass: the K best collision times (2 s apart), "
+                        "each with its variants (default 1)")
+    p.add_argument("--from-begin", action="store_true",
+                   help="simulate every variant from the begin instead of continuing a held copy of the nominal "
+                        "pass (same outcome, slower; TraCI always does this)")
     p.add_argument("--traci", action="store_true", help="use a TraCI socket instead of libsumo")
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
     p.add_argument("--models", type=Path, help="folder with prior/rollout/vocab weights (default: shipped)")
@@ -71,10 +77,12 @@ def end_of(args: argparse.Namespace) -> float | None:
 def run(args: argparse.Namespace) -> int:
     spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end_of(args), target=args.target)
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
-                      traci=args.traci, render=not args.no_render, quiet=args.quiet)
+                      traci=args.traci, render=not args.no_render, quiet=args.quiet,
+                      snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False))
     summary = run_scenario(opts)
-    lines = [f"target {summary['target']}: t_col = {summary['t_col']:.1f} s "
-             f"({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
+    lines = [f"target {summary['target']}: t_col = "
+             + ", ".join(f"{s['t_col']:.1f} s" for s in summary["snapshots"])
+             + f" ({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
     for v in summary["variants"]:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
                f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
