@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -115,12 +115,14 @@ def simulation_window(spec: ScenarioSpec) -> tuple[float, float]:
 
 
 def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates | None = None,
-                  additional: Sequence[Path] = ()) -> tuple[Scene, bool]:
+                  additional: Sequence[Path] = (), progress: Callable[[float], None] | None = None
+                  ) -> tuple[Scene, bool]:
     """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
 
     A SUMO configuration is recorded around the target only (see :data:`SURROUNDINGS_RADIUS_M`);
     with ``hold`` the pass leaves held copies of itself for the variants (:mod:`coster_sumo.sim.hold`);
-    ``additional`` files are loaded as the variants' passes will load them (a planner's vType).
+    ``additional`` files are loaded as the variants' passes will load them (a planner's vType);
+    ``progress`` is called with the simulation time [s] after every step.
     """
     cfg = spec.config
     if not cfg.exists():
@@ -136,9 +138,14 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
     extra: dict[str, Any] = {"additional": list(additional)} if additional else {}
+
+    def after_step(session: Any, states: Any) -> bool:
+        if progress is not None:
+            progress(session.time)
+        return hold.after_step(session, states) if hold is not None else False
+
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
-                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s),
-                          after_step=hold.after_step if hold is not None else None, **extra)
+                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s), after_step=after_step, **extra)
     if target in scene.tracks.ids.tolist():  # regions and the drivable area cover its surroundings only
         return crop_scene(scene, SURROUNDINGS_RADIUS_M, scene.tracks.index_of(target)), False
     # the target never ran: a whole recording, so that the error can name the vehicles that did

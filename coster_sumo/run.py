@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenarios
+from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenarios, simulation_window
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
@@ -70,7 +70,10 @@ def run(opts: RunOptions) -> dict[str, Any]:
         # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
         # copies of it must have them
         extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
-        scene, converted = nominal_scene(spec, traci=opts.traci, hold=None if converted else held, additional=extra)
+        with _bar(opts, "nominal pass", "sim s") as bar:
+            clock = None if converted else _SimClock(bar, simulation_window(spec)[1])
+            scene, converted = nominal_scene(spec, traci=opts.traci, hold=None if converted else held,
+                                             additional=extra, progress=clock.update if clock else None)
         timings["nominal_s"] = time.perf_counter() - t0
         target = choose_target(scene, spec.target, spec.config)
         t0 = time.perf_counter()
@@ -83,8 +86,9 @@ def run(opts: RunOptions) -> dict[str, Any]:
         timings["generation_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         plans = [plan for p in planned for plan in p.plans]
-        results = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
-                                  workdir=staging, held=held, workers=opts.workers)
+        with _bar(opts, "variants", "variant", total=len(plans)) as bar:
+            results = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
+                                      workdir=staging, held=held, workers=opts.workers, done=bar.update)
         timings["injection_s"] = time.perf_counter() - t0
         summary = write_run_outputs(staging, spec, planner, planned, results, timings, render=opts.render,
                                     options=opts.to_json())
@@ -98,3 +102,27 @@ def run(opts: RunOptions) -> dict[str, Any]:
         if held is not None:
             held.close()
     return summary
+
+
+def _bar(opts: RunOptions, desc: str, unit: str, total: float | None = None) -> Any:
+    """A progress bar on stderr for one phase of the run (none with ``--quiet``)."""
+    from tqdm import tqdm
+
+    tqdm.monitor_interval = 0  # no monitor thread in a process that forks
+    return tqdm(total=total, desc=desc, unit=unit, disable=opts.quiet, leave=False, dynamic_ncols=True)
+
+
+class _SimClock:
+    """Moves a progress bar along the simulation time, from the first step to ``end`` [s]."""
+
+    def __init__(self, bar: Any, end: float) -> None:
+        self.bar, self.end = bar, end
+        self.begin: float | None = None
+
+    def update(self, t: float) -> None:
+        if self.begin is None:
+            self.begin = t
+            self.bar.total = round(max(self.end - t, 1.0), 1)
+        done = round(t - self.begin, 1)
+        if done - self.bar.n >= 1.0:  # redraw once per simulated second
+            self.bar.update(done - self.bar.n)

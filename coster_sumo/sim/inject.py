@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time as _time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -317,13 +318,15 @@ def _continue_held(session: SumoSession, payload: dict[str, Any]) -> InjectionRe
 def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[AdversaryPlan], planner: str | None,
                     *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
                     held: HeldStates | None = None, workers: int = 1,
-                    post_contact_s: float | None = POST_CONTACT_S) -> list[InjectionResult]:
+                    post_contact_s: float | None = POST_CONTACT_S,
+                    done: Callable[[int], None] | None = None) -> list[InjectionResult]:
     """:func:`inject_variant` for every plan; from held copies of the nominal pass where there are.
 
     With ``held`` (the nominal pass of a SUMO configuration run with it), each variant continues
     from the latest held moment before its adversary appears, up to ``workers`` at a time, instead
     of simulating from ``begin`` again; the outcome is the same (see :mod:`coster_sumo.sim.hold`).
-    Events before that moment are the nominal pass's and are not checked again.
+    Events before that moment are the nominal pass's and are not checked again. ``done(n)`` is
+    called as n more variants finish (progress).
     """
     converted = converted_scene_file(spec.config) is not None
     planner_spec = planner or default_planner(converted)
@@ -341,11 +344,15 @@ def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[A
         jobs = [(_continue_held, {"target_id": target_id, "plan": plans[i], "planner": planner_spec,
                                   "nominal": nominal, "end": end, "drivable": drivable,
                                   "post_contact_s": post_contact_s}) for i in members]
-        done = held.run(held.holders[h_index], jobs, workers) if held is not None else []
-        for i, res in zip(members, done, strict=True):
+        finished = held.run(held.holders[h_index], jobs, workers) if held is not None else []
+        for i, res in zip(members, finished, strict=True):
             results[i] = res
+        if done is not None:
+            done(len(members))
     for i, plan in enumerate(plans):
         if results[i] is None:
             results[i] = inject_variant(spec, scene, target, plan, planner_spec, drivable=drivable, traci=traci,
                                         workdir=workdir, post_contact_s=post_contact_s)
+            if done is not None:
+                done(1)
     return [r for r in results if r is not None]
