@@ -56,6 +56,10 @@ def run(opts: RunOptions) -> dict[str, Any]:
     check_generation(opts.generation)
     if opts.snapshots < 1:
         raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
+    if not opts.spec.config.is_file():
+        raise InputError(f"{opts.spec.config}: no such SUMO configuration")
+    converted = converted_scene_file(opts.spec.config) is not None
+    end = None if converted else simulation_window(opts.spec)[1]  # a bad window is one line before any work
     if opts.planner is not None:
         check_planner(opts.planner)
     spec = opts.spec
@@ -65,13 +69,12 @@ def run(opts: RunOptions) -> dict[str, Any]:
     held = HeldStates(spec.target or "ego") if not (opts.from_begin or opts.traci) else None
     try:
         t0 = time.perf_counter()
-        converted = converted_scene_file(spec.config) is not None
         planner = opts.planner or default_planner(converted)
         # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
         # copies of it must have them
         extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
         with _bar(opts, "nominal pass", "sim s") as bar:
-            clock = None if converted else _SimClock(bar, simulation_window(spec)[1])
+            clock = None if end is None else _SimClock(bar, end)
             scene, converted = nominal_scene(spec, traci=opts.traci, hold=None if converted else held,
                                              additional=extra, progress=clock.update if clock else None)
         timings["nominal_s"] = time.perf_counter() - t0

@@ -46,6 +46,7 @@ from coster_sumo.geometry import (
     touch_translation,
     translate_boxes,
 )
+from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.scene import AgentState, CollisionSnapshot, Scene
 
 MARGIN_START = 5  # [2 Hz steps] skipped at the start of the window (a rollout must fit)
@@ -67,10 +68,11 @@ def search_window(scene: Scene, target: int, exclude: Collection[int] = ()) -> n
     steps = np.arange(m0, n - m1)
     valid = scene.tracks.valid[target]
     # the target must be there at t_col and for the step after it (it has not just left the net),
-    # and for the MARGIN_START steps before it: the adversary's approach needs a target to meet
+    # and for the whole approach before it (the rollout's horizon, cut at the scene's start): an
+    # adversary that starts before the target exists can take the place the target departs from
     ok = valid[steps] & valid[np.minimum(steps + 1, n - 1)]
     since = np.concatenate([[0], np.cumsum(~valid)])  # invalid steps before each index
-    ok &= since[steps + 1] - since[np.maximum(steps - m0, 0)] == 0
+    ok &= since[steps + 1] - since[np.maximum(steps - HORIZON_STEPS, 0)] == 0
     if len(exclude):
         ok &= ~np.isin(steps, np.fromiter(exclude, np.int64))
     return steps[ok]

@@ -22,3 +22,9 @@ def requires_womd() -> pytest.MarkDecorator:
 @pytest.fixture(params=sorted(synthetic.ALL))
 def synthetic_scene(request):
     return synthetic.ALL[request.param]()
+
+
+def visible_lines(stream: str) -> list[str]:
+    """What a terminal shows of ``stream``: progress bars redraw their line with carriage returns
+    and clear it when they close, so each line shows only what follows its last carriage return."""
+    return [shown for line in stream.split("\n") if (shown := line.split("\r")[-1].strip())]

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+from conftest import visible_lines
 
 from coster_sumo.cli import main
 from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
@@ -69,7 +70,7 @@ def test_broken_config_is_one_line_exit_2_and_no_output(tmp_path, capsys):
     cfg.write_text("<configuration><input><net-file value='x.net.xml'/></input>")  # cut off
     out = tmp_path / "o"
     assert main(["run", str(cfg), "-o", str(out)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    err = visible_lines(capsys.readouterr().err)
     assert len(err) == 1 and "broken.sumocfg" in err[0]
     assert not out.exists()
 
@@ -151,7 +152,7 @@ def test_sumo_scenario_without_ego_names_candidates(tmp_path, capsys):
         pytest.skip(f"{cfg} not in this SUMO build")
     out = tmp_path / "o"
     assert main(["run", str(cfg), "-o", str(out)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    err = visible_lines(capsys.readouterr().err)
     assert len(err) == 1 and "--target" in err[0] and "horiz.1" in err[0]
     assert not out.exists() or not any(out.iterdir())
 

@@ -40,6 +40,7 @@ class SumoConfig:
     begin: float | None = None
     end: float | None = None
     step_length: float | None = None
+    gui_only: tuple[str, ...] = ()  # options of its <gui_only> section (plain sumo may not know them)
 
     def inputs(self) -> dict[str, list[Path]]:
         """``{"net-file": [...], "route-files": [...], "additional-files": [...]}``."""
@@ -134,6 +135,7 @@ def read_sumocfg(path: str | Path) -> SumoConfig:
     except Exception as exc:  # noqa: BLE001 - defusedxml raises several types; all mean "bad file"
         raise InputError(f"{path}: not a readable SUMO configuration ({type(exc).__name__}: {exc})") from None
     values: dict[str, str] = {}
+    gui_only = tuple(str(el.tag) for sec in root.iter("gui_only") for el in sec)
     for el in root.iter():
         tag = str(el.tag).split("}")[-1]
         if el.get("value") is not None:
@@ -148,6 +150,31 @@ def read_sumocfg(path: str | Path) -> SumoConfig:
 
     cfg = SumoConfig(path=path, net_files=files["net-file"], route_files=files["route-files"],
                      additional_files=files["additional-files"], begin=time_of("begin"), end=time_of("end"),
-                     step_length=time_of("step-length"))
+                     step_length=time_of("step-length"), gui_only=gui_only)
     _CACHE[key] = cfg
     return cfg
+
+
+def headless_copy(path: str | Path, folder: Path) -> Path:
+    """A copy of a configuration without its ``<gui_only>`` section, written into ``folder``.
+
+    Some configurations made for sumo-gui carry options plain ``sumo`` refuses (``osg-view``). The
+    copy names every file the original names by its absolute path, so it runs from anywhere.
+    """
+    path = Path(path)
+    with open_maybe_gzip(path) as fh:
+        tree = SafeET.parse(fh, forbid_dtd=True)
+    root = tree.getroot()
+    for sec in list(root.iter("gui_only")):
+        for parent in root.iter():
+            if sec in list(parent):
+                parent.remove(sec)
+    for el in root.iter():
+        value = el.get("value")
+        if value and any((path.parent / f).exists() for f in split_files(value)):
+            el.set("value", ",".join(str((path.parent / f).resolve()) if (path.parent / f).exists() else f
+                                     for f in split_files(value)))
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / path.name.removesuffix(".gz")
+    tree.write(out, encoding="unicode", xml_declaration=True)
+    return out

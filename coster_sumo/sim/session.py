@@ -24,10 +24,14 @@ Example::
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import io
 import itertools
 import math
+import os
+import shutil
+import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -36,7 +40,7 @@ import numpy as np
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.errors import CosterError, InputError, SumoError
-from coster_sumo.formats.sumocfg import check_xml, read_sumocfg
+from coster_sumo.formats.sumocfg import check_xml, headless_copy, read_sumocfg
 from coster_sumo.sim.states import VehicleStates, empty_states
 from coster_sumo.sim.sumo_options import (
     KEEP_ROUTE_EXACT_ANYWHERE,
@@ -161,7 +165,7 @@ class SumoSession:
         binary = sumo_env.binary("sumo-gui" if self.gui else "sumo")
         cmd = [binary]
         if self.config is not None:
-            cmd += ["-c", str(self.config)]
+            cmd += ["-c", str(_runnable_config(self.config))]
         if self.net is not None:
             cmd += ["-n", str(self.net)]
         if self.routes:
@@ -618,3 +622,25 @@ def _fmt(v: object) -> str:
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     return text or type(exc).__name__
+
+
+_HEADLESS: dict[tuple[str, int], Path] = {}
+
+
+def _runnable_config(config: Path) -> Path:
+    """``config``, or a copy of it without its sumo-gui options when it has some (see
+    :func:`~coster_sumo.formats.sumocfg.headless_copy`); copies live in a temporary folder."""
+    if not read_sumocfg(config).gui_only:
+        return config
+    key = (str(config.resolve()), config.stat().st_mtime_ns)
+    if key not in _HEADLESS:
+        folder = Path(tempfile.mkdtemp(prefix="coster-headless-"))
+        owner = os.getpid()
+
+        def remove() -> None:
+            if os.getpid() == owner:  # not from forked copies
+                shutil.rmtree(folder, ignore_errors=True)
+
+        atexit.register(remove)
+        _HEADLESS[key] = headless_copy(config, folder)
+    return _HEADLESS[key]

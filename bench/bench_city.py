@@ -1,0 +1,112 @@
+"""``coster-sumo run`` against plain ``sumo`` on the same configuration, up to the target's arrival.
+
+    python bench/bench_city.py [--vehicles-per-s 5] [--duration 1200] [--work DIR] [--target ID]
+    python bench/bench_city.py --config networks/intersection/intersection.sumocfg   # any configuration
+
+Without ``--config`` it builds a city-scale configuration first (once, cached in ``--work``): the
+real OSM network of Braunschweig that ships in the eclipse-sumo wheel (``tools/game/DRT``) with
+``randomTrips.py`` demand (``--vehicles-per-s`` x ``--duration`` trips, validated by duarouter).
+The target is a vehicle departing a quarter into the window with one of the longest routes.
+
+Then, in this process tree: plain ``sumo -c CFG --step-length 0.1 --end A`` (A: the target's
+arrival, as the coster-sumo run found it), ``coster-sumo run CFG --target T --planner replay`` (5
+variants, renders on), and plain sumo again; it prints both wall times and the ratio run / sumo
+(the mean of the two sumo runs). Goal on a city-scale configuration: <= 1.3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from coster_sumo import sumo_env
+from coster_sumo.formats.sumocfg import read_sumocfg
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def build_city(work: Path, vehicles_per_s: float, duration_s: float, seed: int = 7) -> Path:
+    """The city configuration in ``work`` (built once)."""
+    cfg = work / "city.sumocfg"
+    if cfg.is_file():
+        return cfg
+    work.mkdir(parents=True, exist_ok=True)
+    net = sumo_env.sumo_home() / "tools" / "game" / "DRT" / "osm.net.xml"
+    shutil.copy(net, work / "city.net.xml")
+    subprocess.run([sys.executable, sumo_env.tool("randomTrips.py"), "-n", str(work / "city.net.xml"),
+                    "-o", str(work / "city.trips.xml"), "-r", str(work / "city.rou.xml"), "-b", "0",
+                    "-e", str(duration_s), "-p", str(1.0 / vehicles_per_s), "--seed", str(seed),
+                    "--fringe-factor", "5", "--min-distance", "300", "--validate", "--vehicle-class", "passenger"],
+                   check=True, capture_output=True, env=sumo_env.subprocess_env())
+    cfg.write_text('<configuration>\n  <input>\n    <net-file value="city.net.xml"/>\n'
+                   '    <route-files value="city.rou.xml"/>\n  </input>\n'
+                   f'  <time>\n    <begin value="0"/>\n    <end value="{duration_s:g}"/>\n  </time>\n'
+                   '</configuration>\n')
+    return cfg
+
+
+def pick_target(cfg: Path) -> str:
+    """A vehicle departing a quarter into the window with one of the longest routes."""
+    conf = read_sumocfg(cfg)
+    begin, end = conf.begin or 0.0, conf.end or 3600.0
+    best, best_len = None, -1
+    pattern = re.compile(r'<vehicle id="([^"]+)"[^>]*depart="([0-9.]+)"[^>]*>\s*<route edges="([^"]+)"')
+    text = conf.route_files[0].read_text()
+    for m in pattern.finditer(text):
+        depart = float(m.group(2))
+        if begin + 0.2 * (end - begin) <= depart <= begin + 0.3 * (end - begin):
+            n = len(m.group(3).split())
+            if n > best_len:
+                best, best_len = m.group(1), n
+    if best is None:
+        raise SystemExit(f"{cfg}: no vehicle departs a quarter into the window; pass --target")
+    return best
+
+
+def timed(cmd: list[str]) -> float:
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", type=Path, help="a configuration (default: build the city)")
+    ap.add_argument("--target", help="target vehicle (default: picked, or 'ego' for --config)")
+    ap.add_argument("--vehicles-per-s", type=float, default=5.0)
+    ap.add_argument("--duration", type=float, default=1200.0, help="[s] demand window of the city")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-city"))
+    args = ap.parse_args()
+    cfg = args.config or build_city(args.work, args.vehicles_per_s, args.duration)
+    target = args.target or ("ego" if args.config else pick_target(cfg))
+    routes = read_sumocfg(cfg).route_files
+    vehicles = sum(len(re.findall(r"<(?:vehicle|trip) ", p.read_text())) for p in routes if p.suffix != ".gz")
+    out = args.work / "run"
+    shutil.rmtree(out, ignore_errors=True)
+    run_cmd = [sys.executable, "-m", "coster_sumo", "--quiet", "run", str(cfg), "--target", target,
+               "--planner", "replay", "-o", str(out)]
+    t_run = timed(run_cmd)
+    summary = json.loads((out / "summary.json").read_text())
+    until = summary["nominal_until_s"]
+    sumo_cmd = [sumo_env.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
+                "--no-step-log", "true", "--no-warnings", "true"]
+    t_sumo = [timed(sumo_cmd)]
+    t_run2 = timed(run_cmd)
+    t_sumo.append(timed(sumo_cmd))
+    plain = sum(t_sumo) / len(t_sumo)
+    runs = [t_run, t_run2]
+    print(f"config {cfg} ({vehicles} vehicles in its route files), target {target}, simulated to {until:.1f} s")
+    print(f"plain sumo (0.1 s steps, to the target's arrival): {' '.join(f'{t:.1f}' for t in t_sumo)} s")
+    print(f"coster-sumo run (5 variants, renders): {' '.join(f'{t:.1f}' for t in runs)} s "
+          f"(timings of the last: {summary['timings_s']})")
+    print(f"ratio run / sumo: {min(runs) / plain:.2f} (best run), {max(runs) / plain:.2f} (worst run)")
+
+
+if __name__ == "__main__":
+    main()
