@@ -18,6 +18,7 @@ from coster_sumo.converters.read import iter_scenes
 from coster_sumo import metrics, weights
 from coster_sumo.dataset import list_scenes, split
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.prior.infer import load_prior
 from coster_sumo.scene import load_scene, resample
 from coster_sumo.snapshot import NoSnapshot, prior_snapshot
 
@@ -33,7 +34,7 @@ def main() -> None:
     scenes = [load_scene(p) for p in val[: args.scenes]]
     for f in args.womd:
         scenes.extend(iter_scenes(f))
-    model = weights.load_prior()
+    model = weights.load_cached(weights.weights_path(weights.PRIOR), load_prior)
     table = {}
     for method in ("entropy", "last", "random"):
         rel, ang, ok = [], [], 0

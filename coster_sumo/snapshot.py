@@ -255,10 +255,10 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     presence probabilities ``presence`` (K,) around the target at t_col, for pictures.
     """
     from coster_sumo import weights
-    from coster_sumo.prior.infer import predict_scene
+    from coster_sumo.prior.infer import load_prior, predict_scene
 
     if model is None:
-        model = weights.load_prior(models_dir)
+        model = weights.load_cached(weights.weights_path(weights.PRIOR, models_dir), load_prior)
     window = search_window(scene, target, exclude)
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")

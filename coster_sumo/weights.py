@@ -2,23 +2,20 @@
 
 Shipped weights travel inside the installed package (``coster_sumo.models``, the repository's
 ``models/`` folder) and are located with :mod:`importlib.resources`, so the tool works from any
-folder; ``--models DIR`` (``models_dir``) replaces the whole folder. Loaders are cached per file
-version: a batch or an evaluation that asks again gets the same object back.
+folder; ``--models DIR`` (``models_dir``) replaces the whole folder. :func:`load_cached` loads a
+file once per version: a batch or an evaluation that asks again gets the same object back.
 """
 
 from __future__ import annotations
 
-import functools
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, TypeVar
 
 from coster_sumo.errors import InputError
 
-if TYPE_CHECKING:
-    from coster_sumo.prior.model import TrafficPrior
-    from coster_sumo.rollout.model import RolloutCVAE
-    from coster_sumo.rollout.vocab import MotionVocab
+T = TypeVar("T")
 
 PRIOR = "prior.pt"
 ROLLOUT = "rollout.pt"
@@ -61,48 +58,14 @@ def missing_weights(names: tuple[str, ...], models_dir: str | Path | None = None
     return None
 
 
-def _version(path: Path) -> tuple[str, int, int]:
+_LOADED: dict[tuple[Any, str, int, int], Any] = {}
+
+
+def load_cached(path: Path, loader: Callable[[Path], T]) -> T:
+    """``loader(path)``, loaded once per file version and process (a batch asks again and again)."""
     st = path.stat()
-    return str(path.resolve()), st.st_mtime_ns, st.st_size
-
-
-@functools.lru_cache(maxsize=4)
-def _prior(key: tuple[str, int, int]) -> Any:
-    from coster_sumo.prior.infer import load_prior as load
-
-    return load(key[0])
-
-
-@functools.lru_cache(maxsize=4)
-def _rollout(key: tuple[str, int, int]) -> Any:
-    from coster_sumo.rollout.checkpoint import load_model
-
-    return load_model(key[0])
-
-
-@functools.lru_cache(maxsize=4)
-def _vocab(key: tuple[str, int, int]) -> Any:
-    from coster_sumo.rollout.vocab import MotionVocab
-
-    return MotionVocab.load(key[0])
-
-
-def load_prior(models_dir: str | Path | None = None, name: str = PRIOR) -> TrafficPrior:
-    """The traffic prior ``MODELS/prior.pt`` (cached per file version)."""
-    prior: TrafficPrior = _prior(_version(weights_path(name, models_dir)))
-    return prior
-
-
-def load_rollout(models_dir: str | Path | None = None, name: str = ROLLOUT) -> RolloutCVAE:
-    """The rollout CVAE ``MODELS/rollout.pt`` (cached per file version)."""
-    model: RolloutCVAE = _rollout(_version(weights_path(name, models_dir)))
-    return model
-
-
-def load_vocab(models_dir: str | Path | None = None) -> MotionVocab | None:
-    """The motion vocabulary ``MODELS/vocab.npz``, or None when the folder has none (no refinement)."""
-    path = weights_path(VOCAB, models_dir, required=False)
-    if not path.is_file():
-        return None
-    vocab: MotionVocab = _vocab(_version(path))
-    return vocab
+    key = (loader, str(path.resolve()), st.st_mtime_ns, st.st_size)
+    if key not in _LOADED:
+        _LOADED[key] = loader(path)
+    value: T = _LOADED[key]
+    return value

@@ -195,7 +195,7 @@ def test_constant_lane_reconstructs_lane_following(scene_fn, agent, t_index):
 
 def test_plan_variants_uses_the_models_folder(tmp_path, junction, vocab, model):
     with pytest.raises(InputError, match="train rollout"):
-        weights.load_rollout(tmp_path)
+        S.plan_variants(junction, 0, None, None, models_dir=tmp_path)  # type: ignore[arg-type]
     save_checkpoint(model, tmp_path / weights.ROLLOUT)
     vocab.save(tmp_path / weights.VOCAB)
     adv = adversary_near_target(junction, 14)

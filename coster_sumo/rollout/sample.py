@@ -371,9 +371,12 @@ def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
 
     t0 = time.perf_counter()
     from coster_sumo import weights
+    from coster_sumo.rollout.checkpoint import load_model
+    from coster_sumo.rollout.vocab import MotionVocab
 
-    model = weights.load_rollout(models_dir)
-    vocab = weights.load_vocab(models_dir)
+    model = weights.load_cached(weights.weights_path(weights.ROLLOUT, models_dir), load_model)
+    vocab_file = weights.weights_path(weights.VOCAB, models_dir, required=False)
+    vocab = weights.load_cached(vocab_file, MotionVocab.load) if vocab_file.is_file() else None
     t1 = time.perf_counter()
     trajs = sample_trajectories(model, scene_2hz, snapshot, n=n, seed=seed, exclude=exclude)
     t2 = time.perf_counter()
