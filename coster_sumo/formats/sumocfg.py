@@ -9,7 +9,11 @@ may be gzip-compressed (SUMO reads ``.gz`` inputs, and so do we). Parsing goes t
 
 from __future__ import annotations
 
+import atexit
 import gzip
+import os
+import shutil
+import tempfile
 import xml.parsers.expat
 from dataclasses import dataclass
 from pathlib import Path
@@ -178,3 +182,25 @@ def headless_copy(path: str | Path, folder: Path) -> Path:
     out = folder / path.name.removesuffix(".gz")
     tree.write(out, encoding="unicode", xml_declaration=True)
     return out
+
+
+_HEADLESS: dict[tuple[str, int], Path] = {}
+
+
+def runnable_config(config: Path) -> Path:
+    """``config``, or a copy of it without its sumo-gui options when it has some (see
+    :func:`headless_copy`); copies live in a temporary folder."""
+    if not read_sumocfg(config).gui_only:
+        return config
+    key = (str(config.resolve()), config.stat().st_mtime_ns)
+    if key not in _HEADLESS:
+        folder = Path(tempfile.mkdtemp(prefix="coster-headless-"))
+        owner = os.getpid()
+
+        def remove() -> None:
+            if os.getpid() == owner:  # not from forked copies
+                shutil.rmtree(folder, ignore_errors=True)
+
+        atexit.register(remove)
+        _HEADLESS[key] = headless_copy(config, folder)
+    return _HEADLESS[key]

@@ -24,14 +24,10 @@ Example::
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import io
 import itertools
 import math
-import os
-import shutil
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -40,7 +36,7 @@ import numpy as np
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.errors import CosterError, InputError, SumoError
-from coster_sumo.formats.sumocfg import check_xml, headless_copy, read_sumocfg
+from coster_sumo.formats.sumocfg import check_xml, read_sumocfg, runnable_config
 from coster_sumo.sim.states import VehicleStates, empty_states
 from coster_sumo.sim.sumo_options import (
     KEEP_ROUTE_EXACT_ANYWHERE,
@@ -53,8 +49,10 @@ from coster_sumo.sim.sumo_options import (
     SHORT_TO_LONG,
     SPEED_MODE_ALL_CHECKS_OFF,
     SPEED_MODE_SUMO_DEFAULT,
+    as_list,
+    fmt,
 )
-from coster_sumo.sim.traci_server import attach_traci, start_traci_server
+from coster_sumo.sim.traci_server import attach_traci, start_traci_server, subscribe_simulation, subscribe_vehicle
 
 _LIBSUMO_OWNER: SumoSession | None = None  # the live libsumo session of this process, if any
 _LABELS = itertools.count()
@@ -101,13 +99,13 @@ class SumoSession:
             raise InputError("SumoSession needs a .sumocfg, a net file, or a port to attach to")
         self.config = Path(config) if config is not None else None
         self.net = Path(net) if net is not None else None
-        self.routes = [Path(p) for p in _as_list(routes)]
-        self.additional = [Path(p) for p in _as_list(additional)]
+        self.routes = [Path(p) for p in as_list(routes)]
+        self.additional = [Path(p) for p in as_list(additional)]
         self.seed = seed
         self.step_length = float(step_length)
         self.begin = begin
         self.end = end
-        self.options = {str(k): _fmt(v) for k, v in (options or {}).items()}
+        self.options = {str(k): fmt(v) for k, v in (options or {}).items()}
         self.extra_args = [str(a) for a in extra_args]
         self.gui = gui
         self.port = port
@@ -165,7 +163,7 @@ class SumoSession:
         binary = sumo_env.binary("sumo-gui" if self.gui else "sumo")
         cmd = [binary]
         if self.config is not None:
-            cmd += ["-c", str(_runnable_config(self.config))]
+            cmd += ["-c", str(runnable_config(self.config))]
         if self.net is not None:
             cmd += ["-n", str(self.net)]
         if self.routes:
@@ -173,13 +171,13 @@ class SumoSession:
         if self.additional:
             cmd += ["-a", ",".join(str(p) for p in self.additional)]
         opts = dict(RECOMMENDED_OPTIONS)
-        opts["--step-length"] = _fmt(self.step_length)
+        opts["--step-length"] = fmt(self.step_length)
         if self.seed is not None:
             opts["--seed"] = str(int(self.seed))
         if self.begin is not None:
-            opts["--begin"] = _fmt(self.begin)
+            opts["--begin"] = fmt(self.begin)
         if self.end is not None:
-            opts["--end"] = _fmt(self.end)
+            opts["--end"] = fmt(self.end)
         if self.gui:
             opts.update({"--start": "true", "--quit-on-end": "true"})
         opts.update(self.options)
@@ -591,56 +589,11 @@ class SumoSession:
         return sumo_env.import_traci().constants
 
     def _subscribe_simulation(self) -> None:
-        tc = self._tc()
-        self._api.simulation.subscribe((tc.VAR_TIME, tc.VAR_DEPARTED_VEHICLES_IDS,
-                                        tc.VAR_ARRIVED_VEHICLES_IDS))
+        subscribe_simulation(self._api, self._tc())
 
     def _subscribe_vehicle(self, veh_id: str) -> None:
-        tc = self._tc()
-        with contextlib.suppress(Exception):  # a vehicle added but not yet inserted cannot be subscribed
-            self._api.vehicle.subscribe(veh_id, (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED,
-                                                 tc.VAR_LENGTH, tc.VAR_WIDTH, tc.VAR_VEHICLECLASS,
-                                                 tc.VAR_TYPE))
-
-
-def _as_list(v: str | Path | Sequence[str | Path] | None) -> list[str | Path]:
-    if v is None:
-        return []
-    if isinstance(v, str | Path):
-        return [v]
-    return list(v)
-
-
-def _fmt(v: object) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float) and math.isfinite(v) and v == int(v) and abs(v) < 1e15:
-        return str(int(v)) if abs(v) >= 1 else repr(v)
-    return str(v)
-
+        subscribe_vehicle(self._api, self._tc(), veh_id)
 
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     return text or type(exc).__name__
-
-
-_HEADLESS: dict[tuple[str, int], Path] = {}
-
-
-def _runnable_config(config: Path) -> Path:
-    """``config``, or a copy of it without its sumo-gui options when it has some (see
-    :func:`~coster_sumo.formats.sumocfg.headless_copy`); copies live in a temporary folder."""
-    if not read_sumocfg(config).gui_only:
-        return config
-    key = (str(config.resolve()), config.stat().st_mtime_ns)
-    if key not in _HEADLESS:
-        folder = Path(tempfile.mkdtemp(prefix="coster-headless-"))
-        owner = os.getpid()
-
-        def remove() -> None:
-            if os.getpid() == owner:  # not from forked copies
-                shutil.rmtree(folder, ignore_errors=True)
-
-        atexit.register(remove)
-        _HEADLESS[key] = headless_copy(config, folder)
-    return _HEADLESS[key]

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
 # Options always passed to SUMO unless the caller overrides them (docs/sumo.md §7). Why each one:
 RECOMMENDED_OPTIONS: dict[str, str] = {
     "--step-length": "0.1",                 # 10 Hz like WOMD; SUMO's default is 1 s
@@ -47,3 +51,21 @@ TRACI_CONNECT_TIMEOUT_S = 60.0  # [s] a big net takes a while to load before SUM
 # SUMO vehicle classes mapped onto our object types elsewhere; kept as strings here.
 SHORT_TO_LONG = {"-c": "--configuration-file", "-n": "--net-file", "-r": "--route-files",
                   "-a": "--additional-files", "-b": "--begin", "-e": "--end"}
+
+
+def as_list(v: str | Path | Sequence[str | Path] | None) -> list[str | Path]:
+    """One path or several as a list (None: empty)."""
+    if v is None:
+        return []
+    if isinstance(v, str | Path):
+        return [v]
+    return list(v)
+
+
+def fmt(v: object) -> str:
+    """A value as SUMO's command line wants it (true/false, 3 rather than 3.0)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float) and math.isfinite(v) and v == int(v) and abs(v) < 1e15:
+        return str(int(v)) if abs(v) >= 1 else repr(v)
+    return str(v)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import tempfile
 import time
@@ -58,3 +59,15 @@ def server_error(stderr: IO[bytes] | None) -> str:
     lines = stderr.read().decode(errors="replace").splitlines()
     errors = [ln.strip() for ln in lines if ln.startswith("Error")]
     return " ".join(errors[:2]) or " ".join(ln.strip() for ln in lines[-2:])
+
+
+def subscribe_simulation(api: Any, tc: Any) -> None:
+    """Have every step bring back the time and the departed and arrived ids (one round trip)."""
+    api.simulation.subscribe((tc.VAR_TIME, tc.VAR_DEPARTED_VEHICLES_IDS, tc.VAR_ARRIVED_VEHICLES_IDS))
+
+
+def subscribe_vehicle(api: Any, tc: Any, veh_id: str) -> None:
+    """Have every step bring back what :meth:`SumoSession.vehicle_states` reads of ``veh_id``."""
+    with contextlib.suppress(Exception):  # a vehicle added but not yet inserted cannot be subscribed
+        api.vehicle.subscribe(veh_id, (tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED, tc.VAR_LENGTH, tc.VAR_WIDTH,
+                                       tc.VAR_VEHICLECLASS, tc.VAR_TYPE))
