@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.batch.executor import DEFAULT_TIMEOUT_S, SUMO_TASK_MODULES, Outcome, Task, execute
-from coster_sumo.batch.sources import nominal_for, parse_sources, scene_key, slug
+from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute
+from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, scene_key, slug
 from coster_sumo.batch.store import rate_with_ci, read_json
 from coster_sumo.core import missing_weights
 from coster_sumo.errors import InputError
@@ -49,27 +49,14 @@ GENERATOR_METHODS: tuple[GeneratorMethod, ...] = (
 )
 
 
-@dataclass
-class EvalOptions:
+@dataclass(kw_only=True)
+class EvalOptions(BatchOptions):
     """Everything ``coster-sumo eval scenarios`` takes."""
 
-    sources: list[str]
-    out: Path
     methods: list[str] | None = None  # names of GENERATOR_METHODS (default: all)
     planner: str = "replay"
     variants: int = 5
     samples: int = 1000
-    workers: int = 1
-    executor: str = "local"
-    timeout: float | None = DEFAULT_TIMEOUT_S
-    seed: int = 0
-    seeds: int = 1
-    begin: float | None = None
-    end: float | None = None
-    target: str | None = None
-    models_dir: Path | None = None
-    quiet: bool = False
-    ray_address: str | None = None
 
 
 def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[int]:

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.batch.executor import DEFAULT_TIMEOUT_S, SUMO_TASK_MODULES, Outcome, Task, execute
-from coster_sumo.batch.sources import nominal_for, parse_sources, scene_key, slug
+from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute
+from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, scene_key, slug
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
 from coster_sumo.core import Variant, check_generation
 from coster_sumo.errors import InputError
@@ -101,31 +101,18 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
                       target_path=json.dumps(_target_path(res, target_id)))
 
 
-@dataclass
-class RegressOptions:
+@dataclass(kw_only=True)
+class RegressOptions(BatchOptions):
     """Everything ``coster-sumo regress`` takes (see its --help)."""
 
-    sources: list[str]
     planners: list[str]
-    out: Path
     variants: int = 3
-    workers: int = 1
-    executor: str = "local"
-    timeout: float | None = DEFAULT_TIMEOUT_S
-    seed: int = 0
-    seeds: int = 1
-    begin: float | None = None
-    end: float | None = None
-    target: str | None = None
     init: str = "snapshot"
     rollout: str = "cvae"
     collision_time: str = "entropy"
     samples: int = 1000
-    models_dir: Path | None = None
     retry_failed: bool = False
     report: bool = True
-    quiet: bool = False
-    ray_address: str | None = None
     start_method: str | None = None
 
 

@@ -12,14 +12,35 @@ import hashlib
 import json
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import atomic_path
+from coster_sumo.batch.executor import DEFAULT_TIMEOUT_S
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.scene import Scene
 from coster_sumo.spec import ScenarioSpec
+
+
+@dataclass(kw_only=True)
+class BatchOptions:
+    """What every batch command takes: its sources, output folder, and how tasks run."""
+
+    sources: list[str]
+    out: Path
+    workers: int = 1
+    executor: str = "local"  # "local" processes or "ray"
+    timeout: float | None = DEFAULT_TIMEOUT_S  # [s] wall clock per task
+    seed: int = 0
+    seeds: int = 1
+    begin: float | None = None
+    end: float | None = None
+    target: str | None = None
+    models_dir: Path | None = None
+    quiet: bool = False
+    ray_address: str | None = None
 
 
 def slug(text: str) -> str:
