@@ -82,19 +82,22 @@ class RelativeAttention(nn.Module):
         self.kv = nn.Linear(dim, 2 * dim)
         self.kv_rel = nn.Linear(rel_dim, 2 * dim, bias=False)
 
-    def project(self, base: Tensor, rel: Tensor) -> Tensor:
-        """base (..., D), rel (..., R) -> keys and values side by side (..., 2D): one matrix product
-        with the two weights side by side (the same map as ``kv(base) + kv_rel(rel)``)."""
+    def project(self, base: Tensor, rel: Tensor) -> tuple[Tensor, Tensor]:
+        """base (..., D), rel (..., R) -> flat keys and values (..., D) each: ``kv(base) + kv_rel(rel)``
+        as one matrix product per half (weights side by side: no thin product over R features,
+        and no chunking, whose gradient would be a concatenation)."""
+        d = self.dim
+        x = torch.cat([base, rel], dim=-1)
         weight = torch.cat([self.kv.weight, self.kv_rel.weight], dim=1)
-        return F.linear(torch.cat([base, rel], dim=-1), weight, self.kv.bias)
+        return F.linear(x, weight[:d], self.kv.bias[:d]), F.linear(x, weight[d:], self.kv.bias[d:])
 
     def keys_values(self, base: Tensor, rel: Tensor) -> tuple[Tensor, Tensor]:
         """base (..., M, D), rel (..., M, R) -> keys (..., heads, dh, M), values (..., heads, M, dh)."""
-        return self.split(self.project(base, rel))
+        return self.split(*self.project(base, rel))
 
-    def split(self, kv: Tensor) -> tuple[Tensor, Tensor]:
-        """(..., M, 2D) from :meth:`project` -> keys (..., heads, dh, M), values (..., heads, M, dh)."""
-        k, v = kv.chunk(2, dim=-1)
+    def split(self, k: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
+        """Flat keys and values (..., M, D) from :meth:`project` -> keys (..., heads, dh, M), values
+        (..., heads, M, dh)."""
         lead, m = k.shape[:-2], k.shape[-2]
         dh = self.dim // self.heads
         keys = k.reshape(*lead, m, self.heads, dh).permute(*range(len(lead)), -2, -1, -3)
@@ -156,7 +159,7 @@ class Encoded:
         h0: (C, D) first hidden state.
         map_kv: keys (C, h, dh, M), values (C, h, M, dh) of the per-step map attention (or None).
         map_mask: (C, 1, M) bool.
-        nbr_kv: keys (H+1, C, h, dh, N), values (H+1, C, h, N, dh), step-major (or None without DSA).
+        nbr_kv: per step k = 0..H, keys (C, h, dh, N) and values (C, h, N, dh) (None without DSA).
         nbr_xy: (C, H+1, N, 2) [pos_scale] neighbour positions; nbr_mask: (C, H+1, N).
         static_nbr: (C, D) neighbour attention at t_rev (the w/o-DSA input at every step).
         speed: (C,) [m/s] speed at t_rev.
@@ -165,7 +168,7 @@ class Encoded:
     h0: Tensor
     map_kv: tuple[Tensor, Tensor] | None
     map_mask: Tensor
-    nbr_kv: tuple[Tensor, Tensor] | None
+    nbr_kv: tuple[tuple[Tensor, ...], tuple[Tensor, ...]] | None
     nbr_xy: Tensor
     nbr_mask: Tensor
     static_nbr: Tensor
@@ -225,15 +228,15 @@ def trim_padding(ctx: dict[str, Tensor]) -> dict[str, Tensor]:
     return out
 
 
-def packed(mask: Tensor, width: int, fn: Callable[..., Tensor], *inputs: Tensor) -> Tensor:
+def packed(mask: Tensor, fn: Callable[..., tuple[Tensor, ...]], *inputs: Tensor) -> list[Tensor]:
     """``fn`` applied to the rows of ``inputs`` (each ``(*mask.shape, ...)``) where ``mask`` is True
-    only, scattered back into zeros of shape ``(*mask.shape, width)``: padding items cost nothing.
-    Every caller masks the padding rows afterwards, so what they hold does not matter."""
+    only; each of its outputs (rows, width) scattered back into zeros ``(*mask.shape, width)``:
+    padding items cost nothing. Every caller masks the padding rows afterwards, so what they hold
+    does not matter."""
     idx = mask.reshape(-1).nonzero().squeeze(1)
     rows = [x.reshape(mask.numel(), *x.shape[mask.dim():])[idx] for x in inputs]
-    out = fn(*rows)
-    full = out.new_zeros(mask.numel(), width).index_copy(0, idx, out)
-    return full.view(*mask.shape, width)
+    return [out.new_zeros(mask.numel(), out.shape[-1]).index_copy_(0, idx, out).view(*mask.shape, out.shape[-1])
+            for out in fn(*rows)]
 
 
 class RolloutCVAE(nn.Module):
@@ -272,41 +275,42 @@ class RolloutCVAE(nn.Module):
         c = state.shape[0]
         speed = state[:, 0] * cfg.vel_scale_mps
         s_emb = self.state_enc(state)  # (C, D)
-        d = cfg.hidden
         # map chunks: the encoder and the keys/values of both map attentions on real chunks only
         map_attns = [self.map_attn0] + ([self.map_attn] if self.map_attn is not None else [])
 
-        def chunk_kv(vec: Tensor, vec_mask: Tensor, attr: Tensor, pos: Tensor) -> Tensor:
+        def chunk_kv(vec: Tensor, vec_mask: Tensor, attr: Tensor, pos: Tensor) -> tuple[Tensor, ...]:
             chunks = self.map_enc(vec, vec_mask, attr)  # (K, D)
-            return torch.cat([a.project(chunks, pos) for a in map_attns], dim=-1)
+            return tuple(t for a in map_attns for t in a.project(chunks, pos))
 
-        map_all = packed(ctx["map_mask"], 2 * d * len(map_attns), chunk_kv, ctx["map_vec"], ctx["map_vec_mask"],
-                         ctx["map_attr"], ctx["map_pos"])  # (C, M, 2D per attention)
+        # (C, M, D) keys and values of each map attention
+        map_all = packed(ctx["map_mask"], chunk_kv, ctx["map_vec"], ctx["map_vec_mask"], ctx["map_attr"],
+                         ctx["map_pos"])
         map_mask = ctx["map_mask"][:, None, :]  # (C, 1, M)
-        map_parts = map_all.split(2 * d, dim=-1)  # (a split's gradient is a concatenation, no zero fill)
-        mk, mv = self.map_attn0.split(map_parts[0])
+        mk, mv = self.map_attn0.split(map_all[0], map_all[1])
         origin_rel = state.new_zeros(c, 1, MAP_POS_FEATURES)
         m0 = self.map_attn0(s_emb[:, None], mk, mv, origin_rel, map_mask)[:, 0]  # (C, D)
         nbr, nbr_mask = ctx["nbr"], ctx["nbr_mask"]  # (C, H+1, N, 12), (C, H+1, N)
         nbr_xy = nbr[..., :2]
         steps = nbr if cfg.use_dsa else nbr[:, :1]  # without DSA only t_rev is ever attended
         steps_mask = nbr_mask if cfg.use_dsa else nbr_mask[:, :1]
-        nbr_all = packed(steps_mask, 2 * d, lambda x: self.nbr_attn.project(self.nbr_enc(x), x[:, :REL_FEATURES]),
-                         steps)  # (C, H+1, N, 2D): real neighbour slots only
-        nk, nv = self.nbr_attn.split(nbr_all)
+        # step-major (H+1, C, N, D) keys and values, real neighbour slots only; then one contiguous
+        # slice per step (indexing the stacked tensor at every step would cost a full-size zero
+        # gradient each)
+        nbr_all = packed(steps_mask.transpose(0, 1),
+                         lambda x: self.nbr_attn.project(self.nbr_enc(x), x[:, :REL_FEATURES]), steps.transpose(0, 1))
+        nk, nv = self.nbr_attn.split(nbr_all[0], nbr_all[1])
+        nk_steps, nv_steps = nk.contiguous().unbind(0), nv.contiguous().unbind(0)
         # the neighbours at t_rev, seen from the origin with the t_rev velocity
         rel0 = torch.stack([torch.zeros_like(speed), torch.zeros_like(speed), speed / cfg.vel_scale_mps,
                             torch.zeros_like(speed)], -1)[:, None]  # (C, 1, 4)
         near0 = nbr_mask[:, 0] & (nbr_xy[:, 0].norm(dim=-1) * cfg.pos_scale_m <= cfg.neighbor_radius_m)
-        static = self.nbr_attn(s_emb[:, None], nk[:, 0], nv[:, 0], rel0, near0[:, None])[:, 0]  # (C, D)
+        static = self.nbr_attn(s_emb[:, None], nk_steps[0], nv_steps[0], rel0, near0[:, None])[:, 0]  # (C, D)
         h0 = self.h0_net(torch.cat([s_emb, m0, static], dim=-1))
         map_kv = None
         if self.map_attn is not None:  # used at every step: contiguous once, not copied per step
-            keys, values = self.map_attn.split(map_parts[1])
+            keys, values = self.map_attn.split(map_all[2], map_all[3])
             map_kv = (keys.contiguous(), values.contiguous())
-        # per step slices, contiguous, taken once (indexing the stacked tensor at every step would
-        # give a full-size zero gradient per step in the backward pass)
-        nbr_kv = (nk.transpose(0, 1).contiguous(), nv.transpose(0, 1).contiguous()) if cfg.use_dsa else None
+        nbr_kv = (nk_steps, nv_steps) if cfg.use_dsa else None
         return Encoded(h0=h0, map_kv=map_kv, map_mask=map_mask, nbr_kv=nbr_kv,
                        nbr_xy=nbr_xy, nbr_mask=nbr_mask, static_nbr=static, speed=speed)
 
@@ -352,8 +356,7 @@ class RolloutCVAE(nn.Module):
         static = enc.static_nbr[:, None, :].expand(c, s, d)
         poses, disps, kls = [], [], []
         g_steps = g.unbind(1) if g is not None else None
-        nbr_k = enc.nbr_kv[0].unbind(0) if enc.nbr_kv is not None else None
-        nbr_v = enc.nbr_kv[1].unbind(0) if enc.nbr_kv is not None else None
+        nbr_k, nbr_v = enc.nbr_kv if enc.nbr_kv is not None else (None, None)
         for k in range(horizon):
             mu_p, lv_p = self.prior(h).chunk(2, dim=-1)
             lv_p = lv_p.clamp(-8.0, 8.0)
