@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import shlex
 import sys
@@ -106,6 +107,11 @@ def _write_json(path: Path, obj: Any) -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
+    if "torch" not in sys.modules:  # OpenMP reads this when torch loads
+        # on a machine shared with other jobs, threads spinning at OpenMP barriers while their
+        # sibling is descheduled made two-thread steps 4-5x slower than one thread; waiting
+        # passively costs little when the machine is idle
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from coster_sumo.rollout.model import RolloutConfig
     from coster_sumo.rollout.train import TrainConfig, train_rollout
 
