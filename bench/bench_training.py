@@ -40,8 +40,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout import model as current_model
-from coster_sumo.rollout.cache import cached_examples, prefetch
+from coster_sumo.rollout.cache import cached_examples
 from coster_sumo.rollout.train import TrainConfig, _tensors, load_examples, num_threads, split_scene_files
 from coster_sumo.weights import load_rollout
 

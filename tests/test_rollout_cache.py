@@ -11,6 +11,7 @@ import torch
 
 from coster_sumo import synthetic
 from coster_sumo.cli import main
+from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout import cache as C
 from coster_sumo.rollout.checkpoint import load_model
 from coster_sumo.rollout.config import RolloutConfig
@@ -137,7 +138,7 @@ def test_learning_rate_warms_up_linearly():
 
 
 def test_prefetch_keeps_order_and_hands_on_errors():
-    assert list(C.prefetch(lambda x: x * x, range(7), depth=2)) == [x * x for x in range(7)]
+    assert list(prefetch(lambda x: x * x, range(7), depth=2)) == [x * x for x in range(7)]
 
     def boom(x: int) -> int:
         if x == 3:
@@ -146,9 +147,9 @@ def test_prefetch_keeps_order_and_hands_on_errors():
 
     got = []
     with pytest.raises(ValueError, match="bad item"):
-        for v in C.prefetch(boom, range(6)):
+        for v in prefetch(boom, range(6)):
             got.append(v)
     assert got == [0, 1, 2]
-    it = C.prefetch(lambda x: x, range(1000), depth=1)
+    it = prefetch(lambda x: x, range(1000), depth=1)
     assert next(it) == 0
     it.close()  # leaving early stops the producer

@@ -34,12 +34,10 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import queue
 import shutil
-import threading
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -319,45 +317,3 @@ def cached_examples(paths: Sequence[Path], cfg: RolloutConfig, min_steps: int, r
     if not (folder / "meta.json").is_file():
         build_feature_cache(paths, cfg, min_steps, folder, workers=workers, progress=progress)
     return CachedExamples(folder)
-
-
-T = TypeVar("T")
-U = TypeVar("U")
-
-
-def prefetch(fn: Callable[[T], U], items: Iterable[T], depth: int = 2) -> Iterator[U]:
-    """``fn(item)`` for every item, computed by a background thread up to ``depth`` items ahead
-    (numpy and torch release the GIL while copying: batch assembly overlaps the training step).
-    Exceptions reach the consumer; leaving the loop early stops the thread."""
-    q: queue.Queue[tuple[bool, Any]] = queue.Queue(maxsize=max(1, depth))
-    stop = threading.Event()
-    done = object()
-
-    def work() -> None:
-        try:
-            for item in items:
-                res = fn(item)
-                while not stop.is_set():
-                    try:
-                        q.put((True, res), timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-            q.put((True, done))
-        except BaseException as exc:  # handed to the consumer
-            q.put((False, exc))
-
-    thread = threading.Thread(target=work, name="coster-prefetch", daemon=True)
-    thread.start()
-    try:
-        while True:
-            ok, value = q.get()
-            if not ok:
-                raise value
-            if value is done:
-                return
-            yield value
-    finally:
-        stop.set()

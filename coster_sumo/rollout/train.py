@@ -42,7 +42,8 @@ from tqdm import tqdm
 
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
-from coster_sumo.rollout.cache import CachedExamples, cached_examples, prefetch
+from coster_sumo.prefetch import prefetch
+from coster_sumo.rollout.cache import CachedExamples, cached_examples
 from coster_sumo.rollout.checkpoint import atomic_torch_save, read_torch_file, save_checkpoint
 from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
 from coster_sumo.rollout.evaluate import cvae_errors
