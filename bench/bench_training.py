@@ -15,8 +15,13 @@ width and every other model setting are the shipped model's (``models/rollout.pt
 Building the scenes' examples (previous) and the feature cache (current) happen once before the
 timing and are reported separately.
 
+The traffic prior (``coster-sumo train prior``) is timed the same way unless ``--no-prior``:
+**previous** builds the tokens of each batch in-line, **current** in the background thread
+(:func:`coster_sumo.prefetch.prefetch`); both at its training defaults (batch 32, one thread,
+default model) on up to 40 training scenes. Its model code did not change.
+
 Usage:
-    python bench/bench_training.py --data DATASET [--repeats 5] [--steps 3] [--profile]
+    python bench/bench_training.py --data DATASET [--repeats 5] [--steps 3] [--profile] [--no-prior]
 
 DATASET: a dataset folder (``coster-sumo simulate ... -o DATASET``); its training split is used.
 ``--profile`` also prints where the current recipe's step spends its time (torch.profiler).
@@ -75,8 +80,12 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--steps", type=int, default=3, help="optimiser steps per timed window")
     ap.add_argument("--baseline-ref", default=BASELINE_REF, help="git ref of the previous model code")
-    ap.add_argument("--cache-dir", default=None, help="feature cache root (default: a temporary folder)")
+    ap.add_argument("--cache-dir", default=None,
+                    help="feature cache root (default: the training default, DATASET/.cache; 'temp': a new "
+                         "temporary folder, to time the build)")
     ap.add_argument("--profile", action="store_true", help="profile one step of the current recipe")
+    ap.add_argument("--no-prior", action="store_true", help="skip the prior")
+    ap.add_argument("--prior-steps", type=int, default=4, help="prior optimiser steps per timed window")
     args = ap.parse_args()
 
     cfg = load_rollout().cfg
@@ -91,7 +100,7 @@ def main() -> int:
     fresh = load_examples(train_paths, cfg, new_t.min_steps)
     t_fresh = time.perf_counter() - t0
     tmp = tempfile.TemporaryDirectory(prefix="bench-training-")
-    root = Path(args.cache_dir) if args.cache_dir else Path(tmp.name)
+    root = Path(tmp.name) if args.cache_dir == "temp" else Path(args.cache_dir) if args.cache_dir else None
     t0 = time.perf_counter()
     cached = cached_examples(train_paths, cfg, new_t.min_steps, root=root)
     t_build = time.perf_counter() - t0
@@ -100,7 +109,7 @@ def main() -> int:
     t_reopen = time.perf_counter() - t0
     size = sum(f.stat().st_size for f in cached.folder.iterdir())
     print(f"examples: {len(fresh)}; previous: scenes loaded and cut in {t_fresh:.1f} s; current: feature cache "
-          f"built in {t_build:.1f} s ({size / 1e6:.0f} MB, {size / max(len(cached), 1) / 1e3:.1f} kB/example), "
+          f"{cached.folder} built (or found) in {t_build:.1f} s ({size / 1e6:.0f} MB, {size / max(len(cached), 1) / 1e3:.1f} kB/example), "
           f"reopened in {t_reopen:.2f} s")
 
     prev_mod = previous_model_module(args.baseline_ref)
@@ -176,7 +185,61 @@ def main() -> int:
             current(2)
         print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=20))
     tmp.cleanup()
+    if not args.no_prior:
+        bench_prior(args)
     return 0
+
+
+def bench_prior(args: argparse.Namespace) -> None:
+    import functools
+
+    from coster_sumo.prior.data import load_prepared, split_files
+    from coster_sumo.prior.model import PriorConfig, TrafficPrior
+    from coster_sumo.prior.train import TrainConfig as PriorTrainConfig
+    from coster_sumo.prior.train import _train_batch
+
+    tcfg = PriorTrainConfig()
+    torch.set_num_threads(tcfg.threads)
+    files, _ = split_files(args.data, 0.1)
+    scenes = load_prepared(files[:40])
+    cfg = PriorConfig()
+    torch.manual_seed(0)
+    model = TrafficPrior(cfg)
+    opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
+    rng = np.random.default_rng(0)
+    samples = np.concatenate([np.stack([np.full(len(d.centres), i), np.arange(len(d.centres))], -1)
+                              for i, d in enumerate(scenes) if len(d.centres)])
+    bs = tcfg.batch_size
+
+    def run(background: bool) -> float:
+        rows = samples[rng.permutation(len(samples))[: bs * args.prior_steps]]
+        make = functools.partial(_train_batch, scenes, rows, rng, cfg, bs)
+        starts = range(0, len(rows), bs)
+        t = time.perf_counter()
+        batches = prefetch(make, starts) if background else (make(i) for i in starts)
+        n = 0
+        for batch in batches:
+            _, loss = model(*batch)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
+            opt.step()
+            n += len(batch[0])
+        return n / (time.perf_counter() - t)
+
+    run(False)
+    run(True)
+    res: dict[str, list[float]] = {"previous": [], "current": []}
+    for _ in range(args.repeats):
+        res["previous"].append(run(False))
+        res["current"].append(run(True))
+    print(f"\nprior training throughput ({len(scenes)} scenes, batch {bs}, {tcfg.threads} thread(s), "
+          f"{args.repeats} interleaved repeats of {args.prior_steps} steps):")
+    print("recipe      examples/s: median [q1, q3]")
+    for name in ("previous", "current"):
+        q1, q2, q3 = quartiles(res[name])
+        print(f"{name:11s} {q2:8.0f} [{q1:.0f}, {q3:.0f}]")
+    print(f"ratio current / previous: {np.median(res['current']) / np.median(res['previous']):.2f}x")
 
 
 if __name__ == "__main__":
