@@ -109,8 +109,8 @@ def main() -> int:
     t_reopen = time.perf_counter() - t0
     size = sum(f.stat().st_size for f in cached.folder.iterdir())
     print(f"examples: {len(fresh)}; previous: scenes loaded and cut in {t_fresh:.1f} s; current: feature cache "
-          f"{cached.folder} built (or found) in {t_build:.1f} s ({size / 1e6:.0f} MB, {size / max(len(cached), 1) / 1e3:.1f} kB/example), "
-          f"reopened in {t_reopen:.2f} s")
+          f"{cached.folder} built (or found) in {t_build:.1f} s ({size / 1e6:.0f} MB, "
+          f"{size / max(len(cached), 1) / 1e3:.1f} kB/example), reopened in {t_reopen:.2f} s")
 
     prev_mod = previous_model_module(args.baseline_ref)
     if prev_mod is None:

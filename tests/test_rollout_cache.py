@@ -153,3 +153,29 @@ def test_prefetch_keeps_order_and_hands_on_errors():
     it = prefetch(lambda x: x, range(1000), depth=1)
     assert next(it) == 0
     it.close()  # leaving early stops the producer
+
+
+def test_padding_contents_do_not_reach_the_model():
+    """What padded map chunks and neighbour slots hold changes neither the loss nor the samples."""
+    ex = build_examples([synthetic.four_way_junction()], CFG)
+    t = to_tensors(ex.batch(np.arange(0, len(ex), max(1, len(ex) // 16)), CFG))
+    traj, mask = t.pop("traj"), t.pop("step_mask")
+    t.pop("origin")
+    noisy = dict(t)
+    gen = torch.Generator().manual_seed(5)
+    for k, m in (("nbr", t["nbr_mask"]), ("map_vec", t["map_mask"][..., None]), ("map_attr", t["map_mask"]),
+                 ("map_pos", t["map_mask"])):
+        noise = torch.randn(t[k].shape, generator=gen)
+        noisy[k] = torch.where(m[..., None], t[k], noise)
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    model = RolloutCVAE(CFG)
+    losses = []
+    for inputs in (t, noisy):
+        torch.manual_seed(1)
+        out = model(inputs, traj, mask)
+        assert out.loss is not None
+        losses.append(float(out.loss.detach()))
+        samples = model.sample(inputs, 3, generator=torch.Generator().manual_seed(2))
+        losses.append(float(samples.sum()))
+    assert losses[:2] == losses[2:]

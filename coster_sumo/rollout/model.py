@@ -84,12 +84,12 @@ class RelativeAttention(nn.Module):
 
     def project(self, base: Tensor, rel: Tensor) -> tuple[Tensor, Tensor]:
         """base (..., D), rel (..., R) -> flat keys and values (..., D) each: ``kv(base) + kv_rel(rel)``
-        as one matrix product per half (weights side by side: no thin product over R features,
-        and no chunking, whose gradient would be a concatenation)."""
+        computed per half (no chunking, whose gradient would be a concatenation), with the same
+        products and sums as the whole, so that sampling gives the same numbers as before."""
         d = self.dim
-        x = torch.cat([base, rel], dim=-1)
-        weight = torch.cat([self.kv.weight, self.kv_rel.weight], dim=1)
-        return F.linear(x, weight[:d], self.kv.bias[:d]), F.linear(x, weight[d:], self.kv.bias[d:])
+        w, w_rel, b = self.kv.weight, self.kv_rel.weight, self.kv.bias
+        return (F.linear(base, w[:d], b[:d]) + F.linear(rel, w_rel[:d]),
+                F.linear(base, w[d:], b[d:]) + F.linear(rel, w_rel[d:]))
 
     def keys_values(self, base: Tensor, rel: Tensor) -> tuple[Tensor, Tensor]:
         """base (..., M, D), rel (..., M, R) -> keys (..., heads, dh, M), values (..., heads, M, dh)."""
