@@ -15,10 +15,10 @@ width and every other model setting are the shipped model's (``models/rollout.pt
 Building the scenes' examples (previous) and the feature cache (current) happen once before the
 timing and are reported separately.
 
-The traffic prior (``coster-sumo train prior``) is timed the same way unless ``--no-prior``:
-**previous** builds the tokens of each batch in-line, **current** in the background thread
-(:func:`coster_sumo.prefetch.prefetch`); both at its training defaults (batch 32, one thread,
-default model) on up to 40 training scenes. Its model code did not change.
+The traffic prior (``coster-sumo train prior``, unchanged) is timed the same way unless
+``--no-prior``, as an experiment: **in-line** builds the tokens of each batch in the loop (what its
+training does), **background** in the background thread (:func:`coster_sumo.prefetch.prefetch`);
+both at its training defaults (batch 32, one thread, default model) on up to 40 training scenes.
 
 Usage:
     python bench/bench_training.py --data DATASET [--repeats 5] [--steps 3] [--profile] [--no-prior]
@@ -191,12 +191,10 @@ def main() -> int:
 
 
 def bench_prior(args: argparse.Namespace) -> None:
-    import functools
-
-    from coster_sumo.prior.data import load_prepared, split_files
+    from coster_sumo.prior.data import batch_tokens, load_prepared, split_files
     from coster_sumo.prior.model import PriorConfig, TrafficPrior
     from coster_sumo.prior.train import TrainConfig as PriorTrainConfig
-    from coster_sumo.prior.train import _train_batch
+    from coster_sumo.prior.train import _torch_batch
 
     tcfg = PriorTrainConfig()
     torch.set_num_threads(tcfg.threads)
@@ -213,7 +211,10 @@ def bench_prior(args: argparse.Namespace) -> None:
 
     def run(background: bool) -> float:
         rows = samples[rng.permutation(len(samples))[: bs * args.prior_steps]]
-        make = functools.partial(_train_batch, scenes, rows, rng, cfg, bs)
+        def make(i: int) -> tuple[torch.Tensor, ...]:
+            return _torch_batch(batch_tokens(scenes, rows[i:i + bs], cfg.bins(), cfg.radius, cfg.max_regions,
+                                             visible="random", rng=rng, hide_radius=cfg.hide_radius))
+
         starts = range(0, len(rows), bs)
         t = time.perf_counter()
         batches = prefetch(make, starts) if background else (make(i) for i in starts)
@@ -229,17 +230,17 @@ def bench_prior(args: argparse.Namespace) -> None:
 
     run(False)
     run(True)
-    res: dict[str, list[float]] = {"previous": [], "current": []}
+    res: dict[str, list[float]] = {"in-line": [], "background": []}
     for _ in range(args.repeats):
-        res["previous"].append(run(False))
-        res["current"].append(run(True))
+        res["in-line"].append(run(False))
+        res["background"].append(run(True))
     print(f"\nprior training throughput ({len(scenes)} scenes, batch {bs}, {tcfg.threads} thread(s), "
           f"{args.repeats} interleaved repeats of {args.prior_steps} steps):")
     print("recipe      examples/s: median [q1, q3]")
-    for name in ("previous", "current"):
+    for name in ("in-line", "background"):
         q1, q2, q3 = quartiles(res[name])
         print(f"{name:11s} {q2:8.0f} [{q1:.0f}, {q3:.0f}]")
-    print(f"ratio current / previous: {np.median(res['current']) / np.median(res['previous']):.2f}x")
+    print(f"ratio background / in-line: {np.median(res['background']) / np.median(res['in-line']):.2f}x")
 
 
 if __name__ == "__main__":

@@ -13,11 +13,10 @@ so an interrupted run loses at most one epoch and ends with the same weights as 
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -26,7 +25,6 @@ import torch
 
 from coster_sumo.atomic import atomic_path, write_json
 from coster_sumo.errors import InputError
-from coster_sumo.prefetch import prefetch
 from coster_sumo.prior.bins import ATTRIBUTES
 from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
 from coster_sumo.prior.features import Tokens
@@ -51,14 +49,6 @@ class TrainConfig:
 def _torch_batch(tok: Tokens) -> tuple[torch.Tensor, ...]:
     return tuple(torch.from_numpy(a) for a in (tok.map_features, tok.agent_features, tok.mask, tok.query,
                                                tok.present, tok.classes))
-
-
-def _train_batch(scenes: Sequence[ScenePriorData], samples: np.ndarray, rng: np.random.Generator, cfg: PriorConfig,
-                 batch_size: int, start: int) -> tuple[torch.Tensor, ...]:
-    """The training batch of ``samples[start:start + batch_size]`` (random visibility from ``rng``)."""
-    tok = batch_tokens(scenes, samples[start:start + batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
-                       visible="random", rng=rng, hide_radius=cfg.hide_radius)
-    return _torch_batch(tok)
 
 
 @torch.no_grad()
@@ -136,24 +126,23 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
         t0 = time.perf_counter()
         rng = np.random.default_rng([tcfg.seed, epoch])
         samples = epoch_samples(train, rng, tcfg.centres_per_step)
-        starts = range(0, len(samples), tcfg.batch_size)
-        # tokens of the next batches are built by a background thread while this one trains; it
-        # alone draws from rng after epoch_samples, in batch order: the same draws as in-line
-        it: Iterable[tuple[torch.Tensor, ...]] = prefetch(
-            functools.partial(_train_batch, train, samples, rng, cfg, tcfg.batch_size), starts)
+        batches = range(0, len(samples), tcfg.batch_size)
+        it = batches
         bar = None
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(it, total=len(starts), desc=f"epoch {epoch + 1}/{tcfg.epochs}", unit="batch", leave=False)
+            bar = tqdm(batches, desc=f"epoch {epoch + 1}/{tcfg.epochs}", unit="batch", leave=False)
             it = bar
         model.train()
         run_loss, n = 0.0, 0
-        for bi, batch in enumerate(it):
+        for bi, i in enumerate(it):
             step = epoch * steps_per_epoch + bi
             for group in opt.param_groups:
                 group["lr"] = _lr_at(step, total_steps, tcfg)
-            _, loss = model(*batch)
+            tok = batch_tokens(train, samples[i:i + tcfg.batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
+                               visible="random", rng=rng, hide_radius=cfg.hide_radius)
+            _, loss = model(*_torch_batch(tok))
             assert loss is not None
             opt.zero_grad(set_to_none=True)
             loss.backward()

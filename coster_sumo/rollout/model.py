@@ -26,7 +26,9 @@ Cost (docs/method.md, "Where the rollout's time goes"): keys and values are line
 ``(item - sample)`` features, so the item part is projected once per context (map: once; neighbours:
 once per step, all steps before the loop) and the sample part drops out of the softmax and is
 subtracted once from the weighted values (:class:`RelativeAttention`); no ``(S, items, D)`` tensor
-is ever built.
+is ever built. The map encoder and the key/value projections run on real map chunks and
+neighbour slots only (:func:`packed`; padding is masked anyway), which about halves the cost of a
+training step; the forward pass gives the same numbers as computing them for every slot.
 
 Loss: the negative ELBO averaged over valid steps: Gaussian reconstruction of the displacement
 (fixed ``recon_sigma``) plus ``kl_weight`` times the per-step KL(q || p).
