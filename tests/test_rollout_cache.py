@@ -11,13 +11,14 @@ import torch
 
 from coster_sumo import synthetic
 from coster_sumo.cli import main
+from coster_sumo.errors import InputError
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout import cache as C
 from coster_sumo.rollout.checkpoint import load_model
 from coster_sumo.rollout.config import RolloutConfig
 from coster_sumo.rollout.data import build_examples, to_tensors
 from coster_sumo.rollout.model import RolloutCVAE, trim_padding
-from coster_sumo.rollout.train import TrainConfig, learning_rate
+from coster_sumo.rollout.train import TrainConfig, learning_rate, split_scene_files
 from coster_sumo.scene import load_scene, save_scene
 
 CFG = RolloutConfig(hidden=32, heads=4, latent=4)
@@ -58,6 +59,13 @@ def test_cache_is_built_once_then_reused(dataset, monkeypatch):
     # the model's width is no input encoding setting: same features
     assert C.cached_examples(paths, RolloutConfig(hidden=64, heads=4), 2).folder == first.folder
     assert isinstance(again.arrays["map_vec"], np.memmap)
+
+
+def test_no_scene_files_is_an_error_not_an_empty_cache(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(InputError):
+        C.cached_examples([], CFG, 2)
+    assert not any(tmp_path.iterdir())
 
 
 def test_cache_is_rebuilt_when_a_scene_or_a_setting_changes(dataset):
@@ -117,7 +125,8 @@ def test_training_on_the_cache_equals_training_without_it_and_resumes(dataset, t
     cache_dir = tmp_path / "features"
     common = ["-q", "train", "rollout", "--data", str(dataset), *TINY]
     assert main([*common, "-o", str(a), "--epochs", "2", "--cache-dir", str(cache_dir)]) == 0
-    assert len(list(cache_dir.glob("rollout-*"))) == 2  # training and held-out scenes
+    _, held_out = split_scene_files(dataset, 0.1, 0)
+    assert len(list(cache_dir.glob("rollout-*"))) == 1 + bool(held_out)  # training (and held-out) scenes
     assert not (dataset / C.CACHE_DIR_NAME).exists()
     assert main([*common, "-o", str(b), "--epochs", "2", "--no-cache"]) == 0
     assert main([*common, "-o", str(c), "--epochs", "1", "--cache-dir", str(cache_dir)]) == 0

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
+from coster_sumo.errors import InputError
 from coster_sumo.rollout.config import RolloutConfig
 from coster_sumo.rollout.data import (
     ROLLOUT_HZ,
@@ -312,7 +313,9 @@ def cached_examples(paths: Sequence[Path], cfg: RolloutConfig, min_steps: int, r
     """The examples of ``paths`` from their feature cache under ``root`` (default
     :func:`default_cache_root`), built first when missing."""
     paths = [Path(p) for p in paths]
-    root = Path(root) if root is not None else default_cache_root(paths) if paths else Path(CACHE_DIR_NAME)
+    if not paths:
+        raise InputError("no scene files to encode")
+    root = Path(root) if root is not None else default_cache_root(paths)
     folder = root / f"rollout-{cache_key(paths, cfg, min_steps)}"
     if not (folder / "meta.json").is_file():
         build_feature_cache(paths, cfg, min_steps, folder, workers=workers, progress=progress)

@@ -203,7 +203,8 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     val_set: Examples
     if cache:
         train_set = load_cached_examples(train_paths, cfg, tcfg.min_steps, cache_dir, quiet, "training scenes")
-        val_set = load_cached_examples(val_paths, cfg, tcfg.min_steps, cache_dir, quiet, "held-out scenes")
+        val_set = (load_cached_examples(val_paths, cfg, tcfg.min_steps, cache_dir, quiet, "held-out scenes")
+                   if val_paths else load_examples(val_paths, cfg, tcfg.min_steps))  # none held out: empty
     else:
         train_set = load_examples(train_paths, cfg, tcfg.min_steps, quiet, "training scenes")
         val_set = load_examples(val_paths, cfg, tcfg.min_steps, quiet, "held-out scenes")
