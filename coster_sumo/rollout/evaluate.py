@@ -28,6 +28,7 @@ from coster_sumo.rollout.data import ExampleSet, to_frame, to_tensors
 from coster_sumo.scene import AgentState
 
 if TYPE_CHECKING:
+    from coster_sumo.rollout.cache import CachedExamples
     from coster_sumo.rollout.model import RolloutCVAE
 
 BASELINES = ("constant_velocity", "constant_lane")
@@ -42,8 +43,8 @@ def _summary(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray, elapsed_s: f
             "samples": int(pred.shape[1]), "time_per_trajectory_s": elapsed_s / max(n_traj, 1)}
 
 
-def cvae_predictions(model: RolloutCVAE, examples: ExampleSet, rows: np.ndarray, num_samples: int, seed: int = 0,
-                     batch_size: int = 64) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int,
+                     seed: int = 0, batch_size: int = 64) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Samples of ``rows``: pred (R, S, H, 2), truth (R, H, 2), mask (R, H) in the t_rev frames, and
     the wall time [s] spent encoding and sampling."""
     import torch
@@ -67,8 +68,8 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet, rows: np.ndarray,
     return np.concatenate(preds), np.concatenate(truths), np.concatenate(masks), elapsed
 
 
-def cvae_errors(model: RolloutCVAE, examples: ExampleSet, rows: np.ndarray, num_samples: int = 5, seed: int = 0,
-                batch_size: int = 64) -> dict[str, float]:
+def cvae_errors(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int = 5,
+                seed: int = 0, batch_size: int = 64) -> dict[str, float]:
     """minADE / minFDE / avgADE / avgFDE [m] and time per trajectory [s] of the CVAE on ``rows``."""
     pred, truth, mask, elapsed = cvae_predictions(model, examples, rows, num_samples, seed, batch_size)
     return _summary(pred, truth, mask, elapsed)

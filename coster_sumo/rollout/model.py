@@ -26,7 +26,9 @@ Cost (docs/method.md, "Where the rollout's time goes"): keys and values are line
 ``(item - sample)`` features, so the item part is projected once per context (map: once; neighbours:
 once per step, all steps before the loop) and the sample part drops out of the softmax and is
 subtracted once from the weighted values (:class:`RelativeAttention`); no ``(S, items, D)`` tensor
-is ever built.
+is ever built. The map encoder and the key/value projections run on real map chunks and
+neighbour slots only (:func:`packed`; padding is masked anyway), which about halves the cost of a
+training step; the forward pass gives the same numbers as computing them for every slot.
 
 Loss: the negative ELBO averaged over valid steps: Gaussian reconstruction of the displacement
 (fixed ``recon_sigma``) plus ``kl_weight`` times the per-step KL(q || p).
@@ -35,6 +37,7 @@ Loss: the negative ELBO averaged over valid steps: Gaussian reconstruction of th
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -81,10 +84,22 @@ class RelativeAttention(nn.Module):
         self.kv = nn.Linear(dim, 2 * dim)
         self.kv_rel = nn.Linear(rel_dim, 2 * dim, bias=False)
 
+    def project(self, base: Tensor, rel: Tensor) -> tuple[Tensor, Tensor]:
+        """base (..., D), rel (..., R) -> flat keys and values (..., D) each: ``kv(base) + kv_rel(rel)``
+        computed per half (no chunking, whose gradient would be a concatenation), with the same
+        products and sums as the whole, so that sampling gives the same numbers as before."""
+        d = self.dim
+        w, w_rel, b = self.kv.weight, self.kv_rel.weight, self.kv.bias
+        return (F.linear(base, w[:d], b[:d]) + F.linear(rel, w_rel[:d]),
+                F.linear(base, w[d:], b[d:]) + F.linear(rel, w_rel[d:]))
+
     def keys_values(self, base: Tensor, rel: Tensor) -> tuple[Tensor, Tensor]:
         """base (..., M, D), rel (..., M, R) -> keys (..., heads, dh, M), values (..., heads, M, dh)."""
-        kv = self.kv(base) + self.kv_rel(rel)  # (..., M, 2D)
-        k, v = kv.chunk(2, dim=-1)
+        return self.split(*self.project(base, rel))
+
+    def split(self, k: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
+        """Flat keys and values (..., M, D) from :meth:`project` -> keys (..., heads, dh, M), values
+        (..., heads, M, dh)."""
         lead, m = k.shape[:-2], k.shape[-2]
         dh = self.dim // self.heads
         keys = k.reshape(*lead, m, self.heads, dh).permute(*range(len(lead)), -2, -1, -3)
@@ -146,7 +161,7 @@ class Encoded:
         h0: (C, D) first hidden state.
         map_kv: keys (C, h, dh, M), values (C, h, M, dh) of the per-step map attention (or None).
         map_mask: (C, 1, M) bool.
-        nbr_kv: keys (C, H+1, h, dh, N), values (C, H+1, h, N, dh) (or None without DSA).
+        nbr_kv: per step k = 0..H, keys (C, h, dh, N) and values (C, h, N, dh) (None without DSA).
         nbr_xy: (C, H+1, N, 2) [pos_scale] neighbour positions; nbr_mask: (C, H+1, N).
         static_nbr: (C, D) neighbour attention at t_rev (the w/o-DSA input at every step).
         speed: (C,) [m/s] speed at t_rev.
@@ -155,7 +170,7 @@ class Encoded:
     h0: Tensor
     map_kv: tuple[Tensor, Tensor] | None
     map_mask: Tensor
-    nbr_kv: tuple[Tensor, Tensor] | None
+    nbr_kv: tuple[tuple[Tensor, ...], tuple[Tensor, ...]] | None
     nbr_xy: Tensor
     nbr_mask: Tensor
     static_nbr: Tensor
@@ -215,6 +230,17 @@ def trim_padding(ctx: dict[str, Tensor]) -> dict[str, Tensor]:
     return out
 
 
+def packed(mask: Tensor, fn: Callable[..., tuple[Tensor, ...]], *inputs: Tensor) -> list[Tensor]:
+    """``fn`` applied to the rows of ``inputs`` (each ``(*mask.shape, ...)``) where ``mask`` is True
+    only; each of its outputs (rows, width) scattered back into zeros ``(*mask.shape, width)``:
+    padding items cost nothing. Every caller masks the padding rows afterwards, so what they hold
+    does not matter."""
+    idx = mask.reshape(-1).nonzero().squeeze(1)
+    rows = [x.reshape(mask.numel(), *x.shape[mask.dim():])[idx] for x in inputs]
+    return [out.new_zeros(mask.numel(), out.shape[-1]).index_copy_(0, idx, out).view(*mask.shape, out.shape[-1])
+            for out in fn(*rows)]
+
+
 class RolloutCVAE(nn.Module):
     """The time-reversed CVAE with dynamic surrounding attention (see the module docstring)."""
 
@@ -251,23 +277,43 @@ class RolloutCVAE(nn.Module):
         c = state.shape[0]
         speed = state[:, 0] * cfg.vel_scale_mps
         s_emb = self.state_enc(state)  # (C, D)
-        chunks = self.map_enc(ctx["map_vec"], ctx["map_vec_mask"], ctx["map_attr"])  # (C, M, D)
+        # map chunks: the encoder and the keys/values of both map attentions on real chunks only
+        map_attns = [self.map_attn0] + ([self.map_attn] if self.map_attn is not None else [])
+
+        def chunk_kv(vec: Tensor, vec_mask: Tensor, attr: Tensor, pos: Tensor) -> tuple[Tensor, ...]:
+            chunks = self.map_enc(vec, vec_mask, attr)  # (K, D)
+            return tuple(t for a in map_attns for t in a.project(chunks, pos))
+
+        # (C, M, D) keys and values of each map attention
+        map_all = packed(ctx["map_mask"], chunk_kv, ctx["map_vec"], ctx["map_vec_mask"], ctx["map_attr"],
+                         ctx["map_pos"])
         map_mask = ctx["map_mask"][:, None, :]  # (C, 1, M)
-        mk, mv = self.map_attn0.keys_values(chunks, ctx["map_pos"])
+        mk, mv = self.map_attn0.split(map_all[0], map_all[1])
         origin_rel = state.new_zeros(c, 1, MAP_POS_FEATURES)
         m0 = self.map_attn0(s_emb[:, None], mk, mv, origin_rel, map_mask)[:, 0]  # (C, D)
         nbr, nbr_mask = ctx["nbr"], ctx["nbr_mask"]  # (C, H+1, N, 12), (C, H+1, N)
         nbr_xy = nbr[..., :2]
         steps = nbr if cfg.use_dsa else nbr[:, :1]  # without DSA only t_rev is ever attended
-        nk, nv = self.nbr_attn.keys_values(self.nbr_enc(steps), steps[..., :REL_FEATURES])
+        steps_mask = nbr_mask if cfg.use_dsa else nbr_mask[:, :1]
+        # step-major (H+1, C, N, D) keys and values, real neighbour slots only; then one contiguous
+        # slice per step (indexing the stacked tensor at every step would cost a full-size zero
+        # gradient each)
+        nbr_all = packed(steps_mask.transpose(0, 1),
+                         lambda x: self.nbr_attn.project(self.nbr_enc(x), x[:, :REL_FEATURES]), steps.transpose(0, 1))
+        nk, nv = self.nbr_attn.split(nbr_all[0], nbr_all[1])
+        nk_steps, nv_steps = nk.contiguous().unbind(0), nv.contiguous().unbind(0)
         # the neighbours at t_rev, seen from the origin with the t_rev velocity
         rel0 = torch.stack([torch.zeros_like(speed), torch.zeros_like(speed), speed / cfg.vel_scale_mps,
                             torch.zeros_like(speed)], -1)[:, None]  # (C, 1, 4)
         near0 = nbr_mask[:, 0] & (nbr_xy[:, 0].norm(dim=-1) * cfg.pos_scale_m <= cfg.neighbor_radius_m)
-        static = self.nbr_attn(s_emb[:, None], nk[:, 0], nv[:, 0], rel0, near0[:, None])[:, 0]  # (C, D)
+        static = self.nbr_attn(s_emb[:, None], nk_steps[0], nv_steps[0], rel0, near0[:, None])[:, 0]  # (C, D)
         h0 = self.h0_net(torch.cat([s_emb, m0, static], dim=-1))
-        map_kv = self.map_attn.keys_values(chunks, ctx["map_pos"]) if self.map_attn is not None else None
-        return Encoded(h0=h0, map_kv=map_kv, map_mask=map_mask, nbr_kv=(nk, nv) if cfg.use_dsa else None,
+        map_kv = None
+        if self.map_attn is not None:  # used at every step: contiguous once, not copied per step
+            keys, values = self.map_attn.split(map_all[2], map_all[3])
+            map_kv = (keys.contiguous(), values.contiguous())
+        nbr_kv = (nk_steps, nv_steps) if cfg.use_dsa else None
+        return Encoded(h0=h0, map_kv=map_kv, map_mask=map_mask, nbr_kv=nbr_kv,
                        nbr_xy=nbr_xy, nbr_mask=nbr_mask, static_nbr=static, speed=speed)
 
     def posterior_summary(self, traj: Tensor, disp: Tensor) -> Tensor:
@@ -311,11 +357,13 @@ class RolloutCVAE(nn.Module):
         vy = h.new_zeros(c, s)
         static = enc.static_nbr[:, None, :].expand(c, s, d)
         poses, disps, kls = [], [], []
+        g_steps = g.unbind(1) if g is not None else None
+        nbr_k, nbr_v = enc.nbr_kv if enc.nbr_kv is not None else (None, None)
         for k in range(horizon):
             mu_p, lv_p = self.prior(h).chunk(2, dim=-1)
             lv_p = lv_p.clamp(-8.0, 8.0)
-            if g is not None:
-                gk = g[:, k, None, :].expand(c, s, g.shape[-1])
+            if g_steps is not None:
+                gk = g_steps[k][:, None, :].expand(c, s, g_steps[k].shape[-1])
                 mu_q, lv_q = self.posterior(torch.cat([h, gk], dim=-1)).chunk(2, dim=-1)
                 lv_q = lv_q.clamp(-8.0, 8.0)
                 z = mu_q + torch.exp(0.5 * lv_q) * eps[k]
@@ -339,8 +387,8 @@ class RolloutCVAE(nn.Module):
             e = self.step_enc(torch.cat([torch.stack([px, py, torch.cos(yaw), torch.sin(yaw), pvx, pvy], -1), dn],
                                         dim=-1))  # (C, S, D)
             query = h + e
-            if enc.nbr_kv is not None:
-                nk, nv = enc.nbr_kv[0][:, k + 1], enc.nbr_kv[1][:, k + 1]
+            if nbr_k is not None and nbr_v is not None:
+                nk, nv = nbr_k[k + 1], nbr_v[k + 1]
                 sxy = torch.stack([px, py], -1)  # (C, S, 2)
                 gap = torch.cdist(sxy, enc.nbr_xy[:, k + 1]) * cfg.pos_scale_m  # (C, S, N)
                 mask = enc.nbr_mask[:, k + 1, None, :] & (gap <= cfg.neighbor_radius_m)
