@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from coster_sumo import dataset
+from coster_sumo.batch.simulate import SimulateConfig, netgenerate_options, plan_runs, resolve_sources
 from coster_sumo.cli import main
-from coster_sumo.commands.simulate import SimulateConfig, netgenerate_options, plan_runs, resolve_sources
 
 REPO = Path(__file__).resolve().parents[1]
 INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"
