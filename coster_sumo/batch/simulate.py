@@ -310,7 +310,9 @@ class _Sampler:
         self.cols["speed"].append(st.speed.astype(np.float32))
         self.cols["accel"].append(np.array([veh.getAcceleration(v) for v in ids], np.float32))
         self.cols["lat_speed"].append(np.array([veh.getLateralSpeed(v) for v in ids], np.float32))
-        self.cols["limit"].append(np.array([veh.getAllowedSpeed(v) for v in ids], np.float32))
+        lane_speed = session.api.lane.getMaxSpeed  # the lane's speed limit (not the vehicle's share of it)
+        self.cols["limit"].append(np.array([lane_speed(veh.getLaneID(v)) if veh.getLaneID(v) else np.nan
+                                            for v in ids], np.float32))
         self.cols["length"].append(st.length.astype(np.float32))
         self.cols["width"].append(st.width.astype(np.float32))
         self.cols["vclass"].append(st.vclass.astype(str))
