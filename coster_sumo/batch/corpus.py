@@ -216,6 +216,7 @@ class CorpusConfig:
     workers: int = 1
     networks: list[str] | None = None  # only these (default: the whole catalogue)
     timeout_s: float = DEFAULT_TIMEOUT_S
+    card: bool = True  # write DATASET/card.md at the end
     quiet: bool = False
     debug: bool = False
 
@@ -287,4 +288,8 @@ def build_corpus(cfg: CorpusConfig) -> dict[str, Any]:
                "total_clips": manifest["counts"]["scenes"], "simulated_hours": manifest["simulated_hours"],
                "wall_s": round(time.perf_counter() - t_wall, 2)}
     write_json(cfg.dataset / "summary.json", summary)
+    if cfg.card:
+        from coster_sumo.batch.card import write_card
+
+        write_card(cfg.dataset)
     return summary

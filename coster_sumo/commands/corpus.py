@@ -3,7 +3,8 @@
 ``build`` simulates the nominal-traffic corpus (real OSM networks from the eclipse-sumo wheel,
 authored freeways, roundabouts, rural roads, netgenerate families, the repository's networks; free
 flow to congestion; every vehicle class; Krauss / IDM / EIDM; part sublane) into DATASET as 9.1 s
-clips, held-out networks apart (docs/corpus.md). Rerunning it finishes what is missing.
+clips, held-out networks apart, then writes the card (docs/corpus.md). Rerunning it finishes
+what is missing.
 ``card`` writes DATASET/card.md and its histograms (DATASET/card/*.png) from the manifest and the
 per-run statistics. The libraries are :mod:`coster_sumo.batch.corpus` and
 :mod:`coster_sumo.batch.card`.
@@ -21,7 +22,7 @@ def _build(args: argparse.Namespace) -> int:
 
     cfg = CorpusConfig(dataset=Path(args.dataset), runs_per_network=args.runs_per_network,
                        duration_s=args.duration, seed=args.seed, workers=args.workers,
-                       networks=args.networks or None, timeout_s=args.timeout, quiet=args.quiet,
+                       networks=args.networks or None, timeout_s=args.timeout, card=not args.no_card, quiet=args.quiet,
                        debug=args.debug)
     summary = build_corpus(cfg)
     if not args.quiet:
@@ -55,6 +56,7 @@ def register(cli: Any) -> None:
     b.add_argument("--workers", type=int, default=1, metavar="W", help="parallel runs (processes)")
     b.add_argument("--networks", nargs="+", metavar="NAME", help="only these networks (default: all)")
     b.add_argument("--timeout", type=float, default=1800.0, metavar="S", help="wall-clock limit per run")
+    b.add_argument("--no-card", action="store_true", help="do not write the corpus card at the end")
     b.set_defaults(func=_build)
     c = group.add_parser("card", help="write the corpus card (markdown + PNG histograms)")
     c.add_argument("dataset", metavar="DATASET", help="corpus folder")
