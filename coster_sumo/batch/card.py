@@ -103,6 +103,19 @@ def _hist(path: Path, title: str, xlabel: str, series: dict[str, np.ndarray], bi
     plt.close(fig)
 
 
+def _declared_sizes() -> dict[str, list[float]]:
+    """vClass -> the lengths the corpus vTypes declare."""
+    from coster_sumo.batch.corpus import vtypes_xml
+
+    xml, _ = vtypes_xml(np.random.default_rng(0), freeway=False)
+    out: dict[str, list[float]] = defaultdict(list)
+    for line in xml.splitlines():
+        if "<vType " in line:
+            fields = dict(part.split("=", 1) for part in line.split() if "=" in part)
+            out[fields["vClass"].strip('"')].append(float(fields["length"].strip('"')))
+    return {k: sorted(set(v)) for k, v in out.items()}
+
+
 def card_data(dataset: Path) -> dict[str, Any]:
     """Everything the card shows, as plain data (also handy in tests)."""
     manifest = ds.read_manifest(dataset)
@@ -205,12 +218,20 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
         f"- clips: {congested} congested (median moving speed < {CONGESTED_MPS:g} m/s), {free} free flow "
         f"(>= {FREE_FLOW_SHARE:.0%} of the speed limit), of {len(clip_med)}",
         "",
-        "## Vehicle classes", "", "| class | samples | lengths [m] | widths [m] |", "|---|---|---|---|"]
+        "## Vehicle classes", "",
+        "Lengths and widths seen (SUMO's values), against those the corpus vTypes declare (networks with "
+        "their own demand bring their own types).", "",
+        "| class | samples | lengths seen [m] (share) | declared lengths [m] | widths seen [m] |",
+        "|---|---|---|---|---|"]
+    declared = _declared_sizes()
     for c in classes:
         m = vclass == c
-        ls = ", ".join(f"{v:g}" for v in np.unique(np.round(length[m], 2))[:8])
+        values, counts = np.unique(np.round(length[m], 2), return_counts=True)
+        top = np.argsort(-counts)[:8]
+        ls = ", ".join(f"{values[i]:g} ({counts[i] / m.sum():.0%})" for i in sorted(top))
         ws = ", ".join(f"{v:g}" for v in np.unique(np.round(width[m], 2))[:8])
-        lines.append(f"| {c} | {int(m.sum())} | {ls} | {ws} |")
+        lines.append(f"| {c} | {int(m.sum())} | {ls} | {', '.join(f'{v:g}' for v in declared.get(c, [])) or '-'} "
+                     f"| {ws} |")
     lines += ["", "## Speeds by road class (lane speed limit)", "",
               "| road class | samples | p5 | p50 | p95 [m/s] |", "|---|---|---|---|---|"]
     for lo, hi, label in ROAD_CLASSES:
