@@ -195,6 +195,9 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
 
     hours = manifest["simulated_hours"]
     wall = sum(float(r.get("wall_s", 0.0)) for r in runs)
+    timed = [r for r in runs if "cpu_s" in r]
+    cpu_h = sum(float(r["cpu_s"]) for r in timed) / 3600.0
+    cpu_rate = sum(float(r["duration_s"]) for r in timed) / 3600.0 / cpu_h if cpu_h > 0 else float("nan")
     train_clips = len(ds.list_scenes(dataset)) if ds.scenes_dir(dataset).is_dir() else 0
     heldout_clips = len(ds.list_heldout(dataset))
     lines = [
@@ -209,7 +212,9 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
         f"- clips (9.1 s, 10 Hz): {train_clips} for training/validation (`scenes/`), {heldout_clips} held out "
         f"(`heldout/`)",
         f"- run wall time (sum over runs, one process each): {wall / 3600:.2f} h, i.e. "
-        f"{hours / max(wall / 3600, 1e-9):.1f} simulated h per process-hour",
+        f"{hours / max(wall / 3600, 1e-9):.1f} simulated h per process-hour (wall time depends on the machine's "
+        f"load); CPU time of the {len(timed)} runs that measured it: {cpu_h:.2f} h, {cpu_rate:.1f} simulated h "
+        "per CPU-hour",
         f"- vehicle classes ({len(classes)}): {', '.join(classes)}",
         f"- freeway networks: {np.mean(speed[is_fw] > 30) if is_fw.any() else 0:.1%} of samples above 30 m/s "
         f"(max {speed[is_fw].max() if is_fw.any() else 0:.1f} m/s)",

@@ -343,7 +343,7 @@ def simulate_run(task: RunTask) -> dict[str, Any]:
     from coster_sumo.sim.record import record
     from coster_sumo.sim.session import SumoSession
 
-    t_wall = time.perf_counter()
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
     task.work.mkdir(parents=True, exist_ok=True)
     out_dir = task.clips_dir
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -399,8 +399,12 @@ def simulate_run(task: RunTask) -> dict[str, Any]:
             arrays = sampler.arrays() | {"clip_agents": clip_arr[:, 0], "clip_median_speed": clip_arr[:, 1],
                                          "clip_speed_limit": clip_arr[:, 2], "clip_target_speed": clip_arr[:, 3]}
             np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
+    import resource
+
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)  # randomTrips, duarouter
+    cpu = time.process_time() - t_cpu + children.ru_utime + children.ru_stime
     return {"status": "ok", "clips": clips, "vehicles": len(vehicles), "simulated_s": round(sim_end - begin, 3),
-            "wall_s": round(time.perf_counter() - t_wall, 2)}
+            "wall_s": round(time.perf_counter() - t_wall, 2), "cpu_s": round(cpu, 2)}
 
 
 def run_task(payload: dict[str, Any]) -> dict[str, Any]:
