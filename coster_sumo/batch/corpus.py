@@ -84,6 +84,9 @@ WHEEL_EXCLUDED = {"rail": "trains only", "rail_demo": "trains only", "racing": "
 LEVELS = ("free", "moderate", "heavy", "jammed")
 _DENSITY = {"free": (20.0, 45.0), "moderate": (70.0, 140.0), "heavy": (200.0, 320.0), "jammed": (420.0, 650.0)}
 _SCALE = {"free": (0.4, 0.7), "moderate": (0.9, 1.2), "heavy": (1.6, 2.2), "jammed": (2.8, 3.6)}
+# [veh/h] random-trip insertions on a non-freeway network at most (a density of hundreds per km of lane
+# on a 50-150 km city grid gridlocks it for good instead of congesting it; it also costs hours)
+MAX_INSERTIONS_PER_H = 4000.0
 BIKE_DENSITY = 15.0  # [bicycles/h per km of lane that allows them]
 
 # vehicle types: id, vClass, length, width [m], share on urban and on freeway networks, extra attributes
@@ -116,6 +119,7 @@ class Network:
     window: tuple[float, float] = (0.0, 0.0)  # [s] begin, end of its own demand (0, 0: none)
     heldout: bool = False
     provenance: dict[str, Any] = field(default_factory=dict)
+    lane_km: float = 0.0  # [km] lane length (internal lanes left out); 0 when unknown
 
     @property
     def freeway(self) -> bool:
@@ -127,6 +131,7 @@ class Network:
     def record(self, dataset: Path) -> dict[str, Any]:
         net = str(self.net.relative_to(dataset)) if self.net.is_relative_to(dataset) else str(self.net)
         return {"name": self.name, "family": self.family, "net": net, "heldout": self.heldout,
+                "lane_km": self.lane_km,
                 "own_demand": [str(p.name) for p in self.routes], "freeway": self.freeway} | self.provenance
 
 
@@ -172,8 +177,24 @@ def catalogue(dataset: Path, seed: int = 0, build: bool = True, only: list[str] 
                                provenance={"source": f"authored: coster_sumo.batch.nets.{builder.__name__}"
                                                      f"(k={k}, seed={seed})", "params": params}))
     heldout = set(HELDOUT)
-    out = [dataclasses.replace(n, heldout=n.name in heldout) for n in out]
+    out = [dataclasses.replace(n, heldout=n.name in heldout, lane_km=_lane_km(n.net)) for n in out]
     return out, errors
+
+
+def _lane_km(net: Path) -> float:
+    """[km] of lanes of a net (cached beside authored nets; 0 when the net is not there)."""
+    from coster_sumo.batch.card import net_size
+
+    if not net.exists():
+        return 0.0
+    st = net.stat()
+    key = (str(net), st.st_mtime_ns, st.st_size)
+    if key not in _LANE_KM:
+        _LANE_KM[key] = float(net_size(net)["lane_km"])
+    return _LANE_KM[key]
+
+
+_LANE_KM: dict[tuple[str, int, int], float] = {}
 
 
 def _read_json(path: Path) -> Any:
@@ -244,6 +265,8 @@ def plan_corpus(cfg: CorpusConfig, networks: list[Network]) -> list[RunTask]:
             else:
                 lo, hi = _DENSITY[level]
                 scale, density = 1.0, float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+                if not net.freeway and net.lane_km > 0:  # big city grids would gridlock, not congest
+                    density = min(density, MAX_INSERTIONS_PER_H / net.lane_km)
             xml, models = vtypes_xml(rng, net.freeway)
             src = Source(name=net.name, path=net.net, is_config=False, has_demand=own, begin_s=begin,
                          routes=net.routes if own else (), additional=net.additional)

@@ -20,6 +20,7 @@ as done (after a crash or a SIGKILL too: clip names are deterministic, a rerun o
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import subprocess
 import sys
@@ -467,17 +468,43 @@ class BatchResult:
     wall_s: float
 
 
+def _same_plan(task: RunTask, entry: dict[str, Any]) -> bool:
+    """Whether a recorded run was planned as ``task`` is (every planned manifest field equal)."""
+    planned = json.loads(json.dumps(task.manifest_entry(), default=str))
+    return all(entry.get(k) == v for k, v in planned.items())
+
+
+def _remove_outputs(dataset: Path, run_id: str) -> None:
+    """Delete a run's clips (training or held-out) and statistics."""
+    for folder in (ds.scenes_dir(dataset), ds.heldout_dir(dataset)):
+        for p in folder.glob(f"{run_id}_*.npz") if folder.is_dir() else ():
+            if p.name[len(run_id) + 1:][:1].isdigit():  # <run_id>_<start time>_<target>.npz
+                p.unlink()
+    (dataset / STATS_DIR / f"{run_id}.npz").unlink(missing_ok=True)
+
+
 def run_batch(tasks: list[RunTask], dataset: Path, manifest: dict[str, Any], *, workers: int = 1,
               timeout_s: float = DEFAULT_TIMEOUT_S, quiet: bool = False, debug: bool = False,
               what: str = "simulate") -> BatchResult:
     """Run the ``tasks`` the manifest does not list as done, on the executor; the manifest is
-    rewritten after every run (failed runs are listed as such and retried next time)."""
+    rewritten after every run (failed runs are listed as such and retried next time). A run the
+    manifest lists as done but with another plan (seed, scale, demand, options...) is stale: its
+    clips and statistics are removed and it runs again."""
     from tqdm import tqdm
 
     t_wall = time.perf_counter()
-    done = {r["run_id"] for r in manifest["runs"] if r.get("status") == "ok"}
-    todo = [t for t in tasks if t.run_id not in done]
-    manifest["runs"] = [r for r in manifest["runs"] if r.get("status") == "ok"]
+    recorded = {r["run_id"]: r for r in manifest["runs"] if r.get("status") == "ok"}
+    todo, stale = [], []
+    for t in tasks:
+        entry = recorded.get(t.run_id)
+        if entry is None:
+            todo.append(t)
+        elif not _same_plan(t, entry):  # planned differently since (another version): run it again
+            todo.append(t)
+            stale.append(t.run_id)
+    for run_id in stale:
+        _remove_outputs(dataset, run_id)
+    manifest["runs"] = [r for r in manifest["runs"] if r.get("status") == "ok" and r["run_id"] not in stale]
     ds.write_manifest(dataset, manifest)
     failures: list[str] = []
     clips = 0
