@@ -502,8 +502,8 @@ def run_batch(tasks: list[RunTask], dataset: Path, manifest: dict[str, Any], *, 
         elif not _same_plan(t, entry):  # planned differently since (another version): run it again
             todo.append(t)
             stale.append(t.run_id)
-    for run_id in stale:
-        _remove_outputs(dataset, run_id)
+    for t in todo:  # stale runs, and what a run cut short (a crash, SIGKILL) left behind
+        _remove_outputs(dataset, t.run_id)
     manifest["runs"] = [r for r in manifest["runs"] if r.get("status") == "ok" and r["run_id"] not in stale]
     ds.write_manifest(dataset, manifest)
     failures: list[str] = []
