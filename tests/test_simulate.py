@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from coster_sumo import dataset
-from coster_sumo.batch.simulate import SimulateConfig, netgenerate_options, plan_runs, resolve_sources
+from coster_sumo.batch.nets import netgenerate_options
+from coster_sumo.batch.simulate import SimulateConfig, plan_runs, resolve_sources
 from coster_sumo.cli import main
 
 REPO = Path(__file__).resolve().parents[1]

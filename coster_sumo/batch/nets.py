@@ -10,16 +10,111 @@ manifest records as the network's provenance. What the freeway layout means in t
 from __future__ import annotations
 
 import math
+import subprocess
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from coster_sumo.batch.simulate import netgenerate, netgenerate_options, run_tool
+from coster_sumo import dataset as ds
 from coster_sumo.formats.atomic import write_text
 
 KMH = 1.0 / 3.6  # [m/s] per km/h
 NO_BIKES = 'disallow="pedestrian bicycle"'
+
+
+# ----------------------------------------------------------------------------- netgenerate
+
+_SPEEDS_MPS = (8.33, 11.11, 13.89, 16.67, 22.22)  # 30 / 40 / 50 / 60 / 80 km/h
+_JUNCTIONS = ("traffic_light", "priority", "right_before_left", "allway_stop")
+
+
+def netgenerate_options(k: int, seed: int, speeds: tuple[float, ...] = _SPEEDS_MPS) -> tuple[str, list[str]]:
+    """The kind ("grid", "spider", "random") and netgenerate options of generated network ``k``.
+
+    Kinds cycle through the three; sizes, lane counts, speeds (from ``speeds`` [m/s]) and junction
+    control are drawn from a generator seeded with (seed, k), so the same k and seed give the same
+    network.
+    """
+    rng = np.random.default_rng([seed, k, 7])
+    kind = ("grid", "spider", "random")[k % 3]
+    lanes = int(rng.integers(1, 4))
+    speed = float(rng.choice(speeds))
+    junction = str(rng.choice(_JUNCTIONS, p=[0.45, 0.3, 0.15, 0.1]))
+    opts = ["--default.lanenumber", str(lanes), "--default.speed", f"{speed:g}",
+            "--default-junction-type", junction, "--tls.default-type",
+            str(rng.choice(["static", "actuated"])), "--seed", str(seed * 1000 + k)]
+    if kind == "grid":
+        opts = ["--grid", "--grid.x-number", str(int(rng.integers(3, 7))),
+                "--grid.y-number", str(int(rng.integers(3, 6))),
+                "--grid.x-length", f"{rng.uniform(90, 250):.0f}",
+                "--grid.y-length", f"{rng.uniform(90, 250):.0f}",
+                "--grid.attach-length", f"{rng.uniform(60, 150):.0f}", *opts]
+    elif kind == "spider":
+        opts = ["--spider", "--spider.arm-number", str(int(rng.integers(4, 8))),
+                "--spider.circle-number", str(int(rng.integers(2, 5))),
+                "--spider.space-radius", f"{rng.uniform(60, 140):.0f}",
+                "--spider.attach-length", f"{rng.uniform(60, 150):.0f}", *opts]
+        if rng.random() < 0.5:
+            opts.append("--spider.omit-center")
+    else:
+        opts = ["--rand", "--rand.iterations", str(int(rng.integers(40, 140))),
+                "--rand.min-distance", "80", "--rand.max-distance", "250",
+                "--rand.random-lanenumber", "--rand.random-priority", "--tls.guess", "true", *opts]
+        if rng.random() < 0.5:
+            opts.append("--rand.grid")
+    return kind, opts
+
+
+def run_tool(cmd: list[str], what: str, cwd: Path | None = None) -> None:
+    """Run a SUMO binary or tool; :class:`RuntimeError` with the tail of its output when it fails."""
+    from coster_sumo import sumo_env
+
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, env=sumo_env.subprocess_env())
+    if proc.returncode != 0:
+        msg = " ".join((proc.stderr or proc.stdout).split())[-300:]
+        raise RuntimeError(f"{what} failed: {msg or f'exit code {proc.returncode}'}")
+
+
+def netgenerate(path: Path, opts: list[str]) -> None:
+    """Write ``path`` with ``netgenerate opts`` (atomically: kept only when netgenerate succeeded)."""
+    from coster_sumo import sumo_env
+
+    tmp = path.with_name(f".{path.name.split('.')[0]}.tmp.net.xml")
+    try:
+        run_tool([sumo_env.binary("netgenerate"), *opts, "--output-file", str(tmp)], "netgenerate")
+        if not tmp.exists():
+            raise RuntimeError("netgenerate wrote no network")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def generate_nets(dataset: Path, count: int, seed: int) -> tuple[list[Any], list[dict], list[str]]:
+    """Make ``count`` networks under ``DATASET/nets/`` (kept when already there), for ``coster-sumo
+    simulate --netgenerate``.
+
+    Returns the sources (:class:`coster_sumo.batch.simulate.Source`), their manifest records, and
+    one-line errors for nets that failed.
+    """
+    from coster_sumo.batch.simulate import Source
+
+    sources, records, errors = [], [], []
+    for k in range(count):
+        kind, opts = netgenerate_options(k, seed)
+        name = f"gen{k:03d}_{kind}"
+        path = dataset / ds.NETS_DIR / f"{name}.net.xml"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not path.exists():
+            try:
+                netgenerate(path, opts)
+            except RuntimeError as exc:
+                errors.append(f"{name}: {exc}")
+                continue
+        sources.append(Source(name=name, path=path, is_config=False, has_demand=False))
+        records.append({"name": name, "kind": kind, "path": str(path.relative_to(dataset)),
+                        "netgenerate": opts})
+    return sources, records, errors
 
 
 def _netconvert(folder: Path, stem: str, net: Path, extra: list[str]) -> None:
