@@ -107,3 +107,37 @@ def test_build_writes_heldout_clips_apart_stats_and_a_card(tmp_path):
     card = (out / "card.md").read_text()
     assert "roundabout02 | roundabout | yes" in card
     assert len(list((out / "card").glob("*.png"))) >= 6
+
+
+def test_card_from_manifest_and_stats(tmp_path):
+    """The card reads only the manifest and stats/ (fake ones here): totals, classes, acceptance lines."""
+    from coster_sumo.batch.card import write_card
+
+    m = dataset.read_manifest(tmp_path)
+    m["networks"] = [{"name": "fw", "family": "freeway", "source": "authored", "heldout": False, "freeway": True},
+                     {"name": "town", "family": "wheel-osm", "source": "wheel", "heldout": True, "freeway": False}]
+    m["heldout_networks"] = ["town"]
+    rng = np.random.default_rng(0)
+    (tmp_path / "stats").mkdir()
+    for net, sub, speed in (("fw", False, 33.0), ("town", True, 3.0)):
+        run = f"{net}_r0"
+        m["runs"].append({"run_id": run, "network": net, "status": "ok", "clips": 2, "duration_s": 1800.0,
+                          "wall_s": 60.0, "cpu_s": 50.0, "sublane": sub, "level": "free"})
+        n = 500
+        np.savez(tmp_path / "stats" / f"{run}.npz", speed=rng.normal(speed, 1.0, n).astype(np.float32),
+                 accel=rng.normal(0, 1, n).astype(np.float32),
+                 lat_speed=rng.normal(0, 0.6 if sub else 0.01, n).astype(np.float32),
+                 limit=np.full(n, 36.1 if net == "fw" else 13.9, np.float32),
+                 length=np.where(np.arange(n) % 2, 4.4, 12.0).astype(np.float32), width=np.full(n, 1.8, np.float32),
+                 vclass=np.where(np.arange(n) % 2, "passenger", "bus"), clip_agents=np.array([5.0, 9.0], np.float32),
+                 clip_median_speed=np.array([speed, speed], np.float32),
+                 clip_speed_limit=np.array([36.1 if net == "fw" else 13.9] * 2, np.float32),
+                 clip_target_speed=np.array([speed, speed], np.float32))
+    dataset.write_manifest(tmp_path, m)
+    card = write_card(tmp_path).read_text()
+    assert "simulated: **1.00 h**" in card and "networks with runs: **2**" in card
+    assert "vehicle classes (2): bus, passenger" in card
+    assert "2 congested" in card and "2 free flow" in card
+    assert "| town | wheel-osm | yes |" in card
+    assert "| bus | 500 | 12 (100%) | 12 |" in card
+    assert len(list((tmp_path / "card").glob("*.png"))) == 8
