@@ -238,10 +238,20 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
         lines.append(f"| {c} | {int(m.sum())} | {ls} | {', '.join(f'{v:g}' for v in declared.get(c, [])) or '-'} "
                      f"| {ws} |")
     lines += ["", "## Speeds by road class (lane speed limit)", "",
-              "| road class | samples | p5 | p50 | p95 [m/s] |", "|---|---|---|---|---|"]
+              "| road class | samples | stopped (< 0.5 m/s) | p5 | p50 | p95 [m/s] |", "|---|---|---|---|---|---|"]
     for lo, hi, label in ROAD_CLASSES:
         s = speed[(limit_kmh > lo) & (limit_kmh <= hi)]
-        lines.append(f"| {label} | {len(s)} | {_q(s, 0.05)} | {_q(s, 0.5)} | {_q(s, 0.95)} |")
+        stopped = f"{np.mean(s < 0.5):.0%}" if len(s) else "-"
+        lines.append(f"| {label} | {len(s)} | {stopped} | {_q(s, 0.05)} | {_q(s, 0.5)} | {_q(s, 0.95)} |")
+    lines += ["", "## Demand levels", "",
+              "| level | runs | clips | congested | free flow | clip median moving speed p10 / p50 / p90 [m/s] |",
+              "|---|---|---|---|---|---|"]
+    for level in sorted({r.get("level", "-") for r in runs}):
+        med = pool("clip_median_speed", lambda r, lv=level: r.get("level", "-") == lv)
+        lim = pool("clip_speed_limit", lambda r, lv=level: r.get("level", "-") == lv)
+        lines.append(f"| {level} | {sum(r.get('level', '-') == level for r in runs)} | {len(med)} | "
+                     f"{int(np.sum(med < CONGESTED_MPS))} | {int(np.sum(med >= FREE_FLOW_SHARE * lim))} | "
+                     f"{_q(med, 0.1)} / {_q(med, 0.5)} / {_q(med, 0.9)} |")
     acc = pool("accel")
     lines += ["", f"Acceleration p1 / p50 / p99: {_q(acc, 0.01)} / {_q(acc, 0.5)} / {_q(acc, 0.99)} m/s²; "
               f"agents per clip p10 / p50 / p90: {_q(pool('clip_agents'), 0.1)} / {_q(pool('clip_agents'), 0.5)} / "
