@@ -4,7 +4,9 @@ Folder format::
 
     DATASET/
       manifest.json        what was simulated: sources, seeds, demand scales, counts, hours
-      scenes/<name>.npz    one clip each (coster_sumo.scene.save_scene)
+      scenes/<name>.npz    one clip each (coster_sumo.scene.save_scene): what training reads
+      heldout/<name>.npz   clips of held-out networks: never listed by list_scenes, so never trained on
+      stats/<run>.npz      per-run statistics for the corpus card (coster_sumo.batch.card)
       nets/                networks generated for the dataset (netgenerate), with their demand
 
 Every clip looks like a WOMD scenario: 10 Hz, :data:`CLIP_STEPS` = 91 steps (9.1 s),
@@ -14,8 +16,9 @@ clip's **target**: a vehicle valid in all 91 steps. The map is cropped to what l
 
 This module is pure numpy (no SUMO): cutting clips out of a long recorded scene
 (:func:`cut_clips`), cropping (:func:`crop_map`, :func:`crop_scene`), listing, splitting and reading
-a dataset, and its manifest. ``coster-sumo simulate`` (:mod:`coster_sumo.commands.simulate`)
-writes datasets in this format.
+a dataset, and its manifest. ``coster-sumo simulate``
+(:mod:`coster_sumo.batch.simulate`)
+and ``coster-sumo corpus`` (:mod:`coster_sumo.batch.corpus`) write datasets in this format.
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ MIN_TARGET_PATH_M = 5.0  # [m] a target moves at least this far in its clip (no 
 MIN_TARGET_SEPARATION_M = 40.0  # [m] targets of clips cut from the same window stand this far apart
 MANIFEST = "manifest.json"
 SCENES_DIR = "scenes"
+HELDOUT_DIR = "heldout"  # clips of held-out networks: a folder training never reads
 NETS_DIR = "nets"
 FORMAT_NAME = "coster-sumo-dataset"
 FORMAT_VERSION = 1
@@ -288,10 +292,23 @@ def scenes_dir(dataset: str | Path) -> Path:
     return Path(dataset) / SCENES_DIR
 
 
+def heldout_dir(dataset: str | Path) -> Path:
+    return Path(dataset) / HELDOUT_DIR
+
+
+def list_heldout(dataset: str | Path) -> list[Path]:
+    """Sorted clip files of the dataset's held-out networks (``DATASET/heldout/*.npz``)."""
+    folder = heldout_dir(dataset)
+    return sorted(p for p in folder.glob("*.npz") if not p.name.endswith(".tmp.npz")) if folder.is_dir() else []
+
+
 def list_scenes(dataset: str | Path) -> list[Path]:
     """Sorted scene files of a dataset folder (``DATASET/scenes/*.npz``), or of a plain folder of
     ``.npz`` files. Half-written temporaries are skipped. Raises :class:`InputError` if the folder
-    does not exist."""
+    does not exist.
+
+    Never the held-out networks' clips (``DATASET/heldout/``, :func:`list_heldout`): every training
+    and validation split is drawn from this list, so they are excluded by construction."""
     root = Path(dataset)
     if not root.is_dir():
         raise InputError(f"{root}: dataset folder not found")

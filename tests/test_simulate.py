@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from coster_sumo import dataset
+from coster_sumo.batch.nets import netgenerate_options
+from coster_sumo.batch.simulate import SimulateConfig, plan_runs, resolve_sources
 from coster_sumo.cli import main
-from coster_sumo.commands.simulate import SimulateConfig, netgenerate_options, plan_runs, resolve_sources
 
 REPO = Path(__file__).resolve().parents[1]
 INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"
@@ -114,3 +115,21 @@ def test_every_shipped_scenario_yields_clips(tmp_path, cfg):
     out = tmp_path / "ds"
     assert main(["-q", "simulate", str(cfg), "-o", str(out), "--seeds", "1", "--clips-per-run", "5"]) == 0
     _check_dataset(out, min_scenes=5)
+
+
+@pytest.mark.sumo
+def test_a_run_planned_differently_runs_again_and_leftovers_go(tmp_path):
+    out = tmp_path / "ds"
+    args = ["-q", "simulate", str(INTERSECTION), "-o", str(out), "--seeds", "1", "--duration", "25",
+            "--clips-per-run", "2"]
+    assert main(args) == 0
+    first = {p.name for p in dataset.list_scenes(out)}
+    leftover = dataset.scenes_dir(out) / "intersection_s0_00012.3_ghost.npz"  # a killed attempt's clip
+    leftover.write_bytes(next(iter(dataset.list_scenes(out))).read_bytes())
+    assert main(args) == 0 and leftover.exists()  # done runs are not touched
+    assert main([*args, "--scale-range", "2", "2"]) == 0  # another plan: the run is stale
+    manifest = dataset.read_manifest(out)
+    assert [r["scale"] for r in manifest["runs"]] == [2.0]
+    assert not leftover.exists()
+    assert len(dataset.list_scenes(out)) == manifest["counts"]["scenes"]
+    assert first  # (the first run made clips)

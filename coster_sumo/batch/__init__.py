@@ -5,5 +5,8 @@
 - :mod:`~coster_sumo.batch.store`: the Parquet result store and Wilson intervals;
 - :mod:`~coster_sumo.batch.regress`: ``coster-sumo regress``;
 - :mod:`~coster_sumo.batch.evaluate`: ``coster-sumo eval scenarios``;
-- :mod:`~coster_sumo.batch.simulate`: ``coster-sumo simulate`` (nominal traffic recorded as clips).
+- :mod:`~coster_sumo.batch.simulate`: ``coster-sumo simulate`` (nominal traffic recorded as clips);
+- :mod:`~coster_sumo.batch.corpus`: ``coster-sumo corpus build`` (the nominal-traffic corpus), with
+  :mod:`~coster_sumo.batch.nets` (the networks it authors) and :mod:`~coster_sumo.batch.card`
+  (``coster-sumo corpus card``).
 """

@@ -1,0 +1,273 @@
+"""The corpus card: what a corpus holds, per network and overall, as markdown + PNG histograms.
+
+Read from ``DATASET/manifest.json`` (networks, runs, provenance) and ``DATASET/stats/<run>.npz``
+(written by the runs: one sample per vehicle and simulated second, and one row per clip; see
+:mod:`coster_sumo.batch.simulate`). Nothing is re-simulated, so the card is cheap to regenerate.
+
+Definitions (also printed in the card):
+
+- road class: the speed limit of the lane a vehicle is on: <= 40, 40-60, 60-90, > 90 km/h;
+- lateral speed: SUMO's own lateral speed of the vehicle on its lane (sublane model and continuous
+  lane changes), [m/s];
+- a clip is *congested* when the median of the mean speeds of its moving vehicles (those above
+  0.5 m/s at some step: vehicles stopped all clip long, at a red light or parked, are left out) is
+  below 5 m/s; *free flow* when that median is at least 70 % of the median speed limit of the
+  clip's lanes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coster_sumo import dataset as ds
+from coster_sumo.atomic import atomic_path, write_text
+from coster_sumo.batch.simulate import STATS_DIR
+from coster_sumo.errors import InputError
+
+ROAD_CLASSES = ((0.0, 40.0, "<= 40 km/h"), (40.0, 60.0, "40-60 km/h"), (60.0, 90.0, "60-90 km/h"),
+                (90.0, 1e9, "> 90 km/h"))
+CONGESTED_MPS = 5.0
+FREE_FLOW_SHARE = 0.7
+CARD = "card.md"
+CARD_DIR = "card"
+
+
+def net_size(path: Path) -> dict[str, float]:
+    """Lanes, lane length [km] and junctions of a SUMO net (internal lanes left out)."""
+    from defusedxml.ElementTree import iterparse
+
+    from coster_sumo.formats.sumocfg import open_maybe_gzip
+
+    lanes, km, junctions, internal = 0, 0.0, 0, False
+    with open_maybe_gzip(path) as fh:
+        for event, el in iterparse(fh, events=("start", "end")):
+            tag = el.tag
+            if event == "start":
+                if tag == "edge":
+                    internal = el.get("function") == "internal"
+                continue
+            if tag == "lane" and not internal:
+                lanes += 1
+                km += float(el.get("length", 0.0)) / 1000.0
+            elif tag == "junction" and el.get("type") != "internal":
+                junctions += 1
+            if tag in ("edge", "junction", "connection", "tlLogic"):
+                el.clear()
+    return {"lanes": lanes, "lane_km": round(km, 1), "junctions": junctions}
+
+
+def _load_stats(dataset: Path, runs: list[dict[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
+    out = {}
+    for r in runs:
+        path = dataset / STATS_DIR / f"{r['run_id']}.npz"
+        if path.exists():
+            with np.load(path) as d:
+                out[r["run_id"]] = {k: d[k] for k in d.files}
+    return out
+
+
+def _cat(parts: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0, np.float32)
+
+
+def _q(a: np.ndarray, q: float) -> str:
+    a = a[np.isfinite(a)]
+    return f"{np.quantile(a, q):.1f}" if len(a) else "-"
+
+
+def _hist(path: Path, title: str, xlabel: str, series: dict[str, np.ndarray], bins: Any, log: bool = False) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.6), dpi=90)
+    for label, a in series.items():
+        a = a[np.isfinite(a)]
+        if len(a):
+            ax.hist(a, bins=bins, histtype="step", linewidth=1.4, density=True, label=f"{label} (n={len(a)})")
+    ax.set_title(title)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("density")
+    if log:
+        ax.set_yscale("log")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def _declared_sizes() -> dict[str, list[float]]:
+    """vClass -> the lengths the corpus vTypes declare."""
+    from coster_sumo.batch.corpus import vtypes_xml
+
+    xml, _ = vtypes_xml(np.random.default_rng(0), freeway=False)
+    out: dict[str, list[float]] = defaultdict(list)
+    for line in xml.splitlines():
+        if "<vType " in line:
+            fields = dict(part.split("=", 1) for part in line.split() if "=" in part)
+            out[fields["vClass"].strip('"')].append(float(fields["length"].strip('"')))
+    return {k: sorted(set(v)) for k, v in out.items()}
+
+
+def card_data(dataset: Path) -> dict[str, Any]:
+    """Everything the card shows, as plain data (also handy in tests)."""
+    manifest = ds.read_manifest(dataset)
+    runs = [r for r in manifest["runs"] if r.get("status") == "ok"]
+    stats = _load_stats(dataset, runs)
+    by_net: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for r in runs:
+        by_net[r.get("network") or r["run_id"].rsplit("_", 1)[0]].append(r)
+    networks = {n["name"]: n for n in manifest.get("networks", [])}
+    rows = []
+    for name, net_runs in sorted(by_net.items()):
+        info = networks.get(name, {"name": name, "family": "-", "source": "-", "heldout": False})
+        st = [stats[r["run_id"]] for r in net_runs if r["run_id"] in stats]
+        size: dict[str, float] = {}
+        net_path = Path(info.get("net", ""))
+        net_path = net_path if net_path.is_absolute() else dataset / net_path
+        if info.get("net") and net_path.exists():
+            with contextlib.suppress(Exception):
+                size = net_size(net_path)
+        speed = _cat([s["speed"] for s in st])
+        vclasses = sorted(set(_cat([s["vclass"] for s in st]).tolist())) if st else []
+        rows.append({"name": name, "family": info.get("family", "-"), "source": info.get("source", "-"),
+                     "heldout": bool(info.get("heldout")), "freeway": bool(info.get("freeway")), **size,
+                     "runs": len(net_runs), "hours": sum(r["duration_s"] for r in net_runs) / 3600.0,
+                     "clips": sum(r["clips"] for r in net_runs), "vclasses": vclasses,
+                     "speed_p50": _q(speed, 0.5), "speed_p95": _q(speed, 0.95),
+                     "speed_max": f"{speed.max():.1f}" if len(speed) else "-",
+                     "agents_p50": _q(_cat([s["clip_agents"] for s in st]), 0.5),
+                     "levels": sorted({r.get("level", "-") for r in net_runs})})
+    return {"manifest": manifest, "runs": runs, "stats": stats, "rows": rows}
+
+
+def write_card(dataset: Path, output: Path | None = None) -> Path:
+    """Write ``card.md`` and ``card/*.png`` (into ``output``, default the dataset folder)."""
+    dataset = Path(dataset)
+    if not (dataset / ds.MANIFEST).exists():
+        raise InputError(f"{dataset}: no {ds.MANIFEST} (not a corpus folder)")
+    out = Path(output) if output is not None else dataset
+    figs = out / CARD_DIR
+    figs.mkdir(parents=True, exist_ok=True)
+    data = card_data(dataset)
+    manifest, runs, stats, rows = data["manifest"], data["runs"], data["stats"], data["rows"]
+    run_of = {r["run_id"]: r for r in runs}
+    net_rows = {row["name"]: row for row in rows}
+
+    def pool(key: str, where: Any = None) -> np.ndarray:
+        return _cat([s[key] for rid, s in stats.items() if where is None or where(run_of[rid])])
+
+    speed, limit_kmh = pool("speed"), pool("limit") * 3.6
+    vclass, length, width = pool("vclass"), pool("length"), pool("width")
+    is_fw = np.concatenate([np.full(len(s["speed"]), net_rows.get(run_of[rid].get("network", ""), {}).get(
+        "freeway", False)) for rid, s in stats.items()]) if stats else np.zeros(0, bool)
+    lat_sub = pool("lat_speed", lambda r: r.get("sublane"))
+    lat_other = pool("lat_speed", lambda r: not r.get("sublane"))
+    clip_med, clip_lim = pool("clip_median_speed"), pool("clip_speed_limit")
+    congested = int(np.sum(clip_med < CONGESTED_MPS))
+    free = int(np.sum(clip_med >= FREE_FLOW_SHARE * clip_lim))
+    classes = sorted(set(vclass.tolist()))
+
+    _hist(figs / "speed_by_road_class.png", "speed by road class (lane speed limit)", "speed [m/s]",
+          {label: speed[(limit_kmh > lo) & (limit_kmh <= hi)] for lo, hi, label in ROAD_CLASSES},
+          np.arange(0, 45, 1.0))
+    _hist(figs / "speed_freeway.png", "speed: freeway networks vs the rest", "speed [m/s]",
+          {"freeway networks": speed[is_fw], "other networks": speed[~is_fw]}, np.arange(0, 45, 1.0))
+    _hist(figs / "acceleration.png", "longitudinal acceleration", "acceleration [m/s²]",
+          {"all": pool("accel")}, np.arange(-9, 5, 0.25), log=True)
+    _hist(figs / "lateral_speed.png", "lateral speed (SUMO's, on the lane)", "lateral speed [m/s]",
+          {"sublane runs": lat_sub, "other runs": lat_other}, np.arange(-3, 3.05, 0.1), log=True)
+    _hist(figs / "length_by_class.png", "vehicle length by class", "length [m]",
+          {c: length[vclass == c] for c in classes}, np.arange(0, 20, 0.25))
+    _hist(figs / "width_by_class.png", "vehicle width by class", "width [m]",
+          {c: width[vclass == c] for c in classes}, np.arange(0.4, 3.0, 0.05))
+    _hist(figs / "agents_per_clip.png", "agents per clip", "agents", {"clips": pool("clip_agents")},
+          np.arange(0, 200, 4))
+    _hist(figs / "clip_median_speed.png", "clip median speed of moving vehicles", "speed [m/s]",
+          {"clips": clip_med}, np.arange(0, 40, 1.0))
+
+    hours = manifest["simulated_hours"]
+    wall = sum(float(r.get("wall_s", 0.0)) for r in runs)
+    timed = [r for r in runs if "cpu_s" in r]
+    cpu_h = sum(float(r["cpu_s"]) for r in timed) / 3600.0
+    cpu_rate = sum(float(r["duration_s"]) for r in timed) / 3600.0 / cpu_h if cpu_h > 0 else float("nan")
+    train_clips = len(ds.list_scenes(dataset)) if ds.scenes_dir(dataset).is_dir() else 0
+    heldout_clips = len(ds.list_heldout(dataset))
+    lines = [
+        "# Corpus card", "",
+        f"Generated by `coster-sumo corpus card` from `{ds.MANIFEST}` and `{STATS_DIR}/` "
+        "(definitions: docs/corpus.md).", "",
+        "## Totals", "",
+        f"- networks with runs: **{len(rows)}** (catalogue: {len(manifest.get('networks', []))}); "
+        f"held out: {', '.join(manifest.get('heldout_networks', [])) or 'none'}",
+        f"- runs: {len(runs)} ok, {manifest['counts']['runs_failed']} failed; simulated: **{hours:.2f} h** "
+        f"(warm-up included)",
+        f"- clips (9.1 s, 10 Hz): {train_clips} for training/validation (`scenes/`), {heldout_clips} held out "
+        f"(`heldout/`)",
+        f"- run wall time (sum over runs, one process each): {wall / 3600:.2f} h, i.e. "
+        f"{hours / max(wall / 3600, 1e-9):.1f} simulated h per process-hour (wall time depends on the machine's "
+        f"load); CPU time of the {len(timed)} runs that measured it: {cpu_h:.2f} h, {cpu_rate:.1f} simulated h "
+        "per CPU-hour",
+        f"- vehicle classes ({len(classes)}): {', '.join(classes)}",
+        f"- freeway networks: {np.mean(speed[is_fw] > 30) if is_fw.any() else 0:.1%} of samples above 30 m/s "
+        f"(max {speed[is_fw].max() if is_fw.any() else 0:.1f} m/s)",
+        f"- lateral speed beyond 0.5 m/s: {np.mean(np.abs(lat_sub) > 0.5) if len(lat_sub) else 0:.2%} of samples in "
+        f"sublane runs, {np.mean(np.abs(lat_other) > 0.5) if len(lat_other) else 0:.2%} in the others",
+        f"- clips: {congested} congested (median moving speed < {CONGESTED_MPS:g} m/s), {free} free flow "
+        f"(>= {FREE_FLOW_SHARE:.0%} of the speed limit), of {len(clip_med)}",
+        "",
+        "## Vehicle classes", "",
+        "Lengths and widths seen (SUMO's values), against those the corpus vTypes declare (networks with "
+        "their own demand bring their own types).", "",
+        "| class | samples | lengths seen [m] (share) | declared lengths [m] | widths seen [m] |",
+        "|---|---|---|---|---|"]
+    declared = _declared_sizes()
+    for c in classes:
+        m = vclass == c
+        values, counts = np.unique(np.round(length[m], 2), return_counts=True)
+        top = np.argsort(-counts)[:8]
+        ls = ", ".join(f"{values[i]:g} ({counts[i] / m.sum():.0%})" for i in sorted(top))
+        ws = ", ".join(f"{v:g}" for v in np.unique(np.round(width[m], 2))[:8])
+        lines.append(f"| {c} | {int(m.sum())} | {ls} | {', '.join(f'{v:g}' for v in declared.get(c, [])) or '-'} "
+                     f"| {ws} |")
+    lines += ["", "## Speeds by road class (lane speed limit)", "",
+              "| road class | samples | stopped (< 0.5 m/s) | p5 | p50 | p95 [m/s] |", "|---|---|---|---|---|---|"]
+    for lo, hi, label in ROAD_CLASSES:
+        s = speed[(limit_kmh > lo) & (limit_kmh <= hi)]
+        stopped = f"{np.mean(s < 0.5):.0%}" if len(s) else "-"
+        lines.append(f"| {label} | {len(s)} | {stopped} | {_q(s, 0.05)} | {_q(s, 0.5)} | {_q(s, 0.95)} |")
+    lines += ["", "## Demand levels", "",
+              "| level | runs | clips | congested | free flow | clip median moving speed p10 / p50 / p90 [m/s] |",
+              "|---|---|---|---|---|---|"]
+    for level in sorted({r.get("level", "-") for r in runs}):
+        med = pool("clip_median_speed", lambda r, lv=level: r.get("level", "-") == lv)
+        lim = pool("clip_speed_limit", lambda r, lv=level: r.get("level", "-") == lv)
+        lines.append(f"| {level} | {sum(r.get('level', '-') == level for r in runs)} | {len(med)} | "
+                     f"{int(np.sum(med < CONGESTED_MPS))} | {int(np.sum(med >= FREE_FLOW_SHARE * lim))} | "
+                     f"{_q(med, 0.1)} / {_q(med, 0.5)} / {_q(med, 0.9)} |")
+    acc = pool("accel")
+    lines += ["", f"Acceleration p1 / p50 / p99: {_q(acc, 0.01)} / {_q(acc, 0.5)} / {_q(acc, 0.99)} m/s²; "
+              f"agents per clip p10 / p50 / p90: {_q(pool('clip_agents'), 0.1)} / {_q(pool('clip_agents'), 0.5)} / "
+              f"{_q(pool('clip_agents'), 0.9)}.", "",
+              "## Networks", "",
+              "| network | family | held out | source | lanes | lane km | runs | hours | clips | demand levels | "
+              "speed p50 / p95 / max [m/s] | agents/clip p50 | classes |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        lines.append(f"| {row['name']} | {row['family']} | {'yes' if row['heldout'] else ''} | {row['source']} | "
+                     f"{row.get('lanes', '-')} | {row.get('lane_km', '-')} | {row['runs']} | {row['hours']:.2f} | "
+                     f"{row['clips']} | {', '.join(row['levels'])} | {row['speed_p50']} / {row['speed_p95']} / "
+                     f"{row['speed_max']} | {row['agents_p50']} | {len(row['vclasses'])} |")
+    excluded = manifest.get("corpus", {}).get("wheel_excluded", {})
+    if excluded:
+        lines += ["", "Wheel networks left out: " + "; ".join(f"{k} ({v})" for k, v in excluded.items()) + "."]
+    lines += ["", "## Histograms", ""]
+    lines += [f"![{p.stem}]({CARD_DIR}/{p.name})" for p in sorted(figs.glob("*.png"))]
+    return write_text(out / CARD, "\n".join(lines) + "\n")
