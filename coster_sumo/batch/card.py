@@ -26,6 +26,7 @@ import numpy as np
 
 from coster_sumo import dataset as ds
 from coster_sumo.atomic import atomic_path, write_text
+from coster_sumo.batch import corpus
 from coster_sumo.batch.simulate import STATS_DIR
 from coster_sumo.errors import InputError
 
@@ -35,30 +36,6 @@ CONGESTED_MPS = 5.0
 FREE_FLOW_SHARE = 0.7
 CARD = "card.md"
 CARD_DIR = "card"
-
-
-def net_size(path: Path) -> dict[str, float]:
-    """Lanes, lane length [km] and junctions of a SUMO net (internal lanes left out)."""
-    from defusedxml.ElementTree import iterparse
-
-    from coster_sumo.formats.sumocfg import open_maybe_gzip
-
-    lanes, km, junctions, internal = 0, 0.0, 0, False
-    with open_maybe_gzip(path) as fh:
-        for event, el in iterparse(fh, events=("start", "end")):
-            tag = el.tag
-            if event == "start":
-                if tag == "edge":
-                    internal = el.get("function") == "internal"
-                continue
-            if tag == "lane" and not internal:
-                lanes += 1
-                km += float(el.get("length", 0.0)) / 1000.0
-            elif tag == "junction" and el.get("type") != "internal":
-                junctions += 1
-            if tag in ("edge", "junction", "connection", "tlLogic"):
-                el.clear()
-    return {"lanes": lanes, "lane_km": round(km, 1), "junctions": junctions}
 
 
 def _load_stats(dataset: Path, runs: list[dict[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
@@ -105,9 +82,8 @@ def _hist(path: Path, title: str, xlabel: str, series: dict[str, np.ndarray], bi
 
 def _declared_sizes() -> dict[str, list[float]]:
     """vClass -> the lengths the corpus vTypes declare."""
-    from coster_sumo.batch.corpus import vtypes_xml
 
-    xml, _ = vtypes_xml(np.random.default_rng(0), freeway=False)
+    xml, _ = corpus.vtypes_xml(np.random.default_rng(0), freeway=False)
     out: dict[str, list[float]] = defaultdict(list)
     for line in xml.splitlines():
         if "<vType " in line:
@@ -134,7 +110,7 @@ def card_data(dataset: Path) -> dict[str, Any]:
         net_path = net_path if net_path.is_absolute() else dataset / net_path
         if info.get("net") and net_path.exists():
             with contextlib.suppress(Exception):
-                size = net_size(net_path)
+                size = corpus.net_size(net_path)
         speed = _cat([s["speed"] for s in st])
         vclasses = sorted(set(_cat([s["vclass"] for s in st]).tolist())) if st else []
         rows.append({"name": name, "family": info.get("family", "-"), "source": info.get("source", "-"),

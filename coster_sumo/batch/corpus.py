@@ -181,9 +181,32 @@ def catalogue(dataset: Path, seed: int = 0, build: bool = True, only: list[str] 
     return out, errors
 
 
+def net_size(path: Path) -> dict[str, float]:
+    """Lanes, lane length [km] and junctions of a SUMO net (internal lanes left out)."""
+    from defusedxml.ElementTree import iterparse
+
+    from coster_sumo.formats.sumocfg import open_maybe_gzip
+
+    lanes, km, junctions, internal = 0, 0.0, 0, False
+    with open_maybe_gzip(path) as fh:
+        for event, el in iterparse(fh, events=("start", "end")):
+            tag = el.tag
+            if event == "start":
+                if tag == "edge":
+                    internal = el.get("function") == "internal"
+                continue
+            if tag == "lane" and not internal:
+                lanes += 1
+                km += float(el.get("length", 0.0)) / 1000.0
+            elif tag == "junction" and el.get("type") != "internal":
+                junctions += 1
+            if tag in ("edge", "junction", "connection", "tlLogic"):
+                el.clear()
+    return {"lanes": lanes, "lane_km": round(km, 1), "junctions": junctions}
+
+
 def _lane_km(net: Path) -> float:
     """[km] of lanes of a net (cached beside authored nets; 0 when the net is not there)."""
-    from coster_sumo.batch.card import net_size
 
     if not net.exists():
         return 0.0
@@ -311,8 +334,4 @@ def build_corpus(cfg: CorpusConfig) -> dict[str, Any]:
                "total_clips": manifest["counts"]["scenes"], "simulated_hours": manifest["simulated_hours"],
                "wall_s": round(time.perf_counter() - t_wall, 2)}
     write_json(cfg.dataset / "summary.json", summary)
-    if cfg.card:
-        from coster_sumo.batch.card import write_card
-
-        write_card(cfg.dataset)
     return summary

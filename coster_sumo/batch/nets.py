@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,32 @@ NO_BIKES = 'disallow="pedestrian bicycle"'
 
 _SPEEDS_MPS = (8.33, 11.11, 13.89, 16.67, 22.22)  # 30 / 40 / 50 / 60 / 80 km/h
 _JUNCTIONS = ("traffic_light", "priority", "right_before_left", "allway_stop")
+
+
+
+@dataclass(frozen=True)
+class Source:
+    """Something to simulate.
+
+    Attributes:
+        name: unique short name (file stem), used in run and scene names.
+        path: the ``.sumocfg``, or the ``.net.xml``.
+        is_config: a ``.sumocfg`` (else a net).
+        has_demand: the configuration names route files, or ``routes`` are given (else random trips).
+        end_s: [s] the configuration's own end time, if it sets one.
+        begin_s: [s] the configuration's own begin time (0 when it sets none).
+        routes: route files for a net run with its own demand (``is_config`` False).
+        additional: additional files for such a net (vTypes, traffic light programs).
+    """
+
+    name: str
+    path: Path
+    is_config: bool
+    has_demand: bool
+    end_s: float | None = None
+    begin_s: float = 0.0
+    routes: tuple[Path, ...] = ()
+    additional: tuple[Path, ...] = ()
 
 
 def netgenerate_options(k: int, seed: int, speeds: tuple[float, ...] = _SPEEDS_MPS) -> tuple[str, list[str]]:
@@ -97,7 +124,6 @@ def generate_nets(dataset: Path, count: int, seed: int) -> tuple[list[Any], list
     Returns the sources (:class:`coster_sumo.batch.simulate.Source`), their manifest records, and
     one-line errors for nets that failed.
     """
-    from coster_sumo.batch.simulate import Source
 
     sources, records, errors = [], [], []
     for k in range(count):

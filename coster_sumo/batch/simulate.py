@@ -34,7 +34,7 @@ import numpy as np
 from coster_sumo import dataset as ds
 from coster_sumo.atomic import atomic_path, write_json, write_text
 from coster_sumo.batch.executor import Outcome, Task, execute
-from coster_sumo.batch.nets import generate_nets, run_tool
+from coster_sumo.batch.nets import Source, generate_nets, run_tool
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
 
@@ -58,31 +58,6 @@ DEFAULT_VTYPES = """<additional>
     <vTypeDistribution id="mix" vTypes="car van truck moto" probabilities="0.78 0.1 0.07 0.05"/>
 </additional>
 """
-
-
-@dataclass(frozen=True)
-class Source:
-    """Something to simulate.
-
-    Attributes:
-        name: unique short name (file stem), used in run and scene names.
-        path: the ``.sumocfg``, or the ``.net.xml``.
-        is_config: a ``.sumocfg`` (else a net).
-        has_demand: the configuration names route files, or ``routes`` are given (else random trips).
-        end_s: [s] the configuration's own end time, if it sets one.
-        begin_s: [s] the configuration's own begin time (0 when it sets none).
-        routes: route files for a net run with its own demand (``is_config`` False).
-        additional: additional files for such a net (vTypes, traffic light programs).
-    """
-
-    name: str
-    path: Path
-    is_config: bool
-    has_demand: bool
-    end_s: float | None = None
-    begin_s: float = 0.0
-    routes: tuple[Path, ...] = ()
-    additional: tuple[Path, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,10 @@ def _build(args: argparse.Namespace) -> int:
                        networks=args.networks or None, timeout_s=args.timeout, card=not args.no_card, quiet=args.quiet,
                        debug=args.debug)
     summary = build_corpus(cfg)
+    if cfg.card:
+        from coster_sumo.batch.card import write_card
+
+        write_card(cfg.dataset)
     if not args.quiet:
         print(f"{summary['runs_done_now'] - summary['runs_failed_now']} runs done, {summary['runs_failed_now']} "
               f"failed, {summary['clips_now']} clips written in {summary['wall_s']:.0f} s; corpus {cfg.dataset}: "
