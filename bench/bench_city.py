@@ -71,7 +71,9 @@ def pick_target(cfg: Path) -> str:
 
 def timed(cmd: list[str]) -> float:
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{cmd[0]} ... {cmd[-1]} failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
     return time.perf_counter() - t0
 
 
