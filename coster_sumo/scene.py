@@ -65,6 +65,38 @@ def _check(cond: bool, what: str) -> None:
         raise InputError(f"invalid scene: {what}")
 
 
+def _shown(value: object, limit: int = 60) -> str:
+    """An id as one printable line (ids come from input files)."""
+    text = str(value)
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[:limit])
+    return out + ("..." if len(text) > limit else "")
+
+
+def _check_ids(ids: np.ndarray, what: str) -> None:
+    """Ids must be non-empty and unique; the message names the first offender."""
+    values = [str(v) for v in ids.tolist()]
+    for i, v in enumerate(values):
+        _check(v != "", f"{what} at index {i} has an empty id")
+    if len(set(values)) != len(values):
+        seen: set[str] = set()
+        for v in values:
+            _check(v not in seen, f"{what} {_shown(v)} appears twice (ids must be unique)")
+            seen.add(v)
+
+
+def _check_points(points: np.ndarray, offsets: np.ndarray, what: str, names: Sequence[str] | None = None) -> None:
+    """Every point finite; the message names the item (by id where given) and the point."""
+    if len(points) == 0:
+        return
+    bad = ~np.isfinite(np.asarray(points, np.float64).reshape(len(points), -1)).all(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        item = int(np.searchsorted(offsets, row, side="right") - 1)
+        name = _shown(names[item]) if names is not None else str(item)
+        _check(False, f"{what} {name}: point {row - int(offsets[item])} "
+                      f"{tuple(float(v) for v in np.ravel(points[row]))} is not finite")
+
+
 @dataclass(frozen=True, slots=True)
 class Ragged:
     """A list of variable-length arrays stored flat.
@@ -187,7 +219,7 @@ class Tracks:
     def validate(self) -> None:
         n = len(self.ids)
         _check(self.ids.ndim == 1, "tracks.ids must be 1-D")
-        _check(len(set(self.ids.tolist())) == n, "tracks.ids must be unique")
+        _check_ids(self.ids, "track")
         _check(self.object_type.shape == (n,), "tracks.object_type must be (num_agents,)")
         shape = self.x.shape
         _check(len(shape) == 2 and shape[0] == n, "tracks.x must be (num_agents, num_steps)")
@@ -195,8 +227,11 @@ class Tracks:
             _check(getattr(self, f).shape == shape, f"tracks.{f} must have shape {shape}")
         _check(self.valid.dtype == np.bool_, "tracks.valid must be bool")
         for f in ("x", "y", "heading", "vx", "vy", "length", "width"):
-            vals = getattr(self, f)[self.valid]
-            _check(bool(np.all(np.isfinite(vals))), f"tracks.{f} has non-finite valid entries")
+            arr = getattr(self, f)
+            bad = self.valid & ~np.isfinite(arr)
+            if bad.any():  # invalid states may hold anything; valid ones must be numbers
+                a, t = (int(v) for v in np.argwhere(bad)[0])
+                _check(False, f"track {_shown(self.ids[a])} step {t}: {f} is {arr[a, t]} in a valid state")
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,8 +271,13 @@ class Lanes:
 
     def validate(self) -> None:
         n = len(self.ids)
+        _check_ids(self.ids, "lane")
         self.centerline.validate("lanes.centerline")
         _check(len(self.centerline) == n, "lanes.centerline must have one polyline per lane")
+        lengths = self.centerline.lengths()
+        if np.any(lengths == 0):
+            _check(False, f"lane {_shown(self.ids[int(np.flatnonzero(lengths == 0)[0])])}: no centreline points")
+        _check_points(self.centerline.values, self.centerline.offsets, "lane", [str(v) for v in self.ids])
         for f in ("width", "lane_type", "speed_limit", "is_junction"):
             _check(getattr(self, f).shape == (n,), f"lanes.{f} must be (num_lanes,)")
         for f in ("predecessors", "successors", "left_neighbors", "right_neighbors"):
@@ -269,6 +309,7 @@ class Polylines:
     def validate(self, name: str) -> None:
         self.points.validate(name)
         _check(len(self.points) == len(self.kind), f"{name}: one kind per item")
+        _check_points(self.points.values, self.points.offsets, f"{name} item")
 
 
 @dataclass(frozen=True, slots=True)
@@ -302,6 +343,7 @@ class RoadMap:
         _check(self.stop_sign_xy.ndim == 2 and self.stop_sign_xy.shape[1] == 2,
                "stop_sign_xy must be (num_stop_signs, 2)")
         _check(len(self.stop_sign_lanes) == len(self.stop_sign_xy), "one lane list per stop sign")
+        _check_points(self.stop_sign_xy, np.arange(len(self.stop_sign_xy) + 1), "stop sign")
 
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of all lane points [m]."""
@@ -337,6 +379,7 @@ class SignalStates:
         _check(self.stop_point.shape == (k, 2), "signals.stop_point must be (num_controlled, 2)")
         _check(bool(np.all((self.lane_index >= 0) & (self.lane_index < num_lanes))),
                "signals.lane_index out of range")
+        _check_points(self.stop_point, np.arange(k + 1), "signal stop point of controlled lane")
 
     def per_lane(self, num_lanes: int) -> np.ndarray:
         """(num_steps, num_lanes) int8 state of every lane (UNKNOWN where uncontrolled)."""
@@ -387,9 +430,14 @@ class Scene:
         self.tracks.validate()
         self.road_map.validate()
         _check(self.timestamps.ndim == 1, "timestamps must be 1-D")
+        if not np.all(np.isfinite(self.timestamps)):
+            k = int(np.flatnonzero(~np.isfinite(self.timestamps))[0])
+            _check(False, f"timestamp of step {k} is {self.timestamps[k]}")
         _check(self.tracks.num_steps == len(self.timestamps),
                f"tracks have {self.tracks.num_steps} steps but there are {len(self.timestamps)} timestamps")
-        _check(bool(np.all(np.diff(self.timestamps) > 0)), "timestamps must increase")
+        steps = np.flatnonzero(np.diff(self.timestamps) <= 0)
+        _check(len(steps) == 0, "timestamps must increase"
+               + (f" (step {int(steps[0]) + 1} is not after step {int(steps[0])})" if len(steps) else ""))
         self.signals.validate(len(self.timestamps), len(self.road_map.lanes))
         _check(-1 <= self.sdc_index < self.tracks.num_agents, "sdc_index out of range")
         _check(0 <= self.current_time_index < max(1, self.num_steps), "current_time_index out of range")
