@@ -103,24 +103,11 @@ class RunTask:
 # ----------------------------------------------------------------------------- sources
 
 def _config_info(cfg: Path) -> tuple[bool, float | None]:
-    """(names route files, end time) of a ``.sumocfg``."""
-    import xml.etree.ElementTree as ET
+    """(names route files, end time) of a ``.sumocfg`` (read by the one, defusedxml-based reader)."""
+    from coster_sumo.formats.sumocfg import read_sumocfg
 
-    try:
-        root = ET.parse(cfg).getroot()
-    except (ET.ParseError, OSError) as exc:
-        raise InputError(f"{cfg}: not a SUMO configuration ({exc})") from None
-    routes, end = False, None
-    for el in root.iter():
-        tag = el.tag.split("}")[-1]
-        if tag == "route-files" and el.get("value", "").strip():
-            routes = True
-        if tag == "end" and el.get("value"):
-            try:
-                end = float(el.get("value", ""))
-            except ValueError:
-                end = None
-    return routes, end
+    sc = read_sumocfg(cfg)
+    return sc.has_demand, sc.end
 
 
 def resolve_sources(paths: list[Path]) -> list[Source]:
