@@ -294,6 +294,8 @@ def _tracks(msg: Any, num_steps: int) -> Tracks:
     arr = np.zeros((len(fields), n, num_steps), np.float64)
     valid = np.zeros((n, num_steps), bool)
     for i, track in enumerate(msg.tracks):
+        if len(track.states) != num_steps:
+            raise InputError(f"track {track.id}: {len(track.states)} states for {num_steps} timestamps")
         rows = [(s.center_x, s.center_y, s.heading, s.velocity_x, s.velocity_y, s.length, s.width, s.valid)
                 for s in track.states[:num_steps]]
         if rows:
