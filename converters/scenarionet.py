@@ -27,8 +27,10 @@ shared: lane widths and junction flags are estimated the same way):
 
 from __future__ import annotations
 
+import _compat_pickle
 import collections
 import importlib
+import io
 import pickle
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -111,6 +113,12 @@ class RestrictedUnpickler(pickle.Unpickler):
     """``pickle.Unpickler`` that resolves only :data:`ALLOWED_GLOBALS` (no other code can run)."""
 
     def find_class(self, module: str, name: str) -> Any:
+        # protocol 2 pickles spell Python 2 names (__builtin__.set); map them as pickle itself does.
+        # The mapped name is then checked like any other.
+        if (module, name) in _compat_pickle.NAME_MAPPING:
+            module, name = _compat_pickle.NAME_MAPPING[(module, name)]
+        else:
+            module = _compat_pickle.IMPORT_MAPPING.get(module, module)
         try:
             return ALLOWED_GLOBALS[(module, name)]
         except KeyError:
@@ -130,8 +138,11 @@ def load_pickle(path: str | Path) -> Any:
     """The object in a pickle, loaded with :class:`RestrictedUnpickler`; one-line InputError otherwise."""
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            return RestrictedUnpickler(f).load()
+        data = path.read_bytes()  # from memory: a damaged length field cannot make a huge read buffer
+    except OSError as exc:
+        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
+    try:
+        return RestrictedUnpickler(io.BytesIO(data)).load()
     except OSError as exc:
         raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
     except RefusedGlobal as exc:

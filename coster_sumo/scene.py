@@ -439,7 +439,8 @@ class Scene:
         _check(len(steps) == 0, "timestamps must increase"
                + (f" (step {int(steps[0]) + 1} is not after step {int(steps[0])})" if len(steps) else ""))
         self.signals.validate(len(self.timestamps), len(self.road_map.lanes))
-        _check(-1 <= self.sdc_index < self.tracks.num_agents, "sdc_index out of range")
+        _check(-1 <= self.sdc_index < self.tracks.num_agents,
+               f"sdc_index {self.sdc_index} is not a track index (-1 or 0..{self.tracks.num_agents - 1})")
         _check(0 <= self.current_time_index < max(1, self.num_steps), "current_time_index out of range")
         return self
 
@@ -518,23 +519,37 @@ _SUBTYPES: dict[tuple[type, str], type] = {
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read a scene written by :func:`save_scene`."""
+    """Read a scene written by :func:`save_scene` (never unpickles; damaged files are one InputError)."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
         raise InputError(f"{path}: not a scene file ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - BadZipFile, ValueError (pickled data), zlib.error, EOFError, ...
+        raise InputError(f"{path}: not a scene file ({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     if "__header__" not in arrays:
         raise InputError(f"{path}: not a scene file (no header)")
-    header = json.loads(arrays.pop("__header__").tobytes().decode())
-    if header.get("version") != _FORMAT_VERSION:
-        raise InputError(f"{path}: scene format version {header.get('version')} is not supported")
-    parts = {name: _build(_SUBTYPES[(Scene, name)], name + "/", arrays)
-             for name in ("tracks", "road_map", "signals")}
-    return Scene(scenario_id=header["scenario_id"], timestamps=arrays["timestamps"],
-                 sdc_index=int(header["sdc_index"]), current_time_index=int(header["current_time_index"]),
-                 source=header["source"], meta=header.get("meta", {}), **parts)  # type: ignore[arg-type]
+    try:
+        header = json.loads(arrays.pop("__header__").tobytes().decode())
+        if not isinstance(header, dict):
+            raise ValueError("the header is not a JSON object")
+        if header.get("version") != _FORMAT_VERSION:
+            raise InputError(f"{path}: scene format version {header.get('version')} is not supported")
+        parts = {name: _build(_SUBTYPES[(Scene, name)], name + "/", arrays)
+                 for name in ("tracks", "road_map", "signals")}
+        scene = Scene(scenario_id=str(header["scenario_id"]), timestamps=arrays["timestamps"],
+                      sdc_index=int(header["sdc_index"]), current_time_index=int(header["current_time_index"]),
+                      source=str(header["source"]), meta=dict(header.get("meta", {})),
+                      **parts)  # type: ignore[arg-type]
+        return scene.validate()
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if msg.startswith(f"{path}:") else f"{path}: {msg}") from None
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, UnicodeDecodeError) as exc:
+        what = f"missing {exc.args[0]!r}" if isinstance(exc, KeyError) and exc.args else \
+            f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+        raise InputError(f"{path}: damaged scene file ({what})") from None
 
 
 # ----------------------------------------------------------------------------- collision snapshot

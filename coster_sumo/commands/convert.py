@@ -6,7 +6,7 @@ id when it is a safe folder name and a sanitised one otherwise
 (:func:`coster_sumo.formats.scene_folder.folder_name`; a name already used in this run gets ``-2``,
 ``-3``, ...). A bad input or record prints one line naming the file and record and the rest go on.
 ``OUTDIR/summary.json`` lists every scene with its fidelity figures and folder name, every failure,
-and ``renamed``: scenario id -> folder name wherever they differ. Exit code 0: all converted; 1: some
+and ``renamed``: folder name -> scenario id wherever they differ. Exit code 0: all converted; 1: some
 failed; 2: usage error or nothing could be read (then nothing is written: OUTDIR is not created,
 or left as it was).
 """
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
             name = f"{base}-{k}"
         used.add(name)
         if name != sid:
-            renamed[sid] = name
+            renamed[name] = sid
         return name
 
     for path in args.inputs:
