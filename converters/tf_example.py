@@ -3,8 +3,9 @@
 WOMD is published twice: as ``Scenario`` protobufs (what :mod:`converters.womd` reads) and as
 "tf_example" TFRecords, where each record is a ``tf.train.Example`` of fixed-size tensors named
 ``roadgraph_samples/*``, ``state/*``, ``traffic_light_state/*`` and ``scenario/id`` (docs/womd.md,
-"Other encodings"). A tf.Example happens to parse as a (garbage) ``Scenario`` more often than not,
-so every record is sniffed first: the wire layout is
+"Other encodings of WOMD"). A tf.Example can even parse as a (garbage) ``Scenario``: its field 1
+reads as packed timestamps whenever its length is a multiple of 8. So every record is sniffed
+first; the wire layout is
 
     Example  { Features features = 1; }
     Features { map<string, Feature> feature = 1; }   // entries: key = 1 (string), value = 2 (Feature)
