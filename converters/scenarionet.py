@@ -32,6 +32,7 @@ import collections
 import importlib
 import io
 import pickle
+import pickletools
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -73,6 +74,28 @@ def _latin1_encode(text: Any, encoding: str = "utf-8", errors: str = "strict") -
     return text.encode("latin-1", errors if errors == "strict" else "strict")
 
 
+class _NdarrayName:
+    """What the name ``numpy.ndarray`` resolves to: only numpy's rebuild helper may use it.
+
+    A pickle could otherwise call ``ndarray((10**10,))`` directly and reserve any amount of memory.
+    """
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
+        raise pickle.UnpicklingError("numpy.ndarray called directly")
+
+
+def _safe_builtin(t: type) -> Any:
+    """``t`` for the unpickler: its constructor, refusing the calls that could exhaust memory or
+    look up a codec (``bytes(10**10)``, ``str(b, encoding)``)."""
+    def build(*args: Any) -> Any:
+        if t in (bytes, str) and (len(args) > 1 or any(isinstance(a, int) for a in args)):
+            raise pickle.UnpicklingError(f"{t.__name__} called with {len(args)} arguments")
+        return t(*args)
+
+    build.__name__ = build.__qualname__ = t.__name__
+    return build
+
+
 def _allowed_globals() -> dict[tuple[str, str], Any]:
     """(module, name) -> the object handed to the unpickler. Nothing else resolves."""
     multiarray = ("numpy._core.multiarray", "numpy.core.multiarray")
@@ -83,18 +106,18 @@ def _allowed_globals() -> dict[tuple[str, str], Any]:
 
     def safe_reconstruct(subtype: Any, shape: Any, dtype: Any) -> Any:
         # numpy pickles an array as _reconstruct(ndarray, (0,), b"b") followed by its state
-        if subtype is not np.ndarray or int(np.prod(np.asarray(shape, np.int64))) > MAX_RECONSTRUCT_ITEMS:
+        if subtype is not _NdarrayName or int(np.prod(np.asarray(shape, np.int64))) > MAX_RECONSTRUCT_ITEMS:
             raise pickle.UnpicklingError("numpy _reconstruct with unexpected arguments")
         assert reconstruct is not None
-        return reconstruct(subtype, shape, dtype)
+        return reconstruct(np.ndarray, shape, dtype)
 
     out: dict[tuple[str, str], Any] = {
-        ("builtins", t.__name__): t
+        ("builtins", t.__name__): _safe_builtin(t)
         for t in (bool, int, float, complex, str, bytes, list, tuple, dict, set, frozenset)}
     out[("collections", "OrderedDict")] = collections.OrderedDict
     out[("collections", "defaultdict")] = collections.defaultdict
     out[("_codecs", "encode")] = _latin1_encode
-    out[("numpy", "ndarray")] = np.ndarray
+    out[("numpy", "ndarray")] = _NdarrayName
     out[("numpy", "dtype")] = np.dtype
     for mod in (*multiarray, *numeric):
         if reconstruct is not None and mod in multiarray:
@@ -134,6 +157,18 @@ def _printable(text: str, limit: int = 80) -> str:
     return out + ("..." if len(text) > limit else "")
 
 
+_MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
+
+
+def check_opcodes(data: bytes) -> None:
+    """Walk the opcode stream once before loading: a malformed stream, or a memo index beyond the
+    opcodes read so far (the C unpickler sizes its memo table to the largest index: a 5-byte
+    ``LONG_BINPUT 0x7fffffff`` would make it allocate 16 GB), is an UnpicklingError."""
+    for count, (op, arg, _) in enumerate(pickletools.genops(data)):
+        if op.name in _MEMO_PUTS and int(str(arg)) > count:
+            raise pickle.UnpicklingError(f"memo index {arg} at opcode {count}")
+
+
 def load_pickle(path: str | Path) -> Any:
     """The object in a pickle, loaded with :class:`RestrictedUnpickler`; one-line InputError otherwise."""
     path = Path(path)
@@ -142,6 +177,7 @@ def load_pickle(path: str | Path) -> Any:
     except OSError as exc:
         raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
     try:
+        check_opcodes(data)
         return RestrictedUnpickler(io.BytesIO(data)).load()
     except OSError as exc:
         raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None

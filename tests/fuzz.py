@@ -14,7 +14,8 @@ bit flips) may convert but only into a safe place. Inputs are made from the real
   out-of-range indices, truncated payloads, random payloads, WOMD tf.Example records), and file-level
   damage (truncation, bad CRCs, absurd length headers, random bytes, broken gzip);
 - ``pickle``: ScenarioNet pickles with missing keys, wrong types, truncated arrays, NaN/Inf,
-  truncated or bit-flipped streams;
+  truncated or bit-flipped streams, memory bombs through allowed names (a huge memo index,
+  ``bytes(10**10)``, ``numpy.ndarray((10**10,))``, ``str(b, codec)``);
 - ``crafted``: pickles whose globals would run code (``os.system``, ``exec``, ``open``,
   ``__import__``, ...) trying to create a sentinel file, alone or hidden inside a real scenario;
 - ``hostile_id``: scenes whose scenario id is empty, a path, ``..``, or holds control characters;
@@ -25,7 +26,8 @@ Scene inputs go to ``coster-sumo convert`` in batches (one good input among them
 ``coster-sumo replay`` through a small driver process that calls the CLI's ``main`` once per input.
 Checked for every input: exit code, no traceback, exactly one error line naming the file (refused
 inputs), no output folder for it, no temporary leftovers, the sentinel never created, no file
-outside the output folder, and the good input of the batch converted.
+outside the output folder, the good input of the batch converted, and no CLI process above
+:data:`MEMORY_LIMIT_MB` of resident memory.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ REPO = Path(__file__).resolve().parents[1]
 WOMD_DIR = REPO.parent / "shared" / "data" / "womd"
 DEMO_NET = REPO / "networks" / "intersection"
 SENTINEL = "PWNED"  # crafted pickles try to create this file in the batch folder
+MEMORY_LIMIT_MB = 1500  # [MB] peak resident memory allowed to one CLI process on these small inputs
 
 # share of each input kind in a run
 KIND_WEIGHTS = {"tfrecord": 0.36, "pickle": 0.30, "crafted": 0.14, "hostile_id": 0.05, "sumo_xml": 0.15}
@@ -301,8 +304,22 @@ def pickle_mutation(rng: random.Random, base: dict) -> tuple[str, bytes, str]:
     name = rng.choice(["missing_top", "missing_state", "missing_polyline", "truncated_array", "ts_length",
                        "state_nonfinite", "lane_nonfinite", "line_nonfinite", "wrong_type", "tracks_list",
                        "length_absurd", "dup_track", "signal_length", "stream_cut", "not_a_dict", "no_lanes",
-                       "bitflip", "protocol0", "empty_lane"])
+                       "bitflip", "protocol0", "empty_lane", "memo_bomb", "bytes_bomb", "ndarray_bomb",
+                       "str_codec"])
     expect = "refused"
+    if name == "memo_bomb":  # LONG_BINPUT with a huge index: the C unpickler would size its memo to it
+        import pickletools
+
+        data = pickle.dumps(sd, protocol=2)
+        k = rng.choice([pos for _, _, pos in pickletools.genops(data)][1:-1])  # an opcode boundary
+        return name, data[:k] + b"N" + b"r" + struct.pack("<I", rng.choice([2**31 - 1, 2**28, 2**32 - 1])) + \
+            b"0" + data[k:], expect
+    if name in ("bytes_bomb", "ndarray_bomb", "str_codec"):  # allowed names, called to exhaust memory
+        call = {"bytes_bomb": _Call("builtins", "bytes", (rng.choice([10**10, 2**40]),)),
+                "ndarray_bomb": _Call("numpy", "ndarray", ((rng.choice([10**10, 2**36]),),)),
+                "str_codec": _Call("builtins", "str", (b"x", rng.choice(["rot13", "idna", "utf-7"])))}[name]
+        sd["metadata"]["dataset"] = call
+        return name, pickle.dumps(sd, protocol=rng.choice([2, 3, 4])), expect
     if name == "missing_top":
         del sd[rng.choice(["tracks", "map_features"])]
     elif name == "missing_state":
@@ -726,13 +743,18 @@ def fuzz(count: int, seed: int, workdir: Path, batch_size: int = 40, solo_every:
             for o in res:
                 if o.input.kind == "crafted":
                     o.problems.append("sentinel file created")
+        peak = _peak_mb("children")
+        if peak > MEMORY_LIMIT_MB:  # the largest child so far: once over, every later batch fails too
+            for o in res:
+                o.problems.append(f"memory: a CLI process peaked at {peak} MB")
         for k, o in enumerate(res):
             if o.input.expect == "refused" and (b * batch_size + k) % solo_every == 0:
                 o.problems += run_solo(o.input, bdir)
         outcomes += res
         if log:
             bad = sum(bool(o.problems) for o in res)
-            log(f"batch {b + 1}/{n_batches}: {len(res)} scene inputs, {bad} bad, {time.perf_counter() - t0:.0f} s")
+            log(f"batch {b + 1}/{n_batches}: {len(res)} scene inputs, {bad} bad, {time.perf_counter() - t0:.0f} s, "
+                f"peak RSS: children {_peak_mb('children')} MB, harness {_peak_mb('self')} MB")
         escaped = sorted(p.name for p in workdir.iterdir() if p.name not in ("good", "xml")
                          and not p.name.startswith("batch"))
         if escaped:
@@ -756,6 +778,14 @@ def fuzz(count: int, seed: int, workdir: Path, batch_size: int = 40, solo_every:
     return outcomes
 
 
+def _peak_mb(who: str) -> int:
+    """Peak resident memory [MB] of the largest finished child process so far, or of this process."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN if who == "children" else resource.RUSAGE_SELF)
+    return int(usage.ru_maxrss / 1024)
+
+
 def report(outcomes: list[Outcome]) -> dict[str, dict[str, int]]:
     """Per input kind: inputs, refused/converted, and every kind of problem counted."""
     table: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
@@ -766,7 +796,8 @@ def report(outcomes: list[Outcome]) -> dict[str, dict[str, int]]:
         row["expected_safe_conversion" if o.input.expect == "safe" else
             "may_convert" if o.input.expect == "any" else "must_refuse"] += 1
         for p in o.problems:
-            key = ("traceback" if "traceback" in p or "crash" in p else
+            key = ("memory" if p.startswith("memory") else
+                   "traceback" if "traceback" in p or "crash" in p else
                    "created_file" if "sentinel" in p or "outside OUT" in p else
                    "partial_output" if "output" in p or "folder" in p else
                    "exit_code" if "exit" in p else "error_lines" if "line" in p else "other")

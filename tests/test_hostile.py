@@ -117,6 +117,26 @@ def test_plain_containers_and_numpy_values_load(protocol):
     assert got["arr"].dtype == np.float32 and got["scalar"] == 1.5
 
 
+@pytest.mark.parametrize("payload, expected", [
+    (_Call(bytes, 10**10), "bytes called with"),
+    (_Call(np.ndarray, (10**10,)), "numpy.ndarray called directly"),
+    (_Call(str, b"x", "rot13"), "str called with"),
+])
+def test_allowed_names_cannot_exhaust_memory_or_load_codecs(tmp_path, payload, expected):
+    path = tmp_path / "bomb.pkl"
+    path.write_bytes(crafted_scenario(payload))
+    with pytest.raises(InputError, match=expected):
+        load_pickle(path)
+
+
+def test_memo_index_bomb_is_refused_before_loading(tmp_path):
+    # NONE, LONG_BINPUT 2**31 - 1, STOP: the C unpickler would size its memo table to 16 GB
+    path = tmp_path / "memo.pkl"
+    path.write_bytes(b"\x80\x02N" + b"r" + struct.pack("<I", 2**31 - 1) + b".")
+    with pytest.raises(InputError, match="memo index 2147483647"):
+        load_pickle(path)
+
+
 def test_allow_list_holds_no_callable_that_runs_code():
     names = {f"{m}.{n}" for m, n in ALLOWED_GLOBALS}
     for bad in ("builtins.eval", "builtins.exec", "builtins.getattr", "builtins.open", "builtins.__import__",
