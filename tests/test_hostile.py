@@ -323,17 +323,19 @@ def test_real_ids_are_kept():
 def test_hostile_ids_convert_into_out_with_the_mapping_recorded(tmp_path):
     sd = _description(synthetic.two_lane_road())
     inputs = []
-    for k, sid in enumerate(["", "../escaped", str(tmp_path / "abs")]):
+    for k, sid in enumerate(["", "../escaped", str(tmp_path / "abs"), "A" * 300, "A" * 300]):
         sd["id"] = sd["metadata"]["scenario_id"] = sid
         inputs.append(str(_pickle_file(tmp_path, sd, f"id{k}.pkl")))
     out = tmp_path / "OUT"
     assert main(["-q", "convert", "-o", str(out), *inputs]) == 0
     summary = json.loads((out / "summary.json").read_text())
     folders = [Path(s["folder"]) for s in summary["scenes"]]
-    assert len(folders) == 3 and all(f.parent == out and f.is_dir() for f in folders)
-    assert sorted(summary["renamed"].values()) == sorted(["", "../escaped", str(tmp_path / "abs")])
+    assert len(folders) == 5 and all(f.parent == out and f.is_dir() for f in folders)
+    assert len({f.name for f in folders}) == 5 and all(len(f.name) <= 100 for f in folders)
+    assert sorted(summary["renamed"].values()) == sorted(["", "../escaped", str(tmp_path / "abs"), "A" * 300,
+                                                          "A" * 300])
     assert not (tmp_path / "escaped").exists() and not (tmp_path / "abs").exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["OUT", "id0.pkl", "id1.pkl", "id2.pkl"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["OUT", *(f"id{k}.pkl" for k in range(5))])
 
 
 def test_error_lines_are_one_line():

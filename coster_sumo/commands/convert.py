@@ -54,9 +54,9 @@ def run(args: argparse.Namespace) -> int:
 
     debug = bool(getattr(args, "debug", False))
     quiet = bool(getattr(args, "quiet", False))
-    out: Path = args.out
-    from coster_sumo.formats.scene_folder import folder_name
+    from coster_sumo.formats.scene_folder import MAX_FOLDER_NAME, folder_name
 
+    out: Path = args.out
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
     created = not out.exists()
@@ -79,13 +79,17 @@ def run(args: argparse.Namespace) -> int:
     def name_for(sid: str) -> str:
         base = folder_name(sid)
         name, k = base, 1
-        while name in used:
+        while name in used:  # a name taken earlier in this run: -2, -3, ... (still a safe name)
             k += 1
-            name = f"{base}-{k}"
+            name = f"{base[:MAX_FOLDER_NAME - len(str(k)) - 1]}-{k}"
         used.add(name)
         if name != sid:
             renamed[name] = sid
         return name
+
+    def release(name: str) -> None:  # the scene failed: its name is free again
+        used.discard(name)
+        renamed.pop(name, None)
 
     for path in args.inputs:
         record = 0
@@ -95,17 +99,20 @@ def run(args: argparse.Namespace) -> int:
                 sid = str(scene.scenario_id)
                 where = f"{path}: record {record} ({one_line(sid[:60])}{'...' if len(sid) > 60 else ''})"
                 record += 1
+                name = name_for(sid)
                 try:
                     out.mkdir(parents=True, exist_ok=True)
-                    result = convert_scene(scene, out, name=name_for(scene.scenario_id))
+                    result = convert_scene(scene, out, name=name)
                 except CosterError as exc:
                     if debug:
                         raise
+                    release(name)
                     fail(where, str(exc), path)
                     continue
                 except Exception as exc:  # one bad scene must not stop the batch
                     if debug:
                         raise
+                    release(name)
                     fail(where, f"{type(exc).__name__}: {' '.join(str(exc).split())}", path)
                     continue
                 scenes.append({"input": str(path), "record": record - 1, "folder": str(result.folder),
