@@ -618,7 +618,7 @@ def run_convert_batch(batch: list[FuzzInput], good: Path, workdir: Path, timeout
                 problems.append(f"hostile id not converted: {mine[:1]}")
             else:
                 folder = Path(s["folder"])
-                if folder.parent != out or not folder.name.startswith(folder_name(inp.scenario_id or "")):
+                if folder.parent != out or folder_name(folder.name) != folder.name:  # a safe name, in OUT
                     problems.append(f"unsafe folder {folder}")
                 if folder.name != inp.scenario_id and summary.get("renamed", {}).get(folder.name) != inp.scenario_id:
                     problems.append("renaming not recorded in summary.json")
