@@ -1,9 +1,11 @@
 """One entry point for scene files, dispatching on content (not on the file name).
 
-- ScenarioNet / MetaDrive pickle (starts with the pickle PROTO opcode ``0x80``; trusted files only);
+- ScenarioNet / MetaDrive pickle (starts with the pickle PROTO opcode ``0x80``; loaded with the
+  restricted unpickler of :mod:`converters.scenarionet`, so no file can make it run code);
 - gzip-compressed TFRecord of WOMD ``Scenario`` records (gzip magic ``1f 8b``);
 - this project's own ``.npz`` scenes (zip magic ``PK``, see :func:`coster_sumo.scene.save_scene`);
-- anything else is read as a plain TFRecord of WOMD ``Scenario`` records.
+- anything else is read as a plain TFRecord of WOMD ``Scenario`` records (a record that is a
+  TensorFlow ``tf.Example``, e.g. WOMD's "tf_example" release, is named and refused).
 
 Errors are :class:`~coster_sumo.errors.InputError` with one line naming the file and, for
 TFRecords, the record: ``womd.tfrecord: record 3: data CRC mismatch``.

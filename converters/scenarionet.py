@@ -1,7 +1,12 @@
 """ScenarioNet / MetaDrive "scenario description" pickles -> :class:`~coster_sumo.scene.Scene`.
 
-**Security: pickles can run arbitrary code when loaded. Read only files you trust** (e.g. the ones
-you converted yourself with ScenarioNet); this module calls ``pickle.load`` on them.
+**Security**: a pickle names the Python callables that rebuild its objects, so a plain
+``pickle.load`` runs whatever a crafted file asks for. This module never does: it loads through
+:class:`RestrictedUnpickler`, which resolves only the globals a scenario description is made of
+(builtin containers and scalars, ``collections.defaultdict`` / ``OrderedDict``, numpy arrays, dtypes
+and scalars with numpy's own rebuild helpers). Any other global ends the read with one line naming
+the file and the refused global (docs/womd.md, "Hostile inputs"). Everything read is then checked
+(:func:`description_to_scene`): a damaged file is refused with one line naming the element.
 
 The pickle is a plain dict of numpy arrays: ``id, version, length, tracks, dynamic_map_states,
 map_features, metadata``. Mapping (the same rules as :mod:`converters.womd`, whose lane builder is
@@ -22,8 +27,13 @@ shared: lane widths and junction flags are estimated the same way):
 
 from __future__ import annotations
 
+import _compat_pickle
+import collections
+import importlib
+import io
 import pickle
-from collections.abc import Iterator
+import pickletools
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +42,156 @@ import numpy as np
 from coster_sumo.errors import InputError
 from coster_sumo.scene import LaneType, ObjectType, Ragged, RoadMap, Scene, SignalState, SignalStates, Tracks
 
-from .womd import FEATURE_TYPES, RawLane, build_lanes, polylines
+from .womd import FEATURE_TYPES, RawLane, build_lanes, check_raw_map, polylines
 
 PICKLE_MAGIC = b"\x80"  # pickle protocol >= 2 starts with the PROTO opcode
+MAX_RECONSTRUCT_ITEMS = 1 << 20  # numpy's rebuild helper starts from an empty array; allow small ones
+
+
+# ----------------------------------------------------------------------------- restricted unpickling
+
+class RefusedGlobal(pickle.UnpicklingError):
+    """A pickle asked for a global outside :data:`ALLOWED_GLOBALS`."""
+
+    def __init__(self, module: str, name: str) -> None:
+        super().__init__(f"{module}.{name}")
+        self.module, self.name = module, name
+
+
+def _numpy_attr(modules: tuple[str, ...], name: str) -> Callable[..., Any] | None:
+    for mod in modules:
+        try:
+            return getattr(importlib.import_module(mod), name)  # type: ignore[no-any-return]
+        except (ImportError, AttributeError):
+            continue
+    return None
+
+
+def _latin1_encode(text: Any, encoding: str = "utf-8", errors: str = "strict") -> bytes:
+    """What protocol-2 pickles use to rebuild ``bytes``; only the latin-1 spelling is accepted."""
+    if not isinstance(text, str) or encoding.replace("_", "-").lower() not in ("latin1", "latin-1"):
+        raise pickle.UnpicklingError(f"_codecs.encode with encoding {encoding!r}")
+    return text.encode("latin-1", errors if errors == "strict" else "strict")
+
+
+class _NdarrayName:
+    """What the name ``numpy.ndarray`` resolves to: only numpy's rebuild helper may use it.
+
+    A pickle could otherwise call ``ndarray((10**10,))`` directly and reserve any amount of memory.
+    """
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
+        raise pickle.UnpicklingError("numpy.ndarray called directly")
+
+
+def _safe_builtin(t: type) -> Any:
+    """``t`` for the unpickler: its constructor, refusing the calls that could exhaust memory or
+    look up a codec (``bytes(10**10)``, ``str(b, encoding)``)."""
+    def build(*args: Any) -> Any:
+        if t in (bytes, str) and (len(args) > 1 or any(isinstance(a, int) for a in args)):
+            raise pickle.UnpicklingError(f"{t.__name__} called with {len(args)} arguments")
+        return t(*args)
+
+    build.__name__ = build.__qualname__ = t.__name__
+    return build
+
+
+def _allowed_globals() -> dict[tuple[str, str], Any]:
+    """(module, name) -> the object handed to the unpickler. Nothing else resolves."""
+    multiarray = ("numpy._core.multiarray", "numpy.core.multiarray")
+    numeric = ("numpy._core.numeric", "numpy.core.numeric")
+    reconstruct = _numpy_attr(multiarray, "_reconstruct")
+    scalar = _numpy_attr(multiarray, "scalar")
+    frombuffer = _numpy_attr(numeric, "_frombuffer")
+
+    def safe_reconstruct(subtype: Any, shape: Any, dtype: Any) -> Any:
+        # numpy pickles an array as _reconstruct(ndarray, (0,), b"b") followed by its state
+        if subtype is not _NdarrayName or int(np.prod(np.asarray(shape, np.int64))) > MAX_RECONSTRUCT_ITEMS:
+            raise pickle.UnpicklingError("numpy _reconstruct with unexpected arguments")
+        assert reconstruct is not None
+        return reconstruct(np.ndarray, shape, dtype)
+
+    out: dict[tuple[str, str], Any] = {
+        ("builtins", t.__name__): _safe_builtin(t)
+        for t in (bool, int, float, complex, str, bytes, list, tuple, dict, set, frozenset)}
+    out[("collections", "OrderedDict")] = collections.OrderedDict
+    out[("collections", "defaultdict")] = collections.defaultdict
+    out[("_codecs", "encode")] = _latin1_encode
+    out[("numpy", "ndarray")] = _NdarrayName
+    out[("numpy", "dtype")] = np.dtype
+    for mod in (*multiarray, *numeric):
+        if reconstruct is not None and mod in multiarray:
+            out[(mod, "_reconstruct")] = safe_reconstruct
+        if scalar is not None and mod in multiarray:
+            out[(mod, "scalar")] = scalar
+        if frombuffer is not None and mod in numeric:
+            out[(mod, "_frombuffer")] = frombuffer
+    return out
+
+
+ALLOWED_GLOBALS: dict[tuple[str, str], Any] = _allowed_globals()
+
+
+class RestrictedUnpickler(pickle.Unpickler):
+    """``pickle.Unpickler`` that resolves only :data:`ALLOWED_GLOBALS` (no other code can run)."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        # protocol 2 pickles spell Python 2 names (__builtin__.set); map them as pickle itself does.
+        # The mapped name is then checked like any other.
+        if (module, name) in _compat_pickle.NAME_MAPPING:
+            module, name = _compat_pickle.NAME_MAPPING[(module, name)]
+        else:
+            module = _compat_pickle.IMPORT_MAPPING.get(module, module)
+        try:
+            return ALLOWED_GLOBALS[(module, name)]
+        except KeyError:
+            raise RefusedGlobal(module, name) from None
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise pickle.UnpicklingError("persistent ids are not supported")
+
+
+def _printable(text: str, limit: int = 80) -> str:
+    """``text`` shortened, with control characters escaped (one line for any input)."""
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[:limit])
+    return out + ("..." if len(text) > limit else "")
+
+
+_MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
+
+
+def check_opcodes(data: bytes) -> None:
+    """Walk the opcode stream once before loading: a malformed stream, or a memo index beyond the
+    opcodes read so far (the C unpickler sizes its memo table to the largest index: a 5-byte
+    ``LONG_BINPUT 0x7fffffff`` would make it allocate 16 GB), is an UnpicklingError."""
+    for count, (op, arg, _) in enumerate(pickletools.genops(data)):
+        if op.name in _MEMO_PUTS and int(str(arg)) > count:
+            raise pickle.UnpicklingError(f"memo index {arg} at opcode {count}")
+
+
+def load_pickle(path: str | Path) -> Any:
+    """The object in a pickle, loaded with :class:`RestrictedUnpickler`; one-line InputError otherwise."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()  # from memory: a damaged length field cannot make a huge read buffer
+    except OSError as exc:
+        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
+    try:
+        check_opcodes(data)
+        return RestrictedUnpickler(io.BytesIO(data)).load()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
+    except RefusedGlobal as exc:
+        raise InputError(f"{path}: refused: the pickle asks for the global "
+                         f"{_printable(exc.module)}.{_printable(exc.name)}, which is not part of a ScenarioNet "
+                         "scenario (only containers, numbers, strings and numpy arrays are loaded)") from None
+    except RecursionError:
+        raise InputError(f"{path}: not a ScenarioNet pickle (nested too deeply)") from None
+    except MemoryError:
+        raise InputError(f"{path}: not a ScenarioNet pickle (asks for more memory than there is)") from None
+    except Exception as exc:  # UnpicklingError, EOFError, ValueError, ... of a damaged file
+        msg = _printable(" ".join(str(exc).split()), 160)
+        raise InputError(f"{path}: not a ScenarioNet pickle ({type(exc).__name__}: {msg})") from None
 
 _LANE_TYPES = {"LANE_SURFACE_STREET": LaneType.SURFACE_STREET, "LANE_FREEWAY": LaneType.FREEWAY,
                "LANE_BIKE_LANE": LaneType.BIKE_LANE, "LANE_UNKNOWN": LaneType.UNDEFINED}
@@ -78,26 +235,67 @@ def _signal_state(name: Any) -> int:
     return int(SignalState[key]) if key in SignalState.__members__ else int(SignalState.UNKNOWN)
 
 
-def _tracks(raw: dict, num_steps: int) -> Tracks:
+def _why(exc: BaseException) -> str:
+    """One line for an exception raised while reading a damaged element."""
+    if isinstance(exc, KeyError):
+        return f"missing key {_printable(repr(exc.args[0]) if exc.args else '?')}"
+    return f"{type(exc).__name__}: {_printable(' '.join(str(exc).split()), 160)}"
+
+
+_ELEMENT_ERRORS = (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError)
+
+
+def _track_arrays(tr: Any, num_steps: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(type, valid (T,), position (T, 2), velocity (T, 2), heading/length/width (3, T)) of one track."""
+    if not isinstance(tr, dict):
+        raise ValueError(f"a {type(tr).__name__}, not a dict")
+    ot = tr.get("type")
+    otype = int(ObjectType[ot]) if isinstance(ot, str) and ot in ObjectType.__members__ else int(ObjectType.OTHER)
+    st = tr["state"]
+    if not isinstance(st, dict):
+        raise ValueError(f"state is a {type(st).__name__}, not a dict")
+    valid = np.asarray(st["valid"])
+    if valid.dtype.kind not in "biuf":
+        raise ValueError(f"state.valid has dtype {valid.dtype}, not bool")
+    arrays = {"valid": valid.astype(bool)}
+    for name in ("position", "velocity", "heading", "length", "width"):
+        arrays[name] = np.asarray(st[name], np.float64)
+    lengths = {name: (len(a) if a.ndim else -1) for name, a in arrays.items()}
+    if any(n != num_steps for n in lengths.values()):
+        listed = ", ".join(f"{k} {'scalar' if v < 0 else v}" for k, v in lengths.items())
+        raise InputError(f"state arrays disagree with the {num_steps} steps of the scenario ({listed})")
+    for name, cols in (("valid", 0), ("heading", 0), ("length", 0), ("width", 0), ("position", 2),
+                       ("velocity", 2)):
+        a = arrays[name]
+        if cols == 0 and a.ndim != 1:
+            raise InputError(f"state.{name} has shape {a.shape}, expected ({num_steps},)")
+        if cols and (a.ndim != 2 or a.shape[1] < cols):
+            raise InputError(f"state.{name} has shape {a.shape}, expected ({num_steps}, 2 or 3)")
+    sizes = np.stack([arrays["heading"], arrays["length"], arrays["width"]])
+    return otype, arrays["valid"], arrays["position"][:, :2], arrays["velocity"][:, :2], sizes
+
+
+def _tracks(raw: Any, num_steps: int) -> Tracks:
+    if not isinstance(raw, dict):
+        raise InputError(f"tracks is a {type(raw).__name__}, not a dict of tracks")
     ids = [str(k) for k in raw]
     n = len(ids)
     shape = (n, num_steps)
     cols = {k: np.zeros(shape) for k in ("x", "y", "heading", "vx", "vy", "length", "width")}
     valid = np.zeros(shape, bool)
     types = np.zeros(n, np.int8)
-    for i, tr in enumerate(raw.values()):
-        types[i] = int(ObjectType[tr["type"]]) if tr.get("type") in ObjectType.__members__ \
-            else int(ObjectType.OTHER)
-        st = tr["state"]
-        v = np.asarray(st["valid"], bool).reshape(-1)[:num_steps]
-        k = len(v)
-        valid[i, :k] = v
-        pos = np.asarray(st["position"], np.float64).reshape(len(v), -1)
-        cols["x"][i, :k], cols["y"][i, :k] = pos[:k, 0], pos[:k, 1]
-        vel = np.asarray(st["velocity"], np.float64).reshape(len(v), -1)
-        cols["vx"][i, :k], cols["vy"][i, :k] = vel[:k, 0], vel[:k, 1]
-        for key, name in (("heading", "heading"), ("length", "length"), ("width", "width")):
-            cols[key][i, :k] = np.asarray(st[name], np.float64).reshape(-1)[:k]
+    for i, (key, tr) in enumerate(raw.items()):
+        where = f"track {_printable(str(key))}"
+        try:
+            otype, ok, pos, vel, sizes = _track_arrays(tr, num_steps)
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
+        except _ELEMENT_ERRORS as exc:
+            raise InputError(f"{where}: {_why(exc)}") from None
+        types[i], valid[i] = otype, ok
+        cols["x"][i], cols["y"][i] = pos[:, 0], pos[:, 1]
+        cols["vx"][i], cols["vy"][i] = vel[:, 0], vel[:, 1]
+        cols["heading"][i], cols["length"][i], cols["width"][i] = sizes
     return Tracks(ids=np.asarray(ids, dtype=str).reshape(-1), object_type=types, valid=valid, **cols)
 
 
@@ -105,15 +303,37 @@ def _int(v: Any) -> int:
     return int(v)
 
 
-def description_to_scene(sd: dict, source_name: str = "") -> Scene:
-    """A loaded ScenarioNet scenario description (dict) -> validated :class:`Scene`."""
-    md = sd.get("metadata", {})
-    num_steps = int(sd.get("length") or md.get("track_length") or 0)
+MAX_STEPS = 100_000  # [steps] far beyond any WOMD scenario (91 or 199); larger is a damaged header
+
+
+def _num_steps(sd: dict, md: dict) -> tuple[int, np.ndarray]:
+    """The scenario's step count and timestamps; lengths that disagree are refused."""
+    declared = sd.get("length") or md.get("track_length") or 0
+    num_steps = int(declared)
     ts = md.get("ts")
-    timestamps = (np.asarray(ts, np.float64).reshape(-1)[:num_steps] if ts is not None
-                  else np.arange(num_steps) * 0.1)
-    if num_steps == 0:
+    timestamps: np.ndarray
+    if ts is not None:
+        timestamps = np.asarray(ts, np.float64).reshape(-1)
+        if num_steps and len(timestamps) != num_steps:
+            raise InputError(f"metadata.ts has {len(timestamps)} timestamps but the scenario has {num_steps} steps")
         num_steps = len(timestamps)
+    if not 0 < num_steps <= MAX_STEPS:
+        raise InputError(f"the scenario length {num_steps} is not a step count (1..{MAX_STEPS})")
+    if ts is None:
+        timestamps = np.arange(num_steps, dtype=np.float64) * 0.1
+    return num_steps, timestamps
+
+
+def description_to_scene(sd: dict, source_name: str = "") -> Scene:
+    """A loaded ScenarioNet scenario description (dict) -> validated :class:`Scene`.
+
+    Raises :class:`InputError` with one line naming the damaged element (track id, map feature id,
+    signal lane) for missing keys, wrong types, arrays whose lengths disagree and non-finite values.
+    """
+    md = sd.get("metadata") or {}
+    if not isinstance(md, dict):
+        raise InputError(f"metadata is a {type(md).__name__}, not a dict")
+    num_steps, timestamps = _num_steps(sd, md)
     counts = dict.fromkeys(FEATURE_TYPES, 0)
     raw_lanes: list[RawLane] = []
     line_polys: dict[int, np.ndarray] = {}
@@ -122,50 +342,84 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
     road_edges: list[tuple[int, np.ndarray]] = []
     crosswalks: list[tuple[int, np.ndarray]] = []
     stop_signs: list[tuple[np.ndarray, list[int]]] = []
-    for key, feat in sd["map_features"].items():
-        type_name = str(feat.get("type", ""))
-        kind = _feature_kind(type_name)
-        if kind is None:
-            continue
-        counts[kind] += 1
-        fid = _int(key)
-        if kind == "lane":
-            def nbs(items: list) -> list[tuple[int, int, int, int, int]]:
-                return [(_int(n["feature_id"]), _int(n["self_start_index"]), _int(n["self_end_index"]),
-                         _int(n["neighbor_start_index"]), _int(n["neighbor_end_index"])) for n in items]
+    others: list[tuple[str, int, np.ndarray]] = []  # (kind, feature id, points) for the finiteness check
+    features = sd["map_features"]
+    if not isinstance(features, dict):
+        raise InputError(f"map_features is a {type(features).__name__}, not a dict")
 
-            def bounds(items: list) -> list[tuple[int, int, int]]:
-                return [(_int(b["lane_start_index"]), _int(b["lane_end_index"]),
-                         _int(b["boundary_feature_id"])) for b in items]
+    def nbs(items: list) -> list[tuple[int, int, int, int, int]]:
+        return [(_int(n["feature_id"]), _int(n["self_start_index"]), _int(n["self_end_index"]),
+                 _int(n["neighbor_start_index"]), _int(n["neighbor_end_index"])) for n in items]
 
-            raw_lanes.append(RawLane(
-                fid=fid, polyline=_xy(feat["polyline"]), z=_z(feat["polyline"]),
-                lane_type=int(_LANE_TYPES.get(type_name, LaneType.UNDEFINED)),
-                speed_limit_mph=float(feat.get("speed_limit_mph") or 0.0),
-                entry=[_int(x) for x in feat.get("entry_lanes", [])],
-                exit=[_int(x) for x in feat.get("exit_lanes", [])],
-                left=nbs(feat.get("left_neighbor", [])), right=nbs(feat.get("right_neighbor", [])),
-                left_bounds=bounds(feat.get("left_boundaries", [])),
-                right_bounds=bounds(feat.get("right_boundaries", []))))
-        elif kind == "road_line":
-            pts = _xy(feat["polyline"])
-            line_polys[fid] = pts
-            road_lines.append((_ROAD_LINE_TYPES.get(type_name, 0), pts))
-        elif kind == "road_edge":
-            pts = _xy(feat["polyline"])
-            edge_polys[fid] = pts
-            road_edges.append((_ROAD_EDGE_TYPES.get(type_name, 0), pts))
-        elif kind == "crosswalk":
-            crosswalks.append((0, _xy(feat["polygon"])))
-        elif kind == "stop_sign":
-            stop_signs.append((_xy(feat["position"])[0], [_int(x) for x in feat.get("lane", [])]))
+    def bounds(items: list) -> list[tuple[int, int, int]]:
+        return [(_int(b["lane_start_index"]), _int(b["lane_end_index"]),
+                 _int(b["boundary_feature_id"])) for b in items]
+
+    for key, feat in features.items():
+        where = f"map feature {_printable(str(key))}"
+        try:
+            type_name = str(feat.get("type", ""))
+            kind = _feature_kind(type_name)
+            if kind is None:
+                continue
+            counts[kind] += 1
+            fid = _int(key)
+            if kind == "lane":
+                raw_lanes.append(RawLane(
+                    fid=fid, polyline=_xy(feat["polyline"]), z=_z(feat["polyline"]),
+                    lane_type=int(_LANE_TYPES.get(type_name, LaneType.UNDEFINED)),
+                    speed_limit_mph=float(feat.get("speed_limit_mph") or 0.0),
+                    entry=[_int(x) for x in feat.get("entry_lanes", [])],
+                    exit=[_int(x) for x in feat.get("exit_lanes", [])],
+                    left=nbs(feat.get("left_neighbor", [])), right=nbs(feat.get("right_neighbor", [])),
+                    left_bounds=bounds(feat.get("left_boundaries", [])),
+                    right_bounds=bounds(feat.get("right_boundaries", []))))
+            elif kind == "road_line":
+                pts = _xy(feat["polyline"])
+                line_polys[fid] = pts
+                road_lines.append((_ROAD_LINE_TYPES.get(type_name, 0), pts))
+                others.append(("road line", fid, pts))
+            elif kind == "road_edge":
+                pts = _xy(feat["polyline"])
+                edge_polys[fid] = pts
+                road_edges.append((_ROAD_EDGE_TYPES.get(type_name, 0), pts))
+                others.append(("road edge", fid, pts))
+            elif kind == "crosswalk":
+                pts = _xy(feat["polygon"])
+                crosswalks.append((0, pts))
+                others.append(("crosswalk", fid, pts))
+            elif kind == "stop_sign":
+                pos = _xy(feat["position"])
+                if len(pos) == 0:
+                    raise InputError("stop sign without a position")
+                stop_signs.append((pos[0], [_int(x) for x in feat.get("lane", [])]))
+                others.append(("stop sign", fid, pos[:1]))
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
+        except _ELEMENT_ERRORS as exc:
+            raise InputError(f"{where}: {_why(exc)}") from None
+    check_raw_map(raw_lanes, others)
 
     dms = sd.get("dynamic_map_states", {}) or {}
+    if not isinstance(dms, dict):
+        raise InputError(f"dynamic_map_states is a {type(dms).__name__}, not a dict")
     signal_raw = []
     for key, item in dms.items():
-        states = list((item.get("state") or {}).get("object_state") or [])
-        if any(s is not None for s in states):
-            signal_raw.append((_int(item.get("lane", key)), states, item.get("stop_point")))
+        where = f"dynamic map state {_printable(str(key))}"
+        try:
+            states = list((item.get("state") or {}).get("object_state") or [])
+            if any(st is not None for st in states):
+                if len(states) != num_steps:
+                    raise InputError(f"{len(states)} signal states for {num_steps} steps")
+                sp = item.get("stop_point")
+                stop = _xy(sp)[0] if sp is not None and len(_xy(sp)) else None
+                if stop is not None and not np.all(np.isfinite(stop)):
+                    raise InputError(f"stop point ({stop[0]}, {stop[1]}) is not finite")
+                signal_raw.append((_int(item.get("lane", key)), states, stop))
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
+        except _ELEMENT_ERRORS as exc:
+            raise InputError(f"{where}: {_why(exc)}") from None
     lanes, lane_index = build_lanes(raw_lanes, line_polys, edge_polys)
     signal_raw = [s for s in signal_raw if s[0] in lane_index]
     state = np.zeros((num_steps, len(signal_raw)), np.int8)
@@ -174,7 +428,7 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
         for t, name in enumerate(states[:num_steps]):
             state[t, c] = _signal_state(name)
         if sp is not None:
-            stop_points[c] = _xy(sp)[0]
+            stop_points[c] = sp
     signals = SignalStates(lane_index=np.asarray([lane_index[lid] for lid, _, _ in signal_raw], np.int64),
                            state=state, stop_point=stop_points)
 
@@ -186,39 +440,36 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
             [np.asarray([lane_index[f] for f in ids if f in lane_index], np.int64) for _, ids in stop_signs],
             np.int64))
     tracks = _tracks(sd["tracks"], num_steps)
-    sdc_id = md.get("sdc_id")
-    sdc = tracks.index_of(str(sdc_id)) if sdc_id is not None and str(sdc_id) in set(tracks.ids) else -1
-    ttp = md.get("tracks_to_predict") or {}
-    meta = {"map_feature_counts": counts,
-            "tracks_to_predict": sorted(int(v["track_index"]) for v in ttp.values()
-                                        if isinstance(v, dict) and "track_index" in v),
-            "objects_of_interest": [str(x) for x in md.get("objects_of_interest", []) or []],
-            "version": str(sd.get("version", "")), "source_file": source_name}
+    try:
+        sdc_id = md.get("sdc_id")
+        sdc = tracks.index_of(str(sdc_id)) if sdc_id is not None and str(sdc_id) in set(tracks.ids) else -1
+        ttp = md.get("tracks_to_predict") or {}
+        meta = {"map_feature_counts": counts,
+                "tracks_to_predict": sorted(int(v["track_index"]) for v in ttp.values()
+                                            if isinstance(v, dict) and "track_index" in v),
+                "objects_of_interest": [str(x) for x in md.get("objects_of_interest", []) or []],
+                "version": str(sd.get("version", "")), "source_file": source_name}
+        current = int(md.get("current_time_index", 0) or 0)
+    except _ELEMENT_ERRORS as exc:
+        raise InputError(f"metadata: {_why(exc)}") from None
     scene = Scene(scenario_id=str(md.get("scenario_id") or sd.get("id", "")), timestamps=timestamps,
                   tracks=tracks, road_map=road_map, signals=signals, sdc_index=sdc,
-                  current_time_index=int(md.get("current_time_index", 0) or 0), source="scenarionet",
-                  meta=meta)
+                  current_time_index=current, source="scenarionet", meta=meta)
     return scene.validate()
 
 
 def load_pickle_scene(path: str | Path) -> Scene:
-    """Read one ScenarioNet pickle (a trusted file: pickle can run code) as a :class:`Scene`."""
+    """Read one ScenarioNet pickle as a :class:`Scene` (restricted unpickling, then checked)."""
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            sd = pickle.load(f)  # trusted files only, see the module docstring
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
-    except Exception as exc:  # UnpicklingError, EOFError, missing classes, ...
-        raise InputError(f"{path}: not a ScenarioNet pickle ({type(exc).__name__}: {exc})") from None
+    sd = load_pickle(path)
     if not isinstance(sd, dict) or "tracks" not in sd or "map_features" not in sd:
         raise InputError(f"{path}: not a ScenarioNet scenario description (no tracks/map_features)")
     try:
         return description_to_scene(sd, path.name)
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise InputError(f"{path}: malformed ScenarioNet scenario ({type(exc).__name__}: {exc})") from None
+    except (*_ELEMENT_ERRORS, RecursionError, MemoryError) as exc:
+        raise InputError(f"{path}: malformed ScenarioNet scenario ({_why(exc)})") from None
 
 
 def iter_pickle_scenes(path: str | Path) -> Iterator[Scene]:

@@ -50,11 +50,23 @@ def _open(path: Path) -> BinaryIO:
     return f
 
 
+_CHUNK = 1 << 24  # [bytes] read step: a damaged length header never makes us allocate more than the file holds
+
+
 def _read_exact(f: BinaryIO, n: int, path: Path, index: int) -> bytes:
+    """Up to ``n`` bytes (fewer at the end of the file), read in chunks of at most :data:`_CHUNK`."""
+    parts: list[bytes] = []
+    got = 0
     try:
-        return f.read(n)
+        while got < n:
+            part = f.read(min(_CHUNK, n - got))
+            if not part:
+                break
+            parts.append(part)
+            got += len(part)
     except (EOFError, OSError, zlib.error) as exc:  # corrupt or truncated gzip stream
         raise InputError(f"{path}: record {index}: corrupt gzip stream ({exc})") from None
+    return parts[0] if len(parts) == 1 else b"".join(parts)
 
 
 def iter_tfrecord(path: str | Path) -> Iterator[bytes]:

@@ -36,13 +36,15 @@ import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
+from defusedxml import ElementTree as SafeET
 
 from coster_sumo import sumo_env
 from coster_sumo.errors import CosterError, InputError
-from coster_sumo.formats.scene_folder import is_converted_scene, tls_state_strings, vtype_for
+from coster_sumo.formats.scene_folder import folder_name, is_converted_scene, tls_state_strings, vtype_for
 from coster_sumo.geometry import project_points
 from coster_sumo.scene import ObjectType, Scene, save_scene
 
@@ -165,6 +167,14 @@ def run_netconvert(nod: Path, edg: Path, con: Path, net: Path) -> None:
 
 # ----------------------------------------------------------------------------- reading the net back
 
+def _parse_xml(path: Path) -> Any:
+    """``path`` parsed with defusedxml; a file that is not plain XML raises :class:`ConversionError`."""
+    try:
+        return SafeET.parse(path, forbid_dtd=True)
+    except Exception as exc:  # noqa: BLE001 - ParseError, DTDForbidden, EntitiesForbidden, OSError
+        raise ConversionError(f"{path.name}: not a readable SUMO net ({type(exc).__name__}: {exc})") from None
+
+
 @dataclass(slots=True)
 class NetInfo:
     """What the written network contains, read back from ``.net.xml``.
@@ -181,8 +191,11 @@ class NetInfo:
 
 
 def read_net(net: Path) -> NetInfo:
-    """Parse lanes, connections (with their internal-lane chain) and traffic lights of a net."""
-    root = ET.parse(net).getroot()
+    """Parse lanes, connections (with their internal-lane chain) and traffic lights of a net.
+
+    Read with ``defusedxml`` (no DTD, no entities), like every XML file coster-sumo parses itself.
+    """
+    root = _parse_xml(net).getroot()
     shapes: dict[str, np.ndarray] = {}
     for e in root.iter("edge"):
         for ln in e.iter("lane"):
@@ -240,7 +253,7 @@ def restore_womd_geometry(net: Path, plain: PlainNet, info: NetInfo) -> dict:
     piece polyline, internal lanes the part of the WOMD interior polyline(s) of their connection,
     split in the same length proportions netconvert used.
     """
-    tree = ET.parse(net)
+    tree = _parse_xml(net)
     by_id = {ln.get("id", ""): ln for ln in tree.getroot().iter("lane")}
     targets: dict[str, np.ndarray] = {p.sumo_lane: p.points for p in plain.pieces if p.edge}
     for c in plain.connections:
@@ -446,16 +459,23 @@ def _type_name(object_type: int) -> str:
         return f"type_{int(object_type)}"
 
 
-def convert_scene(scene: Scene, outdir: str | Path, *, overwrite: bool = True) -> ConvertResult:
-    """Convert one scene into ``outdir/<scenario_id>/`` (atomically); see the module docstring."""
+def convert_scene(scene: Scene, outdir: str | Path, *, overwrite: bool = True, name: str | None = None
+                  ) -> ConvertResult:
+    """Convert one scene into ``outdir/<name>/`` (atomically); see the module docstring.
+
+    ``name`` (folder and file stem) defaults to :func:`~coster_sumo.formats.scene_folder.folder_name`
+    of the scenario id: never a path, never empty, whatever the input file says.
+    """
     t0 = time.perf_counter()
     check_convertible(scene)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     sid = scene.scenario_id
-    stem = sid
-    final = outdir / sid
-    tmp = Path(tempfile.mkdtemp(prefix=f".{sid}.", suffix=".tmp", dir=outdir))
+    stem = folder_name(sid) if name is None else name
+    if stem != folder_name(stem):
+        raise InputError(f"{stem!r} is not a safe folder name")
+    final = outdir / stem
+    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}.", suffix=".tmp", dir=outdir))
     try:
         plain = build_plain_net(scene.road_map, scene.signals)
         t_plain = time.perf_counter()

@@ -61,6 +61,7 @@ from coster_sumo.scene import (
 )
 
 from . import womd_schema
+from .tf_example import describe_example, example_keys
 from .tfrecord import iter_tfrecord
 
 DEFAULT_LANE_WIDTH = 3.7  # [m]
@@ -205,6 +206,43 @@ def junction_heuristic(lanes: Sequence[RawLane], predecessors: Ragged, successor
     return out
 
 
+def _first_bad_point(points: np.ndarray) -> int:
+    """Index of the first point with a non-finite coordinate, or -1."""
+    pts = np.asarray(points, np.float64)
+    bad = ~np.isfinite(pts.reshape(len(pts), -1)).all(axis=1) if len(pts) else np.zeros(0, bool)
+    return int(np.flatnonzero(bad)[0]) if bad.any() else -1
+
+
+def check_raw_map(lanes: Sequence[RawLane], others: Sequence[tuple[str, int, np.ndarray]] = ()) -> None:
+    """Refuse map geometry the net builder cannot use, naming the feature (both readers call it).
+
+    Lanes: unique ids, at least one point (a single point is kept: real WOMD maps have them, and the
+    net builder skips them), finite coordinates, heights and speed limit. ``others``: (kind, feature
+    id, points) of road lines, edges, crosswalks, stop signs: finite coordinates.
+    """
+    seen: set[int] = set()
+    for ln in lanes:
+        where = f"lane {ln.fid}"
+        if ln.fid in seen:
+            raise InputError(f"{where}: duplicate lane id")
+        seen.add(ln.fid)
+        if len(ln.polyline) == 0:
+            raise InputError(f"{where}: the polyline has no points")
+        k = _first_bad_point(ln.polyline)
+        if k >= 0:
+            x, y = ln.polyline[k]
+            raise InputError(f"{where}: polyline point {k} ({x}, {y}) is not finite")
+        if ln.z is not None and len(ln.z) and not np.all(np.isfinite(ln.z)):
+            k = int(np.flatnonzero(~np.isfinite(ln.z))[0])
+            raise InputError(f"{where}: polyline point {k} has a non-finite height ({ln.z[k]})")
+        if not np.isfinite(ln.speed_limit_mph):
+            raise InputError(f"{where}: speed limit {ln.speed_limit_mph} is not finite")
+    for kind, fid, pts in others:
+        k = _first_bad_point(pts)
+        if k >= 0:
+            raise InputError(f"{kind} {fid}: point {k} ({pts[k][0]}, {pts[k][1]}) is not finite")
+
+
 def build_lanes(lanes: Sequence[RawLane], road_lines: dict[int, np.ndarray], road_edges: dict[int, np.ndarray]
                 ) -> tuple[Lanes, dict[int, int]]:
     """:class:`Lanes` from raw lanes, and the feature id -> lane index map.
@@ -256,6 +294,8 @@ def _tracks(msg: Any, num_steps: int) -> Tracks:
     arr = np.zeros((len(fields), n, num_steps), np.float64)
     valid = np.zeros((n, num_steps), bool)
     for i, track in enumerate(msg.tracks):
+        if len(track.states) != num_steps:
+            raise InputError(f"track {track.id}: {len(track.states)} states for {num_steps} timestamps")
         rows = [(s.center_x, s.center_y, s.heading, s.velocity_x, s.velocity_y, s.length, s.width, s.valid)
                 for s in track.states[:num_steps]]
         if rows:
@@ -305,6 +345,7 @@ def scenario_to_scene(msg: Any, source_name: str = "") -> Scene:
     road_edges: list[tuple[int, np.ndarray]] = []
     crosswalks: list[tuple[int, np.ndarray]] = []
     stop_signs: list[tuple[np.ndarray, list[int]]] = []
+    others: list[tuple[str, int, np.ndarray]] = []  # (kind, feature id, points) for check_raw_map
     for feat in msg.map_features:
         kind = feat.WhichOneof("feature_data")
         if kind is None:
@@ -329,11 +370,15 @@ def scenario_to_scene(msg: Any, source_name: str = "") -> Scene:
             pts = _xy(sub.polyline)
             (line_polys if kind == "road_line" else edge_polys)[feat.id] = pts
             (road_lines if kind == "road_line" else road_edges).append((sub.type, pts))
+            others.append((kind.replace("_", " "), feat.id, pts))
         elif kind == "crosswalk":
             crosswalks.append((0, _xy(feat.crosswalk.polygon)))
+            others.append(("crosswalk", feat.id, crosswalks[-1][1]))
         elif kind == "stop_sign":
             pos = feat.stop_sign.position
             stop_signs.append((np.array([pos.x, pos.y]), list(feat.stop_sign.lane)))
+            others.append(("stop sign", feat.id, stop_signs[-1][0].reshape(1, 2)))
+    check_raw_map(raw_lanes, others)
     lanes, lane_index = build_lanes(raw_lanes, line_polys, edge_polys)
     signals, per_step = _signals(msg, num_steps, lane_index)
     road_map = RoadMap(
@@ -371,6 +416,9 @@ def iter_tfrecord_scenes(path: str | Path) -> Iterator[Scene]:
     path = Path(path)
     for i, data in enumerate(iter_tfrecord(path)):
         where = f"{path}: record {i}"
+        keys = example_keys(data)
+        if keys is not None:
+            raise InputError(f"{where}: {describe_example(keys)}")
         msg = parse_scenario(data, where)
         try:
             yield scenario_to_scene(msg, path.name)

@@ -17,7 +17,7 @@ import pkgutil
 import sys
 from collections.abc import Sequence
 
-from coster_sumo.errors import CosterError
+from coster_sumo.errors import CosterError, one_line
 
 
 class CommandLine:
@@ -63,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CosterError as exc:
         if args.debug:
             raise
-        print(f"coster-sumo: error: {exc}", file=sys.stderr)
+        print(f"coster-sumo: error: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("coster-sumo: interrupted", file=sys.stderr)

@@ -36,10 +36,11 @@ from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.scene import CollisionSnapshot, Scene, load_scene, resample
+from coster_sumo.scene import Scene, load_scene, resample
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.snapshot import COLLISION_TIME_RULES, MARGIN_END, SNAPSHOT_INITS, NoSnapshot
+from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run

@@ -19,3 +19,12 @@ class SumoError(CosterError):
     """SUMO is missing, failed to start, or died."""
 
     exit_code = 1
+
+
+def one_line(text: str) -> str:
+    """``text`` as one printable line: newlines and other control characters escaped.
+
+    Messages name things read from input files (ids, keys); a crafted id must not be able to break
+    the one-line-per-error contract or write terminal control sequences.
+    """
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))

@@ -24,7 +24,7 @@ from scipy.interpolate import CubicSpline, PchipInterpolator
 
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
-from coster_sumo.scene import AgentState
+from coster_sumo.snapshot_state import AgentState
 
 
 @dataclass(frozen=True)

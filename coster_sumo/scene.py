@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.atomic import atomic_path, write_json
+from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import InputError
 
 
@@ -64,6 +64,38 @@ class SignalState(enum.IntEnum):
 def _check(cond: bool, what: str) -> None:
     if not cond:
         raise InputError(f"invalid scene: {what}")
+
+
+def _shown(value: object, limit: int = 60) -> str:
+    """An id as one printable line (ids come from input files)."""
+    text = str(value)
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[:limit])
+    return out + ("..." if len(text) > limit else "")
+
+
+def _check_ids(ids: np.ndarray, what: str) -> None:
+    """Ids must be non-empty and unique; the message names the first offender."""
+    values = [str(v) for v in ids.tolist()]
+    for i, v in enumerate(values):
+        _check(v != "", f"{what} at index {i} has an empty id")
+    if len(set(values)) != len(values):
+        seen: set[str] = set()
+        for v in values:
+            _check(v not in seen, f"{what} {_shown(v)} appears twice (ids must be unique)")
+            seen.add(v)
+
+
+def _check_points(points: np.ndarray, offsets: np.ndarray, what: str, names: Sequence[str] | None = None) -> None:
+    """Every point finite; the message names the item (by id where given) and the point."""
+    if len(points) == 0:
+        return
+    bad = ~np.isfinite(np.asarray(points, np.float64).reshape(len(points), -1)).all(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        item = int(np.searchsorted(offsets, row, side="right") - 1)
+        name = _shown(names[item]) if names is not None else str(item)
+        _check(False, f"{what} {name}: point {row - int(offsets[item])} "
+                      f"{tuple(float(v) for v in np.ravel(points[row]))} is not finite")
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,7 +220,7 @@ class Tracks:
     def validate(self) -> None:
         n = len(self.ids)
         _check(self.ids.ndim == 1, "tracks.ids must be 1-D")
-        _check(len(set(self.ids.tolist())) == n, "tracks.ids must be unique")
+        _check_ids(self.ids, "track")
         _check(self.object_type.shape == (n,), "tracks.object_type must be (num_agents,)")
         shape = self.x.shape
         _check(len(shape) == 2 and shape[0] == n, "tracks.x must be (num_agents, num_steps)")
@@ -196,8 +228,11 @@ class Tracks:
             _check(getattr(self, f).shape == shape, f"tracks.{f} must have shape {shape}")
         _check(self.valid.dtype == np.bool_, "tracks.valid must be bool")
         for f in ("x", "y", "heading", "vx", "vy", "length", "width"):
-            vals = getattr(self, f)[self.valid]
-            _check(bool(np.all(np.isfinite(vals))), f"tracks.{f} has non-finite valid entries")
+            arr = getattr(self, f)
+            bad = self.valid & ~np.isfinite(arr)
+            if bad.any():  # invalid states may hold anything; valid ones must be numbers
+                a, t = (int(v) for v in np.argwhere(bad)[0])
+                _check(False, f"track {_shown(self.ids[a])} step {t}: {f} is {arr[a, t]} in a valid state")
 
 
 @dataclass(frozen=True, slots=True)
@@ -237,8 +272,13 @@ class Lanes:
 
     def validate(self) -> None:
         n = len(self.ids)
+        _check_ids(self.ids, "lane")
         self.centerline.validate("lanes.centerline")
         _check(len(self.centerline) == n, "lanes.centerline must have one polyline per lane")
+        lengths = self.centerline.lengths()
+        if np.any(lengths == 0):
+            _check(False, f"lane {_shown(self.ids[int(np.flatnonzero(lengths == 0)[0])])}: no centreline points")
+        _check_points(self.centerline.values, self.centerline.offsets, "lane", [str(v) for v in self.ids])
         for f in ("width", "lane_type", "speed_limit", "is_junction"):
             _check(getattr(self, f).shape == (n,), f"lanes.{f} must be (num_lanes,)")
         for f in ("predecessors", "successors", "left_neighbors", "right_neighbors"):
@@ -270,6 +310,7 @@ class Polylines:
     def validate(self, name: str) -> None:
         self.points.validate(name)
         _check(len(self.points) == len(self.kind), f"{name}: one kind per item")
+        _check_points(self.points.values, self.points.offsets, f"{name} item")
 
 
 @dataclass(frozen=True, slots=True)
@@ -303,6 +344,7 @@ class RoadMap:
         _check(self.stop_sign_xy.ndim == 2 and self.stop_sign_xy.shape[1] == 2,
                "stop_sign_xy must be (num_stop_signs, 2)")
         _check(len(self.stop_sign_lanes) == len(self.stop_sign_xy), "one lane list per stop sign")
+        _check_points(self.stop_sign_xy, np.arange(len(self.stop_sign_xy) + 1), "stop sign")
 
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of all lane points [m]."""
@@ -338,6 +380,7 @@ class SignalStates:
         _check(self.stop_point.shape == (k, 2), "signals.stop_point must be (num_controlled, 2)")
         _check(bool(np.all((self.lane_index >= 0) & (self.lane_index < num_lanes))),
                "signals.lane_index out of range")
+        _check_points(self.stop_point, np.arange(k + 1), "signal stop point of controlled lane")
 
     def per_lane(self, num_lanes: int) -> np.ndarray:
         """(num_steps, num_lanes) int8 state of every lane (UNKNOWN where uncontrolled)."""
@@ -388,11 +431,17 @@ class Scene:
         self.tracks.validate()
         self.road_map.validate()
         _check(self.timestamps.ndim == 1, "timestamps must be 1-D")
+        if not np.all(np.isfinite(self.timestamps)):
+            k = int(np.flatnonzero(~np.isfinite(self.timestamps))[0])
+            _check(False, f"timestamp of step {k} is {self.timestamps[k]}")
         _check(self.tracks.num_steps == len(self.timestamps),
                f"tracks have {self.tracks.num_steps} steps but there are {len(self.timestamps)} timestamps")
-        _check(bool(np.all(np.diff(self.timestamps) > 0)), "timestamps must increase")
+        steps = np.flatnonzero(np.diff(self.timestamps) <= 0)
+        _check(len(steps) == 0, "timestamps must increase"
+               + (f" (step {int(steps[0]) + 1} is not after step {int(steps[0])})" if len(steps) else ""))
         self.signals.validate(len(self.timestamps), len(self.road_map.lanes))
-        _check(-1 <= self.sdc_index < self.tracks.num_agents, "sdc_index out of range")
+        _check(-1 <= self.sdc_index < self.tracks.num_agents,
+               f"sdc_index {self.sdc_index} is not a track index (-1 or 0..{self.tracks.num_agents - 1})")
         _check(0 <= self.current_time_index < max(1, self.num_steps), "current_time_index out of range")
         return self
 
@@ -470,121 +519,37 @@ _SUBTYPES: dict[tuple[type, str], type] = {
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read a scene written by :func:`save_scene`."""
+    """Read a scene written by :func:`save_scene` (never unpickles; damaged files are one InputError)."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
         raise InputError(f"{path}: not a scene file ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - BadZipFile, ValueError (pickled data), zlib.error, EOFError, ...
+        raise InputError(f"{path}: not a scene file ({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     if "__header__" not in arrays:
         raise InputError(f"{path}: not a scene file (no header)")
-    header = json.loads(arrays.pop("__header__").tobytes().decode())
-    if header.get("version") != _FORMAT_VERSION:
-        raise InputError(f"{path}: scene format version {header.get('version')} is not supported")
-    parts = {name: _build(_SUBTYPES[(Scene, name)], name + "/", arrays)
-             for name in ("tracks", "road_map", "signals")}
-    return Scene(scenario_id=header["scenario_id"], timestamps=arrays["timestamps"],
-                 sdc_index=int(header["sdc_index"]), current_time_index=int(header["current_time_index"]),
-                 source=header["source"], meta=header.get("meta", {}), **parts)  # type: ignore[arg-type]
+    try:
+        header = json.loads(arrays.pop("__header__").tobytes().decode())
+        if not isinstance(header, dict):
+            raise ValueError("the header is not a JSON object")
+        if header.get("version") != _FORMAT_VERSION:
+            raise InputError(f"{path}: scene format version {header.get('version')} is not supported")
+        parts = {name: _build(_SUBTYPES[(Scene, name)], name + "/", arrays)
+                 for name in ("tracks", "road_map", "signals")}
+        scene = Scene(scenario_id=str(header["scenario_id"]), timestamps=arrays["timestamps"],
+                      sdc_index=int(header["sdc_index"]), current_time_index=int(header["current_time_index"]),
+                      source=str(header["source"]), meta=dict(header.get("meta", {})),
+                      **parts)  # type: ignore[arg-type]
+        return scene.validate()
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if msg.startswith(f"{path}:") else f"{path}: {msg}") from None
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, UnicodeDecodeError) as exc:
+        what = f"missing {exc.args[0]!r}" if isinstance(exc, KeyError) and exc.args else \
+            f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+        raise InputError(f"{path}: damaged scene file ({what})") from None
 
 
 # ----------------------------------------------------------------------------- collision snapshot
-
-@dataclass(frozen=True, slots=True)
-class AgentState:
-    """One agent's state in our frame.
-
-    Attributes:
-        x, y: [m] box centre. yaw: [rad] CCW from +x. speed: [m/s] along yaw.
-        length, width: [m].
-    """
-
-    x: float
-    y: float
-    yaw: float
-    speed: float
-    length: float
-    width: float
-
-    @property
-    def velocity(self) -> np.ndarray:
-        """(2,) [m/s]."""
-        return self.speed * np.array([np.cos(self.yaw), np.sin(self.yaw)])
-
-    @classmethod
-    def from_tracks(cls, tracks: Tracks, agent: int, step: int) -> AgentState:
-        return cls(x=float(tracks.x[agent, step]), y=float(tracks.y[agent, step]),
-                   yaw=float(tracks.heading[agent, step]),
-                   speed=float(np.hypot(tracks.vx[agent, step], tracks.vy[agent, step])),
-                   length=float(tracks.length[agent, step]), width=float(tracks.width[agent, step]))
-
-
-def _nan_to_none(values: Sequence[float]) -> list[float | None]:
-    return [None if not np.isfinite(v) else float(v) for v in values]
-
-
-@dataclass(frozen=True, slots=True)
-class CollisionSnapshot:
-    """Where and when the adversary touches the target (docs/method.md step 4).
-
-    Attributes:
-        scenario_id: the scene's id.
-        target_id: the target's track id.
-        t_index: the collision step in the 2 Hz scene.
-        time: [s] scene time of that step.
-        target: the target's state at ``time`` (from the scene).
-        adversary: the adversary's state at ``time`` (in contact with the target).
-        region_id: index of the prior region the placement came from (-1 for the random init).
-        presence_prob: predicted presence probability of that region (nan when not from the prior).
-        position_logprob: log-probability of the chosen position bin (nan when not from the prior).
-        signed_distance: [m] box signed distance adversary-target (>= 0 and ~0 at contact).
-        entropy: (num_2hz_steps,) entropy curve of the mean velocity distribution (nan = excluded).
-        collision_time_method: "entropy" | "last" | "random" | "fixed".
-        init_method: "snapshot" | "random".
-        seed: the seed that produced it.
-    """
-
-    scenario_id: str
-    target_id: str
-    t_index: int
-    time: float
-    target: AgentState
-    adversary: AgentState
-    region_id: int = -1
-    presence_prob: float = float("nan")
-    position_logprob: float = float("nan")
-    signed_distance: float = float("nan")
-    entropy: tuple[float, ...] = ()
-    collision_time_method: str = "entropy"
-    init_method: str = "snapshot"
-    seed: int = 0
-
-    def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        for k in ("presence_prob", "position_logprob", "signed_distance"):
-            d[k] = _nan_to_none([d[k]])[0]
-        d["entropy"] = _nan_to_none(self.entropy)
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> CollisionSnapshot:
-        d = dict(d)
-        for k in ("presence_prob", "position_logprob", "signed_distance"):
-            d[k] = float("nan") if d.get(k) is None else float(d[k])
-        d["entropy"] = tuple(float("nan") if v is None else float(v) for v in d.get("entropy", ()))
-        d["target"] = AgentState(**d["target"])
-        d["adversary"] = AgentState(**d["adversary"])
-        return cls(**d)
-
-    def save(self, path: str | Path) -> Path:
-        """Write JSON atomically. Floats are written with repr precision, so loading is lossless."""
-        return write_json(path, self.to_dict())
-
-    @classmethod
-    def load(cls, path: str | Path) -> CollisionSnapshot:
-        path = Path(path)
-        try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise InputError(f"{path}: not a collision snapshot ({exc})") from None

@@ -47,7 +47,8 @@ from coster_sumo.geometry import (
     translate_boxes,
 )
 from coster_sumo.rollout.methods import HORIZON_STEPS
-from coster_sumo.scene import AgentState, CollisionSnapshot, Scene
+from coster_sumo.scene import Scene
+from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
 MARGIN_START = 5  # [2 Hz steps] skipped at the start of the window (a rollout must fit)
 MARGIN_END = 5  # [2 Hz steps] skipped at the end

@@ -18,7 +18,8 @@ from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 
 from coster_sumo.drivable import _corners  # noqa: E402
-from coster_sumo.scene import AgentState, RoadMap, Scene  # noqa: E402
+from coster_sumo.scene import RoadMap, Scene  # noqa: E402
+from coster_sumo.snapshot_state import AgentState  # noqa: E402
 
 TARGET_COLOR = "#1f77b4"
 ADVERSARY_COLOR = "#d62728"

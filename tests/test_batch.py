@@ -129,7 +129,7 @@ RESUMABLE_BATCH = textwrap.dedent("""
     from coster_sumo.batch.store import ResultStore
     store = ResultStore(Path(sys.argv[1]))
     done = store.keys()
-    tasks = [Task(f"run{i:02d}", probe_task, {"name": i, "sleep": 0.4}) for i in range(12) if f"run{i:02d}" not in done]
+    tasks = [Task(f"run{i:02d}", probe_task, {"name": i, "sleep": 1.0}) for i in range(12) if f"run{i:02d}" not in done]
     def on_done(task, outcome):
         store.write({"run_key": task.key, "scene_key": "s", "variant": 0, "planner": "p",
                      "status": "ok" if outcome.ok else "failed", "reason": outcome.reason})

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from coster_sumo.plan import AdversaryPlan
-from coster_sumo.scene import AgentState
+from coster_sumo.snapshot_state import AgentState
 
 
 def _plan():

@@ -13,7 +13,8 @@ from coster_sumo.rollout import vocab as V
 from coster_sumo.rollout.baselines import constant_lane_backward, constant_velocity_backward
 from coster_sumo.rollout.checkpoint import save_checkpoint
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
-from coster_sumo.scene import AgentState, CollisionSnapshot, resample
+from coster_sumo.scene import resample
+from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
 TINY = RolloutConfig(hidden=32, heads=4, latent=8, posterior_hidden=16, max_map_chunks=32, max_neighbors=8)
 

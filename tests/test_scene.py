@@ -59,7 +59,7 @@ def test_ragged_round_trip():
 
 
 def test_collision_snapshot_json_is_lossless(tmp_path):
-    from coster_sumo.scene import AgentState, CollisionSnapshot
+    from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
     snap = CollisionSnapshot(
         scenario_id="s", target_id="ego", t_index=7, time=3.5,

@@ -1,10 +1,14 @@
 """``coster-sumo convert INPUT... -o OUTDIR``: WOMD scenes -> converted SUMO scene folders.
 
 Every record of every input (WOMD TFRecord, gzip TFRecord, ScenarioNet pickle, our ``.npz``)
-becomes ``OUTDIR/<scenario_id>/`` (see :mod:`coster_sumo.converters.to_sumo`). A bad input or record prints
-one line naming the file and record and the rest go on. ``OUTDIR/summary.json`` lists every scene
-with its fidelity figures and every failure. Exit code 0: all converted; 1: some failed; 2: usage
-error or nothing could be read.
+becomes ``OUTDIR/<name>/`` (see :mod:`coster_sumo.converters.to_sumo`), where ``name`` is the scenario
+id when it is a safe folder name and a sanitised one otherwise
+(:func:`coster_sumo.formats.scene_folder.folder_name`; a name already used in this run gets ``-2``,
+``-3``, ...). A bad input or record prints one line naming the file and record and the rest go on.
+``OUTDIR/summary.json`` lists every scene with its fidelity figures and folder name, every failure,
+and ``renamed``: folder name -> scenario id wherever they differ. Exit code 0: all converted; 1: some
+failed; 2: usage error or nothing could be read (then nothing is written: OUTDIR is not created,
+or left as it was).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import time
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import CosterError, InputError
+from coster_sumo.errors import CosterError, InputError, one_line
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -50,39 +54,66 @@ def run(args: argparse.Namespace) -> int:
 
     debug = bool(getattr(args, "debug", False))
     quiet = bool(getattr(args, "quiet", False))
+    from coster_sumo.formats.scene_folder import MAX_FOLDER_NAME, folder_name
+
     out: Path = args.out
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    created = not out.exists()
     t0 = time.perf_counter()
+    used: set[str] = set()
+    renamed: dict[str, str] = {}
     scenes: list[dict] = []
     failures: list[dict] = []
     read_any = False
     bar = tqdm(desc="convert", unit="scene", disable=quiet, file=sys.stderr, dynamic_ncols=True)
 
-    def fail(where: str, message: str) -> None:
-        failures.append({"where": where, "error": message})
-        line = message if message.startswith(where) else f"{where}: {message}"
+    def fail(where: str, message: str, path: Path) -> None:
+        # readers name the file themselves; say it once, followed by the record
+        if not message.startswith(where) and message.startswith(f"{path}: "):
+            message = message[len(f"{path}: "):]
+        line = one_line(message if message.startswith(where) else f"{where}: {message}")
+        failures.append({"where": one_line(where), "error": line})
         tqdm.write(f"coster-sumo: error: {line}", file=sys.stderr)
+
+    def name_for(sid: str) -> str:
+        base = folder_name(sid)
+        name, k = base, 1
+        while name in used:  # a name taken earlier in this run: -2, -3, ... (still a safe name)
+            k += 1
+            name = f"{base[:MAX_FOLDER_NAME - len(str(k)) - 1]}-{k}"
+        used.add(name)
+        if name != sid:
+            renamed[name] = sid
+        return name
+
+    def release(name: str) -> None:  # the scene failed: its name is free again
+        used.discard(name)
+        renamed.pop(name, None)
 
     for path in args.inputs:
         record = 0
         try:
             for scene in iter_scenes(path):
                 read_any = True
-                where = f"{path}: record {record} ({scene.scenario_id})"
+                sid = str(scene.scenario_id)
+                where = f"{path}: record {record} ({one_line(sid[:60])}{'...' if len(sid) > 60 else ''})"
                 record += 1
+                name = name_for(sid)
                 try:
-                    result = convert_scene(scene, out)
+                    out.mkdir(parents=True, exist_ok=True)
+                    result = convert_scene(scene, out, name=name)
                 except CosterError as exc:
                     if debug:
                         raise
-                    fail(where, str(exc))
+                    release(name)
+                    fail(where, str(exc), path)
                     continue
                 except Exception as exc:  # one bad scene must not stop the batch
                     if debug:
                         raise
-                    fail(where, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+                    release(name)
+                    fail(where, f"{type(exc).__name__}: {' '.join(str(exc).split())}", path)
                     continue
                 scenes.append({"input": str(path), "record": record - 1, "folder": str(result.folder),
                                **{k: result.summary[k] for k in ("scenario_id", "fidelity", "conversion_s")},
@@ -93,18 +124,23 @@ def run(args: argparse.Namespace) -> int:
         except CosterError as exc:
             if debug:
                 raise
-            fail(f"{path}: record {record}", str(exc))
+            fail(f"{path}: record {record}", str(exc), path)
         except Exception as exc:  # a reader bug on one file must not stop the others
             if debug:
                 raise
-            fail(f"{path}: record {record}", f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+            fail(f"{path}: record {record}", f"{type(exc).__name__}: {' '.join(str(exc).split())}", path)
     bar.close()
+    if not scenes and not read_any:  # nothing could be read: write nothing
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        if not quiet:
+            print(f"converted 0 scene(s), {len(failures)} failed; nothing written")
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
     summary = {"outdir": str(out), "inputs": [str(p) for p in args.inputs], "converted": len(scenes),
-               "failed": len(failures), "scenes": scenes, "failures": failures,
+               "failed": len(failures), "scenes": scenes, "failures": failures, "renamed": renamed,
                "wall_s": round(time.perf_counter() - t0, 3)}
     write_json(out / "summary.json", summary)
     if not quiet:
         print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")
-    if not scenes and not read_any:
-        return 2
     return 1 if failures else 0

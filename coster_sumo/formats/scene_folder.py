@@ -13,6 +13,8 @@ planner takes it over (see :mod:`coster_sumo.sim.inject`).
 
 from __future__ import annotations
 
+import hashlib
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +25,26 @@ SCENE_FILE = "scene.npz"
 LANE_MAP_FILE = "lane_map.json"
 SCENE_FILES = (SCENE_FILE, LANE_MAP_FILE)
 MIN_SIZE_M = 0.1  # [m] SUMO rejects zero-length types; WOMD zero-fills invalid sizes
+
+
+MAX_FOLDER_NAME = 100  # characters kept of a scenario id (the file names add a suffix)
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+
+
+def folder_name(scenario_id: str) -> str:
+    """The folder (and file stem) name of a scenario: ``scenario_id`` itself when it is safe.
+
+    Safe: not empty, only letters, digits, ``_ . -``, not starting with a dot (no ``..``, no hidden
+    folder), at most :data:`MAX_FOLDER_NAME` characters. Real WOMD ids (16 hex digits) are kept as
+    they are. Any other id becomes its safe characters (runs of the others replaced by ``_``) plus
+    ``-`` and 8 hex digits of the id's SHA-1, so different ids keep different names.
+    """
+    sid = str(scenario_id)
+    if sid and len(sid) <= MAX_FOLDER_NAME and not _UNSAFE.search(sid) and not sid.startswith("."):
+        return sid
+    digest = hashlib.sha1(sid.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+    base = _UNSAFE.sub("_", sid).lstrip("._-")[:MAX_FOLDER_NAME - 9].rstrip(".")
+    return f"{base}-{digest}" if base else f"scenario-{digest}"
 
 
 def converted_scene_file(config: str | Path) -> Path | None:

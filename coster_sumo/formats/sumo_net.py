@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.errors import InputError
+from coster_sumo.formats.sumocfg import check_xml
 from coster_sumo.scene import Lanes, LaneType, Polylines, Ragged, RoadMap
 from coster_sumo.sumo_env import import_sumolib
 
@@ -104,6 +105,8 @@ def read_sumolib_net(path: str | Path) -> Any:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: SUMO net file not found")
+    # well-formed, and no entity declarations (XML bombs) before sumolib's own SAX parser sees it
+    check_xml(path, "SUMO net")
     sumolib = import_sumolib()
     try:
         return sumolib.net.readNet(str(path), withInternal=True)

@@ -15,6 +15,7 @@ import os
 import shutil
 import tempfile
 import xml.parsers.expat
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -100,7 +101,7 @@ def check_xml(path: Path, what: str, referenced_by: Path | None = None) -> None:
             parser.ParseFile(fh)
     except xml.parsers.expat.ExpatError as exc:
         raise InputError(f"{path}: {what} is not valid XML ({exc}){via}") from None
-    except (OSError, EOFError) as exc:
+    except (OSError, EOFError, zlib.error) as exc:  # also a damaged gzip stream
         raise InputError(f"{path}: cannot read {what} ({exc}){via}") from None
     _XML_OK.add(key)
 

@@ -25,7 +25,7 @@ from coster_sumo.errors import InputError
 from coster_sumo.metrics import ade_fde
 from coster_sumo.rollout.baselines import LaneIndex, constant_lane_backward, constant_velocity_backward
 from coster_sumo.rollout.data import ExampleSet, to_frame, to_tensors
-from coster_sumo.scene import AgentState
+from coster_sumo.snapshot_state import AgentState
 
 if TYPE_CHECKING:
     from coster_sumo.rollout.cache import CachedExamples

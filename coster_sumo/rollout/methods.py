@@ -17,7 +17,8 @@ import numpy as np
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.rollout.baselines import constant_velocity_backward
-from coster_sumo.scene import CollisionSnapshot, Scene
+from coster_sumo.scene import Scene
+from coster_sumo.snapshot_state import CollisionSnapshot
 
 HORIZON_STEPS = 10  # [2 Hz steps] 5 s of approach at most
 

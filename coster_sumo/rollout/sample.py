@@ -37,7 +37,8 @@ from coster_sumo.rollout.data import (
     to_tensors,
 )
 from coster_sumo.rollout.vocab import MotionVocab, project_backward
-from coster_sumo.scene import AgentState, CollisionSnapshot, Scene
+from coster_sumo.scene import Scene
+from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
 if TYPE_CHECKING:
     from coster_sumo.plan import AdversaryPlan
