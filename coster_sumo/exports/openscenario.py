@@ -239,7 +239,7 @@ def compare_with_net(xodr: Path, net_file: Path, step: float = SAMPLE_STEP_M) ->
     res: dict[str, Any] = {}
     for name, in_junction in (("roads", False), ("junctions", True)):
         sumo_lines = [shapely.LineString(sh) for sh, i in zip(shapes, internal, strict=True) if i == in_junction]
-        sumo_lines = [ln for ln in sumo_lines if ln.length > 0]
+
         mine = [ln for ln in lanes if (ln.junction != "-1") == in_junction and len(ln.xy) >= 2]
         if not sumo_lines or not mine:
             res[name] = {"xodr_samples": sum(len(ln.xy) for ln in mine), "sumo_lanes": len(sumo_lines)}
@@ -248,7 +248,9 @@ def compare_with_net(xodr: Path, net_file: Path, step: float = SAMPLE_STEP_M) ->
         pts = np.concatenate([ln.xy for ln in mine])
         d1 = shapely.distance(shapely.points(pts), sumo_geom)
         xodr_geom = shapely.MultiLineString([shapely.LineString(ln.xy) for ln in mine])
-        sp = np.concatenate([shapely.get_coordinates(shapely.segmentize(ln, step)) for ln in sumo_lines])
+        # (a zero-length lane, e.g. a dead end's turnaround, is its points)
+        sp = np.concatenate([shapely.get_coordinates(shapely.segmentize(ln, step) if ln.length > 0 else ln)
+                             for ln in sumo_lines])
         d2 = shapely.distance(shapely.points(sp), xodr_geom)
         res[name] = {"xodr_samples": len(pts), "xodr_to_net_max": float(d1.max()), "xodr_to_net_mean": float(d1.mean()),
                      "xodr_to_net_p99": float(np.percentile(d1, 99)),
