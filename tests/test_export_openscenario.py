@@ -42,14 +42,19 @@ XODR_ROAD_TOLERANCE_M = 0.1
 XODR_JUNCTION_TOLERANCE_M = 0.25
 
 
-def knot_error(vdir: Path, xosc: Path) -> float:
-    """Max distance [m] between the adversary's plan knots and its .xosc polyline at the knot times."""
+def knot_error(vdir: Path, xosc: Path, contact_time: float | None = None) -> tuple[float, int]:
+    """Max distance [m] between the adversary's plan knots and its .xosc polyline at the knot times,
+    over the knots up to its first contact (``contact_time``, SUMO time [s]), and the number of knots
+    after it: the pass freezes the adversary at its contact pose, so a contact one step before
+    t_col leaves the last knot unreached (the .xosc replays the pass)."""
     plan = AdversaryPlan.from_dict(json.loads((vdir / "export" / "variant.json").read_text())["plan"])
     t0 = float(osc.read_parameters(xosc)["SumoTimeOffset"])
     t, x, y, _ = osc.read_xosc_trajectories(xosc)[plan.vehicle_id]
-    ts = plan.times - t0
+    keep = plan.times <= (contact_time if contact_time is not None else np.inf) + 1e-3
+    ts = plan.times[keep] - t0
     assert ts[0] >= t[0] - 1e-6 and ts[-1] <= t[-1] + 1e-6, "the polyline must cover the plan"
-    return float(np.max(np.hypot(np.interp(ts, t, x) - plan.x, np.interp(ts, t, y) - plan.y)))
+    err = np.hypot(np.interp(ts, t, x) - plan.x[keep], np.interp(ts, t, y) - plan.y[keep])
+    return float(np.max(err)), int((~keep).sum())
 
 
 def _traj(vid: str, t0: float, n: int, x0: float, y0: float, heading: float, speed: float,
@@ -166,11 +171,12 @@ def check_openscenario(out: Path) -> list[dict]:
         (xosc_path,) = sorted((vdir / "openscenario").glob("*.xosc"))
         (xodr_path,) = sorted((vdir / "openscenario").glob("*.xodr"))
         assert osc.validate_xosc(xosc_path) == []
-        err = knot_error(vdir, xosc_path)
+        err, after = knot_error(vdir, xosc_path, v["collision_time"])
         assert err <= KNOT_TOLERANCE_M, (v["variant"], err)
+        assert after <= 1, (v["variant"], after)  # a contact before t_col: within one step (0.1 s) of it
         doc = json.loads((vdir / "openscenario" / "trajectories.json").read_text())
         assert {doc["target"], doc["adversary"]} <= set(doc["vehicles"])
-        rows.append({"variant": v["variant"], "knot_error_m": err, "xodr": xodr_path,
+        rows.append({"variant": v["variant"], "knot_error_m": err, "knots_after_contact": after, "xodr": xodr_path,
                      "net": next((vdir / "export").glob("*.net.xml"))})
     return rows
 
