@@ -8,6 +8,7 @@ OUTDIR/
   collisions.xml          SUMO-style collision list (our box check and SUMO's own)
   overview.png            map, agents at t_col, ellipse, all variants, heatmap of oversampled paths
   variants/<i>/trajectory.csv   time, vehicle, x, y, yaw_deg, speed of target and adversary (10 Hz)
+  variants/<i>/trajectories.csv every vehicle of the pass (coster_sumo/exports/trajectories.py)
   variants/<i>/render.png       the variant
   variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg and
                                 traj.fcd.xml: `sumo -c` (or `coster-sumo replay`) plays it, adversary
@@ -27,6 +28,7 @@ import numpy as np
 from coster_sumo import viz
 from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
+from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.sim.inject import InjectionResult
 from coster_sumo.spec import ScenarioSpec
@@ -139,6 +141,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
             variants.append(rec)
             mine.append(rec)
             trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
+            write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
             export_variant(vdir / "export", spec.config, plan,
                            {"target_id": target_id, "planner": planner, "seed": spec.seed,
                             "begin": spec.begin, "end": float(scene.timestamps[-1])}, res)

@@ -26,6 +26,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--variants", type=int, default=5, help="representatives kept (default 5)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--models", type=Path, help="folder with prior/rollout/vocab weights (default: shipped)")
+    run_command.add_export_argument(p)
     p.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     p.set_defaults(func=run)
 

@@ -43,9 +43,18 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                         "pass (same outcome, slower; TraCI always does this)")
     p.add_argument("--traci", action="store_true", help="use a TraCI socket instead of libsumo")
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
+    add_export_argument(p)
     p.add_argument("--models", type=Path, help="folder with prior/rollout/vocab weights (default: shipped)")
     p.add_argument("-o", "--out", type=Path, default=Path("out/run"), help="output folder (default out/run)")
     p.set_defaults(func=run)
+
+
+def add_export_argument(p: argparse.ArgumentParser) -> None:
+    """--export: the formats written per variant besides the standalone SUMO folder."""
+    p.add_argument("--export", choices=("sumo", "openscenario", "all"), default="sumo",
+                   help="sumo (default) = the standalone SUMO folder only; openscenario / all = also "
+                        "variants/<i>/openscenario/ as `coster-sumo export` writes it (needs the extra "
+                        "coster-sumo[openscenario])")
 
 
 def add_method_arguments(p: argparse.ArgumentParser) -> None:
@@ -75,6 +84,11 @@ def end_of(args: argparse.Namespace) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    export = getattr(args, "export", "sumo")
+    if export != "sumo":  # a missing extra fails before any simulation
+        from coster_sumo.exports.openscenario import require_extra
+
+        require_extra()
     spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end_of(args), target=args.target)
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
                       traci=args.traci, render=not args.no_render, quiet=args.quiet,
@@ -87,6 +101,11 @@ def run(args: argparse.Namespace) -> int:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
                f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
         lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else ""))
+    if export != "sumo":
+        from coster_sumo.exports.run_folder import OSC_DIR, export_run
+
+        export_run(args.out, export)
+        lines.append(f"OpenSCENARIO: {args.out}/variants/*/{OSC_DIR}/")
     lines.append(f"wrote {args.out}/summary.json; renders: {args.out}/overview.png, {args.out}/variants/*/render.png")
     if not args.quiet:
         print("\n".join(lines))

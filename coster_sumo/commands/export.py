@@ -1,0 +1,40 @@
+"""``coster-sumo export RUN_OUT``: every variant of a finished run as plain SUMO, OpenSCENARIO + OpenDRIVE,
+CSV and JSON (:mod:`coster_sumo.exports.run_folder`)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from coster_sumo.exports.run_folder import FORMATS, OSC_DIR, export_run
+
+
+def register(cli) -> None:  # type: ignore[no-untyped-def]
+    p = cli.commands.add_parser(
+        "export", help="export the variants of a run for other simulators (SUMO, OpenSCENARIO + OpenDRIVE)",
+        description="For every variant of RUN_OUT (a `coster-sumo run` output folder): sumo = check the "
+                    "standalone SUMO folder variants/<i>/export/ that run wrote; openscenario = write "
+                    f"variants/<i>/{OSC_DIR}/ (.xosc validated against OpenSCENARIO 1.2, .xodr by netconvert, "
+                    "trajectories.csv/.json of the target, the adversary and the vehicles near the target at "
+                    "t_col). The openscenario format needs the optional extra: pip install "
+                    "'coster-sumo[openscenario]'.")
+    p.add_argument("run_out", type=Path, help="output folder of `coster-sumo run`")
+    p.add_argument("--format", choices=FORMATS, default="all", help="(default %(default)s)")
+    p.add_argument("--radius", type=float, default=None,
+                   help="[m] OpenSCENARIO: vehicles within this distance of the target at t_col are included "
+                        "(default 50)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    results = export_run(args.run_out, args.format, args.radius)
+    if not args.quiet:
+        for r in results:
+            parts = []
+            if "sumo" in r:
+                parts.append(f"sumo -c {r['sumo']['sumocfg']}")
+            if "openscenario" in r:
+                o = r["openscenario"]
+                parts.append(f"{o['xosc']} ({o['vehicles']} vehicles, schema-valid)")
+            print(f"variant {r['variant']}: " + "; ".join(parts))
+    return 0
