@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo import dataset as ds
-from coster_sumo.atomic import write_text
+from coster_sumo.atomic import atomic_path, write_text
 
 KMH = 1.0 / 3.6  # [m/s] per km/h
 NO_BIKES = 'disallow="pedestrian bicycle"'
@@ -107,14 +107,10 @@ def netgenerate(path: Path, opts: list[str]) -> None:
     """Write ``path`` with ``netgenerate opts`` (atomically: kept only when netgenerate succeeded)."""
     from coster_sumo import sumo_env
 
-    tmp = path.with_name(f".{path.name.split('.')[0]}.tmp.net.xml")
-    try:
+    with atomic_path(path) as tmp:
         run_tool([sumo_env.binary("netgenerate"), *opts, "--output-file", str(tmp)], "netgenerate")
         if not tmp.exists():
             raise RuntimeError("netgenerate wrote no network")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def generate_nets(dataset: Path, count: int, seed: int) -> tuple[list[Any], list[dict], list[str]]:
@@ -146,14 +142,10 @@ def generate_nets(dataset: Path, count: int, seed: int) -> tuple[list[Any], list
 def _netconvert(folder: Path, stem: str, net: Path, extra: list[str]) -> None:
     from coster_sumo import sumo_env
 
-    tmp = net.with_name(f".{stem}.tmp.net.xml")
-    try:
+    with atomic_path(net) as tmp:
         run_tool([sumo_env.binary("netconvert"), "--node-files", str(folder / f"{stem}.nod.xml"),
                   "--edge-files", str(folder / f"{stem}.edg.xml"), "--no-turnarounds", "true",
                   "--output-file", str(tmp), *extra], "netconvert")
-        tmp.replace(net)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def _write_plain(folder: Path, stem: str, nodes: list[str], edges: list[str]) -> None:

@@ -29,6 +29,7 @@ from multiprocessing.connection import Connection, Pipe
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import SumoError
 from coster_sumo.sim.session import SumoSession
 
@@ -188,9 +189,8 @@ def _worker(session: SumoSession, fn: Job, payload: Any, path: str) -> None:
     code = 0
     try:
         result = fn(session, payload)
-        with open(path + ".tmp", "wb") as fh:
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             pickle.dump(result, fh)
-        os.replace(path + ".tmp", path)
     except BaseException:  # noqa: BLE001 - reported to the holder through the exit code and a file
         with contextlib.suppress(OSError), open(path + ".err", "w") as fh:
             fh.write(traceback.format_exc())
