@@ -210,12 +210,14 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
 
 
 def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
-                  drivable: DrivableArea, exclude: Collection[int] = ()) -> PlannedScenario:
+                  drivable: DrivableArea, exclude: Collection[int] = (),
+                  on_snapshot: Callable[[CollisionSnapshot], None] | None = None) -> PlannedScenario:
     """Snapshot and adversary plans for ``target`` (one draw of the seeded generator).
 
     Plans that would hit the target before t_col are dropped; when none is left, a new snapshot
     is drawn (the generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times; then :class:`NoSnapshot`.
-    ``exclude``: 2 Hz steps not to take as t_col.
+    ``exclude``: 2 Hz steps not to take as t_col. ``on_snapshot`` is called with every snapshot
+    drawn, before its adversaries are generated (the variants' simulations can get ready meanwhile).
     """
     rng = np.random.default_rng(seed)
     low = resample(scene, PRIOR_RATE_HZ)
@@ -223,6 +225,8 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
     reasons: list[str] = []
     for attempt in range(SNAPSHOT_ATTEMPTS):
         snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, exclude)
+        if on_snapshot is not None:
+            on_snapshot(snap)
         plans, samples_xy, info = rollout.generate(low, target, snap, drivable, samples=gen.samples,
                                                    variants=gen.variants, seed=seed, models_dir=gen.models_dir)
         kept: list[AdversaryPlan] = []
@@ -244,20 +248,22 @@ SNAPSHOT_SEPARATION_STEPS = 4  # [2 Hz steps] the collision times of several sna
 
 
 def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                   snapshots: int = 1) -> list[PlannedScenario]:
+                   snapshots: int = 1, on_snapshot: Callable[[CollisionSnapshot], None] | None = None
+                   ) -> list[PlannedScenario]:
     """Up to ``snapshots`` snapshots for one target, each with its own plans: the best collision time
     first, then the next best at least :data:`SNAPSHOT_SEPARATION_STEPS` away from those taken.
 
     The first equals :func:`plan_scenario` with the same seed; the others draw with derived seeds.
     Raises :class:`NoSnapshot` only when not even the first exists; fewer than asked is fine.
     """
-    taken: list[PlannedScenario] = [plan_scenario(scene, target, seed, gen, drivable)]
+    taken: list[PlannedScenario] = [plan_scenario(scene, target, seed, gen, drivable, on_snapshot=on_snapshot)]
     excluded: set[int] = set()
     for j in range(1, snapshots):
         t = taken[-1].snapshot.t_index
         excluded.update(range(t - SNAPSHOT_SEPARATION_STEPS + 1, t + SNAPSHOT_SEPARATION_STEPS))
         try:
-            taken.append(plan_scenario(scene, target, derived_seed(seed, j), gen, drivable, exclude=excluded))
+            taken.append(plan_scenario(scene, target, derived_seed(seed, j), gen, drivable, exclude=excluded,
+                                       on_snapshot=on_snapshot))
         except NoSnapshot:
             break
     offset = 0

@@ -90,20 +90,28 @@ def _near_items(polys: Ragged, points: np.ndarray, radius_m: float) -> np.ndarra
     s0 = np.concatenate([vals[:-1][same], vals])  # (S, 2)
     s1 = np.concatenate([vals[1:][same], vals])
     seg_item = np.concatenate([item[:-1][same], item])
+    # a vehicle's path repeats points while it stands; sorted points make compact blocks below
+    points = np.unique(np.asarray(points, np.float64).reshape(-1, 2), axis=0)
     lo, hi = points.min(axis=0) - radius_m, points.max(axis=0) + radius_m
     seg_lo, seg_hi = np.minimum(s0, s1), np.maximum(s0, s1)
     cand = np.all(seg_hi >= lo, axis=1) & np.all(seg_lo <= hi, axis=1)  # bounding-box prefilter
     s0, s1, seg_item = s0[cand], s1[cand], seg_item[cand]
+    seg_lo, seg_hi = seg_lo[cand], seg_hi[cand]
     if len(s0) == 0:
         return out
     hit = np.zeros(len(s0), dtype=bool)
-    for start in range(0, len(points), 32):  # (S, 32) blocks keep memory small on big maps
-        p = points[start:start + 32][None, :, :]  # (1, P, 2)
-        e = (s1 - s0)[:, None, :]  # (S, 1, 2)
-        t = np.sum((p - s0[:, None, :]) * e, axis=-1) / np.maximum(np.sum(e * e, axis=-1), 1e-12)
+    for start in range(0, len(points), 64):  # blocks of points, each against the segments near it
+        block = points[start:start + 64]
+        b_lo, b_hi = block.min(axis=0) - radius_m, block.max(axis=0) + radius_m
+        near = np.flatnonzero(~hit & np.all(seg_hi >= b_lo, axis=1) & np.all(seg_lo <= b_hi, axis=1))
+        if len(near) == 0:
+            continue
+        a, e = s0[near][:, None, :], (s1[near] - s0[near])[:, None, :]  # (S, 1, 2)
+        p = block[None, :, :]  # (1, P, 2)
+        t = np.sum((p - a) * e, axis=-1) / np.maximum(np.sum(e * e, axis=-1), 1e-12)
         t = np.clip(t, 0.0, 1.0)
-        d = p - s0[:, None, :] - t[..., None] * e  # (S, P, 2)
-        hit |= np.any(np.hypot(d[..., 0], d[..., 1]) <= radius_m, axis=1)
+        d = p - a - t[..., None] * e  # (S, P, 2)
+        hit[near] |= np.any(np.hypot(d[..., 0], d[..., 1]) <= radius_m, axis=1)
     np.logical_or.at(out, seg_item[hit], True)
     return out
 
@@ -175,12 +183,13 @@ def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None
     near = np.any(both & (dist <= radius_m), axis=1)
     near[target] = True
     agents = np.flatnonzero(near)
+    tracks = tr if len(agents) == len(near) else tr.select(agents=agents)  # a focused recording keeps all
     sig = scene.signals
     lane_new = new_index[sig.lane_index] if len(sig.lane_index) else np.zeros(0, np.int64)
     kept_sig = lane_new >= 0
     signals = SignalStates(lane_index=lane_new[kept_sig], state=sig.state[:, kept_sig],
                            stop_point=sig.stop_point[kept_sig])
-    return dataclasses.replace(scene, tracks=tr.select(agents=agents), road_map=road_map,
+    return dataclasses.replace(scene, tracks=tracks, road_map=road_map,
                                signals=signals, sdc_index=int(np.searchsorted(agents, target)))
 
 

@@ -14,11 +14,13 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenarios, simulation_window
+from coster_sumo.core import (PRIOR_RATE_HZ, check_generation, choose_target, nominal_scene, plan_scenarios,
+                              simulation_window)
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
@@ -26,8 +28,13 @@ from coster_sumo.outputs import write_run_outputs
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
+from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.snapshot import NoSnapshot
+from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
+
+
+ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 
 
 @dataclass
@@ -82,7 +89,8 @@ def run(opts: RunOptions) -> dict[str, Any]:
         t0 = time.perf_counter()
         drivable = DrivableArea.from_road_map(scene.road_map)
         try:
-            planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots)
+            planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
+                                     on_snapshot=_advance_held(held))
         except NoSnapshot as exc:
             raise InputError(f"{spec.config}: no collision snapshot for target "
                              f"{str(scene.tracks.ids[target])!r}: {exc}") from None
@@ -105,6 +113,18 @@ def run(opts: RunOptions) -> dict[str, Any]:
         if held is not None:
             held.close()
     return summary
+
+
+def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None] | None:
+    """Once a collision time is drawn, a held copy starts simulating up to shortly before any of its
+    adversaries can appear (in its own process, while this one generates them)."""
+    if held is None:
+        return None
+
+    def advance(snap: CollisionSnapshot) -> None:
+        held.advance(snap.time - HORIZON_STEPS / PRIOR_RATE_HZ - ADVANCE_MARGIN_S)
+
+    return advance
 
 
 def _bar(opts: RunOptions, desc: str, unit: str, total: float | None = None) -> Any:

@@ -235,14 +235,14 @@ def velocity_entropy(pred: Any, ellipse: np.ndarray) -> np.ndarray:
     (1/K) sum_k p_speed_k (x) p_heading_k, and its entropy is computed exactly over all
     speed x heading cells. Steps with no region in the ellipse get NaN.
     """
-    ps = pred.probs["speed"].astype(np.float64)  # (T, K, S)
-    ph = pred.probs["heading"].astype(np.float64)  # (T, K, H)
-    w = ellipse.astype(np.float64)  # (T, K)
-    count = w.sum(axis=1)  # (T,)
-    joint = np.einsum("tk,tks,tkh->tsh", w, ps, ph) / np.maximum(count, 1.0)[:, None, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ent = -np.sum(np.where(joint > 0, joint * np.log(joint), 0.0), axis=(1, 2))
-    return np.where(count > 0, ent, np.nan)
+    ps, ph = pred.probs["speed"], pred.probs["heading"]  # (T, K, S), (T, K, H)
+    out = np.full(ellipse.shape[0], np.nan)
+    for t in np.flatnonzero(ellipse.any(axis=1)):  # a few regions per step: one small product each
+        ks = np.flatnonzero(ellipse[t])
+        joint = ps[t, ks].astype(np.float64).T @ ph[t, ks].astype(np.float64) / len(ks)  # (S, H)
+        p = joint[joint > 0]
+        out[t] = -np.sum(p * np.log(p))
+    return out
 
 
 def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
@@ -256,6 +256,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     presence probabilities ``presence`` (K,) around the target at t_col, for pictures.
     """
     from coster_sumo import weights
+    from coster_sumo.prior.data import at_prior_rate, prepare_scene
     from coster_sumo.prior.infer import load_prior, predict_scene
 
     if model is None:
@@ -264,44 +265,50 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")
     tr = scene.tracks
-    steps = np.arange(scene.num_steps)
-    pred = predict_scene(model, scene, target, steps=steps)
-    if len(pred.regions.centre) == 0:
+    # regions near the target's whole path; the velocity heads at the candidate steps first, then
+    # every head at t_col only (the 1,600-class position head over a long target's life is costly)
+    data = prepare_scene(at_prior_rate(scene), radius=model.config.radius, spacing=model.config.region_spacing,
+                         width=model.config.region_width, crop=tr.xy[target][tr.valid[target]].reshape(-1, 2))
+    if len(data.regions.centre) == 0:
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
-    centres = pred.regions.centre[np.maximum(pred.region_index, 0)]  # (T, K, 2)
-    ellipse = np.zeros(pred.mask.shape, bool)
-    for t in np.flatnonzero(tr.valid[target]):
-        ellipse[t] = pred.mask[t] & in_ellipse(centres[t], AgentState.from_tracks(tr, target, int(t)))
-    entropy = velocity_entropy(pred, ellipse)
+    velocity = predict_scene(model, data, target, steps=window, heads=("speed", "heading"))
+    centres = velocity.regions.centre[np.maximum(velocity.region_index, 0)]  # (W, K, 2)
+    ellipse = np.zeros(velocity.mask.shape, bool)
+    for j, t in enumerate(window):
+        ellipse[j] = velocity.mask[j] & in_ellipse(centres[j], AgentState.from_tracks(tr, target, int(t)))
+    entropy = np.full(scene.num_steps, np.nan)
+    entropy[window] = velocity_entropy(velocity, ellipse)
     t_col = choose_collision_time(window, collision_time, rng, entropy)
+    pred = predict_scene(model, data, target, steps=np.array([t_col]))
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
+    centres_col = pred.regions.centre[np.maximum(pred.region_index[0], 0)]  # (K, 2)
     if regions_out is not None:
-        real = pred.mask[t_col]
-        regions_out["xy"] = centres[t_col][real]
-        regions_out["presence"] = pred.presence[t_col][real]
-    cands = np.flatnonzero(ellipse[t_col])
+        real = pred.mask[0]
+        regions_out["xy"] = centres_col[real]
+        regions_out["presence"] = pred.presence[0][real]
+    cands = np.flatnonzero(pred.mask[0] & in_ellipse(centres_col, tgt))
     if len(cands) == 0:
         raise NoSnapshot(f"no map region inside the target's ellipse at {scene.timestamps[t_col]:.1f} s")
-    order = cands[np.argsort(-pred.presence[t_col, cands], kind="stable")][:MAX_REGIONS_TRIED]
+    order = cands[np.argsort(-pred.presence[0, cands], kind="stable")][:MAX_REGIONS_TRIED]
     reasons = []
     fwd = np.array([np.cos(tgt.yaw), np.sin(tgt.yaw)])
     left = np.array([-fwd[1], fwd[0]])
     centre = np.array([tgt.x, tgt.y])
     for k in order:
-        s = pred.sample(rng, np.array([t_col]), np.array([k]))
+        s = pred.sample(rng, np.array([0]), np.array([k]))
         heading = float(s["world_heading"][0])
         length, width = float(s["length"][0]), float(s["width"][0])
         starts = np.stack([s["world_xy"][0], centre + SIDE_START_M * fwd, centre - SIDE_START_M * fwd,
                            centre + SIDE_START_M * left, centre - SIDE_START_M * left])  # (5, 2)
         boxes, sd = contact_placements(tgt, np.full(5, heading), np.full(5, max(length, 1.0)),
                                        np.full(5, max(width, 0.5)), starts)
-        logp = pred.position_log_prob(boxes[:, :2], np.full(5, t_col), np.full(5, k))
+        logp = pred.position_log_prob(boxes[:, :2], np.zeros(5, np.int64), np.full(5, k))
         logp = np.where(np.isnan(boxes).any(axis=1), np.nan, logp)
         ok = acceptable(boxes, obstacles, drivable)
         ok &= closing(np.nan_to_num(boxes), np.full(5, float(s["speed"][0])), tgt)
         if not ok.any():
-            reasons.append(f"region {int(pred.region_index[t_col, k])}: no contact placement is on the road, "
+            reasons.append(f"region {int(pred.region_index[0, k])}: no contact placement is on the road, "
                            "free of other agents and closing in on the target")
             continue
         score = np.where(ok, np.nan_to_num(logp, nan=-np.inf, neginf=-1e9), -np.inf)
@@ -313,7 +320,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         return CollisionSnapshot(
             scenario_id=scene.scenario_id, target_id=str(tr.ids[target]), t_index=t_col,
             time=float(scene.timestamps[t_col]), target=tgt, adversary=adv,
-            region_id=int(pred.region_index[t_col, k]), presence_prob=float(pred.presence[t_col, k]),
+            region_id=int(pred.region_index[0, k]), presence_prob=float(pred.presence[0, k]),
             position_logprob=float(logp[best]), signed_distance=float(sd[best]),
             entropy=tuple(float(v) for v in entropy), collision_time_method=collision_time,
             init_method="snapshot", seed=seed)

@@ -141,3 +141,28 @@ def test_manifest_totals(tmp_path):
     (tmp_path / dataset.MANIFEST).write_text("{}")
     with pytest.raises(InputError):
         dataset.read_manifest(tmp_path)
+
+
+def test_near_items_equals_brute_force_on_random_polylines():
+    """The blocked search keeps exactly the polylines a distance to every point and segment keeps."""
+    from coster_sumo.scene import Ragged
+
+    rng = np.random.default_rng(4)
+    polys = [np.cumsum(rng.normal(0, 40, (int(rng.integers(1, 6)), 2)), axis=0) + rng.uniform(-500, 500, 2)
+             for _ in range(300)]
+    points = np.concatenate([np.repeat(rng.uniform(-300, 300, (1, 2)), 50, axis=0),  # a vehicle standing
+                             np.cumsum(rng.normal(0, 3, (700, 2)), axis=0)])
+    radius = 60.0
+
+    def dist(poly: np.ndarray) -> float:
+        best = np.inf
+        for a, b in zip(poly, poly[1:] if len(poly) > 1 else poly, strict=False):
+            e = b - a
+            t = np.clip(((points - a) @ e) / max(e @ e, 1e-12), 0, 1)
+            best = min(best, float(np.min(np.hypot(*(points - a - t[:, None] * e).T))))
+        return best
+
+    expected = np.array([dist(p) <= radius for p in polys])
+    got = dataset._near_items(Ragged.from_list(polys, dtype=np.float64, inner_shape=(2,)), points, radius)
+    assert 0 < expected.sum() < len(polys)
+    assert np.array_equal(got, expected)

@@ -55,3 +55,60 @@ def test_same_seed_same_outcome_held_or_from_begin(tmp_path, network, planner):
         for vid in oa["tracks"]:
             assert np.array_equal(oa["tracks"][vid], ob["tracks"][vid]), vid
         assert {k: v for k, v in oa.items() if k != "tracks"} == {k: v for k, v in ob.items() if k != "tracks"}
+
+
+@pytest.mark.parametrize(("network", "planner"), [("intersection", "replay"), ("merge", "sumo")])
+def test_advanced_holder_gives_the_same_outcome(tmp_path, network, planner):
+    """A holder advanced in the background (while adversaries are generated) is a run from ``begin``."""
+    spec = ScenarioSpec(REPO / "networks" / network / f"{network}.sumocfg", seed=3)
+    gen = GenerationConfig(init="random", rollout="cv", variants=2)
+    with HeldStates("ego", spacing_s=1000.0) as held:  # one holder, at the target's departure
+        scene, _ = nominal_scene(spec, hold=held)
+        assert len(held.holders) == 1
+        target = choose_target(scene, None, spec.config)
+        drivable = DrivableArea.from_road_map(scene.road_map)
+        variants, _ = generate_variants(scene, target, spec.seed, gen, drivable)
+        plans = [v.plan for v in variants]
+        first = min(p.t_start for p in plans)
+        new = held.advance(first - 0.45)
+        assert new is not None and len(held.holders) == 2
+        assert held.advance(first - 0.2) is None  # already within MIN_ADVANCE_S: nothing to gain
+        from_held = inject_variants(spec, scene, target, plans, planner, drivable=drivable, workdir=tmp_path,
+                                    held=held, workers=2)
+        assert new.ready and first - 0.45 - 1e-6 <= new.time < first
+        times = [held.holder_before(p.t_start).time for p in plans]
+        assert times == [new.time] * len(plans)
+    from_begin = inject_variants(spec, scene, target, plans, planner, drivable=drivable, workdir=tmp_path)
+    for plan, since, a, b in zip(plans, times, from_held, from_begin, strict=True):
+        oa, ob = _outcome(a, "ego", plan.vehicle_id, since), _outcome(b, "ego", plan.vehicle_id, since)
+        for vid in oa["tracks"]:
+            assert np.array_equal(oa["tracks"][vid], ob["tracks"][vid]), vid
+        assert {k: v for k, v in oa.items() if k != "tracks"} == {k: v for k, v in ob.items() if k != "tracks"}
+
+
+def test_thinning_keeps_the_first_and_the_newest_holder(monkeypatch):
+    """However long the target lives, a holder at its departure stays (any t_col comes after it)."""
+    from coster_sumo.sim import hold
+
+    class FakeSession:
+        uses_traci, port, time = False, None, 0.0
+
+        def vehicle_ids(self):
+            return ("ego",)
+
+    made, stopped = [], []
+
+    def fake_hold(self, session):
+        made.append(session.time)
+        self.holders.append(hold._Holder(session.time, -1, None))
+
+    monkeypatch.setattr(hold.HeldStates, "_hold", fake_hold)
+    monkeypatch.setattr(hold.HeldStates, "_stop", staticmethod(lambda h: stopped.append(h.time)))
+    held, sim = hold.HeldStates("ego", max_holders=4, spacing_s=1.0), FakeSession()
+    for k in range(1, 2000):
+        sim.time = 100.0 + 0.1 * k
+        held.after_step(sim)
+        assert len(held.holders) <= 4
+        assert held.holders[0].time == made[0]  # the departure's holder is never dropped
+        assert held.holders[-1].time == made[-1]  # nor the newest
+    assert len(made) > 10 and len(stopped) == len(made) - len(held.holders)

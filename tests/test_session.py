@@ -13,6 +13,8 @@ from coster_sumo import frames, sumo_env
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.sim.session import RECOMMENDED_OPTIONS, SumoSession
 
+REPO = Path(__file__).resolve().parents[1]
+
 pytestmark = pytest.mark.sumo
 
 # Three vehicles on a 3x3 traffic-light grid (A0..C2, 100 m blocks, 2 lanes per direction).
@@ -235,3 +237,24 @@ def test_attach_to_an_external_server(grid_cfg):
     finally:
         if server.poll() is None:
             server.kill()
+
+
+def test_vehicles_near_values_equal_the_getters():
+    """States read from the context subscription of vehicles_near are what the getters say."""
+    with SumoSession(REPO / "networks" / "arterial" / "arterial.sumocfg", seed=1) as sim:
+        for _ in range(300):
+            sim.step()
+        centre = sim.vehicle_ids()[0]
+        checked = 0
+        for _ in range(20):
+            sim.step()
+            if centre not in sim.vehicle_ids():
+                break
+            near = sim.vehicles_near(centre, 80.0)
+            fast = sim.vehicle_states(near)
+            sim._near_values = {}  # force the getters
+            slow = sim.vehicle_states(near)
+            for f in ("x", "y", "yaw", "speed", "length", "width"):
+                assert np.array_equal(getattr(fast, f), getattr(slow, f)), f
+            checked += len(near) > 1
+        assert checked >= 5

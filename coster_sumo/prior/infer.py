@@ -10,6 +10,7 @@ target: one forward pass with the steps as the batch.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -141,22 +142,26 @@ class PriorPrediction:
 
 
 @torch.no_grad()
-def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
-                   ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False,
+                   heads: Collection[str] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Presence probabilities (B, K) and attribute probabilities (B, K, C) of a token batch.
 
     Padding is never computed (zeros there). ``only_query`` evaluates the heads on the query tokens
     only (the others get zeros too), which saves most of the cost when few tokens are hidden.
+    ``heads``: the attributes to predict (default all); the position head alone has 1,600 classes.
     """
     mask = tokens.mask
     h = model.encode_packed(torch.from_numpy(tokens.map_features), torch.from_numpy(tokens.agent_features),
                             torch.from_numpy(mask))  # (N, 2D) real tokens only
     sel = (tokens.query & mask) if only_query else mask  # (B, K)
-    out = model.decode(h[torch.from_numpy(sel[mask])])  # heads on the selected tokens only
+    hs = h[torch.from_numpy(sel[mask])]  # heads on the selected tokens only
     presence = np.zeros(mask.shape, np.float32)
-    presence[sel] = torch.sigmoid(out.presence).numpy()
+    presence[sel] = torch.sigmoid(model.presence_head(hs)[..., 0]).numpy()
     probs = {}
-    for a, v in out.attributes.items():
+    for a, head in model.heads.items():
+        if heads is not None and a not in heads:
+            continue
+        v = head(hs)
         full = np.zeros(mask.shape + (v.shape[-1],), np.float32)
         full[sel] = torch.softmax(v, dim=-1).numpy()
         probs[a] = full
@@ -165,7 +170,8 @@ def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
 
 def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: int,
                   steps: np.ndarray | None = None, mode: str = "context",
-                  pose: np.ndarray | None = None, hide_radius: float | None = None) -> PriorPrediction:
+                  pose: np.ndarray | None = None, hide_radius: float | None = None,
+                  heads: Collection[str] | None = None) -> PriorPrediction:
     """Run the prior around ``target`` at every step (one batched forward pass).
 
     Args:
@@ -181,6 +187,7 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
             the target is invalid; such steps otherwise get no regions).
         hide_radius: [m] for "context" mode (default ``config.hide_radius``, 15 m); the region
             centres to be predicted must lie within it.
+        heads: the attributes to predict (default all; :meth:`PriorPrediction.sample` needs all).
     """
     cfg = model.config
     if isinstance(scene, Scene):
@@ -210,7 +217,7 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
     pose = np.where(ok[:, None], pose, 1e12)  # far away: no regions at steps without a target
     tokens = scene_tokens(data, st, np.asarray(pose, np.float64), cfg.bins(), cfg.radius, cfg.max_regions,
                           visible=mode, hide_radius=cfg.hide_radius if hide_radius is None else hide_radius)
-    presence, probs = predict_tokens(model, tokens, only_query=True)
+    presence, probs = predict_tokens(model, tokens, only_query=True, heads=heads)
     agent, _, _ = data.occupancy.gather(st[:, None], np.maximum(tokens.region_index, 0))
     return PriorPrediction(regions=data.regions, steps=st, region_index=tokens.region_index, mask=tokens.mask,
                            query=tokens.query, observed_agent=np.where(tokens.mask, agent, -1),

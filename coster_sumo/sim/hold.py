@@ -8,7 +8,10 @@ seed would (docs/sumo.md §10: a forked libsumo process continues bit-exactly; S
 do not), without simulating the prefix again.
 
 Holders are thinned as the pass goes on (every other one is dropped and the spacing doubles when
-there are too many), so their number and memory stay bounded. Only libsumo sessions are held: a
+there are too many), so their number and memory stay bounded. Once a collision time is known,
+:meth:`HeldStates.advance` has the latest holder before it fork a new holder that simulates up to
+shortly before the adversary appears, in the background (on another core) while the adversaries
+are generated: the variants then start from there and do not each simulate the gap again. Only libsumo sessions are held: a
 TraCI connection cannot be shared by forked processes, so TraCI runs start every variant from
 ``begin``. What runs in a held copy is SUMO and numpy only: a forked process does not carry torch's
 thread pools over (holders are made during the nominal pass, before any model is loaded).
@@ -20,6 +23,7 @@ import contextlib
 import os
 import pickle
 import signal
+import socket
 import sys
 import tempfile
 import traceback
@@ -35,15 +39,18 @@ from coster_sumo.sim.session import SumoSession
 
 MAX_HOLDERS = 8
 FIRST_SPACING_S = 10.0  # [s] simulation time between holders before any thinning
+MIN_ADVANCE_S = 2.0  # [s] a gap shorter than this is simulated by each variant itself
+CONNECT_TIMEOUT_S = 60.0  # [s] for an advanced holder to call back (it does so right after its fork)
 
 Job = Callable[[SumoSession, Any], Any]
 
 
 @dataclass
 class _Holder:
-    time: float  # [s] the simulation time it holds
+    time: float  # [s] the simulation time it holds (for an advancing one: the time it advances to)
     pid: int
     conn: Connection
+    ready: bool = True  # False while an advanced holder is still simulating up to ``time``
 
 
 def can_hold(session: SumoSession) -> bool:
@@ -85,8 +92,10 @@ class HeldStates:
             return False
         self._hold(session)
         self._next_s = t + self.spacing_s
-        if len(self.holders) > self.max_holders:  # keep every other one (the newest stays)
-            keep = self.holders[len(self.holders) % 2::2]
+        if len(self.holders) > self.max_holders:
+            # keep the first (the target's departure: any t_col is after it) and every other one
+            # of the rest, counted back from the newest
+            keep = [self.holders[0], *self.holders[1:][::-1][::2][::-1]]
             for h in self.holders:
                 if h not in keep:
                     self._stop(h)
@@ -115,11 +124,57 @@ class HeldStates:
         before = [h for h in self.holders if h.time <= t + 1e-9]
         return before[-1] if before else None
 
+    def advance(self, t: float) -> _Holder | None:
+        """Start a new holder at the first step at or after ``t`` [s], made from the latest one before.
+
+        Returns at once: the new holder simulates from the old one's moment up to ``t`` in its own
+        process; :meth:`run` waits for it. The old holder stays (other variants may start earlier).
+        Returns None (and does nothing) when the latest holder is already within
+        :data:`MIN_ADVANCE_S` of ``t``, or there is none.
+        """
+        h = self.holder_before(t)
+        if h is None or t - h.time < MIN_ADVANCE_S:
+            return None
+        with tempfile.TemporaryDirectory(prefix="coster-hold-") as tmp:
+            address = str(Path(tmp) / "holder.sock")
+            server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                server.bind(address)
+                server.listen(1)
+                server.settimeout(CONNECT_TIMEOUT_S)
+                self._wait_ready(h)
+                h.conn.send(("advance", t, address))
+                try:
+                    sock, _ = server.accept()
+                except OSError as exc:
+                    raise SumoError(f"a held simulation did not start its advanced copy: {exc}") from None
+            finally:
+                server.close()
+        sock.settimeout(None)
+        new = _Holder(t, -1, Connection(sock.detach()), ready=False)
+        self.holders.append(new)
+        self.holders.sort(key=lambda x: x.time)
+        return new
+
+    @staticmethod
+    def _wait_ready(h: _Holder) -> None:
+        """Block until an advanced holder has reached its moment (its real time replaces the asked one)."""
+        if h.ready:
+            return
+        try:
+            msg = h.conn.recv()
+        except (EOFError, OSError):
+            msg = ("failed", "it exited")
+        if msg[0] != "ready":
+            raise SumoError(f"a held simulation failed to advance to {h.time:.1f} s: {msg[1]}")
+        h.time, h.pid, h.ready = float(msg[1]), int(msg[2]), True
+
     def run(self, holder: _Holder, jobs: Sequence[tuple[Job, Any]], workers: int = 1) -> list[Any]:
         """Run ``job(session, payload)`` for each job in a copy of ``holder``'s simulation.
 
         Returns each job's result, in order; a job that failed raises its error here.
         """
+        self._wait_ready(holder)
         with tempfile.TemporaryDirectory(prefix="coster-hold-") as tmp:
             paths = [str(Path(tmp) / f"{i}.pickle") for i in range(len(jobs))]
             holder.conn.send(("run", [(fn, payload, path) for (fn, payload), path in zip(jobs, paths, strict=True)],
@@ -144,8 +199,9 @@ class HeldStates:
             h.conn.send(("quit",))
         with contextlib.suppress(OSError):
             h.conn.close()
-        with contextlib.suppress(ChildProcessError, OSError):
-            os.waitpid(h.pid, 0)
+        if h.pid > 0:  # an advanced holder is its maker's child, not ours: the maker or init reaps it
+            with contextlib.suppress(ChildProcessError, OSError):
+                os.waitpid(h.pid, 0)
 
 
 def _holder_loop(session: SumoSession, conn: Connection) -> None:
@@ -158,6 +214,9 @@ def _holder_loop(session: SumoSession, conn: Connection) -> None:
                 msg = conn.recv()
             except (EOFError, OSError):
                 break
+            if msg[0] == "advance":
+                _advance_copy(session, conn, float(msg[1]), str(msg[2]))
+                continue
             if msg[0] != "run":
                 break
             _, jobs, workers = msg
@@ -183,6 +242,34 @@ def _holder_loop(session: SumoSession, conn: Connection) -> None:
     except BaseException:  # noqa: BLE001 - a holder never raises into the main program's stack
         code = 1
     os._exit(code)
+
+
+def _advance_copy(session: SumoSession, conn: Connection, t: float, address: str) -> None:
+    """In a holder: fork a copy that calls back at ``address``, simulates up to ``t`` [s] and holds."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if os.fork() != 0:
+        return  # the holder goes on waiting for jobs
+    conn.close()  # the maker's connection belongs to the maker
+    code = 0
+    try:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.connect(address)
+        mine = Connection(sock.detach())
+    except BaseException:  # noqa: BLE001 - nobody to tell: the main process times out waiting
+        os._exit(1)
+    try:
+        eps = 1e-6 * session.step_length
+        while session.time < t - eps:
+            session.step()
+        mine.send(("ready", session.time, os.getpid()))
+    except BaseException as exc:  # noqa: BLE001 - reported to the main process, which raises it
+        with contextlib.suppress(OSError):
+            mine.send(("failed", " ".join(str(exc).split()) or type(exc).__name__))
+        code = 1
+    if code:
+        os._exit(code)
+    _holder_loop(session, mine)  # never returns
 
 
 def _worker(session: SumoSession, fn: Job, payload: Any, path: str) -> None:

@@ -206,7 +206,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         before_step: called before every simulation step, e.g. to ``move_to_xy`` an adversary.
         after_step: called after every step with the vehicle states just read; return True to stop.
         focus: record only the surroundings of one vehicle while it runs (see :class:`Focus`); the
-            steps before it departs are recorded empty (nothing is read), so the time grid stays.
+            recording starts with the step it departs in (the steps before are simulated, not
+            recorded) and has no step if it never departs.
         scenario_id: default ``<config or net stem>_seed<seed>``.
         meta: extra metadata merged into ``Scene.meta``.
     """
@@ -229,6 +230,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     signal_rows: list[np.ndarray] = []
     steps = 0
     seen_target = focus is not None and focus.target_id in session.vehicle_ids()
+    started = seen_target  # a focused recording begins when its vehicle departs
     end_at: float | None = None  # [s] when a focused recording stops (after the target arrived)
     while True:
         if max_steps is not None and steps >= max_steps:
@@ -252,6 +254,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
                 break
             if not seen_target and focus.target_id in session.departed_ids():
                 seen_target = True
+            started = started or seen_target
             if seen_target:
                 near = session.vehicles_near(focus.target_id, focus.radius_m)
                 if focus.extra_ids:
@@ -259,17 +262,18 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
                     near += [v for v in focus.extra_ids
                              if v not in present and v in running and v not in session.hidden]
                 st = session.vehicle_states(near)
-            else:  # the steps keep SUMO's time grid; nothing around the target to read yet
+            else:  # the target is not (or no longer) in the network: nothing around it to read
                 st = empty_states()
         stop = bool(after_step(session, st)) if after_step is not None else False
-        if begin is None or t >= begin - eps:
-            idx = np.empty(len(st), np.int64)
-            for i, vid in enumerate(st.id_list()):
-                k = agent.get(vid)
-                if k is None:
-                    k = agent[vid] = len(agent)
+        if focus is not None and not seen_target and not started:
+            pass  # the focused vehicle has not departed yet: nothing to record
+        elif begin is None or t >= begin - eps:
+            names = st.id_list()
+            for i in [i for i, vid in enumerate(names) if vid not in agent]:  # first appearances
+                if names[i] not in agent:
+                    agent[names[i]] = len(agent)
                     kinds.append(int(_OBJECT_TYPE.get(str(st.vclass[i]), ObjectType.VEHICLE)))
-                idx[i] = k
+            idx = np.fromiter(map(agent.__getitem__, names), np.int64, len(names))
             times.append(t)
             rows.append((idx, st))
             signal_rows.append(table.states(session.tls_states()) if len(table.lane_index) else
