@@ -21,7 +21,7 @@ from coster_sumo import sumo_env
 
 # name: (configuration under tools/game, target vehicle, what it is)
 CONFIGS = {
-    "fokr_bs_demo": ("fokr_bs_demo.sumocfg", "1695568505827345",
+    "fokr_bs_demo": ("fokr_bs_demo.sumocfg", "1695567712787794",
                      "Braunschweig intersection, measured demand 15:00-16:00, begin 54000 s, 0.05 s steps"),
     "fkk_in": ("fkk_in.sumocfg", "1_horizontal.0", "Ingolstadt (OSM) signalised junction, 180 s"),
     "bs3Dosm": ("bs3Dosm.sumocfg", "1_right.0", "Braunschweig (OSM) junction, made for sumo-gui's 3D view"),

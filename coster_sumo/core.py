@@ -46,7 +46,8 @@ from coster_sumo.spec import GenerationConfig, ScenarioSpec
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
 
 PRIOR_RATE_HZ = 2.0  # [1/s] the prior and the rollout work at 2 Hz
-SNAPSHOT_ATTEMPTS = 5  # snapshot + rollout attempts before a scene is declared unusable
+SNAPSHOT_ATTEMPTS = 10  # snapshot + rollout attempts before a scene is declared unusable
+STRICT_ATTEMPTS = 5  # the first attempts take only placements that close in on the target
 
 
 @dataclass
@@ -209,13 +210,18 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
     return float(times[sel][np.argmax(hit)]) if hit.any() else None
 
 
+SNAPSHOT_SEPARATION_STEPS = 4  # [2 Hz steps] the collision times of several snapshots lie 2 s apart or more
+
+
 def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
                   drivable: DrivableArea, exclude: Collection[int] = (),
                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None) -> PlannedScenario:
     """Snapshot and adversary plans for ``target`` (one draw of the seeded generator).
 
     Plans that would hit the target before t_col are dropped; when none is left, a new snapshot
-    is drawn (the generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times; then :class:`NoSnapshot`.
+    is drawn (the generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times; then
+    :class:`NoSnapshot`. The first :data:`STRICT_ATTEMPTS` draws take only placements that close in
+    on the target (:func:`coster_sumo.snapshot.closing`), the others also grazing ones.
     ``exclude``: 2 Hz steps not to take as t_col. ``on_snapshot`` is called with every snapshot
     drawn, before its adversaries are generated (the variants' simulations can get ready meanwhile).
     """
@@ -223,8 +229,18 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
     low = resample(scene, PRIOR_RATE_HZ)
     init, rollout = SNAPSHOT_INITS[gen.init], ROLLOUTS[gen.rollout]
     reasons: list[str] = []
+    relaxed = False
     for attempt in range(SNAPSHOT_ATTEMPTS):
-        snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, exclude)
+        relaxed = relaxed or attempt >= STRICT_ATTEMPTS
+        try:
+            snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, exclude,
+                              strict=not relaxed)
+        except NoSnapshot:
+            if relaxed:
+                raise
+            relaxed = True  # no placement closes in on the target: take grazing ones from now on
+            snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, exclude,
+                              strict=False)
         if on_snapshot is not None:
             on_snapshot(snap)
         plans, samples_xy, info = rollout.generate(low, target, snap, drivable, samples=gen.samples,
@@ -241,10 +257,7 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
             info = {**info, "attempt": attempt + 1, "candidates": len(plans), "kept": len(kept), "dropped": dropped}
             return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
         reasons.append(f"t_col {snap.time:.1f} s: every trajectory hits the target before t_col")
-    raise NoSnapshot(f"{SNAPSHOT_ATTEMPTS} attempts failed ({reasons[-1]})")
-
-
-SNAPSHOT_SEPARATION_STEPS = 4  # [2 Hz steps] the collision times of several snapshots lie 2 s apart or more
+    raise NoSnapshot(f"{SNAPSHOT_ATTEMPTS} attempts failed ({reasons[-1] if reasons else 'no placement'})")
 
 
 def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,

@@ -5,8 +5,9 @@ Everything works on a 2 Hz scene (:func:`coster_sumo.scene.resample`).
 **Search window.** The collision step t_col is searched in [MARGIN_START, T - 1 - MARGIN_END]
 (2 Hz steps, both edges excluded): the first ``MARGIN_START`` = 5 steps (2.5 s) are skipped so that
 a backward rollout of useful length fits before the contact, and the last ``MARGIN_END`` = 5 steps
-so that the pass shows what happens after it. Short scenes shrink both margins proportionally, and
-the target must be valid at t_col.
+so that the pass shows what happens after it. Short scenes shrink both margins proportionally. The
+target must be in the scene for the rollout horizon (5 s) before t_col and for ``AFTER_STEPS`` (5 s)
+after it, or up to the scene's end: not in its last seconds before it leaves the network.
 
 **Collision time** (``--collision-time``): ``entropy`` = the step of highest entropy of the mean
 predicted velocity distribution of the regions inside the target's ellipse (needs the prior,
@@ -14,7 +15,8 @@ predicted velocity distribution of the regions inside the target's ellipse (need
 the window (seeded).
 
 **Placement** (``--init snapshot``): in the ellipse at t_col, the region with the highest presence
-probability; heading, speed and size sampled from its heads; the candidate box translated towards
+probability; heading, speed and size sampled from its heads and made plausible (a real vehicle
+class's size, no standstill in moving traffic: :mod:`coster_sumo.plausible`); the candidate box translated towards
 the target at fixed relative heading until the boxes touch; among the contact placements (from the
 expected position, and from each of the target's four sides) the one with the highest position
 log-probability is kept. Placements that overlap another agent or leave the drivable area are
@@ -46,12 +48,14 @@ from coster_sumo.geometry import (
     touch_translation,
     translate_boxes,
 )
+from coster_sumo.plausible import local_speeds, moving_speed, stop_plausible, vehicle_size
 from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.scene import Scene
 from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
 MARGIN_START = 5  # [2 Hz steps] skipped at the start of the window (a rollout must fit)
 MARGIN_END = 5  # [2 Hz steps] skipped at the end
+AFTER_STEPS = HORIZON_STEPS  # [2 Hz steps] the target stays in the network this long after t_col
 RANDOM_TRIES = 200
 START_DISTANCE_M = 30.0  # [m] candidates start this far out and are translated towards the target
 ADV_LENGTH_M, ADV_WIDTH_M = 4.5, 1.9  # [m] the baseline's adversary size (a sedan)
@@ -68,12 +72,13 @@ def search_window(scene: Scene, target: int, exclude: Collection[int] = ()) -> n
     m1 = min(MARGIN_END, max(0, n // 4))
     steps = np.arange(m0, n - m1)
     valid = scene.tracks.valid[target]
-    # the target must be there at t_col and for the step after it (it has not just left the net),
-    # and for the whole approach before it (the rollout's horizon, cut at the scene's start): an
-    # adversary that starts before the target exists can take the place the target departs from
-    ok = valid[steps] & valid[np.minimum(steps + 1, n - 1)]
     since = np.concatenate([[0], np.cumsum(~valid)])  # invalid steps before each index
-    ok &= since[steps + 1] - since[np.maximum(steps - HORIZON_STEPS, 0)] == 0
+    # the target must be there for the whole approach before t_col (the rollout's horizon, cut at
+    # the scene's start): an adversary that starts before the target exists can take the place the
+    # target departs from; and for AFTER_STEPS after it (cut at the scene's end): a vehicle about
+    # to leave the network is at the map's edge, where the prior sees half a neighbourhood, and a
+    # contact there shows nothing of what follows (docs/method.md, collision time)
+    ok = since[np.minimum(steps + AFTER_STEPS + 1, n)] - since[np.maximum(steps - HORIZON_STEPS, 0)] == 0
     if len(exclude):
         ok &= ~np.isin(steps, np.fromiter(exclude, np.int64))
     return steps[ok]
@@ -173,20 +178,35 @@ def acceptable(boxes: np.ndarray, obstacles: Obstacles, drivable: DrivableArea |
     return ok
 
 
-def closing(boxes: np.ndarray, speed: np.ndarray, target: AgentState) -> np.ndarray:
-    """(N,) bool: the placed adversaries (N, 5) at ``speed`` (N,) move towards the target.
+APART_BEFORE_S = 0.5  # [s] one 2 Hz step before contact ...
+APART_BEFORE_M = 0.1  # [m] ... the boxes were this far apart (they close in, not slide along each other)
 
-    A snapshot is a collision only if the two boxes approach each other at contact; otherwise they
-    were overlapping just before it (the relative velocity points from the target to the adversary).
+
+def closing(boxes: np.ndarray, speed: np.ndarray, target: AgentState, strict: bool = True) -> np.ndarray:
+    """(N,) bool: the placed adversaries (N, 5) at ``speed`` (N,) run into the target.
+
+    A snapshot is a collision only if the two boxes approach each other at contact (the relative
+    velocity points from the adversary towards the target); otherwise they were overlapping just
+    before it. ``strict`` also asks that, moved back along their relative velocity by one 2 Hz step
+    (:data:`APART_BEFORE_S`), they are at least :data:`APART_BEFORE_M` apart: boxes that slide
+    along each other (a stopped vehicle touching the side of one driving past) touched before t_col
+    too, and every approach to such a placement hits the target early.
     """
     v_adv = speed[:, None] * np.stack([np.cos(boxes[:, 2]), np.sin(boxes[:, 2])], axis=1)
     rel = v_adv - target.velocity[None, :]  # (N, 2)
     to_target = np.array([target.x, target.y])[None, :] - boxes[:, :2]
-    return np.sum(rel * to_target, axis=1) > 0.0
+    ok = np.sum(rel * to_target, axis=1) > 0.0
+    if strict:
+        before = boxes.copy()
+        before[:, :2] -= rel * APART_BEFORE_S
+        tgt_box = make_boxes(target.x, target.y, target.yaw, target.length, target.width)
+        ok &= box_signed_distance(np.broadcast_to(tgt_box, before.shape), before) >= APART_BEFORE_M
+    return ok
 
 
 def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                    collision_time: str = "last", seed: int = 0, exclude: Collection[int] = ()) -> CollisionSnapshot:
+                    collision_time: str = "last", seed: int = 0, exclude: Collection[int] = (),
+                    strict: bool = True) -> CollisionSnapshot:
     """The Adv-BMT-style baseline: a random pose offset from the target, in contact at t_col.
 
     ``exclude``: 2 Hz steps not to choose as t_col (those of snapshots already taken).
@@ -202,7 +222,7 @@ def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivabl
     boxes, sd = contact_placements(tgt, tgt.yaw + rel_heading, np.full(RANDOM_TRIES, ADV_LENGTH_M),
                                    np.full(RANDOM_TRIES, ADV_WIDTH_M), start)
     ok = acceptable(boxes, obstacles, drivable)
-    ok &= closing(np.nan_to_num(boxes), speed, tgt)
+    ok &= closing(np.nan_to_num(boxes), speed, tgt, strict)
     if not ok.any():
         if drivable is not None:
             gap = float(drivable.geometry.distance(shapely.Point(tgt.x, tgt.y)))
@@ -248,7 +268,7 @@ def velocity_entropy(pred: Any, ellipse: np.ndarray) -> np.ndarray:
 def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                    collision_time: str = "entropy", seed: int = 0, models_dir: Path | None = None,
                    model: Any = None, regions_out: dict[str, np.ndarray] | None = None,
-                   exclude: Collection[int] = ()) -> CollisionSnapshot:
+                   exclude: Collection[int] = (), strict: bool = True) -> CollisionSnapshot:
     """COSTER's snapshot: t_col from the velocity entropy, placement from the prior (module docstring).
 
     ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in ``models_dir`` (default: the shipped
@@ -298,7 +318,12 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     for k in order:
         s = pred.sample(rng, np.array([0]), np.array([k]))
         heading = float(s["world_heading"][0])
-        length, width = float(s["length"][0]), float(s["width"][0])
+        length, width, _ = vehicle_size(float(s["length"][0]), float(s["width"][0]))  # a real vehicle's size
+        speed = float(s["speed"][0])
+        lane = int(pred.regions.lane_index[pred.region_index[0, k]])
+        if speed < pred.bins.stopped_speed and not stop_plausible(scene, t_col, target, lane, s["world_xy"][0]):
+            speed = moving_speed(pred.probs["speed"][0, k], pred.bins.centres("speed"), 0, rng,
+                                 fastest=float(np.max(local_speeds(scene, t_col, target))))
         starts = np.stack([s["world_xy"][0], centre + SIDE_START_M * fwd, centre - SIDE_START_M * fwd,
                            centre + SIDE_START_M * left, centre - SIDE_START_M * left])  # (5, 2)
         boxes, sd = contact_placements(tgt, np.full(5, heading), np.full(5, max(length, 1.0)),
@@ -306,7 +331,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         logp = pred.position_log_prob(boxes[:, :2], np.zeros(5, np.int64), np.full(5, k))
         logp = np.where(np.isnan(boxes).any(axis=1), np.nan, logp)
         ok = acceptable(boxes, obstacles, drivable)
-        ok &= closing(np.nan_to_num(boxes), np.full(5, float(s["speed"][0])), tgt)
+        ok &= closing(np.nan_to_num(boxes), np.full(5, speed), tgt, strict)
         if not ok.any():
             reasons.append(f"region {int(pred.region_index[0, k])}: no contact placement is on the road, "
                            "free of other agents and closing in on the target")
@@ -316,7 +341,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         best = int(np.argmax(score))
         b = boxes[best]
         adv = AgentState(x=float(b[0]), y=float(b[1]), yaw=float(np.angle(np.exp(1j * b[2]))),
-                         speed=float(s["speed"][0]), length=float(b[3]), width=float(b[4]))
+                         speed=speed, length=float(b[3]), width=float(b[4]))
         return CollisionSnapshot(
             scenario_id=scene.scenario_id, target_id=str(tr.ids[target]), t_index=t_col,
             time=float(scene.timestamps[t_col]), target=tgt, adversary=adv,
@@ -333,8 +358,8 @@ class SnapshotInit:
 
     Attributes:
         place: (scene at 2 Hz, target index, rng, drivable area, collision-time rule, seed, models
-            folder, steps to exclude from t_col) -> the snapshot; raises :class:`NoSnapshot` when
-            the scene has none.
+            folder, steps to exclude from t_col, ``strict=`` closing check, see :func:`closing`) ->
+            the snapshot; raises :class:`NoSnapshot` when the scene has none.
         weights: files it needs from the models folder (checked before any work).
     """
 
@@ -344,15 +369,16 @@ class SnapshotInit:
 
 def _prior_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                 collision_time: str, seed: int, models_dir: Path | None,
-                exclude: Collection[int] = ()) -> CollisionSnapshot:
+                exclude: Collection[int] = (), strict: bool = True) -> CollisionSnapshot:
     return prior_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed,
-                          models_dir=models_dir, exclude=exclude)
+                          models_dir=models_dir, exclude=exclude, strict=strict)
 
 
 def _random_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                  collision_time: str, seed: int, models_dir: Path | None,
-                 exclude: Collection[int] = ()) -> CollisionSnapshot:
-    return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed, exclude=exclude)
+                 exclude: Collection[int] = (), strict: bool = True) -> CollisionSnapshot:
+    return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed, exclude=exclude,
+                           strict=strict)
 
 
 # Snapshot inits (``--init``): a new one is one function and one line here.

@@ -1,0 +1,65 @@
+"""Adversary sizes of real vehicle classes; no standstill in moving traffic."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from coster_sumo import synthetic
+from coster_sumo.plausible import (
+    CONGESTED_SPEED_MPS,
+    VEHICLE_CLASSES,
+    local_speed,
+    moving_speed,
+    stop_plausible,
+    vehicle_size,
+)
+
+
+@pytest.mark.parametrize(("sample", "cls"), [((2.125, 2.05), "passenger"), ((2.2, 0.9), "motorcycle"),
+                                             ((1.7, 0.6), "bicycle"), ((4.4, 1.8), "passenger"),
+                                             ((10.0, 2.5), "truck"), ((15.0, 2.6), "bus"), ((6.0, 2.1), "delivery")])
+def test_sizes_move_to_the_nearest_corpus_class(sample, cls):
+    length, width, name = vehicle_size(*sample)
+    assert name == cls
+    (l0, l1), (w0, w1) = VEHICLE_CLASSES[cls]
+    assert l0 <= length <= l1 and w0 <= width <= w1
+    if l0 <= sample[0] <= l1 and w0 <= sample[1] <= w1:
+        assert (length, width) == sample  # a size that already fits is kept
+
+
+def test_the_demo_cube_becomes_a_small_car():
+    assert vehicle_size(2.125, 2.05) == (3.7, 1.95, "passenger")
+
+
+def _scene_at_speed(speed: float):
+    scene = synthetic.two_lane_road()
+    tr = scene.tracks
+    yaw = tr.heading
+    tracks = dataclasses.replace(tr, vx=speed * np.cos(yaw), vy=speed * np.sin(yaw))
+    return dataclasses.replace(scene, tracks=tracks)
+
+
+def test_standstill_only_where_traffic_stands_or_queues():
+    moving, jammed = _scene_at_speed(20.0), _scene_at_speed(1.0)
+    target = 0
+    assert local_speed(moving, 0, target) == pytest.approx(20.0)
+    lane = 0  # 200 m long, no successor: its last 30 m are a lane end
+    far = moving.road_map.lanes.centerline[lane][0] + np.array([20.0, 0.0])
+    end = moving.road_map.lanes.centerline[lane][-1] - np.array([10.0, 0.0])
+    mid = lane
+    assert stop_plausible(moving, 0, target, lane, end)  # vehicles wait where the lane ends
+    assert not stop_plausible(moving, 0, target, mid, far)
+    assert local_speed(jammed, 0, target) < CONGESTED_SPEED_MPS
+    assert stop_plausible(jammed, 0, target, mid, far)
+
+
+def test_moving_speed_never_draws_the_stopped_class_nor_outruns_the_traffic():
+    rng = np.random.default_rng(0)
+    probs = np.array([0.7, 0.05, 0.05, 0.2])
+    centres = np.array([0.0, 3.0, 10.0, 30.0])
+    draws = {moving_speed(probs, centres, 0, rng, fastest=12.0) for _ in range(200)}
+    assert draws == {3.0, 10.0}  # not 0 (stopped), not 30 (> 1.1 x the fastest vehicle around)
+    assert moving_speed(np.array([1.0, 0.0, 0.0, 0.0]), centres, 0, rng, fastest=12.0) == 10.0
