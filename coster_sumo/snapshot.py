@@ -291,7 +291,10 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
                          width=model.config.region_width, crop=tr.xy[target][tr.valid[target]].reshape(-1, 2))
     if len(data.regions.centre) == 0:
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
-    velocity = predict_scene(model, data, target, steps=window, heads=("speed", "heading"))
+    def pose(steps: np.ndarray) -> np.ndarray:  # the target's own (it may be a cyclist: data has no centre for it)
+        return np.stack([tr.x[target, steps], tr.y[target, steps], tr.heading[target, steps]], -1)
+
+    velocity = predict_scene(model, data, target, steps=window, heads=("speed", "heading"), pose=pose(window))
     centres = velocity.regions.centre[np.maximum(velocity.region_index, 0)]  # (W, K, 2)
     ellipse = np.zeros(velocity.mask.shape, bool)
     for j, t in enumerate(window):
@@ -299,7 +302,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     entropy = np.full(scene.num_steps, np.nan)
     entropy[window] = velocity_entropy(velocity, ellipse)
     t_col = choose_collision_time(window, collision_time, rng, entropy)
-    pred = predict_scene(model, data, target, steps=np.array([t_col]))
+    pred = predict_scene(model, data, target, steps=np.array([t_col]), pose=pose(np.array([t_col])))
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
     centres_col = pred.regions.centre[np.maximum(pred.region_index[0], 0)]  # (K, 2)

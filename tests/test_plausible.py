@@ -63,3 +63,17 @@ def test_moving_speed_never_draws_the_stopped_class_nor_outruns_the_traffic():
     draws = {moving_speed(probs, centres, 0, rng, fastest=12.0) for _ in range(200)}
     assert draws == {3.0, 10.0}  # not 0 (stopped), not 30 (> 1.1 x the fastest vehicle around)
     assert moving_speed(np.array([1.0, 0.0, 0.0, 0.0]), centres, 0, rng, fastest=12.0) == 10.0
+
+
+def test_a_cyclist_target_gets_a_snapshot():
+    """The prior's regions follow the target's own pose, whatever its object type (fkk_in's target is a bicycle)."""
+    from coster_sumo.scene import ObjectType, resample
+    from coster_sumo.snapshot import SNAPSHOT_INITS
+
+    scene = synthetic.two_lane_road()
+    kinds = scene.tracks.object_type.copy()
+    kinds[0] = ObjectType.CYCLIST
+    cyclist = dataclasses.replace(scene, tracks=dataclasses.replace(scene.tracks, object_type=kinds))
+    snaps = [SNAPSHOT_INITS["snapshot"].place(resample(s, 2.0), 0, np.random.default_rng(0), None, "entropy", 0,
+                                              None, ()) for s in (scene, cyclist)]
+    assert all(np.isfinite(s.entropy[s.t_index]) for s in snaps)
