@@ -121,6 +121,16 @@ def collision_position_diversity(angles_deg: Sequence[float] | np.ndarray) -> fl
     return float(a.std()) if a.size else float("nan")
 
 
+def circular_range_deg(angles_deg: Sequence[float] | np.ndarray) -> float:
+    """[deg] Width of the smallest arc of the circle that holds every angle (0 for one angle;
+    -180 and 180 are the same angle): 360 minus the widest gap between neighbouring angles."""
+    a = np.sort(np.mod(np.asarray(angles_deg, np.float64), 360.0))
+    if len(a) < 2:
+        return 0.0
+    gaps = np.diff(np.concatenate([a, [a[0] + 360.0]]))
+    return float(360.0 - gaps.max())
+
+
 def circular_std_deg(angles_deg: Sequence[float] | np.ndarray) -> float:
     """Circular standard deviation sqrt(-2 ln R) of angles [deg], R = mean resultant length.
 

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo import viz
+from coster_sumo.metrics import circular_range_deg
 from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
@@ -184,7 +185,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         "num_snapshots": len(snapshots), "num_variants": n,
         "collision_rate": sum(v["collision"] for v in variants) / n if n else None,
         "off_road_rate": sum(v["adversary_off_road"] for v in variants) / n if n else None,
-        "impact_angle_spread_deg": float(np.ptp(all_angles)) if all_angles else None,
+        "impact_angle_spread_deg": circular_range_deg(all_angles) if all_angles else None,
         "variants": variants, "snapshots": snapshots, "generation": first.info,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "options": options, "renders": renders,

@@ -91,3 +91,13 @@ def test_mmd_zero_for_same_samples_positive_for_shifted():
 
 def test_registry_has_all_seven_scenario_metrics():
     assert {"SUR", "CR", "ORR", "VDD", "ADD", "CSD", "CPD"} <= set(metrics.REGISTRY)
+
+
+def test_circular_range_wraps_at_180():
+    from coster_sumo.metrics import circular_range_deg
+
+    assert circular_range_deg([-180.0, 180.0, -180.0]) == 0.0
+    assert circular_range_deg([-180.0, 90.0, 180.0]) == pytest.approx(90.0)
+    assert circular_range_deg([170.0, -170.0]) == pytest.approx(20.0)
+    assert circular_range_deg([0.0, 90.0, 180.0, 270.0]) == pytest.approx(270.0)
+    assert circular_range_deg([12.0]) == 0.0
