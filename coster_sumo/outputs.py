@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 
 from coster_sumo import viz
-from coster_sumo.metrics import circular_range_deg
 from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
+from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.sim.inject import InjectionResult
 from coster_sumo.spec import ScenarioSpec

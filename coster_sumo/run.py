@@ -19,20 +19,25 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.core import (PRIOR_RATE_HZ, check_generation, choose_target, nominal_scene, plan_scenarios,
-                              simulation_window)
+from coster_sumo.core import (
+    PRIOR_RATE_HZ,
+    check_generation,
+    choose_target,
+    nominal_scene,
+    plan_scenarios,
+    simulation_window,
+)
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.outputs import write_run_outputs
+from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
-from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.snapshot import NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
-
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 

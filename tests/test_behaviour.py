@@ -2,10 +2,11 @@
 
 ``expectations/behaviour_before_redesign.json`` was recorded by the same commands at 6427315, before
 the generation core and the one injection path existed; ``expectations/behaviour_after_redesign.json``
-is what they gave right after it (0e49328). The only differences it allowed were the ones made on purpose: on converted WOMD scenes
-``regress`` (and ``eval scenarios``) used to leave the target out of the log replay, so it never
-existed in the pass (no contact, route never completed); now the log drives it as in ``run``
-(``replay``), or hands it to the planner when the adversary's plan starts (any other planner).
+is what they gave right after it (0e49328). The only differences it allowed were the ones made on
+purpose: on converted WOMD scenes ``regress`` (and ``eval scenarios``) used to leave the target out
+of the log replay, so it never existed in the pass (no contact, route never completed); now the log
+drives it as in ``run`` (``replay``), or hands it to the planner when the adversary's plan starts
+(any other planner).
 
 ``expectations/behaviour.json`` is what the commands give now; it was recorded again after changes
 of behaviour made on purpose (each named in its commit): the collision time keeps 5 s of the

@@ -11,10 +11,12 @@ Holders are thinned as the pass goes on (every other one is dropped and the spac
 there are too many), so their number and memory stay bounded. Once a collision time is known,
 :meth:`HeldStates.advance` has the latest holder before it fork a new holder that simulates up to
 shortly before the adversary appears, in the background (on another core) while the adversaries
-are generated: the variants then start from there and do not each simulate the gap again. Only libsumo sessions are held: a
-TraCI connection cannot be shared by forked processes, so TraCI runs start every variant from
-``begin``. What runs in a held copy is SUMO and numpy only: a forked process does not carry torch's
-thread pools over (holders are made during the nominal pass, before any model is loaded).
+are generated: the variants then start from there and do not each simulate the gap again.
+
+Only libsumo sessions are held: a TraCI connection cannot be shared by forked processes, so TraCI
+runs start every variant from ``begin``. What runs in a held copy is SUMO and numpy only: a forked
+process does not carry torch's thread pools over (holders are made during the nominal pass, before
+any model is loaded).
 """
 
 from __future__ import annotations
