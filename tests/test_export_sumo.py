@@ -20,7 +20,8 @@ from conftest import NO_WOMD_REASON, WOMD_DIR
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.cli import main
-from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE, drop_vehicle
+from coster_sumo.exports.demand import demand_ids, rewrite_demand
+from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.outputs import sim_time_of
 from coster_sumo.plan import AdversaryPlan
@@ -126,18 +127,23 @@ def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tup
     return errors[0], offset
 
 
-def test_drop_vehicle_removes_only_that_vehicle_or_trip(tmp_path):
+def test_rewrite_demand_drops_the_target_and_sets_insertion_checks(tmp_path):
     rou = tmp_path / "r.rou.xml"
     rou.write_text('<routes xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
                    'xsi:noNamespaceSchemaLocation="http://sumo.dlr.de/xsd/routes_file.xsd">\n'
                    '  <vType id="car"/>\n  <flow id="f" type="car" begin="0" end="9" number="3" from="a" to="b"/>\n'
                    '  <trip id="ego" type="car" depart="2" from="a" to="b"/>\n'
-                   '  <vehicle id="other" depart="1" route="r0"/>\n</routes>\n')
-    assert not drop_vehicle(rou, "f.1")  # a flow member cannot be dropped
-    assert drop_vehicle(rou, "ego")
+                   '  <vehicle id="other" depart="1" route="r0" insertionChecks="collision"/>\n</routes>\n')
+    assert demand_ids(rou) == {"vehicle": {"ego", "other"}, "flow": {"f"}}
+    assert rewrite_demand(rou, drop_vehicles=frozenset({"f.1"})) == {"vehicles": [], "flows": []}
+    assert rewrite_demand(rou, checks="all", drop_vehicles=frozenset({"ego"})) == {"vehicles": ["ego"], "flows": []}
     root = ET.parse(rou).getroot()
     assert [el.get("id") for el in root] == ["car", "f", "other"]
+    # the device's vehicles take the option (none), the file's keep what the pass used
+    assert [el.get("insertionChecks") for el in root] == [None, "all", "collision"]
     assert "noNamespaceSchemaLocation" in rou.read_text() and "xmlns:xsi" in rou.read_text()
+    assert rewrite_demand(rou, drop_flows=True) == {"vehicles": [], "flows": ["f"]}
+    assert [el.get("id") for el in ET.parse(rou).getroot()] == ["car", "other"]
 
 
 @pytest.mark.sumo
