@@ -217,7 +217,13 @@ def records(s: np.ndarray, v: np.ndarray, runs: list[tuple[int, int]]) -> list[t
         for a, b in zip(br[:-1], br[1:], strict=True):
             ds = s[b] - s[a]
             out.append((float(s[a]), float(v[a]), float((v[b] - v[a]) / ds) if ds > 0 else 0.0))
-    return out
+    merged = out[:1]
+    for rec in out[1:]:  # a piece that only continues the one before says nothing new
+        s0, a0, b0 = merged[-1]
+        if abs(rec[2] - b0) <= 1e-9 and abs(a0 + b0 * (rec[0] - s0) - rec[1]) <= 1e-6:
+            continue
+        merged.append(rec)
+    return merged
 
 
 
