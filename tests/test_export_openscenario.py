@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import NO_WOMD_REASON, WOMD_DIR
+from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 from coster_sumo import synthetic
 from coster_sumo.cli import main
@@ -33,7 +33,7 @@ from coster_sumo.plan import AdversaryPlan
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"
-WOMD_SAMPLE = WOMD_DIR / "scenarionet_pkl" / "sd_training.tfrecord-00000-of-01000_2a1e44d405a6833f.pkl"
+WOMD_SAMPLES = [*WOMD_PROTO, *WOMD_PKL]  # the four real samples (one scene each)
 HAS_EXTRA = all(importlib.util.find_spec(m) is not None for m in ("scenariogeneration", "xmlschema"))
 needs_extra = pytest.mark.skipif(not HAS_EXTRA, reason="optional extra not installed: pip install "
                                                        "'coster-sumo[openscenario]' (dev installs it)")
@@ -193,6 +193,8 @@ def check_openscenario(out: Path) -> list[dict]:
         assert before <= 1 and after <= 1, (v["variant"], before, after)  # one step (0.1 s) at most
         doc = json.loads((vdir / "openscenario" / "trajectories.json").read_text())
         assert {doc["target"], doc["adversary"]} <= set(doc["vehicles"])
+        print(f"variant {v['variant']}: .xosc valid, adversary knot error {err:.4f} m "
+              f"({before} knot(s) before the recording, {after} after the contact)")
         rows.append({"variant": v["variant"], "knot_error_m": err, "knots_before": before,
                      "knots_after_contact": after, "xodr": xodr_path,
                      "net": next((vdir / "export").glob("*.net.xml"))})
@@ -220,12 +222,13 @@ def test_demo_variant_exports_openscenario_and_sumo(tmp_path):
 @pytest.mark.sumo
 @pytest.mark.slow
 @pytest.mark.realdata
-@pytest.mark.skipif(not WOMD_SAMPLE.is_file(), reason=f"{WOMD_SAMPLE.name}: {NO_WOMD_REASON}")
-def test_womd_scene_exports_openscenario(tmp_path):
+@pytest.mark.skipif(not WOMD_SAMPLES, reason=NO_WOMD_REASON)
+@pytest.mark.parametrize("sample", WOMD_SAMPLES, ids=lambda p: p.stem)
+def test_womd_scene_exports_openscenario(tmp_path, sample):
     """A converted real WOMD scene: every variant valid with its knots exact; the xodr lanes on the
     SUMO lanes (each lane keeps its logged centre line: netconvert's lanes alone were metres off)."""
     conv = tmp_path / "conv"
-    assert main(["-q", "convert", "-o", str(conv), str(WOMD_SAMPLE)]) == 0
+    assert main(["-q", "convert", "-o", str(conv), str(sample)]) == 0
     (cfg,) = sorted(conv.glob("*/*.sumocfg"))
     out = tmp_path / "run"
     assert main(["-q", "run", str(cfg), "--no-render", "-o", str(out)]) == 0

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import NO_WOMD_REASON, WOMD_DIR
+from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.cli import main
@@ -30,7 +30,7 @@ from coster_sumo.sim.events import CONTACT_TOLERANCE_M
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"
-WOMD_SAMPLE = WOMD_DIR / "scenarionet_pkl" / "sd_training.tfrecord-00000-of-01000_2a1e44d405a6833f.pkl"
+WOMD_SAMPLES = [*WOMD_PROTO, *WOMD_PKL]  # the four real samples (one scene each)
 KNOT_TOLERANCE_M = 0.1
 CONTACT_OFFSET_TOLERANCE_S = 0.1
 
@@ -235,12 +235,13 @@ def test_demo_all_variants_play_in_plain_sumo(tmp_path):
 @pytest.mark.sumo
 @pytest.mark.slow
 @pytest.mark.realdata
-@pytest.mark.skipif(not WOMD_SAMPLE.is_file(), reason=f"{WOMD_SAMPLE.name}: {NO_WOMD_REASON}")
-def test_womd_scene_variants_play_in_plain_sumo(tmp_path):
+@pytest.mark.skipif(not WOMD_SAMPLES, reason=NO_WOMD_REASON)
+@pytest.mark.parametrize("sample", WOMD_SAMPLES, ids=lambda p: p.stem)
+def test_womd_scene_variants_play_in_plain_sumo(tmp_path, sample):
     """A converted real WOMD scene: every logged agent replayed from the pass, nothing of the
     staging lane in the output, and every variant's adversary and contact as planned."""
     conv = tmp_path / "conv"
-    assert main(["-q", "convert", "-o", str(conv), str(WOMD_SAMPLE)]) == 0
+    assert main(["-q", "convert", "-o", str(conv), str(sample)]) == 0
     (cfg,) = sorted(conv.glob("*/*.sumocfg"))
     out = tmp_path / "run"
     assert main(["-q", "run", str(cfg), "--no-render", "-o", str(out)]) == 0
