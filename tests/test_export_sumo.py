@@ -16,11 +16,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import NO_WOMD_REASON, WOMD_DIR
+from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 from coster_sumo import frames, sumo_env
 from coster_sumo.cli import main
-from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE, drop_vehicle
+from coster_sumo.exports.demand import demand_ids, rewrite_demand
+from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE
+from coster_sumo.exports.sumo_config import source_options
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.outputs import sim_time_of
 from coster_sumo.plan import AdversaryPlan
@@ -28,7 +30,7 @@ from coster_sumo.sim.events import CONTACT_TOLERANCE_M
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"
-WOMD_SAMPLE = WOMD_DIR / "scenarionet_pkl" / "sd_training.tfrecord-00000-of-01000_2a1e44d405a6833f.pkl"
+WOMD_SAMPLES = [*WOMD_PROTO, *WOMD_PKL]  # the four real samples (one scene each)
 KNOT_TOLERANCE_M = 0.1
 CONTACT_OFFSET_TOLERANCE_S = 0.1
 
@@ -95,6 +97,16 @@ def vtype_sizes(export: Path) -> dict[str, tuple[float, float]]:
             for v in ET.parse(export / VTYPES_FILE).getroot().iter("vType")}
 
 
+def assert_self_contained(cfg: Path) -> None:
+    """Every file the exported configuration names is a plain file name in its folder (it runs,
+    in sumo or sumo-gui, from wherever the folder is moved to)."""
+    for el in ET.parse(cfg).getroot().iter():
+        if el.tag in ("net-file", "route-files", "additional-files", "gui-settings-file",
+                      "device.fcd-replay.files", "fcd-output.filter-edges.input-file"):
+            for name in el.get("value", "").split(","):
+                assert name and Path(name).name == name and (cfg.parent / name).is_file(), (el.tag, name)
+
+
 def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tuple[float, float]:
     """Play variant ``i`` of a run in plain sumo (or ``coster-sumo replay``); returns (max knot
     error [m], contact offset from t_col_sim [s]) after asserting both are within tolerance."""
@@ -104,6 +116,7 @@ def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tup
     plan = AdversaryPlan.from_dict(variant["plan"])
     step = float(variant["export"]["step_length"])
     cfg = export / variant["export"]["sumocfg"]
+    assert_self_contained(cfg)
     if replay_cli:
         assert main(["-q", "replay", str(cfg), "--fcd-output", str(fcd), "-o", str(fcd.parent / "replay")]) == 0
         states = read_fcd(fcd)
@@ -126,18 +139,69 @@ def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tup
     return errors[0], offset
 
 
-def test_drop_vehicle_removes_only_that_vehicle_or_trip(tmp_path):
+def test_rewrite_demand_drops_the_target_and_sets_insertion_checks(tmp_path):
     rou = tmp_path / "r.rou.xml"
     rou.write_text('<routes xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
                    'xsi:noNamespaceSchemaLocation="http://sumo.dlr.de/xsd/routes_file.xsd">\n'
                    '  <vType id="car"/>\n  <flow id="f" type="car" begin="0" end="9" number="3" from="a" to="b"/>\n'
                    '  <trip id="ego" type="car" depart="2" from="a" to="b"/>\n'
-                   '  <vehicle id="other" depart="1" route="r0"/>\n</routes>\n')
-    assert not drop_vehicle(rou, "f.1")  # a flow member cannot be dropped
-    assert drop_vehicle(rou, "ego")
+                   '  <vehicle id="other" depart="1" route="r0" insertionChecks="collision"/>\n</routes>\n')
+    assert demand_ids(rou) == {"vehicle": {"ego", "other"}, "flow": {"f"}}
+    assert rewrite_demand(rou, drop_vehicles=frozenset({"f.1"})) == {"vehicles": [], "flows": []}
+    assert rewrite_demand(rou, checks="all", drop_vehicles=frozenset({"ego"})) == {"vehicles": ["ego"], "flows": []}
     root = ET.parse(rou).getroot()
     assert [el.get("id") for el in root] == ["car", "f", "other"]
+    # the device's vehicles take the option (none), the file's keep what the pass used
+    assert [el.get("insertionChecks") for el in root] == [None, "all", "collision"]
     assert "noNamespaceSchemaLocation" in rou.read_text() and "xmlns:xsi" in rou.read_text()
+    assert rewrite_demand(rou, drop_flows=True) == {"vehicles": [], "flows": ["f"]}
+    assert [el.get("id") for el in ET.parse(rou).getroot()] == ["car", "other"]
+
+
+def test_export_config_keeps_the_source_options_but_inputs_outputs_and_gui(tmp_path):
+    src = tmp_path / "a.sumocfg"
+    src.write_text('<configuration><input><net-file value="x/a.net.xml"/><route-files value="x/r.xml"/></input>'
+                   '<output><tripinfo-output value="t.xml"/><human-readable-time value="true"/></output>'
+                   '<processing><lateral-resolution value="0.8"/><remote-port value="8813"/></processing>'
+                   '<routing><weights.random-factor value="1.2"/></routing><random_number><random value="true"/>'
+                   '</random_number><report><xml-validation value="never"/><summary-output value="s.xml"/></report>'
+                   '<gui_only><gui-settings-file value="x/settings.xml"/></gui_only></configuration>')
+    assert source_options(src) == [("processing", "lateral-resolution", "0.8"),
+                                   ("routing", "weights.random-factor", "1.2"), ("report", "xml-validation", "never")]
+
+
+def _sumo_game(name: str) -> Path:
+    import sumo
+
+    return Path(sumo.__file__).parent / "tools" / "game" / f"{name}.sumocfg"
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+@pytest.mark.parametrize(("config", "target"), [("square", "horiz.1"), ("grid6", "leftRight.1")])
+def test_wheel_scenario_with_a_flow_member_target_plays_in_plain_sumo(tmp_path, config, target):
+    """SUMO's own game scenarios (eclipse-sumo wheel): the target is a flow member, the routes of
+    square live in an additional file, grid6's flows depart at random. Every flow becomes the
+    vehicles it made, the target leaves them, and the contact happens at t_col in plain sumo."""
+    cfg = _sumo_game(config)
+    if not cfg.is_file():
+        pytest.skip(f"{cfg} not in this SUMO build")
+    out = tmp_path / "run"
+    assert main(["-q", "run", str(cfg), "--target", target, "--planner", "replay", "--samples", "200",
+                 "--variants", "2", "--no-render", "-o", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["variants"]
+    for v in summary["variants"]:
+        i = v["variant"]
+        export = out / "variants" / str(i) / "export"
+        demand = json.loads((export / "variant.json").read_text())["export"]["demand"]
+        assert target.rpartition(".")[0] in demand["expanded_flows"] and demand["expanded_vehicles"] > 0
+        expanded = ET.parse(export / demand["expanded_file"]).getroot()
+        ids = [el.get("id") for el in expanded.iter("vehicle")]
+        assert target not in ids and len(ids) == demand["expanded_vehicles"]
+        assert all(el.get("insertionChecks") == "all" for el in expanded.iter("vehicle"))
+        assert not [el for f in export.glob("*.xml") for el in ET.parse(f).getroot().iter("flow")]
+        check_variant(out, i, tmp_path / f"plain{i}.fcd.xml")
 
 
 @pytest.mark.sumo
@@ -171,12 +235,13 @@ def test_demo_all_variants_play_in_plain_sumo(tmp_path):
 @pytest.mark.sumo
 @pytest.mark.slow
 @pytest.mark.realdata
-@pytest.mark.skipif(not WOMD_SAMPLE.is_file(), reason=f"{WOMD_SAMPLE.name}: {NO_WOMD_REASON}")
-def test_womd_scene_variants_play_in_plain_sumo(tmp_path):
+@pytest.mark.skipif(not WOMD_SAMPLES, reason=NO_WOMD_REASON)
+@pytest.mark.parametrize("sample", WOMD_SAMPLES, ids=lambda p: p.stem)
+def test_womd_scene_variants_play_in_plain_sumo(tmp_path, sample):
     """A converted real WOMD scene: every logged agent replayed from the pass, nothing of the
     staging lane in the output, and every variant's adversary and contact as planned."""
     conv = tmp_path / "conv"
-    assert main(["-q", "convert", "-o", str(conv), str(WOMD_SAMPLE)]) == 0
+    assert main(["-q", "convert", "-o", str(conv), str(sample)]) == 0
     (cfg,) = sorted(conv.glob("*/*.sumocfg"))
     out = tmp_path / "run"
     assert main(["-q", "run", str(cfg), "--no-render", "-o", str(out)]) == 0

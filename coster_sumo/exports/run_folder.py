@@ -49,6 +49,7 @@ def openscenario_export(vdir: Path, summary: dict[str, Any], record: dict[str, A
                         ) -> dict[str, Any]:
     """Write ``vdir/openscenario/`` for one variant (see the module docstring); returns what it wrote."""
     from coster_sumo.exports import openscenario as osc
+    from coster_sumo.exports.opendrive import write_xodr
 
     export = vdir / "export"
     variant = _load_json(export / "variant.json")
@@ -90,7 +91,7 @@ def openscenario_export(vdir: Path, summary: dict[str, Any], record: dict[str, A
     out = vdir / OSC_DIR
     out.mkdir(parents=True, exist_ok=True)
     name = cfg.stem
-    xodr = osc.write_xodr(net, out / f"{name}.xodr")
+    xodr = write_xodr(net, out / f"{name}.xodr")
     xosc = osc.write_xosc(out / f"{name}.xosc", xodr.name, trajs, ids, t0=t0, description=description,
                           parameters=params)
     errors = osc.validate_xosc(xosc)

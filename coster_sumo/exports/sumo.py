@@ -8,10 +8,11 @@ Which vehicles the FCD file drives:
 
 - the adversary, always;
 - the target, when the variant was made with the ``replay`` planner (it followed its nominal path,
-  so the exported contact happens). Its ``<vehicle>``/``<trip>`` is dropped from the copied route
-  files: SUMO refuses two vehicles with one id. With any other planner, or a target that is a flow
-  member, SUMO drives the target from the copied route files, and whether it still meets the
-  adversary depends on SUMO repeating the pass;
+  so the exported contact happens). SUMO refuses two vehicles with one id, so it leaves the copied
+  demand: its ``<vehicle>``/``<trip>`` is dropped, or, for a flow member, the flows are expanded
+  into the vehicles they made (:mod:`coster_sumo.exports.demand`). With any other planner SUMO
+  drives the target from the copied demand, and whether it still meets the adversary depends on
+  SUMO repeating the pass;
 - in a converted WOMD scene (``scene.npz`` beside the .sumocfg) every vehicle of the pass: the
   converted net has no routes for logged agents. ``scene.npz`` and ``lane_map.json`` are not
   copied, so ``coster-sumo replay`` runs the export as the plain configuration it is.
@@ -33,7 +34,8 @@ Device behaviour that shapes the file (measured on SUMO 1.28, see ``docs/sumo.md
   step before its first recorded state: on the converted net's staging lane (isolated, 1 km below
   the map; the log replay stages there too), else at its first pose on the nearest lane it may use.
 - a blocked insertion delays the vehicle and its whole trajectory (entries are played in order):
-  converted scenes, where the FCD file drives everything, set ``insertion-checks`` to ``none``.
+  the export sets ``insertion-checks`` to ``none`` for the device's vehicles and keeps the pass's
+  checks on every element of the copied demand (:mod:`coster_sumo.exports.demand`).
 - after its last entry a vehicle is SUMO's again and drives on at its last speed. In a converted
   scene a vehicle whose recording ends early (the log lost it) gets one more entry that parks it on
   the staging lane at speed 0; ``fcd-output.filter-edges.input-file`` keeps the staging lane out
@@ -53,7 +55,6 @@ Device behaviour that shapes the file (measured on SUMO 1.28, see ``docs/sumo.md
 from __future__ import annotations
 
 import functools
-import gzip
 import json
 import shutil
 import xml.etree.ElementTree as ET
@@ -63,26 +64,23 @@ from typing import Any
 
 import numpy as np
 import shapely
-from defusedxml import ElementTree as SafeET
 
 from coster_sumo import frames
 from coster_sumo.errors import InputError
+from coster_sumo.exports.demand import EXPANDED_FILE, demand_ids, expand_flows, rewrite_demand
+from coster_sumo.exports.sumo_config import GUI_SETTINGS_FILE, source_option, write_export_config, write_gui_settings
 from coster_sumo.formats.scene_folder import LANE_MAP_FILE, MIN_SIZE_M, converted_scene_file, vtype_for
 from coster_sumo.formats.sumo_net import read_sumolib_net
-from coster_sumo.formats.sumocfg import open_maybe_gzip, read_sumocfg
+from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import ADVERSARY_COLOR, InjectionResult
 from coster_sumo.sim.replay import STAGING_SPACING_M
-from coster_sumo.sim.sumo_options import RECOMMENDED_OPTIONS
 
 FCD_FILE = "traj.fcd.xml"
 VTYPES_FILE = "fcd_vtypes.add.xml"
 FCD_FILTER_FILE = "fcd_filter.txt"  # edge selection without the staging edge (fcd-output filter)
 VTYPE_SUFFIX = "@fcd"  # vType id of an FCD vehicle: "<vehicle id>@fcd"
-# options of the injection pass (SumoSession passes them) that decide what a contact does
-PASS_OPTIONS = ("--collision.action", "--collision.mingap-factor", "--collision.check-junctions",
-                "--time-to-teleport")
 STAGING_POOL_MAX = 256  # staging-lane slots used round-robin for one-step staging; the rest park
 MAX_SPEED_MPS = 100.0  # [m/s] vType maxSpeed: no recorded speed is capped
 TIME_EPS_S = 1e-6  # [s]
@@ -393,26 +391,6 @@ def _xml(s: str) -> str:
     return s.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;").replace(">", "&gt;")
 
 
-def drop_vehicle(route_file: Path, vehicle_id: str) -> bool:
-    """Remove the top-level ``<vehicle>``/``<trip>`` with this id from a route file in place.
-
-    Returns True when one was removed (False: not there, e.g. a flow member).
-    """
-    opener: Any = gzip.open if route_file.suffix == ".gz" else open
-    with open_maybe_gzip(route_file) as fh:
-        tree = SafeET.parse(fh, forbid_dtd=True)
-    root = tree.getroot()
-    hits = [el for el in root if el.tag in ("vehicle", "trip") and el.get("id") == vehicle_id]
-    if not hits:
-        return False
-    for el in hits:
-        root.remove(el)
-    ET.register_namespace("xsi", "http://www.w3.org/2001/XMLSchema-instance")
-    with opener(route_file, "wb") as fh:
-        tree.write(fh, encoding="UTF-8", xml_declaration=True)
-    return True
-
-
 def _fmt_time(t: float | None) -> str | None:
     return None if t is None else repr(float(t))
 
@@ -433,10 +411,12 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
                       target_id: str, planner: str, seed: int | None) -> tuple[Path, dict[str, Any]]:
     """Write a standalone SUMO folder for one variant; plain ``sumo -c`` plays it with the adversary.
 
-    Copies the configuration's net, route and additional files (basenames) into ``folder`` and
+    Copies the configuration's net, route and additional files (basenames) into ``folder``, makes
+    the copied demand fit for the FCD replay device (:mod:`coster_sumo.exports.demand`: insertion
+    checks, the replayed target dropped, flows expanded when the target is a flow member) and
     writes ``traj.fcd.xml`` (see the module docstring for what it holds), ``fcd_vtypes.add.xml``,
-    for converted scenes ``fcd_filter.txt``, and ``<config name>`` with the device options, the
-    pass's seed, step length, end and collision options. ``variant.json`` is the caller's.
+    ``gui.settings.xml``, for converted scenes ``fcd_filter.txt``, and ``<config name>``
+    (:mod:`coster_sumo.exports.sumo_config`). ``variant.json`` is the caller's.
 
     Args:
         folder: the export folder (created).
@@ -449,7 +429,7 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
 
     Returns:
         The exported .sumocfg and a JSON-able description (which vehicles the FCD file drives, who
-        drives the target, the time-label convention).
+        drives the target, what was done to the demand, the time-label convention).
     """
     folder = Path(folder)
     config = Path(config)
@@ -466,20 +446,32 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
             names.setdefault(key, []).append(p.name)
     converted = converted_scene_file(config) is not None
     notes: list[str] = []
-    if converted:  # the log drives everyone: every vehicle of the pass
+    demand_files = [folder / n for n in (*names.get("route-files", []), *names.get("additional-files", []))]
+    checks: str | None = None
+    drop: frozenset[str] = frozenset()
+    flows: set[str] = set()
+    if converted:  # the log drives everyone: every vehicle of the pass, all inserted unchecked
         ids = [str(i) for i in scene.tracks.ids]
         target_by = "fcd-replay"
     else:
         ids = [plan.vehicle_id]
         target_by = "sumo"
+        checks = source_option(config, "insertion-checks") or "all"
+        found = [demand_ids(f) for f in demand_files]
         if planner == "replay":
-            dropped = [drop_vehicle(folder / n, target_id) for n in names.get("route-files", [])]
-            if any(dropped):
+            if any(target_id in d["vehicle"] for d in found):
+                drop = frozenset({target_id})
+            elif target_id.rpartition(".")[0] in set().union(*(d["flow"] for d in found)):
+                flows = set().union(*(d["flow"] for d in found))
+            else:
+                notes.append(f"target {target_id!r} is in no route or additional file (neither a "
+                             "<vehicle>/<trip> nor a flow member): SUMO drives it, so the exported contact "
+                             "may not happen")
+            if drop or flows:
                 ids.append(target_id)
                 target_by = "fcd-replay"
-            else:
-                notes.append(f"target {target_id!r} is no <vehicle>/<trip> of the route files (a flow "
-                             "member?): SUMO drives it, so the exported contact may not happen")
+        for f in demand_files:
+            rewrite_demand(f, checks=checks, drop_vehicles=drop)
     lanes = LaneIndex.read(inputs["net-file"][0])
     vehicles = recorded_vehicles(scene, ids, lanes, step, colors={plan.vehicle_id: ADVERSARY_COLOR})
     if plan.vehicle_id not in {v.vehicle_id for v in vehicles}:
@@ -489,61 +481,46 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
     parked = stage_and_park(vehicles, lanes, staging, step, last_label)
     n_entries = write_fcd(folder / FCD_FILE, vehicles, lanes)
     write_vtypes(folder / VTYPES_FILE, vehicles)
-    filter_file = None
+    names["additional-files"] = [VTYPES_FILE, *names.get("additional-files", [])]
+    output: dict[str, str] = {}
     if staging is not None and staging in lanes.ids:
         staging_edge = lanes.edges[lanes.ids.index(staging)]
         edges = sorted(set(lanes.edges) - {staging_edge})
         (folder / FCD_FILTER_FILE).write_text("".join(f"edge:{e}\n" for e in edges))
-        filter_file = FCD_FILTER_FILE
+        output["fcd-output.filter-edges.input-file"] = FCD_FILTER_FILE
+    xmin, ymin, xmax, ymax = shapely.total_bounds(lanes.lines[~lanes.internal] if (~lanes.internal).any()
+                                                  else lanes.lines)
+    write_gui_settings(folder / GUI_SETTINGS_FILE, (float(plan.x[-1]), float(plan.y[-1])),
+                       float(max(xmax - xmin, ymax - ymin)))
     cfg = folder / config.name
     end = float(scene.timestamps[-1]) if scene.num_steps else None
-    _write_sumocfg(cfg, names, begin=_fmt_time(read_sumocfg(config).begin), end=end, step=step, seed=seed,
-                   all_fcd=converted, filter_file=filter_file)
+    # the device routes a vehicle along the edges its entries name; staging, parking and logged
+    # agents that leave the lanes make that route disconnected, which SUMO refuses unless told so
+    # (route-file vehicles are unaffected: the pass ran them without the option); the device's
+    # vehicles are never delayed (demand.py: the configuration's own keep their checks)
+    processing = {"ignore-route-errors": "true", "insertion-checks": "none"}
+
+    def write_cfg() -> None:
+        write_export_config(cfg, config, names, begin=_fmt_time(read_sumocfg(config).begin), end=end, step=step,
+                            seed=seed, processing=processing, output=output, fcd_file=FCD_FILE,
+                            gui_settings=GUI_SETTINGS_FILE)
+
+    write_cfg()
+    expanded: list[str] = []
+    if flows:  # the target is a flow member: every flow becomes the vehicles it made (demand.py)
+        expanded = expand_flows(cfg, flows, frozenset({target_id}), folder / EXPANDED_FILE, checks=checks or "all")
+        for f in demand_files:
+            rewrite_demand(f, drop_flows=True)
+        names["route-files"] = [*names.get("route-files", []), EXPANDED_FILE]
+        write_cfg()
     info: dict[str, Any] = {
-        "sumocfg": cfg.name, "fcd_file": FCD_FILE, "vtypes_file": VTYPES_FILE,
+        "sumocfg": cfg.name, "fcd_file": FCD_FILE, "vtypes_file": VTYPES_FILE, "gui_settings": GUI_SETTINGS_FILE,
         "fcd_vehicles": len(vehicles), "fcd_entries": n_entries,
         "adversary": plan.vehicle_id, "target": target_id, "target_driven_by": target_by,
-        "staging_lane": staging if filter_file else None, "parked_early": parked,
+        "staging_lane": staging if output else None, "parked_early": parked,
         "fcd_time_label": "simulation time - step_length", "step_length": step,
+        "demand": {"insertion_checks": checks, "dropped": sorted(drop), "expanded_flows": sorted(flows),
+                   "expanded_vehicles": len(expanded), "expanded_file": EXPANDED_FILE if flows else None},
         "notes": notes,
     }
     return cfg, info
-
-
-def _write_sumocfg(path: Path, names: dict[str, list[str]], *, begin: str | None, end: float | None, step: float,
-                   seed: int | None, all_fcd: bool, filter_file: str | None) -> None:
-    root = ET.Element("configuration")
-    root.append(ET.Comment(" coster-sumo export of one variant: `sumo -c " + path.name + "` plays it, the "
-                           "adversary driven by SUMO's FCD replay device from " + FCD_FILE + " "))
-    inp = ET.SubElement(root, "input")
-    ET.SubElement(inp, "net-file", {"value": ",".join(names["net-file"])})
-    if names.get("route-files"):
-        ET.SubElement(inp, "route-files", {"value": ",".join(names["route-files"])})
-    ET.SubElement(inp, "additional-files", {"value": ",".join([VTYPES_FILE, *names.get("additional-files", [])])})
-    tm = ET.SubElement(root, "time")
-    if begin is not None:
-        ET.SubElement(tm, "begin", {"value": begin})
-    if end is not None:
-        ET.SubElement(tm, "end", {"value": f"{end:.3f}"})
-    ET.SubElement(tm, "step-length", {"value": f"{step:g}"})
-    proc = ET.SubElement(root, "processing")
-    for key in PASS_OPTIONS:
-        ET.SubElement(proc, key.lstrip("-"), {"value": RECOMMENDED_OPTIONS[key]})
-    # the device routes a vehicle along the edges its entries name; staging, parking and logged
-    # agents that leave the lanes make that route disconnected, which SUMO refuses unless told so
-    # (route-file vehicles are unaffected: the pass ran them without the option)
-    ET.SubElement(proc, "ignore-route-errors", {"value": "true"})
-    if all_fcd:  # nothing else inserts vehicles: never delay an FCD vehicle (it would lag its file)
-        ET.SubElement(proc, "insertion-checks", {"value": "none"})
-    if seed is not None:
-        ET.SubElement(ET.SubElement(root, "random_number"), "seed", {"value": str(int(seed))})
-    if filter_file is not None:
-        ET.SubElement(ET.SubElement(root, "output"), "fcd-output.filter-edges.input-file", {"value": filter_file})
-    report = ET.SubElement(root, "report")
-    ET.SubElement(report, "no-step-log", {"value": "true"})
-    # as in the pass: the device's placements warn every step (jumps, emergency braking); contacts
-    # still reach --collision-output (pass --no-warnings false to see them all)
-    ET.SubElement(report, "no-warnings", {"value": "true"})
-    ET.SubElement(ET.SubElement(root, "fcd_replay_device"), "device.fcd-replay.files", {"value": FCD_FILE})
-    ET.indent(root)
-    ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)

@@ -1,0 +1,150 @@
+"""The demand of a standalone SUMO export: the copied route and additional files, made fit for
+the FCD replay device (:mod:`coster_sumo.exports.sumo`).
+
+Three rewrites of the copied files, each for one reason (measured on SUMO 1.28, ``docs/sumo.md §11``):
+
+- **Insertion checks.** The device inserts a vehicle at its first entry like any other vehicle, and
+  a refused insertion delays it and its whole trajectory (entries play in order). On the game
+  scenarios of the SUMO wheel the adversary, staged at its first pose on a busy lane at speed 0,
+  waited 2.3 s for a gap. The device's vehicles take the ``insertion-checks`` option, an element
+  of a route file its own ``insertionChecks`` attribute; so the export sets the option to ``none``
+  and writes the checks the pass used (the configuration's option, default ``all``) onto every
+  ``<vehicle>``, ``<trip>`` and ``<flow>`` that does not name its own: the configuration's own
+  traffic is inserted as in the pass, the replayed vehicles exactly when their file says.
+- **Dropping the target.** SUMO refuses two vehicles with one id, so a target the FCD file drives
+  leaves the demand: its ``<vehicle>``/``<trip>`` is removed from whichever copied file holds it
+  (the game scenarios keep their routes in additional files).
+- **Expanding flows.** A flow member cannot be removed (a flow makes ``<id>.0``, ``<id>.1``, ...
+  and stops the run when one of those ids exists already). When the target is one, every
+  top-level ``<flow>`` of the copied files is replaced by the vehicles it made in the pass: one
+  plain ``sumo`` run of the export (no FCD device, the pass's options and seed) writes them with
+  ``--vehroute-output`` (intended departure, route, type, the speed factor drawn); the target is
+  left out. All flows, not only the target's: members of probability flows depart by one random
+  stream shared by all flows, and routes and types from distributions are drawn from one stream
+  at departure, so dropping one flow would re-draw the others. The expanded vehicles carry their
+  route and speed factor, so nothing is drawn for them again.
+"""
+
+from __future__ import annotations
+
+import gzip
+import subprocess
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+from defusedxml import ElementTree as SafeET
+
+from coster_sumo import sumo_env
+from coster_sumo.errors import SumoError
+from coster_sumo.formats.sumocfg import open_maybe_gzip
+
+DEMAND_TAGS = ("vehicle", "trip", "flow")
+EXPANDED_FILE = "flows_expanded.rou.xml"
+XSI = "http://www.w3.org/2001/XMLSchema-instance"
+
+
+def _read(path: Path) -> tuple[ET.ElementTree, ET.Element]:
+    """The parsed file and its root element."""
+    with open_maybe_gzip(path) as fh:
+        tree = SafeET.parse(fh, forbid_dtd=True)
+    return tree, tree.getroot()
+
+
+def _write(tree: ET.ElementTree, path: Path) -> None:
+    ET.register_namespace("xsi", XSI)
+    opener: Any = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "wb") as fh:
+        tree.write(fh, encoding="UTF-8", xml_declaration=True)
+
+
+def demand_ids(path: Path) -> dict[str, set[str]]:
+    """Ids of the top-level ``<vehicle>``/``<trip>`` (key ``"vehicle"``) and ``<flow>`` (``"flow"``)."""
+    out: dict[str, set[str]] = {"vehicle": set(), "flow": set()}
+    for el in _read(path)[1]:
+        if el.tag in DEMAND_TAGS and el.get("id") is not None:
+            out["flow" if el.tag == "flow" else "vehicle"].add(str(el.get("id")))
+    return out
+
+
+def rewrite_demand(path: Path, *, checks: str | None = None, drop_vehicles: frozenset[str] = frozenset(),
+                   drop_flows: bool = False) -> dict[str, list[str]]:
+    """Rewrite one copied route or additional file in place (see the module docstring).
+
+    Args:
+        path: the file (gzip kept gzip).
+        checks: ``insertionChecks`` value for every ``<vehicle>``/``<trip>``/``<flow>`` without one
+            (None: leave them).
+        drop_vehicles: ids of top-level ``<vehicle>``/``<trip>`` elements to remove.
+        drop_flows: remove every top-level ``<flow>``.
+
+    Returns:
+        ``{"vehicles": [...], "flows": [...]}``: the ids removed. A file without demand is not written.
+    """
+    tree, root = _read(path)
+    removed: dict[str, list[str]] = {"vehicles": [], "flows": []}
+    changed = False
+    for el in list(root):
+        vid = el.get("id", "")
+        if el.tag in ("vehicle", "trip") and vid in drop_vehicles:
+            root.remove(el)
+            removed["vehicles"].append(vid)
+            changed = True
+        elif el.tag == "flow" and drop_flows:
+            root.remove(el)
+            removed["flows"].append(vid)
+            changed = True
+    if checks is not None:
+        for el in root.iter():
+            if el.tag in DEMAND_TAGS and el.get("insertionChecks") is None:
+                el.set("insertionChecks", checks)
+                changed = True
+    if changed:
+        _write(tree, path)
+    return removed
+
+
+def expand_flows(config: Path, flows: set[str], leave_out: frozenset[str], out: Path, *, checks: str,
+                 timeout_s: float = 3600.0) -> list[str]:
+    """Write ``out``: every member of ``flows`` that the export's configuration runs, as a vehicle.
+
+    Runs plain ``sumo -c config`` without the FCD replay device (a temporary vehroute file beside
+    ``out``), keeps the vehicles whose id is ``<flow id>.<n>`` for a flow in ``flows``, drops those in
+    ``leave_out``, gives each one ``insertionChecks=checks`` and the route it departed with (a
+    rerouted vehicle's first route). Returns the ids written, in departure order.
+    """
+    tmp = out.with_name(f".{out.name}.vehroute.xml")
+    cmd = [sumo_env.binary("sumo"), "-c", str(config), "--device.fcd-replay.files", "",
+           "--vehroute-output", str(tmp), "--vehroute-output.sorted", "true",
+           "--vehroute-output.intended-depart", "true", "--vehroute-output.write-unfinished", "true",
+           "--vehroute-output.speedfactor", "true", "--no-warnings", "true", "--no-step-log", "true"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(),
+                              timeout=timeout_s, cwd=config.parent)
+        if proc.returncode != 0 or not tmp.is_file():
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+            raise SumoError(f"{config}: expanding its flows with sumo failed: {tail[0]}")
+        root = _read(tmp)[1]
+    finally:
+        tmp.unlink(missing_ok=True)
+    new = ET.Element("routes")
+    new.append(ET.Comment(" coster-sumo export: the members of the configuration's flows as the pass ran "
+                          "them (plain sumo, vehroute output, this folder without the FCD replay device; "
+                          "intended departure, first route, speed factor drawn) "))
+    kept: list[str] = []
+    for el in root:
+        vid = el.get("id", "")
+        if el.tag != "vehicle" or vid.rpartition(".")[0] not in flows or vid in leave_out:
+            continue
+        dist = el.find("routeDistribution")
+        if dist is not None:  # rerouted on the way: it departed with the first route
+            first = dist.find("route")
+            el.remove(dist)
+            if first is not None:
+                el.insert(0, ET.Element("route", {"edges": first.get("edges", "")}))
+        el.set("insertionChecks", checks)
+        new.append(el)
+        kept.append(vid)
+    ET.indent(new)
+    _write(ET.ElementTree(new), out)
+    return kept

@@ -1,0 +1,310 @@
+"""Make netconvert's OpenDRIVE lanes follow the SUMO lane shapes they came from.
+
+netconvert's OpenDRIVE writer (SUMO 1.28, measured in ``docs/sumo.md §12``) writes a road per SUMO
+edge whose reference line is the leftmost lane's shape moved to that lane's left border, and every
+lane with its constant SUMO width; a connecting road per junction connection whose reference line is
+one cubic curve from the incoming lane's end to the outgoing lane's start. Both ignore shapes that
+do not follow that pattern: the lanes of a converted WOMD map each keep their logged centre line
+(they fan out and overlap where the log's lanes do), and its junction lanes follow the logged
+interior lanes. There the OpenDRIVE lanes were metres off the SUMO lanes.
+
+:func:`fit_lanes` rewrites such a file in place, road by road (netconvert writes every road with one
+lane section; a road that does not match the net is left as it is and counted):
+
+- a **connecting road** gets the SUMO shape of its leftmost lane (the connection's internal lane(s),
+  through internal junctions) as its reference line, one ``<line>`` per polyline segment;
+- on **every road** each lane's centre is measured against the reference line every
+  :data:`STATION_M` (the SUMO lane's lateral offset where its shape crosses the normal there), and
+  the borders are solved station by station: lane centre = middle of its two borders, borders in
+  order (widths >= 0), widths as close to SUMO's as that leaves room for (a small least-squares
+  weight); ``laneOffset`` carries the left border. Where a lane has no SUMO shape (before its start,
+  after its end) its width is 0. The border and width curves are written as piecewise-linear
+  ``<laneOffset>`` and ``<width>`` records, simplified to :data:`RECORD_TOLERANCE_M`.
+
+The centres are then exact wherever the SUMO lanes of one edge lie side by side in order. Where two
+lanes of one edge overlap (a WOMD lane splitting from or merging into its neighbour), adjacent
+OpenDRIVE lanes cannot both keep their centres with widths >= 0; the solve then spreads the
+smallest error over the lanes involved.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from defusedxml import ElementTree as SafeET
+
+from coster_sumo.exports.opendrive_roads import (
+    Sampler,
+    extend_reference,
+    fmt,
+    one_lane_road,
+    overhang,
+    renumber,
+    set_smooth_plan_view,
+    split_connecting,
+)
+from coster_sumo.exports.opendrive_solve import (
+    STATION_M,
+    centre_error,
+    extent,
+    lateral,
+    records,
+    smooth_polyline,
+    solve_borders,
+)
+from coster_sumo.formats.sumocfg import open_maybe_gzip
+
+DEFAULT_LANE_WIDTH_M = 3.2  # SUMO's lane width when a net does not name one
+STUB_M = 0.01  # [m] length of the connecting road written for a zero-length internal lane
+FIT_TOLERANCE_M = 0.005  # [m] lanes whose centres touching lanes miss by more than this get fillers
+WIDTH_SLACK_M = 0.5  # [m] ... or that differ from SUMO's widths by more than this get fillers too
+FILLER_CODE = "costerFiller"  # userData code marking a filler lane
+SHORT_M = 0.05  # [m] an internal lane this short pointing backwards is rounding: written along its incoming lane
+
+
+
+@dataclass
+class NetLanes:
+    """What the fit needs of a SUMO net.
+
+    Attributes:
+        shape: lane id -> (K, 2) float64 [m] lane shape.
+        width: lane id -> [m] lane width.
+        edge_lanes: edge id -> its lane ids by index (0 = rightmost).
+        via: (from edge, from lane index, to edge, to lane index) -> the internal lane the connection
+            starts with (also from an internal lane to its continuation behind an internal junction).
+        lefthand: the net drives on the left (netconvert mirrors lane ids then; not fitted).
+    """
+
+    shape: dict[str, np.ndarray] = field(default_factory=dict)
+    width: dict[str, float] = field(default_factory=dict)
+    edge_lanes: dict[str, list[str]] = field(default_factory=dict)
+    via: dict[tuple[str, int, str, int], str] = field(default_factory=dict)
+    lefthand: bool = False
+
+    @classmethod
+    def read(cls, net_file: Path) -> NetLanes:
+        with open_maybe_gzip(Path(net_file)) as fh:
+            root = SafeET.parse(fh, forbid_dtd=True).getroot()
+        out = cls(lefthand=root.get("lefthand", "false") == "true")
+        for edge in root.iter("edge"):
+            lanes = sorted(edge.iter("lane"), key=lambda el: int(el.get("index", "0")))
+            out.edge_lanes[edge.get("id", "")] = [str(el.get("id")) for el in lanes]
+            for el in lanes:
+                pts = [tuple(float(v) for v in p.split(",")[:2]) for p in el.get("shape", "").split()]
+                out.shape[str(el.get("id"))] = np.asarray(pts, np.float64).reshape(-1, 2)
+                out.width[str(el.get("id"))] = float(el.get("width", DEFAULT_LANE_WIDTH_M))
+        for c in root.iter("connection"):
+            if c.get("via"):
+                key = (c.get("from", ""), int(c.get("fromLane", "0")), c.get("to", ""), int(c.get("toLane", "0")))
+                out.via[key] = str(c.get("via"))
+        return out
+
+    def connection_shape(self, frm: str, from_lane: int, to: str, to_lane: int) -> np.ndarray | None:
+        """The internal lane shape(s) of one connection, joined (None: no such connection)."""
+        lane = self.via.get((frm, from_lane, to, to_lane))
+        parts = []
+        seen = set()
+        while lane is not None and lane not in seen and lane in self.shape:
+            seen.add(lane)
+            parts.append(self.shape[lane])
+            edge, _, idx = lane.rpartition("_")
+            lane = self.via.get((edge, int(idx), to, to_lane))
+        if not parts:
+            return None
+        pts = np.concatenate(parts)
+        keep = np.ones(len(pts), bool)
+        keep[1:] = np.hypot(*np.diff(pts, axis=0).T) > 1e-6  # joined parts repeat their shared point
+        return pts[keep]
+
+
+def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, sample: Sampler
+              ) -> tuple[dict[int, int] | None, float]:
+    """Rewrite one road's laneOffset and its right lanes' widths (lane -1 first in ``targets``),
+    lengthening its reference line where SUMO lanes start before or end after it, and with filler
+    lanes between its lanes where they run apart. Returns the new id of each lane when fillers
+    renumbered them (empty: ids kept; None: not fitted)."""
+    lanes_el = road.find("lanes")
+    plan = road.find("planView")
+    if lanes_el is None or plan is None or len(list(lanes_el.iter("laneSection"))) != 1:
+        return None, 0.0
+    right = lanes_el.find("laneSection/right")
+    if right is None:
+        return None, 0.0
+    lane_els = sorted(right.findall("lane"), key=lambda e: -int(e.get("id", "0")))
+    if len(lane_els) != len(targets) or any(int(e.get("id", "0")) != -(k + 1) for k, e in enumerate(lane_els)):
+        return None, 0.0
+    length = float(road.get("length", "0"))
+    if length <= 0:
+        return None, 0.0
+    x, y, h = sample(plan, np.array([0.0, length]))
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):
+        return None, 0.0
+    before, after = overhang(x, y, h, targets)
+    if before or after:
+        extend_reference(road, plan, before, after, x, y, h)
+        length = float(road.get("length", "0"))
+    s = np.unique(np.append(np.arange(0.0, length, STATION_M), length))
+    x, y, h = sample(plan, s)
+    # where each lane starts and ends along the reference line: stations there and just outside,
+    # so that a lane starts and ends where its SUMO shape does, not on the station grid
+    extents = [extent(x, y, h, s, shape) for shape in targets]
+    ends = [e for ext in extents if ext is not None for e in (ext[0] - 1e-3, ext[0], ext[1], ext[1] + 1e-3)]
+    s2 = np.unique(np.concatenate([s, [e for e in ends if 0.0 < e < length]]))
+    if len(s2) != len(s):
+        s = s2
+        x, y, h = sample(plan, s)
+    n = len(targets)
+    centres = np.zeros((len(s), n))
+    present = np.zeros((len(s), n), bool)
+    for k, shape in enumerate(targets):
+        if len(shape) < 2:
+            continue
+        got = lateral(x, y, h, s, shape, extents[k])
+        if got is not None:
+            centres[:, k], present[:, k] = got
+    if not present.any():
+        return None, 0.0
+    offset, width, filler = solve_borders(centres, present, widths)
+    error = centre_error(centres, present, offset, width, filler)
+    odd = float(np.abs(width - widths)[present].max())  # touching lanes keep centres by odd widths
+    with_fillers = (error > FIT_TOLERANCE_M or odd > WIDTH_SLACK_M) and n > 1
+    if with_fillers:  # neighbours apart by more than their widths: room between them for fillers
+        offset, width, filler = solve_borders(centres, present, widths, fillers=True)
+        error = centre_error(centres, present, offset, width, filler)
+    change = np.flatnonzero((present[1:] != present[:-1]).any(axis=1)) + 1
+    starts = np.concatenate([[0], change])
+    runs = list(zip(starts.tolist(), (np.append(change, len(s)) - 1).tolist(), strict=True))
+    for el in lanes_el.findall("laneOffset"):
+        lanes_el.remove(el)
+    for j, (s0, a, b) in enumerate(records(s, offset, runs)):
+        lanes_el.insert(j, ET.Element("laneOffset", {"s": fmt(s0), "a": fmt(a), "b": fmt(b), "c": "0", "d": "0"}))
+    for k, el in enumerate(lane_els):
+        _set_widths(el, records(s, width[:, k], runs))
+    if not with_fillers:
+        return {}, error
+    for el in lane_els:
+        right.remove(el)
+    ids = {}
+    for k, el in enumerate(lane_els):
+        ids[int(el.get("id", "0"))] = -(2 * k + 1)
+        el.set("id", str(-(2 * k + 1)))
+        right.append(el)
+        if k < n - 1:
+            right.append(_filler(-(2 * k + 2), records(s, filler[:, k], runs)))
+    return ids, error
+
+
+def _set_widths(lane: ET.Element, recs: list[tuple[float, float, float]]) -> None:
+    """Replace a lane's ``<width>`` records (linear pieces (s, value, slope)) where they were."""
+    old = lane.findall("width")
+    at = list(lane).index(old[0]) if old else min(1, len(lane))
+    for w in old:
+        lane.remove(w)
+    for j, (s0, a, b) in enumerate(recs):
+        lane.insert(at + j, ET.Element("width", {"sOffset": fmt(s0), "a": fmt(a), "b": fmt(b), "c": "0",
+                                                 "d": "0"}))
+
+
+def _filler(lane_id: int, recs: list[tuple[float, float, float]]) -> ET.Element:
+    """A filler lane: the room between two lanes of one SUMO edge that run apart (a median)."""
+    el = ET.Element("lane", {"id": str(lane_id), "type": "median", "level": "true"})
+    ET.SubElement(el, "link")
+    _set_widths(el, recs)
+    ET.SubElement(el, "roadMark", {"sOffset": "0", "type": "none", "weight": "standard", "color": "standard",
+                                   "width": "0.13"})
+    ET.SubElement(el, "userData", {"code": FILLER_CODE, "value": "true"})
+    return el
+
+
+def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
+    """Rewrite ``xodr`` (netconvert's, written with ``--output.original-names``) so that its lanes
+    follow the SUMO lanes of ``net_file`` (see the module docstring).
+
+    ``sample(planView, s)`` gives x, y, heading of a reference line at ``s``. Returns the number of
+    roads fitted and left as they were, normal and connecting.
+    """
+    net = NetLanes.read(net_file)
+    tree = SafeET.parse(str(xodr), forbid_dtd=True)
+    root = tree.getroot()
+    counts = {"roads_fitted": 0, "roads_kept": 0, "connecting_fitted": 0, "connecting_kept": 0, "connecting_split": 0,
+              "with_fillers": 0}
+    if net.lefthand:
+        counts["roads_kept"] = len(root.findall("road"))
+        return counts
+    edge_of: dict[str, str] = {}
+    for road in root.findall("road"):
+        user = road.find("userData[@code='sumoId']")
+        if user is not None:
+            edge_of[road.get("id", "")] = user.get("value", "")
+    renumbered: dict[str, dict[int, int]] = {}
+    next_id = [max((int(r.get("id", "0")) for r in root.findall("road") if r.get("id", "").isdigit()), default=0) + 1]
+    for road in root.findall("road"):
+        connecting = road.get("junction", "-1") != "-1"
+        targets, widths = _targets(road, net, edge_of, connecting)
+        if targets is None:
+            counts["connecting_kept" if connecting else "roads_kept"] += 1
+        elif connecting:  # one road per lane, each on its lane's SUMO shape (module docstring)
+            if len(targets) == 1:
+                one_lane_road(road, targets[0], float(widths[0]))
+            else:
+                split_connecting(root, road, targets, widths, next_id)
+                counts["connecting_split"] += 1
+            counts["connecting_fitted"] += 1
+        else:  # netconvert's curve through a jittery WOMD lane wiggles; lanes far from it fold
+            longest = max(targets, key=lambda sh: float(np.hypot(*np.diff(sh, axis=0).T).sum()))
+            set_smooth_plan_view(road, smooth_polyline(longest), sample)
+            ids, _ = _fit_road(road, targets, widths, sample)
+            if ids:
+                renumbered[road.get("id", "")] = ids
+            counts["roads_fitted" if ids is not None else "roads_kept"] += 1
+    counts["with_fillers"] = len(renumbered)
+    renumber(root, renumbered)
+    ET.indent(tree)
+    tree.write(xodr, encoding="UTF-8", xml_declaration=True)
+    return counts
+
+
+def _targets(road: ET.Element, net: NetLanes, edge_of: dict[str, str], connecting: bool
+             ) -> tuple[list[np.ndarray] | None, np.ndarray]:
+    """The SUMO shapes (lane -1 first) and widths a road's right lanes came from (None: unknown)."""
+    right = road.find("lanes/laneSection/right")
+    if right is None:
+        return None, np.zeros(0)
+    ids = sorted((int(e.get("id", "0")) for e in right.findall("lane")), reverse=True)
+    if not connecting:
+        lanes = net.edge_lanes.get(edge_of.get(road.get("id", ""), ""), [])
+        if len(lanes) != len(ids):
+            return None, np.zeros(0)
+        chosen = [lanes[len(lanes) + i] for i in ids]  # id -1 = the leftmost (highest index)
+        return [net.shape[c] for c in chosen], np.array([net.width[c] for c in chosen])
+    pred, succ = road.find("link/predecessor"), road.find("link/successor")
+    if pred is None or succ is None:
+        return None, np.zeros(0)
+    frm, to = edge_of.get(pred.get("elementId", ""), ""), edge_of.get(succ.get("elementId", ""), "")
+    n_from, n_to = len(net.edge_lanes.get(frm, [])), len(net.edge_lanes.get(to, []))
+    shapes, widths = [], []
+    for i in ids:
+        lane = right.find(f"lane[@id='{i}']")
+        p = lane.find("link/predecessor") if lane is not None else None
+        q = lane.find("link/successor") if lane is not None else None
+        if p is None or q is None:
+            return None, np.zeros(0)
+        key = (frm, n_from + int(p.get("id", "0")), to, n_to + int(q.get("id", "0")))
+        shape = net.connection_shape(*key)
+        if shape is None:
+            return None, np.zeros(0)
+        length = float(np.hypot(*np.diff(shape, axis=0).T).sum()) if len(shape) > 1 else 0.0
+        src = net.shape.get(net.edge_lanes[frm][key[1]]) if 0 <= key[1] < n_from else None
+        d = src[-1] - src[-2] if src is not None and len(src) >= 2 else shape[-1] - shape[0]
+        d = d / max(float(np.hypot(*d)), 1e-9) if np.hypot(*d) > 0 else np.array([1.0, 0.0])
+        if length < SHORT_M and float(np.dot(shape[-1] - shape[0], d)) <= 0:
+            # a few centimetres pointing backwards: rounding; a stub along the incoming lane
+            shape = np.vstack([shape[0], shape[0] + max(length, STUB_M) * d])
+        via = net.via[key]
+        shapes.append(shape)
+        widths.append(net.width.get(via, DEFAULT_LANE_WIDTH_M))
+    return shapes, np.array(widths)
