@@ -196,3 +196,54 @@ def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, targ
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def training_history(metrics: dict) -> list[dict]:
+    """The per-epoch records of a training metrics file (``train rollout``: ``epochs``; ``train
+    prior``: ``history``); [] when it has none."""
+    for key in ("epochs", "history"):
+        rows = metrics.get(key)
+        if isinstance(rows, list):
+            return [r for r in rows if isinstance(r, dict)]
+    return []
+
+
+def training_curves(runs: dict[str, list[dict]], path: str | Path) -> Path:
+    """Learning curves of one or more training runs into a PNG: losses (training and held-out)
+    per epoch and, where the records have them, held-out minADE / minFDE."""
+    keys_loss = ("train_loss", "val_loss")
+    keys_err = ("val_minADE", "val_minFDE")
+    has_err = any(k in r for rows in runs.values() for r in rows for k in keys_err)
+    fig, axes = plt.subplots(1, 2 if has_err else 1, figsize=(12 if has_err else 6.5, 4.5), squeeze=False)
+    cmap = plt.get_cmap("tab10")
+    for i, (label, rows) in enumerate(runs.items()):
+        epochs = np.arange(1, len(rows) + 1)
+        for key, style in zip(keys_loss, ("--", "-"), strict=True):
+            y = np.array([r.get(key, np.nan) for r in rows], float)
+            if np.isfinite(y).any():
+                axes[0, 0].plot(epochs, y, style, marker="o", ms=3, color=cmap(i % 10),
+                                label=f"{label} {key.split('_')[0]}")
+        if has_err:
+            for key, style in zip(keys_err, ("-", ":"), strict=True):
+                y = np.array([r.get(key, np.nan) for r in rows], float)
+                if np.isfinite(y).any():
+                    axes[0, 1].plot(epochs, y, style, marker="o", ms=3, color=cmap(i % 10),
+                                    label=f"{label} {key[4:]}")
+    axes[0, 0].set_xlabel("epoch")
+    axes[0, 0].set_ylabel("loss")
+    if all(r.get(k, 1.0) > 0 for rows in runs.values() for r in rows for k in keys_loss):
+        axes[0, 0].set_yscale("log")  # the first epochs are ten times the rest
+    axes[0, 0].set_title("training (dashed) and held-out (solid) loss", fontsize=10)
+    axes[0, 0].legend(fontsize=8)
+    if has_err:
+        axes[0, 1].set_xlabel("epoch")
+        axes[0, 1].set_ylabel("[m]")
+        axes[0, 1].set_title("held-out minADE (solid) and minFDE (dotted)", fontsize=10)
+        axes[0, 1].legend(fontsize=8)
+    for ax in axes.ravel():
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out

@@ -176,6 +176,23 @@ def _sumo_game(name: str) -> Path:
     return Path(sumo.__file__).parent / "tools" / "game" / f"{name}.sumocfg"
 
 
+def _formats() -> str:
+    """Every export format when the optional extra is installed (dev installs it), else SUMO only."""
+    import test_export_openscenario as osc_checks
+
+    return "all" if osc_checks.HAS_EXTRA else "sumo"
+
+
+def _check_openscenario_too(out: Path) -> None:
+    """Every variant's .xosc valid with its knots exact and the .xodr lanes on the SUMO lanes."""
+    import test_export_openscenario as osc_checks
+
+    if not osc_checks.HAS_EXTRA:
+        return
+    rows = osc_checks.check_openscenario(out)
+    osc_checks.assert_xodr_on_lanes(rows[0]["xodr"], rows[0]["net"])
+
+
 @pytest.mark.sumo
 @pytest.mark.slow
 @pytest.mark.parametrize(("config", "target"), [("square", "horiz.1"), ("grid6", "leftRight.1")])
@@ -188,9 +205,10 @@ def test_wheel_scenario_with_a_flow_member_target_plays_in_plain_sumo(tmp_path, 
         pytest.skip(f"{cfg} not in this SUMO build")
     out = tmp_path / "run"
     assert main(["-q", "run", str(cfg), "--target", target, "--planner", "replay", "--samples", "200",
-                 "--variants", "2", "--no-render", "-o", str(out)]) == 0
+                 "--variants", "2", "--no-render", "--export", _formats(), "-o", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["variants"]
+    _check_openscenario_too(out)
     for v in summary["variants"]:
         i = v["variant"]
         export = out / "variants" / str(i) / "export"
@@ -225,9 +243,11 @@ def test_demo_variant_plays_in_plain_sumo_and_in_replay(tmp_path):
 def test_demo_all_variants_play_in_plain_sumo(tmp_path):
     """The demo exactly as shipped (`make demo` without renders): all five variants."""
     out = tmp_path / "run"
-    assert main(["-q", "run", str(DEMO), "--planner", "replay", "--no-render", "-o", str(out)]) == 0
+    assert main(["-q", "run", str(DEMO), "--planner", "replay", "--no-render", "--export", _formats(),
+                 "-o", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["num_variants"] == 5
+    _check_openscenario_too(out)
     for v in summary["variants"]:
         check_variant(out, v["variant"], tmp_path / f"plain{v['variant']}.fcd.xml")
 

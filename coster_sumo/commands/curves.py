@@ -1,0 +1,41 @@
+"""``coster-sumo eval curves``: learning curves of training runs as a picture for the model cards."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from coster_sumo.errors import InputError
+
+
+def register(cli) -> None:  # type: ignore[no-untyped-def]
+    p = cli.group("eval", help="evaluate a model").add_parser(
+        "curves", help="plot the learning curves of training runs (their metrics JSON) into a PNG",
+        description="METRICS are the .json files `train rollout` / `train prior` write beside their checkpoint "
+                    "(one record per epoch). Label a run with LABEL=PATH.")
+    p.add_argument("metrics", nargs="+", help="metrics JSON of a training run, optionally LABEL=PATH")
+    p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from coster_sumo import viz
+
+    runs = {}
+    for item in args.metrics:
+        label, sep, name = item.partition("=")
+        path = Path(name if sep else item)
+        if not path.is_file():
+            raise InputError(f"{path}: no such metrics file")
+        try:
+            rows = viz.training_history(json.loads(path.read_text()))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: not a JSON metrics file ({exc})") from exc
+        if not rows:
+            raise InputError(f"{path}: no per-epoch records ('epochs' or 'history')")
+        runs[label if sep else path.stem] = rows
+    out = viz.training_curves(runs, args.output)
+    if not args.quiet:
+        print(f"{out}: {', '.join(f'{k} ({len(v)} epochs)' for k, v in runs.items())}")
+    return 0

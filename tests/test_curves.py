@@ -1,0 +1,30 @@
+"""``coster-sumo eval curves``: the model cards' learning-curve pictures."""
+
+from __future__ import annotations
+
+import json
+
+from coster_sumo.cli import main
+
+
+def test_curves_of_a_rollout_and_a_prior_run(tmp_path, capsys):
+    rollout = tmp_path / "rollout.json"
+    rollout.write_text(json.dumps({"epochs": [{"train_loss": 9.0 - e, "val_loss": 8.0 - e, "val_minADE": 2.0 - 0.1 * e,
+                                               "val_minFDE": 5.0 - 0.3 * e} for e in range(4)]}))
+    prior = tmp_path / "prior.json"
+    prior.write_text(json.dumps({"history": [{"epoch": e + 1, "train_loss": 1.0 / (e + 1), "val_loss": 1.1 / (e + 1)}
+                                             for e in range(3)]}))
+    out = tmp_path / "curves.png"
+    assert main(["eval", "curves", f"dsa={rollout}", str(prior), "-o", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    printed = capsys.readouterr().out
+    assert "dsa (4 epochs)" in printed and "prior (3 epochs)" in printed
+
+
+def test_a_file_without_epochs_is_one_line(tmp_path, capsys):
+    bad = tmp_path / "m.json"
+    bad.write_text(json.dumps({"final": {}}))
+    assert main(["eval", "curves", str(bad), "-o", str(tmp_path / "c.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "m.json" in err[0] and "per-epoch" in err[0]
+    assert not (tmp_path / "c.png").exists()
