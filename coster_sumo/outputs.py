@@ -30,20 +30,11 @@ from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.metrics import circular_range_deg
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.sim.inject import InjectionResult
 from coster_sumo.spec import ScenarioSpec
 
 VARIANT_FILE = "variant.json"
-
-
-def sim_time_of(t: float, step_length: float) -> float:
-    """The simulation step nearest to ``t`` [s]: where SUMO's fixed step puts a log time.
-
-    A converted WOMD scene's log times jitter around SUMO's grid by microseconds (some scenes by
-    up to a few milliseconds); the adversary reaches the snapshot state at this step.
-    """
-    return round(round(t / step_length) * step_length, 9)
 
 
 def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float

@@ -27,6 +27,15 @@ from coster_sumo.errors import InputError
 from coster_sumo.snapshot_state import AgentState
 
 
+def sim_time_of(t: float, step_length: float) -> float:
+    """The simulation step nearest to ``t`` [s]: where SUMO's fixed step puts a log time.
+
+    A converted WOMD scene's log times jitter around SUMO's grid by microseconds (some scenes by
+    up to a few milliseconds); the adversary reaches the snapshot state at this step.
+    """
+    return round(round(t / step_length) * step_length, 9)
+
+
 @dataclass(frozen=True)
 class AdversaryPlan:
     """Knots of the adversary trajectory and its size.

@@ -66,12 +66,15 @@ def centres(states: States, vid: str, length: float) -> dict[float, tuple[float,
 
 
 def knot_errors(plan: AdversaryPlan, adv: dict[float, tuple[float, float, float]], step: float,
-                shift_steps: int) -> float:
-    """Max centre distance [m] to the plan's knots when the knot at simulation time T is looked up
+                shift_steps: int, until: float = float("inf")) -> float:
+    """Max centre distance [m] to the plan's knots up to simulation time ``until`` (the pass's
+    contact: the adversary stays where it touched) when the knot at simulation time T is looked up
     under the label ``T - step + shift_steps * step`` (inf when a knot has no such label)."""
     kx, ky, _, _ = plan.sample(plan.times)
     worst = 0.0
     for t, x, y in zip(plan.times, kx, ky, strict=True):
+        if sim_time_of(float(t), step) > until + 1e-6:
+            break
         label = round(sim_time_of(float(t), step) - step + shift_steps * step, 3)
         if label not in adv:
             return float("inf")
@@ -109,7 +112,8 @@ def assert_self_contained(cfg: Path) -> None:
 
 def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tuple[float, float]:
     """Play variant ``i`` of a run in plain sumo (or ``coster-sumo replay``); returns (max knot
-    error [m], contact offset from t_col_sim [s]) after asserting both are within tolerance."""
+    error [m] up to the pass's contact, contact offset from t_col_sim [s]) after asserting both are within
+    tolerance and that plain sumo touches when the pass did."""
     summary = json.loads((out / "summary.json").read_text())
     export = out / "variants" / str(i) / "export"
     variant = json.loads((export / "variant.json").read_text())
@@ -124,7 +128,10 @@ def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tup
         states = play(cfg, fcd)
     adv = centres(states, plan.vehicle_id, plan.length)
     assert adv, f"variant {i}: the adversary never shows up in the export"
-    errors = {shift: knot_errors(plan, adv, step, shift) for shift in (-1, 0, 1)}
+    record = next(v for v in summary["variants"] if v["variant"] == i)
+    assert record["collision"], f"variant {i}: no contact in the pass itself"
+    passed = float(record["collision_time"])  # the pass's contact (SUMO time); the adversary stays there
+    errors = {shift: knot_errors(plan, adv, step, shift, until=passed) for shift in (-1, 0, 1)}
     # the state at simulation time T is labelled T - step: exact there, a step's motion off elsewhere
     assert errors[0] <= KNOT_TOLERANCE_M, (i, errors)
     assert errors[0] < min(errors[-1], errors[1]), (i, errors)
@@ -134,6 +141,7 @@ def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tup
     contact = first_contact(adv, centres(states, target, size[0]), plan, size, step)
     assert contact is not None, f"variant {i}: no contact in the export"
     offset = round(contact - float(summary["t_col_sim"]), 6)
+    assert abs(contact - passed) < 1e-6, (i, contact, passed)  # the export plays what the pass did
     assert abs(offset) <= CONTACT_OFFSET_TOLERANCE_S + 1e-6, (i, contact, summary["t_col_sim"])
     print(f"variant {i}: max knot error {errors[0]:.4f} m, contact {contact:.2f} s, offset {offset:+.2f} s")
     return errors[0], offset

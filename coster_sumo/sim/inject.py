@@ -31,7 +31,7 @@ import numpy as np
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.frames import centre_to_front
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.scene import Scene
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
@@ -71,7 +71,9 @@ class AdversaryController:
         return None
 
     def before_step(self, session: SumoSession, t_next: float) -> None:
-        if self.gone or t_next < self.plan.t_start - TIME_EPS:
+        # a log time jitters around SUMO's step grid: the first knot belongs to the step nearest to
+        # it (sim_time_of), which may come a few milliseconds before it
+        if self.gone or t_next < sim_time_of(self.plan.t_start, self.step_length) - TIME_EPS:
             return
         vid = self.plan.vehicle_id
         if self.frozen_pose is None and self.freeze_at is not None and t_next > self.freeze_at + TIME_EPS:
@@ -185,7 +187,8 @@ def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan
     The planner's additional files must already be loaded (a forked copy of a session started with
     them, see :mod:`coster_sumo.sim.hold`). Events are checked, and the pass recorded, from now on.
     """
-    adversary = AdversaryController(plan, freeze_at=freeze_at) if plan is not None else None
+    adversary = (AdversaryController(plan, step_length=session.step_length, freeze_at=freeze_at)
+                 if plan is not None else None)
     adv_id = plan.vehicle_id if plan is not None else "__none__"
     # what nothing reacts to during the pass is checked in batches of 20 s (see EventDetector)
     detector = EventDetector(target_id, adv_id, drivable, batch=200)
