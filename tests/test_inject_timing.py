@@ -49,4 +49,5 @@ def test_a_first_knot_after_a_step_waits_for_the_nearest_step():
     ctl.before_step(s, 1.6)  # 0.06 s before the knot: its step is the one ending at 1.7 s
     assert s.calls == []
     ctl.before_step(s, 1.7)
-    assert s.calls[0][0] == "add" and s.calls[1] == ("move", 0.0, 0.0)
+    assert s.calls[0][0] == "add" and s.calls[1][0] == "move"
+    assert abs(s.calls[1][1] - 0.8) < 1e-9  # the plan 0.04 s past its first knot (20 m/s)
