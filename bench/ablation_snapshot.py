@@ -1,6 +1,6 @@
 """Collision-time ablation of the snapshot stage: CSD and CPD for entropy / last / random.
 
-Usage: python bench/ablation_snapshot.py DATASET [--scenes N] [--womd FILE ...] [--json OUT]
+Usage: python bench/ablation_snapshot.py DATASET [--all] [--scenes N] [--womd FILE ...] [--json OUT]
 Held-out scenes of a `coster-sumo simulate` dataset (their SDC as target) plus optional WOMD files;
 the shipped prior places the adversary; relative speed |v_target - v_adv| and impact angle (adversary
 position in the target frame) of each snapshot feed CSD and CPD (coster_sumo.metrics).
@@ -29,9 +29,13 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=100)
     ap.add_argument("--womd", type=Path, nargs="*", default=[])
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--all", action="store_true",
+                    help="every scene of DATASET (a folder of held-out networks), not its held-out 10 %%")
     args = ap.parse_args()
-    _, val = split(list_scenes(args.dataset), 0.1, 0)
-    scenes = [load_scene(p) for p in val[: args.scenes]]
+    files = list_scenes(args.dataset)
+    val = files if args.all else split(files, 0.1, 0)[1]
+    picked = val[:: max(1, len(val) // args.scenes)][: args.scenes]  # evenly over the (sorted) networks
+    scenes = [load_scene(p) for p in picked]
     for f in args.womd:
         scenes.extend(iter_scenes(f))
     model = weights.load_cached(weights.weights_path(weights.PRIOR), load_prior)

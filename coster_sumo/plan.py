@@ -86,11 +86,13 @@ class AdversaryPlan:
         sy = CubicSpline(self.times, self.y, bc_type=((2, 0.0), (1, float(fin_v[1]))))
         return sx, sy, PchipInterpolator(self.times, np.unwrap(self.yaw))
 
-    def sample(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def sample(self, t: np.ndarray, lead: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """State at times ``t`` (T,) [s]: centre x, y [m], yaw [rad], speed [m/s].
 
-        Before ``t_start`` the values are those of the first knot (callers do not drive the
-        vehicle then); after ``t_col`` the adversary continues at constant velocity.
+        Up to ``lead`` [s] before ``t_start`` the trajectory is continued backwards along its first
+        piece (the simulation step nearest to a first knot that lies a few milliseconds after SUMO's
+        grid comes just before it); earlier the values are those at ``t_start - lead`` (callers do
+        not drive the vehicle then). After ``t_col`` the adversary continues at constant velocity.
         """
         t = np.asarray(t, np.float64)
         x = np.empty_like(t)
@@ -99,7 +101,7 @@ class AdversaryPlan:
         speed = np.empty_like(t)
         fin_v = self.final_speed * np.array([np.cos(self.yaw[-1]), np.sin(self.yaw[-1])])
         inside = t <= self.t_col
-        tc = np.clip(t[inside], self.t_start, self.t_col)
+        tc = np.clip(t[inside], self.t_start - max(lead, 0.0), self.t_col)
         splines = self._splines
         if splines is not None:
             sx, sy, syaw = splines

@@ -83,7 +83,7 @@ class AdversaryController:
             x, y, yaw = self.frozen_pose
             session.move_to_xy(vid, x, y, yaw, self.plan.length, speed=0.0)
             return
-        xs, ys, yaws, speeds = self.plan.sample(np.array([t_next]))
+        xs, ys, yaws, speeds = self.plan.sample(np.array([t_next]), lead=0.5 * self.step_length)
         x, y, yaw, speed = float(xs[0]), float(ys[0]), float(yaws[0]), float(speeds[0])
         if not self.added:
             session.add_vehicle(vid, self.plan.length, self.plan.width, "passenger",
