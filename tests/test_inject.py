@@ -63,3 +63,21 @@ def test_traci_pass_finds_the_same_events_as_libsumo(tmp_path):
     events = [[(e.kind, round(e.time, 3), e.vehicles) for e in r.events] for r in runs]
     assert runs[0].contact is not None and events[0]
     assert events[0] == events[1]
+
+
+def test_a_pass_whose_adversary_hits_another_vehicle_ends_after_t_col(tmp_path):
+    """The adversary touches a vehicle that is not the pass's target: it stays there, and the pass
+    ends ``post_contact_s`` after t_col instead of simulating to the end with a wreck on the road."""
+    scene, target, drivable, plan = _planned(tmp_path, 50, seed=1)
+    hit = str(scene.tracks.ids[target])
+    tr = scene.tracks
+    k0, k1 = (int(np.argmin(np.abs(scene.timestamps - t))) for t in (plan.t_start, plan.t_col + 3.0))
+    others = [i for i in range(len(tr.ids)) if i != target and tr.valid[i, k0:k1 + 1].all()]
+    assert others, "no other vehicle lives from the plan's start to 3 s after t_col"
+    bystander = str(tr.ids[others[0]])
+    res = run_injection(CFG, bystander, plan, make_planner("sumo"), seed=1, end=50.0, drivable=drivable,
+                        workdir=tmp_path, post_contact_s=2.0)
+    first = next(e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles)
+    assert hit in first.vehicles and res.contact is None
+    last = float(res.scene.timestamps[-1])
+    assert abs(last - (max(first.time, plan.t_col) + 2.0)) <= 0.1 + 1e-6, (last, first.time, plan.t_col)

@@ -164,7 +164,8 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
 
     ``surroundings_m`` [m]: record and check only the vehicles this close to the target (and the
     adversary wherever it is), and stop once the target has arrived; None records everything.
-    ``post_contact_s`` [s]: stop this long after the adversary's first contact with the target.
+    ``post_contact_s`` [s]: stop this long after the adversary's first contact with the target, or
+    after the later of its first contact with another vehicle (it stays there, a wreck) and t_col.
     """
     workdir = Path(workdir) if workdir is not None else Path(".")
     kwargs = dict(session_kwargs or {})
@@ -193,7 +194,7 @@ def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan
     # what nothing reacts to during the pass is checked in batches of 20 s (see EventDetector)
     detector = EventDetector(target_id, adv_id, drivable, batch=200)
     flags: dict[str, Any] = {"arrived": False, "min_ttc": float("inf"), "event_s": 0.0, "contact": False,
-                             "contact_time": None}
+                             "contact_time": None, "stop_after": None}
     t0 = _time.perf_counter()
     planner.setup(session, target_id)
     takeover = plan.t_start if plan is not None else -math.inf  # [s] the planner drives the target from here
@@ -217,17 +218,22 @@ def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan
         t_ev = _time.perf_counter()
         new = detector.check(sess.time, states, sess.collisions())
         if adversary is not None:
-            if post_contact_s is not None and flags["contact_time"] is not None and \
-                    sess.time > flags["contact_time"] + post_contact_s + TIME_EPS:
+            if post_contact_s is not None and flags["stop_after"] is not None and \
+                    sess.time > flags["stop_after"] + post_contact_s + TIME_EPS:
                 return True
             if new:
                 adversary.on_events(states, new)
                 if adversary.frozen_pose is not None:
                     detector.settle_adversary()  # a wreck now: nothing reacts to its contacts
+                    if flags["stop_after"] is None:
+                        # it hit something else first: the target may still run into the wreck
+                        # up to its collision time, after that nothing more of the scenario happens
+                        flags["stop_after"] = max(sess.time, adversary.plan.t_col)
                 flags["contact"] = flags["contact"] or any(
                     e.kind == "collision" and adv_id in e.vehicles and target_id in e.vehicles for e in new)
                 if flags["contact"] and flags["contact_time"] is None:
                     flags["contact_time"] = sess.time
+                    flags["stop_after"] = sess.time
             if adversary.added and not flags["contact"]:
                 tr, ar = detector.last_rows
                 if tr >= 0 and ar >= 0:
@@ -287,9 +293,10 @@ def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: Adversar
       SUMO's driver (``sumo``) continues from the logged pose along the road the target is on.
 
     The pass runs from the spec's begin with its seed to the end of the nominal scene, or until the
-    target has arrived, or ``post_contact_s`` after the adversary's contact with the target. On a
-    SUMO configuration only the target's surroundings are recorded and checked (the converted
-    scenes are small: everything is).
+    target has arrived, or ``post_contact_s`` after the adversary's contact with the target (or after
+    t_col, when the adversary hit another vehicle first and stays there). On a SUMO configuration
+    only the target's surroundings are recorded and checked (the converted scenes are small:
+    everything is).
     """
     converted = converted_scene_file(spec.config) is not None
     planner_spec = planner or default_planner(converted)
