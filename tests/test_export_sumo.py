@@ -134,7 +134,10 @@ def check_variant(out: Path, i: int, fcd: Path, replay_cli: bool = False) -> tup
     errors = {shift: knot_errors(plan, adv, step, shift, until=passed) for shift in (-1, 0, 1)}
     # the state at simulation time T is labelled T - step: exact there, a step's motion off elsewhere
     assert errors[0] <= KNOT_TOLERANCE_M, (i, errors)
-    assert errors[0] < min(errors[-1], errors[1]), (i, errors)
+    assert errors[0] <= min(errors[-1], errors[1]), (i, errors)
+    _, _, _, speeds = plan.sample(plan.times[plan.times <= passed + 1e-6])
+    if float(np.max(speeds)) > 0.5:  # a moving adversary tells the labels apart (one that waits does not)
+        assert errors[0] < min(errors[-1], errors[1]), (i, errors)
     target = variant["target_id"]
     assert variant["export"]["target_driven_by"] == "fcd-replay"
     size = vtype_sizes(export)[target]
