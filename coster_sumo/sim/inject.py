@@ -57,6 +57,9 @@ class AdversaryController:
     def __init__(self, plan: AdversaryPlan, step_length: float = 0.1, freeze_at: float | None = None) -> None:
         self.plan = plan
         self.step_length = step_length
+        # a log time jitters around SUMO's step grid: the first knot belongs to the step nearest to
+        # it, which may come a few milliseconds before it
+        self.first_step = sim_time_of(plan.t_start, step_length)
         self.freeze_at = freeze_at
         self.added = False
         self.frozen_pose: tuple[float, float, float] | None = None
@@ -71,9 +74,7 @@ class AdversaryController:
         return None
 
     def before_step(self, session: SumoSession, t_next: float) -> None:
-        # a log time jitters around SUMO's step grid: the first knot belongs to the step nearest to
-        # it (sim_time_of), which may come a few milliseconds before it
-        if self.gone or t_next < sim_time_of(self.plan.t_start, self.step_length) - TIME_EPS:
+        if self.gone or t_next < self.first_step - TIME_EPS:
             return
         vid = self.plan.vehicle_id
         if self.frozen_pose is None and self.freeze_at is not None and t_next > self.freeze_at + TIME_EPS:
