@@ -9,7 +9,8 @@ Used by ``coster-sumo run``, ``regress``, ``eval scenarios`` and the Python API 
 3. :func:`plan_scenario`: the 2 Hz scene, the collision snapshot (a snapshot init of
    :data:`~coster_sumo.snapshot.SNAPSHOT_INITS` with a rule of
    :data:`~coster_sumo.snapshot.COLLISION_TIME_RULES`), the adversary plans (a rollout of
-   :data:`~coster_sumo.rollout.methods.ROLLOUTS`), and the early-contact filter;
+   :data:`~coster_sumo.rollout.methods.ROLLOUTS`), and the early-contact filter (no contact with
+   the target or with another vehicle before t_col);
 4. :func:`generate_variants`: up to K variants, drawing more snapshots when a rollout gives one
    trajectory per snapshot.
 
@@ -210,6 +211,44 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
     return float(times[sel][np.argmax(hit)]) if hit.any() else None
 
 
+def bystander_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: float = 0.1
+                      ) -> tuple[float, str] | None:
+    """(time [s], vehicle id) of the first overlap of ``plan`` with a vehicle other than the target
+    on its nominal path before t_col - tolerance, or None.
+
+    An adversary that hits another vehicle on its way ends its run in that wreck instead of at the
+    target (on a freeway: a 25 m/s car running into the queue ahead of it). The nominal paths are
+    what the other vehicles would do without the adversary; in a simulated scene they may still
+    brake for it, so this filter removes the plans that certainly hit someone else, not every one.
+    Same window and tolerance as :func:`early_contact`.
+    """
+    t = scene.tracks
+    others = np.flatnonzero(np.arange(t.num_agents) != target)
+    times = scene.timestamps
+    half_step = 0.5 * float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    cols = np.flatnonzero((times >= plan.t_start - 1e-9) & (times < plan.t_col - tolerance_s - half_step))
+    if not len(cols) or not len(others):
+        return None
+    x, y, yaw, _ = plan.sample(times[cols])
+    valid = t.valid[np.ix_(others, cols)]
+    ox, oy = t.x[np.ix_(others, cols)], t.y[np.ix_(others, cols)]
+    # only pairs whose centres are within reach of each other (half diagonals plus the tolerance)
+    reach = 0.5 * (np.hypot(plan.length, plan.width) + np.hypot(t.length[np.ix_(others, cols)],
+                                                                 t.width[np.ix_(others, cols)]))
+    near = valid & (np.hypot(ox - x, oy - y) <= reach + CONTACT_TOLERANCE_M)
+    if not near.any():
+        return None
+    a, s = np.nonzero(near)
+    adv = make_boxes(x[s], y[s], yaw[s], plan.length, plan.width)
+    rows, c = others[a], cols[s]
+    oth = make_boxes(t.x[rows, c], t.y[rows, c], t.heading[rows, c], t.length[rows, c], t.width[rows, c])
+    hit = box_signed_distance(adv, oth) <= CONTACT_TOLERANCE_M
+    if not hit.any():
+        return None
+    first = np.flatnonzero(hit)[np.argmin(c[hit])]
+    return float(times[c[first]]), str(t.ids[rows[first]])
+
+
 SNAPSHOT_SEPARATION_STEPS = 4  # [2 Hz steps] the collision times of several snapshots lie 2 s apart or more
 
 
@@ -218,7 +257,8 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None) -> PlannedScenario:
     """Snapshot and adversary plans for ``target`` (one draw of the seeded generator).
 
-    Plans that would hit the target before t_col are dropped; when none is left, a new snapshot
+    Plans that would hit the target, or another vehicle on its nominal path, before t_col are
+    dropped; when none is left, a new snapshot
     is drawn (the generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times; then
     :class:`NoSnapshot`. The first :data:`STRICT_ATTEMPTS` draws take only placements that close in
     on the target (:func:`coster_sumo.snapshot.closing`), the others also grazing ones.
@@ -249,14 +289,17 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
         dropped: list[dict[str, Any]] = []
         for i, plan in enumerate(plans):
             early = early_contact(plan, scene, target)
-            if early is None:
-                kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
-            else:
+            other = bystander_contact(plan, scene, target) if early is None else None
+            if early is not None:
                 dropped.append({"candidate": i, "reason": f"hits the target at {early:.1f} s, before t_col"})
+            elif other is not None:
+                dropped.append({"candidate": i, "reason": f"hits {other[1]} at {other[0]:.1f} s, before t_col"})
+            else:
+                kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
         if kept:
             info = {**info, "attempt": attempt + 1, "candidates": len(plans), "kept": len(kept), "dropped": dropped}
             return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
-        reasons.append(f"t_col {snap.time:.1f} s: every trajectory hits the target before t_col")
+        reasons.append(f"t_col {snap.time:.1f} s: every trajectory hits the target or another vehicle before t_col")
     raise NoSnapshot(f"{SNAPSHOT_ATTEMPTS} attempts failed ({reasons[-1] if reasons else 'no placement'})")
 
 
