@@ -22,9 +22,13 @@ def _run(tmp_path: Path, *extra: str) -> tuple[int, Path]:
     return rc, out
 
 
-def test_run_writes_every_output_and_contact_is_at_t_col(tmp_path):
+def test_run_writes_every_output_and_contact_is_at_t_col(tmp_path, capsys):
     rc, out = _run(tmp_path, "--planner", "replay", "--seed", "3", "--collision-time", "random")
     assert rc == 0
+    printed = capsys.readouterr()
+    # --quiet: no progress bars, no file list; the one-line results stay
+    assert printed.out.startswith("target ego: t_col = ") and "  variant 0: " in printed.out
+    assert "wrote " not in printed.out and "nominal pass" not in printed.err
     summary = json.loads((out / "summary.json").read_text())
     for name in ("snapshot.json", "events.jsonl", "collisions.xml", "overview.png"):
         assert (out / name).exists(), name

@@ -106,8 +106,9 @@ def run(args: argparse.Namespace) -> int:
 
         export_run(args.out, export)
         lines.append(f"OpenSCENARIO: {args.out}/variants/*/{OSC_DIR}/")
-    lines.append(f"wrote {args.out}/summary.json; renders: {args.out}/overview.png, {args.out}/variants/*/render.png")
-    if not args.quiet:
-        print("\n".join(lines))
+    if not args.quiet:  # --quiet: no progress bars and no file list, the results still
+        lines.append(f"wrote {args.out}/summary.json; renders: {args.out}/overview.png, "
+                     f"{args.out}/variants/*/render.png")
+    print("\n".join(lines))
     sys.stdout.flush()
     return 0
