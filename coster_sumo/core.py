@@ -122,7 +122,9 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
                   ) -> tuple[Scene, bool]:
     """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
 
-    A SUMO configuration is recorded around the target only (see :data:`SURROUNDINGS_RADIUS_M`);
+    A SUMO configuration is recorded around the target only (see :data:`SURROUNDINGS_RADIUS_M`),
+    the target at every step, the vehicles around it at the models' 2 Hz and interpolated between
+    (:class:`~coster_sumo.sim.record.Focus`: what the models read is exactly what SUMO did);
     with ``hold`` the pass leaves held copies of itself for the variants (:mod:`coster_sumo.sim.hold`);
     ``additional`` files are loaded as the variants' passes will load them (a planner's vType);
     ``progress`` is called with the simulation time [s] after every step.
@@ -148,7 +150,8 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
         return hold.after_step(session, states) if hold is not None else False
 
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
-                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s), after_step=after_step, **extra)
+                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ),
+                          after_step=after_step, **extra)
     if target in scene.tracks.ids.tolist():  # regions and the drivable area cover its surroundings only
         return crop_scene(scene, SURROUNDINGS_RADIUS_M, scene.tracks.index_of(target)), False
     # the target never ran: a whole recording, so that the error can name the vehicles that did

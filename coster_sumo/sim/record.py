@@ -1,7 +1,8 @@
 """Nominal pass: step a :class:`SumoSession` and record every vehicle and every signal into a Scene.
 
 One recorded step per simulation step (10 Hz by default), taken **after** the step: the first
-recorded timestamp is ``begin + step_length``. Vehicles come and go; ``Tracks.valid`` says when
+recorded timestamp is ``begin + step_length``. A focused recording may read the vehicles around its
+target at a lower rate and interpolate between (:class:`Focus`, :func:`fill_between_samples`). Vehicles come and go; ``Tracks.valid`` says when
 each one was in the network. Agents are ordered by first appearance.
 
 Signals (SUMO link state letters -> :class:`SignalState`):
@@ -178,6 +179,10 @@ class Focus:
         radius_m: [m] vehicles this close to it are recorded (SUMO finds them).
         extra_ids: recorded whenever they are in the simulation, wherever they are (the adversary).
         until_arrival: stop stepping ``tail_s`` [s] after the target has arrived.
+        surroundings_hz: read the surroundings at this rate only [1/s] (None: every step). The
+            target and ``extra_ids`` are read every step; the other vehicles at the recording's
+            steps 0, k, 2k, ... (k = round(1 / (rate x step length))) and linearly interpolated in
+            between where they were there at both ends (see :func:`fill_between_samples`).
     """
 
     target_id: str
@@ -185,6 +190,34 @@ class Focus:
     extra_ids: tuple[str, ...] = ()
     until_arrival: bool = True
     tail_s: float = 0.0
+    surroundings_hz: float | None = None
+
+
+def fill_between_samples(tracks: Tracks, times: np.ndarray, sampled: np.ndarray) -> None:
+    """Fill, in place, the steps between consecutive sampled steps of the agents that were read
+    only at sampled steps (``valid`` at both ends and at none in between): positions and velocities
+    linearly in time, heading along the shorter arc, size from the earlier sample.
+
+    An agent that departs or arrives between two samples appears late or leaves early (by less than
+    the sampling interval); agents read every step are left as they are.
+    """
+    p = np.flatnonzero(sampled)
+    valid = tracks.valid
+    for a, b in zip(p[:-1], p[1:], strict=True):
+        if b - a < 2:
+            continue
+        rows = np.flatnonzero(valid[:, a] & valid[:, b] & ~valid[:, a + 1:b].any(axis=1))
+        if not len(rows):
+            continue
+        w = ((times[a + 1:b] - times[a]) / (times[b] - times[a]))[None, :]
+        block = (rows[:, None], np.arange(a + 1, b)[None, :])
+        for arr in (tracks.x, tracks.y, tracks.vx, tracks.vy):
+            arr[block] = arr[rows, a, None] + (arr[rows, b, None] - arr[rows, a, None]) * w
+        turn = np.angle(np.exp(1j * (tracks.heading[rows, b] - tracks.heading[rows, a])))
+        tracks.heading[block] = np.angle(np.exp(1j * (tracks.heading[rows, a, None] + turn[:, None] * w)))
+        tracks.length[block] = tracks.length[rows, a, None]
+        tracks.width[block] = tracks.width[rows, a, None]
+        valid[block] = True
 
 
 def record(session: SumoSession, *, end: float | None = None, begin: float | None = None,
@@ -228,6 +261,10 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     times: list[float] = []
     rows: list[tuple[np.ndarray, VehicleStates]] = []
     signal_rows: list[np.ndarray] = []
+    sampled: list[bool] = []  # per recorded step: were the surroundings read (not just the target)
+    every = 1
+    if focus is not None and focus.surroundings_hz:
+        every = max(1, int(round(1.0 / (focus.surroundings_hz * session.step_length))))
     steps = 0
     seen_target = focus is not None and focus.target_id in session.vehicle_ids()
     started = seen_target  # a focused recording begins when its vehicle departs
@@ -243,6 +280,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
             before_step(session)
         t = session.step()
         steps += 1
+        full = True  # this step reads everything that is recorded (not only the target)
         if focus is None:
             st = session.vehicle_states()
         else:
@@ -255,8 +293,12 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
             if not seen_target and focus.target_id in session.departed_ids():
                 seen_target = True
             started = started or seen_target
+            full = every == 1 or len(times) % every == 0
             if seen_target:
-                near = session.vehicles_near(focus.target_id, focus.radius_m)
+                if full:
+                    near = session.vehicles_near(focus.target_id, focus.radius_m, once=every > 1)
+                else:
+                    near = [] if focus.target_id in session.hidden else [focus.target_id]
                 if focus.extra_ids:
                     running, present = set(session.vehicle_ids()), set(near)
                     near += [v for v in focus.extra_ids
@@ -275,6 +317,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
                     kinds.append(int(_OBJECT_TYPE.get(str(st.vclass[i]), ObjectType.VEHICLE)))
             idx = np.fromiter(map(agent.__getitem__, names), np.int64, len(names))
             times.append(t)
+            sampled.append(full)
             rows.append((idx, st))
             signal_rows.append(table.states(session.tls_states()) if len(table.lane_index) else
                                np.zeros(0, np.int8))
@@ -296,6 +339,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         valid[idx, s] = True
     ids = np.array(list(agent), dtype=str) if agent else np.zeros(0, dtype=str)
     tracks = Tracks(ids=ids, object_type=np.array(kinds, np.int8), valid=valid, **arrays)
+    if not all(sampled):
+        fill_between_samples(tracks, np.array(times, np.float64), np.array(sampled))
     signals = SignalStates(
         lane_index=table.lane_index,
         state=(np.stack(signal_rows) if signal_rows else np.zeros((0, len(table.lane_index)), np.int8)),
