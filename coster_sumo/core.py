@@ -153,7 +153,9 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
                           focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ),
                           after_step=after_step, **extra)
     if target in scene.tracks.ids.tolist():  # regions and the drivable area cover its surroundings only
-        return crop_scene(scene, SURROUNDINGS_RADIUS_M, scene.tracks.index_of(target)), False
+        # every recorded vehicle stays: SUMO found it within the radius (of the target's front, not
+        # its centre), and dropping a few would copy every track array of the pass
+        return crop_scene(scene, SURROUNDINGS_RADIUS_M, scene.tracks.index_of(target), agent_radius_m=np.inf), False
     # the target never ran: a whole recording, so that the error can name the vehicles that did
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci, **extra)
     if scene.num_steps == 0:

@@ -163,13 +163,14 @@ def crop_map(road_map: RoadMap, points: np.ndarray, radius_m: float = CROP_RADIU
     return cropped, new_index
 
 
-def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None = None) -> Scene:
+def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None = None,
+               agent_radius_m: float | None = None) -> Scene:
     """Crop a scene around its target's trajectory (``target`` or else ``scene.sdc_index``).
 
     The map keeps what lies within ``radius_m`` of the target's valid positions; agents are kept
-    when they come within ``radius_m`` of the target's position at the same step (the target
-    itself always). Signals keep the controlled lanes that remain. Returns the scene unchanged
-    when it has no target.
+    when they come within ``agent_radius_m`` (default ``radius_m``; ``inf``: every agent) of the
+    target's position at the same step (the target itself always). Signals keep the controlled
+    lanes that remain. Returns the scene unchanged when it has no target.
     """
     target = scene.sdc_index if target is None else target
     if target < 0:
@@ -180,10 +181,10 @@ def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None
     road_map, new_index = crop_map(scene.road_map, path, radius_m)
     both = tr.valid & valid_t[None, :]  # (A, T)
     dist = np.hypot(tr.x - tr.x[target][None, :], tr.y - tr.y[target][None, :])  # (A, T)
-    near = np.any(both & (dist <= radius_m), axis=1)
+    near = np.any(both & (dist <= (radius_m if agent_radius_m is None else agent_radius_m)), axis=1)
     near[target] = True
     agents = np.flatnonzero(near)
-    tracks = tr if len(agents) == len(near) else tr.select(agents=agents)  # a focused recording keeps all
+    tracks = tr if len(agents) == len(near) else tr.select(agents=agents)
     sig = scene.signals
     lane_new = new_index[sig.lane_index] if len(sig.lane_index) else np.zeros(0, np.int64)
     kept_sig = lane_new >= 0
