@@ -194,6 +194,13 @@ def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
 
 # ----------------------------------------------------------------------------- generation
 
+def _checked_steps(plan: AdversaryPlan, times: np.ndarray, tolerance_s: float) -> np.ndarray:
+    """(T,) bool: the scene steps from the plan's start to t_col - ``tolerance_s``, with half a step
+    of margin against the log's timestamp jitter (the steps the contact filters look at)."""
+    half_step = 0.5 * float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    return (times >= plan.t_start - 1e-9) & (times < plan.t_col - tolerance_s - half_step)
+
+
 def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: float = 0.1) -> float | None:
     """Time [s] at which ``plan`` would overlap the target's nominal path before t_col - tolerance.
 
@@ -204,8 +211,7 @@ def early_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_s: f
     """
     t = scene.tracks
     times = scene.timestamps
-    half_step = 0.5 * float(np.median(np.diff(times))) if len(times) > 1 else 0.0
-    sel = (times >= plan.t_start - 1e-9) & (times < plan.t_col - tolerance_s - half_step) & t.valid[target]
+    sel = _checked_steps(plan, times, tolerance_s) & t.valid[target]
     if not sel.any():
         return None
     x, y, yaw, _ = plan.sample(times[sel])
@@ -230,8 +236,7 @@ def bystander_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_
     t = scene.tracks
     others = np.flatnonzero(np.arange(t.num_agents) != target)
     times = scene.timestamps
-    half_step = 0.5 * float(np.median(np.diff(times))) if len(times) > 1 else 0.0
-    cols = np.flatnonzero((times >= plan.t_start - 1e-9) & (times < plan.t_col - tolerance_s - half_step))
+    cols = np.flatnonzero(_checked_steps(plan, times, tolerance_s))
     if not len(cols) or not len(others):
         return None
     x, y, yaw, _ = plan.sample(times[cols])

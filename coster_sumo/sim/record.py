@@ -332,11 +332,13 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     if rows:  # one scatter per field over all steps (a city pass has ~10^4 steps)
         a_all = np.concatenate([idx for idx, _ in rows])
         s_all = np.repeat(np.arange(len(rows)), [len(idx) for idx, _ in rows])
-        for field, attr in (("x", "x"), ("y", "y"), ("heading", "yaw"), ("length", "length"), ("width", "width")):
-            arrays[field][a_all, s_all] = np.concatenate([getattr(st, attr) for _, st in rows])
+        for field in ("x", "y", "length", "width"):
+            arrays[field][a_all, s_all] = np.concatenate([getattr(st, field) for _, st in rows])
+        yaw = np.concatenate([st.yaw for _, st in rows])
         speed = np.concatenate([st.speed for _, st in rows])
-        arrays["vx"][a_all, s_all] = speed * np.cos(arrays["heading"][a_all, s_all])
-        arrays["vy"][a_all, s_all] = speed * np.sin(arrays["heading"][a_all, s_all])
+        arrays["heading"][a_all, s_all] = yaw
+        arrays["vx"][a_all, s_all] = speed * np.cos(yaw)  # as VehicleStates.vx / vy
+        arrays["vy"][a_all, s_all] = speed * np.sin(yaw)
         valid[a_all, s_all] = True
     ids = np.array(list(agent), dtype=str) if agent else np.zeros(0, dtype=str)
     tracks = Tracks(ids=ids, object_type=np.array(kinds, np.int8), valid=valid, **arrays)
