@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import re
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
@@ -179,9 +180,13 @@ def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None
     valid_t = tr.valid[target]
     path = tr.xy[target][valid_t]  # (T, 2)
     road_map, new_index = crop_map(scene.road_map, path, radius_m)
-    both = tr.valid & valid_t[None, :]  # (A, T)
-    dist = np.hypot(tr.x - tr.x[target][None, :], tr.y - tr.y[target][None, :])  # (A, T)
-    near = np.any(both & (dist <= (radius_m if agent_radius_m is None else agent_radius_m)), axis=1)
+    agent_radius_m = radius_m if agent_radius_m is None else agent_radius_m
+    if math.isinf(agent_radius_m):
+        near = np.ones(tr.num_agents, bool)
+    else:
+        both = tr.valid & valid_t[None, :]  # (A, T)
+        dist = np.hypot(tr.x - tr.x[target][None, :], tr.y - tr.y[target][None, :])  # (A, T)
+        near = np.any(both & (dist <= agent_radius_m), axis=1)
     near[target] = True
     agents = np.flatnonzero(near)
     tracks = tr if len(agents) == len(near) else tr.select(agents=agents)

@@ -427,17 +427,15 @@ class SumoSession:
         subscribes, reads and unsubscribes instead, for callers that ask only now and then.
         """
         veh = self.api.vehicle
-        if once and not self.uses_traci and self._context.get(veh_id) != radius_m:
-            tc = self._tc()
+        tc = self._tc()
+        if self._context.get(veh_id) != radius_m:
             veh.subscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m),
                                  [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED])
+        if once and not self.uses_traci and self._context.get(veh_id) != radius_m:
             near = dict(veh.getContextSubscriptionResults(veh_id) or {})  # libsumo: this step's, at once
             veh.unsubscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m))
             self._near_values.update(near)
         elif self._context.get(veh_id) != radius_m:
-            tc = self._tc()
-            veh.subscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m),
-                                 [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED])
             self._context[veh_id] = radius_m
             # results arrive with the next step; this once, measure the distances ourselves
             cx, cy = veh.getPosition(veh_id)
