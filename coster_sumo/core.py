@@ -47,8 +47,9 @@ from coster_sumo.spec import GenerationConfig, ScenarioSpec
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
 
 PRIOR_RATE_HZ = 2.0  # [1/s] the prior and the rollout work at 2 Hz
-SNAPSHOT_ATTEMPTS = 10  # snapshot + rollout attempts before a scene is declared unusable
-STRICT_ATTEMPTS = 5  # the first attempts take only placements that close in on the target
+COLLISION_TIMES = 3  # collision times tried (best first, 2 s apart) before a scene is declared unusable
+ATTEMPTS_PER_TIME = 5  # snapshot + rollout draws at one collision time before the next best is tried
+STRICT_PER_TIME = 3  # of those, the first take only placements that close in on the target
 
 
 @dataclass
@@ -262,55 +263,97 @@ def bystander_contact(plan: AdversaryPlan, scene: Scene, target: int, tolerance_
 SNAPSHOT_SEPARATION_STEPS = 4  # [2 Hz steps] the collision times of several snapshots lie 2 s apart or more
 
 
+def _around(t_index: int) -> range:
+    """The 2 Hz steps closer than :data:`SNAPSHOT_SEPARATION_STEPS` to ``t_index``."""
+    return range(t_index - SNAPSHOT_SEPARATION_STEPS + 1, t_index + SNAPSHOT_SEPARATION_STEPS)
+
+
 def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
                   drivable: DrivableArea, exclude: Collection[int] = (),
-                  on_snapshot: Callable[[CollisionSnapshot], None] | None = None) -> PlannedScenario:
+                  on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
+                  memo: dict[str, Any] | None = None) -> PlannedScenario:
     """Snapshot and adversary plans for ``target`` (one draw of the seeded generator).
 
     Plans that would hit the target, or another vehicle on its nominal path, before t_col are
-    dropped; when none is left, a new snapshot
-    is drawn (the generator moves on), up to :data:`SNAPSHOT_ATTEMPTS` times; then
-    :class:`NoSnapshot`. The first :data:`STRICT_ATTEMPTS` draws take only placements that close in
-    on the target (:func:`coster_sumo.snapshot.closing`), the others also grazing ones.
+    dropped; when none is left, a new snapshot is drawn (the generator moves on). At one collision
+    time the first :data:`STRICT_PER_TIME` draws take only placements that close in on the target
+    (:func:`coster_sumo.snapshot.closing`), the next ones also grazing ones; after
+    :data:`ATTEMPTS_PER_TIME` draws, or as soon as it has no acceptable placement at all, the
+    collision time is given up and the next best one at least 2 s away is tried (a target sweeping
+    through a turn at the best one can leave no approach that does not touch it early). After
+    :data:`COLLISION_TIMES` collision times: :class:`NoSnapshot`, naming each with its reason.
     ``exclude``: 2 Hz steps not to take as t_col. ``on_snapshot`` is called with every snapshot
     drawn, before its adversaries are generated (the variants' simulations can get ready meanwhile).
+    ``memo``: a dict the caller keeps across draws for the same scene, target and ``gen`` (the 2 Hz
+    scene and the prior's entropy curve are computed once in it).
     """
     rng = np.random.default_rng(seed)
-    low = resample(scene, PRIOR_RATE_HZ)
+    memo = {} if memo is None else memo
+    if "low" not in memo:
+        memo["low"] = resample(scene, PRIOR_RATE_HZ)
+    low, init_memo = memo["low"], memo.setdefault("init", {})
     init, rollout = SNAPSHOT_INITS[gen.init], ROLLOUTS[gen.rollout]
-    reasons: list[str] = []
-    relaxed = False
-    for attempt in range(SNAPSHOT_ATTEMPTS):
-        relaxed = relaxed or attempt >= STRICT_ATTEMPTS
+    excluded = set(exclude)
+    failed: dict[str, str] = {}  # "t_col 20.6 s" -> why its last draw failed
+
+    def place(strict: bool) -> tuple[CollisionSnapshot, bool]:
+        """A snapshot and whether it closes in; grazing when nothing closes in at the time."""
         try:
-            snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, exclude,
-                              strict=not relaxed)
-        except NoSnapshot:
-            if relaxed:
+            return init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, excluded,
+                              strict=strict, memo=init_memo), strict
+        except NoSnapshot as exc:
+            if not strict or exc.t_index is None:
                 raise
-            relaxed = True  # no placement closes in on the target: take grazing ones from now on
-            snap = init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, exclude,
-                              strict=False)
-        if on_snapshot is not None:
-            on_snapshot(snap)
-        plans, samples_xy, info = rollout.generate(low, target, snap, drivable, samples=gen.samples,
-                                                   variants=gen.variants, seed=seed, models_dir=gen.models_dir)
-        kept: list[AdversaryPlan] = []
-        dropped: list[dict[str, Any]] = []
-        for i, plan in enumerate(plans):
-            early = early_contact(plan, scene, target)
-            other = bystander_contact(plan, scene, target) if early is None else None
-            if early is not None:
-                dropped.append({"candidate": i, "reason": f"hits the target at {early:.1f} s, before t_col"})
-            elif other is not None:
-                dropped.append({"candidate": i, "reason": f"hits {other[1]} at {other[0]:.1f} s, before t_col"})
-            else:
-                kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
-        if kept:
-            info = {**info, "attempt": attempt + 1, "candidates": len(plans), "kept": len(kept), "dropped": dropped}
-            return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
-        reasons.append(f"t_col {snap.time:.1f} s: every trajectory hits the target or another vehicle before t_col")
-    raise NoSnapshot(f"{SNAPSHOT_ATTEMPTS} attempts failed ({reasons[-1] if reasons else 'no placement'})")
+        return init.place(low, target, rng, drivable, gen.collision_time, seed, gen.models_dir, excluded,
+                          strict=False, memo=init_memo), False
+
+    def label(t_index: int) -> str:
+        return f"t_col {float(low.timestamps[t_index]):.1f} s"
+
+    draws = 0
+    for _ in range(COLLISION_TIMES):
+        here: int | None = None
+        strict = True
+        for k in range(ATTEMPTS_PER_TIME):
+            draws += 1
+            try:
+                snap, strict = place(strict and k < STRICT_PER_TIME)
+            except NoSnapshot as exc:
+                if exc.t_index is None and not failed:
+                    raise  # no collision time in the scene at all
+                if exc.t_index is not None:
+                    here = exc.t_index
+                    failed[label(here)] = str(exc)
+                break
+            here = snap.t_index
+            if on_snapshot is not None:
+                on_snapshot(snap)
+            plans, samples_xy, info = rollout.generate(low, target, snap, drivable, samples=gen.samples,
+                                                       variants=gen.variants, seed=seed, models_dir=gen.models_dir)
+            kept: list[AdversaryPlan] = []
+            dropped: list[dict[str, Any]] = []
+            for i, plan in enumerate(plans):
+                early = early_contact(plan, scene, target)
+                other = bystander_contact(plan, scene, target) if early is None else None
+                if early is not None:
+                    dropped.append({"candidate": i, "reason": f"hits the target at {early:.1f} s, before t_col"})
+                elif other is not None:
+                    dropped.append({"candidate": i, "reason": f"hits {other[1]} at {other[0]:.1f} s, before t_col"})
+                else:
+                    kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
+            if kept:
+                failed.pop(label(here), None)
+                info = {**info, "attempt": draws, "candidates": len(plans), "kept": len(kept), "dropped": dropped,
+                        "collision_times_given_up": list(failed)}
+                return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
+            failed[label(here)] = ("every trajectory hits the target or another vehicle before t_col" if plans
+                                   else "no rollout stays on the road and clear of other vehicles")
+        if here is None:
+            break  # the window is used up
+        excluded.update(_around(here))
+    n = len(failed)
+    raise NoSnapshot(f"no draw at {n} collision time{'s' if n != 1 else ''} gave a plan ("
+                     + "; ".join(f"{k}: {v}" for k, v in failed.items()) + ")")
 
 
 def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
@@ -322,14 +365,15 @@ def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
     The first equals :func:`plan_scenario` with the same seed; the others draw with derived seeds.
     Raises :class:`NoSnapshot` only when not even the first exists; fewer than asked is fine.
     """
-    taken: list[PlannedScenario] = [plan_scenario(scene, target, seed, gen, drivable, on_snapshot=on_snapshot)]
+    memo: dict[str, Any] = {}
+    taken: list[PlannedScenario] = [plan_scenario(scene, target, seed, gen, drivable, on_snapshot=on_snapshot,
+                                                  memo=memo)]
     excluded: set[int] = set()
     for j in range(1, snapshots):
-        t = taken[-1].snapshot.t_index
-        excluded.update(range(t - SNAPSHOT_SEPARATION_STEPS + 1, t + SNAPSHOT_SEPARATION_STEPS))
+        excluded.update(_around(taken[-1].snapshot.t_index))
         try:
             taken.append(plan_scenario(scene, target, derived_seed(seed, j), gen, drivable, exclude=excluded,
-                                       on_snapshot=on_snapshot))
+                                       on_snapshot=on_snapshot, memo=memo))
         except NoSnapshot:
             break
     offset = 0
@@ -374,12 +418,13 @@ def generate_variants(scene: Scene, target: int, seed: int, gen: GenerationConfi
     infos: list[dict[str, Any]] = []
     reasons: list[str] = []
     max_draws = max_draws if max_draws is not None else 3 * gen.variants
+    memo: dict[str, Any] = {}
     for j in range(max_draws):
         if len(variants) >= gen.variants:
             break
         draw_seed = seed if j == 0 else derived_seed(seed, j)
         try:
-            planned = plan_scenario(scene, target, draw_seed, gen, drivable)
+            planned = plan_scenario(scene, target, draw_seed, gen, drivable, memo=memo)
         except NoSnapshot as exc:
             reasons.append(f"draw {j}: {exc}")
             if not one_each:

@@ -62,7 +62,15 @@ ADV_LENGTH_M, ADV_WIDTH_M = 4.5, 1.9  # [m] the baseline's adversary size (a sed
 
 
 class NoSnapshot(CosterError):
-    """The scene yields no collision snapshot; the message says why."""
+    """The scene yields no collision snapshot; the message says why.
+
+    ``t_index``: the 2 Hz step of the collision time that had no acceptable placement, when one
+    was chosen (another collision time may still have one); None when the scene has none at all.
+    """
+
+    def __init__(self, message: str, t_index: int | None = None) -> None:
+        super().__init__(message)
+        self.t_index = t_index
 
 
 def search_window(scene: Scene, target: int, exclude: Collection[int] = ()) -> np.ndarray:
@@ -229,7 +237,8 @@ def random_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivabl
             if not np.isfinite(gap) or gap > START_DISTANCE_M:
                 raise NoSnapshot("no lanes near the target: the drivable area is "
                                  + ("empty" if not np.isfinite(gap) else f"{gap:.0f} m away at t_col"))
-        raise NoSnapshot(f"no random placement of {RANDOM_TRIES} tries is on the road and free of other agents")
+        raise NoSnapshot(f"no random placement of {RANDOM_TRIES} tries is on the road and free of other agents",
+                         t_index=t_col)
     k = int(np.flatnonzero(ok)[0])
     b = boxes[k]
     adv = AgentState(x=float(b[0]), y=float(b[1]), yaw=float(np.angle(np.exp(1j * b[2]))),
@@ -268,12 +277,15 @@ def velocity_entropy(pred: Any, ellipse: np.ndarray) -> np.ndarray:
 def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                    collision_time: str = "entropy", seed: int = 0, models_dir: Path | None = None,
                    model: Any = None, regions_out: dict[str, np.ndarray] | None = None,
-                   exclude: Collection[int] = (), strict: bool = True) -> CollisionSnapshot:
+                   exclude: Collection[int] = (), strict: bool = True,
+                   memo: dict[str, Any] | None = None) -> CollisionSnapshot:
     """COSTER's snapshot: t_col from the velocity entropy, placement from the prior (module docstring).
 
     ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in ``models_dir`` (default: the shipped
     models folder). ``regions_out``, when given, receives the region centres ``xy`` (K, 2) [m] and
-    presence probabilities ``presence`` (K,) around the target at t_col, for pictures.
+    presence probabilities ``presence`` (K,) around the target at t_col, for pictures. ``memo``: a
+    dict kept by the caller across draws for the same scene, target and model: the regions and the
+    entropy curve are computed once in it (they depend on nothing else).
     """
     from coster_sumo import weights
     from coster_sumo.prior.data import at_prior_rate, prepare_scene
@@ -285,22 +297,30 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")
     tr = scene.tracks
-    # regions near the target's whole path; the velocity heads at the candidate steps first, then
-    # every head at t_col only (the 1,600-class position head over a long target's life is costly)
-    data = prepare_scene(at_prior_rate(scene), radius=model.config.radius, spacing=model.config.region_spacing,
-                         width=model.config.region_width, crop=tr.xy[target][tr.valid[target]].reshape(-1, 2))
-    if len(data.regions.centre) == 0:
-        raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
+
     def pose(steps: np.ndarray) -> np.ndarray:  # the target's own (it may be a cyclist: data has no centre for it)
         return np.stack([tr.x[target, steps], tr.y[target, steps], tr.heading[target, steps]], -1)
 
-    velocity = predict_scene(model, data, target, steps=window, heads=("speed", "heading"), pose=pose(window))
-    centres = velocity.regions.centre[np.maximum(velocity.region_index, 0)]  # (W, K, 2)
-    ellipse = np.zeros(velocity.mask.shape, bool)
-    for j, t in enumerate(window):
-        ellipse[j] = velocity.mask[j] & in_ellipse(centres[j], AgentState.from_tracks(tr, target, int(t)))
-    entropy = np.full(scene.num_steps, np.nan)
-    entropy[window] = velocity_entropy(velocity, ellipse)
+    memo = {} if memo is None else memo
+    if "data" not in memo:
+        # regions near the target's whole path; the velocity heads at every candidate step first,
+        # then every head at t_col only (the 1,600-class position head over a long life is costly)
+        memo["data"] = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
+                                     spacing=model.config.region_spacing, width=model.config.region_width,
+                                     crop=tr.xy[target][tr.valid[target]].reshape(-1, 2))
+    data = memo["data"]
+    if len(data.regions.centre) == 0:
+        raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
+    if "entropy" not in memo:  # over the whole window: excluded steps are only not chosen
+        full = search_window(scene, target)
+        velocity = predict_scene(model, data, target, steps=full, heads=("speed", "heading"), pose=pose(full))
+        centres = velocity.regions.centre[np.maximum(velocity.region_index, 0)]  # (W, K, 2)
+        ellipse = np.zeros(velocity.mask.shape, bool)
+        for j, t in enumerate(full):
+            ellipse[j] = velocity.mask[j] & in_ellipse(centres[j], AgentState.from_tracks(tr, target, int(t)))
+        memo["entropy"] = np.full(scene.num_steps, np.nan)
+        memo["entropy"][full] = velocity_entropy(velocity, ellipse)
+    entropy = memo["entropy"]
     t_col = choose_collision_time(window, collision_time, rng, entropy)
     pred = predict_scene(model, data, target, steps=np.array([t_col]), pose=pose(np.array([t_col])))
     tgt = AgentState.from_tracks(tr, target, t_col)
@@ -312,7 +332,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         regions_out["presence"] = pred.presence[0][real]
     cands = np.flatnonzero(pred.mask[0] & in_ellipse(centres_col, tgt))
     if len(cands) == 0:
-        raise NoSnapshot(f"no map region inside the target's ellipse at {scene.timestamps[t_col]:.1f} s")
+        raise NoSnapshot(f"no map region inside the target's ellipse at {scene.timestamps[t_col]:.1f} s", t_index=t_col)
     order = cands[np.argsort(-pred.presence[0, cands], kind="stable")][:MAX_REGIONS_TRIED]
     reasons = []
     fwd = np.array([np.cos(tgt.yaw), np.sin(tgt.yaw)])
@@ -352,7 +372,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
             position_logprob=float(logp[best]), signed_distance=float(sd[best]),
             entropy=tuple(float(v) for v in entropy), collision_time_method=collision_time,
             init_method="snapshot", seed=seed)
-    raise NoSnapshot("; ".join(reasons[:3]) or "no acceptable placement")
+    raise NoSnapshot("; ".join(reasons[:3]) or "no acceptable placement", t_index=t_col)
 
 
 @dataclass(frozen=True)
@@ -361,8 +381,10 @@ class SnapshotInit:
 
     Attributes:
         place: (scene at 2 Hz, target index, rng, drivable area, collision-time rule, seed, models
-            folder, steps to exclude from t_col, ``strict=`` closing check, see :func:`closing`) ->
-            the snapshot; raises :class:`NoSnapshot` when the scene has none.
+            folder, steps to exclude from t_col, ``strict=`` closing check, see :func:`closing`,
+            ``memo=`` a dict the caller keeps across draws for one scene and target) -> the
+            snapshot; raises :class:`NoSnapshot` when the scene has none (with ``t_index`` when
+            only the chosen collision time has none).
         weights: files it needs from the models folder (checked before any work).
     """
 
@@ -372,14 +394,16 @@ class SnapshotInit:
 
 def _prior_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                 collision_time: str, seed: int, models_dir: Path | None,
-                exclude: Collection[int] = (), strict: bool = True) -> CollisionSnapshot:
+                exclude: Collection[int] = (), strict: bool = True,
+                memo: dict[str, Any] | None = None) -> CollisionSnapshot:
     return prior_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed,
-                          models_dir=models_dir, exclude=exclude, strict=strict)
+                          models_dir=models_dir, exclude=exclude, strict=strict, memo=memo)
 
 
 def _random_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
                  collision_time: str, seed: int, models_dir: Path | None,
-                 exclude: Collection[int] = (), strict: bool = True) -> CollisionSnapshot:
+                 exclude: Collection[int] = (), strict: bool = True,
+                 memo: dict[str, Any] | None = None) -> CollisionSnapshot:
     return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed, exclude=exclude,
                            strict=strict)
 
