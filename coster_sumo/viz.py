@@ -203,8 +203,9 @@ def training_history(metrics: dict) -> list[dict]:
     prior``: ``history``); [] when it has none."""
     for key in ("epochs", "history"):
         rows = metrics.get(key)
-        if isinstance(rows, list):
-            return [r for r in rows if isinstance(r, dict)]
+        if isinstance(rows, list):  # the prior nests its held-out numbers: {"val": {"loss": ...}}
+            return [{**r, **{f"val_{k}": v for k, v in r["val"].items()}} if isinstance(r.get("val"), dict) else r
+                    for r in rows if isinstance(r, dict)]
     return []
 
 

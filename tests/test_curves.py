@@ -28,3 +28,11 @@ def test_a_file_without_epochs_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "m.json" in err[0] and "per-epoch" in err[0]
     assert not (tmp_path / "c.png").exists()
+
+
+def test_the_priors_nested_held_out_loss_is_read():
+    """`train prior` writes its held-out numbers as {"val": {"loss": ...}}; the curve must show them."""
+    from coster_sumo.viz import training_history
+
+    rows = training_history({"history": [{"epoch": 1, "train_loss": 0.79, "val": {"loss": 0.69, "speed_ce": 3.1}}]})
+    assert rows[0]["val_loss"] == 0.69 and rows[0]["train_loss"] == 0.79 and rows[0]["val_speed_ce"] == 3.1

@@ -147,30 +147,44 @@ def obstacle(x: float, y: float, steps: int, at: int) -> S.OtherAgents:
     return S.OtherAgents(boxes=boxes, valid=valid, ids=np.array(["obstacle"]))
 
 
-def test_a_representative_that_hits_an_agent_falls_back_to_the_next_member():
+def test_a_sample_that_hits_an_agent_before_t_col_does_not_represent_its_cluster():
     trajs = fan([0.0, 0.6, -0.7, 8.0, 8.4, 7.7])
     free = S.select_representatives(trajs, k=2, seed=0, size=(1.0, 0.2))
     hit = S.select_representatives(trajs, k=2, seed=0, size=(1.0, 0.2), others=obstacle(-10.0, 0.0, 5, 0))
     assert [r.rank for r in free] == [0, 0]
     first = next(r for r in free if abs(r.raw[0, 1]) < 1.0)
     assert first.raw[0, 1] == 0.0  # the member closest to the centroid
-    fallback = next(r for r in hit if abs(r.raw[0, 1]) < 1.0)
-    assert fallback.rank == 1 and fallback.raw[0, 1] != 0.0
+    instead = next(r for r in hit if abs(r.raw[0, 1]) < 1.0)
+    assert instead.raw[0, 1] != 0.0 and len(hit) == 2  # its neighbour stands for the cluster
     # contact at t_col is the point: an obstacle at the last step does not reject
     at_tcol = S.select_representatives(trajs, k=2, seed=0, size=(1.0, 0.2), others=obstacle(0.0, 0.0, 5, 4))
-    assert [r.rank for r in at_tcol] == [0, 0]
+    assert [r.rank for r in at_tcol] == [0, 0] and len(at_tcol) == 2
 
 
-def test_off_road_clusters_yield_nothing(vocab):
+def test_clusters_are_made_of_usable_samples(vocab):
+    """Three samples leave the road: K = 2 clusters of the three that stay on it, not one cluster of
+    each kind of which one yields nothing."""
     trajs = fan([0.0, 0.6, -0.7, 8.0, 8.4, 7.7])
 
     def off_road(x, y, yaw, length, width):
         return y > 5.0
 
     reps = S.select_representatives(trajs, k=2, seed=0, vocab=vocab, drivable=off_road, size=(4.6, 1.9))
-    assert len(reps) == 1 and reps[0].refined
-    assert np.array_equal(reps[0].poses[-1], trajs[0, -1])
-    assert np.all(reps[0].poses[:, 1] <= 5.0)
+    assert len(reps) == 2 and all(r.refined for r in reps)
+    assert len({r.sample_index for r in reps}) == 2 and {r.cluster_size for r in reps} == {1, 2}
+    for r in reps:
+        assert np.array_equal(r.poses[-1], trajs[r.sample_index, -1])
+        assert np.all(r.poses[:, 1] <= 5.0)
+
+
+def test_with_fewer_usable_samples_than_clusters_all_are_clustered(vocab):
+    trajs = fan([0.0, 8.0, 8.4, 7.7])
+
+    def off_road(x, y, yaw, length, width):
+        return y > 5.0
+
+    reps = S.select_representatives(trajs, k=2, seed=0, vocab=vocab, drivable=off_road, size=(4.6, 1.9))
+    assert len(reps) == 1 and reps[0].sample_index == 0 and reps[0].cluster_size == 1
 
 
 def test_constant_velocity_goes_straight_back():
@@ -210,3 +224,18 @@ def test_plan_variants_uses_the_models_folder(tmp_path, junction, vocab, model):
     for p in plans:
         assert (p.x[-1], p.y[-1], p.yaw[-1]) == (adv.x, adv.y, adv.yaw)
         assert p.times[-1] == 7.0 and len(p.times) == 11
+
+
+def test_crossing_between_two_steps_counts_as_a_hit():
+    """At 2 Hz two crossing cars can miss each other at both steps and overlap halfway between."""
+    poses = np.zeros((1, 3, 3))
+    poses[0, :, 0] = [0.0, 10.0, 20.0]  # along +x at 20 m/s
+    boxes = np.zeros((1, 3, 5))
+    boxes[0, :, 0] = 5.0
+    boxes[0, :, 1] = [-5.0, 5.0, 15.0]  # along +y at 20 m/s, at (5, 0) 0.25 s after the first step
+    boxes[0, :, 2] = np.pi / 2
+    boxes[0, :, 3:] = (4.0, 1.8)
+    crossing = S.OtherAgents(boxes=boxes, valid=np.ones((1, 3), bool), ids=np.array(["x"]))
+    assert S._hits_others(crossing, poses, 4.0, 1.8).tolist() == [True]
+    later = S.OtherAgents(boxes=boxes, valid=np.array([[True, False, True]]), ids=np.array(["x"]))
+    assert S._hits_others(later, poses, 4.0, 1.8).tolist() == [False]  # not there at one end: not checked

@@ -272,13 +272,33 @@ def _off_road(drivable: DrivableArea | OffRoadFn, poses: np.ndarray, length: flo
     return np.any(np.asarray(off, bool).reshape(poses.shape[:2]), axis=1)  # type: ignore[no-any-return]
 
 
+def _with_midpoints(states: np.ndarray) -> np.ndarray:
+    """(..., 2T-1, C) ``states`` (..., T, C) (x, y, heading, ...) with the halfway state between
+    each two steps: positions and the rest averaged, the heading the short way round."""
+    mid = 0.5 * (states[..., :-1, :] + states[..., 1:, :])
+    turn = np.angle(np.exp(1j * (states[..., 1:, 2] - states[..., :-1, 2])))
+    mid[..., 2] = states[..., :-1, 2] + 0.5 * turn
+    out = np.empty((*states.shape[:-2], 2 * states.shape[-2] - 1, states.shape[-1]))
+    out[..., 0::2, :] = states
+    out[..., 1::2, :] = mid
+    return out
+
+
 def _hits_others(others: OtherAgents, poses: np.ndarray, length: float, width: float) -> np.ndarray:
-    """(R,) any pose of (R, T, 3) overlapping a valid other agent at the same step."""
-    if others.boxes.shape[0] == 0:
+    """(R,) any pose of (R, T, 3) overlapping a valid other agent at the same step or halfway
+    between two steps (0.25 s at 2 Hz: two cars crossing at 10 m/s each miss each other at both
+    2 Hz steps yet overlap in between, and the 10 Hz check of the plans drops such a variant)."""
+    if others.boxes.shape[0] == 0 or poses.shape[1] == 0:
         return np.zeros(len(poses), bool)
-    mine = make_boxes(poses[..., 0], poses[..., 1], poses[..., 2], length, width)  # (R, T, 5)
-    hit = boxes_overlap(mine[:, None], others.boxes[None])  # (R, A, T)
-    return np.asarray((hit & others.valid[None]).any(axis=(1, 2)), bool)
+    dense = _with_midpoints(poses) if poses.shape[1] > 1 else poses
+    boxes = _with_midpoints(others.boxes) if poses.shape[1] > 1 else others.boxes
+    valid = others.valid
+    if poses.shape[1] > 1:
+        valid = np.repeat(valid, 2, axis=1)[:, :-1]
+        valid[:, 1::2] = others.valid[:, :-1] & others.valid[:, 1:]
+    mine = make_boxes(dense[..., 0], dense[..., 1], dense[..., 2], length, width)  # (R, T', 5)
+    hit = boxes_overlap(mine[:, None], boxes[None])  # (R, A, T')
+    return np.asarray((hit & valid[None]).any(axis=(1, 2)), bool)
 
 
 def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: int = 0,
@@ -302,9 +322,11 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
 
     Returns:
         Up to ``k`` :class:`Trajectory`, largest cluster first. A pose **before** t_col that is
-        off-road (:meth:`DrivableArea.off_road`) or overlaps a valid other agent rejects the
-        candidate; the cluster's next member (by distance to the centroid) is tried instead. A
-        cluster with no acceptable member yields nothing.
+        off-road (:meth:`DrivableArea.off_road`) or overlaps a valid other agent makes a sample
+        unusable. When at least ``k`` samples are usable as drawn, only those are clustered;
+        otherwise all are. Each cluster's members are refined and checked again in order of
+        distance to the centroid; the first acceptable one represents it, and a cluster with no
+        acceptable member yields nothing.
     """
     trajs = np.asarray(trajs, np.float64)
     if trajs.ndim != 3 or trajs.shape[2] != 3:
@@ -316,8 +338,19 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
     times = np.asarray(times, np.float64)
     if others is not None and others.boxes.shape[1] != t:
         raise InputError(f"others have {others.boxes.shape[1]} steps but trajectories have {t}")
+    usable = np.ones(n, bool)  # as drawn: nothing before t_col off the road or into another agent
+    if t >= 2 and others is not None:
+        usable &= ~_hits_others(OtherAgents(others.boxes[:, :-1], others.valid[:, :-1], others.ids),
+                                trajs[:, :-1], length, width)
+    if t >= 2 and drivable is not None and usable.any():
+        usable[usable] = ~_off_road(drivable, trajs[usable, :-1], length, width)
+    # the clusters are made of usable samples (a cluster of samples that all leave the road gives
+    # no variant: the demo got 3 of 5); with fewer usable samples than clusters, of all of them, as
+    # the vocabulary's refinement moves poses by decimetres and can make a sample usable
+    pool = np.flatnonzero(usable) if usable.sum() >= k else np.arange(n)
     out: list[Trajectory] = []
-    for ci, members in enumerate(cluster_trajectories(trajs, k, seed)):
+    for ci, in_pool in enumerate(cluster_trajectories(trajs[pool], k, seed)):
+        members = pool[in_pool]
         tries = members if max_tries is None else members[:max_tries]
         for start in range(0, len(tries), 32):  # refine and check a few members at a time
             chunk = tries[start:start + 32]
