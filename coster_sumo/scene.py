@@ -346,6 +346,26 @@ class RoadMap:
         _check(len(self.stop_sign_lanes) == len(self.stop_sign_xy), "one lane list per stop sign")
         _check_points(self.stop_sign_xy, np.arange(len(self.stop_sign_xy) + 1), "stop sign")
 
+    def lane_type_at(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) int8 :class:`LaneType` of the lane whose centreline is nearest to each point of
+        ``xy`` (N, 2) [m]; UNDEFINED for every point when the map has no lane."""
+        import shapely
+
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        lanes = self.lanes
+        counts = np.diff(lanes.centerline.offsets)
+        usable = np.flatnonzero(counts >= 2)
+        out = np.full(len(xy), int(LaneType.UNDEFINED), np.int8)
+        if not len(usable) or not len(xy):
+            return out
+        owner = np.repeat(np.arange(len(counts)), counts)  # lane of each centreline point
+        keep = np.isin(owner, usable)
+        lines = shapely.linestrings(lanes.centerline.values[keep],  # one per usable lane, in order
+                                    indices=np.searchsorted(usable, owner[keep]))
+        hit = shapely.STRtree(lines).query_nearest(shapely.points(xy), all_matches=False)  # (2, N): point, line
+        out[hit[0]] = lanes.lane_type[usable[hit[1]]]
+        return out
+
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of all lane points [m]."""
         pts = self.lanes.centerline.values

@@ -108,7 +108,10 @@ def test_eval_scenarios_reports_missing_weights_as_skipped(tmp_path):
     assert metrics["Snapshot+CV"]["status"] == "skipped" and "weights not found" in metrics["Snapshot+CV"]["reason"]
     rc = metrics["Random+CV"]
     assert rc["status"] == "ok" and rc["variants"] == 2 and rc["scenes"] == 1
-    for k in ("SUR", "CR", "ORR", "VDD", "ADD"):
+    for k in ("SUR", "CR", "ORR", "VDD", "ADD", "VDD_tcol"):
         assert rc[k] is not None and 0 <= rc[k] <= 1
+    assert rc["size_in_class"] == 1.0  # the baseline's 4.5 x 1.9 m sedan is a passenger car
+    assert sum(rc["adversaries_by_lane_type"].values()) == 2 and set(rc["adversaries_by_lane_type"]) <= {
+        "SURFACE_STREET", "FREEWAY", "BIKE_LANE", "UNDEFINED"}
     assert (out / "metrics.md").read_text().count("skipped") >= 1
     assert (out / "metrics.png").stat().st_size > 0

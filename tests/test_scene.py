@@ -71,3 +71,20 @@ def test_collision_snapshot_json_is_lossless(tmp_path):
     assert back.target == snap.target and back.adversary == snap.adversary
     assert np.isnan(back.entropy[0]) and back.entropy[1:] == snap.entropy[1:]
     assert back.to_dict() == snap.to_dict()
+
+
+def test_lane_type_at_takes_the_nearest_centreline_whatever_its_point_count():
+    from coster_sumo.scene import Lanes, LaneType, RoadMap
+
+    shapes = [np.array([[0.0, 0.0], [100.0, 0.0]]),  # a long straight lane of two points
+              np.array([[50.0, 3.0]]),  # a degenerate one-point lane: never chosen
+              np.array([[0.0, 20.0], [10.0, 20.0], [20.0, 21.0], [30.0, 23.0]])]
+    n = len(shapes)
+    empty = Ragged.from_list([np.zeros(0, np.int64)] * n, dtype=np.int64)
+    lanes = Lanes(ids=np.array(["a", "b", "c"]), centerline=Ragged.from_list(shapes, inner_shape=(2,)),
+                  width=np.full(n, 3.2), lane_type=np.array([LaneType.FREEWAY, LaneType.BIKE_LANE,
+                                                             LaneType.SURFACE_STREET], np.int8),
+                  speed_limit=np.zeros(n), is_junction=np.zeros(n, bool), predecessors=empty, successors=empty,
+                  left_neighbors=empty, right_neighbors=empty)
+    kinds = RoadMap(lanes=lanes).lane_type_at(np.array([[50.0, 2.9], [25.0, 18.0], [-5.0, 9.0]]))
+    assert kinds.tolist() == [LaneType.FREEWAY, LaneType.SURFACE_STREET, LaneType.FREEWAY]

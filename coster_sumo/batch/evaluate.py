@@ -74,7 +74,23 @@ def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     t = scene.tracks
     v, a = speeds_and_accels(t.xy, t.valid, scene.dt)
     return {"scene_file": path.name, "speed_hist": _hist(v, SPEED_BINS, 0, 50),
-            "accel_hist": _hist(a, ACCEL_BINS, -10, 10)}
+            "accel_hist": _hist(a, ACCEL_BINS, -10, 10),
+            "speed_hist_by_lane_type": nominal_speeds_by_lane_type(scene)}
+
+
+def nominal_speeds_by_lane_type(scene: Any) -> dict[str, list[int]]:
+    """Speed histograms (:data:`~coster_sumo.metrics.SPEED_BINS`) of the scene's vehicles at 2 Hz,
+    one per :class:`~coster_sumo.scene.LaneType` name of the lane nearest to each vehicle: the
+    reference the adversaries' speeds at t_col are compared with, class by class."""
+    from coster_sumo.metrics import SPEED_BINS
+    from coster_sumo.scene import LaneType, ObjectType, resample
+
+    low = resample(scene, 2.0)
+    t = low.tracks
+    ok = t.valid & (t.object_type == ObjectType.VEHICLE)[:, None]
+    speed = np.hypot(t.vx[ok], t.vy[ok])
+    kind = low.road_map.lane_type_at(np.stack([t.x[ok], t.y[ok]], -1))
+    return {LaneType(k).name: _hist(speed[kind == k], SPEED_BINS, 0, 50) for k in np.unique(kind).tolist()}
 
 
 def method_task(payload: dict[str, Any]) -> dict[str, Any]:
@@ -82,7 +98,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.core import choose_target, generate_variants, missing_weights
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.scene import load_scene
+    from coster_sumo.scene import LaneType, load_scene
     from coster_sumo.sim.inject import inject_variant
     from coster_sumo.snapshot import NoSnapshot
 
@@ -112,9 +128,13 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
         with tempfile.TemporaryDirectory(prefix="coster-eval-") as wd:
             res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
         c = res.contact
+        adv = v.snapshot.adversary
         records.append({"variant": i, "collision": c is not None, "adversary_off_road": res.adversary_off_road,
                         "relative_speed": c.relative_speed if c else None,
-                        "impact_angle": c.impact_angle if c else None, "t_col": v.snapshot.time})
+                        "impact_angle": c.impact_angle if c else None, "t_col": v.snapshot.time,
+                        "adversary_speed": adv.speed, "adversary_length": adv.length, "adversary_width": adv.width,
+                        "adversary_lane_type": LaneType(int(scene.road_map.lane_type_at(
+                            np.array([[adv.x, adv.y]]))[0])).name})
         tr = res.scene.tracks
         if plan.vehicle_id in set(tr.ids.tolist()):
             a = tr.index_of(plan.vehicle_id)
@@ -215,6 +235,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
     )
 
     raw_v = raw_a = None
+    by_type: dict[str, np.ndarray] = {}  # lane type -> nominal speed histogram of every scene
     good_scenes = []
     failed_scenes = []
     for key in keys:
@@ -225,6 +246,8 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         good_scenes.append(key)
         raw_v = np.add(raw_v, sp["speed_hist"]) if raw_v is not None else np.asarray(sp["speed_hist"])
         raw_a = np.add(raw_a, sp["accel_hist"]) if raw_a is not None else np.asarray(sp["accel_hist"])
+        for kind, hist in sp.get("speed_hist_by_lane_type", {}).items():
+            by_type[kind] = by_type.get(kind, 0) + np.asarray(hist)
     table: dict[str, Any] = {}
     for m in methods:
         entry: dict[str, Any] = {"group": m.group, "init": m.init, "rollout": m.rollout,
@@ -268,8 +291,46 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
             "CPD_circular": f(circular_std_deg(ang)) if ang else None,
             "generation_s_per_variant": float(np.mean(gen_time)) if gen_time else None,
             "relative_speeds": rel, "impact_angles": ang,
+            **snapshot_state_metrics(records, by_type),
         }
     return {"table": table, "failed_scenes": failed_scenes}
+
+
+def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: dict[str, np.ndarray]
+                           ) -> dict[str, Any]:
+    """The adversaries' states at t_col against the nominal traffic (None where not recorded).
+
+    ``VDD_tcol``: per lane type, the Jensen-Shannon divergence between the histograms of the
+    adversaries' speeds at t_col on that type and the nominal speeds on it (an adversary on a
+    freeway lane is compared with freeway traffic), averaged weighted by the adversaries on each.
+    ``size_in_class``: share of adversaries whose length and width both lie in the range of one
+    vehicle class of the corpus (:data:`~coster_sumo.plausible.VEHICLE_CLASSES`).
+    """
+    from coster_sumo.metrics import SPEED_BINS, js_divergence
+    from coster_sumo.plausible import VEHICLE_CLASSES
+
+    rows = [r for r in records if r.get("adversary_speed") is not None]
+    out: dict[str, Any] = {"VDD_tcol": None, "size_in_class": None, "adversaries_by_lane_type": {}}
+    if not rows:
+        return out
+    counts: dict[str, int] = {}
+    for r in rows:
+        counts[r["adversary_lane_type"]] = counts.get(r["adversary_lane_type"], 0) + 1
+    out["adversaries_by_lane_type"] = counts
+    divergence, weight = 0.0, 0
+    for kind, n in counts.items():
+        nominal = np.asarray(nominal_by_type.get(kind, ()), np.float64)
+        if nominal.sum() > 0:
+            speeds = np.clip([r["adversary_speed"] for r in rows if r["adversary_lane_type"] == kind], 0, 50)
+            divergence += n * float(js_divergence(nominal, np.histogram(speeds, bins=SPEED_BINS)[0]))
+            weight += n
+    if weight:
+        out["VDD_tcol"] = divergence / weight
+    eps = 1e-6
+    inside = [any(l0 - eps <= r["adversary_length"] <= l1 + eps and w0 - eps <= r["adversary_width"] <= w1 + eps
+                  for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values()) for r in rows]
+    out["size_in_class"] = float(np.mean(inside))
+    return out
 
 
 def eval_exit_code(summary: dict[str, Any]) -> int:
