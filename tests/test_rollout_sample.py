@@ -239,3 +239,21 @@ def test_crossing_between_two_steps_counts_as_a_hit():
     assert S._hits_others(crossing, poses, 4.0, 1.8).tolist() == [True]
     later = S.OtherAgents(boxes=boxes, valid=np.array([[True, False, True]]), ids=np.array(["x"]))
     assert S._hits_others(later, poses, 4.0, 1.8).tolist() == [False]  # not there at one end: not checked
+
+
+def test_hits_others_equals_testing_every_pair():
+    """The reach pre-filter only skips pairs that cannot overlap."""
+    from coster_sumo.geometry import boxes_overlap, make_boxes
+
+    rng = np.random.default_rng(5)
+    poses = np.concatenate([rng.uniform(-150, 150, (300, 6, 2)), rng.uniform(-np.pi, np.pi, (300, 6, 1))], -1)
+    boxes = np.concatenate([rng.uniform(-150, 150, (40, 6, 2)), rng.uniform(-np.pi, np.pi, (40, 6, 1)),
+                            rng.uniform(1, 12, (40, 6, 1)), rng.uniform(0.5, 2.6, (40, 6, 1))], -1)
+    others = S.OtherAgents(boxes=boxes, valid=rng.random((40, 6)) < 0.8, ids=np.arange(40).astype(str))
+    got = S._hits_others(others, poses, 4.6, 1.9)
+    dense, dboxes = S._with_midpoints(poses), S._with_midpoints(boxes)
+    dvalid = np.repeat(others.valid, 2, axis=1)[:, :-1]
+    dvalid[:, 1::2] = others.valid[:, :-1] & others.valid[:, 1:]
+    mine = make_boxes(dense[..., 0], dense[..., 1], dense[..., 2], 4.6, 1.9)
+    brute = (boxes_overlap(mine[:, None], dboxes[None]) & dvalid[None]).any(axis=(1, 2))
+    assert got.tolist() == brute.tolist() and 0 < brute.sum() < len(brute)

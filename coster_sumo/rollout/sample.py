@@ -287,18 +287,38 @@ def _with_midpoints(states: np.ndarray) -> np.ndarray:
 def _hits_others(others: OtherAgents, poses: np.ndarray, length: float, width: float) -> np.ndarray:
     """(R,) any pose of (R, T, 3) overlapping a valid other agent at the same step or halfway
     between two steps (0.25 s at 2 Hz: two cars crossing at 10 m/s each miss each other at both
-    2 Hz steps yet overlap in between, and the 10 Hz check of the plans drops such a variant)."""
-    if others.boxes.shape[0] == 0 or poses.shape[1] == 0:
-        return np.zeros(len(poses), bool)
-    dense = _with_midpoints(poses) if poses.shape[1] > 1 else poses
-    boxes = _with_midpoints(others.boxes) if poses.shape[1] > 1 else others.boxes
+    2 Hz steps yet overlap in between, and the 10 Hz check of the plans drops such a variant).
+
+    Only pairs whose centres are within reach of each other (half diagonals) are tested: the
+    others are every agent of the scene, 3,600 in a city, and a few are ever near the samples.
+    """
+    hit = np.zeros(len(poses), bool)
+    if others.boxes.shape[0] == 0 or poses.shape[1] == 0 or len(poses) == 0:
+        return hit
+    dense = _with_midpoints(poses) if poses.shape[1] > 1 else poses  # (R, T', 3)
+    boxes = _with_midpoints(others.boxes) if poses.shape[1] > 1 else others.boxes  # (A, T', 5)
     valid = others.valid
     if poses.shape[1] > 1:
         valid = np.repeat(valid, 2, axis=1)[:, :-1]
         valid[:, 1::2] = others.valid[:, :-1] & others.valid[:, 1:]
-    mine = make_boxes(dense[..., 0], dense[..., 1], dense[..., 2], length, width)  # (R, T', 5)
-    hit = boxes_overlap(mine[:, None], boxes[None])  # (R, A, T')
-    return np.asarray((hit & valid[None]).any(axis=(1, 2)), bool)
+    mine = 0.5 * float(np.hypot(length, width))
+    theirs = 0.5 * np.hypot(boxes[..., 3], boxes[..., 4])  # (A, T')
+    # others that come near the samples' bounding box at all (most of a city never does)
+    lo, hi = dense[..., :2].min(axis=(0, 1)), dense[..., :2].max(axis=(0, 1))
+    gap = np.maximum(np.maximum(lo - boxes[..., :2], boxes[..., :2] - hi), 0.0)  # (A, T', 2)
+    near = valid & (np.hypot(gap[..., 0], gap[..., 1]) <= mine + theirs)
+    rows = np.flatnonzero(near.any(axis=1))
+    if not len(rows):
+        return hit
+    boxes, valid, theirs = boxes[rows], near[rows], theirs[rows]  # (A', T', ...)
+    d = np.hypot(dense[:, None, :, 0] - boxes[None, ..., 0], dense[:, None, :, 1] - boxes[None, ..., 1])
+    r, a, t = np.nonzero(valid[None] & (d <= mine + theirs[None]))  # (R, A', T') pairs within reach
+    if not len(r):
+        return hit
+    me = make_boxes(dense[r, t, 0], dense[r, t, 1], dense[r, t, 2], length, width)
+    over = boxes_overlap(me, boxes[a, t])
+    hit[r[over]] = True
+    return hit
 
 
 def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: int = 0,
