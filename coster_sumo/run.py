@@ -21,6 +21,7 @@ from typing import Any
 
 from coster_sumo.core import (
     PRIOR_RATE_HZ,
+    PlannedScenario,
     check_generation,
     choose_target,
     nominal_scene,
@@ -106,6 +107,10 @@ def run(opts: RunOptions) -> dict[str, Any]:
             results = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
                                       workdir=staging, held=held, workers=opts.workers, done=bar.update)
         timings["injection_s"] = time.perf_counter() - t0
+        planned, results = drop_bystander_wrecks(planned, results, str(scene.tracks.ids[target]))
+        if not any(p.plans for p in planned):
+            raise InputError(f"{spec.config}: every adversary of target {str(scene.tracks.ids[target])!r} ran into "
+                             "another vehicle before t_col in the simulation")
         summary = write_run_outputs(staging, spec, planner, planned, results, timings, render=opts.render,
                                     options=opts.to_json())
         if opts.out.exists():
@@ -118,6 +123,37 @@ def run(opts: RunOptions) -> dict[str, Any]:
         if held is not None:
             held.close()
     return summary
+
+
+def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], target_id: str
+                          ) -> tuple[list[PlannedScenario], list[Any]]:
+    """The plans and results without the variants whose adversary never touched the target because
+    it ran into another vehicle before t_col in the simulation (their ``info["dropped"]`` says so).
+
+    The generation already drops plans that overlap another vehicle's nominal path
+    (:func:`coster_sumo.core.bystander_contact`), but in the simulation the other vehicles react to
+    the adversary (they brake or change lanes when it appears): on A10KW a car 5.9 m clear of the
+    plan's path in the nominal pass ran into it 0.8 s before t_col. Such a variant is a wreck, not a
+    scenario of the target.
+    """
+    it = iter(results)
+    kept_results: list[Any] = []
+    for p in planned:
+        kept = []
+        for plan in p.plans:
+            res = next(it)
+            wreck = next((e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles
+                          and target_id not in e.vehicles and e.time < plan.t_col - 0.1 - 1e-6), None)
+            if res.contact is None and wreck is not None:
+                other = next(v for v in wreck.vehicles if v != plan.vehicle_id)
+                p.info.setdefault("dropped", []).append(
+                    {"candidate": plan.vehicle_id, "reason": f"ran into {other} at {wreck.time:.1f} s in the "
+                                                              "simulation, before t_col"})
+                continue
+            kept.append(plan)
+            kept_results.append(res)
+        p.plans = kept
+    return planned, kept_results
 
 
 def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None] | None:

@@ -252,12 +252,14 @@ def test_demo_variant_plays_in_plain_sumo_and_in_replay(tmp_path):
 @pytest.mark.sumo
 @pytest.mark.slow
 def test_demo_all_variants_play_in_plain_sumo(tmp_path):
-    """The demo exactly as shipped (`make demo` without renders): all five variants."""
+    """The demo exactly as shipped (`make demo` without renders): every variant it keeps (5 asked;
+    candidates that touch the target or another car early are dropped, 3 are left with the
+    weights of c9d4c22)."""
     out = tmp_path / "run"
     assert main(["-q", "run", str(DEMO), "--planner", "replay", "--no-render", "--export", _formats(),
                  "-o", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["num_variants"] == 5
+    assert summary["num_variants"] == len(summary["variants"]) >= 3
     _check_openscenario_too(out)
     for v in summary["variants"]:
         check_variant(out, v["variant"], tmp_path / f"plain{v['variant']}.fcd.xml")
