@@ -123,6 +123,8 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     gen_s = time.perf_counter() - t0
     records = []
     speeds, accels = [], []
+    lane_types = scene.road_map.lane_type_at(np.array([[v.snapshot.adversary.x, v.snapshot.adversary.y]
+                                                       for v in variants]))
     for i, v in enumerate(variants):
         plan = v.plan
         with tempfile.TemporaryDirectory(prefix="coster-eval-") as wd:
@@ -133,8 +135,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
                         "relative_speed": c.relative_speed if c else None,
                         "impact_angle": c.impact_angle if c else None, "t_col": v.snapshot.time,
                         "adversary_speed": adv.speed, "adversary_length": adv.length, "adversary_width": adv.width,
-                        "adversary_lane_type": LaneType(int(scene.road_map.lane_type_at(
-                            np.array([[adv.x, adv.y]]))[0])).name})
+                        "adversary_lane_type": LaneType(int(lane_types[i])).name})
         tr = res.scene.tracks
         if plan.vehicle_id in set(tr.ids.tolist()):
             a = tr.index_of(plan.vehicle_id)

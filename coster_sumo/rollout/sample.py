@@ -295,12 +295,9 @@ def _hits_others(others: OtherAgents, poses: np.ndarray, length: float, width: f
     hit = np.zeros(len(poses), bool)
     if others.boxes.shape[0] == 0 or poses.shape[1] == 0 or len(poses) == 0:
         return hit
-    dense = _with_midpoints(poses) if poses.shape[1] > 1 else poses  # (R, T', 3)
-    boxes = _with_midpoints(others.boxes) if poses.shape[1] > 1 else others.boxes  # (A, T', 5)
-    valid = others.valid
-    if poses.shape[1] > 1:
-        valid = np.repeat(valid, 2, axis=1)[:, :-1]
-        valid[:, 1::2] = others.valid[:, :-1] & others.valid[:, 1:]
+    dense, boxes = _with_midpoints(poses), _with_midpoints(others.boxes)  # (R, T', 3), (A, T', 5)
+    valid = np.repeat(others.valid, 2, axis=1)[:, :-1]  # a halfway state counts where both ends do
+    valid[:, 1::2] = others.valid[:, :-1] & others.valid[:, 1:]
     mine = 0.5 * float(np.hypot(length, width))
     theirs = 0.5 * np.hypot(boxes[..., 3], boxes[..., 4])  # (A, T')
     # others that come near the samples' bounding box at all (most of a city never does)

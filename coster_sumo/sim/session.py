@@ -429,23 +429,24 @@ class SumoSession:
         """
         veh = self.api.vehicle
         tc = self._tc()
-        if self._context.get(veh_id) != radius_m:
+        standing = self._context.get(veh_id) == radius_m
+        if not standing:
             veh.subscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m),
                                  [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED])
-        if once and not self.uses_traci and self._context.get(veh_id) != radius_m:
+        if standing:
+            near = veh.getContextSubscriptionResults(veh_id) or {}
+            if not self.uses_traci:  # this step's values of them, for vehicle_states (no getter calls)
+                self._near_values.update(near)
+        elif once and not self.uses_traci:
             near = dict(veh.getContextSubscriptionResults(veh_id) or {})  # libsumo: this step's, at once
             veh.unsubscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m))
             self._near_values.update(near)
-        elif self._context.get(veh_id) != radius_m:
+        else:
             self._context[veh_id] = radius_m
             # results arrive with the next step; this once, measure the distances ourselves
             cx, cy = veh.getPosition(veh_id)
             near = {v: None for v in veh.getIDList()
                     if math.dist(veh.getPosition(v), (cx, cy)) <= radius_m}
-        else:
-            near = veh.getContextSubscriptionResults(veh_id) or {}
-            if not self.uses_traci:  # this step's values of them, for vehicle_states (no getter calls)
-                self._near_values.update(near)
         ids = [v for v in near if v not in self.hidden]
         if veh_id not in near and veh_id not in self.hidden:
             ids.insert(0, veh_id)
