@@ -79,7 +79,9 @@ def run(opts: RunOptions) -> dict[str, Any]:
     timings: dict[str, float] = {}
     opts.out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{opts.out.name}.", dir=opts.out.parent))
-    held = HeldStates(spec.target or "ego") if not (opts.from_begin or opts.traci) else None
+    # an adversary appears up to its horizon before t_col, which may come right after the target departs
+    held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ)
+            if not (opts.from_begin or opts.traci) else None)
     try:
         t0 = time.perf_counter()
         planner = opts.planner or default_planner(converted)

@@ -67,7 +67,7 @@ def test_advanced_holder_gives_the_same_outcome(tmp_path, network, planner):
     """A holder advanced in the background (while adversaries are generated) is a run from ``begin``."""
     spec = ScenarioSpec(REPO / "networks" / network / f"{network}.sumocfg", seed=3)
     gen = GenerationConfig(init="random", rollout="cv", variants=2)
-    with HeldStates("ego", spacing_s=1000.0) as held:  # one holder, at the target's departure
+    with HeldStates("ego", spacing_s=1000.0, lead_s=0.0) as held:  # one holder, at the target's departure
         scene, _ = nominal_scene(spec, hold=held)
         assert len(held.holders) == 1
         target = choose_target(scene, None, spec.config)
@@ -113,3 +113,57 @@ def test_thinning_keeps_the_first_and_the_newest_holder(monkeypatch):
         assert held.holders[0].time == made[0]  # the departure's holder is never dropped
         assert held.holders[-1].time == made[-1]  # nor the newest
     assert len(made) > 10 and len(stopped) == len(made) - len(held.holders)
+
+
+def test_rolling_holders_before_the_target_departs(monkeypatch):
+    """Before the target departs two rolling holders stay, the older at least ``lead_s`` before it."""
+    from coster_sumo.sim import hold
+
+    class FakeSession:
+        uses_traci, port, time = False, None, 0.0
+
+        def vehicle_ids(self):
+            return ("ego",) if self.time >= 57.05 else ()
+
+    made, stopped = [], []
+
+    def fake_hold(self, session):
+        made.append(session.time)
+        self.holders.append(hold._Holder(session.time, -1, None))
+
+    monkeypatch.setattr(hold.HeldStates, "_hold", fake_hold)
+    monkeypatch.setattr(hold.HeldStates, "_stop", staticmethod(lambda h: stopped.append(h.time)))
+    held, sim = hold.HeldStates("ego", max_holders=3, spacing_s=1.0, lead_s=5.0), FakeSession()
+    for k in range(1, 3000):
+        sim.time = round(0.1 * k, 9)
+        held.after_step(sim)
+        lead = [h.time for h in held.holders if h.lead]
+        assert len(lead) <= hold.LEAD_HOLDERS
+    assert lead == [50.1, 55.1]  # rolling every 5 s from the first step; the thinning of the rest keeps them
+    assert held.holder_before(57.1 - 5.0).time == 50.1  # an adversary that starts its horizon before departure
+    assert min(h.time for h in held.holders if not h.lead) == 57.1
+    assert len(stopped) == len(made) - len(held.holders)
+
+
+def test_variants_from_a_holder_made_before_the_target_departs(tmp_path):
+    """A rolling holder from before the target's departure continues as a run from ``begin``."""
+    spec = ScenarioSpec(REPO / "networks" / "intersection" / "intersection.sumocfg", seed=4)
+    gen = GenerationConfig(init="random", rollout="cv", variants=2)
+    with HeldStates("ego", spacing_s=1000.0, lead_s=0.7) as held:
+        scene, _ = nominal_scene(spec, hold=held)
+        lead = [h for h in held.holders if h.lead]
+        assert len(lead) == 2 and lead[-1].time < 2.0  # ego departs at 2 s
+        for h in held.holders:  # only the rolling ones are left to continue from
+            if not h.lead:
+                held._stop(h)
+        held.holders = lead
+        target = choose_target(scene, None, spec.config)
+        drivable = DrivableArea.from_road_map(scene.road_map)
+        variants, _ = generate_variants(scene, target, spec.seed, gen, drivable)
+        plans = [v.plan for v in variants]
+        from_held = inject_variants(spec, scene, target, plans, "replay", drivable=drivable, workdir=tmp_path,
+                                    held=held, workers=2)
+        times = [held.holder_before(p.t_start).time for p in plans]
+        assert times == [lead[-1].time] * len(plans)
+    from_begin = inject_variants(spec, scene, target, plans, "replay", drivable=drivable, workdir=tmp_path)
+    _assert_same_outcomes(plans, times, from_held, from_begin)

@@ -7,6 +7,12 @@ later than the variant's start: the copy continues exactly as a run from ``begin
 seed would (docs/sumo.md §10: a forked libsumo process continues bit-exactly; SUMO's state files
 do not), without simulating the prefix again.
 
+Before the target departs, holders roll: one every ``lead_s`` with only the two newest kept, so
+that an adversary that appears up to ``lead_s`` before the target does (a collision right after
+the target's departure: the adversary drives its whole horizon before it) still has a holder
+before it. Without them such variants simulate from ``begin``: on the wheel's A10KW motorway the
+target departs at 400 s and t_col came 4 s later, and every variant simulated 400 s of traffic.
+
 Holders are thinned as the pass goes on (every other one is dropped and the spacing doubles when
 there are too many), so their number and memory stay bounded. Once a collision time is known,
 :meth:`HeldStates.advance` has the latest holder before it fork a new holder that simulates up to
@@ -41,6 +47,8 @@ from coster_sumo.sim.session import SumoSession
 
 MAX_HOLDERS = 8
 FIRST_SPACING_S = 10.0  # [s] simulation time between holders before any thinning
+LEAD_S = 5.0  # [s] how long before the target's departure an adversary may appear (the rollout horizon)
+LEAD_HOLDERS = 2  # rolling holders kept before the target departs
 MIN_ADVANCE_S = 2.0  # [s] a gap shorter than this is simulated by each variant itself
 CONNECT_TIMEOUT_S = 60.0  # [s] for an advanced holder to call back (it does so right after its fork)
 
@@ -53,6 +61,7 @@ class _Holder:
     pid: int
     conn: Connection
     ready: bool = True  # False while an advanced holder is still simulating up to ``time``
+    lead: bool = False  # made before the target departed (one of the rolling ones)
 
 
 def can_hold(session: SumoSession) -> bool:
@@ -70,12 +79,16 @@ class HeldStates:
     jobs from the holder before a given time, and :meth:`close` (or use it as a context manager).
     """
 
-    def __init__(self, target_id: str, max_holders: int = MAX_HOLDERS, spacing_s: float = FIRST_SPACING_S) -> None:
+    def __init__(self, target_id: str, max_holders: int = MAX_HOLDERS, spacing_s: float = FIRST_SPACING_S,
+                 lead_s: float = LEAD_S) -> None:
         self.target_id = target_id
         self.max_holders = max_holders
         self.spacing_s = spacing_s
+        self.lead_s = lead_s
         self.holders: list[_Holder] = []
         self._next_s: float | None = None
+        self._next_lead_s: float | None = None
+        self._departed = False
 
     def __enter__(self) -> HeldStates:
         return self
@@ -90,20 +103,37 @@ class HeldStates:
         t = session.time
         if self._next_s is not None and t < self._next_s - 1e-9:
             return False
-        if self.target_id not in session.vehicle_ids() or not can_hold(session):
+        if not can_hold(session):
             return False
+        if not self._departed:
+            if self.target_id not in session.vehicle_ids():
+                self._hold_lead(session)
+                return False
+            self._departed = True
         self._hold(session)
         self._next_s = t + self.spacing_s
-        if len(self.holders) > self.max_holders:
+        lead = [h for h in self.holders if h.lead]
+        rest = [h for h in self.holders if not h.lead]
+        if len(rest) > self.max_holders:
             # keep the first (the target's departure: any t_col is after it) and every other one
             # of the rest, counted back from the newest
-            keep = [self.holders[0], *self.holders[1:][::-1][::2][::-1]]
-            for h in self.holders:
+            keep = [rest[0], *rest[1:][::-1][::2][::-1]]
+            for h in rest:
                 if h not in keep:
                     self._stop(h)
-            self.holders = keep
+            self.holders = lead + keep
             self.spacing_s *= 2
         return False
+
+    def _hold_lead(self, session: SumoSession) -> None:
+        """Before the target departs: a rolling holder every ``lead_s``, the two newest kept."""
+        if self.lead_s <= 0 or (self._next_lead_s is not None and session.time < self._next_lead_s - 1e-9):
+            return
+        self._hold(session)
+        self.holders[-1].lead = True
+        self._next_lead_s = session.time + self.lead_s
+        while len(self.holders) > LEAD_HOLDERS:
+            self._stop(self.holders.pop(0))
 
     def _hold(self, session: SumoSession) -> None:
         parent_end, child_end = Pipe()
