@@ -53,3 +53,18 @@ def test_area_outside_from_pieces_equals_the_whole_area(monkeypatch):
         want = shapely.area(boxes) - shapely.area(shapely.intersection(boxes, area.geometry))
         assert np.allclose(got, want, atol=1e-6)
         assert (got > 1.0).any() and (got < 1e-9).any()
+
+
+def test_narrow_gaps_between_lanes_are_road_wide_ones_are_not():
+    """Lanes that do not quite reach each other leave a sliver that is road; a median is not."""
+    scene = synthetic.two_lane_road()  # centrelines 3.7 m apart
+    lanes = scene.road_map.lanes
+    x0, y0 = lanes.centerline[0][10]
+    mid = y0 + 1.85  # between the two lanes
+    box = (np.array([x0]), np.array([mid]), np.zeros(1), np.full(1, 4.5), np.full(1, 1.9))
+    for width, off in ((3.0, False), (1.5, True)):  # gaps of 0.7 m and of 2.2 m
+        lanes.width[:] = width
+        area = DrivableArea.from_road_map(scene.road_map)
+        assert bool(area.off_road(*box)[0]) is off, width
+        gap = area.outside_area(np.array([x0]), np.array([mid]), np.zeros(1), np.full(1, 4.5), np.full(1, 0.6))[0]
+        assert bool(gap > 1.0) is off  # a 0.6 m strip across the gap: fully road once the gap is closed
