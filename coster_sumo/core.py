@@ -268,6 +268,16 @@ def _around(t_index: int) -> range:
     return range(t_index - SNAPSHOT_SEPARATION_STEPS + 1, t_index + SNAPSHOT_SEPARATION_STEPS)
 
 
+def generation_rng(seed: int, scene: Scene) -> np.random.Generator:
+    """The random choices of one scene's generation: from the seed and the scene's id.
+
+    Seeded by the seed alone, every scene of a batch run with one seed made the same choices: the
+    "random" collision time fell on the same step of the window in 75 % of the 104 held-out scenes
+    of ``eval scenarios`` (their windows have one length), so that ablation was a fixed step.
+    """
+    return np.random.default_rng([seed, int.from_bytes(hashlib.sha256(scene.scenario_id.encode()).digest()[:4], "big")])
+
+
 def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
                   drivable: DrivableArea, exclude: Collection[int] = (),
                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
@@ -287,7 +297,7 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
     ``memo``: a dict the caller keeps across draws for the same scene, target and ``gen`` (the 2 Hz
     scene and the prior's entropy curve are computed once in it).
     """
-    rng = np.random.default_rng(seed)
+    rng = generation_rng(seed, scene)
     memo = {} if memo is None else memo
     if "low" not in memo:
         memo["low"] = resample(scene, PRIOR_RATE_HZ)
