@@ -129,14 +129,17 @@ def run(opts: RunOptions) -> dict[str, Any]:
 
 def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], target_id: str
                           ) -> tuple[list[PlannedScenario], list[Any]]:
-    """The plans and results without the variants whose adversary never touched the target because
-    it ran into another vehicle before t_col in the simulation (their ``info["dropped"]`` says so).
+    """The plans and results without the variants whose adversary ran into another vehicle before
+    t_col in the simulation (their ``info["dropped"]`` says so).
 
     The generation already drops plans that overlap another vehicle's nominal path
     (:func:`coster_sumo.core.bystander_contact`), but in the simulation the other vehicles react to
     the adversary (they brake or change lanes when it appears): on A10KW a car 5.9 m clear of the
-    plan's path in the nominal pass ran into it 0.8 s before t_col. Such a variant is a wreck, not a
-    scenario of the target.
+    plan's path in the nominal pass ran into it 0.8 s before t_col. Such an adversary stops there as
+    a wreck (:class:`~coster_sumo.sim.inject.AdversaryController`), so the variant is not the
+    generated scenario, even when the target then runs into the wreck at t_col (the demo's
+    adversary hit a car 1 s before t_col and the target hit both: its export no longer followed the
+    plan).
     """
     it = iter(results)
     kept_results: list[Any] = []
@@ -146,7 +149,7 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], ta
             res = next(it)
             wreck = next((e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles
                           and target_id not in e.vehicles and e.time < plan.t_col - 0.1 - 1e-6), None)
-            if res.contact is None and wreck is not None:
+            if wreck is not None:
                 other = next(v for v in wreck.vehicles if v != plan.vehicle_id)
                 p.info.setdefault("dropped", []).append(
                     {"candidate": plan.vehicle_id, "reason": f"ran into {other} at {wreck.time:.1f} s in the "
