@@ -87,15 +87,21 @@ def test_advanced_holder_gives_the_same_outcome(tmp_path, network, planner):
     _assert_same_outcomes(plans, times, from_held, from_begin)
 
 
-def test_thinning_keeps_the_first_and_the_newest_holder(monkeypatch):
-    """However long the target lives, a holder at its departure stays (any t_col comes after it)."""
+class _FakeSession:
+    """Enough of a session for :meth:`HeldStates.after_step`; the target runs from ``departs`` [s] on."""
+
+    uses_traci, port, time = False, None, 0.0
+
+    def __init__(self, departs: float = 0.0) -> None:
+        self.departs = departs
+
+    def vehicle_ids(self):
+        return ("ego",) if self.time >= self.departs else ()
+
+
+def _fake_holds(monkeypatch) -> tuple[list[float], list[float]]:  # noqa: ANN001
+    """Holders that fork nothing: the times held and the times stopped, in order."""
     from coster_sumo.sim import hold
-
-    class FakeSession:
-        uses_traci, port, time = False, None, 0.0
-
-        def vehicle_ids(self):
-            return ("ego",)
 
     made, stopped = [], []
 
@@ -105,7 +111,15 @@ def test_thinning_keeps_the_first_and_the_newest_holder(monkeypatch):
 
     monkeypatch.setattr(hold.HeldStates, "_hold", fake_hold)
     monkeypatch.setattr(hold.HeldStates, "_stop", staticmethod(lambda h: stopped.append(h.time)))
-    held, sim = hold.HeldStates("ego", max_holders=4, spacing_s=1.0), FakeSession()
+    return made, stopped
+
+
+def test_thinning_keeps_the_first_and_the_newest_holder(monkeypatch):
+    """However long the target lives, a holder at its departure stays (any t_col comes after it)."""
+    from coster_sumo.sim import hold
+
+    made, stopped = _fake_holds(monkeypatch)
+    held, sim = hold.HeldStates("ego", max_holders=4, spacing_s=1.0), _FakeSession()
     for k in range(1, 2000):
         sim.time = 100.0 + 0.1 * k
         held.after_step(sim)
@@ -119,21 +133,8 @@ def test_rolling_holders_before_the_target_departs(monkeypatch):
     """Before the target departs two rolling holders stay, the older at least ``lead_s`` before it."""
     from coster_sumo.sim import hold
 
-    class FakeSession:
-        uses_traci, port, time = False, None, 0.0
-
-        def vehicle_ids(self):
-            return ("ego",) if self.time >= 57.05 else ()
-
-    made, stopped = [], []
-
-    def fake_hold(self, session):
-        made.append(session.time)
-        self.holders.append(hold._Holder(session.time, -1, None))
-
-    monkeypatch.setattr(hold.HeldStates, "_hold", fake_hold)
-    monkeypatch.setattr(hold.HeldStates, "_stop", staticmethod(lambda h: stopped.append(h.time)))
-    held, sim = hold.HeldStates("ego", max_holders=3, spacing_s=1.0, lead_s=5.0), FakeSession()
+    made, stopped = _fake_holds(monkeypatch)
+    held, sim = hold.HeldStates("ego", max_holders=3, spacing_s=1.0, lead_s=5.0), _FakeSession(departs=57.05)
     for k in range(1, 3000):
         sim.time = round(0.1 * k, 9)
         held.after_step(sim)
