@@ -16,7 +16,8 @@ class ScenarioSpec:
 
     Attributes:
         config: the ``.sumocfg`` (a converted WOMD scene or any SUMO configuration).
-        seed: SUMO's ``--seed`` and the seed of every random choice of the generation.
+        seed: SUMO's ``--seed``, and with the scene's id the seed of every random choice of the
+            generation (``core.generation_rng``: scenes run with one seed do not draw alike).
         begin, end: [s] the recorded window (None: the configuration's own).
         target: the target vehicle id (None: the SDC of a converted scene, else ``ego``).
     """
