@@ -27,8 +27,7 @@ class CommandLine:
         self.parser = argparse.ArgumentParser(
             prog="coster-sumo",
             description="COSTER safety-critical scenario generation for SUMO.")
-        self.parser.add_argument("--debug", action="store_true", help="show tracebacks")
-        self.parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+        _global_options(self.parser, default=False)
         self.commands = self.parser.add_subparsers(dest="command", metavar="COMMAND")
         self._groups: dict[str, argparse._SubParsersAction] = {}
 
@@ -40,6 +39,25 @@ class CommandLine:
         return self._groups[name]
 
 
+def _global_options(parser: argparse.ArgumentParser, default: object) -> None:
+    """``--debug`` and ``--quiet``: on the top-level parser (``default`` False) and on every
+    subcommand (``default`` SUPPRESS, so that ``coster-sumo run CFG --quiet`` works as well as
+    ``coster-sumo --quiet run CFG`` and a subcommand does not reset what the top level set)."""
+    parser.add_argument("--debug", action="store_true", default=default, help="show tracebacks")
+    parser.add_argument("--quiet", "-q", action="store_true", default=default,
+                        help="no progress bars (the one-line results stay)")
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """Every subcommand parser under ``parser``, nested groups included."""
+    found = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):  # aliases share a parser
+                found += [sub, *_subcommands(sub)]
+    return found
+
+
 def build_parser() -> argparse.ArgumentParser:
     import coster_sumo.commands as commands
 
@@ -49,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
         register = getattr(module, "register", None)
         if register is not None:
             register(cli)
+    for sub in _subcommands(cli.parser):
+        _global_options(sub, default=argparse.SUPPRESS)
     return cli.parser
 
 
