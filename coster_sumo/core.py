@@ -119,8 +119,8 @@ def simulation_window(spec: ScenarioSpec) -> tuple[float, float]:
 
 
 def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates | None = None,
-                  additional: Sequence[Path] = (), progress: Callable[[float], None] | None = None
-                  ) -> tuple[Scene, bool]:
+                  additional: Sequence[Path] = (), progress: Callable[[float], None] | None = None,
+                  more_targets: Sequence[str] = ()) -> tuple[Scene, bool]:
     """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
 
     A SUMO configuration is recorded around the target only (see :data:`SURROUNDINGS_RADIUS_M`),
@@ -128,7 +128,9 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
     (:class:`~coster_sumo.sim.record.Focus`: what the models read is exactly what SUMO did);
     with ``hold`` the pass leaves held copies of itself for the variants (:mod:`coster_sumo.sim.hold`);
     ``additional`` files are loaded as the variants' passes will load them (a planner's vType);
-    ``progress`` is called with the simulation time [s] after every step.
+    ``progress`` is called with the simulation time [s] after every step; ``more_targets`` are
+    recorded like the target (one pass for several targets: the union of their surroundings, up to
+    the arrival of the last of them).
     """
     cfg = spec.config
     if not cfg.exists():
@@ -151,12 +153,16 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
         return hold.after_step(session, states) if hold is not None else False
 
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
-                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ),
+                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
+                                      more_targets=tuple(more_targets)),
                           after_step=after_step, **extra)
-    if target in scene.tracks.ids.tolist():  # regions and the drivable area cover its surroundings only
+    ids = scene.tracks.ids.tolist()
+    present = [ids.index(v) for v in dict.fromkeys((target, *more_targets)) if v in ids]
+    if present:  # regions and the drivable area cover its (their) surroundings only
         # every recorded vehicle stays: SUMO found it within the radius (of the target's front, not
         # its centre), and dropping a few would copy every track array of the pass
-        return crop_scene(scene, SURROUNDINGS_RADIUS_M, scene.tracks.index_of(target), agent_radius_m=np.inf), False
+        return crop_scene(scene, SURROUNDINGS_RADIUS_M, present[0], agent_radius_m=np.inf,
+                          more_targets=present[1:]), False
     # the target never ran: a whole recording, so that the error can name the vehicles that did
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci, **extra)
     if scene.num_steps == 0:

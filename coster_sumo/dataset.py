@@ -165,29 +165,32 @@ def crop_map(road_map: RoadMap, points: np.ndarray, radius_m: float = CROP_RADIU
 
 
 def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None = None,
-               agent_radius_m: float | None = None) -> Scene:
+               agent_radius_m: float | None = None, more_targets: Sequence[int] = ()) -> Scene:
     """Crop a scene around its target's trajectory (``target`` or else ``scene.sdc_index``).
 
     The map keeps what lies within ``radius_m`` of the target's valid positions; agents are kept
     when they come within ``agent_radius_m`` (default ``radius_m``; ``inf``: every agent) of the
-    target's position at the same step (the target itself always). Signals keep the controlled
-    lanes that remain. Returns the scene unchanged when it has no target.
+    target's position at the same step (the target itself always). ``more_targets`` are treated
+    like the target (several targets of one run: the union around all of them). Signals keep the
+    controlled lanes that remain. Returns the scene unchanged when it has no target.
     """
     target = scene.sdc_index if target is None else target
     if target < 0:
         return scene
     tr = scene.tracks
-    valid_t = tr.valid[target]
-    path = tr.xy[target][valid_t]  # (T, 2)
+    centres = list(dict.fromkeys([target, *more_targets]))
+    path = np.concatenate([tr.xy[c][tr.valid[c]] for c in centres])  # (T, 2)
     road_map, new_index = crop_map(scene.road_map, path, radius_m)
     agent_radius_m = radius_m if agent_radius_m is None else agent_radius_m
     if math.isinf(agent_radius_m):
         near = np.ones(tr.num_agents, bool)
     else:
-        both = tr.valid & valid_t[None, :]  # (A, T)
-        dist = np.hypot(tr.x - tr.x[target][None, :], tr.y - tr.y[target][None, :])  # (A, T)
-        near = np.any(both & (dist <= agent_radius_m), axis=1)
-    near[target] = True
+        near = np.zeros(tr.num_agents, bool)
+        for c in centres:
+            both = tr.valid & tr.valid[c][None, :]  # (A, T)
+            dist = np.hypot(tr.x - tr.x[c][None, :], tr.y - tr.y[c][None, :])  # (A, T)
+            near |= np.any(both & (dist <= agent_radius_m), axis=1)
+    near[centres] = True
     agents = np.flatnonzero(near)
     tracks = tr if len(agents) == len(near) else tr.select(agents=agents)
     sig = scene.signals

@@ -14,6 +14,9 @@ OUTDIR/
                                 traj.fcd.xml: `sumo -c` (or `coster-sumo replay`) plays it, adversary
                                 included (coster_sumo/exports/sumo.py)
 ```
+
+A run with several targets writes this layout into ``OUTDIR/<target>/`` for each and lists them
+in ``OUTDIR/summary.json`` (see :func:`coster_sumo.run.run`).
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.atomic import write_json
 from coster_sumo.core import (
     PRIOR_RATE_HZ,
     PlannedScenario,
@@ -33,6 +35,7 @@ from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.rollout.methods import HORIZON_STEPS
+from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
@@ -55,17 +58,29 @@ class RunOptions:
     render: bool = True
     quiet: bool = False
     snapshots: int = 1  # collision snapshots (each with its variants) from the one nominal pass
+    more_targets: tuple[str, ...] = ()  # further targets sharing the nominal pass (each its own folder)
     from_begin: bool = False  # every variant simulates from begin instead of a held copy of the nominal pass
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)  # variants run at a time (held copies)
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
         return {**self.spec.to_dict(), **self.generation.to_dict(), "out": str(self.out), "planner": self.planner,
-                "traci": self.traci, "render": self.render, "snapshots": self.snapshots, "from_begin": self.from_begin}
+                "traci": self.traci, "render": self.render, "snapshots": self.snapshots, "from_begin": self.from_begin,
+                **({"more_targets": list(self.more_targets)} if self.more_targets else {})}
+
+    @property
+    def targets(self) -> list[str | None]:
+        """The targets in order (None: the default target), repeats dropped."""
+        return list(dict.fromkeys((self.spec.target, *self.more_targets)))
 
 
 def run(opts: RunOptions) -> dict[str, Any]:
-    """Run the whole pipeline; returns the summary (also written to OUT/summary.json)."""
+    """Run the whole pipeline; returns the summary (also written to OUT/summary.json).
+
+    With several targets (``more_targets``) they share the nominal pass and its held copies; each
+    gets its own folder ``OUT/<target>/`` laid out as a one-target OUT, and ``OUT/summary.json``
+    lists them (a target without a scenario is listed with its reason; the others go on).
+    """
     check_generation(opts.generation)
     if opts.snapshots < 1:
         raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
@@ -76,11 +91,16 @@ def run(opts: RunOptions) -> dict[str, Any]:
     if opts.planner is not None:
         check_planner(opts.planner)
     spec = opts.spec
+    targets = opts.targets
+    several = len(targets) > 1
+    if several and None in targets:
+        raise InputError("with several targets every one needs an id (--target ID, repeated)")
+    named = [str(t) for t in targets if t is not None]
     timings: dict[str, float] = {}
     opts.out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{opts.out.name}.", dir=opts.out.parent))
     # an adversary appears up to its horizon before t_col, which may come right after the target departs
-    held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ)
+    held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=named[1:])
             if not (opts.from_begin or opts.traci) else None)
     try:
         t0 = time.perf_counter()
@@ -91,30 +111,32 @@ def run(opts: RunOptions) -> dict[str, Any]:
         with _bar(opts, "nominal pass", "sim s") as bar:
             clock = None if end is None else _SimClock(bar, end)
             scene, converted = nominal_scene(spec, traci=opts.traci, hold=None if converted else held,
-                                             additional=extra, progress=clock.update if clock else None)
+                                             additional=extra, progress=clock.update if clock else None,
+                                             more_targets=named[1:])
         timings["nominal_s"] = time.perf_counter() - t0
-        target = choose_target(scene, spec.target, spec.config)
         t0 = time.perf_counter()
         drivable = DrivableArea.from_road_map(scene.road_map)
-        try:
-            planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
-                                     on_snapshot=_advance_held(held))
-        except NoSnapshot as exc:
-            raise InputError(f"{spec.config}: no collision snapshot for target "
-                             f"{str(scene.tracks.ids[target])!r}: {exc}") from None
-        timings["generation_s"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        plans = [plan for p in planned for plan in p.plans]
-        with _bar(opts, "variants", "variant", total=len(plans)) as bar:
-            results = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
-                                      workdir=staging, held=held, workers=opts.workers, done=bar.update)
-        timings["injection_s"] = time.perf_counter() - t0
-        planned, results = drop_bystander_wrecks(planned, results, str(scene.tracks.ids[target]))
-        if not any(p.plans for p in planned):
-            raise InputError(f"{spec.config}: every adversary of target {str(scene.tracks.ids[target])!r} ran into "
-                             "another vehicle before t_col in the simulation")
-        summary = write_run_outputs(staging, spec, planner, planned, results, timings, render=opts.render,
-                                    options=opts.to_json())
+        timings["drivable_s"] = time.perf_counter() - t0
+        if not several:
+            summary = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
+        else:
+            listed: list[dict[str, Any]] = []
+            for tid in named:
+                folder = staging / target_folder(tid)
+                folder.mkdir()
+                try:
+                    one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
+                except InputError as exc:  # this target has no scenario; the others go on
+                    shutil.rmtree(folder, ignore_errors=True)
+                    listed.append({"target": tid, "error": str(exc)})
+                    continue
+                listed.append({"target": tid, "folder": folder.name, **{k: one[k] for k in _LISTED}})
+            if not any("folder" in t for t in listed):
+                raise InputError("; ".join(t["error"] for t in listed))
+            summary = {"config": str(spec.config), "targets": listed, "num_targets": len(listed),
+                       "nominal_until_s": float(scene.timestamps[-1]),
+                       "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()}
+            write_json(staging / "summary.json", summary)
         if opts.out.exists():
             shutil.rmtree(opts.out)
         staging.replace(opts.out)
@@ -125,6 +147,44 @@ def run(opts: RunOptions) -> dict[str, Any]:
         if held is not None:
             held.close()
     return summary
+
+
+# what OUT/summary.json lists of each target of a run with several
+_LISTED = ("t_col", "t_col_sim", "num_snapshots", "num_variants", "collision_rate", "off_road_rate",
+           "impact_angle_spread_deg")
+
+
+def target_folder(target_id: str) -> str:
+    """The folder name of a target's outputs in a run with several (its id, made file-name safe)."""
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", target_id).strip(".")
+    return safe or "target"
+
+
+def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable: DrivableArea,
+                held: HeldStates | None, planner: str, out: Path, timings: dict[str, float]) -> dict[str, Any]:
+    """Generation, the variants and the outputs (into ``out``) of one target of the nominal scene."""
+    spec = opts.spec
+    target = choose_target(scene, requested, spec.config)
+    t0 = time.perf_counter()
+    try:
+        planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
+                                 on_snapshot=_advance_held(held))
+    except NoSnapshot as exc:
+        raise InputError(f"{spec.config}: no collision snapshot for target "
+                         f"{str(scene.tracks.ids[target])!r}: {exc}") from None
+    timings["generation_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    plans = [plan for p in planned for plan in p.plans]
+    with _bar(opts, "variants", "variant", total=len(plans)) as bar:
+        results = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
+                                  workdir=out, held=held, workers=opts.workers, done=bar.update)
+    timings["injection_s"] = time.perf_counter() - t0
+    planned, results = drop_bystander_wrecks(planned, results, str(scene.tracks.ids[target]))
+    if not any(p.plans for p in planned):
+        raise InputError(f"{spec.config}: every adversary of target {str(scene.tracks.ids[target])!r} ran into "
+                         "another vehicle before t_col in the simulation")
+    return write_run_outputs(out, spec, planner, planned, results, timings, render=opts.render,
+                             options=opts.to_json())
 
 
 def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], target_id: str

@@ -204,3 +204,37 @@ def test_no_lanes_near_the_target_is_one_line_exit_2_and_no_output(tmp_path, cap
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and cfg.name in err and "no lanes near the target" in err
     assert not out.exists() and not list(tmp_path.glob(".out*"))
+
+
+def test_several_targets_share_one_pass(tmp_path, capsys):
+    """`--target` repeated: one folder per target laid out as a one-target run, every variant in
+    contact at its t_col, and a target without a scenario listed with its reason while the others
+    go on."""
+    rc, out = _run(tmp_path, "--seed", "2", "--no-render", "--planner", "replay", "--target", "ego",
+                   "--target", "pre_W.1", "--target", "nobody")
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "target ego: t_col = " in printed and "target pre_W.1: t_col = " in printed
+    assert "target nobody: no scenario (" in printed and "never runs in the window" in printed
+    listed = json.loads((out / "summary.json").read_text())
+    assert [t["target"] for t in listed["targets"]] == ["ego", "pre_W.1", "nobody"]
+    assert "error" in listed["targets"][2] and not (out / "nobody").exists()
+    assert listed["options"]["more_targets"] == ["pre_W.1", "nobody"]
+    for entry in listed["targets"][:2]:
+        one = json.loads((out / entry["folder"] / "summary.json").read_text())
+        assert one["target"] == entry["target"] and one["num_variants"] == entry["num_variants"] >= 1
+        assert one["t_col"] == entry["t_col"]
+        for v in one["variants"]:
+            assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6, (entry["target"], v)
+            assert (out / entry["folder"] / "variants" / str(v["variant"]) / "export" / "variant.json").exists()
+    assert not list(tmp_path.glob(".out.*")), "staging folder left behind"
+
+
+def test_several_targets_need_ids(tmp_path, capsys):
+    from coster_sumo.errors import InputError
+    from coster_sumo.run import RunOptions, run
+    from coster_sumo.spec import ScenarioSpec
+
+    spec = ScenarioSpec(REPO / "networks/intersection/intersection.sumocfg", seed=0, end=45.0)
+    with pytest.raises(InputError, match="every one needs an id"):
+        run(RunOptions(spec=spec, out=tmp_path / "out", more_targets=("ego",), quiet=True))

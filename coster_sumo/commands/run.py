@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -22,7 +23,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "Writes summary.json, events.jsonl, collisions.xml, trajectories, renders and "
                     "standalone exports into OUTDIR.")
     p.add_argument("config", type=Path, help=".sumocfg (a converted WOMD scene or any SUMO configuration)")
-    p.add_argument("--target", help="target vehicle id (default: the SDC of a converted scene, else 'ego')")
+    p.add_argument("--target", action="append",
+                   help="target vehicle id (default: the SDC of a converted scene, else 'ego'); repeat it for "
+                        "several targets sharing one nominal pass (outputs in OUT/<target>/)")
     p.add_argument("--planner", help="replay | sumo | sumo:<carFollowModel> | module:Class "
                                      "(default: replay for converted scenes, sumo otherwise)")
     p.add_argument("--samples", type=int, default=1000, help="trajectories oversampled (default 1000)")
@@ -89,11 +92,44 @@ def run(args: argparse.Namespace) -> int:
         from coster_sumo.exports.openscenario import require_extra
 
         require_extra()
-    spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end_of(args), target=args.target)
+    targets = list(dict.fromkeys(args.target or [None]))
+    spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end_of(args), target=targets[0])
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
                       traci=args.traci, render=not args.no_render, quiet=args.quiet,
-                      snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False))
+                      snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False),
+                      more_targets=tuple(str(t) for t in targets[1:]))
     summary = run_scenario(opts)
+    lines: list[str] = []
+    folders = [args.out] if "targets" not in summary else []
+    if "targets" in summary:  # several targets: one folder each
+        import json
+
+        for t in summary["targets"]:
+            if "folder" not in t:
+                lines.append(f"target {t['target']}: no scenario ({t['error']})")
+                continue
+            folder = args.out / t["folder"]
+            lines += target_lines(json.loads((folder / "summary.json").read_text()))
+            folders.append(folder)
+    else:
+        lines += target_lines(summary)
+    if export != "sumo":
+        from coster_sumo.exports.run_folder import OSC_DIR, export_run
+
+        for folder in folders:
+            export_run(folder, export)
+            lines.append(f"OpenSCENARIO: {folder}/variants/*/{OSC_DIR}/")
+    if not args.quiet:  # --quiet: no progress bars and no file list, the results still
+        lines += [f"wrote {f}/summary.json; renders: {f}/overview.png, {f}/variants/*/render.png" for f in folders]
+        if len(folders) != 1 or folders[0] != args.out:
+            lines.append(f"targets listed in {args.out}/summary.json")
+    print("\n".join(lines))
+    sys.stdout.flush()
+    return 0
+
+
+def target_lines(summary: dict[str, Any]) -> list[str]:
+    """The one-line results of one target's summary: its collision times, then a line per variant."""
     lines = [f"target {summary['target']}: t_col = "
              + ", ".join(f"{s['t_col']:.1f} s" for s in summary["snapshots"])
              + f" ({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
@@ -101,14 +137,4 @@ def run(args: argparse.Namespace) -> int:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
                f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
         lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else ""))
-    if export != "sumo":
-        from coster_sumo.exports.run_folder import OSC_DIR, export_run
-
-        export_run(args.out, export)
-        lines.append(f"OpenSCENARIO: {args.out}/variants/*/{OSC_DIR}/")
-    if not args.quiet:  # --quiet: no progress bars and no file list, the results still
-        lines.append(f"wrote {args.out}/summary.json; renders: {args.out}/overview.png, "
-                     f"{args.out}/variants/*/render.png")
-    print("\n".join(lines))
-    sys.stdout.flush()
-    return 0
+    return lines

@@ -80,8 +80,10 @@ class HeldStates:
     """
 
     def __init__(self, target_id: str, max_holders: int = MAX_HOLDERS, spacing_s: float = FIRST_SPACING_S,
-                 lead_s: float = LEAD_S) -> None:
+                 lead_s: float = LEAD_S, more_targets: Sequence[str] = ()) -> None:
         self.target_id = target_id
+        # several targets (one run for each): holders roll until the first of them departs
+        self.targets = tuple(dict.fromkeys((target_id, *more_targets)))
         self.max_holders = max_holders
         self.spacing_s = spacing_s
         self.lead_s = lead_s
@@ -106,7 +108,8 @@ class HeldStates:
         if not can_hold(session):
             return False
         if not self._departed:
-            if self.target_id not in session.vehicle_ids():
+            ids = session.vehicle_ids()
+            if not any(v in ids for v in self.targets):
                 self._hold_lead(session)
                 return False
             self._departed = True

@@ -180,6 +180,9 @@ class Focus:
         radius_m: [m] vehicles this close to it are recorded (SUMO finds them).
         extra_ids: recorded whenever they are in the simulation, wherever they are (the adversary).
         until_arrival: stop stepping ``tail_s`` [s] after the target has arrived.
+        more_targets: further vehicles recorded like ``target_id`` (``run --target A --target B``):
+            the recording starts when the first of them departs, reads the surroundings of each
+            one that runs, and with ``until_arrival`` stops ``tail_s`` after all have arrived.
         surroundings_hz: read the surroundings at this rate only [1/s] (None: every step). The
             target and ``extra_ids`` are read every step; the other vehicles at the recording's
             steps 0, k, 2k, ... (k = round(1 / (rate x step length))) and linearly interpolated in
@@ -192,6 +195,12 @@ class Focus:
     until_arrival: bool = True
     tail_s: float = 0.0
     surroundings_hz: float | None = None
+    more_targets: tuple[str, ...] = ()
+
+    @property
+    def targets(self) -> tuple[str, ...]:
+        """``target_id`` and ``more_targets``, without repeats."""
+        return tuple(dict.fromkeys((self.target_id, *self.more_targets)))
 
 
 def fill_between_samples(tracks: Tracks, times: np.ndarray, sampled: np.ndarray) -> None:
@@ -267,9 +276,11 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     if focus is not None and focus.surroundings_hz:
         every = max(1, int(round(1.0 / (focus.surroundings_hz * session.step_length))))
     steps = 0
-    seen_target = focus is not None and focus.target_id in session.vehicle_ids()
-    started = seen_target  # a focused recording begins when its vehicle departs
-    end_at: float | None = None  # [s] when a focused recording stops (after the target arrived)
+    targets = focus.targets if focus is not None else ()
+    running = [v for v in targets if v in set(session.vehicle_ids())]  # the focused vehicles now running
+    arrived: set[str] = set()
+    started = bool(running)  # a focused recording begins when its (first) vehicle departs
+    end_at: float | None = None  # [s] when a focused recording stops (after the targets arrived)
     while True:
         if max_steps is not None and steps >= max_steps:
             break
@@ -285,30 +296,36 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         if focus is None:
             st = session.vehicle_states()
         else:
-            if focus.target_id in session.arrived_ids():
-                seen_target = False
-                if focus.until_arrival and end_at is None:
+            gone = [v for v in running if v in session.arrived_ids()]
+            if gone:
+                arrived.update(gone)
+                running = [v for v in running if v not in arrived]
+                if focus.until_arrival and end_at is None and arrived.issuperset(targets):
                     end_at = t + focus.tail_s
             if end_at is not None and t > end_at + eps:
                 break
-            if not seen_target and focus.target_id in session.departed_ids():
-                seen_target = True
-            started = started or seen_target
+            departed = session.departed_ids()
+            running += [v for v in targets if v in departed and v not in running]
+            started = started or bool(running)
             full = every == 1 or len(times) % every == 0
-            if seen_target:
+            if running:
                 if full:
-                    near = session.vehicles_near(focus.target_id, focus.radius_m, once=every > 1)
+                    near = session.vehicles_near(running[0], focus.radius_m, once=every > 1)
+                    for other in running[1:]:  # several targets: the union of their surroundings
+                        seen = set(near)
+                        near += [v for v in session.vehicles_near(other, focus.radius_m, once=every > 1)
+                                 if v not in seen]
                 else:
-                    near = [] if focus.target_id in session.hidden else [focus.target_id]
+                    near = [v for v in running if v not in session.hidden]
                 if focus.extra_ids:
-                    running, present = set(session.vehicle_ids()), set(near)
+                    in_sim, present = set(session.vehicle_ids()), set(near)
                     near += [v for v in focus.extra_ids
-                             if v not in present and v in running and v not in session.hidden]
+                             if v not in present and v in in_sim and v not in session.hidden]
                 st = session.vehicle_states(near)
-            else:  # the target is not (or no longer) in the network: nothing around it to read
+            else:  # no target is (or any longer) in the network: nothing around them to read
                 st = empty_states()
         stop = bool(after_step(session, st)) if after_step is not None else False
-        if focus is not None and not seen_target and not started:
+        if focus is not None and not started:
             pass  # the focused vehicle has not departed yet: nothing to record
         elif begin is None or t >= begin - eps:
             names = st.id_list()
