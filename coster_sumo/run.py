@@ -121,8 +121,9 @@ def run(opts: RunOptions) -> dict[str, Any]:
             summary = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
         else:
             listed: list[dict[str, Any]] = []
+            taken = {"summary.json"}
             for tid in named:
-                folder = staging / target_folder(tid)
+                folder = staging / target_folder(tid, taken)
                 folder.mkdir()
                 try:
                     one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
@@ -154,10 +155,15 @@ _LISTED = ("t_col", "t_col_sim", "num_snapshots", "num_variants", "collision_rat
            "impact_angle_spread_deg")
 
 
-def target_folder(target_id: str) -> str:
-    """The folder name of a target's outputs in a run with several (its id, made file-name safe)."""
-    safe = re.sub(r"[^A-Za-z0-9._-]", "_", target_id).strip(".")
-    return safe or "target"
+def target_folder(target_id: str, taken: set[str]) -> str:
+    """The folder name of a target's outputs in a run with several: its id made file-name safe,
+    with a suffix where that name is ``taken`` already (``a/b`` and ``a_b``); adds it to ``taken``."""
+    base = re.sub(r"[^A-Za-z0-9._-]", "_", target_id).strip(".") or "target"
+    name, k = base, 1
+    while name in taken:
+        name, k = f"{base}_{k}", k + 1
+    taken.add(name)
+    return name
 
 
 def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable: DrivableArea,

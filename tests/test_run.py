@@ -238,3 +238,12 @@ def test_several_targets_need_ids(tmp_path, capsys):
     spec = ScenarioSpec(REPO / "networks/intersection/intersection.sumocfg", seed=0, end=45.0)
     with pytest.raises(InputError, match="every one needs an id"):
         run(RunOptions(spec=spec, out=tmp_path / "out", more_targets=("ego",), quiet=True))
+
+
+def test_target_folders_are_distinct_and_file_name_safe():
+    from coster_sumo.run import target_folder
+
+    taken = {"summary.json"}
+    names = [target_folder(t, taken) for t in ("a/b", "a_b", "summary.json", "..", "veh 1")]
+    assert names == ["a_b", "a_b_1", "summary.json_1", "target", "veh_1"]
+    assert len(set(names)) == len(names)

@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         from coster_sumo.exports.openscenario import require_extra
 
         require_extra()
-    targets = list(dict.fromkeys(args.target or [None]))
+    targets = args.target or [None]  # RunOptions drops repeats
     spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end_of(args), target=targets[0])
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
                       traci=args.traci, render=not args.no_render, quiet=args.quiet,
