@@ -60,13 +60,15 @@ class RunOptions:
     snapshots: int = 1  # collision snapshots (each with its variants) from the one nominal pass
     more_targets: tuple[str, ...] = ()  # further targets sharing the nominal pass (each its own folder)
     from_begin: bool = False  # every variant simulates from begin instead of a held copy of the nominal pass
+    target_choice: tuple[dict[str, Any], ...] = ()  # how --targets N chose them (targets.Candidate.to_dict)
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)  # variants run at a time (held copies)
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
         return {**self.spec.to_dict(), **self.generation.to_dict(), "out": str(self.out), "planner": self.planner,
                 "traci": self.traci, "render": self.render, "snapshots": self.snapshots, "from_begin": self.from_begin,
-                **({"more_targets": list(self.more_targets)} if self.more_targets else {})}
+                **({"more_targets": list(self.more_targets)} if self.more_targets else {}),
+                **({"target_choice": list(self.target_choice)} if self.target_choice else {})}
 
     @property
     def targets(self) -> list[str | None]:

@@ -23,9 +23,14 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "Writes summary.json, events.jsonl, collisions.xml, trajectories, renders and "
                     "standalone exports into OUTDIR.")
     p.add_argument("config", type=Path, help=".sumocfg (a converted WOMD scene or any SUMO configuration)")
-    p.add_argument("--target", action="append",
-                   help="target vehicle id (default: the SDC of a converted scene, else 'ego'); repeat it for "
-                        "several targets sharing one nominal pass (outputs in OUT/<target>/)")
+    who = p.add_mutually_exclusive_group()
+    who.add_argument("--target", action="append",
+                     help="target vehicle id (default: the SDC of a converted scene, else 'ego'); repeat it for "
+                          "several targets sharing one nominal pass (outputs in OUT/<target>/)")
+    who.add_argument("--targets", type=int, metavar="N",
+                     help="choose N targets: the vehicles of the demand expected to run longest in the window "
+                          "(free-flow time of their routes; a converted scene: the longest in its log); the "
+                          "choice is printed and kept in OUT/summary.json")
     p.add_argument("--planner", help="replay | sumo | sumo:<carFollowModel> | module:Class "
                                      "(default: replay for converted scenes, sumo otherwise)")
     p.add_argument("--samples", type=int, default=1000, help="trajectories oversampled (default 1000)")
@@ -93,13 +98,22 @@ def run(args: argparse.Namespace) -> int:
 
         require_extra()
     targets = args.target or [None]  # RunOptions drops repeats
-    spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end_of(args), target=targets[0])
+    end = end_of(args)
+    chosen: list[dict[str, Any]] = []
+    lines: list[str] = []
+    if getattr(args, "targets", None) is not None:
+        from coster_sumo.targets import choose_targets, iter_lines
+
+        picked = choose_targets(args.config, args.targets, args.begin, end)
+        targets = [c.vehicle_id for c in picked]
+        chosen = [c.to_dict() for c in picked]
+        print("\n".join(iter_lines(picked)), flush=True)  # before the long part: the user sees who
+    spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end, target=targets[0])
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
                       traci=args.traci, render=not args.no_render, quiet=args.quiet,
                       snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False),
-                      more_targets=tuple(str(t) for t in targets[1:]))
+                      more_targets=tuple(str(t) for t in targets[1:]), target_choice=tuple(chosen))
     summary = run_scenario(opts)
-    lines: list[str] = []
     folders = [args.out] if "targets" not in summary else []
     if "targets" in summary:  # several targets: one folder each
         import json
@@ -120,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
             export_run(folder, export)
             lines.append(f"OpenSCENARIO: {folder}/variants/*/{OSC_DIR}/")
     if not args.quiet:  # --quiet: no progress bars and no file list, the results still
-        lines += [f"wrote {f}/summary.json; renders: {f}/overview.png, {f}/variants/*/render.png" for f in folders]
+        renders = "; renders: {f}/overview.png, {f}/variants/*/render.png" if not args.no_render else ""
+        lines += [f"wrote {f}/summary.json" + renders.format(f=f) for f in folders]
         if len(folders) != 1 or folders[0] != args.out:
             lines.append(f"targets listed in {args.out}/summary.json")
     print("\n".join(lines))
