@@ -34,6 +34,7 @@ from coster_sumo.core import PlannedScenario
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan, sim_time_of
+from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
 from coster_sumo.spec import ScenarioSpec
 
@@ -100,6 +101,26 @@ def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[s
                                   planner=str(meta["planner"]), seed=meta.get("seed"))
     write_json(folder / VARIANT_FILE, {**meta, "export": info, "plan": plan.to_dict()})
     return cfg
+
+
+STOPPED_SPEED_MPS = 0.5  # [m/s] slower than this counts as standing still
+
+
+def target_motion(scene: Scene, index: int) -> dict[str, float]:
+    """How the target moved in the nominal pass: seconds in the recording, seconds standing still
+    (speed under :data:`STOPPED_SPEED_MPS`), metres driven. A target that stood still for most of
+    its time sits in a jam or a gridlock of the configuration (its variants are then contacts with
+    a standing vehicle)."""
+    tr = scene.tracks
+    valid = tr.valid[index]
+    if valid.sum() < 2:
+        return {"in_window_s": 0.0, "stopped_s": 0.0, "distance_m": 0.0}
+    dt = np.diff(scene.timestamps, append=scene.timestamps[-1])[valid]
+    speed = np.hypot(tr.vx[index], tr.vy[index])[valid]
+    xy = np.stack([tr.x[index][valid], tr.y[index][valid]], 1)
+    return {"in_window_s": round(float(dt.sum()), 2),
+            "stopped_s": round(float(dt[speed < STOPPED_SPEED_MPS].sum()), 2),
+            "distance_m": round(float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()), 1)}
 
 
 def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
@@ -180,6 +201,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         "collision_rate": sum(v["collision"] for v in variants) / n if n else None,
         "off_road_rate": sum(v["adversary_off_road"] for v in variants) / n if n else None,
         "impact_angle_spread_deg": circular_range_deg(all_angles) if all_angles else None,
+        "target_motion": target_motion(scene, target),
         "variants": variants, "snapshots": snapshots, "generation": first.info,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "options": options, "renders": renders,

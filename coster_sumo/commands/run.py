@@ -143,11 +143,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+# a target that stood still this long and for this share of its time gets a note under its results
+STILL_NOTE_MIN_S = 30.0
+STILL_NOTE_SHARE = 0.8
+
+
 def target_lines(summary: dict[str, Any]) -> list[str]:
     """The one-line results of one target's summary: its collision times, then a line per variant."""
     lines = [f"target {summary['target']}: t_col = "
              + ", ".join(f"{s['t_col']:.1f} s" for s in summary["snapshots"])
              + f" ({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
+    motion = summary.get("target_motion") or {}
+    in_window = motion.get("in_window_s", 0.0)
+    if in_window >= STILL_NOTE_MIN_S and motion["stopped_s"] >= STILL_NOTE_SHARE * in_window:
+        lines.append(f"  note: {summary['target']} stood still for {motion['stopped_s']:.0f} s of its "
+                     f"{motion['in_window_s']:.0f} s in the nominal pass (a jam or gridlock in the configuration); "
+                     "its contacts are with a standing vehicle")
     for v in summary["variants"]:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
                f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
