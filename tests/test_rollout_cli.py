@@ -96,3 +96,31 @@ def test_bad_checkpoint_is_one_line_and_exit_code_2(dataset, tmp_path, capsys):
                  str(tmp_path / "e.json")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and str(bad) in err
+
+
+def test_learning_rate_drop_resumes_a_finished_run(dataset, tmp_path):
+    W = ("--warmup-steps", "0")  # 2 steps per tiny epoch: a warm-up would cover them all
+    a, b, c = tmp_path / "a.pt", tmp_path / "b.pt", tmp_path / "c.pt"
+    assert train(dataset, a, *W, "--epochs", "1") == 0
+    # the finished constant-rate run goes on with a drop after its last epoch
+    assert train(dataset, a, *W, "--epochs", "2", "--lr-drop-epoch", "2") == 0
+    assert train(dataset, b, *W, "--epochs", "2", "--lr-drop-epoch", "2") == 0  # the same schedule uninterrupted
+    assert train(dataset, c, *W, "--epochs", "2") == 0  # no drop
+    ma, mb, mc = (load_model(p).state_dict() for p in (a, b, c))
+    assert all(torch.equal(v, mb[k]) for k, v in ma.items())
+    assert not all(torch.equal(v, mc[k]) for k, v in ma.items())  # the drop changed epoch 2
+    # epoch 2 ran at 0.1 x lr: another factor (or no drop) for it is another run
+    assert train(dataset, a, *W, "--epochs", "3", "--lr-drop-epoch", "2", "--lr-drop-factor", "0.5") == 2
+    assert train(dataset, a, *W, "--epochs", "3") == 2
+    assert train(dataset, a, *W, "--epochs", "3", "--lr-drop-epoch", "2") == 0
+    assert train(dataset, a, *W, "--epochs", "3", "--lr-drop-factor", "2") == 2  # a "drop" must not raise the rate
+
+
+def test_learning_rate_schedule():
+    from coster_sumo.rollout.train import TrainConfig, learning_rate
+
+    t = TrainConfig(lr=1e-3, warmup_steps=10, lr_drop_epoch=3, lr_drop_factor=0.1)
+    assert learning_rate(0, t, 0) == pytest.approx(1e-4)  # warm-up
+    assert learning_rate(50, t, 1) == pytest.approx(1e-3)
+    assert learning_rate(80, t, 2) == pytest.approx(1e-4)  # epoch 3 (1-based) and on
+    assert learning_rate(80, TrainConfig(lr=1e-3, warmup_steps=10), 2) == pytest.approx(1e-3)

@@ -37,6 +37,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                        help="AdamW learning rate after the warm-up (%(default)s = 5e-4 x sqrt(256 / 64))")
     train.add_argument("--warmup-steps", type=int, default=50,
                        help="linear learning-rate warm-up over the first optimiser steps (%(default)s; 0: none)")
+    train.add_argument("--lr-drop-epoch", type=int, default=0,
+                       help="from this epoch on (1-based) train at --lr x --lr-drop-factor (0: never); a "
+                            "finished run resumes with a drop after its last epoch (--epochs more)")
+    train.add_argument("--lr-drop-factor", type=float, default=0.1, help="(%(default)s)")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--hidden", type=int, default=256, help="model width (%(default)s)")
     train.add_argument("--heads", type=int, default=8, help="attention heads (%(default)s)")
@@ -117,14 +121,18 @@ def run_train(args: argparse.Namespace) -> int:
     from coster_sumo.rollout.model import RolloutConfig
     from coster_sumo.rollout.train import TrainConfig, train_rollout
 
-    if args.epochs < 1 or args.batch_size < 1 or args.warmup_steps < 0 or args.threads < 0:
-        raise InputError("--epochs and --batch-size must be at least 1, --warmup-steps and --threads at least 0")
+    if args.epochs < 1 or args.batch_size < 1 or args.warmup_steps < 0 or args.threads < 0 or args.lr_drop_epoch < 0:
+        raise InputError("--epochs and --batch-size must be at least 1, --warmup-steps, --threads and "
+                         "--lr-drop-epoch at least 0")
+    if not 0.0 < args.lr_drop_factor <= 1.0:
+        raise InputError(f"--lr-drop-factor must be in (0, 1], not {args.lr_drop_factor}")
     cfg = RolloutConfig(hidden=args.hidden, heads=args.heads, latent=args.latent, use_dsa=not args.no_dsa,
                         map_every_step=not args.no_map_steps, kl_weight=args.kl_weight)
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                        val_fraction=args.val_fraction, examples_per_epoch=args.examples_per_epoch,
                        max_val_examples=args.max_val_examples, threads=args.threads,
-                       warmup_steps=args.warmup_steps)
+                       warmup_steps=args.warmup_steps, lr_drop_epoch=args.lr_drop_epoch,
+                       lr_drop_factor=args.lr_drop_factor)
     t0 = time.perf_counter()
     metrics = train_rollout(args.data, args.output, cfg, tcfg, resume=not args.restart, quiet=args.quiet,
                             command=_command(), cache=not args.no_cache, cache_dir=args.cache_dir)

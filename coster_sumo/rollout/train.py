@@ -71,6 +71,12 @@ class TrainConfig:
         max_val_examples: held-out examples scored per epoch (seeded subset).
         threads: torch CPU threads (0 = one per core). The same seed and thread count give the
             same weights.
+        lr_drop_epoch: from this epoch on (1-based) the learning rate is ``lr x lr_drop_factor``
+            (0: never). A run at a constant rate whose held-out error has stopped falling but
+            jumps from epoch to epoch is resumed with a drop after its last epoch: a drop that
+            only concerns epochs not yet run is not a change of the run's settings (see
+            :func:`same_run_so_far`).
+        lr_drop_factor: see ``lr_drop_epoch``.
     """
 
     epochs: int = 20
@@ -86,6 +92,8 @@ class TrainConfig:
     eval_samples: int = 5
     max_val_examples: int = 500
     threads: int = 0
+    lr_drop_epoch: int = 0
+    lr_drop_factor: float = 0.1
 
 
 def split_scene_files(data: str | Path, val_fraction: float, seed: int) -> tuple[list[Path], list[Path]]:
@@ -130,11 +138,32 @@ def num_threads(requested: int) -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def learning_rate(step: int, tcfg: TrainConfig) -> float:
-    """The learning rate of optimiser step ``step`` (0-based, counted over the whole run)."""
+def learning_rate(step: int, tcfg: TrainConfig, epoch: int = 0) -> float:
+    """The learning rate of optimiser step ``step`` (0-based, counted over the whole run) in
+    ``epoch`` (0-based)."""
     if tcfg.warmup_steps > 0 and step < tcfg.warmup_steps:
         return tcfg.lr * (step + 1) / tcfg.warmup_steps
+    if 0 < tcfg.lr_drop_epoch <= epoch + 1:
+        return tcfg.lr * tcfg.lr_drop_factor
     return tcfg.lr
+
+
+# TrainConfig fields that may differ between a training state and the command that resumes it
+_FREE_ON_RESUME = ("epochs", "lr_drop_epoch", "lr_drop_factor")
+
+
+def same_run_so_far(saved: dict[str, Any], now: TrainConfig, epochs_done: int) -> bool:
+    """Whether a training state with settings ``saved`` that ran ``epochs_done`` epochs is what
+    ``now`` would have done up to there: every setting equal, except the number of epochs and a
+    learning-rate drop that neither of them had reached by then (both schedules agree so far)."""
+    saved = {"warmup_steps": 0, "lr_drop_epoch": 0, "lr_drop_factor": 0.1, **saved}  # older states
+    cur = dataclasses.asdict(now)
+    if any(saved.get(k) != v for k, v in cur.items() if k not in _FREE_ON_RESUME):
+        return False
+    drops = [(int(t["lr_drop_epoch"]), float(t["lr_drop_factor"])) for t in (saved, cur)]
+    if drops[0] == drops[1]:
+        return True
+    return all(e == 0 or e > epochs_done for e, _ in drops)
 
 
 def _epoch_rows(n: int, tcfg: TrainConfig, epoch: int) -> np.ndarray:
@@ -220,12 +249,8 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
         state = read_torch_file(rpath)
         if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
             raise InputError(f"{rpath}: not a rollout training state")
-        saved_t = dict(state.get("train_config", {}))
-        now_t = dataclasses.asdict(tcfg)
-        saved_t.pop("epochs", None)
-        saved_t.setdefault("warmup_steps", 0)  # states written before the warm-up existed
-        now_t.pop("epochs", None)
-        if state.get("config") != cfg.to_dict() or saved_t != now_t or state.get("data") != str(Path(data).resolve()):
+        same = same_run_so_far(dict(state.get("train_config", {})), tcfg, int(state.get("epoch", 0)))
+        if state.get("config") != cfg.to_dict() or not same or state.get("data") != str(Path(data).resolve()):
             raise InputError(f"{rpath}: the run to resume used other data or settings; "
                              "start afresh with --restart (or write to another -o)")
         model.load_state_dict(state["model"])
@@ -252,7 +277,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
         bar = tqdm(ahead, total=len(batches), desc=f"epoch {epoch + 1}/{tcfg.epochs}", disable=quiet, leave=False)
         for bi, (ctx, traj, mask) in enumerate(bar):
             for group in opt.param_groups:
-                group["lr"] = learning_rate(epoch * steps_per_epoch + bi, tcfg)
+                group["lr"] = learning_rate(epoch * steps_per_epoch + bi, tcfg, epoch)
             res = model(ctx, traj, mask)
             assert res.loss is not None and res.recon is not None and res.kl is not None
             opt.zero_grad(set_to_none=True)
