@@ -209,9 +209,10 @@ def training_history(metrics: dict) -> list[dict]:
     return []
 
 
-def training_curves(runs: dict[str, list[dict]], path: str | Path) -> Path:
+def training_curves(runs: dict[str, list[dict]], path: str | Path, marks: dict[int, str] | None = None) -> Path:
     """Learning curves of one or more training runs into a PNG: losses (training and held-out)
-    per epoch and, where the records have them, held-out minADE / minFDE."""
+    per epoch and, where the records have them, held-out minADE / minFDE. ``marks``: epoch ->
+    label of a vertical line (where a run's learning rate dropped)."""
     keys_loss = ("train_loss", "val_loss")
     keys_err = ("val_minADE", "val_minFDE")
     has_err = any(k in r for rows in runs.values() for r in rows for k in keys_err)
@@ -243,6 +244,10 @@ def training_curves(runs: dict[str, list[dict]], path: str | Path) -> Path:
         axes[0, 1].legend(fontsize=8)
     for ax in axes.ravel():
         ax.grid(alpha=0.3)
+        for epoch, text in (marks or {}).items():
+            ax.axvline(epoch - 0.5, color="0.4", lw=0.8, ls="--")  # between the last epoch before and the first after
+            ax.annotate(text, (epoch - 0.5, 1.0), xycoords=("data", "axes fraction"), xytext=(-3, -3),
+                        textcoords="offset points", ha="right", va="top", fontsize=8, color="0.3")
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=100)

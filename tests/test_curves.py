@@ -36,3 +36,25 @@ def test_the_priors_nested_held_out_loss_is_read():
 
     rows = training_history({"history": [{"epoch": 1, "train_loss": 0.79, "val": {"loss": 0.69, "speed_ce": 3.1}}]})
     assert rows[0]["val_loss"] == 0.69 and rows[0]["train_loss"] == 0.79 and rows[0]["val_speed_ce"] == 3.1
+
+
+def test_a_learning_rate_drop_is_marked(tmp_path, monkeypatch):
+    from coster_sumo import viz
+
+    seen = {}
+    real = viz.training_curves
+
+    def spy(runs, path, marks=None):
+        seen["marks"] = marks
+        return real(runs, path, marks)
+
+    monkeypatch.setattr(viz, "training_curves", spy)
+    run = tmp_path / "rollout.json"
+    run.write_text(json.dumps({"train_config": {"lr_drop_epoch": 3, "lr_drop_factor": 0.1},
+                               "epochs": [{"train_loss": 5.0 - e, "val_loss": 5.0 - e} for e in range(4)]}))
+    plain = tmp_path / "plain.json"
+    plain.write_text(json.dumps({"train_config": {"lr_drop_epoch": 0}, "epochs": [{"train_loss": 1.0}]}))
+    out = tmp_path / "c.png"
+    assert main(["eval", "curves", str(run), str(plain), "-o", str(out)]) == 0
+    assert seen["marks"] == {3: "lr x 0.1"}
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

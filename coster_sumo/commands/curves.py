@@ -23,19 +23,24 @@ def run(args: argparse.Namespace) -> int:
     from coster_sumo import viz
 
     runs = {}
+    marks: dict[int, str] = {}
     for item in args.metrics:
         label, sep, name = item.partition("=")
         path = Path(name if sep else item)
         if not path.is_file():
             raise InputError(f"{path}: no such metrics file")
         try:
-            rows = viz.training_history(json.loads(path.read_text()))
+            metrics = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(f"{path}: not a JSON metrics file ({exc})") from exc
+        rows = viz.training_history(metrics)
+        tcfg = metrics.get("train_config") or {}
+        if tcfg.get("lr_drop_epoch"):  # `train rollout --lr-drop-epoch`
+            marks[int(tcfg["lr_drop_epoch"])] = f"lr x {tcfg.get('lr_drop_factor', 0.1):g}"
         if not rows:
             raise InputError(f"{path}: no per-epoch records ('epochs' or 'history')")
         runs[label if sep else path.stem] = rows
-    out = viz.training_curves(runs, args.output)
+    out = viz.training_curves(runs, args.output, marks)
     if not args.quiet:
         print(f"{out}: {', '.join(f'{k} ({len(v)} epochs)' for k, v in runs.items())}")
     return 0
