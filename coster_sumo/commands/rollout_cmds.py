@@ -40,7 +40,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--lr-drop-epoch", type=int, default=0,
                        help="from this epoch on (1-based) train at --lr x --lr-drop-factor (0: never); a "
                             "finished run resumes with a drop after its last epoch (--epochs more)")
-    train.add_argument("--lr-drop-factor", type=float, default=0.1, help="(%(default)s)")
+    train.add_argument("--lr-drop-factor", type=float, default=0.1,
+                       help="the learning rate from --lr-drop-epoch on is --lr times this, in (0, 1] (%(default)s)")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--hidden", type=int, default=256, help="model width (%(default)s)")
     train.add_argument("--heads", type=int, default=8, help="attention heads (%(default)s)")
