@@ -34,6 +34,7 @@ from coster_sumo.core import PlannedScenario
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan, sim_time_of
+from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
 from coster_sumo.spec import ScenarioSpec
@@ -103,12 +104,9 @@ def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[s
     return cfg
 
 
-STOPPED_SPEED_MPS = 0.5  # [m/s] slower than this counts as standing still
-
-
 def target_motion(scene: Scene, index: int) -> dict[str, float]:
     """How the target moved in the nominal pass: seconds in the recording, seconds standing still
-    (speed under :data:`STOPPED_SPEED_MPS`), metres driven. A target that stood still for most of
+    (slower than the rollout's stopped flag, ``STOPPED_MPS``), metres driven. A target that stood still for most of
     its time sits in a jam or a gridlock of the configuration (its variants are then contacts with
     a standing vehicle)."""
     tr = scene.tracks
@@ -119,7 +117,7 @@ def target_motion(scene: Scene, index: int) -> dict[str, float]:
     speed = np.hypot(tr.vx[index], tr.vy[index])[valid]
     xy = np.stack([tr.x[index][valid], tr.y[index][valid]], 1)
     return {"in_window_s": round(float(dt.sum()), 2),
-            "stopped_s": round(float(dt[speed < STOPPED_SPEED_MPS].sum()), 2),
+            "stopped_s": round(float(dt[speed < STOPPED_MPS].sum()), 2),
             "distance_m": round(float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()), 1)}
 
 

@@ -111,8 +111,8 @@ def _flow_series(el: Any, where: str, default_end: float) -> tuple[float, float,
     return (begin, period, max(count, 0))
 
 
-def _read_demand(files: list[Path], default_end: float) -> tuple[list[_Demand], dict[str, list[str]]]:
-    """Vehicle-like elements of the files and the named routes they may refer to."""
+def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
+    """Vehicle-like elements of the files, their ``route="id"`` references resolved."""
     out: list[_Demand] = []
     routes: dict[str, list[str]] = {}
     for path in files:
@@ -156,7 +156,7 @@ def _read_demand(files: list[Path], default_end: float) -> tuple[list[_Demand], 
     for d in out:  # late references
         if d.edges and len(d.edges) == 1 and d.edges[0].startswith("@"):
             d.edges = routes.get(d.edges[0][1:])
-    return out, routes
+    return out
 
 
 def _in_window(depart: float, duration: float, begin: float, end: float) -> float:
@@ -190,7 +190,7 @@ def long_lived(config: str | Path, n: int, begin: float | None = None, end: floa
         from coster_sumo.formats.sumo_net import read_sumolib_net
 
         net = read_sumolib_net(cfg.net_file)
-    demand, _ = _read_demand([*cfg.route_files, *cfg.additional_files], end)
+    demand = _read_demand([*cfg.route_files, *cfg.additional_files], end)
 
     def edge(eid: str) -> Any:
         return net.getEdge(eid) if net.hasEdge(eid) else None
