@@ -1,26 +1,40 @@
-"""Collision-time ablation of the snapshot stage: CSD and CPD for entropy / last / random.
+"""Collision-time ablation of the snapshot stage: CSD and CPD for entropy / last / random, and the
+adversaries' speeds at t_col against the traffic on their lane type (VDD at t_col), per network.
 
-Usage: python bench/ablation_snapshot.py DATASET [--all] [--scenes N] [--womd FILE ...] [--json OUT]
+Usage: python bench/ablation_snapshot.py DATASET [--all] [--scenes N] [--womd FILE ...]
+       [--methods entropy,last,random] [--smoothed-heads] [--json OUT]
 Held-out scenes of a `coster-sumo simulate` dataset (their SDC as target) plus optional WOMD files;
 the shipped prior places the adversary; relative speed |v_target - v_adv| and impact angle (adversary
-position in the target frame) of each snapshot feed CSD and CPD (coster_sumo.metrics).
+position in the target frame) of each snapshot feed CSD and CPD (coster_sumo.metrics). A scene's
+network is its file name up to ``_r<run>``. VDD at t_col and its floor are those of ``eval scenarios``
+(coster_sumo.batch.evaluate.snapshot_state_metrics), here on one snapshot per scene and rule, which
+needs no SUMO run, so that a network can have hundreds of adversaries instead of twenty.
+``--smoothed-heads`` reads the prior's heads as trained (label smoothing left in), for comparison.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 from coster_sumo.converters.read import iter_scenes
 
 from coster_sumo import metrics, weights
+from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
 from coster_sumo.dataset import list_scenes, split
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.prior.infer import load_prior
-from coster_sumo.scene import load_scene, resample
+from coster_sumo.scene import LaneType, load_scene, resample
 from coster_sumo.snapshot import NoSnapshot, prior_snapshot
+
+
+def network_of(name: str) -> str:
+    m = re.match(r"(.+?)_r\d+_", name)
+    return m.group(1) if m else name
 
 
 def main() -> None:
@@ -29,20 +43,31 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=100)
     ap.add_argument("--womd", type=Path, nargs="*", default=[])
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--methods", default="entropy,last,random")
+    ap.add_argument("--smoothed-heads", action="store_true")
     ap.add_argument("--all", action="store_true",
                     help="every scene of DATASET (a folder of held-out networks), not its held-out 10 %%")
     args = ap.parse_args()
     files = list_scenes(args.dataset)
     val = files if args.all else split(files, 0.1, 0)[1]
     picked = val[:: max(1, len(val) // args.scenes)][: args.scenes]  # evenly over the (sorted) networks
-    scenes = [load_scene(p) for p in picked]
+    scenes = [(network_of(p.stem), load_scene(p)) for p in picked]
     for f in args.womd:
-        scenes.extend(iter_scenes(f))
-    model = weights.load_cached(weights.weights_path(weights.PRIOR), load_prior)
-    table = {}
-    for method in ("entropy", "last", "random"):
-        rel, ang, ok = [], [], 0
-        for i, scene in enumerate(scenes):
+        scenes.extend(("WOMD", s) for s in iter_scenes(f))
+    if args.smoothed_heads:
+        model = load_prior(weights.weights_path(weights.PRIOR))
+        model.config = dataclasses.replace(model.config, label_smoothing=0.0)  # nothing to take off
+    else:
+        model = weights.load_cached(weights.weights_path(weights.PRIOR), load_prior)
+    nominal: dict[str, dict[str, np.ndarray]] = {}  # network -> lane type -> speed histogram
+    for net, scene in scenes:
+        for kind, hist in nominal_speeds_by_lane_type(scene).items():
+            by = nominal.setdefault(net, {})
+            by[kind] = by.get(kind, 0) + np.asarray(hist, np.float64)
+    table, per_network = {}, {}
+    for method in args.methods.split(","):
+        rel, ang, records, ok = [], [], [], 0
+        for i, (net, scene) in enumerate(scenes):
             low = resample(scene, 2.0)
             drivable = DrivableArea.from_road_map(scene.road_map)
             try:
@@ -54,17 +79,34 @@ def main() -> None:
             rel.append(float(metrics.relative_speed(s.target.velocity, s.adversary.velocity)))
             ang.append(float(metrics.impact_angle_deg(np.array([s.target.x, s.target.y]), s.target.yaw,
                                                       np.array([s.adversary.x, s.adversary.y]))))
+            kind = int(scene.road_map.lane_type_at(np.array([[s.adversary.x, s.adversary.y]]))[0])
+            records.append({"network": net, "adversary_speed": s.adversary.speed,
+                            "adversary_length": s.adversary.length, "adversary_width": s.adversary.width,
+                            "adversary_lane_type": LaneType(kind).name})
         table[method] = {"scenes": len(scenes), "snapshots": ok, "SUR": ok / len(scenes),
                          "CSD": metrics.collision_speed_diversity(rel),
                          "CPD": metrics.collision_position_diversity(ang),
-                         "CPD_circular": metrics.circular_std_deg(ang), "mean_relative_speed": float(np.mean(rel))}
-    print("| collision time | scenes | SUR | CSD [m/s] | CPD [deg] | circular CPD [deg] | mean rel. speed [m/s] |")
-    print("|---|---|---|---|---|---|---|")
+                         "CPD_circular": metrics.circular_std_deg(ang), "mean_relative_speed": float(np.mean(rel)),
+                         "stopped_share": float(np.mean([r["adversary_speed"] < 0.5 for r in records]))}
+        per_network[method] = {net: snapshot_state_metrics([r for r in records if r["network"] == net], by)
+                               for net, by in nominal.items()}
+    print("| collision time | scenes | SUR | CSD [m/s] | CPD [deg] | circular CPD [deg] | mean rel. speed [m/s] | "
+          "stopped adversaries |")
+    print("|---|---|---|---|---|---|---|---|")
     for m, r in table.items():
         print(f"| {m} | {r['scenes']} | {r['SUR']:.3f} | {r['CSD']:.2f} | {r['CPD']:.1f} | {r['CPD_circular']:.1f} | "
-              f"{r['mean_relative_speed']:.2f} |")
+              f"{r['mean_relative_speed']:.2f} | {r['stopped_share']:.3f} |")
+    print()
+    print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class |")
+    print("|---|---|---|---|---|")
+    for m, nets in per_network.items():
+        for net, r in nets.items():
+            if r["VDD_tcol"] is None:
+                continue
+            print(f"| {m} | {net} | {sum(r['adversaries_by_lane_type'].values())} | {r['VDD_tcol']:.3f} "
+                  f"({r['VDD_tcol_floor']:.3f}) | {r['size_in_class']:.3f} |")
     if args.json:
-        args.json.write_text(json.dumps(table, indent=1))
+        args.json.write_text(json.dumps({"table": table, "per_network": per_network}, indent=1))
 
 
 if __name__ == "__main__":

@@ -39,8 +39,24 @@ def test_sizes_outside_every_vehicle_class_are_counted():
 
 
 def test_nothing_recorded_gives_none():
-    assert snapshot_state_metrics([{"collision": True}], {}) == {"VDD_tcol": None, "size_in_class": None,
+    assert snapshot_state_metrics([{"collision": True}], {}) == {"VDD_tcol": None, "VDD_tcol_floor": None,
+                                                                "size_in_class": None,
                                                                 "adversaries_by_lane_type": {}}
+
+
+def test_the_floor_is_what_the_nominal_traffic_itself_scores_with_as_few_adversaries():
+    rng = np.random.default_rng(1)
+    traffic = rng.uniform(0, 30, 20000)
+    nominal = {"SURFACE_STREET": _hist(traffic)}
+    drawn = rng.uniform(0, 30, 2000)  # adversaries with the traffic's own speeds
+    few = snapshot_state_metrics([_rec(v, "SURFACE_STREET") for v in drawn[:20]], nominal)
+    many = snapshot_state_metrics([_rec(v, "SURFACE_STREET") for v in drawn], nominal)
+    # speeds drawn from the traffic itself: VDD is near its floor, and both shrink with more adversaries
+    for m in (few, many):
+        assert 0.5 < m["VDD_tcol"] / m["VDD_tcol_floor"] < 2.0
+    assert many["VDD_tcol_floor"] < 0.1 * few["VDD_tcol_floor"]
+    stopped = snapshot_state_metrics([_rec(0.0, "SURFACE_STREET")] * 2000, nominal)
+    assert stopped["VDD_tcol"] > 10 * stopped["VDD_tcol_floor"]
 
 
 def test_nominal_speeds_are_split_by_the_nearest_lanes_type():
