@@ -57,6 +57,8 @@ class Regions:
         lane_type: (num_regions,) int8 :class:`~coster_sumo.scene.LaneType` of the lane.
         is_junction: (num_regions,) bool, the lane lies inside a junction.
         width: region width [m] (across the lane).
+        speed_limit: (num_regions,) float64 [m/s] of the lane, 0 where unknown (None: not known for
+            any region).
     """
 
     q1: np.ndarray
@@ -65,6 +67,7 @@ class Regions:
     lane_type: np.ndarray
     is_junction: np.ndarray
     width: float = REGION_WIDTH
+    speed_limit: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.lane_index)
@@ -89,7 +92,8 @@ class Regions:
     def select(self, index: np.ndarray) -> Regions:
         """The regions at ``index`` (any integer or boolean index over regions)."""
         return Regions(q1=self.q1[index], q2=self.q2[index], lane_index=self.lane_index[index],
-                       lane_type=self.lane_type[index], is_junction=self.is_junction[index], width=self.width)
+                       lane_type=self.lane_type[index], is_junction=self.is_junction[index], width=self.width,
+                       speed_limit=None if self.speed_limit is None else self.speed_limit[index])
 
     def to_region_frame(self, points: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
         """World points (..., 2) -> (x across to the right, y along from q1) [m] in regions ``index``.
@@ -135,7 +139,8 @@ def build_regions(road_map: RoadMap, spacing: float = REGION_SPACING, width: flo
     keep = np.hypot(*(q2 - q1).T) > 1e-6
     li = lane_idx[owner][keep]
     return Regions(q1=q1[keep], q2=q2[keep], lane_index=li, lane_type=all_lanes.lane_type[li].astype(np.int8),
-                   is_junction=all_lanes.is_junction[li].astype(bool), width=width)
+                   is_junction=all_lanes.is_junction[li].astype(bool), width=width,
+                   speed_limit=np.nan_to_num(np.asarray(all_lanes.speed_limit, np.float64)[li]))
 
 
 def regions_near(regions: Regions, points: np.ndarray, radius: float) -> np.ndarray:

@@ -279,3 +279,93 @@ def test_eval_prior_on_a_womd_file(tmp_path):
     assert main(["-q", "eval", "prior", "--data", str(path), "--checkpoint", str(ckpt), "--json", str(out)]) == 0
     r = json.loads(out.read_text())
     assert r["num_scenes"] >= 1 and r["mmd"]["prior"]["scenes"] >= 0 and r["baselines_fitted_on"] is None
+
+
+def test_width_is_drawn_given_the_length():
+    from coster_sumo.prior.infer import draw_classes
+
+    rng = np.random.default_rng(0)
+    n, lengths, widths = 4000, 6, 5
+    rows = {a: np.ones((n, 3)) for a in ATTRIBUTES}
+    rows["length"] = np.ones((n, lengths))
+    rows["width"] = np.ones((n, widths))
+    table = np.full((lengths, widths), -1e9)
+    table[np.arange(lengths), np.arange(lengths) % widths] = 0.0  # length class l has width class l % 5
+    out = draw_classes(rows, rng, table, np.zeros((n, widths)))
+    assert np.array_equal(out["width"], out["length"] % widths)
+    free = draw_classes(rows, np.random.default_rng(0))  # independent heads: any pair
+    assert np.mean(free["width"] == free["length"] % widths) < 0.5
+
+
+def _long_and_short_widths(prepared, joint: bool) -> tuple[float, float]:
+    """Train on data whose width is fixed by the length: every token twice, once long-and-wide and once
+    short-and-narrow; the share of sampled long vehicles that are wide and of short ones that are narrow."""
+    torch.manual_seed(0)
+    cfg = dataclasses.replace(SMALL, label_smoothing=0.0, width_given_length=joint)  # no floor to blur it
+    model = TrafficPrior(cfg)
+    assert (model.width_table is not None) == joint
+    bins = cfg.bins()
+    tok = batch_tokens(prepared, epoch_samples(prepared, np.random.default_rng(0), 1)[:8], bins, cfg.radius,
+                       cfg.max_regions, visible="map")
+    cls = np.concatenate([tok.classes, tok.classes])
+    long_ = np.arange(len(cls)) < len(tok.classes)
+    cls[..., 3] = np.where(long_[:, None], bins.length_class(12.0), bins.length_class(2.2))
+    cls[..., 4] = np.where(long_[:, None], bins.width_class(2.55), bins.width_class(0.8))
+    batch = [torch.from_numpy(np.concatenate([x, x])) for x in (tok.map_features, tok.agent_features, tok.mask,
+                                                                tok.query, tok.present)]
+    batch.append(torch.from_numpy(cls))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-2)
+    for _ in range(300):
+        _, loss = model(*batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    model.eval()
+    _, probs = predict_tokens(model, tok)
+    assert ("width_logits" in probs) == joint
+    np.testing.assert_allclose(probs["width"][tok.mask].sum(-1), 1.0, atol=1e-5)  # a distribution either way
+    pred = predict_scene(model, prepared[0], prepared[0].sdc_index, steps=np.array([3]), mode="map")
+    t, k = np.nonzero(pred.query)
+    s = pred.sample(np.random.default_rng(0), np.repeat(t, 20), np.repeat(k, 20))
+    long_cls = bins.length_class(s["length"]) == bins.length_class(12.0)
+    short_cls = bins.length_class(s["length"]) == bins.length_class(2.2)
+    assert long_cls.sum() >= 10 and short_cls.sum() >= 10
+    return float(np.mean(s["width"][long_cls] > 2.0)), float(np.mean(s["width"][short_cls] < 1.2))
+
+
+def test_width_given_length_is_learned_and_sampled_jointly(prepared):
+    joint = _long_and_short_widths(prepared, joint=True)
+    independent = _long_and_short_widths(prepared, joint=False)
+    assert min(joint) > 0.9  # long vehicles come out wide, short ones narrow
+    assert min(independent) < 0.75  # independent heads mix them
+
+
+def test_checkpoint_from_before_speed_limits_and_joint_size_still_loads(tmp_path, prepared):
+    from coster_sumo.prior.features import MAP_FEATURES, MAP_FEATURES_V1
+
+    old = dataclasses.replace(SMALL, map_features=MAP_FEATURES_V1, max_speed=30.0, width_given_length=False)
+    torch.manual_seed(0)
+    model = TrafficPrior(old).eval()
+    path = save_prior(model, tmp_path / "old.pt")
+    ckpt = torch.load(path, weights_only=True)
+    del ckpt["config"]["width_given_length"]  # what a checkpoint from before the field stores
+    torch.save(ckpt, path)
+    loaded = load_prior(path)
+    assert loaded.config == old and loaded.width_table is None
+    tok = scene_tokens(prepared[0], np.array([3]), prepared[0].centre_pose[:1], old.bins(), old.radius,
+                       old.max_regions)
+    assert tok.map_features.shape[-1] == MAP_FEATURES
+    presence, probs = predict_tokens(loaded, tok)  # reads the first 17 map features only
+    assert "width_logits" not in probs and np.isfinite(presence).all()
+
+
+def test_map_features_carry_the_lane_speed_limit(prepared):
+    from coster_sumo.prior.features import SPEED_LIMIT, SPEED_LIMIT_KNOWN, SPEED_LIMIT_SCALE
+
+    data = prepared[0]
+    tok = scene_tokens(data, np.array([3]), data.centre_pose[:1], SMALL.bins(), SMALL.radius, SMALL.max_regions)
+    m = tok.mask
+    limit = data.regions.speed_limit[tok.region_index[m]]
+    assert (limit > 0).all()
+    np.testing.assert_allclose(tok.map_features[m][:, SPEED_LIMIT], limit / SPEED_LIMIT_SCALE, rtol=1e-6)
+    assert (tok.map_features[m][:, SPEED_LIMIT_KNOWN] == 1).all()

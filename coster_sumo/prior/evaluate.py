@@ -31,7 +31,7 @@ from coster_sumo.prior.baselines import GMMBaseline, MeanValueBaseline
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples, scene_tokens
 from coster_sumo.prior.features import Tokens, centre_frame_attributes, token_buckets
-from coster_sumo.prior.infer import predict_tokens
+from coster_sumo.prior.infer import draw_classes, predict_tokens, width_table
 from coster_sumo.prior.model import TrafficPrior
 from coster_sumo.prior.train import evaluate_loss
 
@@ -105,17 +105,20 @@ def _mmd_features(tok: Tokens, sel: np.ndarray, values: np.ndarray, radius: floa
 
 
 def _sample_model(presence: np.ndarray, probs: dict[str, np.ndarray], mask: np.ndarray, bins: AttributeBins,
-                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Flat indices of generated agents and their (n, 6) attributes (bin centres)."""
+                  rng: np.random.Generator, table: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices of generated agents and their (n, 6) attributes (bin centres); ``table``: the
+    model's width bias per length class (:func:`coster_sumo.prior.infer.width_table`)."""
     gen = (rng.random(presence.shape) < presence) & mask
     sel = np.flatnonzero(gen.ravel())
     vals = np.zeros((len(sel), 6))
+
+    def rows(name: str) -> np.ndarray:
+        return probs[name].reshape(-1, probs[name].shape[-1])[sel]
+
+    classes = draw_classes({a: rows(a) for a in ATTRIBUTES}, rng, table,
+                           rows("width_logits") if table is not None else None)
     for a in ATTRIBUTES:
-        p = probs[a].reshape(-1, probs[a].shape[-1])[sel].astype(np.float64)
-        cdf = np.cumsum(p, axis=-1)
-        u = rng.random(len(sel)) * cdf[:, -1]
-        cls = np.minimum((cdf < u[:, None]).sum(axis=-1), p.shape[-1] - 1)
-        c = bins.centres(a)[cls]
+        c = bins.centres(a)[classes[a]]
         if a == "position":
             vals[:, 0:2] = c
         else:
@@ -171,7 +174,7 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         cal["prior_map"][0].append(presence[mask])
         cal["prior_map"][1].append(tok.present[mask])
         generated: dict[str, tuple[np.ndarray, np.ndarray]] = {
-            "prior": _sample_model(presence, probs, mask, bins, rng)}
+            "prior": _sample_model(presence, probs, mask, bins, rng, width_table(model))}
         buckets = token_buckets(tok.map_features).ravel()
         for b in baselines:
             p = b.presence(buckets)

@@ -9,10 +9,12 @@ What the model sees, and why training is not leakage
 ----------------------------------------------------
 Each region token has two parts:
 
-- map part (always given, :data:`MAP_FEATURES` = 17 values): q1 and q2 in the centre frame
+- map part (always given, :data:`MAP_FEATURES` = 19 values): q1 and q2 in the centre frame
   (divided by the radius), the region direction (cos, sin) in that frame, height / 5 m, lane type
-  one-hot (4), junction flag, signal category one-hot (none, stop, caution, go) at that step, and
-  the centre's distance / radius;
+  one-hot (4), junction flag, signal category one-hot (none, stop, caution, go) at that step, the
+  centre's distance / radius, and the lane's speed limit / 30 m/s with a flag saying it is known
+  (SUMO lanes always have one; WOMD lanes often do not). Checkpoints trained before the speed
+  limit existed read the first :data:`MAP_FEATURES_V1` = 17 only (``PriorConfig.map_features``);
 - observed-agent part (:data:`AGENT_FEATURES` = 9 values): a *visible* flag, then for visible
   regions the occupancy (presence, normalised position, heading cos/sin, speed / 10, length / 5,
   width / 2); all zeros for hidden regions.
@@ -38,13 +40,16 @@ from coster_sumo.geometry import to_local
 from coster_sumo.prior.bins import AttributeBins
 from coster_sumo.regions import REGION_SPACING, Regions
 
-MAP_FEATURES = 17
+MAP_FEATURES = 19
+MAP_FEATURES_V1 = 17  # the map part before the speed limit was added
+SPEED_LIMIT_SCALE = 30.0  # [m/s]
 AGENT_FEATURES = 9
 NUM_LANE_TYPES = 4
 NUM_SIGNAL_CATEGORIES = 4
 # slices of the map features
 Q1, Q2, DIRECTION, HEIGHT = slice(0, 2), slice(2, 4), slice(4, 6), 6
 LANE_TYPE, JUNCTION, SIGNAL, DISTANCE = slice(7, 11), 11, slice(12, 16), 16
+SPEED_LIMIT, SPEED_LIMIT_KNOWN = 17, 18
 
 
 @dataclass(frozen=True)
@@ -98,8 +103,10 @@ def map_features(regions: Regions, index: np.ndarray, mask: np.ndarray, signal: 
     lane_type = np.eye(NUM_LANE_TYPES)[np.clip(regions.lane_type[idx], 0, NUM_LANE_TYPES - 1)]
     sig = np.eye(NUM_SIGNAL_CATEGORIES)[np.clip(signal, 0, NUM_SIGNAL_CATEGORIES - 1)]
     dist = np.linalg.norm(0.5 * (q1 + q2), axis=-1)
+    limit = np.zeros(idx.shape) if regions.speed_limit is None else regions.speed_limit[idx]
     feats = np.concatenate([q1, q2, np.cos(rel)[..., None], np.sin(rel)[..., None], height[..., None],
-                            lane_type, regions.is_junction[idx][..., None], sig, dist[..., None]], axis=-1)
+                            lane_type, regions.is_junction[idx][..., None], sig, dist[..., None],
+                            (limit / SPEED_LIMIT_SCALE)[..., None], (limit > 0)[..., None]], axis=-1)
     return (feats * mask[..., None]).astype(np.float32)
 
 

@@ -60,6 +60,11 @@ def read_checkpoint(path: str | Path) -> dict:
     return ckpt
 
 
+def width_table(model: TrafficPrior) -> np.ndarray | None:
+    """The model's width bias per length class (L, W) as numpy, or None (independent heads)."""
+    return None if model.width_table is None else model.width_table.detach().numpy().astype(np.float64)
+
+
 def load_prior(path: str | Path) -> TrafficPrior:
     """The model of a checkpoint, in eval mode on the CPU."""
     ckpt = read_checkpoint(path)
@@ -88,6 +93,9 @@ class PriorPrediction:
             ix * 40 + iy over the normalised region frame; heading relative to the region direction);
             zeros where not ``query``.
         bins: the discretisation (bin centres via ``bins.centres(name)``).
+        width_table: (length classes, width classes) bias of the width logits per length class when
+            the prior draws width given length (``probs["width"]`` is then the marginal and
+            ``probs["width_logits"]`` the head's own logits); None for independent heads.
     """
 
     regions: Regions
@@ -99,6 +107,7 @@ class PriorPrediction:
     presence: np.ndarray
     probs: dict[str, np.ndarray]
     bins: AttributeBins
+    width_table: np.ndarray | None = None
 
     def expected(self, attribute: str) -> np.ndarray:
         """(T, K) (position: (T, K, 2) normalised) expectation under the predicted distribution."""
@@ -115,13 +124,9 @@ class PriorPrediction:
         """
         t = np.asarray(t, np.int64).ravel()
         k = np.asarray(k, np.int64).ravel()
-        out: dict[str, np.ndarray] = {}
-        for a in ATTRIBUTES:
-            p = self.probs[a][t, k].astype(np.float64)  # (S, C)
-            cdf = np.cumsum(p, axis=-1)
-            u = rng.random(len(t)) * cdf[:, -1]
-            cls = np.minimum((cdf < u[:, None]).sum(axis=-1), p.shape[-1] - 1)
-            out[a] = self.bins.centres(a)[cls]
+        classes = draw_classes({a: self.probs[a][t, k] for a in ATTRIBUTES}, rng, self.width_table,
+                               self.probs["width_logits"][t, k] if self.width_table is not None else None)
+        out = {a: self.bins.centres(a)[c] for a, c in classes.items()}
         ridx = self.region_index[t, k]
         out["world_xy"] = self.regions.from_normalised(out["position"], ridx)
         out["world_heading"] = self.regions.heading[ridx] + out["heading"]
@@ -141,11 +146,49 @@ class PriorPrediction:
             return np.where(inside, np.log(np.maximum(p, 0.0)), -np.inf)
 
 
+def _categorical(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One class per row of probabilities (S, C) (rows need not be normalised)."""
+    p = np.asarray(p, np.float64)
+    cdf = np.cumsum(p, axis=-1)
+    u = rng.random(len(p)) * cdf[:, -1]
+    return np.minimum((cdf < u[:, None]).sum(axis=-1), p.shape[-1] - 1)
+
+
+def draw_classes(rows: dict[str, np.ndarray], rng: np.random.Generator, width_table: np.ndarray | None = None,
+                 width_logits: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """One class (S,) per attribute from per-token probabilities ``rows`` (attribute -> (S, C)), in
+    the order of :data:`ATTRIBUTES`; with ``width_table`` and the width head's ``width_logits``
+    (S, W), width is drawn given the length drawn for the same token."""
+    out: dict[str, np.ndarray] = {}
+    for a in ATTRIBUTES:
+        if a == "width" and width_table is not None and width_logits is not None:
+            z = np.asarray(width_logits, np.float64) + width_table[out["length"]]
+            rows_a = np.exp(z - z.max(axis=-1, keepdims=True))
+        else:
+            rows_a = rows[a]
+        out[a] = _categorical(rows_a, rng)
+    return out
+
+
+def _width_marginal(model: TrafficPrior, hs: torch.Tensor, width_logits: torch.Tensor, chunk: int = 2048
+                    ) -> torch.Tensor:
+    """p(width) = sum over lengths of p(length) p(width | length) for tokens (N, 2D) -> (N, W)."""
+    assert model.width_table is not None
+    out = []
+    for i in range(0, len(hs), chunk):
+        pl = torch.softmax(model.heads["length"](hs[i:i + chunk]), dim=-1)  # (n, L)
+        pw = torch.softmax(width_logits[i:i + chunk, None, :] + model.width_table[None], dim=-1)  # (n, L, W)
+        out.append(torch.einsum("nl,nlw->nw", pl, pw))
+    return torch.cat(out) if out else width_logits.new_zeros(width_logits.shape)
+
+
 @torch.no_grad()
 def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False,
                    heads: Collection[str] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Presence probabilities (B, K) and attribute probabilities (B, K, C) of a token batch.
 
+    A prior that draws width given length returns the marginal width distribution as "width" and
+    the width head's own logits as "width_logits" (see :class:`PriorPrediction`).
     Padding is never computed (zeros there). ``only_query`` evaluates the heads on the query tokens
     only (the others get zeros too), which saves most of the cost when few tokens are hidden.
     ``heads``: the attributes to predict (default all); the position head alone has 1,600 classes.
@@ -162,8 +205,15 @@ def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
         if heads is not None and a not in heads:
             continue
         v = head(hs)
+        if a == "width" and model.width_table is not None:
+            logits = np.zeros(mask.shape + (v.shape[-1],), np.float32)
+            logits[sel] = v.numpy()
+            probs["width_logits"] = logits
+            p = _width_marginal(model, hs, v)
+        else:
+            p = torch.softmax(v, dim=-1)
         full = np.zeros(mask.shape + (v.shape[-1],), np.float32)
-        full[sel] = torch.softmax(v, dim=-1).numpy()
+        full[sel] = p.numpy()
         probs[a] = full
     return presence, probs
 
@@ -221,4 +271,5 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
     agent, _, _ = data.occupancy.gather(st[:, None], np.maximum(tokens.region_index, 0))
     return PriorPrediction(regions=data.regions, steps=st, region_index=tokens.region_index, mask=tokens.mask,
                            query=tokens.query, observed_agent=np.where(tokens.mask, agent, -1),
-                           presence=presence * tokens.mask, probs=probs, bins=cfg.bins())
+                           presence=presence * tokens.mask, probs=probs, bins=cfg.bins(),
+                           width_table=width_table(model))

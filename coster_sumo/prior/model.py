@@ -7,7 +7,11 @@ Architecture (TrafficGen / MultiPath++ style multi-context gating, MCG):
   (every element gated by the one global context) and c' = masked max-pool of s'; the next block
   receives the running mean of all block outputs so far (for s and for c);
 - heads are independent MLPs on [s_k, c]: presence (1 logit), position (40 x 40), heading (144),
-  speed (1 + 60), length (60), width (40).
+  speed (1 + 60), length (60), width (40); with ``width_given_length`` the width logits get a
+  learned bias per length class (a 60 x 40 table), so a sample's width is drawn given its length:
+  p(w | l, token) = softmax(head_w(token) + table[l]). Independent length and width heads made
+  vehicles nobody drives (a motorcycle's length with a car's width), most of the samples on some
+  held-out networks (models/prior.md).
 
 Loss (per batch): over the query tokens Q (hidden, real regions),
 ``sum_Q [BCE(presence) + present * (CE_pos + CE_heading + CE_speed + CE_length + CE_width)] / |Q|``,
@@ -27,6 +31,7 @@ from coster_sumo.prior.features import AGENT_FEATURES, MAP_FEATURES
 from coster_sumo.regions import MAX_REGIONS, NEIGHBOURHOOD_RADIUS, REGION_SPACING, REGION_WIDTH
 
 SMOOTHED = ("heading", "length", "width")
+LENGTH = ATTRIBUTES.index("length")
 
 
 @dataclass
@@ -51,11 +56,12 @@ class PriorConfig:
     heading_range_rad: float = 0.7853981633974483  # pi / 4
     speed_bins: int = 60
     stopped_speed: float = 0.5
-    max_speed: float = 30.0
+    max_speed: float = 45.0
     length_bins: int = 60
     max_length: float = 15.0
     width_bins: int = 40
     max_width: float = 4.0
+    width_given_length: bool = True
 
     def bins(self) -> AttributeBins:
         names = {f.name for f in fields(AttributeBins)}
@@ -67,7 +73,8 @@ class PriorConfig:
     @classmethod
     def from_dict(cls, d: dict) -> PriorConfig:
         known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in d.items() if k in known})
+        legacy = {"width_given_length": False}  # stored configs from before the field existed
+        return cls(**{**legacy, **{k: v for k, v in d.items() if k in known}})
 
 
 def _mlp(dims: list[int], last_plain: bool = True) -> nn.Sequential:
@@ -146,13 +153,27 @@ class TrafficPrior(nn.Module):
         n_cls = config.bins().num_classes()
         self.presence_head = _mlp([2 * d, config.head_hidden, 1])
         self.heads = nn.ModuleDict({a: _mlp([2 * d, config.head_hidden, n_cls[a]]) for a in ATTRIBUTES})
+        self.width_table = (nn.Parameter(torch.zeros(n_cls["length"], n_cls["width"]))
+                            if config.width_given_length else None)
+
+    def attribute_logits(self, h: torch.Tensor, attribute: str, length_class: torch.Tensor | None = None
+                         ) -> torch.Tensor:
+        """Logits (..., C) of one head on token features (..., 2D); the width head also takes the
+        length class (...) int64 when the model draws width given length."""
+        logits = self.heads[attribute](h)
+        if attribute == "width" and self.width_table is not None:
+            if length_class is None:
+                raise ValueError("this prior draws width given length: pass the length class")
+            logits = logits + self.width_table[length_class]
+        return logits
 
     def encode_packed(self, map_features: torch.Tensor, agent_features: torch.Tensor, mask: torch.Tensor
                       ) -> torch.Tensor:
         """(B, K, Fm), (B, K, Fa), (B, K) bool -> (N, 2D) features [s_k, c] of the N real tokens,
         in ``mask`` order (row-major); padding is never computed."""
         segment = mask.nonzero()[:, 0]  # (N,) sample of each real token
-        tokens = self.map_proj(map_features[mask]) + self.agent_proj(agent_features[mask])  # (N, D)
+        mf = map_features[mask][:, : self.config.map_features]  # older checkpoints read fewer map features
+        tokens = self.map_proj(mf) + self.agent_proj(agent_features[mask])  # (N, D)
         s, c = self.mcg(tokens, segment_max(tokens, segment, mask.shape[0]), segment)
         return torch.cat([s, c[segment]], dim=-1)  # (N, 2D)
 
@@ -167,7 +188,7 @@ class TrafficPrior(nn.Module):
     def decode(self, h: torch.Tensor) -> PriorOutput:
         """Per-token features (..., 2D) -> logits of every head."""
         return PriorOutput(presence=self.presence_head(h)[..., 0],
-                           attributes={a: head(h) for a, head in self.heads.items()})
+                           attributes={a: head(h) for a, head in self.heads.items()})  # width: before the table
 
     def forward(self, map_features: torch.Tensor, agent_features: torch.Tensor, mask: torch.Tensor,
                 query: torch.Tensor | None = None, present: torch.Tensor | None = None,
@@ -202,7 +223,7 @@ class TrafficPrior(nn.Module):
         cp = classes[query][pq]  # (P, 5)
         for i, a in enumerate(ATTRIBUTES):
             smoothing = self.config.label_smoothing if a in SMOOTHED else 0.0
-            total = total + F.cross_entropy(self.heads[a](hp), cp[:, i], reduction="sum",
+            total = total + F.cross_entropy(self.attribute_logits(hp, a, cp[:, LENGTH]), cp[:, i], reduction="sum",
                                             label_smoothing=smoothing)
         return total / n
 
@@ -217,5 +238,5 @@ class TrafficPrior(nn.Module):
                "num_query": torch.tensor(float(hq.shape[0])), "num_present": pq.sum().float()}
         hp, cp = hq[pq], classes[query][pq]
         for i, a in enumerate(ATTRIBUTES):
-            out[a] = F.cross_entropy(self.heads[a](hp), cp[:, i], reduction="sum")
+            out[a] = F.cross_entropy(self.attribute_logits(hp, a, cp[:, LENGTH]), cp[:, i], reduction="sum")
         return out
