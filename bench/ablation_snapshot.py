@@ -2,7 +2,7 @@
 adversaries' speeds at t_col against the traffic on their lane type (VDD at t_col), per network.
 
 Usage: python bench/ablation_snapshot.py DATASET [--all] [--scenes N] [--womd FILE ...]
-       [--methods entropy,last,random] [--draws K] [--json OUT]
+       [--methods entropy,last,random] [--draws K] [--models DIR] [--json OUT]
 Held-out scenes of a `coster-sumo simulate` dataset (their SDC as target) plus optional WOMD files;
 the shipped prior places the adversary; relative speed |v_target - v_adv| and impact angle (adversary
 position in the target frame) of each snapshot feed CSD and CPD (coster_sumo.metrics). A scene's
@@ -46,6 +46,7 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--methods", default="entropy,last,random")
     ap.add_argument("--draws", type=int, default=1)
+    ap.add_argument("--models", type=Path, default=None, help="models folder (default: the shipped one)")
     ap.add_argument("--all", action="store_true",
                     help="every scene of DATASET (a folder of held-out networks), not its held-out 10 %%")
     args = ap.parse_args()
@@ -55,7 +56,7 @@ def main() -> None:
     scenes = [(network_of(p.stem), load_scene(p)) for p in picked]
     for f in args.womd:
         scenes.extend(("WOMD", s) for s in iter_scenes(f))
-    model = weights.load_cached(weights.weights_path(weights.PRIOR), load_prior)
+    model = weights.load_cached(weights.weights_path(weights.PRIOR, args.models), load_prior)
     nominal: dict[str, dict[str, np.ndarray]] = {}  # network -> lane type -> speed histogram
     for net, scene in scenes:
         for kind, hist in nominal_speeds_by_lane_type(scene).items():

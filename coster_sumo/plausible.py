@@ -80,11 +80,11 @@ def stop_plausible(scene: Scene, step: int, target: int, lane: int, point: np.nd
     return bool(len(stops)) and float(np.min(np.hypot(*(stops - point).T))) <= QUEUE_DISTANCE_M
 
 
-def moving_speed(probs: np.ndarray, centres: np.ndarray, stopped_class: int, rng: np.random.Generator,
-                 fastest: float) -> float:
-    """A speed [m/s] drawn from a speed head's class probabilities (C,) (bin ``centres`` (C,)) among
-    its moving classes up to ``FASTEST_FACTOR * fastest``; the moving class nearest to ``fastest``
-    when the head puts no mass there."""
+def moving_speed_class(probs: np.ndarray, centres: np.ndarray, stopped_class: int, rng: np.random.Generator,
+                       fastest: float) -> int:
+    """A speed class drawn from a speed head's class probabilities (C,) (bin ``centres`` (C,) [m/s])
+    among its moving classes whose centre is at most ``FASTEST_FACTOR * fastest``; the moving class
+    nearest to ``fastest`` when the head puts no mass there."""
     centres = np.asarray(centres, np.float64)
     allowed = np.ones(len(centres), bool)
     allowed[stopped_class] = False
@@ -93,5 +93,5 @@ def moving_speed(probs: np.ndarray, centres: np.ndarray, stopped_class: int, rng
     total = float(p.sum())
     if not total > 0.0:
         moving = np.flatnonzero(np.arange(len(centres)) != stopped_class)
-        return float(centres[moving[np.argmin(np.abs(centres[moving] - fastest))]])
-    return float(centres[int(rng.choice(len(p), p=p / total))])
+        return int(moving[np.argmin(np.abs(centres[moving] - fastest))])
+    return int(rng.choice(len(p), p=p / total))

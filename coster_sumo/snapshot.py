@@ -48,7 +48,7 @@ from coster_sumo.geometry import (
     touch_translation,
     translate_boxes,
 )
-from coster_sumo.plausible import local_speeds, moving_speed, stop_plausible, vehicle_size
+from coster_sumo.plausible import local_speeds, moving_speed_class, stop_plausible, vehicle_size
 from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.scene import Scene
 from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
@@ -345,8 +345,9 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         speed = float(s["speed"][0])
         lane = int(pred.regions.lane_index[pred.region_index[0, k]])
         if speed < pred.bins.stopped_speed and not stop_plausible(scene, t_col, target, lane, s["world_xy"][0]):
-            speed = moving_speed(pred.probs["speed"][0, k], pred.bins.centres("speed"), 0, rng,
-                                 fastest=float(np.max(local_speeds(scene, t_col, target))))
+            cls = moving_speed_class(pred.probs["speed"][0, k], pred.bins.centres("speed"), 0, rng,
+                                     fastest=float(np.max(local_speeds(scene, t_col, target))))
+            speed = float(pred.bins.speed_in_bin(np.array([cls]), rng)[0])
         starts = np.stack([s["world_xy"][0], centre + SIDE_START_M * fwd, centre - SIDE_START_M * fwd,
                            centre + SIDE_START_M * left, centre - SIDE_START_M * left])  # (5, 2)
         boxes, sd = contact_placements(tgt, np.full(5, heading), np.full(5, max(length, 1.0)),

@@ -12,7 +12,7 @@ from coster_sumo.plausible import (
     CONGESTED_SPEED_MPS,
     VEHICLE_CLASSES,
     local_speed,
-    moving_speed,
+    moving_speed_class,
     stop_plausible,
     vehicle_size,
 )
@@ -60,9 +60,9 @@ def test_moving_speed_never_draws_the_stopped_class_nor_outruns_the_traffic():
     rng = np.random.default_rng(0)
     probs = np.array([0.7, 0.05, 0.05, 0.2])
     centres = np.array([0.0, 3.0, 10.0, 30.0])
-    draws = {moving_speed(probs, centres, 0, rng, fastest=12.0) for _ in range(200)}
-    assert draws == {3.0, 10.0}  # not 0 (stopped), not 30 (> 1.1 x the fastest vehicle around)
-    assert moving_speed(np.array([1.0, 0.0, 0.0, 0.0]), centres, 0, rng, fastest=12.0) == 10.0
+    draws = {moving_speed_class(probs, centres, 0, rng, fastest=12.0) for _ in range(200)}
+    assert draws == {1, 2}  # not 0 (stopped), not 30 m/s (> 1.1 x the fastest vehicle around)
+    assert moving_speed_class(np.array([1.0, 0.0, 0.0, 0.0]), centres, 0, rng, fastest=12.0) == 2
 
 
 def test_a_cyclist_target_gets_a_snapshot():

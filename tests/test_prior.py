@@ -369,3 +369,17 @@ def test_map_features_carry_the_lane_speed_limit(prepared):
     assert (limit > 0).all()
     np.testing.assert_allclose(tok.map_features[m][:, SPEED_LIMIT], limit / SPEED_LIMIT_SCALE, rtol=1e-6)
     assert (tok.map_features[m][:, SPEED_LIMIT_KNOWN] == 1).all()
+
+
+def test_sampled_speeds_fill_their_bins():
+    bins = AttributeBins()
+    rng = np.random.default_rng(0)
+    classes = rng.integers(0, bins.speed_bins + 1, 5000)
+    v = bins.speed_in_bin(classes, rng)
+    assert np.all(v[classes == 0] == 0.0)
+    moving = classes > 0
+    assert np.array_equal(bins.speed_class(v[moving]), classes[moving])  # each speed stays in its class
+    assert len(np.unique(v[moving])) == moving.sum()  # not a comb of 60 centres
+    last = classes == bins.speed_bins
+    e = bins.speed_edges()
+    assert v[last].min() >= e[-2] and v[last].max() <= e[-1]

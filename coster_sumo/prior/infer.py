@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -119,14 +120,17 @@ class PriorPrediction:
 
         Returns:
             name -> values (S,) ("position": (S, 2) normalised region frame, "heading" [rad] relative to
-            the region direction, "speed" [m/s], "length"/"width" [m]), plus "world_xy" (S, 2) [m] and
-            "world_heading" (S,) [rad].
+            the region direction, "speed" [m/s] drawn inside its bin (:meth:`AttributeBins.speed_in_bin`),
+            "length"/"width" [m]), plus "world_xy" (S, 2) [m], "world_heading" (S,) [rad] and the
+            classes drawn, "classes" (name -> (S,) int64).
         """
         t = np.asarray(t, np.int64).ravel()
         k = np.asarray(k, np.int64).ravel()
         classes = draw_classes({a: self.probs[a][t, k] for a in ATTRIBUTES}, rng, self.width_table,
                                self.probs["width_logits"][t, k] if self.width_table is not None else None)
-        out = {a: self.bins.centres(a)[c] for a, c in classes.items()}
+        out: dict[str, Any] = {a: self.bins.centres(a)[c] for a, c in classes.items()}
+        out["speed"] = self.bins.speed_in_bin(classes["speed"], rng)
+        out["classes"] = classes
         ridx = self.region_index[t, k]
         out["world_xy"] = self.regions.from_normalised(out["position"], ridx)
         out["world_heading"] = self.regions.heading[ridx] + out["heading"]
