@@ -310,7 +310,8 @@ def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: d
     ``VDD_tcol_floor``: the same divergence for a generator that draws its speeds from the nominal
     traffic itself, with as many adversaries on each lane type (mean of :data:`FLOOR_DRAWS` seeded
     draws): a histogram of a few dozen values over 100 bins is never near a smooth one, so this is
-    the lowest ``VDD_tcol`` the sample size allows.
+    the lowest ``VDD_tcol`` the sample size allows. Adversaries with the very same speed (the
+    variants of one scene share its snapshot) count as one draw repeated as often.
     ``size_in_class``: share of adversaries whose length and width both lie in the range of one
     vehicle class of the corpus (:data:`~coster_sumo.plausible.VEHICLE_CLASSES`).
     """
@@ -333,8 +334,10 @@ def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: d
         if nominal.sum() > 0:
             speeds = np.clip([r["adversary_speed"] for r in rows if r["adversary_lane_type"] == kind], 0, 50)
             divergence += n * float(js_divergence(nominal, np.histogram(speeds, bins=SPEED_BINS)[0]))
-            drawn = rng.multinomial(n, nominal / nominal.sum(), size=FLOOR_DRAWS)  # (draws, bins)
-            floor += n * float(np.mean([js_divergence(nominal, d) for d in drawn]))
+            _, repeats = np.unique(speeds, return_counts=True)
+            drawn = rng.choice(len(nominal), size=(FLOOR_DRAWS, len(repeats)), p=nominal / nominal.sum())
+            floor += n * float(np.mean([js_divergence(nominal, np.bincount(d, weights=repeats, minlength=len(nominal)))
+                                        for d in drawn]))
             weight += n
     if weight:
         out["VDD_tcol"] = divergence / weight
