@@ -130,6 +130,7 @@ def main() -> None:
     else:
         diff = differences(json.loads(EXPECTATIONS.read_text()), got)
         print("\n".join(diff) or "same outcomes")
+        raise SystemExit(1 if diff else 0)  # scripts and CI can tell
 
 
 if __name__ == "__main__":
