@@ -13,7 +13,6 @@ from __future__ import annotations
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -121,16 +120,14 @@ class PriorPrediction:
         Returns:
             name -> values (S,) ("position": (S, 2) normalised region frame, "heading" [rad] relative to
             the region direction, "speed" [m/s] drawn inside its bin (:meth:`AttributeBins.speed_in_bin`),
-            "length"/"width" [m]), plus "world_xy" (S, 2) [m], "world_heading" (S,) [rad] and the
-            classes drawn, "classes" (name -> (S,) int64).
+            "length"/"width" [m]), plus "world_xy" (S, 2) [m] and "world_heading" (S,) [rad].
         """
         t = np.asarray(t, np.int64).ravel()
         k = np.asarray(k, np.int64).ravel()
         classes = draw_classes({a: self.probs[a][t, k] for a in ATTRIBUTES}, rng, self.width_table,
                                self.probs["width_logits"][t, k] if self.width_table is not None else None)
-        out: dict[str, Any] = {a: self.bins.centres(a)[c] for a, c in classes.items()}
+        out = {a: self.bins.centres(a)[c] for a, c in classes.items()}
         out["speed"] = self.bins.speed_in_bin(classes["speed"], rng)
-        out["classes"] = classes
         ridx = self.region_index[t, k]
         out["world_xy"] = self.regions.from_normalised(out["position"], ridx)
         out["world_heading"] = self.regions.heading[ridx] + out["heading"]
@@ -174,15 +171,13 @@ def draw_classes(rows: dict[str, np.ndarray], rng: np.random.Generator, width_ta
     return out
 
 
-def _width_marginal(model: TrafficPrior, hs: torch.Tensor, width_logits: torch.Tensor, chunk: int = 2048
-                    ) -> torch.Tensor:
-    """p(width) = sum over lengths of p(length) p(width | length) for tokens (N, 2D) -> (N, W)."""
-    assert model.width_table is not None
+def _width_marginal(table: torch.Tensor, length_probs: torch.Tensor, width_logits: torch.Tensor,
+                    chunk: int = 2048) -> torch.Tensor:
+    """p(width) = sum over lengths of p(length) p(width | length): (N, L), (N, W) -> (N, W)."""
     out = []
-    for i in range(0, len(hs), chunk):
-        pl = torch.softmax(model.heads["length"](hs[i:i + chunk]), dim=-1)  # (n, L)
-        pw = torch.softmax(width_logits[i:i + chunk, None, :] + model.width_table[None], dim=-1)  # (n, L, W)
-        out.append(torch.einsum("nl,nlw->nw", pl, pw))
+    for i in range(0, len(width_logits), chunk):
+        pw = torch.softmax(width_logits[i:i + chunk, None, :] + table[None], dim=-1)  # (n, L, W)
+        out.append(torch.einsum("nl,nlw->nw", length_probs[i:i + chunk], pw))
     return torch.cat(out) if out else width_logits.new_zeros(width_logits.shape)
 
 
@@ -205,6 +200,7 @@ def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
     presence = np.zeros(mask.shape, np.float32)
     presence[sel] = torch.sigmoid(model.presence_head(hs)[..., 0]).numpy()
     probs = {}
+    computed: dict[str, torch.Tensor] = {}  # probabilities per head (length comes before width)
     for a, head in model.heads.items():
         if heads is not None and a not in heads:
             continue
@@ -213,9 +209,11 @@ def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
             logits = np.zeros(mask.shape + (v.shape[-1],), np.float32)
             logits[sel] = v.numpy()
             probs["width_logits"] = logits
-            p = _width_marginal(model, hs, v)
+            pl = computed["length"] if "length" in computed else torch.softmax(model.heads["length"](hs), dim=-1)
+            p = _width_marginal(model.width_table, pl, v)
         else:
             p = torch.softmax(v, dim=-1)
+        computed[a] = p
         full = np.zeros(mask.shape + (v.shape[-1],), np.float32)
         full[sel] = p.numpy()
         probs[a] = full
