@@ -13,7 +13,7 @@ Each region token has two parts:
   (divided by the radius), the region direction (cos, sin) in that frame, height / 5 m, lane type
   one-hot (4), junction flag, signal category one-hot (none, stop, caution, go) at that step, the
   centre's distance / radius, and the lane's speed limit / 30 m/s with a flag saying it is known
-  (SUMO lanes always have one; WOMD lanes often do not). Checkpoints trained before the speed
+  (SUMO lanes always have one; a WOMD lane has one where its map gives it). Checkpoints trained before the speed
   limit existed read the first :data:`MAP_FEATURES_V1` = 17 only (``PriorConfig.map_features``);
 - observed-agent part (:data:`AGENT_FEATURES` = 9 values): a *visible* flag, then for visible
   regions the occupancy (presence, normalised position, heading cos/sin, speed / 10, length / 5,
