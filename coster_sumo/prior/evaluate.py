@@ -148,6 +148,7 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     """MMD of generated vs ground-truth traffic, presence calibration and held-out losses."""
     cfg = model.config
     bins = cfg.bins()
+    table = width_table(model)
     rng = np.random.default_rng([seed, 7])
     methods = ["prior", *[b.name for b in baselines]]
     per_scene: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
@@ -174,7 +175,7 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         cal["prior_map"][0].append(presence[mask])
         cal["prior_map"][1].append(tok.present[mask])
         generated: dict[str, tuple[np.ndarray, np.ndarray]] = {
-            "prior": _sample_model(presence, probs, mask, bins, rng, width_table(model))}
+            "prior": _sample_model(presence, probs, mask, bins, rng, table)}
         buckets = token_buckets(tok.map_features).ravel()
         for b in baselines:
             p = b.presence(buckets)
