@@ -134,7 +134,9 @@ class MultiContextGating(nn.Module):
 
 @dataclass
 class PriorOutput:
-    """Logits per token: presence (B, K); attribute logits (B, K, num_classes) by attribute name."""
+    """Logits per token: presence (B, K); attribute logits (B, K, num_classes) by attribute name.
+    With ``width_given_length`` the width entry is the head's own part: the logits of a given
+    length class add ``width_table[length class]`` (:meth:`TrafficPrior.attribute_logits`)."""
 
     presence: torch.Tensor
     attributes: dict[str, torch.Tensor]
@@ -188,7 +190,7 @@ class TrafficPrior(nn.Module):
     def decode(self, h: torch.Tensor) -> PriorOutput:
         """Per-token features (..., 2D) -> logits of every head."""
         return PriorOutput(presence=self.presence_head(h)[..., 0],
-                           attributes={a: head(h) for a, head in self.heads.items()})  # width: before the table
+                           attributes={a: head(h) for a, head in self.heads.items()})
 
     def forward(self, map_features: torch.Tensor, agent_features: torch.Tensor, mask: torch.Tensor,
                 query: torch.Tensor | None = None, present: torch.Tensor | None = None,
