@@ -62,7 +62,7 @@ def main() -> None:
         for kind, hist in nominal_speeds_by_lane_type(scene).items():
             by = nominal.setdefault(net, {})
             by[kind] = by.get(kind, 0) + np.asarray(hist, np.float64)
-    table, per_network = {}, {}
+    table, per_network, records_by = {}, {}, {}
     for method in args.methods.split(","):
         rel, ang, records, ok = [], [], [], 0
         for i, (net, scene) in enumerate(scenes):
@@ -90,6 +90,7 @@ def main() -> None:
                          "CPD": metrics.collision_position_diversity(ang),
                          "CPD_circular": metrics.circular_std_deg(ang), "mean_relative_speed": float(np.mean(rel)),
                          "stopped_share": float(np.mean([r["adversary_speed"] < 0.5 for r in records]))}
+        records_by[method] = records
         per_network[method] = {net: snapshot_state_metrics([r for r in records if r["network"] == net], by)
                                for net, by in nominal.items()}
     print("| collision time | scenes | SUR | CSD [m/s] | CPD [deg] | circular CPD [deg] | mean rel. speed [m/s] | "
@@ -99,14 +100,19 @@ def main() -> None:
         print(f"| {m} | {r['scenes']} | {r['SUR']:.3f} | {r['CSD']:.2f} | {r['CPD']:.1f} | {r['CPD_circular']:.1f} | "
               f"{r['mean_relative_speed']:.2f} | {r['stopped_share']:.3f} |")
     print()
-    print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class |")
-    print("|---|---|---|---|---|")
+    print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class | "
+          "stopped: nominal / adversaries | p90 speed [m/s]: nominal / adversaries |")
+    print("|---|---|---|---|---|---|---|")
     for m, nets in per_network.items():
         for net, r in nets.items():
             if r["VDD_tcol"] is None:
                 continue
-            print(f"| {m} | {net} | {sum(r['adversaries_by_lane_type'].values())} | {r['VDD_tcol']:.3f} "
-                  f"({r['VDD_tcol_floor']:.3f}) | {r['size_in_class']:.3f} |")
+            hist = sum(nominal[net].values())  # every lane type; SPEED_BINS, the first is < 0.5 m/s
+            p90 = metrics.SPEED_BINS[1 + int(np.searchsorted(np.cumsum(hist) / hist.sum(), 0.9))]
+            adv = np.array([x["adversary_speed"] for x in records_by[m] if x["network"] == net])
+            print(f"| {m} | {net} | {len(adv)} | {r['VDD_tcol']:.3f} ({r['VDD_tcol_floor']:.3f}) | "
+                  f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {np.mean(adv < 0.5):.2f} | "
+                  f"{p90:.1f} / {np.percentile(adv, 90):.1f} |")
     if args.json:
         args.json.write_text(json.dumps({"table": table, "per_network": per_network}, indent=1))
 

@@ -55,11 +55,11 @@ def test_the_floor_is_what_the_nominal_traffic_itself_scores_with_as_few_adversa
     for m in (few, many):
         assert 0.5 < m["VDD_tcol"] / m["VDD_tcol_floor"] < 2.0
     assert many["VDD_tcol_floor"] < 0.1 * few["VDD_tcol_floor"]
-    # 2000 stopped adversaries from 2000 snapshots (distinct speeds, all in the 0-0.5 m/s bin)
-    stopped = snapshot_state_metrics([_rec(1e-6 * i, "SURFACE_STREET") for i in range(2000)], nominal)
+    stopped = snapshot_state_metrics([_rec(0.0, "SURFACE_STREET")] * 2000, nominal)  # 2000 snapshots
     assert stopped["VDD_tcol"] > 10 * stopped["VDD_tcol_floor"]
     # 20 snapshots with 5 variants each are 20 draws, not 100: the floor is that of 20
-    repeated = snapshot_state_metrics([_rec(v, "SURFACE_STREET") for v in np.repeat(drawn[:20], 5)], nominal)
+    repeated = snapshot_state_metrics([{**_rec(v, "SURFACE_STREET"), "snapshot": f"scene{i // 5}"}
+                                       for i, v in enumerate(np.repeat(drawn[:20], 5))], nominal)
     hundred = snapshot_state_metrics([_rec(v, "SURFACE_STREET") for v in drawn[:100]], nominal)
     assert repeated["VDD_tcol_floor"] > 2 * hundred["VDD_tcol_floor"]
     assert repeated["VDD_tcol_floor"] == pytest.approx(few["VDD_tcol_floor"], rel=0.2)

@@ -11,6 +11,7 @@ import dataclasses
 import math
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -262,7 +263,9 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if parts and len(skip) == len(parts):
             table[m.name] = {**entry, "status": "skipped", "reason": skip[0]["reason"]}
             continue
-        records = [r for p in parts if p.get("status") == "ok" for r in p["records"]]
+        # a scene's variants share a snapshot: name it, so the VDD at t_col floor counts it once
+        records = [{**r, "snapshot": f"{p['scene_key']}@{r.get('t_col')}"} for p in parts if p.get("status") == "ok"
+                   for r in p["records"]]
         n_scenes = len(good_scenes)
         successes = sum(True for p in parts if p.get("status") == "ok" and any(r["collision"] for r in p["records"]))
         gen_v = np.sum([p["speed_hist"] for p in parts if p.get("status") == "ok"], axis=0) if records else None
@@ -310,8 +313,9 @@ def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: d
     ``VDD_tcol_floor``: the same divergence for a generator that draws its speeds from the nominal
     traffic itself, with as many adversaries on each lane type (mean of :data:`FLOOR_DRAWS` seeded
     draws): a histogram of a few dozen values over 100 bins is never near a smooth one, so this is
-    the lowest ``VDD_tcol`` the sample size allows. Adversaries with the very same speed (the
-    variants of one scene share its snapshot) count as one draw repeated as often.
+    the lowest ``VDD_tcol`` the sample size allows. Records with the same ``snapshot`` key (the
+    variants of one scene share their snapshot) count as one draw repeated as often; a record
+    without the key is a draw of its own.
     ``size_in_class``: share of adversaries whose length and width both lie in the range of one
     vehicle class of the corpus (:data:`~coster_sumo.plausible.VEHICLE_CLASSES`).
     """
@@ -332,9 +336,10 @@ def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: d
     for kind, n in counts.items():
         nominal = np.asarray(nominal_by_type.get(kind, ()), np.float64)
         if nominal.sum() > 0:
-            speeds = np.clip([r["adversary_speed"] for r in rows if r["adversary_lane_type"] == kind], 0, 50)
+            on_kind = [(i, r) for i, r in enumerate(rows) if r["adversary_lane_type"] == kind]
+            speeds = np.clip([r["adversary_speed"] for _, r in on_kind], 0, 50)
             divergence += n * float(js_divergence(nominal, np.histogram(speeds, bins=SPEED_BINS)[0]))
-            _, repeats = np.unique(speeds, return_counts=True)
+            repeats = np.array(list(Counter(str(r.get("snapshot", f"#{i}")) for i, r in on_kind).values()))
             drawn = rng.choice(len(nominal), size=(FLOOR_DRAWS, len(repeats)), p=nominal / nominal.sum())
             floor += n * float(np.mean([js_divergence(nominal, np.bincount(d, weights=repeats, minlength=len(nominal)))
                                         for d in drawn]))

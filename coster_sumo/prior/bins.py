@@ -10,7 +10,7 @@ Classes (defaults from the docs/method.md, Reference figures):
   (faster speeds fall in the last bin); the stopped class decodes to 0 m/s. 45 m/s (162 km/h)
   covers the corpus' freeways (p95 38.5 m/s on roads over 90 km/h); checkpoints trained with the
   first range (30 m/s, where every freeway speed above 28 m/s fell into the last bin and came
-  back as 29 m/s) keep it in their stored config;
+  back as 29.0 m/s, its centre) keep it in their stored config;
 - length: 60 bins over [0, 15] m; width: 40 bins over [0, 4] m.
 Values outside a range are clipped into its first or last bin; bins decode to their centres
 (geometric centre for speed), except where a sampled speed is wanted (a snapshot's adversary):
