@@ -87,7 +87,7 @@ class DrivableArea:
                 parts.append(shapely.make_valid(shapely.polygons(poly)))
         geom = shapely.union_all(parts) if parts else shapely.Polygon()
         if not geom.is_empty:
-            geom = shapely.buffer(shapely.buffer(geom, 0.5 * GAP_CLOSED_M), -0.5 * GAP_CLOSED_M)
+            geom = _valid_area(shapely.buffer(shapely.buffer(geom, 0.5 * GAP_CLOSED_M), -0.5 * GAP_CLOSED_M))
         shapely.prepare(geom)
         return cls(geometry=geom, tolerance_m2=tolerance_m2)
 
@@ -123,6 +123,20 @@ class DrivableArea:
                  width: np.ndarray) -> np.ndarray:
         """bool (...): footprint has more than ``tolerance_m2`` outside the drivable area."""
         return self.outside_area(cx, cy, yaw, length, width) > self.tolerance_m2
+
+
+def _valid_area(geom: BaseGeometry) -> BaseGeometry:
+    """``geom`` repaired where GEOS finds it invalid, its polygonal parts only.
+
+    The inward buffer of the closing can leave a self-intersecting ring on large OSM networks (the
+    wheel's Braunschweig DRT network does, near (2181, -3.7)); set operations on it then fail with
+    a TopologyException. The repair moves nothing by more than GEOS' own rounding.
+    """
+    if shapely.is_valid(geom):
+        return geom
+    fixed = shapely.make_valid(geom)
+    polys = [q for q in shapely.get_parts(fixed) if q.geom_type in ("Polygon", "MultiPolygon")]
+    return shapely.union_all(polys) if polys else shapely.Polygon()
 
 
 def _subdivide(geom: BaseGeometry, max_vertices: int, min_size_m: float = 1.0) -> list[BaseGeometry]:

@@ -68,3 +68,23 @@ def test_narrow_gaps_between_lanes_are_road_wide_ones_are_not():
         assert bool(area.off_road(*box)[0]) is off, width
         gap = area.outside_area(np.array([x0]), np.array([mid]), np.zeros(1), np.full(1, 4.5), np.full(1, 0.6))[0]
         assert bool(gap > 1.0) is off  # a 0.6 m strip across the gap: fully road once the gap is closed
+
+
+def test_osm_network_whose_closed_area_self_intersects_still_answers():
+    """The wheel's Braunschweig OSM network (not ours): the closing leaves a self-intersecting ring
+    there, and every area query failed with a GEOS TopologyException before it was repaired."""
+    import shapely
+
+    from coster_sumo import sumo_env
+    from coster_sumo.formats.sumo_net import read_sumolib_net, sumo_net_to_road_map
+
+    net = sumo_env.sumo_home() / "tools" / "game" / "DRT" / "osm.net.xml"
+    road_map, _ = sumo_net_to_road_map(read_sumolib_net(net))
+    area = DrivableArea.from_road_map(road_map)
+    assert shapely.is_valid(area.geometry)
+    lane = road_map.lanes.centerline[0]
+    x0, y0 = lane[len(lane) // 2]
+    # a box far outside has a corner out, so it takes the piecewise path that used to raise
+    out = area.outside_area(np.array([2181.5, x0]), np.array([-3.7 + 500.0, y0]), np.zeros(2),
+                            np.full(2, 4.5), np.full(2, 1.9))
+    assert out.shape == (2,) and np.isfinite(out).all() and (out >= 0).all()
