@@ -101,12 +101,13 @@ def main() -> None:
     t_sumo = [timed(sumo_cmd)]
     t_run2 = timed(run_cmd)
     t_sumo.append(timed(sumo_cmd))
+    summary = json.loads((out / "summary.json").read_text())  # the second run's
     plain = sum(t_sumo) / len(t_sumo)
     runs = [t_run, t_run2]
     print(f"config {cfg} ({vehicles} vehicles in its route files), target {target}, simulated to {until:.1f} s")
     print(f"plain sumo (0.1 s steps, to the target's arrival): {' '.join(f'{t:.1f}' for t in t_sumo)} s")
     print(f"coster-sumo run (5 variants, renders): {' '.join(f'{t:.1f}' for t in runs)} s "
-          f"(timings of the last: {summary['timings_s']})")
+          f"(timings of the last: {summary['timings_s']}; {summary.get('num_variants')} variants kept)")
     print(f"ratio run / sumo: {min(runs) / plain:.2f} (best run), {max(runs) / plain:.2f} (worst run)")
 
 

@@ -179,7 +179,7 @@ def crop_scene(scene: Scene, radius_m: float = CROP_RADIUS_M, target: int | None
         return scene
     tr = scene.tracks
     centres = list(dict.fromkeys([target, *more_targets]))
-    path = np.concatenate([tr.xy[c][tr.valid[c]] for c in centres])  # (T, 2)
+    path = np.concatenate([tr.xy_of(c, tr.valid[c]) for c in centres])  # (T, 2)
     road_map, new_index = crop_map(scene.road_map, path, radius_m)
     agent_radius_m = radius_m if agent_radius_m is None else agent_radius_m
     if math.isinf(agent_radius_m):
@@ -213,7 +213,7 @@ def eligible_targets(tracks: Tracks, start: int, num_steps: int = CLIP_STEPS,
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         return idx.astype(np.int64)
-    xy = tracks.xy[idx, window]  # (K, T, 2)
+    xy = tracks.xy_of(idx, window)  # (K, T, 2)
     travelled = np.sum(np.linalg.norm(np.diff(xy, axis=1), axis=-1), axis=1)
     return idx[travelled >= min_path_m].astype(np.int64)
 

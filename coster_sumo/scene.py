@@ -21,6 +21,7 @@ import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -193,8 +194,13 @@ class Tracks:
 
     @property
     def xy(self) -> np.ndarray:
-        """(num_agents, num_steps, 2) float64 [m]."""
+        """(num_agents, num_steps, 2) float64 [m], a new array (see :meth:`xy_of` for a few agents)."""
         return np.stack([self.x, self.y], axis=-1)
+
+    def xy_of(self, agents: Any, steps: Any = slice(None)) -> np.ndarray:
+        """``xy[agents, steps]`` without building ``xy`` for every agent first (a city recording's
+        is 0.8 GB: 3,614 agents x 14,000 steps on the wheel's A10KW motorway)."""
+        return np.stack([self.x[agents, steps], self.y[agents, steps]], axis=-1)
 
     @property
     def speed(self) -> np.ndarray:
@@ -213,7 +219,10 @@ class Tracks:
         a = slice(None) if agents is None else agents
         s = slice(None) if steps is None else steps
         per_agent = {"ids": self.ids[a], "object_type": self.object_type[a]}
-        per_step = {f.name: getattr(self, f.name)[a][:, s] for f in dataclasses.fields(self)
+        # one copy per field: x[a][:, s] would first copy every step of the agents (a city
+        # recording has 14,000 of them), and two index arrays together need np.ix_
+        both = np.ix_(a, s) if not isinstance(a, slice) and not isinstance(s, slice) else (a, s)
+        per_step = {f.name: getattr(self, f.name)[both] for f in dataclasses.fields(self)
                     if f.name not in per_agent}
         return Tracks(**per_agent, **per_step)
 

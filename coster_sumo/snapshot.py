@@ -307,7 +307,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         # then every head at t_col only (the 1,600-class position head over a long life is costly)
         memo["data"] = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
                                      spacing=model.config.region_spacing, width=model.config.region_width,
-                                     crop=tr.xy[target][tr.valid[target]].reshape(-1, 2))
+                                     crop=tr.xy_of(target, tr.valid[target]).reshape(-1, 2))
     data = memo["data"]
     if len(data.regions.centre) == 0:
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")

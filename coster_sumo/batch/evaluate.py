@@ -142,7 +142,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
             a = tr.index_of(plan.vehicle_id)
             stop = min(c.time if c else plan.t_col, plan.t_col)
             window = (res.scene.timestamps >= plan.t_start - 1e-6) & (res.scene.timestamps <= stop + 1e-6)
-            sv, sa = speeds_and_accels(tr.xy[a:a + 1], (tr.valid[a] & window)[None], res.scene.dt)
+            sv, sa = speeds_and_accels(tr.xy_of(slice(a, a + 1)), (tr.valid[a] & window)[None], res.scene.dt)
             speeds.append(sv)
             accels.append(sa)
     sv = np.concatenate(speeds) if speeds else np.zeros(0)
