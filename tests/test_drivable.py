@@ -88,3 +88,4 @@ def test_osm_network_whose_closed_area_self_intersects_still_answers():
     out = area.outside_area(np.array([2181.5, x0]), np.array([-3.7 + 500.0, y0]), np.zeros(2),
                             np.full(2, 4.5), np.full(2, 1.9))
     assert out.shape == (2,) and np.isfinite(out).all() and (out >= 0).all()
+    assert out[0] > 0  # the far box really went through the pieces
