@@ -8,10 +8,12 @@ real OSM network of Braunschweig that ships in the eclipse-sumo wheel (``tools/g
 ``randomTrips.py`` demand (``--vehicles-per-s`` x ``--duration`` trips, validated by duarouter).
 The target is a vehicle departing a quarter into the window with one of the longest routes.
 
-Then, in this process tree: plain ``sumo -c CFG --step-length 0.1 --end A`` (A: the target's
-arrival, as the coster-sumo run found it), ``coster-sumo run CFG --target T --planner replay`` (5
-variants, renders on), and plain sumo again; it prints both wall times and the ratio run / sumo
-(the mean of the two sumo runs). Goal on a city-scale configuration: <= 1.3.
+Then, in this process tree, alternating ``--repeats`` times (default 2): ``coster-sumo run CFG
+--target T --planner replay`` (5 variants, renders on) and plain ``sumo -c CFG --step-length 0.1
+--end A`` (A: the target's arrival, as the coster-sumo run found it). It prints every wall time,
+the best and worst run against the mean of the sumo runs, and the ratio of each back-to-back
+(run, sumo) pair with their median (the machine's drift between pairs cancels in a pair). Goal on
+a city-scale configuration: <= 1.3.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import argparse
 import json
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import time
@@ -84,6 +87,8 @@ def main() -> None:
     ap.add_argument("--vehicles-per-s", type=float, default=5.0)
     ap.add_argument("--duration", type=float, default=1200.0, help="[s] demand window of the city")
     ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-city"))
+    ap.add_argument("--repeats", type=int, default=2,
+                    help="pairs of (run, sumo), alternating; the ratio of each pair and their median are printed")
     args = ap.parse_args()
     cfg = args.config or build_city(args.work, args.vehicles_per_s, args.duration)
     target = args.target or ("ego" if args.config else pick_target(cfg))
@@ -98,17 +103,21 @@ def main() -> None:
     until = summary["nominal_until_s"]
     sumo_cmd = [sumo_env.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
                 "--no-step-log", "true", "--no-warnings", "true"]
-    t_sumo = [timed(sumo_cmd)]
-    t_run2 = timed(run_cmd)
-    t_sumo.append(timed(sumo_cmd))
-    summary = json.loads((out / "summary.json").read_text())  # the second run's
+    runs, t_sumo = [t_run], [timed(sumo_cmd)]
+    for _ in range(max(2, args.repeats) - 1):
+        runs.append(timed(run_cmd))
+        t_sumo.append(timed(sumo_cmd))
+    summary = json.loads((out / "summary.json").read_text())  # the last run's
     plain = sum(t_sumo) / len(t_sumo)
-    runs = [t_run, t_run2]
+    pairs = [r / s for r, s in zip(runs, t_sumo, strict=True)]
     print(f"config {cfg} ({vehicles} vehicles in its route files), target {target}, simulated to {until:.1f} s")
     print(f"plain sumo (0.1 s steps, to the target's arrival): {' '.join(f'{t:.1f}' for t in t_sumo)} s")
     print(f"coster-sumo run (5 variants, renders): {' '.join(f'{t:.1f}' for t in runs)} s "
           f"(timings of the last: {summary['timings_s']}; {summary.get('num_variants')} variants kept)")
-    print(f"ratio run / sumo: {min(runs) / plain:.2f} (best run), {max(runs) / plain:.2f} (worst run)")
+    print(f"ratio run / sumo: {min(runs) / plain:.2f} (best run), {max(runs) / plain:.2f} (worst run), against "
+          "the mean of the sumo runs")
+    print(f"ratio of each (run, sumo) pair: {' '.join(f'{r:.2f}' for r in pairs)}; "
+          f"median {statistics.median(pairs):.2f}")
 
 
 if __name__ == "__main__":
