@@ -5,14 +5,15 @@
 In one process tree, back to back: ``sumo`` with no extra options, ``sumo`` with the options
 every coster-sumo simulation uses (:data:`coster_sumo.sim.sumo_options.RECOMMENDED_OPTIONS`), and
 a child process that starts libsumo with the same options and calls ``simulationStep()`` once per
-0.1 s step with nothing else (no recording, no held copies). It prints the three wall times and
-the ratio libsumo / sumo: what ``coster-sumo run``'s nominal pass costs beyond these is the
+0.1 s step with nothing else (no recording, no held copies). It prints the three wall and CPU
+times and the ratios: what ``coster-sumo run``'s nominal pass costs beyond these is the
 recording's (bench/RESULTS.md, the ``bench_city.py`` section).
 """
 
 from __future__ import annotations
 
 import argparse
+import resource
 import subprocess
 import sys
 import time
@@ -31,10 +32,14 @@ libsumo.close()
 """
 
 
-def timed(cmd: list[str]) -> float:
+def timed(cmd: list[str]) -> tuple[float, float]:
+    """Wall time and CPU time (user + system) [s] of one child process."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     subprocess.run(cmd, check=True, capture_output=True, env=sumo_env.subprocess_env())
-    return time.perf_counter() - t
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def main() -> None:
@@ -48,8 +53,11 @@ def main() -> None:
     plain = timed(base)
     with_opts = timed(base + ours)
     loop = timed([sys.executable, "-c", _LOOP, *base, *ours])
-    print(f"sumo, plain: {plain:.1f} s; sumo, coster-sumo's options: {with_opts:.1f} s; "
-          f"libsumo step loop, same options: {loop:.1f} s; libsumo / sumo with options: {loop / with_opts:.2f}")
+    for name, (wall, cpu) in (("sumo, plain", plain), ("sumo, coster-sumo's options", with_opts),
+                              ("libsumo step loop, same options", loop)):
+        print(f"{name}: {wall:.1f} s wall, {cpu:.1f} s CPU")
+    print(f"libsumo / sumo with options: {loop[0] / with_opts[0]:.2f} (wall), {loop[1] / with_opts[1]:.2f} (CPU); "
+          f"sumo with options / plain: {with_opts[0] / plain[0]:.2f} (wall), {with_opts[1] / plain[1]:.2f} (CPU)")
 
 
 if __name__ == "__main__":
