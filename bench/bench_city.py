@@ -104,9 +104,13 @@ def main() -> None:
     sumo_cmd = [sumo_env.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
                 "--no-step-log", "true", "--no-warnings", "true"]
     runs, t_sumo = [t_run], [timed(sumo_cmd)]
-    for _ in range(max(2, args.repeats) - 1):
+    n_pairs = max(2, args.repeats)
+    print(f"pair 1/{n_pairs}: run {runs[0]:.1f} s, sumo {t_sumo[0]:.1f} s, ratio {runs[0] / t_sumo[0]:.2f}", flush=True)
+    for i in range(2, n_pairs + 1):
         runs.append(timed(run_cmd))
         t_sumo.append(timed(sumo_cmd))
+        print(f"pair {i}/{n_pairs}: run {runs[-1]:.1f} s, sumo {t_sumo[-1]:.1f} s, ratio {runs[-1] / t_sumo[-1]:.2f}",
+              flush=True)
     summary = json.loads((out / "summary.json").read_text())  # the last run's
     plain = sum(t_sumo) / len(t_sumo)
     pairs = [r / s for r, s in zip(runs, t_sumo, strict=True)]
