@@ -28,14 +28,33 @@ from coster_sumo import metrics, weights
 from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
 from coster_sumo.dataset import list_scenes, split
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.prior.infer import load_prior
-from coster_sumo.scene import LaneType, load_scene, resample
-from coster_sumo.snapshot import NoSnapshot, prior_snapshot
+from coster_sumo.prior.infer import load_prior, predict_scene
+from coster_sumo.scene import LaneType, Scene, load_scene, resample
+from coster_sumo.snapshot import NoSnapshot, in_ellipse, prior_snapshot
+from coster_sumo.snapshot_state import AgentState
 
 
 def network_of(name: str) -> str:
     m = re.match(r"(.+?)_r\d+_", name)
     return m.group(1) if m else name
+
+
+def stopped_near_moving(scene: Scene) -> tuple[int, int]:
+    """(stopped, all) nominal vehicles inside the ellipse of a moving vehicle (the ellipse the snapshot
+    places its adversary in), over the 2 Hz steps of a scene: the stopped share an adversary next
+    to a moving target would have if it were drawn from the traffic around moving vehicles."""
+    low = resample(scene, 2.0)
+    tr = low.tracks
+    speed = np.hypot(tr.vx, tr.vy)
+    stopped = total = 0
+    for t in range(low.num_steps):
+        on = np.flatnonzero(tr.valid[:, t])
+        for a in on[speed[on, t] >= 0.5]:
+            others = on[on != a]
+            inside = in_ellipse(np.stack([tr.x[others, t], tr.y[others, t]], -1), AgentState.from_tracks(tr, a, t))
+            stopped += int(np.sum(speed[others[inside], t] < 0.5))
+            total += int(inside.sum())
+    return stopped, total
 
 
 def main() -> None:
@@ -62,6 +81,11 @@ def main() -> None:
         for kind, hist in nominal_speeds_by_lane_type(scene).items():
             by = nominal.setdefault(net, {})
             by[kind] = by.get(kind, 0) + np.asarray(hist, np.float64)
+    near_moving: dict[str, list[int]] = {}  # network -> [stopped, all] inside moving vehicles' ellipses
+    for net, scene in scenes:
+        st, n = stopped_near_moving(scene)
+        near_moving.setdefault(net, [0, 0])[0] += st
+        near_moving[net][1] += n
     table, per_network, records_by = {}, {}, {}
     for method in args.methods.split(","):
         rel, ang, records, ok = [], [], [], 0
@@ -82,7 +106,14 @@ def main() -> None:
                     ang.append(float(metrics.impact_angle_deg(np.array([s.target.x, s.target.y]), s.target.yaw,
                                                               np.array([s.adversary.x, s.adversary.y]))))
                 kind = int(scene.road_map.lane_type_at(np.array([[s.adversary.x, s.adversary.y]]))[0])
-                records.append({"network": net, "adversary_speed": s.adversary.speed,
+                # the prior's probability of the stopped speed class in the region the adversary came from
+                at = (scene.sdc_index, s.t_index)
+                pose = np.array([[low.tracks.x[at], low.tracks.y[at], low.tracks.heading[at]]])
+                pred = predict_scene(model, memo["data"], scene.sdc_index, steps=np.array([s.t_index]),
+                                     heads=("speed",), pose=pose)
+                k = np.flatnonzero(pred.region_index[0] == s.region_id)
+                p_stop = float(pred.probs["speed"][0, k[0], 0]) if len(k) else float("nan")
+                records.append({"network": net, "adversary_speed": s.adversary.speed, "p_stopped": p_stop,
                                 "adversary_length": s.adversary.length, "adversary_width": s.adversary.width,
                                 "adversary_lane_type": LaneType(kind).name})
         table[method] = {"scenes": len(scenes), "snapshots": ok, "SUR": ok / len(scenes),
@@ -101,7 +132,8 @@ def main() -> None:
               f"{r['mean_relative_speed']:.2f} | {r['stopped_share']:.3f} |")
     print()
     print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class | "
-          "stopped: nominal / adversaries | p90 speed [m/s]: nominal / adversaries |")
+          "stopped: nominal / near moving vehicles / prior's P(stopped) at the placed region / adversaries | "
+          "p90 speed [m/s]: nominal / adversaries |")
     print("|---|---|---|---|---|---|---|")
     for m, nets in per_network.items():
         for net, r in nets.items():
@@ -110,11 +142,15 @@ def main() -> None:
             hist = sum(nominal[net].values())  # every lane type; SPEED_BINS, the first is < 0.5 m/s
             p90 = metrics.SPEED_BINS[1 + int(np.searchsorted(np.cumsum(hist) / hist.sum(), 0.9))]
             adv = np.array([x["adversary_speed"] for x in records_by[m] if x["network"] == net])
+            p_stop = np.nanmean([x["p_stopped"] for x in records_by[m] if x["network"] == net])
+            near = near_moving[net][0] / max(near_moving[net][1], 1)
             print(f"| {m} | {net} | {len(adv)} | {r['VDD_tcol']:.3f} ({r['VDD_tcol_floor']:.3f}) | "
-                  f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {np.mean(adv < 0.5):.2f} | "
+                  f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {near:.2f} / {p_stop:.2f} / "
+                  f"{np.mean(adv < 0.5):.2f} | "
                   f"{p90:.1f} / {np.percentile(adv, 90):.1f} |")
     if args.json:
-        args.json.write_text(json.dumps({"table": table, "per_network": per_network}, indent=1))
+        args.json.write_text(json.dumps({"table": table, "per_network": per_network,
+                                         "stopped_near_moving": near_moving}, indent=1))
 
 
 if __name__ == "__main__":

@@ -15,7 +15,8 @@ predicted velocity distribution of the regions inside the target's ellipse (need
 the window (seeded).
 
 **Placement** (``--init snapshot``): in the ellipse at t_col, the region with the highest presence
-probability; heading, speed and size sampled from its heads and made plausible (a real vehicle
+probability, leaving out the one the target itself fills (the most likely region of all, whose heads
+describe the target's own motion); heading, speed and size sampled from its heads and made plausible (a real vehicle
 class's size, no standstill in moving traffic: :mod:`coster_sumo.plausible`); the candidate box translated towards
 the target at fixed relative heading until the boxes touch; among the contact placements (from the
 expected position, and from each of the target's four sides) the one with the highest position
@@ -330,7 +331,10 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         real = pred.mask[0]
         regions_out["xy"] = centres_col[real]
         regions_out["presence"] = pred.presence[0][real]
-    cands = np.flatnonzero(pred.mask[0] & in_ellipse(centres_col, tgt))
+    # the region the target itself occupies is not a place for another vehicle: it is always the most
+    # likely one (a vehicle stands there), and an adversary drawn from it copies the target's own motion
+    occupant = data.occupancy.gather(np.full(pred.region_index.shape[1], t_col), np.maximum(pred.region_index[0], 0))[0]
+    cands = np.flatnonzero(pred.mask[0] & in_ellipse(centres_col, tgt) & (occupant != target))
     if len(cands) == 0:
         raise NoSnapshot(f"no map region inside the target's ellipse at {scene.timestamps[t_col]:.1f} s", t_index=t_col)
     order = cands[np.argsort(-pred.presence[0, cands], kind="stable")][:MAX_REGIONS_TRIED]
