@@ -15,10 +15,11 @@ predicted velocity distribution of the regions inside the target's ellipse (need
 the window (seeded).
 
 **Placement** (``--init snapshot``): in the ellipse at t_col, the region with the highest presence
-probability, leaving out the one the target itself fills (the most likely region of all, whose heads
-describe the target's own motion); heading, speed and size sampled from its heads and made plausible (a real vehicle
-class's size, no standstill in moving traffic: :mod:`coster_sumo.plausible`); the candidate box translated towards
-the target at fixed relative heading until the boxes touch; among the contact placements (from the
+probability, leaving out the one the target itself fills (the most likely region of all, whose
+heads describe the target's own motion); heading, speed and size sampled from its heads and made
+plausible (a real vehicle class's size, no standstill in moving traffic:
+:mod:`coster_sumo.plausible`); the candidate box translated towards the target at fixed relative
+heading until the boxes touch; among the contact placements (from the
 expected position, and from each of the target's four sides) the one with the highest position
 log-probability is kept. Placements that overlap another agent or leave the drivable area are
 rejected, and so are placements that do not close in on the target (relative velocity pointing
