@@ -19,11 +19,11 @@ probability, leaving out the one the target itself fills (the most likely region
 heads describe the target's own motion); heading, speed and size sampled from its heads and made
 plausible (a real vehicle class's size, no standstill in moving traffic:
 :mod:`coster_sumo.plausible`); the candidate box translated towards the target at fixed relative
-heading until the boxes touch; among the contact placements (from the
-expected position, and from each of the target's four sides) the one with the highest position
-log-probability is kept. Placements that overlap another agent or leave the drivable area are
-rejected, and so are placements that do not close in on the target (relative velocity pointing
-away from it: the boxes would have overlapped just before); the next region is tried.
+heading until the boxes touch; among the contact placements (from the expected position, and from
+each of the target's four sides) the one with the highest position log-probability is kept.
+Placements that overlap another agent or leave the drivable area are rejected, and so are
+placements that do not close in on the target (relative velocity pointing away from it: the boxes
+would have overlapped just before); the next region is tried.
 
 **Random offset** (``--init random``, Adv-BMT-style baseline): at the fixed collision time, a random
 approach direction around the target and a random relative heading, the adversary (4.5 x 1.9 m
@@ -334,8 +334,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         regions_out["presence"] = pred.presence[0][real]
     # the region the target itself occupies is not a place for another vehicle: it is always the most
     # likely one (a vehicle stands there), and an adversary drawn from it copies the target's own motion
-    occupant = data.occupancy.gather(np.full(pred.region_index.shape[1], t_col), np.maximum(pred.region_index[0], 0))[0]
-    cands = np.flatnonzero(pred.mask[0] & in_ellipse(centres_col, tgt) & (occupant != target))
+    cands = np.flatnonzero(pred.mask[0] & in_ellipse(centres_col, tgt) & (pred.observed_agent[0] != target))
     if len(cands) == 0:
         raise NoSnapshot(f"no map region inside the target's ellipse at {scene.timestamps[t_col]:.1f} s", t_index=t_col)
     order = cands[np.argsort(-pred.presence[0, cands], kind="stable")][:MAX_REGIONS_TRIED]
