@@ -150,7 +150,9 @@ def main() -> None:
                   f"{p90:.1f} / {np.percentile(adv, 90):.1f} |")
     if args.json:
         args.json.write_text(json.dumps({"table": table, "per_network": per_network,
-                                         "stopped_near_moving": near_moving}, indent=1))
+                                         "stopped_near_moving": near_moving, "records": records_by,
+                                         "nominal": {n: {k: np.asarray(h).tolist() for k, h in by.items()}
+                                                     for n, by in nominal.items()}}, indent=1))
 
 
 if __name__ == "__main__":

@@ -12,7 +12,10 @@ becomes a 3.7 x 1.95 m small car, a 2.2 x 0.9 m sample stays a motorcycle.
 **Speed.** A stopped adversary (the prior's stopped class, < 0.5 m/s) is kept only where stopping
 is what traffic does: the vehicles within :data:`LOCAL_RADIUS_M` of the target move at a median
 speed below :data:`CONGESTED_SPEED_MPS` (the corpus calls such traffic congested), or the
-adversary's lane ends or meets a signal's stop line within :data:`QUEUE_DISTANCE_M`. Elsewhere the
+adversary's lane ends or meets a signal's stop line within :data:`QUEUE_DISTANCE_M`, or, off the
+freeway, its lane enters a junction within that distance or lies inside one (vehicles yield at
+priority junctions and roundabout entries, and wait inside a junction to turn across the others:
+a fifth of the nominal vehicles of the held-out roundabout network stand still, with no signal in it). Elsewhere the
 speed is drawn again from the same head, from its classes between standstill and
 :data:`FASTEST_FACTOR` x the fastest vehicle around the target (a moving vehicle that keeps up
 with the traffic it is in, not one from another road class).
@@ -24,7 +27,7 @@ import math
 
 import numpy as np
 
-from coster_sumo.scene import ObjectType, Scene
+from coster_sumo.scene import LaneType, ObjectType, Scene
 
 # class: ((shortest, longest) length [m], (narrowest, widest) width [m]) as the corpus saw them
 VEHICLE_CLASSES: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
@@ -72,10 +75,15 @@ def stop_plausible(scene: Scene, step: int, target: int, lane: int, point: np.nd
     if local_speed(scene, step, target) < CONGESTED_SPEED_MPS:
         return True
     lanes = scene.road_map.lanes
-    if 0 <= lane < len(lanes) and len(lanes.successors[lane]) == 0:
+    if 0 <= lane < len(lanes):
+        nexts = lanes.successors[lane]
+        yields = lanes.lane_type[lane] != LaneType.FREEWAY and (
+            bool(lanes.is_junction[lane]) or bool(np.any(lanes.is_junction[np.asarray(nexts, np.int64)])))
+        if yields and lanes.is_junction[lane]:
+            return True  # inside a street junction: vehicles wait there to turn across the others
         shape = lanes.centerline[lane]
-        if len(shape) and float(np.hypot(*(shape[-1] - point))) <= QUEUE_DISTANCE_M:
-            return True  # the lane ends here: vehicles wait at its end
+        if (len(nexts) == 0 or yields) and len(shape) and float(np.hypot(*(shape[-1] - point))) <= QUEUE_DISTANCE_M:
+            return True  # the lane ends here, or enters a street junction: vehicles wait (or yield) at its end
     stops = scene.signals.stop_point
     return bool(len(stops)) and float(np.min(np.hypot(*(stops - point).T))) <= QUEUE_DISTANCE_M
 

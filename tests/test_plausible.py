@@ -77,3 +77,37 @@ def test_a_cyclist_target_gets_a_snapshot():
     snaps = [SNAPSHOT_INITS["snapshot"].place(resample(s, 2.0), 0, np.random.default_rng(0), None, "entropy", 0,
                                               None, ()) for s in (scene, cyclist)]
     assert all(np.isfinite(s.entropy[s.t_index]) for s in snaps)
+
+
+def _unsignalised_junction(lane_type):
+    from coster_sumo.scene import SignalStates
+
+    scene = synthetic.four_way_junction()
+    lanes = dataclasses.replace(scene.road_map.lanes,
+                                lane_type=np.full(len(scene.road_map.lanes), lane_type, np.int8))
+    none = SignalStates(lane_index=np.zeros(0, np.int64), state=np.zeros((scene.num_steps, 0), np.int8),
+                        stop_point=np.zeros((0, 2)))
+    return dataclasses.replace(scene, road_map=dataclasses.replace(scene.road_map, lanes=lanes), signals=none)
+
+
+def test_standstill_where_a_street_lane_enters_a_junction_not_on_a_freeway():
+    """Vehicles yield at priority junctions and roundabout entries with no signal: a standstill is
+    plausible near the end of a street lane that enters a junction, and inside the junction; not
+    far from it, and not on a freeway lane whatever it enters."""
+    from coster_sumo.scene import LaneType
+
+    street, freeway = _unsignalised_junction(LaneType.SURFACE_STREET), _unsignalised_junction(LaneType.FREEWAY)
+    target = 0
+    assert local_speed(street, 0, target) >= CONGESTED_SPEED_MPS
+    lanes = street.road_map.lanes
+    west_in = 4  # the incoming lane of the west arm (synthetic.four_way_junction builds in, out per arm)
+    assert not lanes.is_junction[west_in] and lanes.is_junction[np.asarray(lanes.successors[west_in])].all()
+    near_end = lanes.centerline[west_in][-1] - np.array([10.0, 0.0])
+    far = lanes.centerline[west_in][-1] - np.array([60.0, 0.0])
+    inside = int(np.asarray(lanes.successors[west_in])[0])
+    mid_junction = lanes.centerline[inside][len(lanes.centerline[inside]) // 2]
+    assert stop_plausible(street, 0, target, west_in, near_end)
+    assert stop_plausible(street, 0, target, inside, mid_junction)
+    assert not stop_plausible(street, 0, target, west_in, far)
+    assert not stop_plausible(freeway, 0, target, west_in, near_end)
+    assert not stop_plausible(freeway, 0, target, inside, mid_junction)
