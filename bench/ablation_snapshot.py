@@ -11,7 +11,8 @@ network is its file name up to ``_r<run>``. VDD at t_col and its floor are those
 needs no SUMO run, so that a network can have hundreds of adversaries instead of twenty.
 ``--draws K`` places K adversaries per scene and rule (seeds i, i + N, ...; the collision time of
 the entropy and last rules does not change between draws, the placement, speed and size do): more
-adversaries per network lower the floor of VDD at t_col. CSD and CPD use the first draw only.
+adversaries per network lower the floor of VDD at t_col. CSD and CPD use the first draw only; the
+± after them is their bootstrap standard error (scenes resampled with replacement, ``BOOTSTRAP`` times).
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ from coster_sumo.prior.infer import load_prior, predict_scene
 from coster_sumo.scene import LaneType, Scene, load_scene, resample
 from coster_sumo.snapshot import NoSnapshot, in_ellipse, prior_snapshot
 from coster_sumo.snapshot_state import AgentState
+
+BOOTSTRAP = 500
 
 
 def network_of(name: str) -> str:
@@ -116,9 +119,14 @@ def main() -> None:
                 records.append({"network": net, "adversary_speed": s.adversary.speed, "p_stopped": p_stop,
                                 "adversary_length": s.adversary.length, "adversary_width": s.adversary.width,
                                 "adversary_lane_type": LaneType(kind).name})
+        boot = np.random.default_rng(0).integers(0, len(rel), (BOOTSTRAP, len(rel)))  # scenes resampled
+        rel_a, ang_a = np.asarray(rel), np.asarray(ang)
         table[method] = {"scenes": len(scenes), "snapshots": ok, "SUR": ok / len(scenes),
                          "CSD": metrics.collision_speed_diversity(rel),
+                         "CSD_se": float(np.std([metrics.collision_speed_diversity(rel_a[b]) for b in boot])),
                          "CPD": metrics.collision_position_diversity(ang),
+                         "CPD_se": float(np.std([metrics.collision_position_diversity(ang_a[b]) for b in boot])),
+                         "relative_speeds": rel, "impact_angles": ang,
                          "CPD_circular": metrics.circular_std_deg(ang), "mean_relative_speed": float(np.mean(rel)),
                          "stopped_share": float(np.mean([r["adversary_speed"] < 0.5 for r in records]))}
         records_by[method] = records
@@ -128,7 +136,8 @@ def main() -> None:
           "stopped adversaries |")
     print("|---|---|---|---|---|---|---|---|")
     for m, r in table.items():
-        print(f"| {m} | {r['scenes']} | {r['SUR']:.3f} | {r['CSD']:.2f} | {r['CPD']:.1f} | {r['CPD_circular']:.1f} | "
+        print(f"| {m} | {r['scenes']} | {r['SUR']:.3f} | {r['CSD']:.2f} ± {r['CSD_se']:.2f} | "
+              f"{r['CPD']:.1f} ± {r['CPD_se']:.1f} | {r['CPD_circular']:.1f} | "
               f"{r['mean_relative_speed']:.2f} | {r['stopped_share']:.3f} |")
     print()
     print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class | "
