@@ -244,6 +244,9 @@ def test_cli_train_then_eval(tmp_path):
     r = json.loads(res.read_text())
     assert set(r["mmd"]) == {"prior", "mean_value", "gmm"}
     assert r["num_scenes"] == 9 and "prior_map" in r["presence"]
+    hidden = r["agents_in_hidden_disc"]  # the context mode's count, the traffic beyond the disc given
+    assert hidden["ground_truth"] > 0 and hidden["prior_context"] >= 0
+    assert hidden["ground_truth"] < r["agents_per_scene"]["ground_truth"]  # the disc is part of the neighbourhood
 
 
 def test_target_never_valid_gives_empty_prediction():

@@ -15,6 +15,13 @@ are pooled over the scene's steps, in the centre agent's frame: position (x, y) 
 Gaussian kernel exp(-|a - b|^2 / h) with h = mean pairwise squared distance of the pooled samples;
 biased estimate mean(K_xx) + mean(K_yy) - 2 mean(K_xy).
 
+Agents per scene: generated (Bernoulli draws of every region's presence) against the ground truth,
+in "map" mode for the model and the baselines; and, for the model in "context" mode (the traffic
+beyond the hide radius given, as the snapshot uses it), the agents drawn in the hidden disc
+against those that were there (``agents_in_hidden_disc``). Map mode has only the map and the
+signals: how busy a network is depends on its demand, which no map shows; the context count says
+whether the prior reads that from the traffic around.
+
 Presence calibration: reliability over 10 equal-width probability bins (count, mean predicted,
 observed frequency), expected calibration error, BCE, Brier score and ROC AUC, for the model in
 "map" mode, the model in "context" mode (only the tokens it predicts), and the bucket rates of the
@@ -153,6 +160,8 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     methods = ["prior", *[b.name for b in baselines]]
     per_scene: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
     counts: dict[str, list[int]] = {m: [] for m in ["ground_truth", *methods]}
+    hidden: dict[str, list[int]] = {"ground_truth": [], "prior_context": []}  # agents in the hidden disc
+    hidden_rng = np.random.default_rng([seed, 11])  # its own stream: the other draws stay as they were
     cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
         k: ([], []) for k in ("prior_map", "prior_context", "bucket_rate")}
     it: Sequence[ScenePriorData] = scenes
@@ -197,12 +206,15 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         q = ctx.query & ctx.mask
         cal["prior_context"][0].append(p_ctx[q])
         cal["prior_context"][1].append(ctx.present[q])
+        hidden["ground_truth"].append(int(ctx.present[q].sum()))
+        hidden["prior_context"].append(int((hidden_rng.random(int(q.sum())) < p_ctx[q]).sum()))
     result: dict = {"num_scenes": len(counts["ground_truth"]), "mmd": {}, "agents_per_scene": {}, "presence": {}}
     for name in methods:
         result["mmd"][name] = {a: (float(np.mean(v)) if v else None) for a, v in per_scene[name].items()}
         result["mmd"][name]["scenes"] = len(per_scene[name]["position"])
     for name, c in counts.items():
         result["agents_per_scene"][name] = float(np.mean(c)) if c else 0.0
+    result["agents_in_hidden_disc"] = {name: float(np.mean(c)) if c else 0.0 for name, c in hidden.items()}
     for name, (ps, ys) in cal.items():
         if ps:
             result["presence"][name] = reliability(np.concatenate(ps), np.concatenate(ys))
