@@ -247,6 +247,8 @@ def test_cli_train_then_eval(tmp_path):
     hidden = r["agents_in_hidden_disc"]  # the context mode's count, the traffic beyond the disc given
     assert hidden["ground_truth"] > 0 and hidden["prior_context"] >= 0
     assert hidden["ground_truth"] < r["agents_per_scene"]["ground_truth"]  # the disc is part of the neighbourhood
+    assert set(r["mmd_hidden_disc"]) == {"prior", "mean_value", "gmm"}
+    assert all(r["mmd_hidden_disc"][m]["scenes"] > 0 for m in r["mmd_hidden_disc"])
 
 
 def test_target_never_valid_gives_empty_prediction():

@@ -152,6 +152,10 @@ def run_eval(args: argparse.Namespace) -> int:
             vals = " ".join(f"{a}={m[a]:.4f}" if m[a] is not None else f"{a}=n/a"
                             for a in ("position", "heading", "speed", "size"))
             print(f"{name:>10}: MMD {vals} ({m['scenes']} scenes)", file=sys.stderr)
+        for name, m in result["mmd_hidden_disc"].items():
+            vals = " ".join(f"{a}={m[a]:.4f}" if m[a] is not None else f"{a}=n/a"
+                            for a in ("position", "heading", "speed", "size"))
+            print(f"{name:>10}: MMD in the hidden disc (context mode) {vals} ({m['scenes']} scenes)", file=sys.stderr)
         a, h = result["agents_per_scene"], result["agents_in_hidden_disc"]
         print("agents per scene (map mode): " + " ".join(f"{k}={v:.1f}" for k, v in a.items())
               + f"; in the hidden disc (context mode): ground_truth={h['ground_truth']:.1f} "

@@ -15,6 +15,12 @@ are pooled over the scene's steps, in the centre agent's frame: position (x, y) 
 Gaussian kernel exp(-|a - b|^2 / h) with h = mean pairwise squared distance of the pooled samples;
 biased estimate mean(K_xx) + mean(K_yy) - 2 mean(K_xy).
 
+MMD in the hidden disc (``mmd_hidden_disc``): the same four MMDs over the regions "context" mode
+predicts (within the hide radius of the centre agent, the traffic beyond it given), the prior's
+draws against the agents that were there; the baselines draw those regions from their map
+buckets, as in map mode (they have no way to see the traffic around). This is the use the
+snapshot makes of the prior.
+
 Agents per scene: generated (Bernoulli draws of every region's presence) against the ground truth,
 in "map" mode for the model and the baselines; and, for the model in "context" mode (the traffic
 beyond the hide radius given, as the snapshot uses it), the agents drawn in the hidden disc
@@ -160,8 +166,9 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     methods = ["prior", *[b.name for b in baselines]]
     per_scene: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
     counts: dict[str, list[int]] = {m: [] for m in ["ground_truth", *methods]}
-    hidden: dict[str, list[int]] = {"ground_truth": [], "prior_context": []}  # agents in the hidden disc
+    hidden: dict[str, list[float]] = {"ground_truth": [], "prior_context": [], "prior_context_expected": []}
     hidden_rng = np.random.default_rng([seed, 11])  # its own stream: the other draws stay as they were
+    per_scene_disc: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
     cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
         k: ([], []) for k in ("prior_map", "prior_context", "bucket_rate")}
     it: Sequence[ScenePriorData] = scenes
@@ -202,12 +209,30 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
                 per_scene[name][a].append(mmd(feats[a], gt[a]))
         ctx = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="context",
                            hide_radius=cfg.hide_radius)
-        p_ctx, _ = predict_tokens(model, ctx)
+        p_ctx, probs_ctx = predict_tokens(model, ctx)
         q = ctx.query & ctx.mask
         cal["prior_context"][0].append(p_ctx[q])
         cal["prior_context"][1].append(ctx.present[q])
-        hidden["ground_truth"].append(int(ctx.present[q].sum()))
-        hidden["prior_context"].append(int((hidden_rng.random(int(q.sum())) < p_ctx[q]).sum()))
+        # the hidden disc: the prior sees the traffic around it, the baselines only their map buckets
+        disc: dict[str, tuple[np.ndarray, np.ndarray]] = {
+            "prior": _sample_model(np.where(q, p_ctx, 0.0), probs_ctx, q, bins, hidden_rng, table)}
+        q_flat, ctx_buckets = q.ravel(), token_buckets(ctx.map_features).ravel()
+        for b in baselines:
+            p = b.presence(ctx_buckets)
+            sel = np.flatnonzero((hidden_rng.random(len(p)) < p) & q_flat)
+            disc[b.name] = (sel, b.sample_values(ctx_buckets[sel], hidden_rng))
+        truth_sel = np.flatnonzero((ctx.present & q).ravel())
+        hidden["ground_truth"].append(len(truth_sel))
+        hidden["prior_context"].append(len(disc["prior"][0]))
+        hidden["prior_context_expected"].append(float(p_ctx[q].sum()))  # the mean of that draw
+        if len(truth_sel):
+            truth = _mmd_features(ctx, truth_sel, ctx.values.reshape(-1, 6)[truth_sel].astype(np.float64),
+                                  cfg.radius, cfg.region_width)
+            for name, (sel, vals) in disc.items():
+                if len(sel):
+                    feats = _mmd_features(ctx, sel, vals, cfg.radius, cfg.region_width)
+                    for a in MMD_ATTRIBUTES:
+                        per_scene_disc[name][a].append(mmd(feats[a], truth[a]))
     result: dict = {"num_scenes": len(counts["ground_truth"]), "mmd": {}, "agents_per_scene": {}, "presence": {}}
     for name in methods:
         result["mmd"][name] = {a: (float(np.mean(v)) if v else None) for a, v in per_scene[name].items()}
@@ -215,6 +240,9 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     for name, c in counts.items():
         result["agents_per_scene"][name] = float(np.mean(c)) if c else 0.0
     result["agents_in_hidden_disc"] = {name: float(np.mean(c)) if c else 0.0 for name, c in hidden.items()}
+    result["mmd_hidden_disc"] = {
+        name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()}, "scenes": len(per["position"])}
+        for name, per in per_scene_disc.items()}
     for name, (ps, ys) in cal.items():
         if ps:
             result["presence"][name] = reliability(np.concatenate(ps), np.concatenate(ys))
