@@ -7,11 +7,13 @@ measured in one run (interleaved repeats: both see the same machine load).
 - **current**: this checkout's model, inputs read from the memory-mapped feature cache
   (:mod:`coster_sumo.rollout.cache`) with the next batch assembled by a background thread,
   batch 256, one torch thread per core (the training default); also timed with one torch thread
-  (``current-1t``), which shows what the extra threads give on the machine as loaded now.
+  (``current-1t``), which shows what the extra threads give on the machine as loaded now;
+- **current-bf16**: the current recipe with ``--precision bf16`` (the forward pass under CPU
+  autocast to bfloat16, weights and optimiser in float32).
 
 What is timed: ``--steps`` optimiser steps of the training loop (batch inputs, forward, backward,
 gradient clipping, AdamW), examples / wall seconds; both recipes start from the same weights. The
-width and every other model setting are the shipped model's (``models/rollout.pt``, width 128).
+width and every other model setting are the shipped model's (``models/rollout.pt``, width 256 since 2026-11-24).
 Building the scenes' examples (previous) and the feature cache (current) happen once before the
 timing and are reported separately.
 
@@ -45,11 +47,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from coster_sumo import weights
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout import model as current_model
 from coster_sumo.rollout.cache import cached_examples
+from coster_sumo.rollout.checkpoint import load_model
 from coster_sumo.rollout.train import TrainConfig, _tensors, load_examples, num_threads, split_scene_files
-from coster_sumo.weights import load_rollout
 
 GOAL = 2000.0
 BASELINE_REF = "6ac392f"  # the branch point of the fast-training work
@@ -88,7 +91,7 @@ def main() -> int:
     ap.add_argument("--prior-steps", type=int, default=4, help="prior optimiser steps per timed window")
     args = ap.parse_args()
 
-    cfg = load_rollout().cfg
+    cfg = load_model(weights.weights_path(weights.ROLLOUT)).cfg
     cores = num_threads(0)
     new_t = TrainConfig()
     old_bs, old_threads = 64, 1
@@ -124,10 +127,11 @@ def main() -> int:
     new_opt = torch.optim.AdamW(new_model.parameters(), lr=new_t.lr, weight_decay=new_t.weight_decay)
     rng = np.random.default_rng(0)
 
-    def train_steps(model, opt, batches) -> int:  # type: ignore[no-untyped-def]
+    def train_steps(model, opt, batches, bf16: bool = False) -> int:  # type: ignore[no-untyped-def]
         n = 0
         for ctx, traj, mask in batches:
-            res = model(ctx, traj, mask)
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):  # as train rollout --precision bf16
+                res = model(ctx, traj, mask)
             opt.zero_grad(set_to_none=True)
             res.loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), new_t.grad_clip)
@@ -143,30 +147,33 @@ def main() -> int:
                                              for i in range(0, len(rows), old_bs)))
         return n / (time.perf_counter() - t)
 
-    def current(steps: int, threads: int = cores) -> float:
+    def current(steps: int, threads: int = cores, bf16: bool = False) -> float:
         torch.set_num_threads(threads)
         bs = new_t.batch_size
         rows = rng.permutation(len(cached))[: bs * steps]
         t = time.perf_counter()
         n = train_steps(new_model, new_opt, prefetch(lambda part: _tensors(cached.batch(part, cfg)),
-                                                     [rows[i:i + bs] for i in range(0, len(rows), bs)]))
+                                                     [rows[i:i + bs] for i in range(0, len(rows), bs)]), bf16)
         return n / (time.perf_counter() - t)
 
     previous(1)  # warm-up (allocator, first-call costs)
     current(1)
-    res: dict[str, list[float]] = {"previous": [], "current": [], "current-1t": []}
+    current(1, bf16=True)
+    res: dict[str, list[float]] = {"previous": [], "current": [], "current-1t": [], "current-bf16": []}
     for r in range(args.repeats):
         res["previous"].append(previous(args.steps))
         res["current"].append(current(args.steps))
         res["current-1t"].append(current(args.steps, 1))
+        res["current-bf16"].append(current(args.steps, bf16=True))
         print(f"  repeat {r + 1}/{args.repeats}: previous {res['previous'][-1]:.0f}, current {res['current'][-1]:.0f}, "
-              f"current-1t {res['current-1t'][-1]:.0f} examples/s", flush=True)
+              f"current-1t {res['current-1t'][-1]:.0f}, current-bf16 {res['current-bf16'][-1]:.0f} examples/s",
+              flush=True)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"\nCVAE training throughput, width {cfg.hidden} ({args.repeats} interleaved repeats of {args.steps} "
           f"steps; load average {load:.1f} on {os.cpu_count()} CPUs):")
     print("recipe      batch threads  examples/s: median [q1, q3]")
     for name, bs, th in (("previous", old_bs, old_threads), ("current", new_t.batch_size, cores),
-                         ("current-1t", new_t.batch_size, 1)):
+                         ("current-1t", new_t.batch_size, 1), ("current-bf16", new_t.batch_size, cores)):
         q1, q2, q3 = quartiles(res[name])
         print(f"{name:11s} {bs:5d} {th:7d}  {q2:8.0f} [{q1:.0f}, {q3:.0f}]")
     ratio = float(np.median(res["current"]) / np.median(res["previous"]))
@@ -176,6 +183,10 @@ def main() -> int:
     print(f"ratio current-1t / previous (same thread count): {ratio1:.2f}x")
     print(f"ratio current / previous: {ratio:.2f}x (per-repeat ratios: quartiles {rq1:.2f}-{rq3:.2f}); "
           f"goal {GOAL:.0f} examples/s: {'met' if np.median(res['current']) >= GOAL else 'NOT met'}")
+    best = float(np.median(res["current-bf16"]))
+    print(f"ratio current-bf16 / previous: {best / np.median(res['previous']):.2f}x, current-bf16 / current: "
+          f"{best / np.median(res['current']):.2f}x; goal {GOAL:.0f} examples/s with bf16: "
+          f"{'met' if best >= GOAL else 'NOT met'}")
 
     if args.profile:
         from torch.profiler import ProfilerActivity, profile

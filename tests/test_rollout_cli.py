@@ -53,6 +53,22 @@ def test_train_resume_and_determinism(dataset, tmp_path):
     assert train(dataset, a, "--epochs", "3", "--lr", "0.1") == 2
 
 
+def test_bf16_training_keeps_float32_weights_and_resumes_only_in_bf16(dataset, tmp_path):
+    """bf16 runs the forward pass under autocast; the checkpoint is float32, its numbers finite and
+    not those of the float32 run; a float32 command does not resume a bf16 state (nor the reverse)."""
+    fp, bf = tmp_path / "fp.pt", tmp_path / "bf.pt"
+    assert train(dataset, fp, "--epochs", "1") == 0
+    assert train(dataset, bf, "--epochs", "1", "--precision", "bf16") == 0
+    mf, mb = load_model(fp).state_dict(), load_model(bf).state_dict()
+    assert all(v.dtype == mf[k].dtype for k, v in mb.items())
+    assert all(torch.isfinite(v).all() for v in mb.values() if v.is_floating_point())
+    assert any(not torch.equal(v, mf[k]) for k, v in mb.items() if v.is_floating_point())
+    loss = json.loads((tmp_path / "bf.json").read_text())["final"]["train_loss"]
+    assert loss == loss and abs(loss) < 1e6
+    assert train(dataset, bf, "--epochs", "2") == 2  # fp32 asked, bf16 state: not the same run
+    assert train(dataset, bf, "--epochs", "2", "--precision", "bf16") == 0
+
+
 def test_train_without_dsa_writes_that_config(dataset, tmp_path):
     out = tmp_path / "nodsa.pt"
     assert train(dataset, out, "--epochs", "1", "--no-dsa") == 0

@@ -55,6 +55,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                        help="torch threads (default 1: measured as fast as 2 on the 2-core development machine, "
                             "and the same on every machine; 0: one per core; the same seed and thread count give "
                             "the same weights)")
+    train.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
+                       help="bf16: the training forward pass under CPU autocast to bfloat16 (weights and "
+                            "optimiser in float32); about 3x the examples/s on CPUs with AVX-512 BF16 "
+                            "(%(default)s)")
     train.add_argument("--cache-dir", default=None,
                        help="where the per-corpus feature cache lives (default DATASET/.cache)")
     train.add_argument("--no-cache", action="store_true",
@@ -133,7 +137,7 @@ def run_train(args: argparse.Namespace) -> int:
                        val_fraction=args.val_fraction, examples_per_epoch=args.examples_per_epoch,
                        max_val_examples=args.max_val_examples, threads=args.threads,
                        warmup_steps=args.warmup_steps, lr_drop_epoch=args.lr_drop_epoch,
-                       lr_drop_factor=args.lr_drop_factor)
+                       lr_drop_factor=args.lr_drop_factor, precision=args.precision)
     t0 = time.perf_counter()
     metrics = train_rollout(args.data, args.output, cfg, tcfg, resume=not args.restart, quiet=args.quiet,
                             command=_command(), cache=not args.no_cache, cache_dir=args.cache_dir)

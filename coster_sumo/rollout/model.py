@@ -349,28 +349,30 @@ class RolloutCVAE(nn.Module):
         s = num_samples
         horizon = eps.shape[0]
         h = enc.h0[:, None, :].expand(c, s, d)  # (C, S, D)
-        x = h.new_zeros(c, s)
-        y = h.new_zeros(c, s)
-        yaw = h.new_zeros(c, s)
-        vx = enc.speed[:, None].expand(c, s)
+        # the pose is integrated in float32 whatever the layers compute in (bfloat16 under autocast
+        # has 8 bits of mantissa: 0.5 m steps at 100 m), and so are the latent statistics and the KL
+        x = h.new_zeros(c, s, dtype=torch.float32)
+        y = h.new_zeros(c, s, dtype=torch.float32)
+        yaw = h.new_zeros(c, s, dtype=torch.float32)
+        vx = enc.speed[:, None].expand(c, s).float()
         v_long = vx  # [m/s] forward speed along the body axis, for the constant-velocity step
-        vy = h.new_zeros(c, s)
+        vy = h.new_zeros(c, s, dtype=torch.float32)
         static = enc.static_nbr[:, None, :].expand(c, s, d)
         poses, disps, kls = [], [], []
         g_steps = g.unbind(1) if g is not None else None
         nbr_k, nbr_v = enc.nbr_kv if enc.nbr_kv is not None else (None, None)
         for k in range(horizon):
-            mu_p, lv_p = self.prior(h).chunk(2, dim=-1)
+            mu_p, lv_p = self.prior(h).float().chunk(2, dim=-1)
             lv_p = lv_p.clamp(-8.0, 8.0)
             if g_steps is not None:
                 gk = g_steps[k][:, None, :].expand(c, s, g_steps[k].shape[-1])
-                mu_q, lv_q = self.posterior(torch.cat([h, gk], dim=-1)).chunk(2, dim=-1)
+                mu_q, lv_q = self.posterior(torch.cat([h, gk], dim=-1)).float().chunk(2, dim=-1)
                 lv_q = lv_q.clamp(-8.0, 8.0)
                 z = mu_q + torch.exp(0.5 * lv_q) * eps[k]
                 kls.append(_gaussian_kl(mu_q, lv_q, mu_p, lv_p))
             else:
                 z = mu_p + temperature * torch.exp(0.5 * lv_p) * eps[k]
-            dn = self.decoder(torch.cat([h, z], dim=-1))  # (C, S, 3) normalised
+            dn = self.decoder(torch.cat([h, z.to(h.dtype)], dim=-1)).float()  # (C, S, 3) normalised
             dsp = dn * self.disp_scale
             dsp = torch.cat([dsp[..., :1] - v_long[..., None] * DT, dsp[..., 1:]], dim=-1)
             v_long = -dsp[..., 0] / DT
@@ -416,7 +418,7 @@ class RolloutCVAE(nn.Module):
         c = enc.h0.shape[0]
         horizon = ctx["nbr"].shape[1] - 1 if traj is None else traj.shape[1]
         eps = torch.randn(horizon, c, num_samples, self.cfg.latent, generator=generator,
-                          device=enc.h0.device, dtype=enc.h0.dtype)
+                          device=enc.h0.device, dtype=torch.float32)
         if traj is None:
             poses, _, _ = self.rollout(enc, num_samples, eps, temperature=temperature)
             return RolloutOutput(poses=poses)
