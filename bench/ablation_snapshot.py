@@ -2,7 +2,7 @@
 adversaries' speeds at t_col against the traffic on their lane type (VDD at t_col), per network.
 
 Usage: python bench/ablation_snapshot.py DATASET [--all] [--scenes N] [--womd FILE ...]
-       [--methods entropy,last,random] [--draws K] [--models DIR] [--json OUT]
+       [--methods entropy,last,random] [--draws K] [--models DIR] [--json OUT] [--plot OUT.png]
 Held-out scenes of a `coster-sumo simulate` dataset (their SDC as target) plus optional WOMD files;
 the shipped prior places the adversary; relative speed |v_target - v_adv| and impact angle (adversary
 position in the target frame) of each snapshot feed CSD and CPD (coster_sumo.metrics). A scene's
@@ -60,6 +60,40 @@ def stopped_near_moving(scene: Scene) -> tuple[int, int]:
     return stopped, total
 
 
+def plot_speeds(path: Path, nominal: dict[str, dict[str, np.ndarray]], records_by: dict[str, list[dict]]) -> None:
+    """One panel per network: the share of nominal vehicles (every lane type) and of each rule's
+    adversaries in speed classes (standstill, then 2 m/s steps), so that where VDD at t_col comes
+    from can be seen."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    edges = np.concatenate([[0.0, 0.5], np.arange(2.0, 42.0, 2.0)])  # [m/s]; the first class is a standstill
+    fine = metrics.SPEED_BINS  # the nominal histograms' bins (0.5 m/s)
+    nets = list(nominal)
+    fig, axes = plt.subplots(1, len(nets), figsize=(4.2 * len(nets), 3.4), squeeze=False)
+    for ax, net in zip(axes[0], nets, strict=True):
+        hist = np.asarray(sum(nominal[net].values()), np.float64)
+        coarse = np.array([hist[(fine[:-1] >= lo) & (fine[:-1] < hi)].sum() for lo, hi in zip(edges[:-1], edges[1:],
+                                                                                            strict=True)])
+        x = np.arange(len(coarse))
+        ax.bar(x, coarse / max(coarse.sum(), 1.0), color="0.8", label="nominal traffic")
+        for m, recs in records_by.items():
+            adv = np.array([r["adversary_speed"] for r in recs if r["network"] == net])
+            if len(adv):
+                h, _ = np.histogram(np.clip(adv, 0, edges[-1] - 1e-6), bins=edges)
+                ax.step(x, h / len(adv), where="mid", label=f"adversaries ({m})")
+        ax.set_title(net)
+        ax.set_xticks(x[::4], [f"{edges[i]:g}" for i in x[::4]])
+        ax.set_xlabel("speed class from [m/s] (first: standing)")
+    axes[0][0].set_ylabel("share")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("dataset", type=Path)
@@ -69,6 +103,8 @@ def main() -> None:
     ap.add_argument("--methods", default="entropy,last,random")
     ap.add_argument("--draws", type=int, default=1)
     ap.add_argument("--models", type=Path, default=None, help="models folder (default: the shipped one)")
+    ap.add_argument("--plot", type=Path, default=None,
+                    help="PNG: per network, the nominal speed distribution against the adversaries' at t_col")
     ap.add_argument("--all", action="store_true",
                     help="every scene of DATASET (a folder of held-out networks), not its held-out 10 %%")
     args = ap.parse_args()
@@ -157,6 +193,8 @@ def main() -> None:
                   f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {near:.2f} / {p_stop:.2f} / "
                   f"{np.mean(adv < 0.5):.2f} | "
                   f"{p90:.1f} / {np.percentile(adv, 90):.1f} |")
+    if args.plot:
+        plot_speeds(args.plot, nominal, records_by)
     if args.json:
         args.json.write_text(json.dumps({"table": table, "per_network": per_network,
                                          "stopped_near_moving": near_moving, "records": records_by,
