@@ -46,6 +46,17 @@ def test_segfault_and_hang_become_failed_outcomes_and_the_rest_finish(tmp_path):
     assert not out["quit"].ok and "code 3" in out["quit"].reason
 
 
+def test_a_task_s_temporary_files_go_however_the_task_ends(tmp_path):
+    modes = ("ok", "error", "segfault", "hang", "exit")
+    tasks = [Task(m, probe_task, {"name": m, "mode": m, "note": str(tmp_path / f"{m}.txt")}) for m in modes]
+    out = _outcomes(execute(tasks, workers=2, timeout=2.0))
+    assert out["ok"].ok and not any(out[m].ok for m in modes[1:])
+    for m in modes:
+        made = Path((tmp_path / f"{m}.txt").read_text())
+        assert made.name.startswith("probe-") and made.parent.name.startswith("coster-task-"), made
+        assert not made.parent.exists(), f"{m}: {made.parent} left behind"
+
+
 def test_each_task_runs_in_its_own_process_and_on_done_can_schedule_more():
     seen: list[str] = []
 

@@ -4,7 +4,9 @@
 ``workers`` at a time, **one fresh process per task** (libsumo holds one simulation per process,
 docs/sumo.md §6), each under a wall-clock timeout. A task that raises, hangs past its timeout, or
 kills its process (a SUMO segfault) becomes one failed :class:`Outcome` with the reason; the batch
-goes on. A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
+goes on. Each local task gets its own temporary folder (``tempfile`` and ``TMPDIR`` point into
+it), removed when the task ends however it ends: a task killed by a timeout or a crash leaves no
+scratch files behind. A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
 runs start as soon as its variants exist. ``executor="ray"`` runs the same functions on a Ray
 cluster (``ray.init()`` locally when no address is given; one worker process per task through
 ``max_calls=1``; files in OUT must be on a file system the workers share).
@@ -15,8 +17,10 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import sys
+import tempfile
 import time
 import traceback
 from collections import deque
@@ -96,9 +100,13 @@ def _limit_threads(n: int) -> None:
 
 
 def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], writer: Connection,
-                log_path: str | None, threads: int | None = None) -> None:
-    """Body of a task process: run, send ("ok", value) or ("error", reason, traceback), exit hard."""
+                log_path: str | None, threads: int | None = None, scratch: str | None = None) -> None:
+    """Body of a task process: run, send ("ok", value) or ("error", reason, traceback), exit hard.
+    ``scratch``: the task's temporary folder (the parent removes it)."""
     _die_with_parent()
+    if scratch is not None:
+        os.environ["TMPDIR"] = scratch  # SUMO's and other child processes' temporary files too
+        tempfile.tempdir = scratch
     if threads is not None:
         _limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
@@ -152,6 +160,7 @@ class _Running:
     reader: Connection
     started: float
     log: Path | None
+    scratch: str
 
 
 def _default_start_method() -> str:
@@ -168,6 +177,7 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
         running.remove(r)
         with contextlib.suppress(Exception):
             r.reader.close()
+        shutil.rmtree(r.scratch, ignore_errors=True)
         pending.extend(on_done(r.task, outcome))
         progress.update(1)
 
@@ -177,12 +187,13 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
                 task = pending.popleft()
                 reader, writer = ctx.Pipe(duplex=False)
                 log = (log_dir / f"{task.key}.log") if log_dir is not None else None
+                scratch = tempfile.mkdtemp(prefix="coster-task-")
                 proc = ctx.Process(target=_child_main, args=(task.fn, task.payload, writer,
-                                                             str(log) if log else None, threads),
+                                                             str(log) if log else None, threads, scratch),
                                    name=f"coster-{task.key}", daemon=True)
                 proc.start()
                 writer.close()  # the child holds the only writer: EOF when it dies
-                running.append(_Running(task, proc, reader, time.monotonic(), log))
+                running.append(_Running(task, proc, reader, time.monotonic(), log, scratch))
             now = time.monotonic()
             wait_s = 1.0
             if timeout is not None:
@@ -219,6 +230,7 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
             with contextlib.suppress(Exception):
                 r.proc.kill()
                 r.proc.join()
+            shutil.rmtree(r.scratch, ignore_errors=True)
 
 
 def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any]) -> Any:
@@ -365,9 +377,12 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
 
 def probe_task(payload: dict[str, Any]) -> dict[str, Any]:
     """A task for testing executors: ``mode`` = ok | error | segfault | hang | exit; ``sleep`` [s] first.
+    With ``note`` (a file path) it first makes a temporary folder and writes that folder's path there.
 
     Returns its name, pid and the wall-clock interval [start, end] (epoch seconds) of its sleep.
     """
+    if payload.get("note"):
+        Path(payload["note"]).write_text(tempfile.mkdtemp(prefix="probe-"))
     start = time.time()
     time.sleep(float(payload.get("sleep", 0.0)))
     end = time.time()
@@ -383,7 +398,6 @@ def probe_task(payload: dict[str, Any]) -> dict[str, Any]:
     return {"name": payload.get("name"), "pid": os.getpid(), "start": start, "end": end}
 
 
-# modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
 # modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
 SUMO_TASK_MODULES = ("libsumo", "coster_sumo.core", "coster_sumo.sim.inject", "coster_sumo.outputs",
                      "coster_sumo.drivable", "pyarrow.parquet")
