@@ -57,6 +57,20 @@ def test_a_task_s_temporary_files_go_however_the_task_ends(tmp_path):
         assert not made.parent.exists(), f"{m}: {made.parent} left behind"
 
 
+def test_task_folders_of_a_killed_batch_are_removed_by_the_next(tmp_path, monkeypatch):
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a pid no process holds now
+    orphan = tmp_path / f"coster-task-{gone.pid}-abc"
+    alive = tmp_path / f"coster-task-{os.getppid()}-abc"  # a batch still running
+    for d in (orphan, alive):
+        (d / "sub").mkdir(parents=True)
+    assert execute([_probe("a")])[0][1].ok
+    assert not orphan.exists() and alive.exists()
+
+
 def test_each_task_runs_in_its_own_process_and_on_done_can_schedule_more():
     seen: list[str] = []
 

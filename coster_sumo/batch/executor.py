@@ -6,7 +6,8 @@ docs/sumo.md §6), each under a wall-clock timeout. A task that raises, hangs pa
 kills its process (a SUMO segfault) becomes one failed :class:`Outcome` with the reason; the batch
 goes on. Each local task gets its own temporary folder (``tempfile`` and ``TMPDIR`` point into
 it), removed when the task ends however it ends: a task killed by a timeout or a crash leaves no
-scratch files behind. A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
+scratch files behind; folders of a batch that was itself killed are removed by the next batch.
+A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
 runs start as soon as its variants exist. ``executor="ray"`` runs the same functions on a Ray
 cluster (``ray.init()`` locally when no address is given; one worker process per task through
 ``max_calls=1``; files in OUT must be on a file system the workers share).
@@ -163,6 +164,24 @@ class _Running:
     scratch: str
 
 
+_SCRATCH_PREFIX = "coster-task-"
+
+
+def _remove_orphaned_scratch() -> None:
+    """Remove the task folders of batches whose process is gone (a batch killed with SIGKILL has
+    no chance to remove its own; its tasks die with it)."""
+    for folder in Path(tempfile.gettempdir()).glob(f"{_SCRATCH_PREFIX}*-*"):
+        owner = folder.name[len(_SCRATCH_PREFIX):].split("-", 1)[0]
+        if not owner.isdigit() or int(owner) == os.getpid():
+            continue
+        try:
+            os.kill(int(owner), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except OSError:  # alive, another user's
+            pass
+
+
 def _default_start_method() -> str:
     return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
 
@@ -172,6 +191,7 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
     ctx: Any = mp.get_context(start_method or _default_start_method())
     running: list[_Running] = []
     threads = max(1, (os.cpu_count() or 1) // max(1, workers))  # the cores shared among the workers
+    _remove_orphaned_scratch()
 
     def finish(r: _Running, outcome: Outcome) -> None:
         running.remove(r)
@@ -187,7 +207,7 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
                 task = pending.popleft()
                 reader, writer = ctx.Pipe(duplex=False)
                 log = (log_dir / f"{task.key}.log") if log_dir is not None else None
-                scratch = tempfile.mkdtemp(prefix="coster-task-")
+                scratch = tempfile.mkdtemp(prefix=f"{_SCRATCH_PREFIX}{os.getpid()}-")
                 proc = ctx.Process(target=_child_main, args=(task.fn, task.payload, writer,
                                                              str(log) if log else None, threads, scratch),
                                    name=f"coster-{task.key}", daemon=True)
