@@ -23,10 +23,17 @@ training does), **background** in the background thread (:func:`coster_sumo.pref
 both at its training defaults (batch 32, one thread, default model) on up to 40 training scenes.
 
 Usage:
-    python bench/bench_training.py --data DATASET [--repeats 5] [--steps 3] [--profile] [--no-prior]
+    python bench/bench_training.py --data DATASET [--repeats 5] [--steps 3] [--profile] [--flops] [--width W]
+                                   [--batch B] [--no-prior]
 
 DATASET: a dataset folder (``coster-sumo simulate ... -o DATASET``); its training split is used.
 ``--profile`` also prints where the current recipe's step spends its time (torch.profiler).
+``--flops`` counts the matrix-product work of one bf16 training step per example
+(``torch.utils.flop_counter``: forward and backward), times a bf16 matrix product with the same
+threads, and prints the throughput that work allows at that rate: the ceiling of any recipe that
+keeps the model, whatever the data path. ``--width W`` times a fresh model of width ``W`` instead of
+the shipped width (the other settings stay the shipped model's); ``--batch B`` sets the current
+recipes' batch size.
 Goal: >= 2000 examples/s for the current recipe on a 2-core machine.
 """
 
@@ -37,6 +44,7 @@ import os
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as `coster-sumo train rollout` (set before torch loads)
 
 import argparse  # noqa: E402 (after the environment)
+import dataclasses
 import subprocess
 import sys
 import tempfile
@@ -87,13 +95,20 @@ def main() -> int:
                     help="feature cache root (default: the training default, DATASET/.cache; 'temp': a new "
                          "temporary folder, to time the build)")
     ap.add_argument("--profile", action="store_true", help="profile one step of the current recipe")
+    ap.add_argument("--flops", action="store_true",
+                    help="count the matrix-product work per example and print the throughput it allows")
+    ap.add_argument("--width", type=int, default=None, help="time a model of this width (default: the shipped one)")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="batch size of the current recipes (default: the training default)")
     ap.add_argument("--no-prior", action="store_true", help="skip the prior")
     ap.add_argument("--prior-steps", type=int, default=4, help="prior optimiser steps per timed window")
     args = ap.parse_args()
 
     cfg = load_model(weights.weights_path(weights.ROLLOUT)).cfg
+    if args.width:
+        cfg = dataclasses.replace(cfg, hidden=args.width)
     cores = num_threads(0)
-    new_t = TrainConfig()
+    new_t = TrainConfig(batch_size=args.batch) if args.batch else TrainConfig()
     old_bs, old_threads = 64, 1
     train_paths, _ = split_scene_files(args.data, 0.1, 0)
     print(f"model: shipped config, width {cfg.hidden}, heads {cfg.heads}, latent {cfg.latent}; "
@@ -195,10 +210,57 @@ def main() -> int:
         with profile(activities=[ProfilerActivity.CPU]) as prof:
             current(2)
         print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=20))
+    if args.flops:
+        flops_ceiling(new_model, cached, cfg, new_t.batch_size, cores, float(np.median(res["current-bf16"])))
     tmp.cleanup()
     if not args.no_prior:
         bench_prior(args)
     return 0
+
+
+def matmul_rate(threads: int, dtype: torch.dtype = torch.bfloat16, repeats: int = 40) -> float:
+    """FLOP/s of a 2048x512 by 512x512 matrix product on ``threads`` threads (best of 5 windows)."""
+    torch.set_num_threads(threads)
+    a, b = torch.randn(2048, 512, dtype=dtype), torch.randn(512, 512, dtype=dtype)
+    for _ in range(5):
+        a @ b
+    best = 0.0
+    for _ in range(5):
+        t = time.perf_counter()
+        for _ in range(repeats):
+            a @ b
+        best = max(best, 2 * 2048 * 512 * 512 * repeats / (time.perf_counter() - t))
+    return best
+
+
+def flops_ceiling(model, cached, cfg, batch_size: int, cores: int, measured: float) -> None:  # type: ignore[no-untyped-def]
+    """Print the matrix-product work per training example and the throughput it allows."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    ctx, traj, mask = _tensors(cached.batch(np.arange(min(batch_size, len(cached))), cfg))
+    counter = FlopCounterMode(display=False)
+    with counter:
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            res = model(ctx, traj, mask)
+        res.loss.backward()
+    model.zero_grad(set_to_none=True)
+    per_example = counter.get_total_flops() / len(traj)
+    parts = {}
+    for name, fn in (("forward", lambda: model(ctx, traj, mask)), ("encode", lambda: model.encode(ctx))):
+        counter = FlopCounterMode(display=False)
+        with counter, torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+            fn()
+        parts[name] = counter.get_total_flops()
+    rate = matmul_rate(cores)
+    print(f"\nmatrix-product work of one bf16 training step (forward and backward), width {cfg.hidden}: "
+          f"{per_example / 1e6:.0f} MFLOP per example; of the forward pass's, the context encoding (map chunks, "
+          f"neighbours of every step: once per example) is {parts['encode'] / parts['forward']:.0%}, the step loop "
+          f"the rest")
+    print(f"bf16 matrix product (2048x512 @ 512x512) on {cores} thread(s): {rate / 1e9:.0f} GFLOP/s; "
+          f"at that rate the work allows at most {rate / per_example:.0f} examples/s")
+    print(f"current-bf16 at {measured:.0f} examples/s does {measured * per_example / 1e9:.0f} GFLOP/s of it "
+          f"({measured * per_example / rate:.0%} of the product's rate); goal {GOAL:.0f} examples/s needs "
+          f"{GOAL * per_example / 1e9:.0f} GFLOP/s")
 
 
 def bench_prior(args: argparse.Namespace) -> None:
