@@ -140,3 +140,34 @@ def test_learning_rate_schedule():
     assert learning_rate(50, t, 1) == pytest.approx(1e-3)
     assert learning_rate(80, t, 2) == pytest.approx(1e-4)  # epoch 3 (1-based) and on
     assert learning_rate(80, TrainConfig(lr=1e-3, warmup_steps=10), 2) == pytest.approx(1e-3)
+
+
+def test_init_starts_from_a_checkpoint_s_weights_and_resumes_only_with_them(dataset, tmp_path):
+    """``--init`` loads the weights (a zero learning rate leaves them as they were: without ``--init`` the
+    seed's fresh weights come out); another model setting is one line naming the file; the run's state
+    resumes only with the same starting checkpoint."""
+    a, b, c, fresh = tmp_path / "a.pt", tmp_path / "b.pt", tmp_path / "c.pt", tmp_path / "fresh.pt"
+    assert train(dataset, a, "--epochs", "1") == 0
+    assert train(dataset, b, "--epochs", "1", "--seed", "3") == 0
+    zero = ("--lr", "0", "--seed", "1")
+    assert train(dataset, c, "--epochs", "1", "--init", str(a), *zero) == 0
+    assert train(dataset, fresh, "--epochs", "1", *zero) == 0
+    ma, mc, mf = (load_model(p).state_dict() for p in (a, c, fresh))
+    assert all(torch.equal(v, mc[k]) for k, v in ma.items())
+    assert not all(torch.equal(v, mf[k]) for k, v in ma.items())
+    metrics = json.loads((tmp_path / "c.json").read_text())
+    assert metrics["init"] == str(a.resolve()) and len(metrics["train_config"]["init"]) == 64
+    # the state of c started from a: resuming it from b, or from fresh weights, is another run
+    assert train(dataset, c, "--epochs", "2", "--init", str(b), *zero) == 2
+    assert train(dataset, c, "--epochs", "2", *zero) == 2
+    assert train(dataset, c, "--epochs", "2", "--init", str(a), *zero) == 0
+
+
+def test_init_from_another_model_setting_is_one_line(dataset, tmp_path, capsys):
+    a = tmp_path / "a.pt"
+    assert train(dataset, a, "--epochs", "1") == 0
+    capsys.readouterr()
+    code = main(["train", "rollout", "--data", str(dataset), "-o", str(tmp_path / "b.pt"), *TINY, "--epochs", "1",
+                 "--no-dsa", "--init", str(a)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and str(a) in err and "use_dsa" in err

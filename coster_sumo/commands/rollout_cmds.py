@@ -63,6 +63,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                        help="where the per-corpus feature cache lives (default DATASET/.cache)")
     train.add_argument("--no-cache", action="store_true",
                        help="build the inputs of every batch from the scenes (slow; no files written)")
+    train.add_argument("--init", default=None, metavar="CHECKPOINT",
+                       help="start from this rollout checkpoint's weights (same model settings) with a fresh "
+                            "optimiser: continue a finished run whose training state is gone, or fine-tune "
+                            "the shipped weights on your own traffic")
     train.add_argument("--restart", action="store_true", help="ignore an existing training state")
     train.set_defaults(func=run_train)
 
@@ -140,7 +144,8 @@ def run_train(args: argparse.Namespace) -> int:
                        lr_drop_factor=args.lr_drop_factor, precision=args.precision)
     t0 = time.perf_counter()
     metrics = train_rollout(args.data, args.output, cfg, tcfg, resume=not args.restart, quiet=args.quiet,
-                            command=_command(), cache=not args.no_cache, cache_dir=args.cache_dir)
+                            command=_command(), cache=not args.no_cache, cache_dir=args.cache_dir,
+                            init=args.init)
     if not args.quiet:
         final = metrics.get("final", {})
         shown = ", ".join(f"{k} {final[k]:.3f}" for k in ("val_minADE", "val_minFDE", "val_loss") if k in final)

@@ -31,6 +31,7 @@ float32, and a run resumes only in the precision it started in.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -50,7 +51,7 @@ from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout.cache import CachedExamples, cached_examples
-from coster_sumo.rollout.checkpoint import atomic_torch_save, read_torch_file, save_checkpoint
+from coster_sumo.rollout.checkpoint import atomic_torch_save, load_checkpoint, read_torch_file, save_checkpoint
 from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
 from coster_sumo.rollout.evaluate import cvae_errors
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
@@ -88,6 +89,10 @@ class TrainConfig:
             to bfloat16 (matrix products in bfloat16; weights, gradients and the optimiser state
             stay float32; validation in float32). On CPUs with AVX-512 BF16 the matrix products
             run about 4.7x faster (docs and numbers: ``bench/RESULTS.md``, training throughput).
+        init: "" (weights drawn from ``seed``), or the sha256 of the checkpoint whose weights the run
+            starts from (:func:`train_rollout`'s ``init``): a continuation of a finished run whose
+            training state is gone, or fine-tuning shipped weights on other traffic. The optimiser
+            starts afresh (the warm-up applies again).
     """
 
     epochs: int = 20
@@ -106,6 +111,15 @@ class TrainConfig:
     lr_drop_epoch: int = 0
     lr_drop_factor: float = 0.1
     precision: str = "fp32"
+    init: str = ""
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def split_scene_files(data: str | Path, val_fraction: float, seed: int) -> tuple[list[Path], list[Path]]:
@@ -168,7 +182,8 @@ def same_run_so_far(saved: dict[str, Any], now: TrainConfig, epochs_done: int) -
     """Whether a training state with settings ``saved`` that ran ``epochs_done`` epochs is what
     ``now`` would have done up to there: every setting equal, except the number of epochs and a
     learning-rate drop that neither of them had reached by then (both schedules agree so far)."""
-    saved = {"warmup_steps": 0, "lr_drop_epoch": 0, "lr_drop_factor": 0.1, "precision": "fp32", **saved}  # older states
+    saved = {"warmup_steps": 0, "lr_drop_epoch": 0, "lr_drop_factor": 0.1, "precision": "fp32", "init": "",
+             **saved}  # older states
     cur = dataclasses.asdict(now)
     if any(saved.get(k) != v for k, v in cur.items() if k not in _FREE_ON_RESUME):
         return False
@@ -224,12 +239,15 @@ def _metrics_path(out: Path) -> Path:
 
 def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None = None,
                   tcfg: TrainConfig | None = None, *, resume: bool = True, quiet: bool = False,
-                  command: str | None = None, cache: bool = True, cache_dir: str | Path | None = None
-                  ) -> dict[str, Any]:
+                  command: str | None = None, cache: bool = True, cache_dir: str | Path | None = None,
+                  init: str | Path | None = None) -> dict[str, Any]:
     """Train (or resume training) and write the checkpoint, metrics and resume file.
 
     ``cache``: read the examples from the feature cache (under ``cache_dir``, default
     ``DATASET/.cache``); False builds them per batch (slow; the same numbers).
+    ``init``: a rollout checkpoint to start from instead of freshly drawn weights; its config must
+    be ``cfg`` (checked before any data is read). Its sha256 goes into ``tcfg.init``, so that a
+    training state resumes only with the same starting weights.
 
     Returns:
         The metrics dictionary also written to ``OUT.json``.
@@ -241,6 +259,15 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     out = Path(out)
     torch.set_num_threads(num_threads(tcfg.threads))
     t_start = time.perf_counter()
+    start_weights = None
+    if init is not None:
+        start, _ = load_checkpoint(init)
+        if start.cfg.to_dict() != cfg.to_dict():
+            diff = sorted(k for k, v in cfg.to_dict().items() if start.cfg.to_dict().get(k) != v)
+            raise InputError(f"{init}: its model settings differ from this run's ({', '.join(diff)}); "
+                             "give the same --hidden/--heads/--latent/--no-dsa/... as it was trained with")
+        start_weights = start.state_dict()
+        tcfg = dataclasses.replace(tcfg, init=file_sha256(init))
     train_paths, val_paths = split_scene_files(data, tcfg.val_fraction, tcfg.seed)
     train_set: Examples
     val_set: Examples
@@ -255,6 +282,8 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
         raise InputError(f"{data}: no training examples (no vehicle with {tcfg.min_steps} valid past steps)")
     torch.manual_seed(tcfg.seed)
     model = RolloutCVAE(cfg)
+    if start_weights is not None:
+        model.load_state_dict(start_weights)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     history: list[dict[str, Any]] = []
     first_epoch = 0
@@ -326,6 +355,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
             "examples": {"train": len(train_set), "val": len(val_set), "val_scored": int(len(val_rows)),
                          "val_full_horizon_scored": int(len(ade_rows))},
             "config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg),
+            "init": None if init is None else str(Path(init).resolve()),
             "parameters": sum(p.numel() for p in model.parameters()),
             "epochs": history, "final": history[-1],
             "wall_time_s": time.perf_counter() - t_start, "torch": torch.__version__,
