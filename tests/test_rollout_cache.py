@@ -4,6 +4,7 @@ numbers (and training results) as inputs built per batch; the prefetching helper
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -188,3 +189,25 @@ def test_padding_contents_do_not_reach_the_model():
         samples = model.sample(inputs, 3, generator=torch.Generator().manual_seed(2))
         losses.append(float(samples.sum()))
     assert losses[:2] == losses[2:]
+
+
+@pytest.mark.skipif(not Path("/proc/self/smaps").is_file(), reason="needs Linux /proc/self/smaps")
+def test_mapped_arrays_are_advised_random_access_without_read_ahead(dataset):
+    """A batch touches a few kB at random places: with the kernel's read-ahead a cache larger than
+    memory was read hundreds of times over (bench/bench_cache_io.py). The kernel shows the advice
+    as the ``rr`` flag of the mapping."""
+    ex = C.cached_examples(scene_files(dataset), CFG, 2, workers=1)
+    flags: dict[str, set[str]] = {}
+    current = None
+    for line in Path("/proc/self/smaps").read_text().splitlines():
+        parts = line.split()
+        if len(parts) >= 6 and "-" in parts[0] and str(ex.folder) in line:
+            current = Path(parts[-1]).stem
+        elif line.startswith("VmFlags:") and current is not None:
+            flags[current] = set(parts[1:])
+            current = None
+        elif len(parts) >= 5 and "-" in parts[0]:
+            current = None
+    assert {"traj", "map_vec", "nbr"} <= set(flags)
+    assert all("rr" in flags[name] for name in ("traj", "map_vec", "nbr", "state", "nbr_mask"))
+    assert ex.batch(np.arange(min(3, len(ex))), CFG)["traj"].shape[0] == min(3, len(ex))

@@ -4,7 +4,8 @@ Building the inputs of an example (:func:`coster_sumo.rollout.data.agent_context
 milliseconds of Python; doing it for every batch of every epoch kept training slow. Here every
 example of a list of scene files is encoded once, in worker processes, and stored as flat ``.npy``
 arrays that training opens with ``mmap_mode="r"``: a corpus larger than memory still trains (the
-operating system pages in what a batch touches) and a second run starts at once.
+operating system pages in what a batch touches, with read-ahead turned off: :func:`random_access`)
+and a second run starts at once.
 
 Layout of one cache folder (``<root>/rollout-<key>/``), ``E`` examples::
 
@@ -33,6 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import mmap
 import os
 import shutil
 from collections.abc import Callable, Iterable, Sequence
@@ -244,6 +246,22 @@ def build_feature_cache(paths: Sequence[Path], cfg: RolloutConfig, min_steps: in
     return folder
 
 
+def random_access(array: np.ndarray) -> None:
+    """Tell the kernel that ``array``'s file mapping is read at random (``MADV_RANDOM``): no
+    read-ahead. A batch touches a few kB at each of a few hundred random places; with the read-ahead
+    of a page fault (8 MB on the project's VM) a batch of 256 read about 1 GB from a cache larger
+    than memory instead of 2.6 MB, and training waited for the disk (``bench/RESULTS.md``, "A cache
+    larger than memory"). A cache that fits in memory is paged in once either way. No-op where the
+    platform has no madvise or the array is not a file mapping."""
+    mapping = getattr(array, "_mmap", None)
+    advice = getattr(mmap, "MADV_RANDOM", None)
+    if mapping is not None and advice is not None:
+        try:
+            mapping.madvise(advice)
+        except (OSError, ValueError):  # advice is only a hint: reading still works without it
+            pass
+
+
 class CachedExamples:
     """Examples read from a feature cache folder; a drop-in for
     :class:`~coster_sumo.rollout.data.ExampleSet` in training and :func:`cvae_errors` (not for the
@@ -254,9 +272,13 @@ class CachedExamples:
         self.meta = json.loads((self.folder / "meta.json").read_text())
         names = [*_ALL_FIELDS, "map_offset", "nbr_offset"]
         self.arrays = {n: np.load(self.folder / f"{n}.npy", mmap_mode="r") for n in names}
-        self.map_offset = np.asarray(self.arrays["map_offset"])
-        self.nbr_offset = np.asarray(self.arrays["nbr_offset"])
-        self.index = np.asarray(self.arrays["index"])
+        # the small arrays every batch looks up are read into memory once; the rest stay mapped
+        self.map_offset = np.array(self.arrays["map_offset"])
+        self.nbr_offset = np.array(self.arrays["nbr_offset"])
+        self.index = np.array(self.arrays["index"])
+        for name in _ALL_FIELDS:
+            if name != "index":
+                random_access(self.arrays[name])
 
     def __len__(self) -> int:
         return len(self.index)
