@@ -58,3 +58,28 @@ def test_a_learning_rate_drop_is_marked(tmp_path, monkeypatch):
     assert main(["eval", "curves", str(run), str(plain), "-o", str(out)]) == 0
     assert seen["marks"] == {3: "lr x 0.1"}
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_file_s_own_marks_are_drawn_and_a_bad_one_is_one_line(tmp_path, monkeypatch, capsys):
+    """Joined histories of a run continued with --init carry their rate changes as "marks"."""
+    from coster_sumo import viz
+
+    seen = {}
+    real = viz.training_curves
+
+    def spy(runs, path, marks=None):
+        seen["marks"] = marks
+        return real(runs, path, marks)
+
+    monkeypatch.setattr(viz, "training_curves", spy)
+    run = tmp_path / "joined.json"
+    run.write_text(json.dumps({"marks": [[3, "lr x 0.1"], [5, "lr x 0.01"]],
+                               "epochs": [{"train_loss": 6.0 - e, "val_loss": 6.0 - e} for e in range(6)]}))
+    assert main(["eval", "curves", str(run), "-o", str(tmp_path / "c.png")]) == 0
+    assert seen["marks"] == {3: "lr x 0.1", 5: "lr x 0.01"}
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"marks": [["x"]], "epochs": [{"train_loss": 1.0}]}))
+    capsys.readouterr()
+    assert main(["eval", "curves", str(bad), "-o", str(tmp_path / "d.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.json" in err[0] and "mark" in err[0]

@@ -13,7 +13,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p = cli.group("eval", help="evaluate a model").add_parser(
         "curves", help="plot the learning curves of training runs (their metrics JSON) into a PNG",
         description="METRICS are the .json files `train rollout` / `train prior` write beside their checkpoint "
-                    "(one record per epoch). Label a run with LABEL=PATH.")
+                    "(one record per epoch). Label a run with LABEL=PATH. A file may list its own vertical marks as "
+                    "\"marks\": [[EPOCH, TEXT], ...] (a run continued with --init at another rate, whose "
+                    "histories were joined).")
     p.add_argument("metrics", nargs="+", help="metrics JSON of a training run, optionally LABEL=PATH")
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
     p.set_defaults(func=run)
@@ -37,6 +39,11 @@ def run(args: argparse.Namespace) -> int:
         tcfg = metrics.get("train_config") or {}
         if tcfg.get("lr_drop_epoch"):  # `train rollout --lr-drop-epoch`
             marks[int(tcfg["lr_drop_epoch"])] = f"lr x {tcfg.get('lr_drop_factor', 0.1):g}"
+        for mark in metrics.get("marks") or []:
+            try:
+                marks[int(mark[0])] = str(mark[1])
+            except (TypeError, ValueError, IndexError):
+                raise InputError(f"{path}: a mark is [EPOCH, TEXT], not {mark!r}") from None
         if not rows:
             raise InputError(f"{path}: no per-epoch records ('epochs' or 'history')")
         runs[label if sep else path.stem] = rows
