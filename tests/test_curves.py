@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from coster_sumo.cli import main
 
 
@@ -38,10 +40,12 @@ def test_the_priors_nested_held_out_loss_is_read():
     assert rows[0]["val_loss"] == 0.69 and rows[0]["train_loss"] == 0.79 and rows[0]["val_speed_ce"] == 3.1
 
 
-def test_a_learning_rate_drop_is_marked(tmp_path, monkeypatch):
+@pytest.fixture()
+def marks_drawn(monkeypatch):
+    """The marks ``eval curves`` hands to the picture (it is still drawn)."""
     from coster_sumo import viz
 
-    seen = {}
+    seen: dict = {}
     real = viz.training_curves
 
     def spy(runs, path, marks=None):
@@ -49,6 +53,10 @@ def test_a_learning_rate_drop_is_marked(tmp_path, monkeypatch):
         return real(runs, path, marks)
 
     monkeypatch.setattr(viz, "training_curves", spy)
+    return seen
+
+
+def test_a_learning_rate_drop_is_marked(tmp_path, marks_drawn):
     run = tmp_path / "rollout.json"
     run.write_text(json.dumps({"train_config": {"lr_drop_epoch": 3, "lr_drop_factor": 0.1},
                                "epochs": [{"train_loss": 5.0 - e, "val_loss": 5.0 - e} for e in range(4)]}))
@@ -56,27 +64,17 @@ def test_a_learning_rate_drop_is_marked(tmp_path, monkeypatch):
     plain.write_text(json.dumps({"train_config": {"lr_drop_epoch": 0}, "epochs": [{"train_loss": 1.0}]}))
     out = tmp_path / "c.png"
     assert main(["eval", "curves", str(run), str(plain), "-o", str(out)]) == 0
-    assert seen["marks"] == {3: "lr x 0.1"}
+    assert marks_drawn["marks"] == {3: "lr x 0.1"}
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_a_file_s_own_marks_are_drawn_and_a_bad_one_is_one_line(tmp_path, monkeypatch, capsys):
+def test_a_file_s_own_marks_are_drawn_and_a_bad_one_is_one_line(tmp_path, marks_drawn, capsys):
     """Joined histories of a run continued with --init carry their rate changes as "marks"."""
-    from coster_sumo import viz
-
-    seen = {}
-    real = viz.training_curves
-
-    def spy(runs, path, marks=None):
-        seen["marks"] = marks
-        return real(runs, path, marks)
-
-    monkeypatch.setattr(viz, "training_curves", spy)
     run = tmp_path / "joined.json"
     run.write_text(json.dumps({"marks": [[3, "lr x 0.1"], [5, "lr x 0.01"]],
                                "epochs": [{"train_loss": 6.0 - e, "val_loss": 6.0 - e} for e in range(6)]}))
     assert main(["eval", "curves", str(run), "-o", str(tmp_path / "c.png")]) == 0
-    assert seen["marks"] == {3: "lr x 0.1", 5: "lr x 0.01"}
+    assert marks_drawn["marks"] == {3: "lr x 0.1", 5: "lr x 0.01"}
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"marks": [["x"]], "epochs": [{"train_loss": 1.0}]}))
     capsys.readouterr()
