@@ -65,14 +65,13 @@ def main() -> int:
         return 0
     if not args.data:
         ap.error("DATASET is required")
-    folders = sorted(Path(args.data, ".cache").glob("rollout-*"),
-                     key=lambda p: sum(f.stat().st_size for f in p.iterdir()))
-    if not folders:
+    sizes = {p: sum(f.stat().st_size for f in p.iterdir()) for p in Path(args.data, ".cache").glob("rollout-*")}
+    if not sizes:
         print(f"{args.data}: no rollout feature cache (run coster-sumo train rollout --data {args.data} first)",
               file=sys.stderr)
         return 2
-    folder = folders[-1]
-    size_gb = sum(f.stat().st_size for f in folder.iterdir()) / 1e9
+    folder = max(sizes, key=sizes.__getitem__)
+    size_gb = sizes[folder] / 1e9
     mem_gb = next(int(line.split()[1]) for line in Path("/proc/meminfo").read_text().splitlines()
                   if line.startswith("MemTotal:")) / 1e6
     print(f"cache {folder} ({size_gb:.1f} GB; memory {mem_gb:.1f} GB)")

@@ -114,14 +114,6 @@ class TrainConfig:
     init: str = ""
 
 
-def file_sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def split_scene_files(data: str | Path, val_fraction: float, seed: int) -> tuple[list[Path], list[Path]]:
     """Training and held-out scene files of a dataset folder (see :mod:`coster_sumo.dataset`)."""
     from coster_sumo.dataset import list_scenes, split
@@ -262,12 +254,14 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     start_weights = None
     if init is not None:
         start, _ = load_checkpoint(init)
-        if start.cfg.to_dict() != cfg.to_dict():
-            diff = sorted(k for k, v in cfg.to_dict().items() if start.cfg.to_dict().get(k) != v)
+        want, have = cfg.to_dict(), start.cfg.to_dict()
+        if want != have:
+            diff = sorted(k for k, v in want.items() if have.get(k) != v)
             raise InputError(f"{init}: its model settings differ from this run's ({', '.join(diff)}); "
                              "give the same --hidden/--heads/--latent/--no-dsa/... as it was trained with")
         start_weights = start.state_dict()
-        tcfg = dataclasses.replace(tcfg, init=file_sha256(init))
+        with open(init, "rb") as f:
+            tcfg = dataclasses.replace(tcfg, init=hashlib.file_digest(f, "sha256").hexdigest())
     train_paths, val_paths = split_scene_files(data, tcfg.val_fraction, tcfg.seed)
     train_set: Examples
     val_set: Examples
