@@ -149,7 +149,7 @@ def main() -> None:
                 at = (scene.sdc_index, s.t_index)
                 pose = np.array([[low.tracks.x[at], low.tracks.y[at], low.tracks.heading[at]]])
                 pred = predict_scene(model, memo["data"], scene.sdc_index, steps=np.array([s.t_index]),
-                                     heads=("speed",), pose=pose)
+                                     heads=("speed",), pose=pose, calibrate=False)
                 k = np.flatnonzero(pred.region_index[0] == s.region_id)
                 p_stop = float(pred.probs["speed"][0, k[0], 0]) if len(k) else float("nan")
                 records.append({"network": net, "adversary_speed": s.adversary.speed, "p_stopped": p_stop,

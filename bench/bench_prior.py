@@ -68,7 +68,7 @@ def main() -> None:
     steps = np.flatnonzero(tr.valid[target])
 
     def batched() -> None:
-        predict_scene(model, scene, target, steps=steps, mode=args.mode)
+        predict_scene(model, scene, target, steps=steps, mode=args.mode, calibrate=False)
 
     def per_step() -> None:
         data = prepare_scene(scene, radius=cfg.radius, spacing=cfg.region_spacing, width=cfg.region_width,
@@ -79,7 +79,7 @@ def main() -> None:
                                visible=args.mode, hide_radius=cfg.hide_radius)
             predict_tokens(model, tok, only_query=True)
 
-    pred = predict_scene(model, scene, target, steps=steps, mode=args.mode)
+    pred = predict_scene(model, scene, target, steps=steps, mode=args.mode, calibrate=False)
     t_batched = _median_time(batched, args.repeat)
     t_loop = _median_time(per_step, args.repeat)
     print(f"scene {scene.scenario_id}: {len(steps)} steps at 2 Hz, {pred.mask.sum()} region tokens "

@@ -315,7 +315,8 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
     if "entropy" not in memo:  # over the whole window: excluded steps are only not chosen
         full = search_window(scene, target)
-        velocity = predict_scene(model, data, target, steps=full, heads=("speed", "heading"), pose=pose(full))
+        velocity = predict_scene(model, data, target, steps=full, heads=("speed", "heading"), pose=pose(full),
+                                 calibrate=False)  # presence is not used: no density offset
         centres = velocity.regions.centre[np.maximum(velocity.region_index, 0)]  # (W, K, 2)
         ellipse = np.zeros(velocity.mask.shape, bool)
         for j, t in enumerate(full):

@@ -13,7 +13,14 @@ from coster_sumo.errors import InputError
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import at_prior_rate, batch_tokens, epoch_samples, prepare_scene, scene_tokens
 from coster_sumo.prior.evaluate import mmd, reliability
-from coster_sumo.prior.infer import load_prior, predict_scene, predict_tokens, read_checkpoint, save_prior
+from coster_sumo.prior.infer import (
+    DENSITY_OFFSET_LIMIT,
+    load_prior,
+    predict_scene,
+    predict_tokens,
+    read_checkpoint,
+    save_prior,
+)
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
 from coster_sumo.prior.train import TrainConfig, train_prior
 from coster_sumo.scene import save_scene
@@ -174,12 +181,53 @@ def test_predict_scene_batched_over_steps():
     lp = pred.position_log_prob(s["world_xy"], t[:50], k[:50])
     assert np.all(np.isfinite(lp))
     assert np.all(np.isneginf(pred.position_log_prob(s["world_xy"] + 100.0, t[:50], k[:50])))
-    # one step alone gives the same numbers as the batch
-    one = predict_scene(model, scene, target=0, steps=np.array([7]))
+    # one step alone gives the same numbers as the batch (the density offset is fitted over the
+    # steps given, so it is left out of this comparison)
+    one = predict_scene(model, scene, target=0, steps=np.array([7]), calibrate=False)
+    batch = predict_scene(model, scene, target=0, calibrate=False)
     kk = one.mask.shape[1]
-    np.testing.assert_allclose(one.presence[0], pred.presence[7, :kk], atol=1e-5)
+    np.testing.assert_allclose(one.presence[0], batch.presence[7, :kk], atol=1e-5)
     full = predict_scene(model, scene, target=0, mode="map")
     assert np.array_equal(full.query, full.mask)
+
+
+def _shifted_prior(bias: float) -> TrafficPrior:
+    """A random prior whose presence logits are all shifted by ``bias`` (it thinks the roads are
+    empty, or full)."""
+    torch.manual_seed(0)
+    model = TrafficPrior(SMALL).eval()
+    with torch.no_grad():
+        model.presence_head[-1].bias.add_(bias)
+    return model
+
+
+@pytest.mark.parametrize("bias", [-3.0, 3.0])
+def test_density_offset_brings_the_hidden_count_to_the_traffic_around(bias):
+    scene = synthetic.two_lane_road()
+    model = _shifted_prior(bias)
+    raw = predict_scene(model, scene, target=0, calibrate=False)
+    cal = predict_scene(model, scene, target=0)
+    assert raw.density_offset == 0.0 and np.sign(cal.density_offset) == -np.sign(bias)
+    observed = int(np.sum(raw.query & (raw.observed_agent >= 0)))
+    assert observed > 0
+    assert abs(cal.presence.sum() - observed) < abs(raw.presence.sum() - observed)
+    # one offset for every region: the order of the regions by presence (the snapshot's order) is kept
+    q = raw.query
+    assert np.array_equal(np.argsort(-raw.presence[q], kind="stable"), np.argsort(-cal.presence[q], kind="stable"))
+    assert np.all(cal.presence[~q] == 0.0)
+    # map mode has no traffic to read: no offset
+    full, full_raw = predict_scene(model, scene, target=0, mode="map"), predict_scene(model, scene, 0, mode="map",
+                                                                                     calibrate=False)
+    assert full.density_offset == 0.0 and np.array_equal(full.presence, full_raw.presence)
+
+
+def test_density_offset_without_traffic_around_is_bounded():
+    scene = synthetic.two_lane_road()
+    tracks = dataclasses.replace(scene.tracks, valid=scene.tracks.valid & (np.arange(4) == 0)[:, None])
+    pred = predict_scene(_shifted_prior(0.0), dataclasses.replace(scene, tracks=tracks), target=0)
+    # nothing beyond the disc: the offset lowers presence, but the pseudo-count keeps it finite
+    assert -DENSITY_OFFSET_LIMIT < pred.density_offset < 0.0
+    assert np.all(pred.presence[pred.query] > 0.0)
 
 
 def test_mmd_and_reliability():

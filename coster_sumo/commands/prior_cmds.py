@@ -159,9 +159,14 @@ def run_eval(args: argparse.Namespace) -> int:
         a, h = result["agents_per_scene"], result["agents_in_hidden_disc"]
         print("agents per scene (map mode): " + " ".join(f"{k}={v:.1f}" for k, v in a.items())
               + f"; in the hidden disc (context mode): ground_truth={h['ground_truth']:.1f} "
-              f"prior={h['prior_context']:.1f}", file=sys.stderr)
+              f"prior={h['prior_context_expected']:.1f} (without the density offset "
+              f"{h['prior_context_raw_expected']:.1f})", file=sys.stderr)
         pm = result["presence"].get("prior_map", {})
         if "ece" in pm:
             print(f"presence (map mode): ECE {pm['ece']:.4f} AUC {pm.get('auc', float('nan')):.3f}", file=sys.stderr)
+        pc, pr = result["presence"].get("prior_context", {}), result["presence"].get("prior_context_raw", {})
+        if "ece" in pc and "ece" in pr:
+            print(f"presence (context mode): ECE {pc['ece']:.4f} (without the density offset {pr['ece']:.4f})",
+                  file=sys.stderr)
         print(f"wrote {out}", file=sys.stderr)
     return 0

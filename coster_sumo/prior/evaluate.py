@@ -26,7 +26,10 @@ in "map" mode for the model and the baselines; and, for the model in "context" m
 beyond the hide radius given, as the snapshot uses it), the agents drawn in the hidden disc
 against those that were there (``agents_in_hidden_disc``). Map mode has only the map and the
 signals: how busy a network is depends on its demand, which no map shows; the context count says
-whether the prior reads that from the traffic around.
+whether the prior reads that from the traffic around. Context mode is scored as the pipeline uses
+it, with the density offset (:func:`coster_sumo.prior.infer.density_offset`, fitted on the scene's
+visible traffic over all its evaluated steps); the raw model's numbers are kept beside them
+(``prior_context_raw_expected``, presence ``prior_context_raw``, the offsets in ``density_offset``).
 
 Presence calibration: reliability over 10 equal-width probability bins (count, mean predicted,
 observed frequency), expected calibration error, BCE, Brier score and ROC AUC, for the model in
@@ -44,7 +47,14 @@ from coster_sumo.prior.baselines import GMMBaseline, MeanValueBaseline
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples, scene_tokens
 from coster_sumo.prior.features import Tokens, centre_frame_attributes, token_buckets
-from coster_sumo.prior.infer import draw_classes, predict_tokens, width_table
+from coster_sumo.prior.infer import (
+    DENSITY_OFFSET_LIMIT,
+    density_offset,
+    draw_classes,
+    offset_presence,
+    predict_tokens,
+    width_table,
+)
 from coster_sumo.prior.model import TrafficPrior
 from coster_sumo.prior.train import evaluate_loss
 
@@ -166,11 +176,13 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     methods = ["prior", *[b.name for b in baselines]]
     per_scene: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
     counts: dict[str, list[int]] = {m: [] for m in ["ground_truth", *methods]}
-    hidden: dict[str, list[float]] = {"ground_truth": [], "prior_context": [], "prior_context_expected": []}
+    hidden: dict[str, list[float]] = {"ground_truth": [], "prior_context": [], "prior_context_expected": [],
+                                      "prior_context_raw_expected": []}
+    offsets: list[float] = []
     hidden_rng = np.random.default_rng([seed, 11])  # its own stream: the other draws stay as they were
     per_scene_disc: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
     cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
-        k: ([], []) for k in ("prior_map", "prior_context", "bucket_rate")}
+        k: ([], []) for k in ("prior_map", "prior_context", "prior_context_raw", "bucket_rate")}
     it: Sequence[ScenePriorData] = scenes
     if progress:
         from tqdm import tqdm
@@ -209,8 +221,12 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
                 per_scene[name][a].append(mmd(feats[a], gt[a]))
         ctx = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="context",
                            hide_radius=cfg.hide_radius)
-        p_ctx, probs_ctx = predict_tokens(model, ctx)
+        p_raw, probs_ctx = predict_tokens(model, ctx)
         q = ctx.query & ctx.mask
+        offsets.append(density_offset(model, data, steps, poses, ctx))
+        p_ctx = offset_presence(p_raw, offsets[-1], q)
+        cal["prior_context_raw"][0].append(p_raw[q])
+        cal["prior_context_raw"][1].append(ctx.present[q])
         cal["prior_context"][0].append(p_ctx[q])
         cal["prior_context"][1].append(ctx.present[q])
         # the hidden disc: the prior sees the traffic around it, the baselines only their map buckets
@@ -225,6 +241,7 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         hidden["ground_truth"].append(len(truth_sel))
         hidden["prior_context"].append(len(disc["prior"][0]))
         hidden["prior_context_expected"].append(float(p_ctx[q].sum()))  # the mean of that draw
+        hidden["prior_context_raw_expected"].append(float(p_raw[q].sum()))
         if len(truth_sel):
             truth = _mmd_features(ctx, truth_sel, ctx.values.reshape(-1, 6)[truth_sel].astype(np.float64),
                                   cfg.radius, cfg.region_width)
@@ -240,6 +257,10 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     for name, c in counts.items():
         result["agents_per_scene"][name] = float(np.mean(c)) if c else 0.0
     result["agents_in_hidden_disc"] = {name: float(np.mean(c)) if c else 0.0 for name, c in hidden.items()}
+    if offsets:
+        o = np.asarray(offsets)
+        result["density_offset"] = {"mean": float(o.mean()), "min": float(o.min()), "max": float(o.max()),
+                                    "at_limit": int(np.sum(np.abs(o) >= DENSITY_OFFSET_LIMIT - 1e-9))}
     result["mmd_hidden_disc"] = {
         name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()}, "scenes": len(per["position"])}
         for name, per in per_scene_disc.items()}

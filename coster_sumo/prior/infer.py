@@ -6,6 +6,17 @@ Checkpoint format (``torch.save`` of a plain dict, loadable with ``torch.load(we
 
 :func:`predict_scene` runs the prior on every step of a (2 Hz) scene at once, centred on the
 target: one forward pass with the steps as the batch.
+
+Density offset (context mode): how busy a place is depends on its demand, which the map does not
+show, and a scene can be busier than any the prior was trained on (real logs with parked cars hold
+four to five times as many vehicles near a vehicle as the corpus' SUMO traffic). The given traffic
+around tells: :func:`density_offset` hides a seeded half of the visible regions as well, lets the
+prior predict them, and returns the one logit offset that makes their predicted count match the
+vehicles that are there (shrunk towards no offset by a pseudo-count of
+:data:`DENSITY_PSEUDO_COUNT` vehicles). Context-mode presence is then sigmoid(logit + offset). The
+offset is uniform over a scene's regions, so the order of the regions by presence, and with it the
+snapshot's placement, stays the same; the counts and probabilities change
+(``docs/method.md``, "Presence calibrated on the visible traffic").
 """
 
 from __future__ import annotations
@@ -27,6 +38,8 @@ from coster_sumo.regions import Regions
 from coster_sumo.scene import Scene
 
 CHECKPOINT_FORMAT = "coster-sumo-prior"
+DENSITY_PSEUDO_COUNT = 2.0  # vehicles added to both sides of the observed / predicted ratio
+DENSITY_OFFSET_LIMIT = 8.0  # |logit offset| at most (a factor of about 3000 in the odds)
 CHECKPOINT_VERSION = 1
 
 
@@ -77,6 +90,60 @@ def load_prior(path: str | Path) -> TrafficPrior:
     return model.eval()
 
 
+def _logit(p: np.ndarray) -> np.ndarray:
+    p = np.clip(np.asarray(p, np.float64), 1e-7, 1.0 - 1e-7)
+    return np.log(p) - np.log1p(-p)
+
+
+def _sigmoid(z: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(z, np.float64)))
+
+
+def density_offset(model: TrafficPrior, data: ScenePriorData, steps: np.ndarray, pose: np.ndarray,
+                   tokens: Tokens, seed: int = 0) -> float:
+    """The logit offset that calibrates context-mode presence on the scene's own visible traffic.
+
+    ``tokens`` are the context-mode tokens of ``steps`` / ``pose`` (B, 3) in ``data``. A seeded half
+    of the visible tokens is hidden too and predicted; the offset ``b`` solves
+    ``sum(sigmoid(logit(p_i) + b)) = predicted * (observed + c) / (predicted + c)`` over that half,
+    c = :data:`DENSITY_PSEUDO_COUNT`, clipped to +-:data:`DENSITY_OFFSET_LIMIT`. 0 without visible
+    regions (map mode, or nothing around).
+    """
+    from scipy.optimize import brentq
+
+    visible = tokens.mask & ~tokens.query
+    probe = visible & (np.random.default_rng([seed, 23]).random(visible.shape) < 0.5)
+    if not probe.any():
+        return 0.0
+    cfg = model.config
+    probe_tokens = scene_tokens(data, np.asarray(steps, np.int64), np.asarray(pose, np.float64), cfg.bins(),
+                                cfg.radius, cfg.max_regions, visible=visible & ~probe)
+    p, _ = predict_tokens(model, probe_tokens, only_query=True, heads=())
+    logits = _logit(p[probe])
+    observed = float(probe_tokens.present[probe].sum())
+    predicted = float(_sigmoid(logits).sum())
+    goal = predicted * (observed + DENSITY_PSEUDO_COUNT) / (predicted + DENSITY_PSEUDO_COUNT)
+
+    def excess(b: float) -> float:
+        return float(_sigmoid(logits + b).sum()) - goal
+
+    lim = DENSITY_OFFSET_LIMIT
+    if excess(-lim) >= 0.0:
+        return -lim
+    if excess(lim) <= 0.0:
+        return lim
+    return float(brentq(excess, -lim, lim, xtol=1e-6))
+
+
+def offset_presence(presence: np.ndarray, offset: float, where: np.ndarray) -> np.ndarray:
+    """``presence`` with ``offset`` added to its logits at ``where`` (float32, zeros elsewhere kept)."""
+    if offset == 0.0:
+        return presence
+    out = np.array(presence, np.float32, copy=True)
+    out[where] = _sigmoid(_logit(presence[where]) + offset)
+    return out
+
+
 @dataclass
 class PriorPrediction:
     """Prior outputs for the target's neighbourhood at every step of a scene.
@@ -96,6 +163,8 @@ class PriorPrediction:
         width_table: (length classes, width classes) bias of the width logits per length class when
             the prior draws width given length (``probs["width"]`` is then the marginal and
             ``probs["width_logits"]`` the head's own logits); None for independent heads.
+        density_offset: the logit offset added to ``presence`` (module docstring; 0 in map mode or
+            when switched off).
     """
 
     regions: Regions
@@ -108,6 +177,7 @@ class PriorPrediction:
     probs: dict[str, np.ndarray]
     bins: AttributeBins
     width_table: np.ndarray | None = None
+    density_offset: float = 0.0
 
     def expected(self, attribute: str) -> np.ndarray:
         """(T, K) (position: (T, K, 2) normalised) expectation under the predicted distribution."""
@@ -223,7 +293,7 @@ def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
 def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: int,
                   steps: np.ndarray | None = None, mode: str = "context",
                   pose: np.ndarray | None = None, hide_radius: float | None = None,
-                  heads: Collection[str] | None = None) -> PriorPrediction:
+                  heads: Collection[str] | None = None, calibrate: bool = True) -> PriorPrediction:
     """Run the prior around ``target`` at every step (one batched forward pass).
 
     Args:
@@ -240,6 +310,8 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
         hide_radius: [m] for "context" mode (default ``config.hide_radius``, 15 m); the region
             centres to be predicted must lie within it.
         heads: the attributes to predict (default all; :meth:`PriorPrediction.sample` needs all).
+        calibrate: in "context" mode, offset the presence logits by :func:`density_offset` over
+            these steps (module docstring); the attribute heads are not touched.
     """
     cfg = model.config
     if isinstance(scene, Scene):
@@ -270,8 +342,12 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
     tokens = scene_tokens(data, st, np.asarray(pose, np.float64), cfg.bins(), cfg.radius, cfg.max_regions,
                           visible=mode, hide_radius=cfg.hide_radius if hide_radius is None else hide_radius)
     presence, probs = predict_tokens(model, tokens, only_query=True, heads=heads)
+    offset = 0.0
+    if calibrate and mode == "context":
+        offset = density_offset(model, data, st, np.asarray(pose, np.float64), tokens)
+        presence = offset_presence(presence, offset, tokens.query & tokens.mask)
     agent, _, _ = data.occupancy.gather(st[:, None], np.maximum(tokens.region_index, 0))
     return PriorPrediction(regions=data.regions, steps=st, region_index=tokens.region_index, mask=tokens.mask,
                            query=tokens.query, observed_agent=np.where(tokens.mask, agent, -1),
                            presence=presence * tokens.mask, probs=probs, bins=cfg.bins(),
-                           width_table=width_table(model))
+                           width_table=width_table(model), density_offset=offset)
