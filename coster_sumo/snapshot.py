@@ -286,12 +286,13 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in ``models_dir`` (default: the shipped
     models folder). ``regions_out``, when given, receives the region centres ``xy`` (K, 2) [m] and
     presence probabilities ``presence`` (K,) around the target at t_col, for pictures. ``memo``: a
-    dict kept by the caller across draws for the same scene, target and model: the regions and the
-    entropy curve are computed once in it (they depend on nothing else).
+    dict kept by the caller across draws for the same scene, target and model: the regions, the
+    entropy curve and the prior's adaptation to the traffic around (fitted over the whole search
+    window) are computed once in it (they depend on nothing else).
     """
     from coster_sumo import weights
-    from coster_sumo.prior.data import at_prior_rate, prepare_scene
-    from coster_sumo.prior.infer import load_prior, predict_scene
+    from coster_sumo.prior.data import at_prior_rate, prepare_scene, scene_tokens
+    from coster_sumo.prior.infer import fit_scene_adaptation, load_prior, predict_scene
 
     if model is None:
         model = weights.load_cached(weights.weights_path(weights.PRIOR, models_dir), load_prior)
@@ -325,7 +326,13 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         memo["entropy"][full] = velocity_entropy(velocity, ellipse)
     entropy = memo["entropy"]
     t_col = choose_collision_time(window, collision_time, rng, entropy)
-    pred = predict_scene(model, data, target, steps=np.array([t_col]), pose=pose(np.array([t_col])))
+    if "adaptation" not in memo:  # what the traffic around says, over the whole window (one step sees little)
+        full = search_window(scene, target)
+        memo["adaptation"] = fit_scene_adaptation(model, data, full, pose(full), scene_tokens(
+            data, full, pose(full), model.config.bins(), model.config.radius, model.config.max_regions,
+            visible="context", hide_radius=model.config.hide_radius))
+    pred = predict_scene(model, data, target, steps=np.array([t_col]), pose=pose(np.array([t_col])),
+                         adaptation=memo["adaptation"])
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
     centres_col = pred.regions.centre[np.maximum(pred.region_index[0], 0)]  # (K, 2)

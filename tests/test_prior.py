@@ -221,6 +221,22 @@ def test_density_offset_brings_the_hidden_count_to_the_traffic_around(bias):
     assert full.density_offset == 0.0 and np.array_equal(full.presence, full_raw.presence)
 
 
+def test_adaptation_moves_the_length_classes_towards_the_vehicles_around():
+    scene = synthetic.two_lane_road()  # every vehicle is 4.5 m long
+    model = _shifted_prior(0.0)  # random weights: lengths spread over every class
+    raw = predict_scene(model, scene, target=0, calibrate=False)
+    cal = predict_scene(model, scene, target=0)
+    observed = int(AttributeBins().length_class(np.array([4.5]))[0])
+    w = cal.adaptation.class_weights["length"]
+    assert cal.adaptation.observed > 0 and w[observed] == w.max() and w[observed] > 1.0
+    q = raw.query
+    assert cal.probs["length"][q][:, observed].mean() > 2.0 * raw.probs["length"][q][:, observed].mean()
+    np.testing.assert_allclose(cal.probs["length"][q].sum(-1), 1.0, rtol=1e-5)
+    np.testing.assert_allclose(cal.probs["width"][q].sum(-1), 1.0, rtol=1e-5)  # the marginal follows
+    # the heads that are not adapted are left as they were
+    np.testing.assert_array_equal(cal.probs["heading"], raw.probs["heading"])
+
+
 def test_density_offset_without_traffic_around_is_bounded():
     scene = synthetic.two_lane_road()
     tracks = dataclasses.replace(scene.tracks, valid=scene.tracks.valid & (np.arange(4) == 0)[:, None])
@@ -295,7 +311,7 @@ def test_cli_train_then_eval(tmp_path):
     hidden = r["agents_in_hidden_disc"]  # the context mode's count, the traffic beyond the disc given
     assert hidden["ground_truth"] > 0 and hidden["prior_context"] >= 0
     assert hidden["ground_truth"] < r["agents_per_scene"]["ground_truth"]  # the disc is part of the neighbourhood
-    assert set(r["mmd_hidden_disc"]) == {"prior", "mean_value", "gmm"}
+    assert set(r["mmd_hidden_disc"]) == {"prior", "prior_raw", "mean_value", "gmm"}
     assert all(r["mmd_hidden_disc"][m]["scenes"] > 0 for m in r["mmd_hidden_disc"])
 
 

@@ -27,9 +27,10 @@ beyond the hide radius given, as the snapshot uses it), the agents drawn in the 
 against those that were there (``agents_in_hidden_disc``). Map mode has only the map and the
 signals: how busy a network is depends on its demand, which no map shows; the context count says
 whether the prior reads that from the traffic around. Context mode is scored as the pipeline uses
-it, with the density offset (:func:`coster_sumo.prior.infer.density_offset`, fitted on the scene's
-visible traffic over all its evaluated steps); the raw model's numbers are kept beside them
-(``prior_context_raw_expected``, presence ``prior_context_raw``, the offsets in ``density_offset``).
+it, adapted to the scene's visible traffic (:func:`coster_sumo.prior.infer.fit_scene_adaptation`
+over all its evaluated steps: a presence offset and speed and length class weights); the raw
+model's numbers are kept beside them (``prior_raw`` in ``mmd_hidden_disc``,
+``prior_context_raw_expected``, presence ``prior_context_raw``; the offsets in ``density_offset``).
 
 Presence calibration: reliability over 10 equal-width probability bins (count, mean predicted,
 observed frequency), expected calibration error, BCE, Brier score and ROC AUC, for the model in
@@ -49,9 +50,8 @@ from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples, 
 from coster_sumo.prior.features import Tokens, centre_frame_attributes, token_buckets
 from coster_sumo.prior.infer import (
     DENSITY_OFFSET_LIMIT,
-    density_offset,
     draw_classes,
-    offset_presence,
+    fit_scene_adaptation,
     predict_tokens,
     width_table,
 )
@@ -180,7 +180,8 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
                                       "prior_context_raw_expected": []}
     offsets: list[float] = []
     hidden_rng = np.random.default_rng([seed, 11])  # its own stream: the other draws stay as they were
-    per_scene_disc: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
+    per_scene_disc: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES}
+                                                         for m in [*methods, "prior_raw"]}
     cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
         k: ([], []) for k in ("prior_map", "prior_context", "prior_context_raw", "bucket_rate")}
     it: Sequence[ScenePriorData] = scenes
@@ -221,10 +222,11 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
                 per_scene[name][a].append(mmd(feats[a], gt[a]))
         ctx = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="context",
                            hide_radius=cfg.hide_radius)
-        p_raw, probs_ctx = predict_tokens(model, ctx)
+        p_raw, probs_raw = predict_tokens(model, ctx)
         q = ctx.query & ctx.mask
-        offsets.append(density_offset(model, data, steps, poses, ctx))
-        p_ctx = offset_presence(p_raw, offsets[-1], q)
+        adaptation = fit_scene_adaptation(model, data, steps, poses, ctx)
+        offsets.append(adaptation.offset)
+        p_ctx, probs_ctx = adaptation.apply(model, p_raw, probs_raw, q)
         cal["prior_context_raw"][0].append(p_raw[q])
         cal["prior_context_raw"][1].append(ctx.present[q])
         cal["prior_context"][0].append(p_ctx[q])
@@ -237,6 +239,7 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
             p = b.presence(ctx_buckets)
             sel = np.flatnonzero((hidden_rng.random(len(p)) < p) & q_flat)
             disc[b.name] = (sel, b.sample_values(ctx_buckets[sel], hidden_rng))
+        disc["prior_raw"] = _sample_model(np.where(q, p_raw, 0.0), probs_raw, q, bins, hidden_rng, table)
         truth_sel = np.flatnonzero((ctx.present & q).ravel())
         hidden["ground_truth"].append(len(truth_sel))
         hidden["prior_context"].append(len(disc["prior"][0]))

@@ -7,22 +7,24 @@ Checkpoint format (``torch.save`` of a plain dict, loadable with ``torch.load(we
 :func:`predict_scene` runs the prior on every step of a (2 Hz) scene at once, centred on the
 target: one forward pass with the steps as the batch.
 
-Density offset (context mode): how busy a place is depends on its demand, which the map does not
-show, and a scene can be busier than any the prior was trained on (real logs with parked cars hold
-four to five times as many vehicles near a vehicle as the corpus' SUMO traffic). The given traffic
-around tells: :func:`density_offset` hides a seeded half of the visible regions as well, lets the
-prior predict them, and returns the one logit offset that makes their predicted count match the
-vehicles that are there (shrunk towards no offset by a pseudo-count of
-:data:`DENSITY_PSEUDO_COUNT` vehicles). Context-mode presence is then sigmoid(logit + offset). The
-offset is uniform over a scene's regions, so the order of the regions by presence, and with it the
-snapshot's placement, stays the same; the counts and probabilities change
-(``docs/method.md``, "Presence calibrated on the visible traffic").
+Scene adaptation (context mode): how busy a place is and which vehicles drive there depend on
+the demand, which the map does not show, and a scene can be unlike any the prior was trained on
+(real logs with parked cars hold four to five times as many vehicles near a vehicle as the
+corpus' SUMO traffic; a gridlocked city with its own vehicle mix). The given traffic around tells:
+:func:`fit_scene_adaptation` hides a seeded half of the visible regions as well, lets the prior
+predict them, and compares with the vehicles that are there. It returns one logit offset for
+presence (the predicted count of that half brought to the observed one, shrunk towards no offset
+by :data:`DENSITY_PSEUDO_COUNT` vehicles per step) and one weight per speed and length class
+(observed over predicted vehicles of the class, :data:`CLASS_PSEUDO_COUNT` per step added to both).
+The offset is uniform over a scene's regions, so the order of the regions by presence stays the
+same; counts, probabilities, speeds and sizes follow the scene (``docs/method.md``, "The prior
+adapted to the scene's visible traffic").
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -38,8 +40,14 @@ from coster_sumo.regions import Regions
 from coster_sumo.scene import Scene
 
 CHECKPOINT_FORMAT = "coster-sumo-prior"
-DENSITY_PSEUDO_COUNT = 2.0  # vehicles added to both sides of the observed / predicted ratio
+# Pseudo-counts per fitted step, added to both sides of an observed / predicted ratio: the same
+# vehicles are seen at every step, so the evidence grows more slowly than the count. Chosen on the
+# validation clips of the training networks by the held-out score of the hidden disc (presence
+# cross-entropy; log-likelihood of the true speed and length class), see docs/method.md.
+DENSITY_PSEUDO_COUNT = 1.0
 DENSITY_OFFSET_LIMIT = 8.0  # |logit offset| at most (a factor of about 3000 in the odds)
+CLASS_PSEUDO_COUNT = {"speed": 0.1, "length": 0.5}  # per class, per fitted step
+ADAPTED_ATTRIBUTES = tuple(CLASS_PSEUDO_COUNT)  # the heads whose class mix each scene's traffic refits
 CHECKPOINT_VERSION = 1
 
 
@@ -99,49 +107,94 @@ def _sigmoid(z: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(z, np.float64)))
 
 
-def density_offset(model: TrafficPrior, data: ScenePriorData, steps: np.ndarray, pose: np.ndarray,
-                   tokens: Tokens, seed: int = 0) -> float:
-    """The logit offset that calibrates context-mode presence on the scene's own visible traffic.
+@dataclass(frozen=True)
+class SceneAdaptation:
+    """What a scene's visible traffic says about the prior's guesses for it (module docstring).
+
+    Attributes:
+        offset: logit offset added to every context-mode presence.
+        class_weights: attribute (:data:`ADAPTED_ATTRIBUTES`) -> (C,) factor on its class
+            probabilities (renormalised after).
+        probed: visible tokens hidden to fit it; observed: the vehicles found in them.
+    """
+
+    offset: float = 0.0
+    class_weights: dict[str, np.ndarray] = field(default_factory=dict)
+    probed: int = 0
+    observed: int = 0
+
+    def apply(self, model: TrafficPrior, presence: np.ndarray, probs: dict[str, np.ndarray], where: np.ndarray
+              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """``presence`` (B, K) and ``probs`` adapted at the tokens ``where`` (B, K) (new arrays)."""
+        if self.offset != 0.0:
+            presence = np.array(presence, np.float32, copy=True)
+            presence[where] = _sigmoid(_logit(presence[where]) + self.offset)
+        probs = dict(probs)
+        for a, w in self.class_weights.items():
+            if a not in probs:
+                continue
+            p = np.array(probs[a], copy=True)
+            sub = p[where] * w.astype(np.float32)
+            total = sub.sum(-1, keepdims=True)
+            p[where] = np.where(total > 0, sub / np.maximum(total, 1e-30), p[where])
+            probs[a] = p
+        if "length" in self.class_weights and "width_logits" in probs and model.width_table is not None:
+            width = np.array(probs["width"], copy=True)
+            width[where] = _width_marginal(model.width_table.detach(), torch.from_numpy(probs["length"][where]),
+                                           torch.from_numpy(probs["width_logits"][where])).numpy()
+            probs["width"] = width
+        return presence, probs
+
+
+def fit_scene_adaptation(model: TrafficPrior, data: ScenePriorData, steps: np.ndarray, pose: np.ndarray,
+                         tokens: Tokens, seed: int = 0) -> SceneAdaptation:
+    """Fit the presence offset and the class weights on the scene's own visible traffic.
 
     ``tokens`` are the context-mode tokens of ``steps`` / ``pose`` (B, 3) in ``data``. A seeded half
-    of the visible tokens is hidden too and predicted; the offset ``b`` solves
+    of the visible tokens is hidden too and predicted. Presence: the offset ``b`` solves
     ``sum(sigmoid(logit(p_i) + b)) = predicted * (observed + c) / (predicted + c)`` over that half,
-    c = :data:`DENSITY_PSEUDO_COUNT`, clipped to +-:data:`DENSITY_OFFSET_LIMIT`. 0 without visible
-    regions (map mode, or nothing around).
+    c = :data:`DENSITY_PSEUDO_COUNT` x the number of steps, clipped to +-:data:`DENSITY_OFFSET_LIMIT`.
+    Classes (speed, length): over the vehicles of that half, ``w = (n + c) / (m + c)`` per class, n
+    the vehicles observed in the class, m the sum of the predicted probabilities of the class, c =
+    :data:`CLASS_PSEUDO_COUNT` of the attribute x the number of steps. No adaptation without visible
+    regions (map mode, nothing around).
     """
     from scipy.optimize import brentq
 
     visible = tokens.mask & ~tokens.query
     probe = visible & (np.random.default_rng([seed, 23]).random(visible.shape) < 0.5)
     if not probe.any():
-        return 0.0
+        return SceneAdaptation()
     cfg = model.config
     probe_tokens = scene_tokens(data, np.asarray(steps, np.int64), np.asarray(pose, np.float64), cfg.bins(),
                                 cfg.radius, cfg.max_regions, visible=visible & ~probe)
-    p, _ = predict_tokens(model, probe_tokens, only_query=True, heads=())
+    p, probs = predict_tokens(model, probe_tokens, only_query=True, heads=ADAPTED_ATTRIBUTES)
     logits = _logit(p[probe])
-    observed = float(probe_tokens.present[probe].sum())
+    present = probe_tokens.present & probe
+    observed = float(present.sum())
     predicted = float(_sigmoid(logits).sum())
-    goal = predicted * (observed + DENSITY_PSEUDO_COUNT) / (predicted + DENSITY_PSEUDO_COUNT)
+    steps_fitted = len(np.asarray(steps).reshape(-1))
+    c = DENSITY_PSEUDO_COUNT * steps_fitted
+    goal = predicted * (observed + c) / (predicted + c)
 
     def excess(b: float) -> float:
         return float(_sigmoid(logits + b).sum()) - goal
 
     lim = DENSITY_OFFSET_LIMIT
     if excess(-lim) >= 0.0:
-        return -lim
-    if excess(lim) <= 0.0:
-        return lim
-    return float(brentq(excess, -lim, lim, xtol=1e-6))
-
-
-def offset_presence(presence: np.ndarray, offset: float, where: np.ndarray) -> np.ndarray:
-    """``presence`` with ``offset`` added to its logits at ``where`` (float32, zeros elsewhere kept)."""
-    if offset == 0.0:
-        return presence
-    out = np.array(presence, np.float32, copy=True)
-    out[where] = _sigmoid(_logit(presence[where]) + offset)
-    return out
+        offset = -lim
+    elif excess(lim) <= 0.0:
+        offset = lim
+    else:
+        offset = float(brentq(excess, -lim, lim, xtol=1e-6))
+    weights = {}
+    for a in ADAPTED_ATTRIBUTES:
+        num = probs[a].shape[-1]
+        n = np.bincount(probe_tokens.classes[..., ATTRIBUTES.index(a)][present], minlength=num)[:num]
+        m = probs[a][present].astype(np.float64).sum(0)
+        c = CLASS_PSEUDO_COUNT[a] * steps_fitted
+        weights[a] = (n + c) / (m + c)
+    return SceneAdaptation(offset=offset, class_weights=weights, probed=int(probe.sum()), observed=int(observed))
 
 
 @dataclass
@@ -163,8 +216,8 @@ class PriorPrediction:
         width_table: (length classes, width classes) bias of the width logits per length class when
             the prior draws width given length (``probs["width"]`` is then the marginal and
             ``probs["width_logits"]`` the head's own logits); None for independent heads.
-        density_offset: the logit offset added to ``presence`` (module docstring; 0 in map mode or
-            when switched off).
+        adaptation: the scene adaptation applied to ``presence`` and ``probs`` (module docstring;
+            none in map mode or when switched off).
     """
 
     regions: Regions
@@ -177,7 +230,12 @@ class PriorPrediction:
     probs: dict[str, np.ndarray]
     bins: AttributeBins
     width_table: np.ndarray | None = None
-    density_offset: float = 0.0
+    adaptation: SceneAdaptation = field(default_factory=SceneAdaptation)
+
+    @property
+    def density_offset(self) -> float:
+        """The logit offset added to ``presence``."""
+        return self.adaptation.offset
 
     def expected(self, attribute: str) -> np.ndarray:
         """(T, K) (position: (T, K, 2) normalised) expectation under the predicted distribution."""
@@ -293,7 +351,8 @@ def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
 def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: int,
                   steps: np.ndarray | None = None, mode: str = "context",
                   pose: np.ndarray | None = None, hide_radius: float | None = None,
-                  heads: Collection[str] | None = None, calibrate: bool = True) -> PriorPrediction:
+                  heads: Collection[str] | None = None, calibrate: bool = True,
+                  adaptation: SceneAdaptation | None = None) -> PriorPrediction:
     """Run the prior around ``target`` at every step (one batched forward pass).
 
     Args:
@@ -310,8 +369,10 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
         hide_radius: [m] for "context" mode (default ``config.hide_radius``, 15 m); the region
             centres to be predicted must lie within it.
         heads: the attributes to predict (default all; :meth:`PriorPrediction.sample` needs all).
-        calibrate: in "context" mode, offset the presence logits by :func:`density_offset` over
-            these steps (module docstring); the attribute heads are not touched.
+        calibrate: in "context" mode, adapt presence and the speed and length classes to the
+            scene's visible traffic (:func:`fit_scene_adaptation` over these steps, module docstring).
+        adaptation: the adaptation to apply instead of fitting one here (e.g. one fitted over a
+            longer stretch of the same scene); with ``calibrate``, context mode only.
     """
     cfg = model.config
     if isinstance(scene, Scene):
@@ -342,12 +403,12 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
     tokens = scene_tokens(data, st, np.asarray(pose, np.float64), cfg.bins(), cfg.radius, cfg.max_regions,
                           visible=mode, hide_radius=cfg.hide_radius if hide_radius is None else hide_radius)
     presence, probs = predict_tokens(model, tokens, only_query=True, heads=heads)
-    offset = 0.0
+    fitted = SceneAdaptation()
     if calibrate and mode == "context":
-        offset = density_offset(model, data, st, np.asarray(pose, np.float64), tokens)
-        presence = offset_presence(presence, offset, tokens.query & tokens.mask)
+        fitted = adaptation or fit_scene_adaptation(model, data, st, np.asarray(pose, np.float64), tokens)
+        presence, probs = fitted.apply(model, presence, probs, tokens.query & tokens.mask)
     agent, _, _ = data.occupancy.gather(st[:, None], np.maximum(tokens.region_index, 0))
     return PriorPrediction(regions=data.regions, steps=st, region_index=tokens.region_index, mask=tokens.mask,
                            query=tokens.query, observed_agent=np.where(tokens.mask, agent, -1),
                            presence=presence * tokens.mask, probs=probs, bins=cfg.bins(),
-                           width_table=width_table(model), density_offset=offset)
+                           width_table=width_table(model), adaptation=fitted)
