@@ -145,11 +145,12 @@ def main() -> None:
                     ang.append(float(metrics.impact_angle_deg(np.array([s.target.x, s.target.y]), s.target.yaw,
                                                               np.array([s.adversary.x, s.adversary.y]))))
                 kind = int(scene.road_map.lane_type_at(np.array([[s.adversary.x, s.adversary.y]]))[0])
-                # the prior's probability of the stopped speed class in the region the adversary came from
+                # the prior's probability of the stopped speed class in the region the adversary came
+                # from, adapted to the scene's traffic as the snapshot used it
                 at = (scene.sdc_index, s.t_index)
                 pose = np.array([[low.tracks.x[at], low.tracks.y[at], low.tracks.heading[at]]])
                 pred = predict_scene(model, memo["data"], scene.sdc_index, steps=np.array([s.t_index]),
-                                     heads=("speed",), pose=pose, calibrate=False)
+                                     heads=("speed",), pose=pose, adaptation=memo.get("adaptation"))
                 k = np.flatnonzero(pred.region_index[0] == s.region_id)
                 p_stop = float(pred.probs["speed"][0, k[0], 0]) if len(k) else float("nan")
                 records.append({"network": net, "adversary_speed": s.adversary.speed, "p_stopped": p_stop,
