@@ -246,6 +246,21 @@ def test_density_offset_without_traffic_around_is_bounded():
     assert np.all(pred.presence[pred.query] > 0.0)
 
 
+def test_unbiased_mmd_does_not_reward_drawing_more_samples():
+    rng = np.random.default_rng(0)
+    # the same distribution, few samples against many: the biased estimate grows as the sample
+    # shrinks (its diagonal terms), the unbiased one stays about 0
+    small = [mmd(rng.normal(size=(3, 2)), rng.normal(size=(40, 2))) for _ in range(200)]
+    large = [mmd(rng.normal(size=(40, 2)), rng.normal(size=(40, 2))) for _ in range(200)]
+    assert np.mean(small) > 4.0 * np.mean(large)
+    small_u = [mmd(rng.normal(size=(3, 2)), rng.normal(size=(40, 2)), unbiased=True) for _ in range(200)]
+    assert abs(np.mean(small_u)) < 0.02
+    x = rng.normal(size=(50, 2))
+    assert mmd(x, x + 3.0, unbiased=True) > 0.3
+    with pytest.raises(ValueError):
+        mmd(x[:1], x, unbiased=True)
+
+
 def test_mmd_and_reliability():
     rng = np.random.default_rng(0)
     x = rng.normal(size=(200, 2))
@@ -312,6 +327,16 @@ def test_cli_train_then_eval(tmp_path):
     assert hidden["ground_truth"] > 0 and hidden["prior_context"] >= 0
     assert hidden["ground_truth"] < r["agents_per_scene"]["ground_truth"]  # the disc is part of the neighbourhood
     assert set(r["mmd_hidden_disc"]) == {"prior", "prior_raw", "mean_value", "gmm"}
+    # the centre agent is in the disc at every step: without it the disc holds fewer agents
+    w = r["without_centre_agent"]
+    assert 0 <= w["agents_in_hidden_disc"]["ground_truth"] < hidden["ground_truth"]
+    assert w["agents_per_scene"]["ground_truth"] < r["agents_per_scene"]["ground_truth"]
+    assert set(w["mmd_hidden_disc"]) == set(r["mmd_hidden_disc"]) and set(w["mmd"]) == set(r["mmd"])
+    assert main(["-q", "eval", "prior", "--data", str(data), "--checkpoint", str(out), "--split", "all",
+                 "--mmd", "unbiased", "--json", str(res)]) == 0
+    u = json.loads(res.read_text())
+    assert u["mmd_estimator"] == "unbiased" and r["mmd_estimator"] == "biased"
+    assert len({m["scenes"] for m in u["mmd"].values()}) == 1  # every method on the same scenes
     assert all(r["mmd_hidden_disc"][m]["scenes"] > 0 for m in r["mmd_hidden_disc"])
 
 

@@ -66,6 +66,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     ev.add_argument("--baseline-scenes", type=int, default=400,
                     help="fit the baselines on at most this many training scenes (%(default)s)")
     ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--mmd", choices=("biased", "unbiased"), default="biased",
+                    help="MMD estimator: biased (with the kernel's diagonal; favours methods that draw more "
+                         "agents when a scene has few) or unbiased (scored on the scenes where every method "
+                         "has two samples) (%(default)s)")
     ev.add_argument("--threads", type=int, default=1, help="torch threads (%(default)s)")
     ev.add_argument("--json", required=True, help="where to write the results (JSON)")
     ev.set_defaults(func=run_eval)
@@ -140,7 +144,7 @@ def run_eval(args: argparse.Namespace) -> int:
         train_files, _ = split_files(train_src, args.val_fraction)
         train_files = _subset(train_files, args.baseline_scenes, args.seed)
         baselines = fit_baselines(model, load_prepared(train_files, radius, progress), seed=args.seed)
-    result = evaluate_prior(model, scenes, baselines, seed=args.seed, progress=progress)
+    result = evaluate_prior(model, scenes, baselines, seed=args.seed, progress=progress, mmd_estimator=args.mmd)
     result.update({"checkpoint": str(args.checkpoint), "data": [str(d) for d in args.data],
                    "baselines_fitted_on": str(train_src) if train_src else None, "seed": args.seed,
                    "split": args.split})
@@ -161,6 +165,15 @@ def run_eval(args: argparse.Namespace) -> int:
               + f"; in the hidden disc (context mode): ground_truth={h['ground_truth']:.1f} "
               f"prior={h['prior_context_expected']:.1f} (without the density offset "
               f"{h['prior_context_raw_expected']:.1f})", file=sys.stderr)
+        w = result["without_centre_agent"]
+        for name, m in w["mmd_hidden_disc"].items():
+            vals = " ".join(f"{a}={m[a]:.4f}" if m[a] is not None else f"{a}=n/a"
+                            for a in ("position", "heading", "speed", "size"))
+            print(f"{name:>10}: MMD in the hidden disc without the centre agent {vals} ({m['scenes']} scenes)",
+                  file=sys.stderr)
+        hw = w["agents_in_hidden_disc"]
+        print(f"in the hidden disc without the centre agent: ground_truth={hw['ground_truth']:.1f} "
+              f"prior={hw['prior_context_expected']:.1f}", file=sys.stderr)
         pm = result["presence"].get("prior_map", {})
         if "ece" in pm:
             print(f"presence (map mode): ECE {pm['ece']:.4f} AUC {pm.get('auc', float('nan')):.3f}", file=sys.stderr)

@@ -13,7 +13,11 @@ MMD (per attribute, per scene, then averaged over scenes where both sets are non
 are pooled over the scene's steps, in the centre agent's frame: position (x, y) [m], heading as
 (cos, sin) of the heading relative to the centre, speed [m/s], size (length, width) [m]. One
 Gaussian kernel exp(-|a - b|^2 / h) with h = mean pairwise squared distance of the pooled samples;
-biased estimate mean(K_xx) + mean(K_yy) - 2 mean(K_xy).
+biased estimate mean(K_xx) + mean(K_yy) - 2 mean(K_xy) by default. Its diagonal terms add about
+1/n + 1/m, so with a few samples per scene a method that draws more agents scores lower whatever
+they look like. ``mmd_estimator="unbiased"`` leaves the diagonals out (the U-statistic) and scores
+a scene only where the truth and every method have at least two samples, so that all methods are
+averaged over the same scenes.
 
 MMD in the hidden disc (``mmd_hidden_disc``): the same four MMDs over the regions "context" mode
 predicts (within the hide radius of the centre agent, the traffic beyond it given), the prior's
@@ -31,6 +35,12 @@ it, adapted to the scene's visible traffic (:func:`coster_sumo.prior.infer.fit_s
 over all its evaluated steps: a presence offset and speed and length class weights); the raw
 model's numbers are kept beside them (``prior_raw`` in ``mmd_hidden_disc``,
 ``prior_context_raw_expected``, presence ``prior_context_raw``; the offsets in ``density_offset``).
+
+Without the centre agent (``without_centre_agent``): the same MMDs and counts with the centre
+agent's own region left out of the truth and of every method's draws. The centre agent sits in the
+middle of its neighbourhood at every step, where any model that knows the frame puts a vehicle;
+in the corpus' clips it is about half of the agents a neighbourhood holds, and more than half of
+the hidden disc's. These numbers say how well the other vehicles are predicted.
 
 Presence calibration: reliability over 10 equal-width probability bins (count, mean predicted,
 observed frequency), expected calibration error, BCE, Brier score and ROC AUC, for the model in
@@ -61,9 +71,10 @@ from coster_sumo.prior.train import evaluate_loss
 MMD_ATTRIBUTES = ("position", "heading", "speed", "size")
 
 
-def mmd(x: np.ndarray, y: np.ndarray) -> float:
-    """Biased MMD^2 of samples x (n, d) and y (m, d), one Gaussian kernel, bandwidth = mean pairwise
-    squared distance of the pooled samples (over distinct pairs)."""
+def mmd(x: np.ndarray, y: np.ndarray, unbiased: bool = False) -> float:
+    """MMD^2 of samples x (n, d) and y (m, d), one Gaussian kernel, bandwidth = mean pairwise
+    squared distance of the pooled samples (over distinct pairs); biased (V-statistic) or, with
+    ``unbiased``, without the diagonal terms (needs n, m >= 2; can be below 0)."""
     x = np.asarray(x, np.float64).reshape(len(x), -1)
     y = np.asarray(y, np.float64).reshape(len(y), -1)
     z = np.concatenate([x, y])
@@ -73,6 +84,13 @@ def mmd(x: np.ndarray, y: np.ndarray) -> float:
     bw = d2.sum() / max(n * (n - 1), 1)
     k = np.exp(-d2 / bw) if bw > 0 else np.ones_like(d2)
     nx = len(x)
+    if unbiased:
+        ny = len(y)
+        if nx < 2 or ny < 2:
+            raise ValueError("the unbiased MMD needs at least two samples on each side")
+        kxx, kyy = k[:nx, :nx], k[nx:, nx:]
+        return float((kxx.sum() - np.trace(kxx)) / (nx * (nx - 1)) + (kyy.sum() - np.trace(kyy)) / (ny * (ny - 1))
+                     - 2.0 * k[:nx, nx:].mean())
     return float(k[:nx, :nx].mean() + k[nx:, nx:].mean() - 2.0 * k[:nx, nx:].mean())
 
 
@@ -106,16 +124,46 @@ def reliability(p: np.ndarray, y: np.ndarray, num_bins: int = 10) -> dict:
     return out
 
 
-def evaluation_centres(data: ScenePriorData, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Steps (T,) and centre poses (T, 3): the target where valid, else a random valid vehicle."""
-    steps, poses = [], []
+def centre_rows(data: ScenePriorData, rng: np.random.Generator) -> np.ndarray:
+    """(T,) rows of ``data.centres``, one per step: the target where valid, else a random valid vehicle."""
+    chosen = []
     for t in np.unique(data.centres[:, 0]):
         rows = np.flatnonzero(data.centres[:, 0] == t)
         sdc = rows[data.centres[rows, 1] == data.sdc_index]
-        row = sdc[0] if len(sdc) else rng.choice(rows)
-        steps.append(int(t))
-        poses.append(data.centre_pose[row])
-    return np.asarray(steps, np.int64), np.asarray(poses, np.float64).reshape(-1, 3)
+        chosen.append(int(sdc[0] if len(sdc) else rng.choice(rows)))
+    return np.asarray(chosen, np.int64)
+
+
+def evaluation_centres(data: ScenePriorData, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Steps (T,) and centre poses (T, 3) of :func:`centre_rows`."""
+    rows = centre_rows(data, rng)
+    return data.centres[rows, 0].astype(np.int64), data.centre_pose[rows].astype(np.float64).reshape(-1, 3)
+
+
+def _not_centre(data: ScenePriorData, tok: Tokens, steps: np.ndarray, centre_agent: np.ndarray) -> np.ndarray:
+    """Flat bool over ``tok``'s tokens: False where the centre agent itself is (its own region)."""
+    agent, _, _ = data.occupancy.gather(steps[:, None], np.maximum(tok.region_index, 0))
+    return ~((agent == centre_agent[:, None]) & tok.mask).ravel()
+
+
+def _score_draws(tok: Tokens, truth_sel: np.ndarray, draws: dict[str, tuple[np.ndarray, np.ndarray]],
+                 out: dict[str, dict[str, list[float]]], radius: float, width: float,
+                 keep: np.ndarray | None = None, unbiased: bool = False) -> None:
+    """Append each method's per-scene MMDs (draws: name -> (flat indices, (n, 6) values)) against
+    the agents at ``truth_sel``; ``keep``: a flat bool of the tokens to score (default all).
+    Biased: every method with a draw is scored; unbiased: all or none (module docstring)."""
+    if keep is not None:
+        truth_sel = truth_sel[keep[truth_sel]]
+        draws = {name: (sel[keep[sel]], vals[keep[sel]]) for name, (sel, vals) in draws.items()}
+    least = 2 if unbiased else 1
+    if len(truth_sel) < least or (unbiased and any(len(sel) < least for sel, _ in draws.values())):
+        return
+    truth = _mmd_features(tok, truth_sel, tok.values.reshape(-1, 6)[truth_sel].astype(np.float64), radius, width)
+    for name, (sel, vals) in draws.items():
+        if len(sel) >= least:
+            feats = _mmd_features(tok, sel, vals, radius, width)
+            for a in MMD_ATTRIBUTES:
+                out[name][a].append(mmd(feats[a], truth[a], unbiased))
 
 
 def _mmd_features(tok: Tokens, sel: np.ndarray, values: np.ndarray, radius: float, width: float
@@ -167,8 +215,12 @@ def fit_baselines(model: TrafficPrior, train: Sequence[ScenePriorData], seed: in
 
 def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
                    baselines: Sequence[MeanValueBaseline | GMMBaseline] = (), seed: int = 0,
-                   progress: bool = False) -> dict:
-    """MMD of generated vs ground-truth traffic, presence calibration and held-out losses."""
+                   progress: bool = False, mmd_estimator: str = "biased") -> dict:
+    """MMD of generated vs ground-truth traffic, presence calibration and held-out losses;
+    ``mmd_estimator``: "biased" or "unbiased" (module docstring)."""
+    if mmd_estimator not in ("biased", "unbiased"):
+        raise ValueError(f"mmd_estimator must be 'biased' or 'unbiased', got {mmd_estimator!r}")
+    unbiased = mmd_estimator == "unbiased"
     cfg = model.config
     bins = cfg.bins()
     table = width_table(model)
@@ -182,6 +234,13 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     hidden_rng = np.random.default_rng([seed, 11])  # its own stream: the other draws stay as they were
     per_scene_disc: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES}
                                                          for m in [*methods, "prior_raw"]}
+    # the same scores without the centre agent's own region, which the model predicts at the centre
+    per_scene_others: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in per_scene}
+    per_scene_disc_others: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES}
+                                                                for m in per_scene_disc}
+    counts_others: dict[str, list[int]] = {m: [] for m in counts}
+    hidden_others: dict[str, list[float]] = {"ground_truth": [], "prior_context_expected": [],
+                                             "prior_context_raw_expected": []}
     cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
         k: ([], []) for k in ("prior_map", "prior_context", "prior_context_raw", "bucket_rate")}
     it: Sequence[ScenePriorData] = scenes
@@ -192,14 +251,16 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     for data in it:
         if len(data.centres) == 0:
             continue
-        steps, poses = evaluation_centres(data, rng)
+        rows = centre_rows(data, rng)
+        steps, centre_agent = data.centres[rows, 0].astype(np.int64), data.centres[rows, 1]
+        poses = data.centre_pose[rows].astype(np.float64).reshape(-1, 3)
         tok = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="map")
         mask = tok.mask
         flat_mask = mask.ravel()
         gt_sel = np.flatnonzero((tok.present & mask).ravel())
-        gt_vals = tok.values.reshape(-1, 6)[gt_sel].astype(np.float64)
-        gt = _mmd_features(tok, gt_sel, gt_vals, cfg.radius, cfg.region_width)
         counts["ground_truth"].append(len(gt_sel))
+        others = _not_centre(data, tok, steps, centre_agent)
+        counts_others["ground_truth"].append(int(others[gt_sel].sum()))
         presence, probs = predict_tokens(model, tok)
         cal["prior_map"][0].append(presence[mask])
         cal["prior_map"][1].append(tok.present[mask])
@@ -213,13 +274,11 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         if baselines:
             cal["bucket_rate"][0].append(baselines[0].presence(buckets[flat_mask]))
             cal["bucket_rate"][1].append(tok.present.ravel()[flat_mask])
-        for name, (sel, vals) in generated.items():
+        for name, (sel, _) in generated.items():
             counts[name].append(len(sel))
-            if len(sel) == 0 or len(gt_sel) == 0:
-                continue
-            feats = _mmd_features(tok, sel, vals, cfg.radius, cfg.region_width)
-            for a in MMD_ATTRIBUTES:
-                per_scene[name][a].append(mmd(feats[a], gt[a]))
+            counts_others[name].append(int(others[sel].sum()))
+        _score_draws(tok, gt_sel, generated, per_scene, cfg.radius, cfg.region_width, None, unbiased)
+        _score_draws(tok, gt_sel, generated, per_scene_others, cfg.radius, cfg.region_width, others, unbiased)
         ctx = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="context",
                            hide_radius=cfg.hide_radius)
         p_raw, probs_raw = predict_tokens(model, ctx)
@@ -245,18 +304,21 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         hidden["prior_context"].append(len(disc["prior"][0]))
         hidden["prior_context_expected"].append(float(p_ctx[q].sum()))  # the mean of that draw
         hidden["prior_context_raw_expected"].append(float(p_raw[q].sum()))
-        if len(truth_sel):
-            truth = _mmd_features(ctx, truth_sel, ctx.values.reshape(-1, 6)[truth_sel].astype(np.float64),
-                                  cfg.radius, cfg.region_width)
-            for name, (sel, vals) in disc.items():
-                if len(sel):
-                    feats = _mmd_features(ctx, sel, vals, cfg.radius, cfg.region_width)
-                    for a in MMD_ATTRIBUTES:
-                        per_scene_disc[name][a].append(mmd(feats[a], truth[a]))
-    result: dict = {"num_scenes": len(counts["ground_truth"]), "mmd": {}, "agents_per_scene": {}, "presence": {}}
-    for name in methods:
-        result["mmd"][name] = {a: (float(np.mean(v)) if v else None) for a, v in per_scene[name].items()}
-        result["mmd"][name]["scenes"] = len(per_scene[name]["position"])
+        _score_draws(ctx, truth_sel, disc, per_scene_disc, cfg.radius, cfg.region_width, None, unbiased)
+        # the same without the centre agent's own region (about half of what the disc holds)
+        others_ctx = _not_centre(data, ctx, steps, centre_agent)
+        q_others = q & others_ctx.reshape(q.shape)
+        hidden_others["ground_truth"].append(int(others_ctx[truth_sel].sum()))
+        hidden_others["prior_context_expected"].append(float(p_ctx[q_others].sum()))
+        hidden_others["prior_context_raw_expected"].append(float(p_raw[q_others].sum()))
+        _score_draws(ctx, truth_sel, disc, per_scene_disc_others, cfg.radius, cfg.region_width, others_ctx,
+                     unbiased)
+    def summary(per_method: dict[str, dict[str, list[float]]]) -> dict[str, dict]:
+        return {name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()},
+                       "scenes": len(per["position"])} for name, per in per_method.items()}
+
+    result: dict = {"num_scenes": len(counts["ground_truth"]), "mmd_estimator": mmd_estimator,
+                    "mmd": summary(per_scene), "agents_per_scene": {}, "presence": {}}
     for name, c in counts.items():
         result["agents_per_scene"][name] = float(np.mean(c)) if c else 0.0
     result["agents_in_hidden_disc"] = {name: float(np.mean(c)) if c else 0.0 for name, c in hidden.items()}
@@ -264,9 +326,11 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         o = np.asarray(offsets)
         result["density_offset"] = {"mean": float(o.mean()), "min": float(o.min()), "max": float(o.max()),
                                     "at_limit": int(np.sum(np.abs(o) >= DENSITY_OFFSET_LIMIT - 1e-9))}
-    result["mmd_hidden_disc"] = {
-        name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()}, "scenes": len(per["position"])}
-        for name, per in per_scene_disc.items()}
+    result["mmd_hidden_disc"] = summary(per_scene_disc)
+    result["without_centre_agent"] = {
+        "mmd": summary(per_scene_others), "mmd_hidden_disc": summary(per_scene_disc_others),
+        "agents_per_scene": {name: float(np.mean(c)) if c else 0.0 for name, c in counts_others.items()},
+        "agents_in_hidden_disc": {name: float(np.mean(c)) if c else 0.0 for name, c in hidden_others.items()}}
     for name, (ps, ys) in cal.items():
         if ps:
             result["presence"][name] = reliability(np.concatenate(ps), np.concatenate(ys))
