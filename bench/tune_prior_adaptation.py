@@ -1,0 +1,138 @@
+"""Choose the pseudo-counts of the prior's scene adaptation by held-out scores.
+
+Usage: python bench/tune_prior_adaptation.py CORPUS [--every 2] [--checkpoint CKPT]
+       python bench/tune_prior_adaptation.py --files SCENE... (held-out clips or WOMD files, to look)
+The validation clips of CORPUS (every ``--every``-th), each centred as ``eval prior`` centres it.
+Per clip the prior predicts the hidden disc in context mode (raw), and a seeded half of the
+visible regions with that half hidden too, as :func:`coster_sumo.prior.infer.fit_scene_adaptation`
+does. For each candidate pseudo-count (in total, or per step fitted) the script applies the
+adaptation and scores the hidden disc: presence cross-entropy, and the log-loss of the true speed
+and length class of the disc's vehicles. Lower is better; "none" is the raw model.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+from coster_sumo.converters.read import iter_scenes
+from scipy.optimize import brentq
+
+from coster_sumo import weights
+from coster_sumo.prior.bins import ATTRIBUTES
+from coster_sumo.prior.data import at_prior_rate, load_prepared, prepare_scene, scene_tokens, split_files
+from coster_sumo.prior.evaluate import evaluation_centres
+from coster_sumo.prior.infer import DENSITY_OFFSET_LIMIT, load_prior, predict_tokens
+
+CANDIDATES = (0.1, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
+HEADS = ("speed", "length")
+
+
+def _logit(p: np.ndarray) -> np.ndarray:
+    p = np.clip(np.asarray(p, np.float64), 1e-7, 1 - 1e-7)
+    return np.log(p) - np.log1p(-p)
+
+
+def _sigmoid(z: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * z))
+
+
+def _offset(logits: np.ndarray, observed: float, c: float | None) -> float:
+    """The presence offset for pseudo-count ``c`` (None: no adaptation)."""
+    if c is None:
+        return 0.0
+    predicted = float(_sigmoid(logits).sum())
+    goal = predicted * (observed + c) / (predicted + c)
+
+    def excess(b: float) -> float:
+        return float(_sigmoid(logits + b).sum()) - goal
+
+    lim = DENSITY_OFFSET_LIMIT
+    if excess(-lim) >= 0:
+        return -lim
+    if excess(lim) <= 0:
+        return lim
+    return float(brentq(excess, -lim, lim, xtol=1e-6))
+
+
+def clip_record(model, data) -> dict | None:  # type: ignore[no-untyped-def]
+    """What the scores need of one clip (None without centres or visible regions)."""
+    cfg = model.config
+    if len(data.centres) == 0:
+        return None
+    steps, poses = evaluation_centres(data, np.random.default_rng([0, 7]))
+    ctx = scene_tokens(data, steps, poses, cfg.bins(), cfg.radius, cfg.max_regions, visible="context",
+                       hide_radius=cfg.hide_radius)
+    q = ctx.query & ctx.mask
+    p, probs = predict_tokens(model, ctx, only_query=True, heads=HEADS)
+    visible = ctx.mask & ~ctx.query
+    probe = visible & (np.random.default_rng([0, 23]).random(visible.shape) < 0.5)
+    if not probe.any():
+        return None
+    probe_tok = scene_tokens(data, steps, poses, cfg.bins(), cfg.radius, cfg.max_regions, visible=visible & ~probe)
+    p2, probs2 = predict_tokens(model, probe_tok, only_query=True, heads=HEADS)
+    seen, hidden = probe_tok.present & probe, ctx.present & q
+    rec = {"steps": len(steps), "probe_logits": _logit(p2[probe]), "observed": float(seen.sum()),
+           "disc_logits": _logit(p[q]), "disc_present": ctx.present[q]}
+    for a in HEADS:
+        i, num = ATTRIBUTES.index(a), probs[a].shape[-1]
+        rec[f"n_{a}"] = np.bincount(probe_tok.classes[..., i][seen], minlength=num)[:num]
+        rec[f"m_{a}"] = probs2[a][seen].astype(np.float64).sum(0)
+        rec[f"p_{a}"] = probs[a][hidden].astype(np.float64)
+        rec[f"c_{a}"] = ctx.classes[..., i][hidden]
+    return rec
+
+
+def scores(records: list[dict], c: float | None, per_step: bool) -> dict[str, float]:
+    """Presence cross-entropy and the speed / length log-losses of the disc for one pseudo-count."""
+    bce, n_tok = 0.0, 0
+    loss = {a: 0.0 for a in HEADS}
+    n_veh = 0
+    for r in records:
+        cc = None if c is None else c * (r["steps"] if per_step else 1)
+        p = np.clip(_sigmoid(r["disc_logits"] + _offset(r["probe_logits"], r["observed"], cc)), 1e-7, 1 - 1e-7)
+        y = r["disc_present"]
+        bce -= float(np.sum(y * np.log(p) + (~y) * np.log(1 - p)))
+        n_tok += len(y)
+        for a in HEADS:
+            w = np.ones_like(r[f"m_{a}"]) if cc is None else (r[f"n_{a}"] + cc) / (r[f"m_{a}"] + cc)
+            pa = r[f"p_{a}"] * w
+            pa /= np.maximum(pa.sum(-1, keepdims=True), 1e-30)
+            loss[a] -= float(np.sum(np.log(np.maximum(pa[np.arange(len(pa)), r[f"c_{a}"]], 1e-12))))
+        n_veh += len(r[f"c_{HEADS[0]}"])
+    return {"presence": bce / max(n_tok, 1), **{a: v / max(n_veh, 1) for a, v in loss.items()}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("corpus", type=Path, nargs="?")
+    ap.add_argument("--files", type=Path, nargs="*", default=[])
+    ap.add_argument("--every", type=int, default=2, help="every N-th validation clip (%(default)s)")
+    ap.add_argument("--checkpoint", type=Path, default=None, help="default: the shipped prior")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    model = load_prior(args.checkpoint or weights.weights_path(weights.PRIOR))
+    radius = model.config.radius
+    scenes = []
+    if args.corpus is not None:
+        _, val = split_files(args.corpus, 0.1)
+        scenes += load_prepared(val[::args.every], radius)
+    for f in args.files:
+        scenes += [prepare_scene(at_prior_rate(s), radius=radius) for s in iter_scenes(f)]
+    if not scenes:
+        raise SystemExit("nothing to score: give CORPUS or --files")
+    records = [r for r in (clip_record(model, d) for d in scenes) if r is not None]
+    print(f"{len(records)} clips")
+    print("| pseudo-count | presence cross-entropy | speed log-loss | length log-loss |")
+    print("|---|---|---|---|")
+    rows = [("none", None, False)] + [(f"{c:g} in total", c, False) for c in CANDIDATES] + [
+        (f"{c:g} per step", c, True) for c in CANDIDATES]
+    for label, c, per_step in rows:
+        s = scores(records, c, per_step)
+        print(f"| {label} | {s['presence']:.5f} | {s['speed']:.4f} | {s['length']:.4f} |")
+
+
+if __name__ == "__main__":
+    main()
