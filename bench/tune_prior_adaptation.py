@@ -18,90 +18,64 @@ from pathlib import Path
 import numpy as np
 import torch
 from coster_sumo.converters.read import iter_scenes
-from scipy.optimize import brentq
 
 from coster_sumo import weights
 from coster_sumo.prior.bins import ATTRIBUTES
 from coster_sumo.prior.data import at_prior_rate, load_prepared, prepare_scene, scene_tokens, split_files
 from coster_sumo.prior.evaluate import evaluation_centres
-from coster_sumo.prior.infer import DENSITY_OFFSET_LIMIT, load_prior, predict_tokens
+from coster_sumo.prior.infer import (
+    ADAPTED_ATTRIBUTES,
+    class_weights,
+    load_prior,
+    predict_tokens,
+    presence_offset,
+    probe_visible_traffic,
+    shift_presence,
+)
+from coster_sumo.prior.model import TrafficPrior
 
 CANDIDATES = (0.1, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
-HEADS = ("speed", "length")
 
 
-def _logit(p: np.ndarray) -> np.ndarray:
-    p = np.clip(np.asarray(p, np.float64), 1e-7, 1 - 1e-7)
-    return np.log(p) - np.log1p(-p)
-
-
-def _sigmoid(z: np.ndarray) -> np.ndarray:
-    return 0.5 * (1.0 + np.tanh(0.5 * z))
-
-
-def _offset(logits: np.ndarray, observed: float, c: float | None) -> float:
-    """The presence offset for pseudo-count ``c`` (None: no adaptation)."""
-    if c is None:
-        return 0.0
-    predicted = float(_sigmoid(logits).sum())
-    goal = predicted * (observed + c) / (predicted + c)
-
-    def excess(b: float) -> float:
-        return float(_sigmoid(logits + b).sum()) - goal
-
-    lim = DENSITY_OFFSET_LIMIT
-    if excess(-lim) >= 0:
-        return -lim
-    if excess(lim) <= 0:
-        return lim
-    return float(brentq(excess, -lim, lim, xtol=1e-6))
-
-
-def clip_record(model, data) -> dict | None:  # type: ignore[no-untyped-def]
-    """What the scores need of one clip (None without centres or visible regions)."""
+def clip_record(model: TrafficPrior, data) -> dict | None:  # type: ignore[no-untyped-def]
+    """What the scores need of one clip: the raw disc prediction, its truth, and the probe
+    (None without centres or visible regions)."""
     cfg = model.config
     if len(data.centres) == 0:
         return None
     steps, poses = evaluation_centres(data, np.random.default_rng([0, 7]))
     ctx = scene_tokens(data, steps, poses, cfg.bins(), cfg.radius, cfg.max_regions, visible="context",
                        hide_radius=cfg.hide_radius)
-    q = ctx.query & ctx.mask
-    p, probs = predict_tokens(model, ctx, only_query=True, heads=HEADS)
-    visible = ctx.mask & ~ctx.query
-    probe = visible & (np.random.default_rng([0, 23]).random(visible.shape) < 0.5)
-    if not probe.any():
+    probe = probe_visible_traffic(model, data, steps, poses, ctx)
+    if probe is None:
         return None
-    probe_tok = scene_tokens(data, steps, poses, cfg.bins(), cfg.radius, cfg.max_regions, visible=visible & ~probe)
-    p2, probs2 = predict_tokens(model, probe_tok, only_query=True, heads=HEADS)
-    seen, hidden = probe_tok.present & probe, ctx.present & q
-    rec = {"steps": len(steps), "probe_logits": _logit(p2[probe]), "observed": float(seen.sum()),
-           "disc_logits": _logit(p[q]), "disc_present": ctx.present[q]}
-    for a in HEADS:
-        i, num = ATTRIBUTES.index(a), probs[a].shape[-1]
-        rec[f"n_{a}"] = np.bincount(probe_tok.classes[..., i][seen], minlength=num)[:num]
-        rec[f"m_{a}"] = probs2[a][seen].astype(np.float64).sum(0)
-        rec[f"p_{a}"] = probs[a][hidden].astype(np.float64)
-        rec[f"c_{a}"] = ctx.classes[..., i][hidden]
-    return rec
+    q = ctx.query & ctx.mask
+    p, probs = predict_tokens(model, ctx, only_query=True, heads=ADAPTED_ATTRIBUTES)
+    hidden = ctx.present & q
+    return {"probe": probe, "disc_presence": p[q], "disc_present": ctx.present[q],
+            **{f"p_{a}": probs[a][hidden].astype(np.float64) for a in ADAPTED_ATTRIBUTES},
+            **{f"c_{a}": ctx.classes[..., ATTRIBUTES.index(a)][hidden] for a in ADAPTED_ATTRIBUTES}}
 
 
 def scores(records: list[dict], c: float | None, per_step: bool) -> dict[str, float]:
-    """Presence cross-entropy and the speed / length log-losses of the disc for one pseudo-count."""
-    bce, n_tok = 0.0, 0
-    loss = {a: 0.0 for a in HEADS}
-    n_veh = 0
+    """Presence cross-entropy and the speed / length log-losses of the disc for one pseudo-count
+    (None: the raw model)."""
+    bce, n_tok, n_veh = 0.0, 0, 0
+    loss = dict.fromkeys(ADAPTED_ATTRIBUTES, 0.0)
     for r in records:
-        cc = None if c is None else c * (r["steps"] if per_step else 1)
-        p = np.clip(_sigmoid(r["disc_logits"] + _offset(r["probe_logits"], r["observed"], cc)), 1e-7, 1 - 1e-7)
+        probe = r["probe"]
+        cc = None if c is None else c * (probe.steps if per_step else 1)
+        offset = 0.0 if cc is None else presence_offset(probe.presence, probe.observed, cc)
+        p = np.clip(shift_presence(r["disc_presence"], offset), 1e-7, 1 - 1e-7)
         y = r["disc_present"]
         bce -= float(np.sum(y * np.log(p) + (~y) * np.log(1 - p)))
         n_tok += len(y)
-        for a in HEADS:
-            w = np.ones_like(r[f"m_{a}"]) if cc is None else (r[f"n_{a}"] + cc) / (r[f"m_{a}"] + cc)
+        for a in ADAPTED_ATTRIBUTES:
+            w = 1.0 if cc is None else class_weights(probe.class_counts[a], probe.class_mass[a], cc)
             pa = r[f"p_{a}"] * w
             pa /= np.maximum(pa.sum(-1, keepdims=True), 1e-30)
             loss[a] -= float(np.sum(np.log(np.maximum(pa[np.arange(len(pa)), r[f"c_{a}"]], 1e-12))))
-        n_veh += len(r[f"c_{HEADS[0]}"])
+        n_veh += len(r[f"c_{ADAPTED_ATTRIBUTES[0]}"])
     return {"presence": bce / max(n_tok, 1), **{a: v / max(n_veh, 1) for a, v in loss.items()}}
 
 

@@ -313,6 +313,7 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
         hidden_others["prior_context_raw_expected"].append(float(p_raw[q_others].sum()))
         _score_draws(ctx, truth_sel, disc, per_scene_disc_others, cfg.radius, cfg.region_width, others_ctx,
                      unbiased)
+
     def summary(per_method: dict[str, dict[str, list[float]]]) -> dict[str, dict]:
         return {name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()},
                        "scenes": len(per["position"])} for name, per in per_method.items()}

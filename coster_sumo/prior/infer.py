@@ -107,6 +107,39 @@ def _sigmoid(z: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(z, np.float64)))
 
 
+def shift_presence(p: np.ndarray, offset: float) -> np.ndarray:
+    """Presence probabilities ``p`` with ``offset`` added to their logits (float64)."""
+    return _sigmoid(_logit(p) + offset)
+
+
+def presence_offset(p: np.ndarray, observed: float, pseudo_count: float) -> float:
+    """The logit offset that brings the predicted count ``sum(p)`` of some tokens to their
+    ``observed`` count, shrunk towards 0 like a Gamma-Poisson rate: it solves
+    ``sum(shift_presence(p, b)) = predicted * (observed + c) / (predicted + c)``, clipped to
+    +-:data:`DENSITY_OFFSET_LIMIT`."""
+    from scipy.optimize import brentq
+
+    logits = _logit(p)
+    predicted = float(_sigmoid(logits).sum())
+    goal = predicted * (observed + pseudo_count) / (predicted + pseudo_count)
+
+    def excess(b: float) -> float:
+        return float(_sigmoid(logits + b).sum()) - goal
+
+    lim = DENSITY_OFFSET_LIMIT
+    if excess(-lim) >= 0.0:
+        return -lim
+    if excess(lim) <= 0.0:
+        return lim
+    return float(brentq(excess, -lim, lim, xtol=1e-6))
+
+
+def class_weights(observed: np.ndarray, predicted: np.ndarray, pseudo_count: float) -> np.ndarray:
+    """(C,) weights ``(n + c) / (m + c)`` of the classes: ``observed`` vehicles per class (n) over the
+    summed predicted probabilities of the class at those vehicles (m)."""
+    return (np.asarray(observed, np.float64) + pseudo_count) / (np.asarray(predicted, np.float64) + pseudo_count)
+
+
 @dataclass(frozen=True)
 class SceneAdaptation:
     """What a scene's visible traffic says about the prior's guesses for it (module docstring).
@@ -128,7 +161,7 @@ class SceneAdaptation:
         """``presence`` (B, K) and ``probs`` adapted at the tokens ``where`` (B, K) (new arrays)."""
         if self.offset != 0.0:
             presence = np.array(presence, np.float32, copy=True)
-            presence[where] = _sigmoid(_logit(presence[where]) + self.offset)
+            presence[where] = shift_presence(presence[where], self.offset)
         probs = dict(probs)
         for a, w in self.class_weights.items():
             if a not in probs:
@@ -146,55 +179,65 @@ class SceneAdaptation:
         return presence, probs
 
 
-def fit_scene_adaptation(model: TrafficPrior, data: ScenePriorData, steps: np.ndarray, pose: np.ndarray,
-                         tokens: Tokens, seed: int = 0) -> SceneAdaptation:
-    """Fit the presence offset and the class weights on the scene's own visible traffic.
+@dataclass(frozen=True)
+class VisibleProbe:
+    """The prior's guesses for a hidden half of the visible regions, and what is there.
 
-    ``tokens`` are the context-mode tokens of ``steps`` / ``pose`` (B, 3) in ``data``. A seeded half
-    of the visible tokens is hidden too and predicted. Presence: the offset ``b`` solves
-    ``sum(sigmoid(logit(p_i) + b)) = predicted * (observed + c) / (predicted + c)`` over that half,
-    c = :data:`DENSITY_PSEUDO_COUNT` x the number of steps, clipped to +-:data:`DENSITY_OFFSET_LIMIT`.
-    Classes (speed, length): over the vehicles of that half, ``w = (n + c) / (m + c)`` per class, n
-    the vehicles observed in the class, m the sum of the predicted probabilities of the class, c =
-    :data:`CLASS_PSEUDO_COUNT` of the attribute x the number of steps. No adaptation without visible
-    regions (map mode, nothing around).
+    Attributes:
+        presence: (P,) predicted presence of the probed tokens.
+        observed: vehicles in them.
+        class_counts: attribute -> (C,) vehicles per class among them.
+        class_mass: attribute -> (C,) summed predicted class probabilities at those vehicles.
+        steps: steps the probe covers (the pseudo-counts scale with it).
     """
-    from scipy.optimize import brentq
 
+    presence: np.ndarray
+    observed: float
+    class_counts: dict[str, np.ndarray]
+    class_mass: dict[str, np.ndarray]
+    steps: int
+
+
+def probe_visible_traffic(model: TrafficPrior, data: ScenePriorData, steps: np.ndarray, pose: np.ndarray,
+                          tokens: Tokens, seed: int = 0) -> VisibleProbe | None:
+    """Hide a seeded half of the visible ``tokens`` (context-mode tokens of ``steps`` / ``pose``
+    (B, 3) in ``data``) as well, predict them, and compare with the vehicles there; None without
+    visible regions (map mode, nothing around)."""
     visible = tokens.mask & ~tokens.query
     probe = visible & (np.random.default_rng([seed, 23]).random(visible.shape) < 0.5)
     if not probe.any():
-        return SceneAdaptation()
+        return None
     cfg = model.config
     probe_tokens = scene_tokens(data, np.asarray(steps, np.int64), np.asarray(pose, np.float64), cfg.bins(),
                                 cfg.radius, cfg.max_regions, visible=visible & ~probe)
     p, probs = predict_tokens(model, probe_tokens, only_query=True, heads=ADAPTED_ATTRIBUTES)
-    logits = _logit(p[probe])
     present = probe_tokens.present & probe
-    observed = float(present.sum())
-    predicted = float(_sigmoid(logits).sum())
-    steps_fitted = len(np.asarray(steps).reshape(-1))
-    c = DENSITY_PSEUDO_COUNT * steps_fitted
-    goal = predicted * (observed + c) / (predicted + c)
-
-    def excess(b: float) -> float:
-        return float(_sigmoid(logits + b).sum()) - goal
-
-    lim = DENSITY_OFFSET_LIMIT
-    if excess(-lim) >= 0.0:
-        offset = -lim
-    elif excess(lim) <= 0.0:
-        offset = lim
-    else:
-        offset = float(brentq(excess, -lim, lim, xtol=1e-6))
-    weights = {}
+    counts, mass = {}, {}
     for a in ADAPTED_ATTRIBUTES:
         num = probs[a].shape[-1]
-        n = np.bincount(probe_tokens.classes[..., ATTRIBUTES.index(a)][present], minlength=num)[:num]
-        m = probs[a][present].astype(np.float64).sum(0)
-        c = CLASS_PSEUDO_COUNT[a] * steps_fitted
-        weights[a] = (n + c) / (m + c)
-    return SceneAdaptation(offset=offset, class_weights=weights, probed=int(probe.sum()), observed=int(observed))
+        counts[a] = np.bincount(probe_tokens.classes[..., ATTRIBUTES.index(a)][present], minlength=num)[:num]
+        mass[a] = probs[a][present].astype(np.float64).sum(0)
+    return VisibleProbe(presence=p[probe], observed=float(present.sum()), class_counts=counts, class_mass=mass,
+                        steps=len(np.asarray(steps).reshape(-1)))
+
+
+def fit_scene_adaptation(model: TrafficPrior, data: ScenePriorData, steps: np.ndarray, pose: np.ndarray,
+                         tokens: Tokens, seed: int = 0) -> SceneAdaptation:
+    """Fit the presence offset and the class weights on the scene's own visible traffic.
+
+    :func:`probe_visible_traffic` on the context-mode ``tokens``, then presence: :func:`presence_offset`
+    with c = :data:`DENSITY_PSEUDO_COUNT` x the number of steps; classes (speed, length):
+    :func:`class_weights` with c = :data:`CLASS_PSEUDO_COUNT` of the attribute x the number of steps.
+    No adaptation without visible regions (map mode, nothing around).
+    """
+    probe = probe_visible_traffic(model, data, steps, pose, tokens, seed)
+    if probe is None:
+        return SceneAdaptation()
+    offset = presence_offset(probe.presence, probe.observed, DENSITY_PSEUDO_COUNT * probe.steps)
+    weights = {a: class_weights(probe.class_counts[a], probe.class_mass[a], CLASS_PSEUDO_COUNT[a] * probe.steps)
+               for a in ADAPTED_ATTRIBUTES}
+    return SceneAdaptation(offset=offset, class_weights=weights, probed=len(probe.presence),
+                           observed=int(probe.observed))
 
 
 @dataclass
