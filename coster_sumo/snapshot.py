@@ -316,21 +316,21 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
     if "entropy" not in memo:  # over the whole window: excluded steps are only not chosen
         full = search_window(scene, target)
-        velocity = predict_scene(model, data, target, steps=full, heads=("speed", "heading"), pose=pose(full),
-                                 calibrate=False)  # presence is not used: no density offset
+        full_pose = pose(full)
+        velocity = predict_scene(model, data, target, steps=full, heads=("speed", "heading"), pose=full_pose,
+                                 calibrate=False)  # the entropy reads the raw heads
         centres = velocity.regions.centre[np.maximum(velocity.region_index, 0)]  # (W, K, 2)
         ellipse = np.zeros(velocity.mask.shape, bool)
         for j, t in enumerate(full):
             ellipse[j] = velocity.mask[j] & in_ellipse(centres[j], AgentState.from_tracks(tr, target, int(t)))
         memo["entropy"] = np.full(scene.num_steps, np.nan)
         memo["entropy"][full] = velocity_entropy(velocity, ellipse)
+        # what the traffic around says, fitted over the whole window (one step sees little)
+        context = scene_tokens(data, full, full_pose, model.config.bins(), model.config.radius,
+                               model.config.max_regions, visible="context", hide_radius=model.config.hide_radius)
+        memo["adaptation"] = fit_scene_adaptation(model, data, full, full_pose, context)
     entropy = memo["entropy"]
     t_col = choose_collision_time(window, collision_time, rng, entropy)
-    if "adaptation" not in memo:  # what the traffic around says, over the whole window (one step sees little)
-        full = search_window(scene, target)
-        memo["adaptation"] = fit_scene_adaptation(model, data, full, pose(full), scene_tokens(
-            data, full, pose(full), model.config.bins(), model.config.radius, model.config.max_regions,
-            visible="context", hide_radius=model.config.hide_radius))
     pred = predict_scene(model, data, target, steps=np.array([t_col]), pose=pose(np.array([t_col])),
                          adaptation=memo["adaptation"])
     tgt = AgentState.from_tracks(tr, target, t_col)

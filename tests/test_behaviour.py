@@ -16,7 +16,11 @@ and motion vocabulary trained on the corpus (models/rollout.md): merge 2/2 varia
 contact 21/28; then with that CVAE trained 30 epochs more (epoch 93, models/rollout.md): ``run``
 keeps 5 variants on intersection (was 4) and 3 on WOMD eb4b91b10ca94ff2 (was 2), all in collision,
 one merge adversary leaves the road (none before); ``regress`` has 34 rows (32), 23 with the
-adversary in contact (21), 1 with it off the road (2).
+adversary in contact (21), 1 with it off the road (2); then with the prior adapted to each scene's
+visible traffic (the adversary's speed and size, models/prior.md): ``run`` keeps 4 variants on
+intersection (was 5) and 5 on WOMD eb4b91b10ca94ff2 (was 3), all in collision, one adversary of
+WOMD 2a1e44d405a6833f leaves the road (none before); ``regress`` has 32 rows (34), 21 with the
+adversary in contact (23), 3 with it off the road (1).
 """
 
 from __future__ import annotations
