@@ -153,7 +153,11 @@ def main() -> None:
                                      heads=("speed",), pose=pose, adaptation=memo.get("adaptation"))
                 k = np.flatnonzero(pred.region_index[0] == s.region_id)
                 p_stop = float(pred.probs["speed"][0, k[0], 0]) if len(k) else float("nan")
+                # how much the scene's visible traffic moved the stopped class (1: not at all)
+                class_w = memo["adaptation"].class_weights if "adaptation" in memo else {}
+                w_stop = float(class_w["speed"][0]) if "speed" in class_w else float("nan")
                 records.append({"network": net, "adversary_speed": s.adversary.speed, "p_stopped": p_stop,
+                                "stopped_weight": w_stop,
                                 "adversary_length": s.adversary.length, "adversary_width": s.adversary.width,
                                 "adversary_lane_type": LaneType(kind).name})
         boot = np.random.default_rng(0).integers(0, len(rel), (BOOTSTRAP, len(rel)))  # scenes resampled
@@ -179,8 +183,8 @@ def main() -> None:
     print()
     print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class | "
           "stopped: nominal / near moving vehicles / prior's P(stopped) at the placed region / adversaries | "
-          "p90 speed [m/s]: nominal / adversaries |")
-    print("|---|---|---|---|---|---|---|")
+          "p90 speed [m/s]: nominal / adversaries | stopped class's adaptation weight: median [quartiles] |")
+    print("|---|---|---|---|---|---|---|---|")
     for m, nets in per_network.items():
         for net, r in nets.items():
             if r["VDD_tcol"] is None:
@@ -190,10 +194,11 @@ def main() -> None:
             adv = np.array([x["adversary_speed"] for x in records_by[m] if x["network"] == net])
             p_stop = np.nanmean([x["p_stopped"] for x in records_by[m] if x["network"] == net])
             near = near_moving[net][0] / max(near_moving[net][1], 1)
+            w = np.nanpercentile([x["stopped_weight"] for x in records_by[m] if x["network"] == net], [50, 25, 75])
             print(f"| {m} | {net} | {len(adv)} | {r['VDD_tcol']:.3f} ({r['VDD_tcol_floor']:.3f}) | "
                   f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {near:.2f} / {p_stop:.2f} / "
                   f"{np.mean(adv < 0.5):.2f} | "
-                  f"{p90:.1f} / {np.percentile(adv, 90):.1f} |")
+                  f"{p90:.1f} / {np.percentile(adv, 90):.1f} | {w[0]:.2f} [{w[1]:.2f}, {w[2]:.2f}] |")
     if args.plot:
         plot_speeds(args.plot, nominal, records_by)
     if args.json:
