@@ -43,6 +43,7 @@ from coster_sumo.sim.hold import HeldStates
 from coster_sumo.snapshot import COLLISION_TIME_RULES, MARGIN_END, SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.targets import demand_ids
 
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
 
@@ -142,6 +143,16 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
 
     _, end = simulation_window(spec)
     target = spec.target or "ego"
+    wanted = list(dict.fromkeys((target, *more_targets)))
+    demand = demand_ids(cfg)
+    if demand is not None and not any(map(demand.can_insert, wanted)):  # seconds, not a whole pass
+        where = "in its demand (route and additional files)"
+        if spec.target is None and not more_targets:
+            raise InputError(f"{cfg}: no vehicle 'ego' {where}; pick a target with --target, e.g. "
+                             f"{', '.join(demand.examples([]))}, or let --targets N choose")
+        which = (f"target {wanted[0]!r} is" if len(wanted) == 1 else
+                 "none of the targets " + ", ".join(map(repr, wanted)) + " is")
+        raise InputError(f"{cfg}: {which} not {where}; candidates: {', '.join(demand.examples(wanted))}")
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
@@ -163,11 +174,12 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
         # its centre), and dropping a few would copy every track array of the pass
         return crop_scene(scene, SURROUNDINGS_RADIUS_M, present[0], agent_radius_m=np.inf,
                           more_targets=present[1:]), False
-    # the target never ran: a whole recording, so that the error can name the vehicles that did
-    scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci, **extra)
-    if scene.num_steps == 0:
+    # no target ever ran: the focused pass kept who did (and for how long), for the error
+    pass_window = scene.meta.get("pass_window_s")
+    if pass_window is None:
         raise InputError(f"{cfg}: the simulation recorded no step in [{spec.begin}, {end}]")
-    return scene, False
+    window = f"{pass_window[0]:.1f}-{pass_window[1]:.1f} s"
+    raise missing_target(cfg, list(dict.fromkeys((spec.target, *more_targets))), window, scene.meta["ran_s"])
 
 
 def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
@@ -179,24 +191,33 @@ def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
     ids = scene.tracks.ids.tolist()
     ts = scene.timestamps
     window = f"{float(ts[0]):.1f}-{float(ts[-1]):.1f} s" if len(ts) else "empty"
-    if requested is None:
-        if scene.sdc_index >= 0:
-            index = scene.sdc_index
-        elif "ego" in ids:
-            index = ids.index("ego")
-        else:
-            long_lived = np.argsort(-scene.tracks.valid.sum(axis=1))[:8]
-            raise InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
-                             "--target, e.g. " + ", ".join(ids[i] for i in long_lived))
-    elif requested in ids:
-        index = ids.index(requested)
+    if requested is None and scene.sdc_index >= 0:
+        index = scene.sdc_index
+    elif (requested or "ego") in ids:
+        index = ids.index(requested or "ego")
     else:
-        near = [i for i in ids if requested.lower() in i.lower()][:8] or ids[:8]
-        raise InputError(f"{config}: target {requested!r} never runs in the window ({window}); "
-                         f"candidates: {', '.join(near)}")
+        steps = scene.tracks.valid.sum(axis=1).tolist()
+        raise missing_target(config, [requested], window, dict(zip(ids, steps, strict=True)))
     if scene.tracks.valid[index].sum() < 2:
         raise InputError(f"{config}: target {ids[index]!r} never departs in the window")
     return index
+
+
+def missing_target(config: Any, requested: Sequence[str | None], window: str, ran: dict[str, float]) -> InputError:
+    """The one-line error for targets that never run: ``requested`` (None: the default 'ego'), the
+    window, and candidates from ``ran`` (every vehicle that ran, in order of appearance, with how
+    long it ran): ids containing a requested name, else the longest-running ones."""
+    longest = sorted(ran, key=lambda v: -ran[v])[:8]
+    if not ran:
+        return InputError(f"{config}: no vehicle runs in the window ({window}) at all")
+    if requested == [None]:
+        return InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
+                          "--target, e.g. " + ", ".join(longest))
+    names = [r or "ego" for r in requested]
+    near = [v for v in ran if any(n.lower() in v.lower() for n in names)][:8] or list(ran)[:8]
+    which = (f"target {names[0]!r} never runs" if len(names) == 1 else
+             "none of the targets " + ", ".join(map(repr, names)) + " runs")
+    return InputError(f"{config}: {which} in the window ({window}); candidates: {', '.join(near)}")
 
 
 # ----------------------------------------------------------------------------- generation

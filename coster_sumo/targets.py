@@ -159,6 +159,65 @@ def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
     return out
 
 
+# elements that insert vehicles under ids the files do not spell out (a calibrator's own flows)
+_OPAQUE_SOURCES = ("calibrator",)
+
+
+@dataclass(frozen=True)
+class DemandIds:
+    """The vehicle ids a configuration's demand can insert, read without simulating.
+
+    Attributes:
+        vehicles: ids of its ``<vehicle>`` and ``<trip>`` elements, in file order.
+        flows: ids of its ``<flow>`` elements (their vehicles are ``<flow id>.<k>``), in file order.
+    """
+
+    vehicles: tuple[str, ...]
+    flows: tuple[str, ...]
+
+    def can_insert(self, vehicle_id: str) -> bool:
+        head, _, k = vehicle_id.rpartition(".")
+        return vehicle_id in set(self.vehicles) or (k.isdigit() and head in set(self.flows))
+
+    def examples(self, like: list[str], n: int = 8) -> list[str]:
+        """Up to ``n`` ids for an error: those containing one of ``like`` (case-insensitive), else
+        the first ones (a flow's first vehicle stands for it)."""
+        every = [*self.vehicles, *(f"{f}.0" for f in self.flows)]
+        near = [v for v in every if any(x.lower() in v.lower() for x in like)]
+        return (near or every)[:n]
+
+
+def demand_ids(config: str | Path) -> DemandIds | None:
+    """What ``config``'s route and additional files can insert (:class:`DemandIds`); None where the
+    files cannot tell: a calibrator inserts vehicles too, or a file is missing or unreadable (the
+    simulation will then say what is wrong with it).
+
+    A city's nominal pass takes minutes; this tells in seconds that a target is not in the demand.
+    """
+    try:
+        cfg = read_sumocfg(config)
+    except InputError:
+        return None
+    vehicles: list[str] = []
+    flows: list[str] = []
+    for path in [*cfg.route_files, *cfg.additional_files]:
+        try:
+            check_xml(path, "route file")
+            with open_maybe_gzip(path) as fh:
+                for _, el in SafeET.iterparse(fh, forbid_dtd=True):
+                    tag, vid = str(el.tag).split("}")[-1], el.get("id")
+                    if tag in _OPAQUE_SOURCES:
+                        return None
+                    if vid and tag in ("vehicle", "trip"):
+                        vehicles.append(vid)
+                    elif vid and tag == "flow":
+                        flows.append(vid)
+                    el.clear()  # a city's demand is large: keep no element's content
+        except Exception:  # noqa: BLE001 - any reading problem: leave the answer to the simulation
+            return None
+    return DemandIds(tuple(vehicles), tuple(flows))
+
+
 def _in_window(depart: float, duration: float, begin: float, end: float) -> float:
     return max(0.0, min(depart + duration, end) - max(depart, begin))
 

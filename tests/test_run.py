@@ -56,7 +56,7 @@ def test_same_seed_same_result(tmp_path):
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["--target", "nobody"], "target 'nobody' never runs in the window"),
+    (["--target", "nobody"], "target 'nobody' is not in its demand"),
     (["--target", "ego", "--end", "1.5"], "target 'ego' never runs in the window (0.1-1.5 s)"),  # departs at 2 s
     (["--end", "1.5"], "no vehicle 'ego' runs in the window"),
     (["--collision-time", "entropy", "--init", "snapshot", "--models", "/nonexistent"], "model weights not found"),
@@ -159,7 +159,7 @@ def test_sumo_scenario_without_ego_names_candidates(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["run", str(cfg), "-o", str(out)]) == 2
     err = visible_lines(capsys.readouterr().err)
-    assert len(err) == 1 and "--target" in err[0] and "horiz.1" in err[0]
+    assert len(err) == 1 and "--target" in err[0] and "horiz.0" in err[0] and "--targets N" in err[0]
     assert not out.exists() or not any(out.iterdir())
 
 

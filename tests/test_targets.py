@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import shutil
 from pathlib import Path
 
 import pytest
 
+from coster_sumo.core import nominal_scene
 from coster_sumo.errors import InputError
+from coster_sumo.spec import ScenarioSpec
 from coster_sumo.sumo_env import sumo_home
-from coster_sumo.targets import MIN_IN_WINDOW_S, choose_targets, long_lived
+from coster_sumo.targets import MIN_IN_WINDOW_S, choose_targets, demand_ids, long_lived
 
 ROOT = Path(__file__).resolve().parents[1]
 NET = ROOT / "networks" / "intersection" / "intersection.net.xml"
@@ -67,6 +70,73 @@ def test_long_lived_respects_the_window(tmp_path: Path) -> None:
         long_lived(_config(tmp_path), 3, begin=119.0, end=120.0)
     with pytest.raises(InputError, match="--targets must be >= 1"):
         long_lived(_config(tmp_path), 0)
+
+
+def test_demand_ids_know_what_the_files_can_insert(tmp_path: Path) -> None:
+    demand = demand_ids(_config(tmp_path))
+    assert demand is not None
+    for vid in ("named_route", "nested_route", "waits", "trip", "periodic.0", "periodic.13", "random.2"):
+        assert demand.can_insert(vid), vid
+    for vid in ("ego", "periodic", "periodic.x", "trip.0", "ns"):  # a route's id is no vehicle's
+        assert not demand.can_insert(vid), vid
+    assert demand.examples(["NESTED"]) == ["nested_route"]
+    assert demand.examples([], n=3) == ["named_route", "nested_route", "before_begin"]
+    # a calibrator inserts vehicles the files do not name; a missing file is the simulation's to report
+    (tmp_path / "calib.add.xml").write_text('<additional><calibrator id="c" lane="N2C_0" pos="5"/></additional>')
+    cfg = tmp_path / "c.sumocfg"
+    cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="demand.rou.xml"/>
+<additional-files value="calib.add.xml"/></input></configuration>""")
+    assert demand_ids(cfg) is None
+    cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="gone.rou.xml"/>
+</input></configuration>""")
+    assert demand_ids(cfg) is None
+
+
+@pytest.mark.parametrize(("target", "message"), [
+    (None, "no vehicle 'ego' in its demand (route and additional files); pick a target with --target, e.g. "
+           "named_route, nested_route, before_begin"),
+    ("periodc", "target 'periodc' is not in its demand (route and additional files); candidates: "),
+])
+def test_a_target_not_in_the_demand_fails_before_the_pass(tmp_path: Path, monkeypatch, target, message) -> None:
+    record = importlib.import_module("coster_sumo.sim.record")  # the package exports a function of that name
+
+    def no_pass(*_a, **_k):
+        raise AssertionError("simulated although the demand has no such vehicle")
+
+    monkeypatch.setattr(record, "record_config", no_pass)
+    with pytest.raises(InputError) as err:
+        nominal_scene(ScenarioSpec(_config(tmp_path), target=target))
+    assert message in str(err.value) and "t.sumocfg" in str(err.value)
+
+
+def test_a_target_that_never_runs_is_named_after_one_pass(tmp_path: Path, monkeypatch) -> None:
+    """In the demand but departing after the window: one focused pass, whose error names the
+    vehicles that ran, longest first."""
+    record = importlib.import_module("coster_sumo.sim.record")  # the package exports a function of that name
+
+    passes = []
+    real = record.record_config
+    monkeypatch.setattr(record, "record_config", lambda *a, **k: passes.append(1) or real(*a, **k))
+    (tmp_path / "d.rou.xml").write_text("""<routes><vType id="car"/>
+  <vehicle id="short" type="car" depart="0"><route edges="N2C C2S"/></vehicle>
+  <vehicle id="long" type="car" depart="1" departSpeed="0"><route edges="W2C C2E"/></vehicle>
+  <vehicle id="too_late" type="car" depart="100"><route edges="W2C C2E"/></vehicle></routes>""")
+    cfg = tmp_path / "late.sumocfg"
+    cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="d.rou.xml"/></input>
+</configuration>""")
+    with pytest.raises(InputError, match=r"late.sumocfg: target 'too_late' never runs in the window "
+                                         r"\(0\.\d-40\.0 s\); candidates: short, long"):
+        nominal_scene(ScenarioSpec(cfg, target="too_late", end=40.0))
+    assert passes == [1]
+    with pytest.raises(InputError, match="no vehicle 'ego' in its demand"):
+        nominal_scene(ScenarioSpec(cfg, end=40.0))
+    # candidates: names like the one asked for, else those that ran (for the default, longest first)
+    from coster_sumo.core import missing_target
+
+    ran = {"short": 12.0, "long": 30.0, "longer": 31.0}
+    assert str(missing_target(cfg, ["x"], "w", ran)).endswith("candidates: short, long, longer")
+    assert str(missing_target(cfg, ["LONG"], "w", ran)).endswith("candidates: long, longer")
+    assert str(missing_target(cfg, [None], "w", ran)).endswith("e.g. longer, long, short")
 
 
 @pytest.mark.parametrize("name", ["A10KW", "grid6", "corridor"])

@@ -250,7 +250,10 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         after_step: called after every step with the vehicle states just read; return True to stop.
         focus: record only the surroundings of one vehicle while it runs (see :class:`Focus`); the
             recording starts with the step it departs in (the steps before are simulated, not
-            recorded) and has no step if it never departs.
+            recorded) and has no step if it never departs. Then ``Scene.meta["ran_s"]`` gives every
+            vehicle that ran in the pass, by id, with its time in the network [s], and
+            ``meta["pass_window_s"]`` the first and last simulated time: what an error naming other
+            targets needs, without a second pass.
         scenario_id: default ``<config or net stem>_seed<seed>``.
         meta: extra metadata merged into ``Scene.meta``.
     """
@@ -281,6 +284,10 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     arrived: set[str] = set()
     started = bool(running)  # a focused recording begins when its (first) vehicle departs
     end_at: float | None = None  # [s] when a focused recording stops (after the targets arrived)
+    ran_from: dict[str, float] = {}  # until a focused vehicle departs: who ran, from when to when [s]
+    ran_until: dict[str, float] = {}
+    first_t: float | None = None
+    t = session.time
     while True:
         if max_steps is not None and steps >= max_steps:
             break
@@ -291,12 +298,17 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         if before_step is not None:
             before_step(session)
         t = session.step()
+        first_t = t if first_t is None else first_t
         steps += 1
         full = True  # this step reads everything that is recorded (not only the target)
         if focus is None:
             st = session.vehicle_states()
         else:
-            gone = [v for v in running if v in session.arrived_ids()]
+            arrived_now = session.arrived_ids()
+            if not started:
+                ran_from.update((v, t) for v in session.departed_ids() if v not in ran_from)
+                ran_until.update((v, t) for v in arrived_now)
+            gone = [v for v in running if v in arrived_now]
             if gone:
                 arrived.update(gone)
                 running = [v for v in running if v not in arrived]
@@ -373,6 +385,9 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         "begin": times[0] if times else None, "end": times[-1] if times else None,
         "location_offset": [float(v) for v in net.location_offset],
     }
+    if focus is not None and not started:
+        info["ran_s"] = {v: round(ran_until.get(v, t) - t0, 3) for v, t0 in ran_from.items()}
+        info["pass_window_s"] = [first_t, t] if first_t is not None else None
     info.update(meta or {})
     sid = scenario_id or f"{Path(str(source_file)).name.split('.')[0]}_seed{session.seed}"
     sdc = agent.get("ego", -1)
