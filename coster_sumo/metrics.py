@@ -144,6 +144,46 @@ def circular_std_deg(angles_deg: Sequence[float] | np.ndarray) -> float:
     return float(np.degrees(np.sqrt(max(0.0, -2.0 * np.log(max(r, 1e-300))))))
 
 
+BOOTSTRAP_DRAWS = 1000
+
+
+def scene_bootstrap(stat: Callable[[np.ndarray], float], scenes: Sequence[np.ndarray],
+                    other: Sequence[np.ndarray] | None = None, draws: int = BOOTSTRAP_DRAWS,
+                    seed: int = 0) -> tuple[float, float, float]:
+    """A pooled statistic (CSD, CPD) with a 95 % percentile interval from resampling scenes.
+
+    ``scenes`` holds one array per scene (its variants' values; the variants of a scene share a
+    snapshot, so the scene, not the variant, is the independent draw). With ``other`` (one array
+    per scene, the same scenes in the same order: a second method on them), the statistic is the
+    difference ``stat(scenes) - stat(other)``, both pooled over the same resampled scenes (a paired
+    comparison). Returns (value, low, high); NaN where a pool is empty.
+    """
+    def pooled(arrays: Sequence[np.ndarray], idx: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.asarray(arrays[i], float).ravel() for i in idx]) if len(idx) else np.zeros(0)
+
+    def value(idx: np.ndarray) -> float:
+        a = pooled(scenes, idx)
+        v = stat(a) if a.size else float("nan")
+        if other is not None:
+            b = pooled(other, idx)
+            v = v - stat(b) if b.size else float("nan")
+        return float(v)
+
+    n = len(scenes)
+    if other is not None and len(other) != n:
+        raise ValueError(f"paired bootstrap needs the same scenes: {n} against {len(other)}")
+    full = value(np.arange(n))
+    if n == 0:
+        return full, float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    reps = np.array([value(rng.integers(0, n, n)) for _ in range(draws)])
+    reps = reps[np.isfinite(reps)]
+    if reps.size == 0:
+        return full, float("nan"), float("nan")
+    lo, hi = np.percentile(reps, [2.5, 97.5])
+    return full, float(lo), float(hi)
+
+
 # ----------------------------------------------------------------------------- trajectories
 
 def ade_fde(pred: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None

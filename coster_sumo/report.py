@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import html
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -332,12 +333,41 @@ def plot_generator_metrics(path: Path, summary: dict[str, Any]) -> Path:
     return path
 
 
+def _with_ci(v: float | None, ci: Sequence[float] | None, digits: int) -> str:
+    if v is None or ci is None or not all(math.isfinite(c) for c in ci):
+        return _fmt(v, digits)
+    return f"{v:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+
+
+def diversity_section(summary: dict[str, Any]) -> list[str]:
+    """Markdown lines: CSD and CPD with 95 % intervals from resampling scenes, and COSTER's minus
+    every other method's on the same scenes (empty when there is nothing to show)."""
+    cols = (("CSD", 2), ("CPD", 1), ("CPD_circular", 1))
+    table = {k: m for k, m in summary["methods"]["table"].items() if m.get("status") == "ok" and "CSD_ci" in m}
+    if not table:
+        return []
+    head = ["method", "CSD [m/s]", "CPD [deg]", "CPD circ. [deg]"]
+    rows = [[name, *[_with_ci(m[c], m.get(f"{c}_ci"), d) for c, d in cols]] for name, m in table.items()]
+    md = ["## Diversity: how sure", "",
+          "In brackets the 95 % interval from resampling the scenes (1,000 draws; the variants of a scene "
+          "share its snapshot, so a scene is one draw).", "", _md_table(head, rows), ""]
+    paired = summary["methods"].get("paired") or {}
+    if paired:
+        prow = [[name, str(e["scenes"]), *[_with_ci(e[c][0], e[c][1:], d) for c, d in cols]]
+                for name, e in paired.items()]
+        md += ["The differences on the scenes both methods generated for, the same scenes resampled for both: "
+               "an interval that holds 0 says the ordering is not settled by these scenes.", "",
+               _md_table(["difference", "scenes", "CSD [m/s]", "CPD [deg]", "CPD circ. [deg]"], prow), ""]
+    return md
+
+
 def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
     """metrics.json, metrics.md and metrics.png in ``out``; returns the written paths (relative)."""
     out = Path(out)
     table = summary["methods"]["table"]
     slim = {k: {c: v for c, v in m.items() if c not in ("relative_speeds", "impact_angles")} for k, m in table.items()}
-    doc = {"methods": slim, "failed_scenes": summary["methods"]["failed_scenes"], "planner": summary["planner"],
+    doc = {"methods": slim, "paired": summary["methods"].get("paired", {}),
+           "failed_scenes": summary["methods"]["failed_scenes"], "planner": summary["planner"],
            "variants": summary["variants"], "units": summary["units"]}
     write_text(out / "metrics.json", json.dumps(doc, indent=1))
     plot_generator_metrics(out / "metrics.png", summary)
@@ -354,7 +384,7 @@ def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
           "type (in brackets: its floor, what speeds drawn from the nominal traffic itself would score with as "
           "many adversaries); sizes in class: adversaries whose length and width fit one vehicle class of the "
           "corpus.", "",
-          _md_table(head, rows), "", "![metrics](metrics.png)", ""]
+          _md_table(head, rows), "", "![metrics](metrics.png)", "", *diversity_section(summary)]
     failed = summary["methods"]["failed_scenes"]
     if failed:
         md += ["## Scenes that failed", "", _md_table(["scene", "reason"],

@@ -101,3 +101,51 @@ def test_circular_range_wraps_at_180():
     assert circular_range_deg([170.0, -170.0]) == pytest.approx(20.0)
     assert circular_range_deg([0.0, 90.0, 180.0, 270.0]) == pytest.approx(270.0)
     assert circular_range_deg([12.0]) == 0.0
+
+
+def test_scene_bootstrap_interval_holds_the_value_and_narrows_with_more_scenes():
+    rng = np.random.default_rng(1)
+    few = [rng.normal(0, 10, 5) for _ in range(10)]
+    many = [rng.normal(0, 10, 5) for _ in range(400)]
+    v, lo, hi = metrics.scene_bootstrap(metrics.collision_speed_diversity, few)
+    assert v == pytest.approx(np.concatenate(few).std()) and lo <= v <= hi
+    v2, lo2, hi2 = metrics.scene_bootstrap(metrics.collision_speed_diversity, many)
+    assert lo2 <= 10 <= hi2 and hi2 - lo2 < (hi - lo) / 2
+    # the same draws: the same interval
+    assert metrics.scene_bootstrap(metrics.collision_speed_diversity, few) == (v, lo, hi)
+
+
+def test_paired_scene_bootstrap_separates_a_real_difference_from_none():
+    rng = np.random.default_rng(2)
+    a = [rng.normal(0, 20, 5) for _ in range(200)]
+    wider = [x * 2 for x in a]
+    same = [x + rng.normal(0, 0.1, x.shape) for x in a]
+    d, lo, hi = metrics.scene_bootstrap(metrics.collision_position_diversity, wider, a)
+    assert d > 0 and lo > 0  # twice the spread on every scene: settled
+    d, lo, hi = metrics.scene_bootstrap(metrics.collision_position_diversity, same, a)
+    assert lo < 0 < hi  # the same contacts: not settled either way
+    with pytest.raises(ValueError, match="same scenes"):
+        metrics.scene_bootstrap(metrics.collision_position_diversity, a, a[:-1])
+    v, lo, hi = metrics.scene_bootstrap(metrics.collision_position_diversity, [])
+    assert math.isnan(v) and math.isnan(lo)
+
+
+def test_paired_diversity_compares_coster_on_shared_scenes_only():
+    from coster_sumo.batch.evaluate import paired_diversity
+    from coster_sumo.report import diversity_section
+
+    per_scene = {"COSTER": {"s1": ([1.0, 2.0], [10.0, 20.0]), "s2": ([5.0], [-90.0]), "s3": ([3.0], [0.0])},
+                 "COSTER t_col=last": {"s1": ([1.0], [0.0]), "s2": ([1.0], [0.0])}}
+    paired = paired_diversity(per_scene)
+    entry = paired["COSTER - COSTER t_col=last"]
+    assert entry["scenes"] == 2  # s3: only COSTER generated for it
+    assert entry["CSD"][0] == pytest.approx(np.std([1.0, 2.0, 5.0]) - 0.0)
+    assert entry["CPD"][0] == pytest.approx(np.std([10.0, 20.0, -90.0]))
+    assert paired_diversity({"other": per_scene["COSTER"]}) == {}
+    summary = {"methods": {"table": {"COSTER": {"status": "ok", "CSD": 1.0, "CSD_ci": [0.5, 1.5], "CPD": 2.0,
+                                                "CPD_ci": [1.0, 3.0], "CPD_circular": 3.0,
+                                                "CPD_circular_ci": [float("nan"), 4.0]}},
+                           "paired": paired}}
+    md = "\n".join(diversity_section(summary))
+    assert "| COSTER | 1.00 [0.50, 1.50] | 2.0 [1.0, 3.0] | 3.0 |" in md
+    assert "| COSTER - COSTER t_col=last | 2 |" in md

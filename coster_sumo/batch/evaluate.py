@@ -12,7 +12,7 @@ import math
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +25,13 @@ from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, 
 from coster_sumo.batch.store import rate_with_ci, read_json
 from coster_sumo.core import missing_weights
 from coster_sumo.errors import InputError
+from coster_sumo.metrics import (
+    circular_std_deg,
+    collision_position_diversity,
+    collision_speed_diversity,
+    js_divergence,
+    scene_bootstrap,
+)
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -228,15 +235,11 @@ def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
 
 def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], methods: Sequence[GeneratorMethod],
                                 skipped: dict[str, str], variants: int) -> dict[str, Any]:
-    """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD."""
-    from coster_sumo.metrics import (
-        circular_std_deg,
-        collision_position_diversity,
-        collision_speed_diversity,
-        js_divergence,
-    )
-
+    """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD (with 95 %
+    intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
+    the same scenes (:func:`paired_diversity`)."""
     raw_v = raw_a = None
+    per_scene: dict[str, dict[str, tuple[list[float], list[float]]]] = {}  # method -> scene -> contacts
     by_type: dict[str, np.ndarray] = {}  # lane type -> nominal speed histogram of every scene
     good_scenes = []
     failed_scenes = []
@@ -297,7 +300,41 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
             "relative_speeds": rel, "impact_angles": ang,
             **snapshot_state_metrics(records, by_type),
         }
-    return {"table": table, "failed_scenes": failed_scenes}
+        per_scene[m.name] = {p["scene_key"]: ([r["relative_speed"] for r in p["records"] if r["collision"]],
+                                              [r["impact_angle"] for r in p["records"] if r["collision"]])
+                             for p in parts if p.get("status") == "ok"}
+        for col, (fn, which) in DIVERSITY.items():
+            values = [np.asarray(per_scene[m.name].get(k, ([], []))[which], float) for k in good_scenes]
+            table[m.name][f"{col}_ci"] = list(scene_bootstrap(fn, values)[1:])
+    return {"table": table, "failed_scenes": failed_scenes, "paired": paired_diversity(per_scene)}
+
+
+# the diversity metrics and what they read of a scene's contacts: 0 relative speeds, 1 impact angles
+DIVERSITY: dict[str, tuple[Callable[[np.ndarray], float], int]] = {
+    "CSD": (collision_speed_diversity, 0), "CPD": (collision_position_diversity, 1),
+    "CPD_circular": (circular_std_deg, 1)}
+REFERENCE_METHOD = "COSTER"
+
+
+def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float], list[float]]]]) -> dict[str, Any]:
+    """CSD and CPD of :data:`REFERENCE_METHOD` minus those of every other method, on the scenes both
+    generated for, with 95 % intervals from resampling those scenes (:func:`scene_bootstrap`): is
+    an ordering a property of the methods or of the scenes drawn? Empty without the reference."""
+    ref = per_scene.get(REFERENCE_METHOD)
+    if ref is None:
+        return {}
+    out: dict[str, Any] = {}
+    for name, scenes in per_scene.items():
+        if name == REFERENCE_METHOD:
+            continue
+        shared = [k for k in ref if k in scenes]
+        entry: dict[str, Any] = {"scenes": len(shared)}
+        for col, (fn, which) in DIVERSITY.items():
+            a = [np.asarray(ref[k][which], float) for k in shared]
+            b = [np.asarray(scenes[k][which], float) for k in shared]
+            entry[col] = list(scene_bootstrap(fn, a, b))  # [difference, low, high]
+        out[f"{REFERENCE_METHOD} - {name}"] = entry
+    return out
 
 
 FLOOR_DRAWS = 200  # draws from the nominal traffic behind ``VDD_tcol_floor``
