@@ -161,15 +161,35 @@ def test_rewrite_demand_drops_the_target_and_sets_insertion_checks(tmp_path):
                    '  <trip id="ego" type="car" depart="2" from="a" to="b"/>\n'
                    '  <vehicle id="other" depart="1" route="r0" insertionChecks="collision"/>\n</routes>\n')
     assert demand_ids(rou) == {"vehicle": {"ego", "other"}, "flow": {"f"}}
-    assert rewrite_demand(rou, drop_vehicles=frozenset({"f.1"})) == {"vehicles": [], "flows": []}
-    assert rewrite_demand(rou, checks="all", drop_vehicles=frozenset({"ego"})) == {"vehicles": ["ego"], "flows": []}
+    none = {"vehicles": [], "flows": [], "flows_after_end": []}
+    assert rewrite_demand(rou, drop_vehicles=frozenset({"f.1"})) == none
+    assert rewrite_demand(rou, checks="all", drop_vehicles=frozenset({"ego"})) == {**none, "vehicles": ["ego"]}
     root = ET.parse(rou).getroot()
     assert [el.get("id") for el in root] == ["car", "f", "other"]
     # the device's vehicles take the option (none), the file's keep what the pass used
     assert [el.get("insertionChecks") for el in root] == [None, "all", "collision"]
     assert "noNamespaceSchemaLocation" in rou.read_text() and "xmlns:xsi" in rou.read_text()
-    assert rewrite_demand(rou, drop_flows=True) == {"vehicles": [], "flows": ["f"]}
+    assert rewrite_demand(rou, drop_flows=True) == {**none, "flows": ["f"]}
     assert [el.get("id") for el in ET.parse(rou).getroot()] == ["car", "other"]
+
+
+def test_flows_that_begin_after_the_export_ends_leave_it(tmp_path):
+    """SUMO ends a flow without ``end`` at the run's end and refuses one that then ends before it
+    begins: an export that stops at its contact must not carry flows that begin later (the wheel's
+    corridor begins S20_0 at 18 s; its export of target N30.1 ends at 17.9 s)."""
+    rou = tmp_path / "r.rou.xml"
+    rou.write_text('<routes>\n  <vType id="car"/>\n'
+                   '  <flow id="early" type="car" begin="0" period="3" from="W2C" to="C2E"/>\n'
+                   '  <flow id="late" type="car" begin="18" period="exp(0.05)" from="W2C" to="C2E"/>\n'
+                   '  <flow id="later" type="car" begin="0:01:00" number="3" period="2" from="W2C" to="C2E"/>\n'
+                   '</routes>\n')
+    assert rewrite_demand(rou, end=17.9)["flows_after_end"] == ["late", "later"]
+    assert [el.get("id") for el in ET.parse(rou).getroot()] == ["car", "early"]
+    net = REPO / "networks" / "intersection" / "intersection.net.xml"
+    proc = subprocess.run([sumo_env.binary("sumo"), "-n", str(net), "-r", str(rou), "--end", "17.9",
+                           "--no-step-log", "true"], capture_output=True, text=True, env=sumo_env.subprocess_env(),
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr[-500:]
 
 
 def test_export_config_keeps_the_source_options_but_inputs_outputs_and_gui(tmp_path):
@@ -209,11 +229,13 @@ def _check_openscenario_too(out: Path) -> None:
 
 @pytest.mark.sumo
 @pytest.mark.slow
-@pytest.mark.parametrize(("config", "target"), [("square", "horiz.1"), ("grid6", "leftRight.1")])
+@pytest.mark.parametrize(("config", "target"), [("square", "horiz.1"), ("grid6", "leftRight.1"),
+                                                ("corridor", "N30.1")])
 def test_wheel_scenario_with_a_flow_member_target_plays_in_plain_sumo(tmp_path, config, target):
     """SUMO's own game scenarios (eclipse-sumo wheel): the target is a flow member, the routes of
     square live in an additional file, grid6's flows depart at random. Every flow becomes the
-    vehicles it made, the target leaves them, and the contact happens at t_col in plain sumo."""
+    vehicles it made, the target leaves them, and the contact happens at t_col in plain sumo.
+    corridor's flows S20_0 and N20_0 begin after its export ends: they leave it."""
     cfg = _sumo_game(config)
     if not cfg.is_file():
         pytest.skip(f"{cfg} not in this SUMO build")

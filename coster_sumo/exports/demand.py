@@ -36,8 +36,8 @@ from typing import Any
 from defusedxml import ElementTree as SafeET
 
 from coster_sumo import sumo_env
-from coster_sumo.errors import SumoError
-from coster_sumo.formats.sumocfg import open_maybe_gzip
+from coster_sumo.errors import InputError, SumoError
+from coster_sumo.formats.sumocfg import open_maybe_gzip, parse_time
 
 DEMAND_TAGS = ("vehicle", "trip", "flow")
 EXPANDED_FILE = "flows_expanded.rou.xml"
@@ -68,7 +68,7 @@ def demand_ids(path: Path) -> dict[str, set[str]]:
 
 
 def rewrite_demand(path: Path, *, checks: str | None = None, drop_vehicles: frozenset[str] = frozenset(),
-                   drop_flows: bool = False) -> dict[str, list[str]]:
+                   drop_flows: bool = False, end: float | None = None) -> dict[str, list[str]]:
     """Rewrite one copied route or additional file in place (see the module docstring).
 
     Args:
@@ -77,12 +77,16 @@ def rewrite_demand(path: Path, *, checks: str | None = None, drop_vehicles: froz
             (None: leave them).
         drop_vehicles: ids of top-level ``<vehicle>``/``<trip>`` elements to remove.
         drop_flows: remove every top-level ``<flow>``.
+        end: [s] the export's end: a top-level ``<flow>`` that begins at or after it is removed.
+            It inserts nothing before the end, and SUMO refuses to load it when it has no ``end``
+            of its own (its end defaults to the run's, which then lies before its begin).
 
     Returns:
-        ``{"vehicles": [...], "flows": [...]}``: the ids removed. A file without demand is not written.
+        ``{"vehicles": [...], "flows": [...], "flows_after_end": [...]}``: the ids removed. A file
+        without changes is not written.
     """
     tree, root = _read(path)
-    removed: dict[str, list[str]] = {"vehicles": [], "flows": []}
+    removed: dict[str, list[str]] = {"vehicles": [], "flows": [], "flows_after_end": []}
     changed = False
     for el in list(root):
         vid = el.get("id", "")
@@ -94,6 +98,10 @@ def rewrite_demand(path: Path, *, checks: str | None = None, drop_vehicles: froz
             root.remove(el)
             removed["flows"].append(vid)
             changed = True
+        elif el.tag == "flow" and end is not None and _begin_s(el, path) >= end:
+            root.remove(el)
+            removed["flows_after_end"].append(vid)
+            changed = True
     if checks is not None:
         for el in root.iter():
             if el.tag in DEMAND_TAGS and el.get("insertionChecks") is None:
@@ -102,6 +110,14 @@ def rewrite_demand(path: Path, *, checks: str | None = None, drop_vehicles: froz
     if changed:
         _write(tree, path)
     return removed
+
+
+def _begin_s(flow: ET.Element, path: Path) -> float:
+    """A flow's ``begin`` [s] (SUMO's default: 0); unreadable counts as 0 (kept: SUMO will say)."""
+    try:
+        return parse_time(flow.get("begin") or "0", f"{path}: flow {flow.get('id')!r}")
+    except InputError:
+        return 0.0
 
 
 def expand_flows(config: Path, flows: set[str], leave_out: frozenset[str], out: Path, *, checks: str,
@@ -122,8 +138,10 @@ def expand_flows(config: Path, flows: set[str], leave_out: frozenset[str], out: 
         proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(),
                               timeout=timeout_s, cwd=config.parent)
         if proc.returncode != 0 or not tmp.is_file():
-            tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
-            raise SumoError(f"{config}: expanding its flows with sumo failed: {tail[0]}")
+            lines = (proc.stderr or proc.stdout).strip().splitlines()
+            # sumo ends with "Quitting (on error)."; the line that says what went wrong comes before
+            said = [ln for ln in lines if ln.startswith("Error:")] or lines[-1:] or ["no output"]
+            raise SumoError(f"{config}: expanding its flows with sumo failed: {said[-1]}")
         root = _read(tmp)[1]
     finally:
         tmp.unlink(missing_ok=True)

@@ -450,6 +450,8 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
     checks: str | None = None
     drop: frozenset[str] = frozenset()
     flows: set[str] = set()
+    after_end: list[str] = []  # flows that begin after the export ends (removed: demand.py)
+    end = float(scene.timestamps[-1]) if scene.num_steps else None
     if converted:  # the log drives everyone: every vehicle of the pass, all inserted unchecked
         ids = [str(i) for i in scene.tracks.ids]
         target_by = "fcd-replay"
@@ -471,7 +473,7 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
                 ids.append(target_id)
                 target_by = "fcd-replay"
         for f in demand_files:
-            rewrite_demand(f, checks=checks, drop_vehicles=drop)
+            after_end += rewrite_demand(f, checks=checks, drop_vehicles=drop, end=end)["flows_after_end"]
     lanes = LaneIndex.read(inputs["net-file"][0])
     vehicles = recorded_vehicles(scene, ids, lanes, step, colors={plan.vehicle_id: ADVERSARY_COLOR})
     if plan.vehicle_id not in {v.vehicle_id for v in vehicles}:
@@ -493,7 +495,6 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
     write_gui_settings(folder / GUI_SETTINGS_FILE, (float(plan.x[-1]), float(plan.y[-1])),
                        float(max(xmax - xmin, ymax - ymin)))
     cfg = folder / config.name
-    end = float(scene.timestamps[-1]) if scene.num_steps else None
     # the device routes a vehicle along the edges its entries name; staging, parking and logged
     # agents that leave the lanes make that route disconnected, which SUMO refuses unless told so
     # (route-file vehicles are unaffected: the pass ran them without the option); the device's
@@ -520,7 +521,8 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
         "staging_lane": staging if output else None, "parked_early": parked,
         "fcd_time_label": "simulation time - step_length", "step_length": step,
         "demand": {"insertion_checks": checks, "dropped": sorted(drop), "expanded_flows": sorted(flows),
-                   "expanded_vehicles": len(expanded), "expanded_file": EXPANDED_FILE if flows else None},
+                   "expanded_vehicles": len(expanded), "expanded_file": EXPANDED_FILE if flows else None,
+                   "flows_after_end": sorted(after_end)},
         "notes": notes,
     }
     return cfg, info
