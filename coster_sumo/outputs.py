@@ -22,6 +22,7 @@ in ``OUTDIR/summary.json`` (see :func:`coster_sumo.run.run`).
 from __future__ import annotations
 
 import json
+import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ import numpy as np
 from coster_sumo import viz
 from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
+from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan, sim_time_of
@@ -156,9 +158,13 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
             mine.append(rec)
             trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
             write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
-            export_variant(vdir / "export", spec.config, plan,
-                           {"target_id": target_id, "planner": planner, "seed": spec.seed,
-                            "begin": spec.begin, "end": float(scene.timestamps[-1])}, res)
+            try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
+                export_variant(vdir / "export", spec.config, plan,
+                               {"target_id": target_id, "planner": planner, "seed": spec.seed,
+                                "begin": spec.begin, "end": float(scene.timestamps[-1])}, res)
+            except (SumoError, InputError) as exc:
+                shutil.rmtree(vdir / "export", ignore_errors=True)
+                rec["export_error"] = str(exc)
             if render:
                 xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
                 c = res.contact

@@ -43,6 +43,30 @@ def test_run_writes_every_output_and_contact_is_at_t_col(tmp_path, capsys):
     assert not list(tmp_path.glob(".out.*")), "staging folder left behind"
 
 
+def test_a_variant_whose_export_sumo_refuses_keeps_the_run(tmp_path, capsys, monkeypatch):
+    """The standalone export is written after the variants ran: when SUMO refuses it (a demand the
+    export cannot reproduce), the run keeps its results and names the reason per variant."""
+    from coster_sumo.errors import SumoError
+    from coster_sumo.exports import sumo as sumo_export
+
+    def refuse(folder, config, *_a, **_k):
+        raise SumoError(f"{folder}/x.sumocfg: expanding its flows with sumo failed: Error: refused")
+
+    monkeypatch.setattr(sumo_export, "write_sumo_export", refuse)
+    rc, out = _run(tmp_path, "--planner", "replay", "--seed", "3", "--no-render")
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "; no SUMO export (" in printed and "Error: refused" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["variants"] and all("Error: refused" in v["export_error"] for v in summary["variants"])
+    for v in summary["variants"]:
+        vdir = out / "variants" / str(v["variant"])
+        assert (vdir / "trajectory.csv").exists() and not (vdir / "export").exists()
+    from coster_sumo.exports.run_folder import export_run
+
+    assert all("skipped" in r for r in export_run(out, "sumo"))
+
+
 def test_same_seed_same_result(tmp_path):
     a = json.loads((_run(tmp_path / "a", "--seed", "5", "--no-render")[1] / "summary.json").read_text())
     b = json.loads((_run(tmp_path / "b", "--seed", "5", "--no-render")[1] / "summary.json").read_text())

@@ -162,5 +162,6 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
     for v in summary["variants"]:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
                f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
-        lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else ""))
+        lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else "")
+                     + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else ""))
     return lines

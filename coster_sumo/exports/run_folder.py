@@ -107,7 +107,8 @@ def openscenario_export(vdir: Path, summary: dict[str, Any], record: dict[str, A
 
 
 def export_run(run_out: Path, fmt: str = "all", radius: float | None = None) -> list[dict[str, Any]]:
-    """Export every variant of ``run_out`` in ``fmt`` (sumo | openscenario | all); one dict per variant."""
+    """Export every variant of ``run_out`` in ``fmt`` (sumo | openscenario | all); one dict per variant
+    (``skipped``: why a variant has no export, where the run could not write its SUMO folder)."""
     if fmt not in FORMATS:
         raise InputError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
     if fmt in ("openscenario", "all"):
@@ -121,6 +122,9 @@ def export_run(run_out: Path, fmt: str = "all", radius: float | None = None) -> 
     for record in summary["variants"]:
         vdir = run_out / "variants" / str(record["variant"])
         res: dict[str, Any] = {"variant": record["variant"]}
+        if record.get("export_error"):  # the run could not write its SUMO folder, which both formats read
+            results.append({**res, "skipped": record["export_error"]})
+            continue
         if fmt in ("sumo", "all"):
             res["sumo"] = sumo_export(vdir)
         if fmt in ("openscenario", "all"):
