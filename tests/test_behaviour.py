@@ -20,7 +20,9 @@ adversary in contact (21), 1 with it off the road (2); then with the prior adapt
 visible traffic (the adversary's speed and size, models/prior.md): ``run`` keeps 4 variants on
 intersection (was 5) and 5 on WOMD eb4b91b10ca94ff2 (was 3), all in collision, one adversary of
 WOMD 2a1e44d405a6833f leaves the road (none before); ``regress`` has 32 rows (34), 21 with the
-adversary in contact (23), 3 with it off the road (1).
+adversary in contact (23), 3 with it off the road (1); then with off-road counted up to t_col only
+(an avoided adversary driving on at constant velocity is not its trajectory): one ``regress`` row
+of a ``sumo`` planner without contact is no longer off the road (2 of 32).
 """
 
 from __future__ import annotations

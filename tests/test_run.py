@@ -176,6 +176,25 @@ def test_scenarios_shipped_with_sumo_contact_at_t_col(tmp_path, config, target):
         assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6
 
 
+def test_off_road_after_a_missed_contact_is_not_the_adversarys(tmp_path):
+    """On the wheel's cross SUMO's driver keeps the target out of every contact; each adversary
+    then drives on at constant velocity past t_col and off the road. Its trajectory ended at t_col
+    on the road: the variant is not off-road (ORR counts trajectories), the events still say where
+    it went."""
+    cfg = _sumo_game("cross")
+    if not cfg.is_file():
+        pytest.skip(f"{cfg} not in this SUMO build")
+    out = tmp_path / "o"
+    assert main(["-q", "run", str(cfg), "--target", "1_horizontal.0", "--samples", "200", "--variants", "2",
+                 "--no-render", "-o", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    missed = [v for v in summary["variants"] if not v["collision"]]
+    assert missed and not any(v["adversary_off_road"] for v in missed)
+    events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
+    later = [e for e in events if e["kind"] == "off_road" and e["vehicles"][0].startswith("adversary")]
+    assert later and all(e["time"] > summary["t_col_sim"] for e in later)
+
+
 def test_sumo_scenario_without_ego_names_candidates(tmp_path, capsys):
     cfg = _sumo_game("square")
     if not cfg.is_file():

@@ -107,7 +107,10 @@ class InjectionResult:
         scene: the pass recorded at 10 Hz (all vehicles, the adversary included).
         events: every event, in time order.
         contact: the first adversary-target collision (our box check), or None.
-        adversary_off_road / target_off_road: whether it left the drivable area at any step.
+        adversary_off_road: whether the adversary left the drivable area up to t_col (its
+            trajectory; later steps are the constant-velocity run-on of a missed contact, whose
+            off-road events stay in ``events``).
+        target_off_road: whether the target left the drivable area at any step.
         target_arrived: the target reached the end of its route.
         route_completed: arrived, or still running at the window's end, without collision or
             off-road.
@@ -250,7 +253,10 @@ def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan
     wall = _time.perf_counter() - t0
     contact = detector.first("collision", adv_id, target_id)
     target_collided = any(e.kind == "collision" and target_id in e.vehicles for e in detector.events)
-    adv_off = detector.first("off_road", adv_id) is not None
+    # the adversary's own trajectory ends at t_col: where the planner avoided it, it drives on at
+    # constant velocity (the module docstring), and leaving the road then is not the trajectory's
+    plan_end = plan.t_col + 0.5 * session.step_length + 1e-6 if plan is not None else math.inf
+    adv_off = any(e.kind == "off_road" and e.vehicles == [adv_id] and e.time <= plan_end for e in detector.events)
     tgt_off = detector.first("off_road", target_id) is not None
     in_scene = target_id in set(scene.tracks.ids.tolist())
     still_running = in_scene and bool(scene.tracks.valid[scene.tracks.index_of(target_id), -1])
