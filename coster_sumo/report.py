@@ -321,8 +321,11 @@ def plot_generator_metrics(path: Path, summary: dict[str, Any]) -> Path:
     fig, axes = plt.subplots(2, 4, figsize=(14, 6))
     names = list(table)
     for ax, col in zip(axes.ravel(), GENERATOR_COLUMNS, strict=True):
-        vals = [table[n][col] if table[n][col] is not None else np.nan for n in names]
-        ax.bar(np.arange(len(names)), vals, color=[f"C{i}" for i in range(len(names))])
+        vals = np.array([table[n][col] if table[n][col] is not None else np.nan for n in names], float)
+        # CSD and CPD carry intervals from resampling scenes
+        ci = np.array([table[n].get(f"{col}_ci") or [np.nan, np.nan] for n in names], float)
+        err = np.abs(ci - vals[:, None]).T if np.isfinite(ci).any() else None
+        ax.bar(np.arange(len(names)), vals, color=[f"C{i}" for i in range(len(names))], yerr=err, capsize=3)
         ax.set_xticks(np.arange(len(names)), names, rotation=35, ha="right", fontsize=7)
         ax.set_title(col, fontsize=10)
     skipped = [k for k, v in summary["methods"]["table"].items() if v["status"] != "ok"]
