@@ -43,8 +43,9 @@ from coster_sumo.sim.hold import HeldStates
 from coster_sumo.snapshot import COLLISION_TIME_RULES, MARGIN_END, SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
-from coster_sumo.targets import demand_ids
+from coster_sumo.targets import OFF_ROAD_CLASSES, demand_ids
 
+MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
 
 PRIOR_RATE_HZ = 2.0  # [1/s] the prior and the rollout work at 2 Hz
@@ -153,6 +154,12 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
         which = (f"target {wanted[0]!r} is" if len(wanted) == 1 else
                  "none of the targets " + ", ".join(map(repr, wanted)) + " is")
         raise InputError(f"{cfg}: {which} not {where}; candidates: {', '.join(demand.examples(wanted))}")
+    if demand is not None:  # a train is no target: the prior places road vehicles on road lanes
+        off = {v: demand.vclass(v) for v in wanted if demand.vclass(v) in OFF_ROAD_CLASSES}
+        if len(off) == len(wanted):
+            v, c = next(iter(off.items()))
+            raise InputError(f"{cfg}: target {v!r} is a {c} vehicle (vClass of its vType); COSTER places road "
+                             "vehicles around a road vehicle: pick one with --target, or --targets N")
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
@@ -165,7 +172,7 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
 
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
                           focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
-                                      more_targets=tuple(more_targets)),
+                                      more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S),
                           after_step=after_step, **extra)
     ids = scene.tracks.ids.tolist()
     present = [ids.index(v) for v in dict.fromkeys((target, *more_targets)) if v in ids]

@@ -201,6 +201,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         "collision_time_method": snap0.collision_time_method, "init_method": snap0.init_method,
         "snapshot_signed_distance": snap0.signed_distance,
         "nominal_until_s": float(scene.timestamps[-1]),
+        **({"nominal_cut_after_s": scene.meta["cut_after_s"]} if scene.meta.get("cut_after_s") else {}),
         "num_snapshots": len(snapshots), "num_variants": n,
         "collision_rate": sum(v["collision"] for v in variants) / n if n else None,
         "off_road_rate": sum(v["adversary_off_road"] for v in variants) / n if n else None,

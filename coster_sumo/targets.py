@@ -19,7 +19,10 @@ What the demand says, and how it is read:
   (``probability``, ``period="exp(rate)"``) the mean gap stands in for the period. One vehicle per
   flow at most, the first that departs in the window: several targets from one flow would be the
   same drive;
-* departures that are not times (``triggered``, ``containerTriggered``) are left out.
+* departures that are not times (``triggered``, ``containerTriggered``) are left out;
+* so are vehicles whose ``vType`` has a class that uses no road (``vClass="rail"``, ships, ...,
+  :data:`OFF_ROAD_CLASSES`): the prior places road vehicles around a target on road lanes (the
+  wheel's ``rail_demo`` runs only trains).
 
 The free-flow time is a lower bound of the real one (queues, signals and insertion backlogs only add
 to it), so a chosen vehicle may still never run in the window; the run then lists it with that
@@ -30,7 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +42,10 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import check_xml, open_maybe_gzip, parse_time, read_sumocfg
 
+# vehicle classes that use no road lanes: the prior places road vehicles, so none is a target
+# (trams stay: their tracks often run in the street)
+OFF_ROAD_CLASSES = frozenset({"rail", "rail_urban", "rail_electric", "rail_fast", "subway", "cable_car", "ship",
+                              "aircraft", "drone", "pedestrian", "wheelchair", "container"})
 MIN_IN_WINDOW_S = 10.0  # [s] shorter lives leave the collision-time search no choice (5 s horizon + margins)
 DETOUR = 1.3  # straight line -> road distance, for ranking trips before they are routed
 ROUTED_PER_TARGET = 4  # trips routed per target asked (the best by the straight-line estimate)
@@ -72,6 +79,7 @@ class _Demand:
     dst: str | None = None
     via: tuple[str, ...] = ()
     flow: tuple[float, float, int] | None = None  # begin, period, count of a flow's vehicles
+    vclass: str = "passenger"  # of its vType (SUMO's default type is a passenger car)
 
 
 def _depart(text: str | None, where: str) -> float | None:
@@ -115,6 +123,7 @@ def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
     """Vehicle-like elements of the files, their ``route="id"`` references resolved."""
     out: list[_Demand] = []
     routes: dict[str, list[str]] = {}
+    vclass: dict[str, str] = {}
     for path in files:
         check_xml(path, "route file")
         with open_maybe_gzip(path) as fh:
@@ -122,6 +131,9 @@ def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
                 root = SafeET.parse(fh, forbid_dtd=True).getroot()
             except Exception as exc:  # noqa: BLE001 - defusedxml raises several types; all mean "bad file"
                 raise InputError(f"{path}: not a readable route file ({type(exc).__name__})") from None
+        for vt in root.iter("vType"):
+            if vt.get("id"):
+                vclass[vt.get("id")] = vt.get("vClass") or "passenger"
         for rd in root.iter("routeDistribution"):
             first = next(iter(rd.iter("route")), None)
             if rd.get("id") and first is not None and first.get("edges"):
@@ -139,7 +151,7 @@ def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
             edges = (nested.get("edges").split() if nested is not None and nested.get("edges")
                      else routes.get(el.get("route", "")) if el.get("route") else None)
             d = _Demand(vid, 0.0, edges=edges, src=el.get("from"), dst=el.get("to"),
-                        via=tuple((el.get("via") or "").split()))
+                        via=tuple((el.get("via") or "").split()), vclass=el.get("type") or "")
             if tag == "flow":
                 d.flow = _flow_series(el, where, default_end)
                 if d.flow is None or d.flow[2] == 0:
@@ -153,9 +165,10 @@ def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
             if d.edges is None and el.get("route"):  # a route defined after it, or in a later file
                 d.edges = [f"@{el.get('route')}"]
             out.append(d)
-    for d in out:  # late references
+    for d in out:  # late references (routes, and types, may be defined after their users)
         if d.edges and len(d.edges) == 1 and d.edges[0].startswith("@"):
             d.edges = routes.get(d.edges[0][1:])
+        d.vclass = vclass.get(d.vclass, "passenger")
     return out
 
 
@@ -174,10 +187,21 @@ class DemandIds:
 
     vehicles: tuple[str, ...]
     flows: tuple[str, ...]
+    classes: dict[str, str] = field(default_factory=dict)  # vehicle or flow id -> its vType's vClass
 
     def can_insert(self, vehicle_id: str) -> bool:
+        return self._source(vehicle_id) is not None
+
+    def vclass(self, vehicle_id: str) -> str | None:
+        """The vehicle class of ``vehicle_id`` (a flow member's is its flow's); None if not in the demand."""
+        src = self._source(vehicle_id)
+        return None if src is None else self.classes.get(src, "passenger")
+
+    def _source(self, vehicle_id: str) -> str | None:
         head, _, k = vehicle_id.rpartition(".")
-        return vehicle_id in set(self.vehicles) or (k.isdigit() and head in set(self.flows))
+        if vehicle_id in set(self.vehicles):
+            return vehicle_id
+        return head if k.isdigit() and head in set(self.flows) else None
 
     def examples(self, like: list[str], n: int = 8) -> list[str]:
         """Up to ``n`` ids for an error: those containing one of ``like`` (case-insensitive), else
@@ -200,6 +224,8 @@ def demand_ids(config: str | Path) -> DemandIds | None:
         return None
     vehicles: list[str] = []
     flows: list[str] = []
+    types: dict[str, str] = {}  # vehicle or flow id -> its type id
+    vtypes: dict[str, str] = {}  # type id -> vClass
     for path in [*cfg.route_files, *cfg.additional_files]:
         try:
             check_xml(path, "route file")
@@ -208,14 +234,17 @@ def demand_ids(config: str | Path) -> DemandIds | None:
                     tag, vid = str(el.tag).split("}")[-1], el.get("id")
                     if tag in _OPAQUE_SOURCES:
                         return None
-                    if vid and tag in ("vehicle", "trip"):
-                        vehicles.append(vid)
-                    elif vid and tag == "flow":
-                        flows.append(vid)
+                    if vid and tag in ("vehicle", "trip", "flow"):
+                        (flows if tag == "flow" else vehicles).append(vid)
+                        if el.get("type"):
+                            types[vid] = str(el.get("type"))
+                    elif vid and tag == "vType":
+                        vtypes[vid] = el.get("vClass") or "passenger"
                     el.clear()  # a city's demand is large: keep no element's content
         except Exception:  # noqa: BLE001 - any reading problem: leave the answer to the simulation
             return None
-    return DemandIds(tuple(vehicles), tuple(flows))
+    classes = {v: vtypes.get(t, "passenger") for v, t in types.items()}
+    return DemandIds(tuple(vehicles), tuple(flows), classes)
 
 
 def _in_window(depart: float, duration: float, begin: float, end: float) -> float:
@@ -249,7 +278,12 @@ def long_lived(config: str | Path, n: int, begin: float | None = None, end: floa
         from coster_sumo.formats.sumo_net import read_sumolib_net
 
         net = read_sumolib_net(cfg.net_file)
-    demand = _read_demand([*cfg.route_files, *cfg.additional_files], end)
+    every = _read_demand([*cfg.route_files, *cfg.additional_files], end)
+    demand = [d for d in every if d.vclass not in OFF_ROAD_CLASSES]
+    if every and not demand:
+        classes = sorted({d.vclass for d in every})
+        raise InputError(f"{config}: no road vehicle in its demand (only {', '.join(classes)}): the adversaries "
+                         "COSTER places are road vehicles")
 
     def edge(eid: str) -> Any:
         return net.getEdge(eid) if net.hasEdge(eid) else None

@@ -204,3 +204,19 @@ def test_surroundings_at_2hz_give_the_models_exactly_what_sumo_did(network, targ
     err = np.hypot(full.tracks.x[rf] - part.tracks.x[rp], full.tracks.y[rf] - part.tracks.y[rp])[both]
     assert both.sum() >= 0.9 * full.tracks.valid.sum()  # only arrivals/departures between samples are lost
     assert np.median(err) < 0.01 and np.percentile(err, 95) < 0.2
+
+
+def test_a_focused_recording_stops_max_life_s_after_the_target_departs():
+    """Focus.max_life_s bounds a pass whose target would run for days (the wheel's rail_demo ends at
+    1,200,000 s): the recording stops that long after the departure and says so in its meta."""
+    from coster_sumo.sim.record import Focus
+
+    cfg = Path(__file__).resolve().parents[1] / "networks" / "intersection" / "intersection.sumocfg"
+    full = record_config(cfg, seed=0, end=60.0, focus=Focus("ego", 100.0, tail_s=2.0))
+    cut = record_config(cfg, seed=0, end=60.0, focus=Focus("ego", 100.0, tail_s=2.0, max_life_s=5.0))
+    assert "cut_after_s" not in full.meta and cut.meta["cut_after_s"] == 5.0
+    t0 = cut.timestamps[0]  # the step the target departed in
+    assert cut.timestamps[-1] == pytest.approx(t0 + 5.0, abs=1e-6) and full.timestamps[-1] > t0 + 10.0
+    n = cut.num_steps
+    e = full.tracks.index_of("ego")
+    assert np.array_equal(cut.tracks.x[cut.tracks.index_of("ego")], full.tracks.x[e, :n])

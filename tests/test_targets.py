@@ -72,6 +72,28 @@ def test_long_lived_respects_the_window(tmp_path: Path) -> None:
         long_lived(_config(tmp_path), 0)
 
 
+def test_targets_are_road_vehicles(tmp_path: Path, monkeypatch) -> None:
+    """A train is no target (the prior places road vehicles); a config with trains only says so."""
+    record = importlib.import_module("coster_sumo.sim.record")
+    monkeypatch.setattr(record, "record_config", lambda *_a, **_k: pytest.fail("simulated"))
+    (tmp_path / "d.rou.xml").write_text("""<routes>
+  <vehicle id="train" type="loco" depart="0"><route edges="W2C C2E"/></vehicle>
+  <vehicle id="car" depart="5"><route edges="N2C C2S"/></vehicle>
+  <vType id="loco" vClass="rail"/>
+</routes>""")
+    cfg = tmp_path / "t.sumocfg"
+    cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="d.rou.xml"/></input>
+<time><end value="120"/></time></configuration>""")
+    assert [c.vehicle_id for c in long_lived(cfg, 5)] == ["car"]
+    (tmp_path / "d.rou.xml").write_text("""<routes><vType id="loco" vClass="rail"/>
+  <vehicle id="train" type="loco" depart="0"><route edges="W2C C2E"/></vehicle></routes>""")
+    with pytest.raises(InputError, match=r"t.sumocfg: no road vehicle in its demand \(only rail\)"):
+        long_lived(cfg, 1)
+    # named: an error before any simulation
+    with pytest.raises(InputError, match=r"t.sumocfg: target 'train' is a rail vehicle"):
+        nominal_scene(ScenarioSpec(cfg, target="train"))
+
+
 def test_demand_ids_know_what_the_files_can_insert(tmp_path: Path) -> None:
     demand = demand_ids(_config(tmp_path))
     assert demand is not None

@@ -153,6 +153,10 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
     lines = [f"target {summary['target']}: t_col = "
              + ", ".join(f"{s['t_col']:.1f} s" for s in summary["snapshots"])
              + f" ({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
+    if summary.get("nominal_cut_after_s"):
+        lines.append(f"  note: the nominal pass stopped {summary['nominal_cut_after_s']:.0f} s after "
+                     f"{summary['target']} departed (at {summary['nominal_until_s']:.1f} s; it had not arrived): "
+                     "--begin/--end choose another part of its life")
     motion = summary.get("target_motion") or {}
     in_window = motion.get("in_window_s", 0.0)
     if in_window >= STILL_NOTE_MIN_S and motion["stopped_s"] >= STILL_NOTE_SHARE * in_window:

@@ -183,6 +183,9 @@ class Focus:
         more_targets: further vehicles recorded like ``target_id`` (``run --target A --target B``):
             the recording starts when the first of them departs, reads the surroundings of each
             one that runs, and with ``until_arrival`` stops ``tail_s`` after all have arrived.
+        max_life_s: stop recording this long [s] after the (first) target departed (None: no
+            limit); ``Scene.meta["cut_after_s"]`` then says so. A configuration may end weeks later
+            (the wheel's ``rail_demo``: 1,200,000 s) with a target that never arrives.
         surroundings_hz: read the surroundings at this rate only [1/s] (None: every step). The
             target and ``extra_ids`` are read every step; the other vehicles at the recording's
             steps 0, k, 2k, ... (k = round(1 / (rate x step length))) and linearly interpolated in
@@ -196,6 +199,7 @@ class Focus:
     tail_s: float = 0.0
     surroundings_hz: float | None = None
     more_targets: tuple[str, ...] = ()
+    max_life_s: float | None = None
 
     @property
     def targets(self) -> tuple[str, ...]:
@@ -284,6 +288,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     arrived: set[str] = set()
     started = bool(running)  # a focused recording begins when its (first) vehicle departs
     end_at: float | None = None  # [s] when a focused recording stops (after the targets arrived)
+    cut_at: float | None = None  # [s] when it stops at the latest (max_life_s after the first departure)
+    cut = False
     ran_from: dict[str, float] = {}  # until a focused vehicle departs: who ran, from when to when [s]
     ran_until: dict[str, float] = {}
     first_t: float | None = None
@@ -316,8 +322,13 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
                     end_at = t + focus.tail_s
             if end_at is not None and t > end_at + eps:
                 break
+            if cut_at is not None and t > cut_at + eps:
+                cut = True
+                break
             departed = session.departed_ids()
             running += [v for v in targets if v in departed and v not in running]
+            if running and not started and focus.max_life_s is not None:
+                cut_at = t + focus.max_life_s
             started = started or bool(running)
             full = every == 1 or len(times) % every == 0
             if running:
@@ -385,6 +396,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         "begin": times[0] if times else None, "end": times[-1] if times else None,
         "location_offset": [float(v) for v in net.location_offset],
     }
+    if cut and focus is not None:
+        info["cut_after_s"] = focus.max_life_s
     if focus is not None and not started:
         info["ran_s"] = {v: round(ran_until.get(v, t) - t0, 3) for v, t0 in ran_from.items()}
         info["pass_window_s"] = [first_t, t] if first_t is not None else None
