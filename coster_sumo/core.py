@@ -43,7 +43,7 @@ from coster_sumo.sim.hold import HeldStates
 from coster_sumo.snapshot import COLLISION_TIME_RULES, MARGIN_END, SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
-from coster_sumo.targets import OFF_ROAD_CLASSES, demand_ids
+from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand
 
 MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
@@ -145,7 +145,7 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
     _, end = simulation_window(spec)
     target = spec.target or "ego"
     wanted = list(dict.fromkeys((target, *more_targets)))
-    demand = demand_ids(cfg)
+    demand = config_demand(cfg)
     if demand is not None and not any(map(demand.can_insert, wanted)):  # seconds, not a whole pass
         where = "in its demand (route and additional files)"
         if spec.target is None and not more_targets:

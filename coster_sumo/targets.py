@@ -211,7 +211,7 @@ class DemandIds:
         return (near or every)[:n]
 
 
-def demand_ids(config: str | Path) -> DemandIds | None:
+def config_demand(config: str | Path) -> DemandIds | None:
     """What ``config``'s route and additional files can insert (:class:`DemandIds`); None where the
     files cannot tell: a calibrator inserts vehicles too, or a file is missing or unreadable (the
     simulation will then say what is wrong with it).

@@ -13,7 +13,7 @@ from coster_sumo.core import nominal_scene
 from coster_sumo.errors import InputError
 from coster_sumo.spec import ScenarioSpec
 from coster_sumo.sumo_env import sumo_home
-from coster_sumo.targets import MIN_IN_WINDOW_S, choose_targets, demand_ids, long_lived
+from coster_sumo.targets import MIN_IN_WINDOW_S, choose_targets, config_demand, long_lived
 
 ROOT = Path(__file__).resolve().parents[1]
 NET = ROOT / "networks" / "intersection" / "intersection.net.xml"
@@ -94,8 +94,8 @@ def test_targets_are_road_vehicles(tmp_path: Path, monkeypatch) -> None:
         nominal_scene(ScenarioSpec(cfg, target="train"))
 
 
-def test_demand_ids_know_what_the_files_can_insert(tmp_path: Path) -> None:
-    demand = demand_ids(_config(tmp_path))
+def test_config_demand_knows_what_the_files_can_insert(tmp_path: Path) -> None:
+    demand = config_demand(_config(tmp_path))
     assert demand is not None
     for vid in ("named_route", "nested_route", "waits", "trip", "periodic.0", "periodic.13", "random.2"):
         assert demand.can_insert(vid), vid
@@ -108,10 +108,10 @@ def test_demand_ids_know_what_the_files_can_insert(tmp_path: Path) -> None:
     cfg = tmp_path / "c.sumocfg"
     cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="demand.rou.xml"/>
 <additional-files value="calib.add.xml"/></input></configuration>""")
-    assert demand_ids(cfg) is None
+    assert config_demand(cfg) is None
     cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="gone.rou.xml"/>
 </input></configuration>""")
-    assert demand_ids(cfg) is None
+    assert config_demand(cfg) is None
 
 
 @pytest.mark.parametrize(("target", "message"), [
