@@ -213,14 +213,16 @@ class DemandIds:
 
 def config_demand(config: str | Path) -> DemandIds | None:
     """What ``config``'s route and additional files can insert (:class:`DemandIds`); None where the
-    files cannot tell: a calibrator inserts vehicles too, or a file is missing or unreadable (the
-    simulation will then say what is wrong with it).
+    files cannot tell: the configuration loads a saved state, a calibrator inserts vehicles too, or
+    a file is missing or unreadable (the simulation will then say what is wrong with it).
 
     A city's nominal pass takes minutes; this tells in seconds that a target is not in the demand.
     """
     try:
         cfg = read_sumocfg(config)
     except InputError:
+        return None
+    if cfg.load_state:  # a saved state brings vehicles that no route file names
         return None
     vehicles: list[str] = []
     flows: list[str] = []

@@ -112,6 +112,10 @@ def test_config_demand_knows_what_the_files_can_insert(tmp_path: Path) -> None:
     cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="gone.rou.xml"/>
 </input></configuration>""")
     assert config_demand(cfg) is None
+    # a saved state holds vehicles of its own
+    cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="demand.rou.xml"/>
+<load-state value="state.xml"/></input></configuration>""")
+    assert config_demand(cfg) is None
 
 
 @pytest.mark.parametrize(("target", "message"), [

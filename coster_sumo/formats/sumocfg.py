@@ -46,6 +46,7 @@ class SumoConfig:
     end: float | None = None
     step_length: float | None = None
     gui_only: tuple[str, ...] = ()  # options of its <gui_only> section (plain sumo may not know them)
+    load_state: tuple[Path, ...] = ()  # saved states it starts from (they hold vehicles of their own)
 
     def inputs(self) -> dict[str, list[Path]]:
         """``{"net-file": [...], "route-files": [...], "additional-files": [...]}``."""
@@ -155,7 +156,8 @@ def read_sumocfg(path: str | Path) -> SumoConfig:
 
     cfg = SumoConfig(path=path, net_files=files["net-file"], route_files=files["route-files"],
                      additional_files=files["additional-files"], begin=time_of("begin"), end=time_of("end"),
-                     step_length=time_of("step-length"), gui_only=gui_only)
+                     step_length=time_of("step-length"), gui_only=gui_only,
+                     load_state=tuple(path.parent / f for f in split_files(values.get("load-state", ""))))
     _CACHE[key] = cfg
     return cfg
 
