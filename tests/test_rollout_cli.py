@@ -96,6 +96,14 @@ def test_eval_rollout_reports_every_method(dataset, tmp_path):
         assert m["minADE"] <= m["avgADE"] + 1e-12 and m["minFDE"] <= m["avgFDE"] + 1e-12
         assert m["time_per_trajectory_s"] > 0
     assert report["methods"]["cvae_dsa"]["samples"] == 5
+    # the CVAE's errors by the neighbours around at t_rev: the buckets partition the vehicles, and
+    # their minFDE weighted by vehicles is the whole minFDE
+    buckets = report["methods"]["cvae_dsa"]["by_neighbours"]
+    n = sum(b["contexts"] for b in buckets)
+    assert n == report["methods"]["cvae_dsa"]["num_contexts"]
+    assert {b["neighbours"] for b in buckets} <= {"0", "1-3", "4-9", "10+"}
+    assert sum(b["contexts"] * b["minFDE"] for b in buckets) / n == pytest.approx(
+        report["methods"]["cvae_dsa"]["minFDE"])
     # synthetic agents follow their lanes at constant speed: the lane baseline beats straight lines
     cl, cv = report["methods"]["constant_lane"], report["methods"]["constant_velocity"]
     assert cl["minADE"] < cv["minADE"]
@@ -171,3 +179,16 @@ def test_init_from_another_model_setting_is_one_line(dataset, tmp_path, capsys):
                  "--no-dsa", "--init", str(a)])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and str(a) in err and "use_dsa" in err
+
+
+def test_errors_by_neighbours_bucket_the_contexts():
+    import numpy as np
+
+    from coster_sumo.rollout.evaluate import by_neighbours
+
+    truth = np.zeros((4, 3, 2))
+    pred = np.zeros((4, 2, 3, 2))
+    pred[:, :, :, 0] = np.array([1.0, 2.0, 3.0, 4.0])[:, None, None]  # context i is off by i + 1 m
+    out = by_neighbours(pred, truth, np.ones((4, 3), bool), np.array([0, 2, 12, 3]))
+    assert [(b["neighbours"], b["contexts"]) for b in out] == [("0", 1), ("1-3", 2), ("10+", 1)]
+    assert [b["minFDE"] for b in out] == [1.0, 3.0, 3.0]

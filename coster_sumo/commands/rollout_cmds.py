@@ -251,4 +251,10 @@ def run_eval(args: argparse.Namespace) -> int:
         for name, m in result["methods"].items():
             print(f"{name:18s} minADE {m['minADE']:.3f} minFDE {m['minFDE']:.3f} avgADE {m['avgADE']:.3f} "
                   f"avgFDE {m['avgFDE']:.3f} m, {1e3 * m['time_per_trajectory_s']:.2f} ms/traj", file=sys.stderr)
+        dsa, nodsa = result["methods"].get("cvae_dsa"), result["methods"].get("cvae_no_dsa")
+        if dsa and nodsa:  # where the neighbours are: what DSA has to attend to
+            for a, b in zip(dsa["by_neighbours"], nodsa["by_neighbours"], strict=True):
+                print(f"neighbours {a['neighbours']:>4s} ({a['contexts']} vehicles): minFDE DSA {a['minFDE']:.3f}, "
+                      f"no DSA {b['minFDE']:.3f} m, DSA better by {100 * (1 - a['minFDE'] / b['minFDE']):+.1f} %",
+                      file=sys.stderr)
     return 0

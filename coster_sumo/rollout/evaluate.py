@@ -43,14 +43,20 @@ def _summary(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray, elapsed_s: f
             "samples": int(pred.shape[1]), "time_per_trajectory_s": elapsed_s / max(n_traj, 1)}
 
 
+# neighbour counts at t_rev (the vehicles the model sees around the one it reconstructs), for
+# the breakdown by_neighbours: where dynamic surrounding attention has something to attend to
+NEIGHBOUR_BUCKETS = ((0, 0), (1, 3), (4, 9), (10, 10**9))
+
+
 def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int,
-                     seed: int = 0, batch_size: int = 64) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Samples of ``rows``: pred (R, S, H, 2), truth (R, H, 2), mask (R, H) in the t_rev frames, and
-    the wall time [s] spent encoding and sampling."""
+                     seed: int = 0, batch_size: int = 64
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
+    """Samples of ``rows``: pred (R, S, H, 2), truth (R, H, 2), mask (R, H) in the t_rev frames,
+    the wall time [s] spent encoding and sampling, and the neighbours each context has at t_rev (R,)."""
     import torch
 
     gen = torch.Generator().manual_seed(seed)
-    preds, truths, masks = [], [], []
+    preds, truths, masks, nbrs = [], [], [], []
     elapsed = 0.0
     h = model.cfg.max_horizon
     for start in range(0, len(rows), batch_size):
@@ -58,21 +64,38 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, 
         arrays = examples.batch(rows[start:start + batch_size], model.cfg, horizon=h)
         truth, mask = arrays.pop("traj"), arrays.pop("step_mask")
         arrays.pop("origin")
+        nbrs.append(arrays["nbr_mask"][:, 0].sum(-1))
         poses = model.sample(to_tensors(arrays), num_samples, generator=gen)  # (B, S, H, 3)
         elapsed += time.perf_counter() - t0
         preds.append(poses[..., :2].double().numpy())
         truths.append(truth[..., :2].astype(np.float64))
         masks.append(mask)
     if not preds:
-        return np.zeros((0, num_samples, h, 2)), np.zeros((0, h, 2)), np.zeros((0, h), bool), 0.0
-    return np.concatenate(preds), np.concatenate(truths), np.concatenate(masks), elapsed
+        return (np.zeros((0, num_samples, h, 2)), np.zeros((0, h, 2)), np.zeros((0, h), bool), 0.0,
+                np.zeros(0, np.int64))
+    return np.concatenate(preds), np.concatenate(truths), np.concatenate(masks), elapsed, np.concatenate(nbrs)
+
+
+def by_neighbours(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray, neighbours: np.ndarray
+                  ) -> list[dict[str, Any]]:
+    """minADE / minFDE per bucket of :data:`NEIGHBOUR_BUCKETS` (empty buckets left out)."""
+    ade, fde = ade_fde(pred, truth, mask)
+    out = []
+    for lo, hi in NEIGHBOUR_BUCKETS:
+        sel = (neighbours >= lo) & (neighbours <= hi)
+        if sel.any():
+            label = str(lo) if lo == hi else (f"{lo}+" if hi >= 10**9 else f"{lo}-{hi}")
+            out.append({"neighbours": label, "contexts": int(sel.sum()),
+                        "minADE": float(ade[sel].min(-1).mean()), "minFDE": float(fde[sel].min(-1).mean())})
+    return out
 
 
 def cvae_errors(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int = 5,
-                seed: int = 0, batch_size: int = 64) -> dict[str, float]:
-    """minADE / minFDE / avgADE / avgFDE [m] and time per trajectory [s] of the CVAE on ``rows``."""
-    pred, truth, mask, elapsed = cvae_predictions(model, examples, rows, num_samples, seed, batch_size)
-    return _summary(pred, truth, mask, elapsed)
+                seed: int = 0, batch_size: int = 64) -> dict[str, Any]:
+    """minADE / minFDE / avgADE / avgFDE [m] and time per trajectory [s] of the CVAE on ``rows``, and
+    ``by_neighbours`` (:func:`by_neighbours`)."""
+    pred, truth, mask, elapsed, nbrs = cvae_predictions(model, examples, rows, num_samples, seed, batch_size)
+    return {**_summary(pred, truth, mask, elapsed), "by_neighbours": by_neighbours(pred, truth, mask, nbrs)}
 
 
 def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: int) -> dict[str, float]:

@@ -333,7 +333,8 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
             entry.update(validation_loss(model, val_set, val_rows, tcfg.batch_size, tcfg.seed + epoch))
         if len(ade_rows):
             errs = cvae_errors(model, val_set, ade_rows, tcfg.eval_samples, seed=tcfg.seed, batch_size=tcfg.batch_size)
-            entry.update({f"val_{k}": v for k, v in errs.items() if k != "time_per_trajectory_s"})
+            kept = {k: v for k, v in errs.items() if k not in ("time_per_trajectory_s", "by_neighbours")}
+            entry.update({f"val_{k}": v for k, v in kept.items()})
         entry["time_s"] = time.perf_counter() - t_epoch
         history.append(entry)
         meta = {"data": str(Path(data).resolve()), "epochs": epoch + 1, "seed": tcfg.seed,
