@@ -258,3 +258,25 @@ def test_vehicles_near_values_equal_the_getters():
                 assert np.array_equal(getattr(fast, f), getattr(slow, f)), f
             checked += len(near) > 1
         assert checked >= 5
+
+
+def test_additional_files_are_loaded_besides_the_configurations_own(tmp_path):
+    """SUMO's -a replaces a configuration's additional-files. A planner's vType file (sumo:Krauss)
+    dropped the demand of the wheel's square, which keeps its routes in an additional file: no
+    vehicle ran in the nominal pass, and regress's variants ran without traffic."""
+    import sumo
+
+    cfg = Path(sumo.__file__).parent / "tools" / "game" / "square.sumocfg"
+    if not cfg.is_file():
+        pytest.skip(f"{cfg} not in this SUMO build")
+    extra = tmp_path / "vtype.add.xml"
+    extra.write_text('<additional><vType id="mine" carFollowModel="IDM"/></additional>\n')
+    cmd = SumoSession(cfg, additional=[extra]).command()
+    loaded = cmd[cmd.index("-a") + 1].split(",")
+    assert loaded[-1] == str(extra) and any(p.endswith("input_additional.add.xml") for p in loaded[:-1])
+    with SumoSession(cfg, additional=[extra], end=20.0) as sim:
+        seen = set()
+        while sim.time < 19.9:
+            sim.step()
+            seen.update(sim.vehicle_ids())
+    assert seen, "the configuration's own demand must run"

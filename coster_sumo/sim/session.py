@@ -65,8 +65,10 @@ class SumoSession:
         config: a ``.sumocfg``; or leave it out and give ``net`` (and ``routes``/``additional``).
         net: a ``.net.xml`` (used with or instead of ``config``; on the command line it overrides
             the config's net).
-        routes: route file(s).
-        additional: additional file(s).
+        routes: route file(s) (with ``config``: instead of its own).
+        additional: additional file(s); with ``config`` loaded after its own additional files, not
+            instead of them (a planner's vType must not drop the demand, detectors or stops that
+            a configuration keeps in additional files: the wheel's square keeps its routes there).
         seed: SUMO's ``--seed``; None keeps the configuration's own (SUMO's default is fixed, so
             runs are deterministic either way).
         step_length: [s] simulation step (default 0.1 s = 10 Hz).
@@ -164,8 +166,9 @@ class SumoSession:
             cmd += ["-n", str(self.net)]
         if self.routes:
             cmd += ["-r", ",".join(str(p) for p in self.routes)]
-        if self.additional:
-            cmd += ["-a", ",".join(str(p) for p in self.additional)]
+        if self.additional:  # -a replaces the configuration's additional-files: name them too
+            own = list(read_sumocfg(self.config).additional_files) if self.config is not None else []
+            cmd += ["-a", ",".join(str(p) for p in [*own, *self.additional])]
         opts = dict(RECOMMENDED_OPTIONS)
         opts["--step-length"] = fmt(self.step_length)
         if self.seed is not None:
@@ -196,8 +199,7 @@ class SumoSession:
                 files += [(p, "net file", self.config) for p in ins["net-file"]]
             if not self.routes:
                 files += [(p, "route file", self.config) for p in ins["route-files"]]
-            if not self.additional:
-                files += [(p, "additional file", self.config) for p in ins["additional-files"]]
+            files += [(p, "additional file", self.config) for p in ins["additional-files"]]
             if self.net is None and not ins["net-file"]:
                 raise InputError(f"{self.config}: the configuration names no net-file")
         if self.net is not None:
