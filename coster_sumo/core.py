@@ -175,7 +175,7 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
                                       more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S),
                           after_step=after_step, **extra)
     ids = scene.tracks.ids.tolist()
-    present = [ids.index(v) for v in dict.fromkeys((target, *more_targets)) if v in ids]
+    present = [ids.index(v) for v in wanted if v in ids]
     if present:  # regions and the drivable area cover its (their) surroundings only
         # every recorded vehicle stays: SUMO found it within the radius (of the target's front, not
         # its centre), and dropping a few would copy every track array of the pass
@@ -214,10 +214,10 @@ def missing_target(config: Any, requested: Sequence[str | None], window: str, ra
     """The one-line error for targets that never run: ``requested`` (None: the default 'ego'), the
     window, and candidates from ``ran`` (every vehicle that ran, in order of appearance, with how
     long it ran): ids containing a requested name, else the longest-running ones."""
-    longest = sorted(ran, key=lambda v: -ran[v])[:8]
     if not ran:
         return InputError(f"{config}: no vehicle runs in the window ({window}) at all")
     if requested == [None]:
+        longest = sorted(ran, key=lambda v: -ran[v])[:8]
         return InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
                           "--target, e.g. " + ", ".join(longest))
     names = [r or "ego" for r in requested]
