@@ -220,3 +220,11 @@ def test_a_focused_recording_stops_max_life_s_after_the_target_departs():
     n = cut.num_steps
     e = full.tracks.index_of("ego")
     assert np.array_equal(cut.tracks.x[cut.tracks.index_of("ego")], full.tracks.x[e, :n])
+    # a target already running when the recording starts is bounded from that moment
+    with SumoSession(cfg, seed=0, end=60.0) as sim:
+        while "ego" not in sim.vehicle_ids():
+            sim.step()
+        sim.step()
+        t0 = sim.time
+        late = record(sim, end=60.0, focus=Focus("ego", 100.0, tail_s=2.0, max_life_s=5.0))
+    assert late.meta["cut_after_s"] == 5.0 and late.timestamps[-1] == pytest.approx(t0 + 5.0, abs=1e-6)

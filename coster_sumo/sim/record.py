@@ -288,7 +288,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     arrived: set[str] = set()
     started = bool(running)  # a focused recording begins when its (first) vehicle departs
     end_at: float | None = None  # [s] when a focused recording stops (after the targets arrived)
-    cut_at: float | None = None  # [s] when it stops at the latest (max_life_s after the first departure)
+    # [s] when it stops at the latest: max_life_s after the first departure (or now, if one runs already)
+    cut_at = session.time + focus.max_life_s if started and focus is not None and focus.max_life_s else None
     cut = False
     ran_from: dict[str, float] = {}  # until a focused vehicle departs: who ran, from when to when [s]
     ran_until: dict[str, float] = {}
