@@ -145,19 +145,19 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
     _, end = simulation_window(spec)
     target = spec.target or "ego"
     wanted = list(dict.fromkeys((target, *more_targets)))
-    demand = config_demand(cfg)
-    if demand is not None and not any(map(demand.can_insert, wanted)):  # seconds, not a whole pass
-        where = "in its demand (route and additional files)"
-        if spec.target is None and not more_targets:
-            raise InputError(f"{cfg}: no vehicle 'ego' {where}; pick a target with --target, e.g. "
-                             f"{', '.join(demand.examples([]))}, or let --targets N choose")
-        which = (f"target {wanted[0]!r} is" if len(wanted) == 1 else
-                 "none of the targets " + ", ".join(map(repr, wanted)) + " is")
-        raise InputError(f"{cfg}: {which} not {where}; candidates: {', '.join(demand.examples(wanted))}")
-    if demand is not None:  # a train is no target: the prior places road vehicles on road lanes
-        off = {v: demand.vclass(v) for v in wanted if demand.vclass(v) in OFF_ROAD_CLASSES}
-        if len(off) == len(wanted):
-            v, c = next(iter(off.items()))
+    demand = config_demand(cfg)  # seconds, where a pass that finds no target takes minutes
+    if demand is not None:
+        classes = {v: demand.vclass(v) for v in wanted}  # None: not in the demand
+        if all(c is None for c in classes.values()):
+            where = "in its demand (route and additional files)"
+            if spec.target is None and not more_targets:
+                raise InputError(f"{cfg}: no vehicle 'ego' {where}; pick a target with --target, e.g. "
+                                 f"{', '.join(demand.examples([]))}, or let --targets N choose")
+            which = (f"target {wanted[0]!r} is" if len(wanted) == 1 else
+                     "none of the targets " + ", ".join(map(repr, wanted)) + " is")
+            raise InputError(f"{cfg}: {which} not {where}; candidates: {', '.join(demand.examples(wanted))}")
+        if all(c in OFF_ROAD_CLASSES for c in classes.values()):  # the prior places road vehicles
+            v, c = next(iter(classes.items()))
             raise InputError(f"{cfg}: target {v!r} is a {c} vehicle (vClass of its vType); COSTER places road "
                              "vehicles around a road vehicle: pick one with --target, or --targets N")
     # recording goes on a little after the target arrives: the collision-time search keeps the last

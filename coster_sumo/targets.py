@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -79,7 +80,8 @@ class _Demand:
     dst: str | None = None
     via: tuple[str, ...] = ()
     flow: tuple[float, float, int] | None = None  # begin, period, count of a flow's vehicles
-    vclass: str = "passenger"  # of its vType (SUMO's default type is a passenger car)
+    vtype: str = ""  # its type="..." ("": SUMO's default type)
+    vclass: str = "passenger"  # its vType's class, resolved once every file is read
 
 
 def _depart(text: str | None, where: str) -> float | None:
@@ -151,7 +153,7 @@ def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
             edges = (nested.get("edges").split() if nested is not None and nested.get("edges")
                      else routes.get(el.get("route", "")) if el.get("route") else None)
             d = _Demand(vid, 0.0, edges=edges, src=el.get("from"), dst=el.get("to"),
-                        via=tuple((el.get("via") or "").split()), vclass=el.get("type") or "")
+                        via=tuple((el.get("via") or "").split()), vtype=el.get("type") or "")
             if tag == "flow":
                 d.flow = _flow_series(el, where, default_end)
                 if d.flow is None or d.flow[2] == 0:
@@ -168,7 +170,7 @@ def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
     for d in out:  # late references (routes, and types, may be defined after their users)
         if d.edges and len(d.edges) == 1 and d.edges[0].startswith("@"):
             d.edges = routes.get(d.edges[0][1:])
-        d.vclass = vclass.get(d.vclass, "passenger")
+        d.vclass = vclass.get(d.vtype, "passenger")
     return out
 
 
@@ -189,19 +191,22 @@ class DemandIds:
     flows: tuple[str, ...]
     classes: dict[str, str] = field(default_factory=dict)  # vehicle or flow id -> its vType's vClass
 
-    def can_insert(self, vehicle_id: str) -> bool:
-        return self._source(vehicle_id) is not None
-
     def vclass(self, vehicle_id: str) -> str | None:
         """The vehicle class of ``vehicle_id`` (a flow member's is its flow's); None if not in the demand."""
         src = self._source(vehicle_id)
         return None if src is None else self.classes.get(src, "passenger")
 
+    @cached_property
+    def _sets(self) -> tuple[frozenset[str], frozenset[str]]:
+        return frozenset(self.vehicles), frozenset(self.flows)
+
     def _source(self, vehicle_id: str) -> str | None:
+        """The vehicle or flow id that inserts ``vehicle_id``, None if none."""
+        vehicles, flows = self._sets
         head, _, k = vehicle_id.rpartition(".")
-        if vehicle_id in set(self.vehicles):
+        if vehicle_id in vehicles:
             return vehicle_id
-        return head if k.isdigit() and head in set(self.flows) else None
+        return head if k.isdigit() and head in flows else None
 
     def examples(self, like: list[str], n: int = 8) -> list[str]:
         """Up to ``n`` ids for an error: those containing one of ``like`` (case-insensitive), else

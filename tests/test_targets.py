@@ -98,9 +98,9 @@ def test_config_demand_knows_what_the_files_can_insert(tmp_path: Path) -> None:
     demand = config_demand(_config(tmp_path))
     assert demand is not None
     for vid in ("named_route", "nested_route", "waits", "trip", "periodic.0", "periodic.13", "random.2"):
-        assert demand.can_insert(vid), vid
+        assert demand.vclass(vid) == "passenger", vid
     for vid in ("ego", "periodic", "periodic.x", "trip.0", "ns"):  # a route's id is no vehicle's
-        assert not demand.can_insert(vid), vid
+        assert demand.vclass(vid) is None, vid
     assert demand.examples(["NESTED"]) == ["nested_route"]
     assert demand.examples([], n=3) == ["named_route", "nested_route", "before_begin"]
     # a calibrator inserts vehicles the files do not name; a missing file is the simulation's to report
