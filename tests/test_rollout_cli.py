@@ -189,6 +189,8 @@ def test_errors_by_neighbours_bucket_the_contexts():
     truth = np.zeros((4, 3, 2))
     pred = np.zeros((4, 2, 3, 2))
     pred[:, :, :, 0] = np.array([1.0, 2.0, 3.0, 4.0])[:, None, None]  # context i is off by i + 1 m
-    out = by_neighbours(pred, truth, np.ones((4, 3), bool), np.array([0, 2, 12, 3]))
+    from coster_sumo.metrics import ade_fde
+
+    out = by_neighbours(*ade_fde(pred, truth, np.ones((4, 3), bool)), np.array([0, 2, 12, 3]))
     assert [(b["neighbours"], b["contexts"]) for b in out] == [("0", 1), ("1-3", 2), ("10+", 1)]
     assert [b["minFDE"] for b in out] == [1.0, 3.0, 3.0]

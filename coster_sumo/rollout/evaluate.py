@@ -34,13 +34,11 @@ if TYPE_CHECKING:
 BASELINES = ("constant_velocity", "constant_lane")
 
 
-def _summary(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray, elapsed_s: float) -> dict[str, float]:
-    """pred (R, S, H, 2), truth (R, H, 2), mask (R, H) -> the metrics."""
-    ade, fde = ade_fde(pred, truth, mask)  # (R, S) each
-    n_traj = pred.shape[0] * pred.shape[1]
+def _summary(ade: np.ndarray, fde: np.ndarray, elapsed_s: float) -> dict[str, float]:
+    """ade, fde (R, S) per context and sample (:func:`~coster_sumo.metrics.ade_fde`) -> the metrics."""
     return {"minADE": float(ade.min(-1).mean()), "minFDE": float(fde.min(-1).mean()),
-            "avgADE": float(ade.mean()), "avgFDE": float(fde.mean()), "num_contexts": int(pred.shape[0]),
-            "samples": int(pred.shape[1]), "time_per_trajectory_s": elapsed_s / max(n_traj, 1)}
+            "avgADE": float(ade.mean()), "avgFDE": float(fde.mean()), "num_contexts": int(ade.shape[0]),
+            "samples": int(ade.shape[1]), "time_per_trajectory_s": elapsed_s / max(ade.size, 1)}
 
 
 # neighbour counts at t_rev (the vehicles the model sees around the one it reconstructs), for
@@ -76,10 +74,9 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, 
     return np.concatenate(preds), np.concatenate(truths), np.concatenate(masks), elapsed, np.concatenate(nbrs)
 
 
-def by_neighbours(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray, neighbours: np.ndarray
-                  ) -> list[dict[str, Any]]:
-    """minADE / minFDE per bucket of :data:`NEIGHBOUR_BUCKETS` (empty buckets left out)."""
-    ade, fde = ade_fde(pred, truth, mask)
+def by_neighbours(ade: np.ndarray, fde: np.ndarray, neighbours: np.ndarray) -> list[dict[str, Any]]:
+    """minADE / minFDE per bucket of :data:`NEIGHBOUR_BUCKETS` (empty buckets left out); ``ade``,
+    ``fde`` (R, S) per context and sample, ``neighbours`` (R,)."""
     out = []
     for lo, hi in NEIGHBOUR_BUCKETS:
         sel = (neighbours >= lo) & (neighbours <= hi)
@@ -95,7 +92,8 @@ def cvae_errors(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows:
     """minADE / minFDE / avgADE / avgFDE [m] and time per trajectory [s] of the CVAE on ``rows``, and
     ``by_neighbours`` (:func:`by_neighbours`)."""
     pred, truth, mask, elapsed, nbrs = cvae_predictions(model, examples, rows, num_samples, seed, batch_size)
-    return {**_summary(pred, truth, mask, elapsed), "by_neighbours": by_neighbours(pred, truth, mask, nbrs)}
+    ade, fde = ade_fde(pred, truth, mask)
+    return {**_summary(ade, fde, elapsed), "by_neighbours": by_neighbours(ade, fde, nbrs)}
 
 
 def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: int) -> dict[str, float]:
@@ -126,8 +124,8 @@ def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: 
         truths.append(truth[:, :2].astype(np.float64))
         masks.append(mask)
     if not preds:
-        return _summary(np.zeros((0, 1, horizon, 2)), np.zeros((0, horizon, 2)), np.zeros((0, horizon), bool), 0.0)
-    return _summary(np.stack(preds), np.stack(truths), np.stack(masks), elapsed)
+        return _summary(np.zeros((0, 1)), np.zeros((0, 1)), 0.0)
+    return _summary(*ade_fde(np.stack(preds), np.stack(truths), np.stack(masks)), elapsed)
 
 
 def evaluate_rollout(examples: ExampleSet, models: dict[str, RolloutCVAE], *, horizon: int = 10,
