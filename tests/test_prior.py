@@ -99,7 +99,9 @@ def test_loss_decreases_and_model_overfits_one_batch(prepared):
     tok = batch_tokens(prepared, samples, SMALL.bins(), SMALL.radius, SMALL.max_regions, visible="random", rng=rng)
     batch = [torch.from_numpy(a) for a in (tok.map_features, tok.agent_features, tok.mask, tok.query,
                                             tok.present, tok.classes)]
-    steps = 150
+    # 300 steps: at 150 the fit of the presence head depended on the CPU's float kernels (an AVX2-only
+    # machine left 2 of the 55 hidden tokens wrong, seed 0); at 300 it is converged (presence BCE ~0.001)
+    steps = 300
     opt = torch.optim.Adam(model.parameters(), lr=5e-3)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)  # smooth convergence, no late spikes
     losses = []
