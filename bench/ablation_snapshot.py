@@ -11,8 +11,12 @@ network is its file name up to ``_r<run>``. VDD at t_col and its floor are those
 needs no SUMO run, so that a network can have hundreds of adversaries instead of twenty.
 ``--draws K`` places K adversaries per scene and rule (seeds i, i + N, ...; the collision time of
 the entropy and last rules does not change between draws, the placement, speed and size do): more
-adversaries per network lower the floor of VDD at t_col. CSD and CPD use the first draw only; the
-± after them is their bootstrap standard error (scenes resampled with replacement, ``BOOTSTRAP`` times).
+adversaries per network lower the floor of VDD at t_col. The last two columns give a local reference
+for the adversary's speed (VDD at t_col compares with every vehicle on the lane type, wherever it
+is): how often the target moves at t_col, and how many of the real vehicles within the prior's
+hidden disc around it (15 m) stand, summed over the draws. CSD and CPD use the first draw only; the
+± after them is their bootstrap standard error (scenes resampled with replacement, ``BOOTSTRAP``
+times).
 """
 
 from __future__ import annotations
@@ -156,8 +160,16 @@ def main() -> None:
                 # how much the scene's visible traffic moved the stopped class (1: not at all)
                 class_w = memo["adaptation"].class_weights if "adaptation" in memo else {}
                 w_stop = float(class_w["speed"][0]) if "speed" in class_w else float("nan")
+                # the real vehicles around the target at t_col (within the prior's hidden disc): how
+                # many of them stand, the local reference for the adversary's standstill share
+                on = np.flatnonzero(low.tracks.valid[:, s.t_index])
+                on = on[on != scene.sdc_index]
+                near = np.hypot(low.tracks.x[on, s.t_index] - s.target.x,
+                                low.tracks.y[on, s.t_index] - s.target.y) <= model.config.hide_radius
+                near_speed = np.hypot(low.tracks.vx[on[near], s.t_index], low.tracks.vy[on[near], s.t_index])
                 records.append({"network": net, "adversary_speed": s.adversary.speed, "p_stopped": p_stop,
-                                "stopped_weight": w_stop,
+                                "stopped_weight": w_stop, "target_speed": s.target.speed,
+                                "near_target": int(near.sum()), "near_target_stopped": int(np.sum(near_speed < 0.5)),
                                 "adversary_length": s.adversary.length, "adversary_width": s.adversary.width,
                                 "adversary_lane_type": LaneType(kind).name})
         boot = np.random.default_rng(0).integers(0, len(rel), (BOOTSTRAP, len(rel)))  # scenes resampled
@@ -183,8 +195,9 @@ def main() -> None:
     print()
     print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class | "
           "stopped: nominal / near moving vehicles / prior's P(stopped) at the placed region / adversaries | "
-          "p90 speed [m/s]: nominal / adversaries | stopped class's adaptation weight: median [quartiles] |")
-    print("|---|---|---|---|---|---|---|---|")
+          "p90 speed [m/s]: nominal / adversaries | stopped class's adaptation weight: median [quartiles] | "
+          "target moving at t_col | vehicles within the hidden disc of the target at t_col: stopped / all |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for m, nets in per_network.items():
         for net, r in nets.items():
             if r["VDD_tcol"] is None:
@@ -195,10 +208,13 @@ def main() -> None:
             p_stop = np.nanmean([x["p_stopped"] for x in records_by[m] if x["network"] == net])
             near = near_moving[net][0] / max(near_moving[net][1], 1)
             w = np.nanpercentile([x["stopped_weight"] for x in records_by[m] if x["network"] == net], [50, 25, 75])
+            mine = [x for x in records_by[m] if x["network"] == net]
             print(f"| {m} | {net} | {len(adv)} | {r['VDD_tcol']:.3f} ({r['VDD_tcol_floor']:.3f}) | "
                   f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {near:.2f} / {p_stop:.2f} / "
                   f"{np.mean(adv < 0.5):.2f} | "
-                  f"{p90:.1f} / {np.percentile(adv, 90):.1f} | {w[0]:.2f} [{w[1]:.2f}, {w[2]:.2f}] |")
+                  f"{p90:.1f} / {np.percentile(adv, 90):.1f} | {w[0]:.2f} [{w[1]:.2f}, {w[2]:.2f}] | "
+                  f"{np.mean([x['target_speed'] >= 0.5 for x in mine]):.2f} | "
+                  f"{sum(x['near_target_stopped'] for x in mine)} / {sum(x['near_target'] for x in mine)} |")
     if args.plot:
         plot_speeds(args.plot, nominal, records_by)
     if args.json:
