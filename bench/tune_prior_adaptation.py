@@ -5,9 +5,11 @@ Usage: python bench/tune_prior_adaptation.py CORPUS [--every 2] [--checkpoint CK
 The validation clips of CORPUS (every ``--every``-th), each centred as ``eval prior`` centres it.
 Per clip the prior predicts the hidden disc in context mode (raw), and a seeded half of the
 visible regions with that half hidden too, as :func:`coster_sumo.prior.infer.fit_scene_adaptation`
-does. For each candidate pseudo-count (in total, or per step fitted) the script applies the
-adaptation and scores the hidden disc: presence cross-entropy, and the log-loss of the true speed
-and length class of the disc's vehicles. Lower is better; "none" is the raw model.
+does. For each candidate pseudo-count (in total, per step fitted, or for the classes per distinct
+vehicle of the probe) the script applies the adaptation and scores the hidden disc: presence
+cross-entropy, and the log-loss of the true speed and length class of the disc's vehicles. Lower is
+better; "none" is the raw model. Presence has no per-vehicle row (its evidence is the probed tokens,
+empty or not).
 """
 
 from __future__ import annotations
@@ -25,10 +27,10 @@ from coster_sumo.prior.data import at_prior_rate, load_prepared, prepare_scene, 
 from coster_sumo.prior.evaluate import evaluation_centres
 from coster_sumo.prior.infer import (
     ADAPTED_ATTRIBUTES,
-    class_weights,
     load_prior,
     predict_tokens,
     presence_offset,
+    probe_class_weights,
     probe_visible_traffic,
     shift_presence,
 )
@@ -57,21 +59,27 @@ def clip_record(model: TrafficPrior, data) -> dict | None:  # type: ignore[no-un
             **{f"c_{a}": ctx.classes[..., ATTRIBUTES.index(a)][hidden] for a in ADAPTED_ATTRIBUTES}}
 
 
-def scores(records: list[dict], c: float | None, per_step: bool) -> dict[str, float]:
+def scores(records: list[dict], c: float | None, unit: str) -> dict[str, float]:
     """Presence cross-entropy and the speed / length log-losses of the disc for one pseudo-count
-    (None: the raw model)."""
+    (None: the raw model) in ``unit``: "total", "step" (times the steps fitted) or "vehicle" (the
+    classes' evidence counted per distinct vehicle; presence then as "step")."""
     bce, n_tok, n_veh = 0.0, 0, 0
     loss = dict.fromkeys(ADAPTED_ATTRIBUTES, 0.0)
     for r in records:
         probe = r["probe"]
-        cc = None if c is None else c * (probe.steps if per_step else 1)
+        cc = None if c is None else c * (1 if unit == "total" else probe.steps)
         offset = 0.0 if cc is None else presence_offset(probe.presence, probe.observed, cc)
         p = np.clip(shift_presence(r["disc_presence"], offset), 1e-7, 1 - 1e-7)
         y = r["disc_present"]
         bce -= float(np.sum(y * np.log(p) + (~y) * np.log(1 - p)))
         n_tok += len(y)
         for a in ADAPTED_ATTRIBUTES:
-            w = 1.0 if cc is None else class_weights(probe.class_counts[a], probe.class_mass[a], cc)
+            if c is None:
+                w = 1.0
+            elif unit == "total":
+                w = probe_class_weights(probe, a, c / probe.steps, "step")
+            else:
+                w = probe_class_weights(probe, a, c, unit)
             pa = r[f"p_{a}"] * w
             pa /= np.maximum(pa.sum(-1, keepdims=True), 1e-30)
             loss[a] -= float(np.sum(np.log(np.maximum(pa[np.arange(len(pa)), r[f"c_{a}"]], 1e-12))))
@@ -101,11 +109,12 @@ def main() -> None:
     print(f"{len(records)} clips")
     print("| pseudo-count | presence cross-entropy | speed log-loss | length log-loss |")
     print("|---|---|---|---|")
-    rows = [("none", None, False)] + [(f"{c:g} in total", c, False) for c in CANDIDATES] + [
-        (f"{c:g} per step", c, True) for c in CANDIDATES]
-    for label, c, per_step in rows:
-        s = scores(records, c, per_step)
-        print(f"| {label} | {s['presence']:.5f} | {s['speed']:.4f} | {s['length']:.4f} |")
+    rows = [("none", None, "step")] + [(f"{c:g} {label}", c, unit) for unit, label in (
+        ("total", "in total"), ("step", "per step"), ("vehicle", "per vehicle")) for c in CANDIDATES]
+    for label, c, unit in rows:
+        s = scores(records, c, unit)
+        presence = "-" if unit == "vehicle" else f"{s['presence']:.5f}"
+        print(f"| {label} | {presence} | {s['speed']:.4f} | {s['length']:.4f} |")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,12 @@ intersection (was 5) and 5 on WOMD eb4b91b10ca94ff2 (was 3), all in collision, o
 WOMD 2a1e44d405a6833f leaves the road (none before); ``regress`` has 32 rows (34), 21 with the
 adversary in contact (23), 3 with it off the road (1); then with off-road counted up to t_col only
 (an avoided adversary driving on at constant velocity is not its trajectory): one ``regress`` row
-of a ``sumo`` planner without contact is no longer off the road (2 of 32).
+of a ``sumo`` planner without contact is no longer off the road (2 of 32); then with the length
+classes adapted per distinct vehicle of the visible traffic (the adversary's size, models/prior.md):
+``run`` keeps 5 variants on intersection (was 4) and 4 on WOMD 637f20cafde22ff8 (was 5), all in
+collision, the merge adversary that left the road no longer does; ``regress`` has 30 rows (32), 19
+with the adversary in contact (21), 4 with it off the road (2: merge's first variant, under both
+planners).
 """
 
 from __future__ import annotations

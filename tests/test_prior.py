@@ -18,6 +18,8 @@ from coster_sumo.prior.infer import (
     load_prior,
     predict_scene,
     predict_tokens,
+    probe_class_weights,
+    probe_visible_traffic,
     read_checkpoint,
     save_prior,
 )
@@ -237,6 +239,32 @@ def test_adaptation_moves_the_length_classes_towards_the_vehicles_around():
     np.testing.assert_allclose(cal.probs["width"][q].sum(-1), 1.0, rtol=1e-5)  # the marginal follows
     # the heads that are not adapted are left as they were
     np.testing.assert_array_equal(cal.probs["heading"], raw.probs["heading"])
+
+
+def test_length_evidence_counts_each_vehicle_once():
+    scene = at_prior_rate(synthetic.two_lane_road())
+    model = _shifted_prior(0.0)
+    data = prepare_scene(scene, radius=model.config.radius)
+    steps = np.arange(data.num_steps)
+    pose = np.stack([scene.tracks.x[0], scene.tracks.y[0], scene.tracks.heading[0]], -1)
+    cfg = model.config
+    tokens = scene_tokens(data, steps, pose, cfg.bins(), cfg.radius, cfg.max_regions, visible="context",
+                          hide_radius=cfg.hide_radius)
+    probe = probe_visible_traffic(model, data, steps, pose, tokens)
+    assert probe is not None and probe.observed > probe.vehicles > 0  # the same vehicles at several steps
+    for a in ("speed", "length"):
+        # per token: one count per sighting; per vehicle: one unit per distinct vehicle
+        assert probe.class_counts[a].sum() == probe.observed
+        np.testing.assert_allclose(probe.vehicle_counts[a].sum(), probe.vehicles)
+        np.testing.assert_allclose(probe.vehicle_mass[a].sum(), probe.vehicles, rtol=1e-5)
+    # every vehicle of the road is 4.5 m long: all its evidence sits in that class, in either unit
+    observed = int(AttributeBins().length_class(np.array([4.5]))[0])
+    assert probe.vehicle_counts["length"][observed] == pytest.approx(probe.vehicles)
+    w_vehicle = probe_class_weights(probe, "length", 1.0, "vehicle")
+    w_step = probe_class_weights(probe, "length", 1.0, "step")
+    assert w_vehicle.argmax() == w_step.argmax() == observed
+    with pytest.raises(ValueError, match="evidence"):
+        probe_class_weights(probe, "length", 1.0, "token")
 
 
 def test_density_offset_without_traffic_around_is_bounded():
