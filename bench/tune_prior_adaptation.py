@@ -9,7 +9,10 @@ does. For each candidate pseudo-count (in total, per step fitted, or for the cla
 vehicle of the probe) the script applies the adaptation and scores the hidden disc: presence
 cross-entropy, and the log-loss of the true speed and length class of the disc's vehicles. Lower is
 better; "none" is the raw model. Presence has no per-vehicle row (its evidence is the probed tokens,
-empty or not).
+empty or not). The "mixture" rows score the length classes mixed with the probe's own mix of
+lengths instead of weighted (``(1 - s) p + s q``, q the probe's distinct vehicles' mix of length
+classes, s = N / (N + c) for N of them; tried on 2026-11-25 and not kept, docs/method.md); speed and
+presence have none.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from coster_sumo.prior.infer import (
 from coster_sumo.prior.model import TrafficPrior
 
 CANDIDATES = (0.1, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
+MIX_CANDIDATES = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
 
 
 def clip_record(model: TrafficPrior, data) -> dict | None:  # type: ignore[no-untyped-def]
@@ -61,20 +65,27 @@ def clip_record(model: TrafficPrior, data) -> dict | None:  # type: ignore[no-un
 
 def scores(records: list[dict], c: float | None, unit: str) -> dict[str, float]:
     """Presence cross-entropy and the speed / length log-losses of the disc for one pseudo-count
-    (None: the raw model) in ``unit``: "total", "step" (times the steps fitted) or "vehicle" (the
-    classes' evidence counted per distinct vehicle; presence then as "step")."""
+    (None: the raw model) in ``unit``: "total", "step" (times the steps fitted), "vehicle" (the
+    classes' evidence counted per distinct vehicle; presence then as "step") or "mix" (the length
+    classes mixed with the probe's own, ``c`` vehicles; speed and presence as the raw model)."""
     bce, n_tok, n_veh = 0.0, 0, 0
     loss = dict.fromkeys(ADAPTED_ATTRIBUTES, 0.0)
     for r in records:
         probe = r["probe"]
-        cc = None if c is None else c * (1 if unit == "total" else probe.steps)
+        cc = None if c is None or unit == "mix" else c * (1 if unit == "total" else probe.steps)
         offset = 0.0 if cc is None else presence_offset(probe.presence, probe.observed, cc)
         p = np.clip(shift_presence(r["disc_presence"], offset), 1e-7, 1 - 1e-7)
         y = r["disc_present"]
         bce -= float(np.sum(y * np.log(p) + (~y) * np.log(1 - p)))
         n_tok += len(y)
         for a in ADAPTED_ATTRIBUTES:
-            if c is None:
+            if unit == "mix" and a == "length" and c is not None:
+                n = probe.vehicle_counts[a].sum()
+                share, mix = (n / (n + c), probe.vehicle_counts[a] / n) if n > 0 else (0.0, 0.0)
+                pa = (1.0 - share) * r[f"p_{a}"] + share * mix
+                loss[a] -= float(np.sum(np.log(np.maximum(pa[np.arange(len(pa)), r[f"c_{a}"]], 1e-12))))
+                continue
+            if c is None or unit == "mix":
                 w = 1.0
             elif unit == "total":
                 w = probe_class_weights(probe, a, c / probe.steps, "step")
@@ -110,11 +121,13 @@ def main() -> None:
     print("| pseudo-count | presence cross-entropy | speed log-loss | length log-loss |")
     print("|---|---|---|---|")
     rows = [("none", None, "step")] + [(f"{c:g} {label}", c, unit) for unit, label in (
-        ("total", "in total"), ("step", "per step"), ("vehicle", "per vehicle")) for c in CANDIDATES]
+        ("total", "in total"), ("step", "per step"), ("vehicle", "per vehicle")) for c in CANDIDATES] + [
+        (f"{c:g} vehicles, mixture", c, "mix") for c in MIX_CANDIDATES]
     for label, c, unit in rows:
         s = scores(records, c, unit)
-        presence = "-" if unit == "vehicle" else f"{s['presence']:.5f}"
-        print(f"| {label} | {presence} | {s['speed']:.4f} | {s['length']:.4f} |")
+        presence = "-" if unit in ("vehicle", "mix") else f"{s['presence']:.5f}"
+        speed = "-" if unit == "mix" else f"{s['speed']:.4f}"
+        print(f"| {label} | {presence} | {speed} | {s['length']:.4f} |")
 
 
 if __name__ == "__main__":
