@@ -227,7 +227,7 @@ def probe_visible_traffic(model: TrafficPrior, data: ScenePriorData, steps: np.n
     present = probe_tokens.present & probe
     agent, _, _ = data.occupancy.gather(np.asarray(steps, np.int64).reshape(-1, 1),
                                         np.maximum(probe_tokens.region_index, 0))
-    _, vehicle = np.unique(agent[present], return_inverse=True)
+    ids, vehicle = np.unique(agent[present], return_inverse=True)
     share = 1.0 / np.bincount(vehicle)[vehicle]  # (N,) each token's part of its vehicle's one unit
     counts, mass, v_counts, v_mass = {}, {}, {}, {}
     for a in ADAPTED_ATTRIBUTES:
@@ -240,7 +240,7 @@ def probe_visible_traffic(model: TrafficPrior, data: ScenePriorData, steps: np.n
         v_mass[a] = (pa * share[:, None]).sum(0)
     return VisibleProbe(presence=p[probe], observed=float(present.sum()), class_counts=counts, class_mass=mass,
                         steps=len(np.asarray(steps).reshape(-1)), vehicle_counts=v_counts, vehicle_mass=v_mass,
-                        vehicles=int(vehicle.max() + 1) if len(vehicle) else 0)
+                        vehicles=len(ids))
 
 
 def probe_class_weights(probe: VisibleProbe, attribute: str, pseudo_count: float, evidence: str) -> np.ndarray:
