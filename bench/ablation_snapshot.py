@@ -204,11 +204,11 @@ def main() -> None:
                 continue
             hist = sum(nominal[net].values())  # every lane type; SPEED_BINS, the first is < 0.5 m/s
             p90 = metrics.SPEED_BINS[1 + int(np.searchsorted(np.cumsum(hist) / hist.sum(), 0.9))]
-            adv = np.array([x["adversary_speed"] for x in records_by[m] if x["network"] == net])
-            p_stop = np.nanmean([x["p_stopped"] for x in records_by[m] if x["network"] == net])
-            near = near_moving[net][0] / max(near_moving[net][1], 1)
-            w = np.nanpercentile([x["stopped_weight"] for x in records_by[m] if x["network"] == net], [50, 25, 75])
             mine = [x for x in records_by[m] if x["network"] == net]
+            adv = np.array([x["adversary_speed"] for x in mine])
+            p_stop = np.nanmean([x["p_stopped"] for x in mine])
+            near = near_moving[net][0] / max(near_moving[net][1], 1)
+            w = np.nanpercentile([x["stopped_weight"] for x in mine], [50, 25, 75])
             print(f"| {m} | {net} | {len(adv)} | {r['VDD_tcol']:.3f} ({r['VDD_tcol_floor']:.3f}) | "
                   f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {near:.2f} / {p_stop:.2f} / "
                   f"{np.mean(adv < 0.5):.2f} | "
