@@ -11,10 +11,13 @@ network is its file name up to ``_r<run>``. VDD at t_col and its floor are those
 needs no SUMO run, so that a network can have hundreds of adversaries instead of twenty.
 ``--draws K`` places K adversaries per scene and rule (seeds i, i + N, ...; the collision time of
 the entropy and last rules does not change between draws, the placement, speed and size do): more
-adversaries per network lower the floor of VDD at t_col. The last two columns give a local reference
+adversaries per network lower the floor of VDD at t_col. The last three columns give a local reference
 for the adversary's speed (VDD at t_col compares with every vehicle on the lane type, wherever it
-is): how often the target moves at t_col, and how many of the real vehicles within the prior's
-hidden disc around it (15 m) stand, summed over the draws. CSD and CPD use the first draw only; the
+is): how often the target moves at t_col, how many of the real vehicles within the prior's hidden
+disc around it (15 m) stand, summed over the draws, and, over the disc's regions that real vehicles
+other than the target occupy, how many of those stand against the prior's mean probability of the
+stopped class there (adapted as the snapshot used it): whether the prior sees the standstill next
+to the target at all. CSD and CPD use the first draw only; the
 ± after them is their bootstrap standard error (scenes resampled with replacement, ``BOOTSTRAP``
 times).
 """
@@ -167,9 +170,17 @@ def main() -> None:
                 near = np.hypot(low.tracks.x[on, s.t_index] - s.target.x,
                                 low.tracks.y[on, s.t_index] - s.target.y) <= model.config.hide_radius
                 near_speed = np.hypot(low.tracks.vx[on[near], s.t_index], low.tracks.vy[on[near], s.t_index])
+                # the prior's P(stopped) where it places vehicles of the hidden disc that are really there
+                # (other than the target), against how many of those stand: is it calibrated on
+                # standstill next to the target, or does it miss the queues there too?
+                occ = pred.query[0] & (pred.observed_agent[0] >= 0) & (pred.observed_agent[0] != scene.sdc_index)
+                who = pred.observed_agent[0][occ]
+                occ_speed = np.hypot(low.tracks.vx[who, s.t_index], low.tracks.vy[who, s.t_index])
                 records.append({"network": net, "adversary_speed": s.adversary.speed, "p_stopped": p_stop,
                                 "stopped_weight": w_stop, "target_speed": s.target.speed,
                                 "near_target": int(near.sum()), "near_target_stopped": int(np.sum(near_speed < 0.5)),
+                                "disc_occupied": int(occ.sum()), "disc_occupied_stopped": int(np.sum(occ_speed < 0.5)),
+                                "disc_occupied_p_stopped": float(pred.probs["speed"][0][occ, 0].sum()),
                                 "adversary_length": s.adversary.length, "adversary_width": s.adversary.width,
                                 "adversary_lane_type": LaneType(kind).name})
         boot = np.random.default_rng(0).integers(0, len(rel), (BOOTSTRAP, len(rel)))  # scenes resampled
@@ -196,8 +207,9 @@ def main() -> None:
     print("| collision time | network | adversaries | VDD at t_col (floor) | sizes in class | "
           "stopped: nominal / near moving vehicles / prior's P(stopped) at the placed region / adversaries | "
           "p90 speed [m/s]: nominal / adversaries | stopped class's adaptation weight: median [quartiles] | "
-          "target moving at t_col | vehicles within the hidden disc of the target at t_col: stopped / all |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "target moving at t_col | vehicles within the hidden disc of the target at t_col: stopped / all | "
+          "its occupied regions: stopped share / prior's mean P(stopped) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for m, nets in per_network.items():
         for net, r in nets.items():
             if r["VDD_tcol"] is None:
@@ -209,12 +221,16 @@ def main() -> None:
             p_stop = np.nanmean([x["p_stopped"] for x in mine])
             near = near_moving[net][0] / max(near_moving[net][1], 1)
             w = np.nanpercentile([x["stopped_weight"] for x in mine], [50, 25, 75])
+            occ = max(sum(x["disc_occupied"] for x in mine), 1)
+            occ_stopped = sum(x["disc_occupied_stopped"] for x in mine)
+            occ_p_stop = sum(x["disc_occupied_p_stopped"] for x in mine)
             print(f"| {m} | {net} | {len(adv)} | {r['VDD_tcol']:.3f} ({r['VDD_tcol_floor']:.3f}) | "
                   f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {near:.2f} / {p_stop:.2f} / "
                   f"{np.mean(adv < 0.5):.2f} | "
                   f"{p90:.1f} / {np.percentile(adv, 90):.1f} | {w[0]:.2f} [{w[1]:.2f}, {w[2]:.2f}] | "
                   f"{np.mean([x['target_speed'] >= 0.5 for x in mine]):.2f} | "
-                  f"{sum(x['near_target_stopped'] for x in mine)} / {sum(x['near_target'] for x in mine)} |")
+                  f"{sum(x['near_target_stopped'] for x in mine)} / {sum(x['near_target'] for x in mine)} | "
+                  f"{occ_stopped / occ:.2f} / {occ_p_stop / occ:.2f} |")
     if args.plot:
         plot_speeds(args.plot, nominal, records_by)
     if args.json:

@@ -12,7 +12,11 @@ better; "none" is the raw model. Presence has no per-vehicle row (its evidence i
 empty or not). The "mixture" rows score the length classes mixed with the probe's own mix of
 lengths instead of weighted (``(1 - s) p + s q``, q the probe's distinct vehicles' mix of length
 classes, s = N / (N + c) for N of them; tried on 2026-11-25 and not kept, docs/method.md); speed and
-presence have none.
+presence have none. The "spread as predicted" rows give the classes ``c`` pseudo-vehicles in all,
+shared out as the prior predicts them at the probe's vehicles (a Dirichlet prior centred on the
+prediction: a class neither seen nor predicted is shrunk as evidence grows, where a pseudo-count per
+class leaves it at 1; tried on 2026-11-26 and not kept, docs/method.md); speed is counted per step
+there, length per vehicle, as shipped.
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ from coster_sumo.prior.data import at_prior_rate, load_prepared, prepare_scene, 
 from coster_sumo.prior.evaluate import evaluation_centres
 from coster_sumo.prior.infer import (
     ADAPTED_ATTRIBUTES,
+    CLASS_EVIDENCE,
+    class_weights,
     load_prior,
     predict_tokens,
     presence_offset,
@@ -67,7 +73,8 @@ def scores(records: list[dict], c: float | None, unit: str) -> dict[str, float]:
     """Presence cross-entropy and the speed / length log-losses of the disc for one pseudo-count
     (None: the raw model) in ``unit``: "total", "step" (times the steps fitted), "vehicle" (the
     classes' evidence counted per distinct vehicle; presence then as "step") or "mix" (the length
-    classes mixed with the probe's own, ``c`` vehicles; speed and presence as the raw model)."""
+    classes mixed with the probe's own, ``c`` vehicles; speed and presence as the raw model) or
+    "spread" (``c`` in all, shared out as predicted, in the shipped units of each class)."""
     bce, n_tok, n_veh = 0.0, 0, 0
     loss = dict.fromkeys(ADAPTED_ATTRIBUTES, 0.0)
     for r in records:
@@ -89,6 +96,11 @@ def scores(records: list[dict], c: float | None, unit: str) -> dict[str, float]:
                 w = 1.0
             elif unit == "total":
                 w = probe_class_weights(probe, a, c / probe.steps, "step")
+            elif unit == "spread":
+                n, m = ((probe.class_counts[a], probe.class_mass[a]) if CLASS_EVIDENCE[a] == "step"
+                        else (probe.vehicle_counts[a], probe.vehicle_mass[a]))
+                per_step = probe.steps if CLASS_EVIDENCE[a] == "step" else 1
+                w = class_weights(n, m, c * per_step * np.maximum(m / max(float(m.sum()), 1e-30), 1e-12))
             else:
                 w = probe_class_weights(probe, a, c, unit)
             pa = r[f"p_{a}"] * w
@@ -122,10 +134,11 @@ def main() -> None:
     print("|---|---|---|---|")
     rows = [("none", None, "step")] + [(f"{c:g} {label}", c, unit) for unit, label in (
         ("total", "in total"), ("step", "per step"), ("vehicle", "per vehicle")) for c in CANDIDATES] + [
-        (f"{c:g} vehicles, mixture", c, "mix") for c in MIX_CANDIDATES]
+        (f"{c:g} vehicles, mixture", c, "mix") for c in MIX_CANDIDATES] + [
+        (f"{c:g} in all, spread as predicted", c, "spread") for c in MIX_CANDIDATES]
     for label, c, unit in rows:
         s = scores(records, c, unit)
-        presence = "-" if unit in ("vehicle", "mix") else f"{s['presence']:.5f}"
+        presence = "-" if unit in ("vehicle", "mix", "spread") else f"{s['presence']:.5f}"
         speed = "-" if unit == "mix" else f"{s['speed']:.4f}"
         print(f"| {label} | {presence} | {speed} | {s['length']:.4f} |")
 
