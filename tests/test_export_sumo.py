@@ -204,6 +204,17 @@ def test_export_config_keeps_the_source_options_but_inputs_outputs_and_gui(tmp_p
                                    ("routing", "weights.random-factor", "1.2"), ("report", "xml-validation", "never")]
 
 
+def test_export_config_takes_the_source_options_by_sumos_own_names(tmp_path):
+    # <b> is begin to sumo: kept beside the export's own <begin> it would be set twice, which sumo refuses
+    src = tmp_path / "a.sumocfg"
+    src.write_text('<c><n value="a.net.xml"/><r value="r.xml"/><b value="10"/><e value="90"/><W value="true"/>'
+                   '<srand value="3"/><tripinfo value="t.xml"/><netstate value="d.xml"/><l value="log.txt"/>'
+                   '<lateral-resolution value="0.8"/></c>')
+    assert source_options(src) == [("source", "begin", "10"), ("source", "end", "90"),
+                                   ("source", "no-warnings", "true"), ("source", "seed", "3"),
+                                   ("source", "lateral-resolution", "0.8")]
+
+
 def _sumo_game(name: str) -> Path:
     import sumo
 

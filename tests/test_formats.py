@@ -35,6 +35,20 @@ def test_attribute_spelling_lists_gzip_and_clock_times(tmp_path):
     assert cfg.begin == 57600.0 and cfg.end == 57600.5 and cfg.step_length is None
 
 
+def test_every_name_sumo_knows_an_option_by(tmp_path):
+    # sumolib's RiLSA scenarios write <net>; sumo also takes the one-letter names in a configuration
+    (tmp_path / "long.sumocfg").write_text('<c><net value="a.net.xml"/><routes value="r.rou.xml"/>'
+                                           '<additional value="x.add.xml"/></c>')
+    cfg = read_sumocfg(tmp_path / "long.sumocfg")
+    assert cfg.net_file == tmp_path / "a.net.xml" and cfg.has_demand
+    assert cfg.additional_files == (tmp_path / "x.add.xml",)
+    (tmp_path / "short.sumocfg").write_text('<configuration><n value="a.net.xml"/><r value="r.rou.xml"/>'
+                                            '<a value="x.add.xml"/><b value="10"/><e value="1:00"/></configuration>')
+    cfg = read_sumocfg(tmp_path / "short.sumocfg")
+    assert cfg.net_files == (tmp_path / "a.net.xml",) and cfg.route_files == (tmp_path / "r.rou.xml",)
+    assert cfg.additional_files == (tmp_path / "x.add.xml",) and (cfg.begin, cfg.end) == (10.0, 60.0)
+
+
 @pytest.mark.parametrize(("text", "seconds"), [("3600", 3600.0), ("0.1", 0.1), ("1:00", 60.0), ("1:0:1", 3601.0),
                                                ("1:00:00:00", 86400.0)])
 def test_sumo_time_values(text, seconds):

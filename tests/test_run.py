@@ -176,6 +176,34 @@ def test_scenarios_shipped_with_sumo_contact_at_t_col(tmp_path, config, target):
         assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6
 
 
+def test_sumolib_rilsa_scenario_that_names_its_net_by_a_synonym(tmp_path, capsys):
+    """sumolib's RiLSA real-world junction (eclipse-sumo wheel): its configuration writes `<net>`
+    for `<net-file>`, options straight under its root, and its routes come from the folder's own
+    script. Before its routes exist the run stops on one line naming the missing file."""
+    import shutil
+    import subprocess
+    import sys
+
+    import sumo
+
+    src = Path(sumo.__file__).parent / "tools/sumolib/scenario/scenarios/RealWorld/RiLSA_example1"
+    if not (src / "run.sumo.cfg").is_file():
+        pytest.skip(f"{src} not in this SUMO build")
+    folder = tmp_path / "rilsa1"
+    shutil.copytree(src, folder, ignore=shutil.ignore_patterns("__pycache__"))
+    assert main(["-q", "run", str(folder / "run.sumo.cfg"), "--targets", "1", "-o", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "flows.rou.xml: route file not found" in err[0], err
+    subprocess.run([sys.executable, "makeRoutes.py"], cwd=folder, check=True, capture_output=True)
+    out = tmp_path / "run"
+    assert main(["-q", "run", str(folder / "run.sumo.cfg"), "--targets", "1", "--duration", "90", "--planner",
+                 "replay", "--samples", "200", "--variants", "2", "--no-render", "-o", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["variants"]
+    for v in summary["variants"]:
+        assert v["collision"] and abs(v["contact_offset_s"]) <= 0.1 + 1e-6
+
+
 def test_off_road_after_a_missed_contact_is_not_the_adversarys(tmp_path):
     """On the wheel's cross SUMO's driver keeps the target out of every contact; each adversary
     then drives on at constant velocity past t_col and off the road. Its trajectory ended at t_col

@@ -9,7 +9,10 @@ every other file output (a replay should not write into the folder unasked), a T
 (plain ``sumo`` would wait for a client), ``random`` (the seed is the pass's) and its
 ``<gui_only>`` section, replaced by the export's own: ``gui.settings.xml`` (view centred on the
 collision snapshot, 100 ms delay per step) and ``start`` false, so ``sumo-gui -c`` opens paused
-on the scene. Plain ``sumo`` accepts and ignores those options.
+on the scene. Plain ``sumo`` accepts and ignores those options. Options are compared by SUMO's own
+names (``<b>`` is ``begin``, ``<tripinfo>`` is ``tripinfo-output``), since sumo refuses an option
+set twice; options written straight under the source's root, which sumo also reads, go to a
+``<source>`` section.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from pathlib import Path
 
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo.formats.sumocfg import INPUT_KEYS, open_maybe_gzip
+from coster_sumo.formats.sumocfg import INPUT_KEYS, open_maybe_gzip, option_name
 from coster_sumo.sim.sumo_options import RECOMMENDED_OPTIONS
 
 GUI_SETTINGS_FILE = "gui.settings.xml"
@@ -29,7 +32,10 @@ GUI_VIEW_SPAN_M = 60.0  # [m] zoom scale: a 1000 x 700 window then shows about 1
 PASS_OPTIONS = ("--collision.action", "--collision.mingap-factor", "--collision.check-junctions",
                 "--time-to-teleport")
 DROPPED = {"remote-port", "num-clients", "random", "log", "message-log", "error-log", "output-prefix",
-           "save-configuration", "save-template", "save-schema", "configuration-file"}
+           "save-configuration", "save-template", "save-schema", "configuration-file", "netstate-dump"}
+
+
+FLAT_SECTION = "source"  # the export's section for the source's options that had none
 
 
 def source_options(config: Path) -> list[tuple[str, str, str]]:
@@ -42,10 +48,14 @@ def source_options(config: Path) -> list[tuple[str, str, str]]:
         sec = str(section.tag).split("}")[-1]
         if not isinstance(section.tag, str) or sec in ("gui_only", "output"):
             continue
-        for el in section:
+        # sumo ignores the section names, and takes options written straight under the root too
+        # (sumolib's RiLSA scenarios); those go to a section of their own
+        flat = section.get("value") is not None and len(section) == 0
+        options, sec = ([section], FLAT_SECTION) if flat else (list(section), sec)
+        for el in options:
             if not isinstance(el.tag, str) or el.get("value") is None:
                 continue
-            key = el.tag.split("}")[-1]
+            key = option_name(el.tag.split("}")[-1])  # SUMO's own name: the export's options must not repeat it
             if key in INPUT_KEYS or key in DROPPED or key.endswith("-output") or "-output." in key:
                 continue
             out.append((sec, key, str(el.get("value"))))

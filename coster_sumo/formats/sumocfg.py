@@ -2,7 +2,8 @@
 
 A ``.sumocfg`` is small XML: ``<input>`` names the net, route and additional files (comma or space
 separated, relative to the configuration's folder), ``<time>`` the begin, end and step length. Any
-element may also carry its value as an attribute of the same name; both spellings are read. Files
+element may also carry its value as an attribute of the same name; both spellings are read, and so
+is every other name SUMO knows an option by (``<net>``, ``<n>``: :data:`OPTION_SYNONYMS`). Files
 may be gzip-compressed (SUMO reads ``.gz`` inputs, and so do we). Parsing goes through
 ``defusedxml``: configuration files are user input and may come from anywhere.
 """
@@ -25,6 +26,58 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo.errors import InputError
 
 INPUT_KEYS = ("net-file", "route-files", "additional-files")
+
+# SUMO knows most options under several names, and a configuration may use any of them
+# (`<net value=...>` and `<n value=...>` are `<net-file>`; sumolib's RiLSA scenarios write `<net>`).
+# Every other name -> the name `sumo --save-template` writes, for the options of sumo 1.28 that have
+# more than one (its `--print-options` lists them: `n (net, net-file)`). docs/sumo.md, "Option names".
+OPTION_SYNONYMS = {
+    "n": "net-file", "net": "net-file", "r": "route-files", "routes": "route-files",
+    "a": "additional-files", "additional": "additional-files", "b": "begin", "e": "end",
+    "c": "configuration-file", "configuration": "configuration-file",
+    "C": "save-configuration", "save-config": "save-configuration",
+    "save-config.relative": "save-configuration.relative", "save-template.commented": "save-commented",
+    "W": "no-warnings", "suppress-warnings": "no-warnings", "v": "verbose", "l": "log", "log-file": "log",
+    "X": "xml-validation", "H": "human-readable-time", "t": "duration-log.statistics",
+    "no-duration-log": "duration-log.disable", "?": "help", "V": "version",
+    "srand": "seed", "abs-rand": "random",
+    "g": "gui-settings-file", "B": "breakpoints", "D": "demo", "G": "game", "Q": "quit-on-end", "S": "start",
+    "T": "disable-textures", "d": "delay", "N": "alternative-net-file",
+    "w": "weight-files", "weights": "weight-files", "measure": "weight-attribute", "x": "weight-attribute",
+    "m": "edgedata-files", "data-files": "edgedata-files", "s": "route-steps",
+    "carfollow.model": "default.carfollowmodel", "meso.ignore-lanes.by-vclass": "meso-ignore-lanes-by-vclass",
+    "railsignal.moving-block": "railsignal-moving-block",
+    "ndump": "netstate-dump", "netstate": "netstate-dump", "netstate-output": "netstate-dump",
+    "dump-empty-edges": "netstate-dump.empty-edges", "netstate.empty-edges": "netstate-dump.empty-edges",
+    "netstate-output.empty-edges": "netstate-dump.empty-edges", "dump-precision": "netstate-dump.precision",
+    "netstate.precision": "netstate-dump.precision", "netstate-output.precision": "netstate-dump.precision",
+    "summary": "summary-output", "tripinfo": "tripinfo-output", "statistics-output": "statistic-output",
+    "personinfo": "personinfo-output", "person-fcd": "person-fcd-output", "personroutes": "personroute-output",
+    "vehroutes": "vehroute-output", "vehroutes.dua": "vehroute-output.dua",
+    "vehroutes.exit-times": "vehroute-output.exit-times",
+    "vehroutes.intended-depart": "vehroute-output.intended-depart",
+    "vehroutes.last-route": "vehroute-output.last-route", "vehroutes.route-length": "vehroute-output.route-length",
+    "vehroutes.sorted": "vehroute-output.sorted",
+    "device.fcd-replay.file": "device.fcd-replay.files", "taxi.vclasses": "device.taxi.vclasses",
+    "routing-threads": "device.rerouting.threads", "with-taz": "device.rerouting.with-taz",
+    "device.routing.with-taz": "device.rerouting.with-taz", "device.routing.period": "device.rerouting.period",
+    "device.routing.pre-period": "device.rerouting.pre-period",
+    "device.routing.adaptation-interval": "device.rerouting.adaptation-interval",
+    "device.routing.adaptation-steps": "device.rerouting.adaptation-steps",
+    "device.routing.adaptation-weight": "device.rerouting.adaptation-weight",
+    "person-device.routing.period": "person-device.rerouting.period",
+    **{f"{d}.knownveh": f"{d}.explicit" for d in (
+        "device.battery", "device.bluelight", "device.btreceiver", "device.btsender", "device.driverstate",
+        "device.elechybrid", "device.emissions", "device.example", "device.fcd-replay", "device.fcd",
+        "device.friction", "device.glosa", "device.rerouting", "device.ssm", "device.stationfinder",
+        "device.taxi", "device.toc", "device.tripinfo", "device.vehroute", "person-device.btreceiver",
+        "person-device.btsender", "person-device.fcd", "person-device.rerouting")},
+}
+
+
+def option_name(name: str) -> str:
+    """SUMO's own name of an option spelled ``name`` (:data:`OPTION_SYNONYMS`; unknown names as given)."""
+    return OPTION_SYNONYMS.get(name, name)
 
 
 @dataclass(frozen=True)
@@ -143,12 +196,13 @@ def read_sumocfg(path: str | Path) -> SumoConfig:
     values: dict[str, str] = {}
     gui_only = tuple(str(el.tag) for sec in root.iter("gui_only") for el in sec)
     for el in root.iter():
-        tag = str(el.tag).split("}")[-1]
+        tag = option_name(str(el.tag).split("}")[-1])
         if el.get("value") is not None:
             values[tag] = str(el.get("value"))
         for attr, val in el.attrib.items():  # <input net-file="..."/> spelling
-            if attr in INPUT_KEYS or attr in ("begin", "end", "step-length"):
-                values.setdefault(attr, val)
+            name = option_name(attr)
+            if name in INPUT_KEYS or name in ("begin", "end", "step-length"):
+                values.setdefault(name, val)
     files = {k: tuple(path.parent / f for f in split_files(values.get(k, ""))) for k in INPUT_KEYS}
 
     def time_of(k: str) -> float | None:
