@@ -53,6 +53,49 @@ def test_train_resume_and_determinism(dataset, tmp_path):
     assert train(dataset, a, "--epochs", "3", "--lr", "0.1") == 2
 
 
+def test_device_cpu_and_auto_without_a_gpu_are_the_default_recipe(dataset, tmp_path):
+    a, b = tmp_path / "a.pt", tmp_path / "b.pt"
+    assert train(dataset, a, "--epochs", "1") == 0
+    assert train(dataset, b, "--epochs", "1", "--device", "cpu" if torch.cuda.is_available() else "auto") == 0
+    for k, v in load_model(a).state_dict().items():
+        assert torch.equal(v, load_model(b).state_dict()[k]), k
+    assert json.loads((tmp_path / "b.json").read_text())["device"] == "cpu"
+
+
+@pytest.mark.parametrize("device", ["cuda", "tpu", "meta"])
+def test_a_device_that_is_not_there_is_one_line(dataset, tmp_path, capsys, device):
+    if device == "cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    assert train(dataset, tmp_path / "x.pt", "--epochs", "1", "--device", device) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--device {device}" in err[0], err
+    assert not (tmp_path / "x.pt").exists()
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run it on a lent one)")
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_training_on_a_gpu_writes_a_cpu_checkpoint_and_resumes(dataset, tmp_path, precision):
+    """On a lent GPU: the same command with --device cuda trains, evaluates each epoch there, writes
+    a checkpoint that loads on the CPU, and resumes from its state on the CPU."""
+    out = tmp_path / "g.pt"
+    assert train(dataset, out, "--epochs", "1", "--device", "cuda", "--precision", precision) == 0
+    metrics = json.loads((tmp_path / "g.json").read_text())
+    assert metrics["device"] != "cpu" and metrics["final"]["val_minADE"] > 0
+    model = load_model(out)
+    assert all(v.device.type == "cpu" for v in model.state_dict().values())
+    assert train(dataset, out, "--epochs", "2", "--precision", precision) == 0  # the CPU goes on
+    assert [e["epoch"] for e in json.loads((tmp_path / "g.json").read_text())["epochs"]] == [1, 2]
+    # evaluation draws the same noise on either device; only the float kernels differ
+    res = {}
+    for device in ("cpu", "cuda"):
+        path = tmp_path / f"eval_{device}.json"
+        assert main(["-q", "eval", "rollout", "--data", str(dataset), "--split", "all", "--checkpoint", str(out),
+                     "--device", device, "--json", str(path)]) == 0
+        res[device] = json.loads(path.read_text())["methods"]["cvae_dsa"]
+    assert res["cuda"]["minADE"] == pytest.approx(res["cpu"]["minADE"], rel=1e-2)
+
+
 def test_bf16_training_keeps_float32_weights_and_resumes_only_in_bf16(dataset, tmp_path):
     """bf16 runs the forward pass under autocast; the checkpoint is float32, its numbers finite and
     not those of the float32 run; a float32 command does not resume a bf16 state (nor the reverse)."""

@@ -59,6 +59,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                        help="bf16: the training forward pass under CPU autocast to bfloat16 (weights and "
                             "optimiser in float32); about 3x the examples/s on CPUs with AVX-512 BF16 "
                             "(%(default)s)")
+    train.add_argument("--device", default="cpu",
+                       help="cpu (default), cuda, cuda:N, or auto (a GPU when torch sees one): where the model "
+                            "trains; checkpoints are written for the CPU either way")
     train.add_argument("--cache-dir", default=None,
                        help="where the per-corpus feature cache lives (default DATASET/.cache)")
     train.add_argument("--no-cache", action="store_true",
@@ -108,6 +111,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     ev.add_argument("--batch-size", type=int, default=64)
     ev.add_argument("--seed", type=int, default=0)
     ev.add_argument("--threads", type=int, default=1, help="torch threads (%(default)s)")
+    ev.add_argument("--device", default="cpu",
+                    help="cpu (default), cuda, cuda:N or auto: where the CVAEs sample (the same draws: the noise "
+                         "is seeded on the CPU)")
     ev.add_argument("--json", required=True, help="where to write the results (JSON)")
     ev.set_defaults(func=run_eval)
 
@@ -145,7 +151,7 @@ def run_train(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     metrics = train_rollout(args.data, args.output, cfg, tcfg, resume=not args.restart, quiet=args.quiet,
                             command=_command(), cache=not args.no_cache, cache_dir=args.cache_dir,
-                            init=args.init)
+                            init=args.init, device=args.device)
     if not args.quiet:
         final = metrics.get("final", {})
         shown = ", ".join(f"{k} {final[k]:.3f}" for k in ("val_minADE", "val_minFDE", "val_loss") if k in final)
@@ -213,17 +219,19 @@ def run_eval(args: argparse.Namespace) -> int:
     from coster_sumo.rollout.data import build_examples
     from coster_sumo.rollout.evaluate import evaluate_rollout
     from coster_sumo.rollout.model import RolloutConfig
+    from coster_sumo.rollout.train import training_device
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
+    device = training_device(args.device)
     models = {}
     skipped = {}
     for name, given, default in (("cvae_no_dsa", args.checkpoint_no_dsa, DEFAULT_CHECKPOINT_NO_DSA),
                                  ("cvae_dsa", args.checkpoint, DEFAULT_CHECKPOINT)):
         if given is not None:
-            models[name] = load_model(given)
+            models[name] = load_model(given).to(device)
         elif Path(default).is_file():
-            models[name] = load_model(default)
+            models[name] = load_model(default).to(device)
         else:
             skipped[name] = f"no checkpoint ({default} not found)"
     scenes = _eval_scenes(args)

@@ -269,6 +269,11 @@ class RolloutCVAE(nn.Module):
 
     # ------------------------------------------------------------------ encoding
 
+    @property
+    def device(self) -> torch.device:
+        """Where the weights are (the inputs go there too)."""
+        return self.disp_scale.device
+
     def encode(self, ctx: dict[str, Tensor]) -> Encoded:
         """Map embedding, neighbour keys/values for every step and ``h0`` (once per context)."""
         cfg = self.cfg
@@ -417,8 +422,11 @@ class RolloutCVAE(nn.Module):
         enc = self.encode(ctx)
         c = enc.h0.shape[0]
         horizon = ctx["nbr"].shape[1] - 1 if traj is None else traj.shape[1]
+        # drawn on the generator's device (a seeded CPU generator gives the same noise wherever the
+        # model runs), then moved to the model's
         eps = torch.randn(horizon, c, num_samples, self.cfg.latent, generator=generator,
-                          device=enc.h0.device, dtype=torch.float32)
+                          device=generator.device if generator is not None else enc.h0.device,
+                          dtype=torch.float32).to(enc.h0.device)
         if traj is None:
             poses, _, _ = self.rollout(enc, num_samples, eps, temperature=temperature)
             return RolloutOutput(poses=poses)

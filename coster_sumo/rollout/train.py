@@ -156,6 +156,27 @@ def num_threads(requested: int) -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def training_device(name: str = "cpu") -> torch.device:
+    """The torch device to train on: "cpu", "cuda", "cuda:N", or "auto" (the first GPU when torch
+    sees one, else the CPU); an :class:`InputError` line when the device is not there."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        dev = torch.device(name)
+    except RuntimeError:
+        raise InputError(f"--device {name}: not a device (cpu, cuda, cuda:N or auto)") from None
+    if dev.type not in ("cpu", "cuda"):
+        raise InputError(f"--device {name}: training runs on cpu or cuda")
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"--device {name}: this torch ({torch.__version__}) sees no CUDA GPU")
+    return dev
+
+
+def device_name(dev: torch.device) -> str:
+    """What the metrics record about the device: "cpu", or the GPU's name."""
+    return torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu"
+
+
 def learning_rate(step: int, tcfg: TrainConfig, epoch: int = 0) -> float:
     """The learning rate of optimiser step ``step`` (0-based, counted over the whole run) in
     ``epoch`` (0-based)."""
@@ -193,8 +214,9 @@ def _epoch_rows(n: int, tcfg: TrainConfig, epoch: int) -> np.ndarray:
     return order
 
 
-def _tensors(batch: dict[str, np.ndarray]) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
-    t = to_tensors(batch)
+def _tensors(batch: dict[str, np.ndarray], device: torch.device | str = "cpu"
+             ) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+    t = to_tensors(batch, device)
     traj, mask = t.pop("traj"), t.pop("step_mask")
     t.pop("origin")
     return t, traj, mask
@@ -209,7 +231,7 @@ def validation_loss(model: RolloutCVAE, examples: Examples, rows: np.ndarray, ba
     tot = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
     count = 0
     for start in range(0, len(rows), batch_size):
-        ctx, traj, mask = _tensors(examples.batch(rows[start:start + batch_size], model.cfg))
+        ctx, traj, mask = _tensors(examples.batch(rows[start:start + batch_size], model.cfg), model.device)
         out = model(ctx, traj, mask, generator=gen)
         k = len(traj)
         assert out.loss is not None and out.recon is not None and out.kl is not None
@@ -232,7 +254,7 @@ def _metrics_path(out: Path) -> Path:
 def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None = None,
                   tcfg: TrainConfig | None = None, *, resume: bool = True, quiet: bool = False,
                   command: str | None = None, cache: bool = True, cache_dir: str | Path | None = None,
-                  init: str | Path | None = None) -> dict[str, Any]:
+                  init: str | Path | None = None, device: str = "cpu") -> dict[str, Any]:
     """Train (or resume training) and write the checkpoint, metrics and resume file.
 
     ``cache``: read the examples from the feature cache (under ``cache_dir``, default
@@ -240,6 +262,11 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     ``init``: a rollout checkpoint to start from instead of freshly drawn weights; its config must
     be ``cfg`` (checked before any data is read). Its sha256 goes into ``tcfg.init``, so that a
     training state resumes only with the same starting weights.
+    ``device``: where the model trains (:func:`training_device`: "cpu", "cuda", "cuda:N" or
+    "auto"); batches are assembled on the CPU and moved there. Checkpoints hold CPU tensors and
+    training states are read onto the CPU, so a run started on one device resumes on another
+    (with the same numbers only on the same device). Not part of ``tcfg``: it does not change the
+    recipe. On a GPU ``--precision bf16`` autocasts there.
 
     Returns:
         The metrics dictionary also written to ``OUT.json``.
@@ -249,6 +276,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     if tcfg.precision not in PRECISIONS:
         raise InputError(f"precision {tcfg.precision!r}: use one of {', '.join(PRECISIONS)}")
     out = Path(out)
+    dev = training_device(device)
     torch.set_num_threads(num_threads(tcfg.threads))
     t_start = time.perf_counter()
     start_weights = None
@@ -278,6 +306,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     model = RolloutCVAE(cfg)
     if start_weights is not None:
         model.load_state_dict(start_weights)
+    model.to(dev)  # before the optimiser, whose state then lives where the weights do
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     history: list[dict[str, Any]] = []
     first_epoch = 0
@@ -309,13 +338,13 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
         sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
         seen = 0
         # the next batch is assembled by a background thread while this one trains
-        ahead = prefetch(lambda part: _tensors(train_set.batch(part, cfg)),
+        ahead = prefetch(lambda part: _tensors(train_set.batch(part, cfg), dev),
                          [rows[start:start + tcfg.batch_size] for start in batches])
         bar = tqdm(ahead, total=len(batches), desc=f"epoch {epoch + 1}/{tcfg.epochs}", disable=quiet, leave=False)
         for bi, (ctx, traj, mask) in enumerate(bar):
             for group in opt.param_groups:
                 group["lr"] = learning_rate(epoch * steps_per_epoch + bi, tcfg, epoch)
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=tcfg.precision == "bf16"):
+            with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=tcfg.precision == "bf16"):
                 res = model(ctx, traj, mask)
             assert res.loss is not None and res.recon is not None and res.kl is not None
             opt.zero_grad(set_to_none=True)
@@ -354,7 +383,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
             "parameters": sum(p.numel() for p in model.parameters()),
             "epochs": history, "final": history[-1],
             "wall_time_s": time.perf_counter() - t_start, "torch": torch.__version__,
-            "threads": torch.get_num_threads(), "machine": platform.machine(),
+            "threads": torch.get_num_threads(), "machine": platform.machine(), "device": device_name(dev),
             "command": command if command is not None else " ".join(sys.argv),
             "units": {"ADE/FDE": "m", "loss": "negative ELBO per valid step (nats)", "time_s": "s"},
         }
