@@ -211,3 +211,26 @@ def test_mapped_arrays_are_advised_random_access_without_read_ahead(dataset):
     assert {"traj", "map_vec", "nbr"} <= set(flags)
     assert all("rr" in flags[name] for name in ("traj", "map_vec", "nbr", "state", "nbr_mask"))
     assert ex.batch(np.arange(min(3, len(ex))), CFG)["traj"].shape[0] == min(3, len(ex))
+
+
+def test_scenes_packed_for_a_gpu_machine_give_the_same_examples(dataset, tmp_path, monkeypatch):
+    """bench/pack_for_device.py writes the clips at 2 Hz, the steps the training keeps: the
+    examples built from the packed copies are those of the full clips, number and features."""
+    import runpy
+    import sys
+
+    out = tmp_path / "pack"
+    monkeypatch.setattr(sys, "argv", ["pack_for_device.py", str(dataset), "--out", str(out), "--no-wheels",
+                                      "--max-mb", "50"])
+    runpy.run_path(str(Path(__file__).resolve().parents[1] / "bench" / "pack_for_device.py"), run_name="__main__")
+    packed = scene_files(out)
+    assert [p.name for p in packed] == [p.name for p in scene_files(dataset)]
+    assert json.loads((out / "pack.json").read_text())["scenes"] == 3
+    assert all(load_scene(p).num_steps == 19 for p in packed)  # 91 steps at 10 Hz -> 19 at 2 Hz
+    full = build_examples([load_scene(p) for p in scene_files(dataset)], CFG)
+    small = build_examples([load_scene(p) for p in packed], CFG)
+    assert len(small) == len(full) > 0
+    rows = np.arange(len(full))
+    a, b = full.batch(rows, CFG), small.batch(rows, CFG)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
