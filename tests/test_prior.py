@@ -340,6 +340,51 @@ def test_training_is_deterministic_and_resumes(tmp_path, prepared):
     assert saved["best_epoch"] == metrics["best_epoch"]
 
 
+def test_training_device_cpu_and_auto_without_a_gpu_give_the_same_weights(tmp_path, prepared):
+    tcfg = TrainConfig(epochs=1, batch_size=8, warmup_steps=2)
+    for name, device in (("a.pt", "cpu"), ("b.pt", "cpu" if torch.cuda.is_available() else "auto")):
+        metrics = train_prior(prepared[:2], prepared[2:], tmp_path / name, model_config=SMALL, train_config=tcfg,
+                              progress=False, log=None, device=device)
+        assert metrics["device"] == "cpu"
+    a = torch.load(tmp_path / "a.pt", weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+@pytest.mark.parametrize("device", ["cuda", "tpu"])
+def test_train_prior_on_a_device_that_is_not_there_is_one_line(tmp_path, capsys, device):
+    if device == "cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    assert main(["-q", "train", "prior", "--data", str(tmp_path / "nothing"), "--device", device,
+                 "-o", str(tmp_path / "p.pt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--device {device}" in err[0], err
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run it on a lent one)")
+def test_prior_trained_on_a_gpu_loads_on_the_cpu_and_resumes_there(tmp_path, prepared):
+    """On a lent GPU: the prior trains there, its checkpoint loads on the CPU, and its state resumes
+    on the CPU."""
+    tcfg = TrainConfig(epochs=2, batch_size=8, warmup_steps=2)
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_one(msg: str) -> None:
+        if msg.startswith("epoch 1/"):
+            raise Stop
+
+    with pytest.raises(Stop):
+        train_prior(prepared[:2], prepared[2:], tmp_path / "g.pt", model_config=SMALL, train_config=tcfg,
+                    progress=False, log=stop_after_one, device="cuda")
+    metrics = train_prior(prepared[:2], prepared[2:], tmp_path / "g.pt", model_config=SMALL, train_config=tcfg,
+                          progress=False, log=None, device="cpu")
+    assert len(metrics["history"]) == 2
+    model = load_prior(tmp_path / "g.pt")
+    assert all(p.device.type == "cpu" for p in model.parameters())
+
+
 @pytest.mark.slow
 def test_cli_train_then_eval(tmp_path):
     data = _tiny_dataset(tmp_path / "ds")

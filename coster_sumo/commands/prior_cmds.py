@@ -38,6 +38,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--lr", type=float, default=1e-3)
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--threads", type=int, default=1, help="torch threads (1: bitwise reproducible)")
+    train.add_argument("--device", default="cpu",
+                       help="cpu (default), cuda, cuda:N, or auto (a GPU when torch sees one): where the model "
+                            "trains; the checkpoint is written for the CPU either way")
     train.add_argument("--hidden", type=int, default=128, help="token width")
     train.add_argument("--blocks", type=int, default=5, help="context-gating blocks")
     train.add_argument("--val-fraction", type=float, default=0.1)
@@ -80,12 +83,14 @@ def _log(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from coster_sumo.devices import training_device
     from coster_sumo.prior.data import load_prepared, split_files
     from coster_sumo.prior.model import PriorConfig
     from coster_sumo.prior.train import TrainConfig, train_prior
 
     if args.epochs < 1 or args.batch_size < 1:
         raise InputError("--epochs and --batch-size must be at least 1")
+    training_device(args.device)  # one that is not there fails before the scenes load
     train_files, val_files = split_files(args.data, args.val_fraction)
     train_files = _subset(train_files, args.max_scenes, args.seed)
     if not train_files:
@@ -100,7 +105,7 @@ def run_train(args: argparse.Namespace) -> int:
     meta = {"data": str(args.data), "command": "coster-sumo " + shlex.join(sys.argv[1:]) if sys.argv else "",
             "train_files": len(train_files), "val_files": len(val_files)}
     metrics = train_prior(train, val, args.output, mcfg, tcfg, state_path=args.state, resume=not args.restart,
-                          progress=progress, meta=meta, log=_log(args))
+                          progress=progress, meta=meta, log=_log(args), device=args.device)
     if not args.quiet:
         print(f"wrote {args.output} (best epoch {metrics['best_epoch']}, score {metrics['best_score']:.4f}, "
               f"{time.perf_counter() - t0:.0f} s)", file=sys.stderr)

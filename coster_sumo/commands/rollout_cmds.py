@@ -215,11 +215,11 @@ def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
 def run_eval(args: argparse.Namespace) -> int:
     import torch
 
+    from coster_sumo.devices import training_device
     from coster_sumo.rollout.checkpoint import load_model
     from coster_sumo.rollout.data import build_examples
     from coster_sumo.rollout.evaluate import evaluate_rollout
     from coster_sumo.rollout.model import RolloutConfig
-    from coster_sumo.rollout.train import training_device
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from coster_sumo.atomic import atomic_path, write_json
+from coster_sumo.devices import device_name, training_device
 from coster_sumo.errors import InputError
 from coster_sumo.prior.bins import ATTRIBUTES
 from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
@@ -46,9 +47,9 @@ class TrainConfig:
     val_batches_max: int = 200  # cap on held-out batches evaluated per epoch
 
 
-def _torch_batch(tok: Tokens) -> tuple[torch.Tensor, ...]:
-    return tuple(torch.from_numpy(a) for a in (tok.map_features, tok.agent_features, tok.mask, tok.query,
-                                               tok.present, tok.classes))
+def _torch_batch(tok: Tokens, device: torch.device | str = "cpu") -> tuple[torch.Tensor, ...]:
+    return tuple(torch.from_numpy(a).to(device) for a in (tok.map_features, tok.agent_features, tok.mask, tok.query,
+                                                          tok.present, tok.classes))
 
 
 @torch.no_grad()
@@ -63,7 +64,7 @@ def evaluate_loss(model: TrafficPrior, scenes: Sequence[ScenePriorData], samples
     for i in range(0, len(samples), batch_size):
         tok = batch_tokens(scenes, samples[i:i + batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
                            visible=visible, rng=rng, hide_radius=cfg.hide_radius)
-        mf, af, mask, query, present, classes = _torch_batch(tok)
+        mf, af, mask, query, present, classes = _torch_batch(tok, next(model.parameters()).device)
         h = model.encode_packed(mf, af, mask)  # (N, 2D)
         q, present, classes = query[mask], present[mask], classes[mask]
         total += float(model.loss(h, q, present, classes)) * max(int(q.sum()), 1)
@@ -87,18 +88,23 @@ def _lr_at(step: int, total: int, cfg: TrainConfig) -> float:
 def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], output: str | Path,
                 model_config: PriorConfig | None = None, train_config: TrainConfig | None = None,
                 state_path: str | Path | None = None, resume: bool = True, progress: bool = True,
-                meta: dict | None = None, log: Callable[[str], None] | None = print) -> dict:
+                meta: dict | None = None, log: Callable[[str], None] | None = print, device: str = "cpu") -> dict:
     """Train the prior; write the best held-out checkpoint to ``output`` and metrics beside it
-    (``output`` with suffix ``.json``). Returns the metrics dict."""
+    (``output`` with suffix ``.json``). Returns the metrics dict.
+
+    ``device``: where the model trains (:func:`coster_sumo.devices.training_device`); the tokens are
+    built on the CPU and moved there, the checkpoint is written for the CPU and the state is read
+    onto it, so a run resumes on either device (the same numbers only on the same device)."""
     mcfg = model_config or PriorConfig()
     tcfg = train_config or TrainConfig()
     if not train:
         raise InputError("no training scenes")
     output = Path(output)
     state_path = Path(state_path) if state_path else output.with_name(output.name + ".state")
+    dev = training_device(device)
     torch.set_num_threads(max(1, tcfg.threads))
     torch.manual_seed(tcfg.seed)
-    model = TrafficPrior(mcfg)
+    model = TrafficPrior(mcfg).to(dev)  # before the optimiser, whose state then lives where the weights do
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     history: list[dict] = []
     start_epoch, best, best_state = 0, math.inf, None
@@ -142,7 +148,7 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
                 group["lr"] = _lr_at(step, total_steps, tcfg)
             tok = batch_tokens(train, samples[i:i + tcfg.batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
                                visible="random", rng=rng, hide_radius=cfg.hide_radius)
-            _, loss = model(*_torch_batch(tok))
+            _, loss = model(*_torch_batch(tok, dev))
             assert loss is not None
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -163,7 +169,7 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
             score = record["train_loss"]
         if score < best:
             best = score
-            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            best_state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
             record["best"] = True
         history.append(record)
         state_path.parent.mkdir(parents=True, exist_ok=True)
@@ -175,13 +181,15 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
             val_txt = f" val {record['val']['loss']:.4f}" if "val" in record else ""
             log(f"epoch {epoch + 1}/{tcfg.epochs}: train {record['train_loss']:.4f}{val_txt} "
                 f"({record['seconds']:.1f} s)")
+    model.cpu()  # the checkpoint is the CPU's
     if best_state is not None:
         model.load_state_dict(best_state)
     best_epoch = next((h["epoch"] for h in reversed(history) if h.get("best")), None)
     metrics = {"best_epoch": best_epoch, "best_score": best, "history": history,
                "num_train_scenes": len(train), "num_val_scenes": len(val),
                "train_config": asdict(tcfg), "model_config": mcfg.to_dict(),
-               "num_parameters": sum(p.numel() for p in model.parameters()), **(meta or {})}
+               "num_parameters": sum(p.numel() for p in model.parameters()), "device": device_name(dev),
+               **(meta or {})}
     save_prior(model, output, metrics={k: v for k, v in metrics.items() if k != "history"},
                meta=meta or {})
     write_json(output.with_suffix(".json"), metrics)

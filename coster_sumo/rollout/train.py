@@ -48,6 +48,7 @@ import torch
 from tqdm import tqdm
 
 from coster_sumo.atomic import write_json
+from coster_sumo.devices import device_name, training_device
 from coster_sumo.errors import InputError
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout.cache import CachedExamples, cached_examples
@@ -156,27 +157,6 @@ def num_threads(requested: int) -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def training_device(name: str = "cpu") -> torch.device:
-    """The torch device to train on: "cpu", "cuda", "cuda:N", or "auto" (the first GPU when torch
-    sees one, else the CPU); an :class:`InputError` line when the device is not there."""
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    try:
-        dev = torch.device(name)
-    except RuntimeError:
-        raise InputError(f"--device {name}: not a device (cpu, cuda, cuda:N or auto)") from None
-    if dev.type not in ("cpu", "cuda"):
-        raise InputError(f"--device {name}: training runs on cpu or cuda")
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise InputError(f"--device {name}: this torch ({torch.__version__}) sees no CUDA GPU")
-    return dev
-
-
-def device_name(dev: torch.device) -> str:
-    """What the metrics record about the device: "cpu", or the GPU's name."""
-    return torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu"
-
-
 def learning_rate(step: int, tcfg: TrainConfig, epoch: int = 0) -> float:
     """The learning rate of optimiser step ``step`` (0-based, counted over the whole run) in
     ``epoch`` (0-based)."""
@@ -262,7 +242,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     ``init``: a rollout checkpoint to start from instead of freshly drawn weights; its config must
     be ``cfg`` (checked before any data is read). Its sha256 goes into ``tcfg.init``, so that a
     training state resumes only with the same starting weights.
-    ``device``: where the model trains (:func:`training_device`: "cpu", "cuda", "cuda:N" or
+    ``device``: where the model trains (:func:`coster_sumo.devices.training_device`: "cpu", "cuda", "cuda:N" or
     "auto"); batches are assembled on the CPU and moved there. Checkpoints hold CPU tensors and
     training states are read onto the CPU, so a run started on one device resumes on another
     (with the same numbers only on the same device). Not part of ``tcfg``: it does not change the
