@@ -35,7 +35,6 @@ from coster_sumo.prior.evaluate import evaluation_centres
 from coster_sumo.prior.infer import (
     ADAPTED_ATTRIBUTES,
     CLASS_EVIDENCE,
-    class_weights,
     load_prior,
     predict_tokens,
     presence_offset,
@@ -96,11 +95,10 @@ def scores(records: list[dict], c: float | None, unit: str) -> dict[str, float]:
                 w = 1.0
             elif unit == "total":
                 w = probe_class_weights(probe, a, c / probe.steps, "step")
-            elif unit == "spread":
-                n, m = ((probe.class_counts[a], probe.class_mass[a]) if CLASS_EVIDENCE[a] == "step"
-                        else (probe.vehicle_counts[a], probe.vehicle_mass[a]))
-                per_step = probe.steps if CLASS_EVIDENCE[a] == "step" else 1
-                w = class_weights(n, m, c * per_step * np.maximum(m / max(float(m.sum()), 1e-30), 1e-12))
+            elif unit == "spread":  # c in all, shared as the prior predicts, in the shipped unit
+                m = probe.class_mass[a] if CLASS_EVIDENCE[a] == "step" else probe.vehicle_mass[a]
+                w = probe_class_weights(probe, a, c * np.maximum(m / max(float(m.sum()), 1e-30), 1e-12),
+                                        CLASS_EVIDENCE[a])
             else:
                 w = probe_class_weights(probe, a, c, unit)
             pa = r[f"p_{a}"] * w

@@ -141,9 +141,10 @@ def presence_offset(p: np.ndarray, observed: float, pseudo_count: float) -> floa
     return float(brentq(excess, -lim, lim, xtol=1e-6))
 
 
-def class_weights(observed: np.ndarray, predicted: np.ndarray, pseudo_count: float) -> np.ndarray:
+def class_weights(observed: np.ndarray, predicted: np.ndarray, pseudo_count: float | np.ndarray) -> np.ndarray:
     """(C,) weights ``(n + c) / (m + c)`` of the classes: ``observed`` vehicles per class (n) over the
-    summed predicted probabilities of the class at those vehicles (m)."""
+    summed predicted probabilities of the class at those vehicles (m); ``c`` one number or one per
+    class."""
     return (np.asarray(observed, np.float64) + pseudo_count) / (np.asarray(predicted, np.float64) + pseudo_count)
 
 
@@ -243,7 +244,8 @@ def probe_visible_traffic(model: TrafficPrior, data: ScenePriorData, steps: np.n
                         vehicles=len(ids))
 
 
-def probe_class_weights(probe: VisibleProbe, attribute: str, pseudo_count: float, evidence: str) -> np.ndarray:
+def probe_class_weights(probe: VisibleProbe, attribute: str, pseudo_count: float | np.ndarray, evidence: str
+                        ) -> np.ndarray:
     """(C,) :func:`class_weights` of ``attribute`` from ``probe``, ``pseudo_count`` per class in the
     unit ``evidence``: "step" (every probed token; the pseudo-count is multiplied by the steps) or
     "vehicle" (every distinct vehicle once)."""
