@@ -221,16 +221,16 @@ def main() -> None:
             p_stop = np.nanmean([x["p_stopped"] for x in mine])
             near = near_moving[net][0] / max(near_moving[net][1], 1)
             w = np.nanpercentile([x["stopped_weight"] for x in mine], [50, 25, 75])
-            occ = max(sum(x["disc_occupied"] for x in mine), 1)
-            occ_stopped = sum(x["disc_occupied_stopped"] for x in mine)
-            occ_p_stop = sum(x["disc_occupied_p_stopped"] for x in mine)
+            n_occupied = max(sum(x["disc_occupied"] for x in mine), 1)
+            occupied_stopped = sum(x["disc_occupied_stopped"] for x in mine) / n_occupied
+            occupied_p_stop = sum(x["disc_occupied_p_stopped"] for x in mine) / n_occupied
             print(f"| {m} | {net} | {len(adv)} | {r['VDD_tcol']:.3f} ({r['VDD_tcol_floor']:.3f}) | "
                   f"{r['size_in_class']:.3f} | {hist[0] / hist.sum():.2f} / {near:.2f} / {p_stop:.2f} / "
                   f"{np.mean(adv < 0.5):.2f} | "
                   f"{p90:.1f} / {np.percentile(adv, 90):.1f} | {w[0]:.2f} [{w[1]:.2f}, {w[2]:.2f}] | "
                   f"{np.mean([x['target_speed'] >= 0.5 for x in mine]):.2f} | "
                   f"{sum(x['near_target_stopped'] for x in mine)} / {sum(x['near_target'] for x in mine)} | "
-                  f"{occ_stopped / occ:.2f} / {occ_p_stop / occ:.2f} |")
+                  f"{occupied_stopped:.2f} / {occupied_p_stop:.2f} |")
     if args.plot:
         plot_speeds(args.plot, nominal, records_by)
     if args.json:
