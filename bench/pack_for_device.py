@@ -38,7 +38,7 @@ def exclude(folder: Path) -> None:
     """Keep ``folder`` (inside the repository) out of git, so that only ``carry`` moves it."""
     info = REPO / ".git" / "info" / "exclude"
     line = f"/{folder.resolve().relative_to(REPO)}/"
-    if info.parent.is_dir() and line not in info.read_text().splitlines():
+    if info.parent.is_dir() and not (info.is_file() and line in info.read_text().splitlines()):
         with info.open("a") as fh:
             fh.write(line + "\n")
 
