@@ -65,7 +65,7 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, 
         nbrs.append(arrays["nbr_mask"][:, 0].sum(-1))
         poses = model.sample(to_tensors(arrays, model.device), num_samples, generator=gen)  # (B, S, H, 3)
         elapsed += time.perf_counter() - t0
-        preds.append(poses[..., :2].double().cpu().numpy())
+        preds.append(poses[..., :2].cpu().double().numpy())
         truths.append(truth[..., :2].astype(np.float64))
         masks.append(mask)
     if not preds:
