@@ -312,6 +312,20 @@ def _tiny_dataset(root):
     return root
 
 
+class StopTraining(Exception):
+    """Raised from the training log: the run stops as a killed one would, after its state is saved."""
+
+
+def stop_after_epoch(epoch: int):  # type: ignore[no-untyped-def]
+    """A ``log`` for :func:`train_prior` that stops the run once epoch ``epoch`` is written."""
+
+    def log(msg: str) -> None:
+        if msg.startswith(f"epoch {epoch}/"):
+            raise StopTraining
+
+    return log
+
+
 def test_training_is_deterministic_and_resumes(tmp_path, prepared):
     tcfg = TrainConfig(epochs=3, batch_size=8, warmup_steps=2)
 
@@ -320,16 +334,8 @@ def test_training_is_deterministic_and_resumes(tmp_path, prepared):
                            progress=False, log=log)
 
     run("a.pt")
-
-    class Stop(Exception):
-        pass
-
-    def stop_after_two(msg: str) -> None:
-        if msg.startswith("epoch 2/"):
-            raise Stop
-
-    with pytest.raises(Stop):
-        run("b.pt", stop_after_two)
+    with pytest.raises(StopTraining):
+        run("b.pt", stop_after_epoch(2))
     assert not (tmp_path / "b.pt").exists() and (tmp_path / "b.pt.state").exists()
     metrics = run("b.pt")
     a = torch.load(tmp_path / "a.pt", weights_only=True)["state_dict"]
@@ -367,17 +373,9 @@ def test_prior_trained_on_a_gpu_loads_on_the_cpu_and_resumes_there(tmp_path, pre
     """On a lent GPU: the prior trains there, its checkpoint loads on the CPU, and its state resumes
     on the CPU."""
     tcfg = TrainConfig(epochs=2, batch_size=8, warmup_steps=2)
-
-    class Stop(Exception):
-        pass
-
-    def stop_after_one(msg: str) -> None:
-        if msg.startswith("epoch 1/"):
-            raise Stop
-
-    with pytest.raises(Stop):
+    with pytest.raises(StopTraining):
         train_prior(prepared[:2], prepared[2:], tmp_path / "g.pt", model_config=SMALL, train_config=tcfg,
-                    progress=False, log=stop_after_one, device="cuda")
+                    progress=False, log=stop_after_epoch(1), device="cuda")
     metrics = train_prior(prepared[:2], prepared[2:], tmp_path / "g.pt", model_config=SMALL, train_config=tcfg,
                           progress=False, log=None, device="cpu")
     assert len(metrics["history"]) == 2
