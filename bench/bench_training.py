@@ -56,6 +56,7 @@ import numpy as np
 import torch
 
 from coster_sumo import weights
+from coster_sumo.devices import cpu_description
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout import model as current_model
 from coster_sumo.rollout.cache import cached_examples
@@ -185,7 +186,7 @@ def main() -> int:
               flush=True)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"\nCVAE training throughput, width {cfg.hidden} ({args.repeats} interleaved repeats of {args.steps} "
-          f"steps; load average {load:.1f} on {os.cpu_count()} CPUs):")
+          f"steps; load average {load:.1f}; CPU: {cpu_description()}):")
     print("recipe      batch threads  examples/s: median [q1, q3]")
     for name, bs, th in (("previous", old_bs, old_threads), ("current", new_t.batch_size, cores),
                          ("current-1t", new_t.batch_size, 1), ("current-bf16", new_t.batch_size, cores)):

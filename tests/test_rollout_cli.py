@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from coster_sumo import synthetic
+from coster_sumo import devices, synthetic
 from coster_sumo.cli import main
 from coster_sumo.rollout.checkpoint import load_model
 from coster_sumo.rollout.vocab import MotionVocab
@@ -110,6 +110,23 @@ def test_bf16_training_keeps_float32_weights_and_resumes_only_in_bf16(dataset, t
     assert loss == loss and abs(loss) < 1e6
     assert train(dataset, bf, "--epochs", "2") == 2  # fp32 asked, bf16 state: not the same run
     assert train(dataset, bf, "--epochs", "2", "--precision", "bf16") == 0
+
+
+@pytest.mark.parametrize("native", [False, True, None])
+def test_bf16_on_a_cpu_without_bf16_hardware_warns_once_and_trains(dataset, tmp_path, capsys, monkeypatch, native):
+    """Emulated bfloat16 trains several times slower than float32: one warning line, then the run;
+    a CPU that has it (or a torch that cannot tell) trains without one, and fp32 never warns."""
+    monkeypatch.setattr(devices, "cpu_bf16_native", lambda: native)
+    assert train(dataset, tmp_path / "bf.pt", "--epochs", "1", "--precision", "bf16") == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    if native is False:
+        assert len(err) == 1 and "--precision bf16" in err[0] and "--precision fp32" in err[0], err
+    else:
+        assert err == []
+    assert train(dataset, tmp_path / "fp.pt", "--epochs", "1") == 0
+    assert "warning" not in capsys.readouterr().err
+    cpu = json.loads((tmp_path / "fp.json").read_text())["cpu"]
+    assert torch.backends.cpu.get_cpu_capability() in cpu and "bf16" in cpu
 
 
 def test_train_without_dsa_writes_that_config(dataset, tmp_path):

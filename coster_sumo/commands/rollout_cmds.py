@@ -57,8 +57,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                             "the same weights)")
     train.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
                        help="bf16: the training forward pass under CPU autocast to bfloat16 (weights and "
-                            "optimiser in float32); about 3x the examples/s on CPUs with AVX-512 BF16 "
-                            "(%(default)s)")
+                            "optimiser in float32); about 3x the examples/s on CPUs with AVX-512 BF16 or AMX, "
+                            "several times slower on CPUs without (a warning says so) (%(default)s)")
     train.add_argument("--device", default="cpu",
                        help="cpu (default), cuda, cuda:N, or auto (a GPU when torch sees one): where the model "
                             "trains; checkpoints are written for the CPU either way")

@@ -22,10 +22,12 @@ next batch is assembled by a background thread while the current one trains, tor
 ``--batch-size 64 --lr 5e-4 --warmup-steps 0 --threads 1`` is the previous recipe.
 
 ``--precision bf16`` runs the training forward pass under CPU autocast to bfloat16: on CPUs with
-AVX-512 BF16 (the project's machine) matrix products run several times faster, while the weights,
-the gradients, the optimiser state, the integrated pose, the latent statistics and the KL stay
-float32, and validation runs in float32. Not the default: the shipped checkpoints were trained in
-float32, and a run resumes only in the precision it started in.
+AVX-512 BF16 or AMX matrix products run several times faster, while the weights, the gradients,
+the optimiser state, the integrated pose, the latent statistics and the KL stay float32, and
+validation runs in float32. On a CPU without them bfloat16 runs in software, several times slower
+than float32: the run prints a warning line (:func:`coster_sumo.devices.slow_bf16_warning`) and
+trains anyway. Not the default: the shipped checkpoints were trained in float32, and a run resumes
+only in the precision it started in. The metrics record the CPU (``cpu``) next to the device.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ import torch
 from tqdm import tqdm
 
 from coster_sumo.atomic import write_json
-from coster_sumo.devices import device_name, training_device
+from coster_sumo.devices import cpu_description, device_name, slow_bf16_warning, training_device
 from coster_sumo.errors import InputError
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout.cache import CachedExamples, cached_examples
@@ -257,6 +259,10 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
         raise InputError(f"precision {tcfg.precision!r}: use one of {', '.join(PRECISIONS)}")
     out = Path(out)
     dev = training_device(device)
+    cpu = cpu_description()
+    slow = slow_bf16_warning(dev, tcfg.precision)
+    if slow:
+        print(slow, file=sys.stderr)
     torch.set_num_threads(num_threads(tcfg.threads))
     t_start = time.perf_counter()
     start_weights = None
@@ -363,7 +369,8 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
             "parameters": sum(p.numel() for p in model.parameters()),
             "epochs": history, "final": history[-1],
             "wall_time_s": time.perf_counter() - t_start, "torch": torch.__version__,
-            "threads": torch.get_num_threads(), "machine": platform.machine(), "device": device_name(dev),
+            "threads": torch.get_num_threads(), "machine": platform.machine(), "cpu": cpu,
+            "device": device_name(dev),
             "command": command if command is not None else " ".join(sys.argv),
             "units": {"ADE/FDE": "m", "loss": "negative ELBO per valid step (nats)", "time_s": "s"},
         }
