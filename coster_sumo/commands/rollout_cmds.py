@@ -50,7 +50,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--examples-per-epoch", type=int, default=20_000,
                        help="a fresh seeded subset of the training examples each epoch (0 = all; %(default)s)")
     train.add_argument("--val-fraction", type=float, default=0.1)
-    train.add_argument("--max-val-examples", type=int, default=500, help="held-out examples scored per epoch")
+    train.add_argument("--max-val-examples", type=int, default=500,
+                       help="held-out examples scored per epoch (%(default)s: enough for a run's trend, too few to "
+                            "compare two runs by a few percent: use eval rollout --max-examples 10000 for that)")
     train.add_argument("--threads", type=int, default=1,
                        help="torch threads (default 1: measured as fast as 2 on the 2-core development machine, "
                             "and the same on every machine; 0: one per core; the same seed and thread count give "
