@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from coster_sumo.atomic import atomic_path, write_json
-from coster_sumo.devices import device_name, training_device
+from coster_sumo.devices import cpu_description, device_name, training_device
 from coster_sumo.errors import InputError
 from coster_sumo.prior.bins import ATTRIBUTES
 from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
@@ -189,7 +189,7 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
                "num_train_scenes": len(train), "num_val_scenes": len(val),
                "train_config": asdict(tcfg), "model_config": mcfg.to_dict(),
                "num_parameters": sum(p.numel() for p in model.parameters()), "device": device_name(dev),
-               **(meta or {})}
+               "cpu": cpu_description(), **(meta or {})}
     save_prior(model, output, metrics={k: v for k, v in metrics.items() if k != "history"},
                meta=meta or {})
     write_json(output.with_suffix(".json"), metrics)
