@@ -2,7 +2,8 @@
 
 Batches are assembled on the CPU (numpy) and moved to the device; checkpoints are written for the
 CPU, so weights trained on a GPU load anywhere. The CPU stays the default: the shipped recipes and
-their numbers are the CPU's.
+their numbers are the CPU's. What the metrics record about the CPU (:func:`cpu_description`) and
+the warning for bfloat16 on a CPU that lacks it (:func:`slow_bf16_warning`) live here too.
 """
 
 from __future__ import annotations
