@@ -346,6 +346,29 @@ def test_training_is_deterministic_and_resumes(tmp_path, prepared):
     assert saved["best_epoch"] == metrics["best_epoch"]
 
 
+def test_training_resumes_on_another_thread_count_and_names_what_stops_a_resume(tmp_path, prepared):
+    threads = torch.get_num_threads()
+    lines: list[str] = []
+
+    def run(tcfg: TrainConfig, stop: int | None = None) -> dict:
+        log = stop_after_epoch(stop) if stop else lines.append
+        return train_prior(prepared[:2], prepared[2:], tmp_path / "p.pt", model_config=SMALL, train_config=tcfg,
+                           progress=False, log=log)
+
+    try:
+        with pytest.raises(StopTraining):
+            run(TrainConfig(epochs=2, batch_size=8, warmup_steps=2, threads=1), stop=1)
+        metrics = run(TrainConfig(epochs=2, batch_size=8, warmup_steps=2, threads=2))
+        assert len(metrics["history"]) == 2
+        assert any(line.startswith("resuming from") and "after epoch 1" in line for line in lines), lines
+        lines.clear()
+        run(TrainConfig(epochs=2, batch_size=8, warmup_steps=2, threads=2, lr=0.01))
+        ignored = [line for line in lines if line.startswith("ignoring")]
+        assert len(ignored) == 1 and "(lr)" in ignored[0], lines
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_training_device_cpu_and_auto_without_a_gpu_give_the_same_weights(tmp_path, prepared):
     tcfg = TrainConfig(epochs=1, batch_size=8, warmup_steps=2)
     for name, device in (("a.pt", "cpu"), ("b.pt", "cpu" if torch.cuda.is_available() else "auto")):

@@ -53,6 +53,22 @@ def test_train_resume_and_determinism(dataset, tmp_path):
     assert train(dataset, a, "--epochs", "3", "--lr", "0.1") == 2
 
 
+def test_resume_on_another_thread_count_goes_on_and_a_refusal_names_the_setting(dataset, tmp_path, capsys):
+    """Moving a run to another machine changes its thread count: it resumes. A setting that
+    changes the run is refused on one line that says which one."""
+    a = tmp_path / "a.pt"
+    assert train(dataset, a, "--epochs", "1", "--threads", "1") == 0
+    assert train(dataset, a, "--epochs", "2", "--threads", "2") == 0
+    metrics = json.loads((tmp_path / "a.json").read_text())
+    assert [e["epoch"] for e in metrics["epochs"]] == [1, 2]
+    assert metrics["threads"] == 2
+    capsys.readouterr()
+    assert train(dataset, a, "--epochs", "3", "--threads", "1", "--seed", "5", "--lr", "0.1") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "seed 0 -> 5" in err[0] and "lr 0.001 -> 0.1" in err[0], err
+    assert "threads" not in err[0]
+
+
 def test_device_cpu_and_auto_without_a_gpu_are_the_default_recipe(dataset, tmp_path):
     a, b = tmp_path / "a.pt", tmp_path / "b.pt"
     assert train(dataset, a, "--epochs", "1") == 0

@@ -8,7 +8,9 @@ fixed (``default_rng([seed, 10**6])``).
 
 Resuming: after every epoch the full training state (weights, optimiser, epoch, history, best
 weights) is written atomically to ``state_path``; a later run with the same output resumes from it,
-so an interrupted run loses at most one epoch and ends with the same weights as an uninterrupted one.
+so an interrupted run loses at most one epoch and ends with the same weights as an uninterrupted one
+(when it resumes on the same thread count; it may resume on another, which reorders floating-point
+sums).
 """
 
 from __future__ import annotations
@@ -110,7 +112,12 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
     start_epoch, best, best_state = 0, math.inf, None
     if resume and state_path.is_file():
         state = torch.load(state_path, map_location="cpu", weights_only=True)
-        if state.get("config") == mcfg.to_dict() and state.get("train_config") == asdict(tcfg):
+        # the thread count only reorders floating-point sums: a run may resume on another one
+        saved_tc = {**dict(state.get("train_config") or {}), "threads": tcfg.threads}
+        differ = [k for k, v in asdict(tcfg).items() if saved_tc.get(k) != v]
+        if state.get("config") != mcfg.to_dict():
+            differ.insert(0, "model settings")
+        if not differ:
             model.load_state_dict(state["model"])
             opt.load_state_dict(state["optimizer"])
             start_epoch, best = int(state["epoch"]), float(state["best"])
@@ -119,7 +126,7 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
             if log:
                 log(f"resuming from {state_path} after epoch {start_epoch}")
         elif log:
-            log(f"ignoring {state_path}: it was written with another configuration")
+            log(f"ignoring {state_path}: it was written with another configuration ({', '.join(differ)})")
     # every epoch has the same number of samples (centres_per_step per scene step with a centre)
     num_samples = len(epoch_samples(train, np.random.default_rng(0), tcfg.centres_per_step))
     steps_per_epoch = max(1, math.ceil(num_samples / tcfg.batch_size))

@@ -11,7 +11,8 @@ latent noise of epoch ``e`` depend only on ``(seed, e)``. After every epoch the 
 (``OUT``), the metrics (``OUT`` with suffix ``.json``) and a training state (``OUT.state``:
 weights, optimiser state, history) are written atomically. Rerunning the same command resumes from
 the state (``--restart`` ignores it), also to more epochs than first asked for, and gives the same
-weights as an uninterrupted run; a state from other data or settings is an error.
+weights as an uninterrupted run (on the same thread count); a state from other data or settings is
+an error that names them.
 
 Speed (the recipe since the fast-training change; see ``bench/bench_training.py``): the inputs of
 every example are built once per corpus into memory-mapped arrays (:mod:`coster_sumo.rollout.cache`,
@@ -81,7 +82,8 @@ class TrainConfig:
         eval_samples: samples per context for minADE / minFDE.
         max_val_examples: held-out examples scored per epoch (seeded subset).
         threads: torch CPU threads (0 = one per core). The same seed and thread count give the
-            same weights.
+            same weights; a run may be resumed on another thread count (then it is no longer
+            bit-identical to an uninterrupted one).
         lr_drop_epoch: from this epoch on (1-based) the learning rate is ``lr x lr_drop_factor``
             (0: never). A run at a constant rate whose held-out error has stopped falling but
             jumps from epoch to epoch is resumed with a drop after its last epoch: a drop that
@@ -169,23 +171,34 @@ def learning_rate(step: int, tcfg: TrainConfig, epoch: int = 0) -> float:
     return tcfg.lr
 
 
-# TrainConfig fields that may differ between a training state and the command that resumes it
-_FREE_ON_RESUME = ("epochs", "lr_drop_epoch", "lr_drop_factor")
+# TrainConfig fields that may differ between a training state and the command that resumes it.
+# The thread count changes only the order of floating-point sums: a run resumed on another
+# number of threads (or another machine) goes on, but is no longer bit-identical to one that was
+# never interrupted.
+_FREE_ON_RESUME = ("epochs", "lr_drop_epoch", "lr_drop_factor", "threads")
 
 
-def same_run_so_far(saved: dict[str, Any], now: TrainConfig, epochs_done: int) -> bool:
-    """Whether a training state with settings ``saved`` that ran ``epochs_done`` epochs is what
-    ``now`` would have done up to there: every setting equal, except the number of epochs and a
-    learning-rate drop that neither of them had reached by then (both schedules agree so far)."""
+def resume_conflicts(saved: dict[str, Any], now: TrainConfig, epochs_done: int) -> list[str]:
+    """The settings in which a training state with settings ``saved`` that ran ``epochs_done``
+    epochs differs from what ``now`` would have done up to there, as ``name saved -> now``. Free
+    to differ: the number of epochs, the thread count, and a learning-rate drop that neither of
+    them had reached by then (both schedules agree so far). Empty: the state can be resumed."""
     saved = {"warmup_steps": 0, "lr_drop_epoch": 0, "lr_drop_factor": 0.1, "precision": "fp32", "init": "",
              **saved}  # older states
     cur = dataclasses.asdict(now)
-    if any(saved.get(k) != v for k, v in cur.items() if k not in _FREE_ON_RESUME):
-        return False
+    out = [f"{k} {saved.get(k)!r} -> {v!r}" for k, v in cur.items()
+           if k not in _FREE_ON_RESUME and saved.get(k) != v]
     drops = [(int(t["lr_drop_epoch"]), float(t["lr_drop_factor"])) for t in (saved, cur)]
-    if drops[0] == drops[1]:
-        return True
-    return all(e == 0 or e > epochs_done for e, _ in drops)
+    if drops[0] != drops[1] and not all(e == 0 or e > epochs_done for e, _ in drops):
+        out.append(f"learning-rate drop (epoch, factor) {drops[0]} -> {drops[1]}, "
+                   f"after {epochs_done} epochs had run")
+    return out
+
+
+def same_run_so_far(saved: dict[str, Any], now: TrainConfig, epochs_done: int) -> bool:
+    """Whether a training state with settings ``saved`` that ran ``epochs_done`` epochs can be
+    resumed by ``now`` (:func:`resume_conflicts` finds nothing)."""
+    return not resume_conflicts(saved, now, epochs_done)
 
 
 def _epoch_rows(n: int, tcfg: TrainConfig, epoch: int) -> np.ndarray:
@@ -301,9 +314,13 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
         state = read_torch_file(rpath)
         if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
             raise InputError(f"{rpath}: not a rollout training state")
-        same = same_run_so_far(dict(state.get("train_config", {})), tcfg, int(state.get("epoch", 0)))
-        if state.get("config") != cfg.to_dict() or not same or state.get("data") != str(Path(data).resolve()):
-            raise InputError(f"{rpath}: the run to resume used other data or settings; "
+        conflicts = resume_conflicts(dict(state.get("train_config", {})), tcfg, int(state.get("epoch", 0)))
+        if state.get("config") != cfg.to_dict():
+            conflicts.insert(0, "the model settings")
+        if state.get("data") != str(Path(data).resolve()):
+            conflicts.insert(0, f"data {state.get('data')} -> {Path(data).resolve()}")
+        if conflicts:
+            raise InputError(f"{rpath}: the run to resume used other data or settings ({'; '.join(conflicts)}); "
                              "start afresh with --restart (or write to another -o)")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
