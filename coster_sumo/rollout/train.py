@@ -88,7 +88,7 @@ class TrainConfig:
             (0: never). A run at a constant rate whose held-out error has stopped falling but
             jumps from epoch to epoch is resumed with a drop after its last epoch: a drop that
             only concerns epochs not yet run is not a change of the run's settings (see
-            :func:`same_run_so_far`).
+            :func:`resume_conflicts`).
         lr_drop_factor: see ``lr_drop_epoch``.
         precision: "fp32", or "bf16": the training forward pass and loss run under CPU autocast
             to bfloat16 (matrix products in bfloat16; weights, gradients and the optimiser state
@@ -193,12 +193,6 @@ def resume_conflicts(saved: dict[str, Any], now: TrainConfig, epochs_done: int) 
         out.append(f"learning-rate drop (epoch, factor) {drops[0]} -> {drops[1]}, "
                    f"after {epochs_done} epochs had run")
     return out
-
-
-def same_run_so_far(saved: dict[str, Any], now: TrainConfig, epochs_done: int) -> bool:
-    """Whether a training state with settings ``saved`` that ran ``epochs_done`` epochs can be
-    resumed by ``now`` (:func:`resume_conflicts` finds nothing)."""
-    return not resume_conflicts(saved, now, epochs_done)
 
 
 def _epoch_rows(n: int, tcfg: TrainConfig, epoch: int) -> np.ndarray:
