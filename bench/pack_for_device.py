@@ -8,8 +8,8 @@ carried, and reaches no package index. The corpus is ten times that (its clips h
 2 Hz (:func:`coster_sumo.scene.resample`, the same steps the training keeps: the features are
 those of the full clips) into ``OUT/scenes`` until ``--max-mb`` is reached. Training and
 validation files keep their split (it hashes the file name). It also downloads the wheels of the
-two packages the CLI imports that the machine's Python 3.12 image lacks (shapely, defusedxml) into
-``OUT/whl``, adds ``/OUT/`` to ``.git/info/exclude`` and writes ``OUT/pack.json`` (what was packed).
+packages the CLI imports that the machine's Python 3.12 image lacks (shapely, defusedxml, and
+google-crc32c for the WOMD readers that ``eval rollout`` imports) into ``OUT/whl``, adds ``/OUT/`` to ``.git/info/exclude`` and writes ``OUT/pack.json`` (what was packed).
 ``models/rollout.md`` ("Training on a lent GPU") gives the device command that uses it.
 """
 
@@ -30,7 +30,7 @@ from coster_sumo.scene import load_scene, resample, save_scene
 REPO = Path(__file__).resolve().parents[1]
 # what the device's image lacks among the CLI's imports (its torch, numpy, scipy, matplotlib and
 # tqdm are there): the versions this project's CI installs for Python 3.11, built for 3.12
-WHEELS = ("shapely==2.2.0", "defusedxml==0.7.1")
+WHEELS = ("shapely==2.2.0", "defusedxml==0.7.1", "google-crc32c==1.9.0")
 PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64")
 
 
