@@ -9,8 +9,10 @@ carried, and reaches no package index. The corpus is ten times that (its clips h
 those of the full clips) into ``OUT/scenes`` until ``--max-mb`` is reached. Training and
 validation files keep their split (it hashes the file name). It also downloads the wheels of the
 packages the CLI imports that the machine's Python 3.12 image lacks (shapely, defusedxml, and
-google-crc32c for the WOMD readers that ``eval rollout`` imports) into ``OUT/whl``, adds ``/OUT/`` to ``.git/info/exclude`` and writes ``OUT/pack.json`` (what was packed).
-``models/rollout.md`` ("Training on a lent GPU") gives the device command that uses it.
+google-crc32c for the WOMD readers that ``eval rollout`` imports) into ``OUT/whl``, adds
+``/OUT/`` to ``.git/info/exclude`` and writes ``OUT/pack.json`` (what was packed).
+``bench/device_rollout.sh`` is the device command that uses it (``models/rollout.md``, "Training
+on a lent GPU").
 """
 
 from __future__ import annotations
