@@ -276,3 +276,21 @@ def test_errors_by_neighbours_bucket_the_contexts():
     out = by_neighbours(*ade_fde(pred, truth, np.ones((4, 3), bool)), np.array([0, 2, 12, 3]))
     assert [(b["neighbours"], b["contexts"]) for b in out] == [("0", 1), ("1-3", 2), ("10+", 1)]
     assert [b["minFDE"] for b in out] == [1.0, 3.0, 3.0]
+
+
+def test_init_may_widen_the_attention_radius_and_nothing_that_sizes_a_weight(dataset, tmp_path, capsys):
+    """--init fine-tunes with another --neighbor-radius (a mask, no weights); the radius is
+    written into the new checkpoint, cannot pass the 80 m within which neighbours are kept, and
+    a setting that sizes weights still refuses the start on one line."""
+    base = tmp_path / "base.pt"
+    assert train(dataset, base, "--epochs", "1") == 0
+    wide = tmp_path / "wide.pt"
+    assert train(dataset, wide, "--epochs", "1", "--init", str(base), "--neighbor-radius", "70") == 0
+    assert load_model(wide).cfg.neighbor_radius_m == 70.0 and load_model(base).cfg.neighbor_radius_m == 50.0
+    capsys.readouterr()
+    assert train(dataset, tmp_path / "far.pt", "--epochs", "1", "--neighbor-radius", "90") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "90 m" in err[0] and "80 m" in err[0], err
+    assert train(dataset, tmp_path / "w.pt", "--epochs", "1", "--init", str(base), "--latent", "8") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "latent" in err[0] and "neighbor_radius_m" not in err[0], err

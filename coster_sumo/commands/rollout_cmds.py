@@ -47,6 +47,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--heads", type=int, default=8, help="attention heads (%(default)s)")
     train.add_argument("--latent", type=int, default=32, help="per-step latent size (%(default)s)")
     train.add_argument("--kl-weight", type=float, default=1.0, help="weight of the KL term (1 = ELBO)")
+    train.add_argument("--neighbor-radius", type=float, default=50.0, metavar="M",
+                       help="dynamic surrounding attention sees the neighbours within M metres of the sample "
+                            "at every step (%(default)s; at most the 80 m within which they are kept)")
     train.add_argument("--examples-per-epoch", type=int, default=20_000,
                        help="a fresh seeded subset of the training examples each epoch (0 = all; %(default)s)")
     train.add_argument("--val-fraction", type=float, default=0.1)
@@ -69,9 +72,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--no-cache", action="store_true",
                        help="build the inputs of every batch from the scenes (slow; no files written)")
     train.add_argument("--init", default=None, metavar="CHECKPOINT",
-                       help="start from this rollout checkpoint's weights (same model settings) with a fresh "
-                            "optimiser: continue a finished run whose training state is gone, or fine-tune "
-                            "the shipped weights on your own traffic")
+                       help="start from this rollout checkpoint's weights (same model settings, except "
+                            "--neighbor-radius and --kl-weight) with a fresh optimiser: continue a finished run "
+                            "whose training state is gone, or fine-tune the shipped weights on your own traffic")
     train.add_argument("--restart", action="store_true", help="ignore an existing training state")
     train.set_defaults(func=run_train)
 
@@ -144,7 +147,8 @@ def run_train(args: argparse.Namespace) -> int:
     if not 0.0 < args.lr_drop_factor <= 1.0:
         raise InputError(f"--lr-drop-factor must be in (0, 1], not {args.lr_drop_factor}")
     cfg = RolloutConfig(hidden=args.hidden, heads=args.heads, latent=args.latent, use_dsa=not args.no_dsa,
-                        map_every_step=not args.no_map_steps, kl_weight=args.kl_weight)
+                        map_every_step=not args.no_map_steps, kl_weight=args.kl_weight,
+                        neighbor_radius_m=args.neighbor_radius)
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                        val_fraction=args.val_fraction, examples_per_epoch=args.examples_per_epoch,
                        max_val_examples=args.max_val_examples, threads=args.threads,

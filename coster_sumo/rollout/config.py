@@ -58,6 +58,9 @@ class RolloutConfig:
     free_nats: float = 0.0
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.neighbor_radius_m <= self.neighbor_select_radius_m:
+            raise InputError(f"rollout config: neighbour radius {self.neighbor_radius_m:g} m must be above 0 and "
+                             f"at most the {self.neighbor_select_radius_m:g} m within which neighbours are kept")
         if self.hidden % self.heads:
             raise InputError(f"rollout config: hidden {self.hidden} is not divisible by heads {self.heads}")
         if self.max_horizon < 1:
@@ -82,3 +85,10 @@ class RolloutConfig:
             return cls(**d)
         except TypeError as exc:
             raise InputError(f"bad rollout config: {exc}") from None
+
+
+# Settings that size no weight and leave each weight's meaning alone: a run that starts from a
+# checkpoint's weights (``train rollout --init``) may change them. The radius only masks which of
+# the cached neighbours (those within ``neighbor_select_radius_m``) dynamic surrounding attention
+# sees; the KL weight only weighs a term of the loss.
+FREE_ON_INIT = ("neighbor_radius_m", "kl_weight")

@@ -56,6 +56,7 @@ from coster_sumo.errors import InputError
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout.cache import CachedExamples, cached_examples
 from coster_sumo.rollout.checkpoint import atomic_torch_save, load_checkpoint, read_torch_file, save_checkpoint
+from coster_sumo.rollout.config import FREE_ON_INIT
 from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
 from coster_sumo.rollout.evaluate import cvae_errors
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
@@ -249,7 +250,8 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     ``cache``: read the examples from the feature cache (under ``cache_dir``, default
     ``DATASET/.cache``); False builds them per batch (slow; the same numbers).
     ``init``: a rollout checkpoint to start from instead of freshly drawn weights; its config must
-    be ``cfg`` (checked before any data is read). Its sha256 goes into ``tcfg.init``, so that a
+    be ``cfg`` but for the settings in :data:`~coster_sumo.rollout.config.FREE_ON_INIT` (checked
+    before any data is read). Its sha256 goes into ``tcfg.init``, so that a
     training state resumes only with the same starting weights.
     ``device``: where the model trains (:func:`coster_sumo.devices.training_device`: "cpu", "cuda", "cuda:N" or
     "auto"); batches are assembled on the CPU and moved there. Checkpoints hold CPU tensors and
@@ -276,8 +278,8 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     if init is not None:
         start, _ = load_checkpoint(init)
         want, have = cfg.to_dict(), start.cfg.to_dict()
-        if want != have:
-            diff = sorted(k for k, v in want.items() if have.get(k) != v)
+        diff = sorted(k for k, v in want.items() if have.get(k) != v and k not in FREE_ON_INIT)
+        if diff:
             raise InputError(f"{init}: its model settings differ from this run's ({', '.join(diff)}); "
                              "give the same --hidden/--heads/--latent/--no-dsa/... as it was trained with")
         start_weights = start.state_dict()
