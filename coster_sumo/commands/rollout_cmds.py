@@ -13,6 +13,7 @@ from typing import Any
 
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
+from coster_sumo.rollout.config import RolloutConfig
 
 DEFAULT_CHECKPOINT = "models/rollout.pt"
 DEFAULT_CHECKPOINT_NO_DSA = "models/rollout_nodsa.pt"
@@ -47,9 +48,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--heads", type=int, default=8, help="attention heads (%(default)s)")
     train.add_argument("--latent", type=int, default=32, help="per-step latent size (%(default)s)")
     train.add_argument("--kl-weight", type=float, default=1.0, help="weight of the KL term (1 = ELBO)")
-    train.add_argument("--neighbor-radius", type=float, default=50.0, metavar="M",
+    train.add_argument("--neighbor-radius", type=float, default=RolloutConfig.neighbor_radius_m, metavar="M",
                        help="dynamic surrounding attention sees the neighbours within M metres of the sample "
-                            "at every step (%(default)s; at most the 80 m within which they are kept)")
+                            f"at every step (%(default)s; at most the {RolloutConfig.neighbor_select_radius_m:g} m "
+                            "within which they are kept)")
     train.add_argument("--examples-per-epoch", type=int, default=20_000,
                        help="a fresh seeded subset of the training examples each epoch (0 = all; %(default)s)")
     train.add_argument("--val-fraction", type=float, default=0.1)
@@ -138,7 +140,6 @@ def run_train(args: argparse.Namespace) -> int:
         # sibling is descheduled made two-thread steps 4-5x slower than one thread; waiting
         # passively costs little when the machine is idle
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    from coster_sumo.rollout.model import RolloutConfig
     from coster_sumo.rollout.train import TrainConfig, train_rollout
 
     if args.epochs < 1 or args.batch_size < 1 or args.warmup_steps < 0 or args.threads < 0 or args.lr_drop_epoch < 0:
@@ -225,7 +226,6 @@ def run_eval(args: argparse.Namespace) -> int:
     from coster_sumo.rollout.checkpoint import load_model
     from coster_sumo.rollout.data import build_examples
     from coster_sumo.rollout.evaluate import evaluate_rollout
-    from coster_sumo.rollout.model import RolloutConfig
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
