@@ -110,12 +110,14 @@ def test_training_on_a_gpu_writes_a_cpu_checkpoint_and_resumes(dataset, tmp_path
     assert [e["epoch"] for e in json.loads((tmp_path / "g.json").read_text())["epochs"]] == [1, 2]
     # evaluation draws the same noise on either device; only the float kernels differ
     res = {}
-    for where in ("cpu", device):
+    for where in dict.fromkeys(("cpu", device)):  # the CPU once where it is the device
         path = tmp_path / f"eval_{where}.json"
         assert main(["-q", "eval", "rollout", "--data", str(dataset), "--split", "all", "--checkpoint", str(out),
                      "--device", where, "--json", str(path)]) == 0
         res[where] = json.loads(path.read_text())["methods"]["cvae_dsa"]
-    assert res[device]["minADE"] == pytest.approx(res["cpu"]["minADE"], rel=1e-2)
+    assert res["cpu"]["minADE"] > 0
+    if device != "cpu":
+        assert res[device]["minADE"] == pytest.approx(res["cpu"]["minADE"], rel=1e-2)
 
 
 def test_bf16_training_keeps_float32_weights_and_resumes_only_in_bf16(dataset, tmp_path):
