@@ -48,7 +48,7 @@ train() {  # NAME FLAGS... : the project's command, stopped at the deadline
 
 one() {  # NAME DROP_FRACTION FLAGS...
   local name=$1 frac=$2; shift 2
-  local flags="" rc=1
+  local flags="" rc
   for f in "--device $DEVICE --precision bf16" "--device $DEVICE --precision fp32" "--device cpu --precision ${CPU_PREC:-bf16}"; do
     echo "== epoch 1 with $f ($(( $(date +%s) - T0 )) s)" >> $L/$name.log
     train $name $f --epochs 1 "$@"; rc=$?
@@ -59,7 +59,7 @@ one() {  # NAME DROP_FRACTION FLAGS...
   [ -n "$flags" ] || return
   local plan
   plan=$(python3 -c "
-import json, math, time
+import json, time
 t1 = json.load(open('$W/$name.json'))['epochs'][0]['time_s']
 left = $END - time.time() - 25
 more = int(left * 0.95 // t1)
@@ -69,7 +69,8 @@ print(e, d, round(t1, 1))")
   set -- $plan "$@"
   local e=$1 d=$2 t1=$3; shift 3
   echo "== epoch 1 took $t1 s; going on to $e epochs, lr drop at $d ($(( $(date +%s) - T0 )) s)" >> $L/$name.log
-  [ $e -gt 1 ] && train $name $flags --epochs $e --lr-drop-epoch $d "$@"
+  [ $e -gt 1 ] || return
+  train $name $flags --epochs $e --lr-drop-epoch $d "$@"
   echo "== stopped with rc=$? after $(( $(date +%s) - T0 )) s" >> $L/$name.log
 }
 
