@@ -46,6 +46,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -85,6 +86,7 @@ class Outcome:
     exit_code: int
     problems: list[str]
     error_lines: int
+    peak_mb: int = 0  # peak resident memory of the CLI process that handled the input
 
 
 # ----------------------------------------------------------------------------- bases (cropped real data)
@@ -568,12 +570,7 @@ def run_convert_batch(batch: list[FuzzInput], good: Path, workdir: Path, timeout
     pos = len(paths) // 2
     argv = [_python(), "-m", "coster_sumo", "-q", "convert", "-o", str(out),
             *map(str, paths[:pos]), str(good), *map(str, paths[pos:])]
-    try:
-        proc = subprocess.run(argv, capture_output=True, text=True, errors="replace", timeout=timeout,
-                              env=_env(), cwd=workdir)
-        rc, stderr = proc.returncode, proc.stderr
-    except subprocess.TimeoutExpired:
-        rc, stderr = -9, "TIMEOUT"
+    rc, _, stderr, peak = run_measured(argv, timeout, workdir)
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
     after = _tree(workdir, out)
     created = sorted(after - before)
@@ -597,6 +594,8 @@ def run_convert_batch(batch: list[FuzzInput], good: Path, workdir: Path, timeout
         batch_problems.append(f"output folders not in summary.json: {sorted(present ^ listed)[:3]}")
     if created:
         batch_problems.append(f"files created outside OUT: {created[:3]}")
+    if peak > MEMORY_LIMIT_MB:
+        batch_problems.append(f"memory: the CLI process peaked at {peak} MB")
     outcomes = []
     for inp in batch:
         problems = list(batch_problems)
@@ -625,8 +624,49 @@ def run_convert_batch(batch: list[FuzzInput], good: Path, workdir: Path, timeout
         else:  # any: refused with one line, or converted
             if str(inp.path) not in converted and len(mine) != 1:
                 problems.append(f"neither converted nor one error line ({len(mine)})")
-        outcomes.append(Outcome(inp, rc, problems, len(mine)))
+        outcomes.append(Outcome(inp, rc, problems, len(mine), peak))
     return outcomes
+
+
+def run_measured(argv: list[str], timeout: float, cwd: Path, stdin: str | None = None
+                 ) -> tuple[int, str, str, int]:
+    """Run ``argv``; return exit code (-9 after ``timeout``), stdout, stderr and its own peak RSS [MB].
+
+    The peak comes from ``wait4`` on this one process (its waited-for children included), so memory
+    used by earlier processes of the same harness, or of the test session around it, does not count.
+    """
+    proc = subprocess.Popen(argv, stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, errors="replace",
+                            env=_env(), cwd=cwd)
+    streams: dict[str, str] = {}
+
+    def drain(name: str, pipe) -> None:
+        streams[name] = pipe.read()
+
+    readers = [threading.Thread(target=drain, args=(n, p), daemon=True)
+               for n, p in (("out", proc.stdout), ("err", proc.stderr))]
+    for t in readers:
+        t.start()
+    if stdin is not None:
+        assert proc.stdin is not None
+        try:
+            proc.stdin.write(stdin)
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
+    killer = threading.Timer(timeout, proc.kill)
+    killer.start()
+    try:
+        _, status, usage = os.wait4(proc.pid, 0)
+    finally:
+        killer.cancel()
+    timed_out = os.WIFSIGNALED(status) and os.WTERMSIG(status) == 9
+    proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
+    for t in readers:
+        t.join()
+    rc = -9 if timed_out else proc.returncode
+    err = "TIMEOUT" if timed_out else streams.get("err", "")
+    return rc, streams.get("out", ""), err, int(usage.ru_maxrss / 1024)
 
 
 DRIVER = r"""
@@ -651,12 +691,11 @@ print(json.dumps(results))
 def run_replay_batch(batch: list[FuzzInput], workdir: Path, timeout: float = 600) -> list[Outcome]:
     """``coster-sumo replay`` on each damaged configuration (one driver process calling the CLI's main)."""
     argvs = [["-q", "replay", str(i.path), "-o", str(i.path.parent / "replay-out")] for i in batch]
+    rc, stdout, stderr, peak = run_measured([_python(), "-c", DRIVER], timeout, workdir, json.dumps(argvs))
     try:
-        proc = subprocess.run([_python(), "-c", DRIVER], input=json.dumps(argvs), capture_output=True,
-                              text=True, errors="replace", timeout=timeout, env=_env(), cwd=workdir)
-        results = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.returncode == 0 else None
-        crash = "" if results is not None else proc.stderr[-300:]
-    except (subprocess.TimeoutExpired, json.JSONDecodeError, IndexError) as exc:
+        results = json.loads(stdout.strip().splitlines()[-1]) if rc == 0 else None
+        crash = "" if results is not None else stderr[-300:]
+    except (json.JSONDecodeError, IndexError) as exc:
         results, crash = None, str(exc)
     outcomes = []
     for k, inp in enumerate(batch):
@@ -676,7 +715,9 @@ def run_replay_batch(batch: list[FuzzInput], workdir: Path, timeout: float = 600
             problems.append(f"expected one error line naming {inp.names}, got {lines[:2]}")
         if (inp.path.parent / "replay-out").exists() or (inp.path.parent / "replay").exists():
             problems.append("output written")
-        outcomes.append(Outcome(inp, rc, problems, len(named)))
+        if peak > MEMORY_LIMIT_MB:
+            problems.append(f"memory: the replay driver process peaked at {peak} MB")
+        outcomes.append(Outcome(inp, rc, problems, len(named), peak))
     return outcomes
 
 
@@ -743,10 +784,6 @@ def fuzz(count: int, seed: int, workdir: Path, batch_size: int = 40, solo_every:
             for o in res:
                 if o.input.kind == "crafted":
                     o.problems.append("sentinel file created")
-        peak = _peak_mb("children")
-        if peak > MEMORY_LIMIT_MB:  # the largest child so far: once over, every later batch fails too
-            for o in res:
-                o.problems.append(f"memory: a CLI process peaked at {peak} MB")
         for k, o in enumerate(res):
             if o.input.expect == "refused" and (b * batch_size + k) % solo_every == 0:
                 o.problems += run_solo(o.input, bdir)
@@ -754,7 +791,7 @@ def fuzz(count: int, seed: int, workdir: Path, batch_size: int = 40, solo_every:
         if log:
             bad = sum(bool(o.problems) for o in res)
             log(f"batch {b + 1}/{n_batches}: {len(res)} scene inputs, {bad} bad, {time.perf_counter() - t0:.0f} s, "
-                f"peak RSS: children {_peak_mb('children')} MB, harness {_peak_mb('self')} MB")
+                f"peak RSS: CLI {max(o.peak_mb for o in res)} MB, harness {_peak_mb()} MB")
         escaped = sorted(p.name for p in workdir.iterdir() if p.name not in ("good", "xml")
                          and not p.name.startswith("batch"))
         if escaped:
@@ -778,11 +815,11 @@ def fuzz(count: int, seed: int, workdir: Path, batch_size: int = 40, solo_every:
     return outcomes
 
 
-def _peak_mb(who: str) -> int:
-    """Peak resident memory [MB] of the largest finished child process so far, or of this process."""
+def _peak_mb() -> int:
+    """Peak resident memory [MB] of this process (the harness)."""
     import resource
 
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN if who == "children" else resource.RUSAGE_SELF)
+    usage = resource.getrusage(resource.RUSAGE_SELF)
     return int(usage.ru_maxrss / 1024)
 
 

@@ -412,3 +412,18 @@ def test_no_module_parses_xml_without_defusedxml():
     for path in [*REPO.joinpath("coster_sumo").rglob("*.py"), *REPO.joinpath("converters").rglob("*.py")]:
         offenders += [f"{path.relative_to(REPO)}: {m.group(0)}" for m in plain.finditer(path.read_text())]
     assert not offenders
+
+
+def test_fuzz_memory_check_measures_each_cli_process_alone(tmp_path):
+    """The fuzz harness's memory figure is the one process's own peak, not the largest child of the
+    whole test session (a training run earlier in the same pytest process once failed every input)."""
+    from tests.fuzz import run_measured
+
+    big = "x = bytearray(400 * 2**20); x[::4096] = b'1' * len(x[::4096]); print('ok')"
+    rc, out, _, peak_big = run_measured([sys.executable, "-c", big], 60, tmp_path)
+    assert (rc, out.strip()) == (0, "ok") and peak_big >= 400
+    rc, out, err, peak_small = run_measured([sys.executable, "-c", "import sys; sys.stderr.write('e'); print(input())"],
+                                            60, tmp_path, stdin="in\n")
+    assert (rc, out.strip(), err) == (0, "in", "e") and peak_small < 100
+    rc, _, err, _ = run_measured([sys.executable, "-c", "import time; time.sleep(30)"], 0.5, tmp_path)
+    assert (rc, err) == (-9, "TIMEOUT")
