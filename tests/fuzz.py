@@ -46,7 +46,6 @@ import struct
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -628,45 +627,45 @@ def run_convert_batch(batch: list[FuzzInput], good: Path, workdir: Path, timeout
     return outcomes
 
 
+LAUNCHER = r"""
+import os, resource, signal, subprocess, sys
+rc = subprocess.call(sys.argv[2:])
+with open(sys.argv[1], "w") as f:
+    f.write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss))
+if rc < 0:
+    signal.signal(-rc, signal.SIG_DFL)
+    os.kill(os.getpid(), -rc)
+sys.exit(rc)
+"""
+
+
 def run_measured(argv: list[str], timeout: float, cwd: Path, stdin: str | None = None
                  ) -> tuple[int, str, str, int]:
     """Run ``argv``; return exit code (-9 after ``timeout``), stdout, stderr and its own peak RSS [MB].
 
-    The peak comes from ``wait4`` on this one process (its waited-for children included), so memory
-    used by earlier processes of the same harness, or of the test session around it, does not count.
+    A process's peak resident memory on Linux includes the memory of the process it was forked
+    from, up to its ``exec``: measured straight from the test session (over 1 GB once torch is
+    loaded and models were trained), every CLI process looked that large. So a small launcher
+    process starts the command and reports the peak of that one child.
     """
-    proc = subprocess.Popen(argv, stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
+    fd, peak_file = tempfile.mkstemp(prefix="coster-fuzz-peak-")
+    os.close(fd)
+    proc = subprocess.Popen([_python(), "-c", LAUNCHER, peak_file, *argv],
+                            stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, errors="replace",
-                            env=_env(), cwd=cwd)
-    streams: dict[str, str] = {}
-
-    def drain(name: str, pipe) -> None:
-        streams[name] = pipe.read()
-
-    readers = [threading.Thread(target=drain, args=(n, p), daemon=True)
-               for n, p in (("out", proc.stdout), ("err", proc.stderr))]
-    for t in readers:
-        t.start()
-    if stdin is not None:
-        assert proc.stdin is not None
-        try:
-            proc.stdin.write(stdin)
-            proc.stdin.close()
-        except BrokenPipeError:
-            pass
-    killer = threading.Timer(timeout, proc.kill)
-    killer.start()
+                            env=_env(), cwd=cwd, start_new_session=True)
     try:
-        _, status, usage = os.wait4(proc.pid, 0)
+        out, err = proc.communicate(stdin, timeout=timeout)
+        rc = proc.returncode
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, 9)  # the launcher and the command under it
+        proc.communicate()
+        rc, out, err = -9, "", "TIMEOUT"
+    try:
+        peak = int(Path(peak_file).read_text() or 0) // 1024
     finally:
-        killer.cancel()
-    timed_out = os.WIFSIGNALED(status) and os.WTERMSIG(status) == 9
-    proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
-    for t in readers:
-        t.join()
-    rc = -9 if timed_out else proc.returncode
-    err = "TIMEOUT" if timed_out else streams.get("err", "")
-    return rc, streams.get("out", ""), err, int(usage.ru_maxrss / 1024)
+        os.unlink(peak_file)
+    return rc, out, err, peak
 
 
 DRIVER = r"""
