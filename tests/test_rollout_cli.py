@@ -188,6 +188,11 @@ def test_eval_rollout_reports_every_method(dataset, tmp_path):
     assert {b["neighbours"] for b in buckets} <= {"0", "1-3", "4-9", "10+"}
     assert sum(b["contexts"] * b["minFDE"] for b in buckets) / n == pytest.approx(
         report["methods"]["cvae_dsa"]["minFDE"])
+    # and with or without a neighbour in the lane close ahead or behind: the two groups likewise
+    groups = report["methods"]["cvae_dsa"]["by_lane_neighbour"]
+    assert {g["lane_neighbour"] for g in groups} <= {"yes", "no"} and sum(g["contexts"] for g in groups) == n
+    assert sum(g["contexts"] * g["minFDE"] for g in groups) / n == pytest.approx(
+        report["methods"]["cvae_dsa"]["minFDE"])
     # synthetic agents follow their lanes at constant speed: the lane baseline beats straight lines
     cl, cv = report["methods"]["constant_lane"], report["methods"]["constant_velocity"]
     assert cl["minADE"] < cv["minADE"]
@@ -278,6 +283,31 @@ def test_errors_by_neighbours_bucket_the_contexts():
     out = by_neighbours(*ade_fde(pred, truth, np.ones((4, 3), bool)), np.array([0, 2, 12, 3]))
     assert [(b["neighbours"], b["contexts"]) for b in out] == [("0", 1), ("1-3", 2), ("10+", 1)]
     assert [b["minFDE"] for b in out] == [1.0, 3.0, 3.0]
+
+
+def test_lane_neighbour_is_an_agent_close_ahead_or_behind_in_the_same_direction():
+    import numpy as np
+
+    from coster_sumo.rollout.config import RolloutConfig
+    from coster_sumo.rollout.evaluate import by_lane_neighbour, has_lane_neighbour
+
+    scale = RolloutConfig().pos_scale_m
+    # (along, aside [m], cos of the relative heading) of one neighbour at t_rev, one context each
+    cases = [((12.0, 0.5, 1.0), True), ((-25.0, -1.0, 0.95), True), ((35.0, 0.0, 1.0), False),
+             ((10.0, 3.0, 1.0), False), ((10.0, 0.0, -1.0), False), ((10.0, 0.0, 0.5), False)]
+    nbr = np.zeros((len(cases) + 1, 11, 4, 12), np.float32)
+    mask = np.zeros(nbr.shape[:3], bool)
+    for i, ((along, aside, cos), _) in enumerate(cases):
+        nbr[i, 0, 2, :5] = along / scale, aside / scale, 0.0, 0.0, cos
+        mask[i, 0, 2] = True
+    nbr[-1, 0, 1, :5] = 5.0 / scale, 0.0, 0.0, 0.0, 1.0  # in the lane, but masked out: padding
+    nbr[0, 1, 0, :5] = 5.0 / scale, 0.0, 0.0, 0.0, 1.0  # a later step does not count
+    mask[0, 1, 0] = True
+    assert has_lane_neighbour(nbr, mask, scale).tolist() == [want for _, want in cases] + [False]
+    ade = np.array([[1.0, 2.0], [3.0, 1.0], [5.0, 5.0]])
+    out = by_lane_neighbour(ade, ade, np.array([True, True, False]))
+    assert [(g["lane_neighbour"], g["contexts"], g["minFDE"]) for g in out] == [("yes", 2, 1.0), ("no", 1, 5.0)]
+    assert [g["lane_neighbour"] for g in by_lane_neighbour(ade, ade, np.zeros(3, bool))] == ["no"]
 
 
 def test_init_may_widen_the_attention_radius_and_nothing_that_sizes_a_weight(dataset, tmp_path, capsys):

@@ -271,4 +271,8 @@ def run_eval(args: argparse.Namespace) -> int:
                 print(f"neighbours {a['neighbours']:>4s} ({a['contexts']} vehicles): minFDE DSA {a['minFDE']:.3f}, "
                       f"no DSA {b['minFDE']:.3f} m, DSA better by {100 * (1 - a['minFDE'] / b['minFDE']):+.1f} %",
                       file=sys.stderr)
+            for a, b in zip(dsa["by_lane_neighbour"], nodsa["by_lane_neighbour"], strict=True):
+                print(f"lane neighbour within 30 m: {a['lane_neighbour']:>3s} ({a['contexts']} vehicles): "
+                      f"minFDE DSA {a['minFDE']:.3f}, no DSA {b['minFDE']:.3f} m, "
+                      f"DSA better by {100 * (1 - a['minFDE'] / b['minFDE']):+.1f} %", file=sys.stderr)
     return 0

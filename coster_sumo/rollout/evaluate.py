@@ -45,16 +45,34 @@ def _summary(ade: np.ndarray, fde: np.ndarray, elapsed_s: float) -> dict[str, fl
 # the breakdown by_neighbours: where dynamic surrounding attention has something to attend to
 NEIGHBOUR_BUCKETS = ((0, 0), (1, 3), (4, 9), (10, 10**9))
 
+# an agent in the vehicle's lane close ahead or behind at t_rev (within 30 m along the heading,
+# under 2 m aside, heading within about 25 degrees): the car-following interaction, where attending
+# to the neighbours' motion pays most (docs/method.md, "Where DSA helps")
+LANE_NEIGHBOUR_ALONG_M = 30.0
+LANE_NEIGHBOUR_ASIDE_M = 2.0
+LANE_NEIGHBOUR_MIN_COS = 0.9
+
+
+def has_lane_neighbour(nbr: np.ndarray, nbr_mask: np.ndarray, pos_scale_m: float) -> np.ndarray:
+    """(R,) True where a neighbour at t_rev is in the vehicle's lane close ahead or behind;
+    ``nbr`` (R, H+1, N, 12) and ``nbr_mask`` (R, H+1, N) as :mod:`coster_sumo.rollout.data` encodes them."""
+    at0, valid = nbr[:, 0], nbr_mask[:, 0]
+    along, aside = at0[..., 0] * pos_scale_m, at0[..., 1] * pos_scale_m
+    same_lane = ((np.abs(along) <= LANE_NEIGHBOUR_ALONG_M) & (np.abs(aside) < LANE_NEIGHBOUR_ASIDE_M)
+                 & (at0[..., 4] > LANE_NEIGHBOUR_MIN_COS))
+    return (same_lane & valid).any(-1)
+
 
 def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int,
                      seed: int = 0, batch_size: int = 64
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, dict[str, np.ndarray]]:
     """Samples of ``rows``: pred (R, S, H, 2), truth (R, H, 2), mask (R, H) in the t_rev frames,
-    the wall time [s] spent encoding and sampling, and the neighbours each context has at t_rev (R,)."""
+    the wall time [s] spent encoding and sampling, and per context (R,) at t_rev: ``neighbours``
+    (how many) and ``lane_neighbour`` (:func:`has_lane_neighbour`)."""
     import torch
 
     gen = torch.Generator().manual_seed(seed)
-    preds, truths, masks, nbrs = [], [], [], []
+    preds, truths, masks, nbrs, lane = [], [], [], [], []
     elapsed = 0.0
     h = model.cfg.max_horizon
     for start in range(0, len(rows), batch_size):
@@ -63,6 +81,7 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, 
         truth, mask = arrays.pop("traj"), arrays.pop("step_mask")
         arrays.pop("origin")
         nbrs.append(arrays["nbr_mask"][:, 0].sum(-1))
+        lane.append(has_lane_neighbour(arrays["nbr"], arrays["nbr_mask"], model.cfg.pos_scale_m))
         poses = model.sample(to_tensors(arrays, model.device), num_samples, generator=gen)  # (B, S, H, 3)
         elapsed += time.perf_counter() - t0
         preds.append(poses[..., :2].cpu().double().numpy())
@@ -70,8 +89,9 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, 
         masks.append(mask)
     if not preds:
         return (np.zeros((0, num_samples, h, 2)), np.zeros((0, h, 2)), np.zeros((0, h), bool), 0.0,
-                np.zeros(0, np.int64))
-    return np.concatenate(preds), np.concatenate(truths), np.concatenate(masks), elapsed, np.concatenate(nbrs)
+                {"neighbours": np.zeros(0, np.int64), "lane_neighbour": np.zeros(0, bool)})
+    info = {"neighbours": np.concatenate(nbrs), "lane_neighbour": np.concatenate(lane)}
+    return np.concatenate(preds), np.concatenate(truths), np.concatenate(masks), elapsed, info
 
 
 def by_neighbours(ade: np.ndarray, fde: np.ndarray, neighbours: np.ndarray) -> list[dict[str, Any]]:
@@ -87,13 +107,25 @@ def by_neighbours(ade: np.ndarray, fde: np.ndarray, neighbours: np.ndarray) -> l
     return out
 
 
+def by_lane_neighbour(ade: np.ndarray, fde: np.ndarray, lane_neighbour: np.ndarray) -> list[dict[str, Any]]:
+    """minADE / minFDE of the contexts with and without a neighbour in their lane close ahead or
+    behind (:func:`has_lane_neighbour`; empty groups left out)."""
+    out = []
+    for label, sel in (("yes", lane_neighbour), ("no", ~lane_neighbour)):
+        if sel.any():
+            out.append({"lane_neighbour": label, "contexts": int(sel.sum()),
+                        "minADE": float(ade[sel].min(-1).mean()), "minFDE": float(fde[sel].min(-1).mean())})
+    return out
+
+
 def cvae_errors(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int = 5,
                 seed: int = 0, batch_size: int = 64) -> dict[str, Any]:
-    """minADE / minFDE / avgADE / avgFDE [m] and time per trajectory [s] of the CVAE on ``rows``, and
-    ``by_neighbours`` (:func:`by_neighbours`)."""
-    pred, truth, mask, elapsed, nbrs = cvae_predictions(model, examples, rows, num_samples, seed, batch_size)
+    """minADE / minFDE / avgADE / avgFDE [m] and time per trajectory [s] of the CVAE on ``rows``,
+    ``by_neighbours`` (:func:`by_neighbours`) and ``by_lane_neighbour`` (:func:`by_lane_neighbour`)."""
+    pred, truth, mask, elapsed, info = cvae_predictions(model, examples, rows, num_samples, seed, batch_size)
     ade, fde = ade_fde(pred, truth, mask)
-    return {**_summary(ade, fde, elapsed), "by_neighbours": by_neighbours(ade, fde, nbrs)}
+    return {**_summary(ade, fde, elapsed), "by_neighbours": by_neighbours(ade, fde, info["neighbours"]),
+            "by_lane_neighbour": by_lane_neighbour(ade, fde, info["lane_neighbour"])}
 
 
 def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: int) -> dict[str, float]:

@@ -361,7 +361,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
             entry.update(validation_loss(model, val_set, val_rows, tcfg.batch_size, tcfg.seed + epoch))
         if len(ade_rows):
             errs = cvae_errors(model, val_set, ade_rows, tcfg.eval_samples, seed=tcfg.seed, batch_size=tcfg.batch_size)
-            kept = {k: v for k, v in errs.items() if k not in ("time_per_trajectory_s", "by_neighbours")}
+            kept = {k: v for k, v in errs.items() if k != "time_per_trajectory_s" and not k.startswith("by_")}
             entry.update({f"val_{k}": v for k, v in kept.items()})
         entry["time_s"] = time.perf_counter() - t_epoch
         history.append(entry)
