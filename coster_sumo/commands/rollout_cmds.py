@@ -225,7 +225,7 @@ def run_eval(args: argparse.Namespace) -> int:
     from coster_sumo.devices import training_device
     from coster_sumo.rollout.checkpoint import load_model
     from coster_sumo.rollout.data import build_examples
-    from coster_sumo.rollout.evaluate import evaluate_rollout
+    from coster_sumo.rollout.evaluate import LANE_NEIGHBOUR_ALONG_M, evaluate_rollout
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
@@ -267,12 +267,11 @@ def run_eval(args: argparse.Namespace) -> int:
                   f"avgFDE {m['avgFDE']:.3f} m, {1e3 * m['time_per_trajectory_s']:.2f} ms/traj", file=sys.stderr)
         dsa, nodsa = result["methods"].get("cvae_dsa"), result["methods"].get("cvae_no_dsa")
         if dsa and nodsa:  # where the neighbours are: what DSA has to attend to
-            for a, b in zip(dsa["by_neighbours"], nodsa["by_neighbours"], strict=True):
-                print(f"neighbours {a['neighbours']:>4s} ({a['contexts']} vehicles): minFDE DSA {a['minFDE']:.3f}, "
-                      f"no DSA {b['minFDE']:.3f} m, DSA better by {100 * (1 - a['minFDE'] / b['minFDE']):+.1f} %",
-                      file=sys.stderr)
-            for a, b in zip(dsa["by_lane_neighbour"], nodsa["by_lane_neighbour"], strict=True):
-                print(f"lane neighbour within 30 m: {a['lane_neighbour']:>3s} ({a['contexts']} vehicles): "
-                      f"minFDE DSA {a['minFDE']:.3f}, no DSA {b['minFDE']:.3f} m, "
-                      f"DSA better by {100 * (1 - a['minFDE'] / b['minFDE']):+.1f} %", file=sys.stderr)
+            for split, key, title in (("by_neighbours", "neighbours", "neighbours"),
+                                      ("by_lane_neighbour", "lane_neighbour",
+                                       f"lane neighbour within {LANE_NEIGHBOUR_ALONG_M:g} m:")):
+                for a, b in zip(dsa[split], nodsa[split], strict=True):
+                    print(f"{title} {a[key]:>4s} ({a['contexts']} vehicles): minFDE DSA {a['minFDE']:.3f}, "
+                          f"no DSA {b['minFDE']:.3f} m, DSA better by {100 * (1 - a['minFDE'] / b['minFDE']):+.1f} %",
+                          file=sys.stderr)
     return 0

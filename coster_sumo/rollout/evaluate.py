@@ -94,28 +94,26 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, 
     return np.concatenate(preds), np.concatenate(truths), np.concatenate(masks), elapsed, info
 
 
+def _groups(ade: np.ndarray, fde: np.ndarray, key: str, groups: list[tuple[str, np.ndarray]]
+            ) -> list[dict[str, Any]]:
+    """minADE / minFDE of each (label, selection) group of contexts, empty groups left out;
+    ``ade``, ``fde`` (R, S) per context and sample."""
+    return [{key: label, "contexts": int(sel.sum()), "minADE": float(ade[sel].min(-1).mean()),
+             "minFDE": float(fde[sel].min(-1).mean())} for label, sel in groups if sel.any()]
+
+
 def by_neighbours(ade: np.ndarray, fde: np.ndarray, neighbours: np.ndarray) -> list[dict[str, Any]]:
     """minADE / minFDE per bucket of :data:`NEIGHBOUR_BUCKETS` (empty buckets left out); ``ade``,
     ``fde`` (R, S) per context and sample, ``neighbours`` (R,)."""
-    out = []
-    for lo, hi in NEIGHBOUR_BUCKETS:
-        sel = (neighbours >= lo) & (neighbours <= hi)
-        if sel.any():
-            label = str(lo) if lo == hi else (f"{lo}+" if hi >= 10**9 else f"{lo}-{hi}")
-            out.append({"neighbours": label, "contexts": int(sel.sum()),
-                        "minADE": float(ade[sel].min(-1).mean()), "minFDE": float(fde[sel].min(-1).mean())})
-    return out
+    return _groups(ade, fde, "neighbours", [
+        (str(lo) if lo == hi else (f"{lo}+" if hi >= 10**9 else f"{lo}-{hi}"), (neighbours >= lo) & (neighbours <= hi))
+        for lo, hi in NEIGHBOUR_BUCKETS])
 
 
 def by_lane_neighbour(ade: np.ndarray, fde: np.ndarray, lane_neighbour: np.ndarray) -> list[dict[str, Any]]:
     """minADE / minFDE of the contexts with and without a neighbour in their lane close ahead or
     behind (:func:`has_lane_neighbour`; empty groups left out)."""
-    out = []
-    for label, sel in (("yes", lane_neighbour), ("no", ~lane_neighbour)):
-        if sel.any():
-            out.append({"lane_neighbour": label, "contexts": int(sel.sum()),
-                        "minADE": float(ade[sel].min(-1).mean()), "minFDE": float(fde[sel].min(-1).mean())})
-    return out
+    return _groups(ade, fde, "lane_neighbour", [("yes", lane_neighbour), ("no", ~lane_neighbour)])
 
 
 def cvae_errors(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int = 5,
