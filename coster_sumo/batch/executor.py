@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.errors import InputError
+from coster_sumo.procs import die_with_parent, signal_name
 
 DEFAULT_TIMEOUT_S = 900.0  # [s] wall clock per task
 
@@ -68,22 +69,15 @@ class Outcome:
 
 OnDone = Callable[[Task, Outcome], Iterable[Task]]
 
+# failures that say nothing about the input, so a plain rerun tries again: the clock, the machine's
+# memory (the kernel's OOM killer sends SIGKILL) or its disk (ENOSPC, EDQUOT)
+_TRANSIENT_MARKS = ("timed out", "(SIGKILL)", "No space left on device", "Disk quota exceeded", "MemoryError",
+                    "Cannot allocate memory", "[Errno 28]", "[Errno 122]", "[Errno 12]")
 
-def _signal_name(code: int) -> str:
-    with contextlib.suppress(ValueError):
-        return signal.Signals(code).name
-    return f"signal {code}"
 
-
-def _die_with_parent() -> None:
-    """Linux: have the kernel SIGKILL this process when its parent dies (a killed batch leaves no orphans)."""
-    if not sys.platform.startswith("linux"):
-        return
-    with contextlib.suppress(Exception):
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+def is_transient(reason: str) -> bool:
+    """Whether a failed task's reason is transient (the machine, not the input): a rerun retries it."""
+    return any(mark in reason for mark in _TRANSIENT_MARKS)
 
 
 def _limit_threads(n: int) -> None:
@@ -104,7 +98,7 @@ def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], wr
                 log_path: str | None, threads: int | None = None, scratch: str | None = None) -> None:
     """Body of a task process: run, send ("ok", value) or ("error", reason, traceback), exit hard.
     ``scratch``: the task's temporary folder (the parent removes it)."""
-    _die_with_parent()
+    die_with_parent()
     if scratch is not None:
         os.environ["TMPDIR"] = scratch  # SUMO's and other child processes' temporary files too
         tempfile.tempdir = scratch
@@ -233,7 +227,7 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
                         r.proc.join()
                     if msg is None:
                         code = r.proc.exitcode
-                        why = (f"crashed ({_signal_name(-code)})" if code is not None and code < 0
+                        why = (f"crashed ({signal_name(-code)})" if code is not None and code < 0
                                else f"exited with code {code} without a result")
                         tail = _log_tail(r.log)
                         finish(r, Outcome(False, reason=why + (f"; log: {tail}" if tail else ""), wall_time_s=wall))

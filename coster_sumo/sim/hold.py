@@ -28,21 +28,21 @@ any model is loaded).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import pickle
 import signal
 import socket
 import sys
 import tempfile
-import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, Pipe
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import SumoError
+from coster_sumo.procs import die_with_parent, fork_and_wait
 from coster_sumo.sim.session import SumoSession
 
 MAX_HOLDERS = 8
@@ -144,6 +144,7 @@ class HeldStates:
         sys.stderr.flush()
         pid = os.fork()
         if pid == 0:  # the holder
+            die_with_parent()
             parent_end.close()
             for h in self.holders:  # the other holders' pipes belong to the parent
                 with contextlib.suppress(OSError):
@@ -209,19 +210,36 @@ class HeldStates:
 
         Returns each job's result, in order; a job that failed raises its error here.
         """
+        results = []
+        for ok, value in self.run_each(holder, jobs, workers):
+            if not ok:
+                raise SumoError(f"a held simulation failed to continue: {value}")
+            results.append(value)
+        return results
+
+    def run_each(self, holder: _Holder, jobs: Sequence[tuple[Job, Any]], workers: int = 1,
+                 timeout: float | None = None) -> list[tuple[bool, Any]]:
+        """Like :meth:`run`, but each job's outcome on its own: ``(True, result)``, or ``(False,
+        reason)`` for a job that raised, crashed its copy (a SUMO segfault) or ran past ``timeout`` [s]
+        (then it is stopped); the other jobs are not affected."""
         self._wait_ready(holder)
         with tempfile.TemporaryDirectory(prefix="coster-hold-") as tmp:
             paths = [str(Path(tmp) / f"{i}.pickle") for i in range(len(jobs))]
-            holder.conn.send(("run", [(fn, payload, path) for (fn, payload), path in zip(jobs, paths, strict=True)],
-                              max(1, workers)))
-            statuses = holder.conn.recv()
-            results = []
+            try:
+                holder.conn.send(("run", [(fn, payload, path) for (fn, payload), path
+                                          in zip(jobs, paths, strict=True)], max(1, workers), timeout))
+                statuses = holder.conn.recv()
+            except (EOFError, OSError) as exc:
+                reason = f"the held simulation died ({type(exc).__name__})"
+                return [(False, reason)] * len(jobs)
+            outcomes: list[tuple[bool, Any]] = []
             for path, (ok, detail) in zip(paths, statuses, strict=True):
                 if not ok:
-                    raise SumoError(f"a held simulation failed to continue: {detail}")
+                    outcomes.append((False, detail))
+                    continue
                 with open(path, "rb") as fh:  # our own file, written by our own forked process
-                    results.append(pickle.load(fh))
-            return results
+                    outcomes.append((True, pickle.load(fh)))
+            return outcomes
 
     def close(self) -> None:
         for h in self.holders:
@@ -254,25 +272,9 @@ def _holder_loop(session: SumoSession, conn: Connection) -> None:
                 continue
             if msg[0] != "run":
                 break
-            _, jobs, workers = msg
-            statuses: list[tuple[bool, str]] = [(False, "not run")] * len(jobs)
-            running: dict[int, int] = {}
-            pending = list(enumerate(jobs))
-            while pending or running:
-                while pending and len(running) < workers:
-                    i, (fn, payload, path) = pending.pop(0)
-                    sys.stdout.flush()
-                    sys.stderr.flush()
-                    pid = os.fork()
-                    if pid == 0:
-                        _worker(session, fn, payload, path)  # never returns
-                    running[pid] = i
-                pid, status = os.wait()
-                i = running.pop(pid, -1)
-                if i >= 0:
-                    ok = os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
-                    detail = "" if ok else _failure(jobs[i][2], status)
-                    statuses[i] = (ok, detail)
+            _, jobs, workers, timeout = msg
+            calls = [(functools.partial(fn, session, payload), path) for fn, payload, path in jobs]
+            statuses = fork_and_wait(calls, workers, timeout)
             conn.send(statuses)
     except BaseException:  # noqa: BLE001 - a holder never raises into the main program's stack
         code = 1
@@ -285,6 +287,7 @@ def _advance_copy(session: SumoSession, conn: Connection, t: float, address: str
     sys.stderr.flush()
     if os.fork() != 0:
         return  # the holder goes on waiting for jobs
+    die_with_parent()
     conn.close()  # the maker's connection belongs to the maker
     code = 0
     try:
@@ -305,28 +308,3 @@ def _advance_copy(session: SumoSession, conn: Connection, t: float, address: str
     if code:
         os._exit(code)
     _holder_loop(session, mine)  # never returns
-
-
-def _worker(session: SumoSession, fn: Job, payload: Any, path: str) -> None:
-    code = 0
-    try:
-        result = fn(session, payload)
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            pickle.dump(result, fh)
-    except BaseException:  # noqa: BLE001 - reported to the holder through the exit code and a file
-        with contextlib.suppress(OSError), open(path + ".err", "w") as fh:
-            fh.write(traceback.format_exc())
-        code = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
-
-
-def _failure(path: str, status: int) -> str:
-    if os.WIFSIGNALED(status):
-        return f"crashed ({signal.Signals(os.WTERMSIG(status)).name})"
-    with contextlib.suppress(OSError):
-        lines = Path(path + ".err").read_text().strip().splitlines()
-        if lines:
-            return lines[-1]
-    return f"exited with code {os.WEXITSTATUS(status)}"

@@ -19,6 +19,7 @@ happens (the planner avoided it), it continues at constant velocity (see
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import time as _time
 from collections.abc import Callable
@@ -32,6 +33,7 @@ from coster_sumo.drivable import DrivableArea
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.frames import centre_to_front
 from coster_sumo.plan import AdversaryPlan, sim_time_of
+from coster_sumo.procs import ChildFailed, run_forked
 from coster_sumo.scene import Scene
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
@@ -332,22 +334,36 @@ def _continue_held(session: SumoSession, payload: dict[str, Any]) -> InjectionRe
                               post_contact_s=payload["post_contact_s"])
 
 
+@dataclass(frozen=True)
+class VariantFailure:
+    """A variant whose injection pass did not finish: SUMO crashed, it ran past the timeout, or it raised.
+
+    Attributes:
+        reason: one line, e.g. ``crashed (SIGSEGV)`` or ``timed out after 60 s (stopped)``.
+    """
+
+    reason: str
+
+
 def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[AdversaryPlan], planner: str | None,
                     *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
                     held: HeldStates | None = None, workers: int = 1,
-                    post_contact_s: float | None = POST_CONTACT_S,
-                    done: Callable[[int], None] | None = None) -> list[InjectionResult]:
-    """:func:`inject_variant` for every plan; from held copies of the nominal pass where there are.
+                    post_contact_s: float | None = POST_CONTACT_S, timeout: float | None = None,
+                    done: Callable[[int], None] | None = None) -> list[InjectionResult | VariantFailure]:
+    """:func:`inject_variant` for every plan, each in a process of its own; from held copies of
+    the nominal pass where there are.
 
     With ``held`` (the nominal pass of a SUMO configuration run with it), each variant continues
     from the latest held moment before its adversary appears, up to ``workers`` at a time, instead
     of simulating from ``begin`` again; the outcome is the same (see :mod:`coster_sumo.sim.hold`).
-    Events before that moment are the nominal pass's and are not checked again. ``done(n)`` is
-    called as n more variants finish (progress).
+    Events before that moment are the nominal pass's and are not checked again. The other variants
+    run from ``begin`` in a forked child each. A variant whose pass crashes (a libsumo segfault),
+    raises, or runs past ``timeout`` [s] comes back as a :class:`VariantFailure`; the others are
+    not affected. ``done(n)`` is called as n more variants finish (progress).
     """
     converted = converted_scene_file(spec.config) is not None
     planner_spec = planner or default_planner(converted)
-    results: list[InjectionResult | None] = [None] * len(plans)
+    results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
     groups: dict[int, list[int]] = {}
     if held is not None and not converted and not traci:
         for i, plan in enumerate(plans):
@@ -361,15 +377,19 @@ def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[A
         jobs = [(_continue_held, {"target_id": target_id, "plan": plans[i], "planner": planner_spec,
                                   "nominal": nominal, "end": end, "drivable": drivable,
                                   "post_contact_s": post_contact_s}) for i in members]
-        finished = held.run(held.holders[h_index], jobs, workers) if held is not None else []
-        for i, res in zip(members, finished, strict=True):
-            results[i] = res
+        finished = held.run_each(held.holders[h_index], jobs, workers, timeout) if held is not None else []
+        for i, (ok, value) in zip(members, finished, strict=True):
+            results[i] = value if ok else VariantFailure(str(value))
         if done is not None:
             done(len(members))
     for i, plan in enumerate(plans):
         if results[i] is None:
-            results[i] = inject_variant(spec, scene, target, plan, planner_spec, drivable=drivable, traci=traci,
-                                        workdir=workdir, post_contact_s=post_contact_s)
+            one = functools.partial(inject_variant, spec, scene, target, plan, planner_spec, drivable=drivable,
+                                    traci=traci, workdir=workdir, post_contact_s=post_contact_s)
+            try:
+                results[i] = run_forked(one, timeout=timeout)
+            except ChildFailed as exc:
+                results[i] = VariantFailure(str(exc))
             if done is not None:
                 done(1)
     return [r for r in results if r is not None]
