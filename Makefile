@@ -19,7 +19,7 @@ setup: $(BIN)/coster-sumo
 # full COSTER with the shipped weights on the package's own intersection network; the target replays
 # its nominal path so every contact is at t_col
 demo: setup
-	$(BIN)/coster-sumo demo -o $(OUT)
+	$(BIN)/coster-sumo demo -o $(OUT) --overwrite
 
 lint: setup
 	$(BIN)/ruff check .

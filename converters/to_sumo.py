@@ -31,7 +31,6 @@ import dataclasses
 import json
 import shutil
 import subprocess
-import tempfile
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from coster_sumo import sumo_env
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.scene_folder import folder_name, is_converted_scene, tls_state_strings, vtype_for
 from coster_sumo.geometry import project_points
+from coster_sumo.outdir import check_output, new_staging, publish, raise_if_disk_full
 from coster_sumo.scene import ObjectType, Scene, save_scene
 
 from .to_sumo_net import (
@@ -172,6 +172,7 @@ def _parse_xml(path: Path) -> Any:
     try:
         return SafeET.parse(path, forbid_dtd=True)
     except Exception as exc:  # noqa: BLE001 - ParseError, DTDForbidden, EntitiesForbidden, OSError
+        raise_if_disk_full(path)  # a net truncated by a full disk is the disk's fault, not the net's
         raise ConversionError(f"{path.name}: not a readable SUMO net ({type(exc).__name__}: {exc})") from None
 
 
@@ -459,9 +460,15 @@ def _type_name(object_type: int) -> str:
         return f"type_{int(object_type)}"
 
 
+SCENE_KIND = "scene"  # the marker kind of a converted scene folder (coster_sumo.outdir)
+
+
 def convert_scene(scene: Scene, outdir: str | Path, *, overwrite: bool = True, name: str | None = None
                   ) -> ConvertResult:
     """Convert one scene into ``outdir/<name>/`` (atomically); see the module docstring.
+
+    An existing ``outdir/<name>/`` is replaced only with ``overwrite`` and only when it is a scene
+    folder coster-sumo wrote (:mod:`coster_sumo.outdir`); otherwise :class:`InputError`.
 
     ``name`` (folder and file stem) defaults to :func:`~coster_sumo.formats.scene_folder.folder_name`
     of the scenario id: never a path, never empty, whatever the input file says.
@@ -475,7 +482,7 @@ def convert_scene(scene: Scene, outdir: str | Path, *, overwrite: bool = True, n
     if stem != folder_name(stem):
         raise InputError(f"{stem!r} is not a safe folder name")
     final = outdir / stem
-    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}.", suffix=".tmp", dir=outdir))
+    tmp = new_staging(final)
     try:
         plain = build_plain_net(scene.road_map, scene.signals)
         t_plain = time.perf_counter()
@@ -533,11 +540,8 @@ def convert_scene(scene: Scene, outdir: str | Path, *, overwrite: bool = True, n
             "conversion_s": round(time.perf_counter() - t0, 4),
         }
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
-        if final.exists():
-            if not overwrite:
-                raise ConversionError(f"{final} exists")
-            shutil.rmtree(final)
-        tmp.rename(final)
+        check_output(final, kind=SCENE_KIND, overwrite=overwrite)  # never replaces a folder we did not write
+        publish(tmp, final, kind=SCENE_KIND)
         return ConvertResult(folder=final, summary=summary)
     finally:
         if tmp.exists():

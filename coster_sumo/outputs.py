@@ -95,13 +95,13 @@ def collisions_xml(path: Path, results: list[InjectionResult]) -> None:
 
 
 def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[str, Any],
-                   result: InjectionResult) -> Path:
+                   result: InjectionResult, copy_outside: bool = False) -> Path:
     """Standalone SUMO export (:func:`coster_sumo.exports.sumo.write_sumo_export`) plus variant.json
     (the plan and ``meta``); return the new .sumocfg."""
     from coster_sumo.exports.sumo import write_sumo_export
 
     cfg, info = write_sumo_export(folder, config, result, plan, target_id=str(meta["target_id"]),
-                                  planner=str(meta["planner"]), seed=meta.get("seed"))
+                                  planner=str(meta["planner"]), seed=meta.get("seed"), copy_outside=copy_outside)
     write_json(folder / VARIANT_FILE, {**meta, "export": info, "plan": plan.to_dict()})
     return cfg
 
@@ -125,7 +125,7 @@ def target_motion(scene: Scene, index: int) -> dict[str, float]:
 
 def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
                       results: list[InjectionResult], timings: dict[str, float], *, render: bool,
-                      options: dict[str, Any]) -> dict[str, Any]:
+                      options: dict[str, Any], copy_outside: bool = False) -> dict[str, Any]:
     """Write everything of a run into ``out`` (the caller renames it into place); returns the summary.
 
     ``planned``: one entry per collision snapshot (``--snapshots``); ``results``: one per plan, in
@@ -161,7 +161,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
             try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
                 export_variant(vdir / "export", spec.config, plan,
                                {"target_id": target_id, "planner": planner, "seed": spec.seed,
-                                "begin": spec.begin, "end": float(scene.timestamps[-1])}, res)
+                                "begin": spec.begin, "end": float(scene.timestamps[-1])}, res,
+                               copy_outside=copy_outside)
             except (SumoError, InputError) as exc:
                 shutil.rmtree(vdir / "export", ignore_errors=True)
                 rec["export_error"] = str(exc)

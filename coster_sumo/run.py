@@ -4,8 +4,9 @@
 2. every plan is injected with :func:`coster_sumo.sim.inject.inject_variant` (same seed, so the
    traffic is the nominal one until the adversary appears);
 3. everything is written into a hidden staging folder beside OUT and renamed into place at the
-   end (see :mod:`coster_sumo.outputs` and the README): an interrupted or failed run leaves no
-   half-written OUT.
+   end (:mod:`coster_sumo.outdir`): an interrupted or failed run leaves no half-written OUT, an
+   existing OUT is replaced only when coster-sumo wrote it and ``overwrite`` is set, and the OUT
+   is locked while the run writes it.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -31,13 +31,15 @@ from coster_sumo.core import (
     simulation_window,
 )
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, SumoError
 from coster_sumo.formats.scene_folder import converted_scene_file
+from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.sim.inject import default_planner, inject_variants
+from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot import NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
@@ -62,6 +64,9 @@ class RunOptions:
     from_begin: bool = False  # every variant simulates from begin instead of a held copy of the nominal pass
     target_choice: tuple[dict[str, Any], ...] = ()  # how --targets N chose them (targets.Candidate.to_dict)
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)  # variants run at a time (held copies)
+    overwrite: bool = False  # replace an earlier coster-sumo run output in ``out``
+    timeout: float | None = None  # [s] wall clock per variant's injection pass (None: no limit)
+    copy_outside: bool = False  # exports also copy the files the configuration names outside its folder
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
@@ -74,6 +79,11 @@ class RunOptions:
     def targets(self) -> list[str | None]:
         """The targets in order (None: the default target), repeats dropped."""
         return list(dict.fromkeys((self.spec.target, *self.more_targets)))
+
+
+def failed_variants(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """The variants of a one-target summary whose SUMO pass failed (crash, timeout): adversary, t_col, reason."""
+    return [f for s in summary.get("snapshots", []) for f in s["generation"].get("failed", [])]
 
 
 def run(opts: RunOptions) -> dict[str, Any]:
@@ -99,8 +109,30 @@ def run(opts: RunOptions) -> dict[str, Any]:
         raise InputError("with several targets every one needs an id (--target ID, repeated)")
     named = [str(t) for t in targets if t is not None]
     timings: dict[str, float] = {}
-    opts.out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{opts.out.name}.", dir=opts.out.parent))
+    check_output(opts.out, kind="run", inputs=run_inputs(spec.config), overwrite=opts.overwrite)
+    with OutputLock(opts.out):
+        clean_leftovers(opts.out)
+        # again under the lock: another command may have written OUT since the first check
+        check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
+        summary = _run_locked(opts, converted, end, targets, named, timings)
+    return summary
+
+
+def run_inputs(config: Path) -> list[Path]:
+    """The configuration and the files it names: an output folder must hold none of them."""
+    try:
+        cfg = read_sumocfg(config)
+    except InputError:
+        return [config]
+    return [config, *cfg.net_files, *cfg.route_files, *cfg.additional_files]
+
+
+def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: list[str | None],
+                named: list[str], timings: dict[str, float]) -> dict[str, Any]:
+    """:func:`run` once its output folder is checked and locked."""
+    spec = opts.spec
+    several = len(targets) > 1
+    staging = new_staging(opts.out)
     # an adversary appears up to its horizon before t_col, which may come right after the target departs
     held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=named[1:])
             if not (opts.from_begin or opts.traci) else None)
@@ -133,16 +165,15 @@ def run(opts: RunOptions) -> dict[str, Any]:
                     shutil.rmtree(folder, ignore_errors=True)
                     listed.append({"target": tid, "error": str(exc)})
                     continue
-                listed.append({"target": tid, "folder": folder.name, **{k: one[k] for k in _LISTED}})
+                listed.append({"target": tid, "folder": folder.name, **{k: one[k] for k in _LISTED},
+                               "failed_variants": len(failed_variants(one))})
             if not any("folder" in t for t in listed):
                 raise InputError("; ".join(t["error"] for t in listed))
             summary = {"config": str(spec.config), "targets": listed, "num_targets": len(listed),
                        "nominal_until_s": float(scene.timestamps[-1]),
                        "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()}
             write_json(staging / "summary.json", summary)
-        if opts.out.exists():
-            shutil.rmtree(opts.out)
-        staging.replace(opts.out)
+        publish(staging, opts.out, kind="run")
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -184,15 +215,45 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with _bar(opts, "variants", "variant", total=len(plans)) as bar:
-        results = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
-                                  workdir=out, held=held, workers=opts.workers, done=bar.update)
+        outcomes = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
+                                   workdir=out, held=held, workers=opts.workers, timeout=opts.timeout,
+                                   done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0
+    planned, results = drop_failed_variants(planned, outcomes)
     planned, results = drop_bystander_wrecks(planned, results, str(scene.tracks.ids[target]))
     if not any(p.plans for p in planned):
+        failed = [f for p in planned for f in p.info.get("failed", [])]
+        if failed and len(failed) == len(plans):
+            raise SumoError(f"{spec.config}: the SUMO pass of every variant of target "
+                            f"{str(scene.tracks.ids[target])!r} failed (first: {failed[0]['reason']})")
         raise InputError(f"{spec.config}: every adversary of target {str(scene.tracks.ids[target])!r} ran into "
                          "another vehicle before t_col in the simulation")
     return write_run_outputs(out, spec, planner, planned, results, timings, render=opts.render,
-                             options=opts.to_json())
+                             options=opts.to_json(), copy_outside=opts.copy_outside)
+
+
+def drop_failed_variants(planned: list[PlannedScenario], outcomes: list[InjectionResult | VariantFailure]
+                         ) -> tuple[list[PlannedScenario], list[InjectionResult]]:
+    """The plans and results without the variants whose pass failed (SUMO crashed, timed out).
+
+    Each failure is kept in its snapshot's ``info["failed"]`` (summary.json ``generation.failed``:
+    the adversary, its t_col and the reason), which ``coster-sumo run`` prints as one line each; the
+    other variants go on.
+    """
+    it = iter(outcomes)
+    results: list[InjectionResult] = []
+    for p in planned:
+        kept = []
+        for plan in p.plans:
+            res = next(it)
+            if isinstance(res, VariantFailure):
+                p.info.setdefault("failed", []).append({"candidate": plan.vehicle_id, "t_col": plan.t_col,
+                                                        "reason": f"its SUMO pass {res.reason}"})
+            else:
+                kept.append(plan)
+                results.append(res)
+        p.plans = kept
+    return planned, results
 
 
 def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], target_id: str
@@ -210,7 +271,7 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], ta
     plan).
     """
     it = iter(results)
-    kept_results: list[Any] = []
+    kept_results: list[InjectionResult] = []
     for p in planned:
         kept = []
         for plan in p.plans:

@@ -19,7 +19,8 @@ import time
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import CosterError, InputError, one_line
+from coster_sumo.errors import CosterError, one_line
+from coster_sumo.outdir import MARKER, OutputLock, check_output, clean_leftovers_in, write_marker
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -29,7 +30,11 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "<id>.sumocfg, scene.npz, lane_map.json and summary.json (fidelity figures).")
     p.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
                    help="WOMD Scenario TFRecord (plain or gzip), ScenarioNet .pkl or scene .npz")
-    p.add_argument("-o", "--out", type=Path, required=True, metavar="OUTDIR", help="output folder")
+    p.add_argument("-o", "--out", type=Path, required=True, metavar="OUTDIR",
+                   help="output folder: new, empty, or an earlier convert output (scenes are added to it)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a scene folder of the same name that an earlier convert wrote (default: such a "
+                        "scene fails with one line and the others go on)")
     p.set_defaults(func=run)
 
 
@@ -47,18 +52,24 @@ def fidelity_line(summary: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    debug = bool(getattr(args, "debug", False))
+    quiet = bool(getattr(args, "quiet", False))
+    out: Path = args.out
+    check_output(out, kind="convert", inputs=args.inputs, reusable=True)
+    with OutputLock(out):
+        if out.is_dir():
+            clean_leftovers_in(out)  # staging folders of a convert that was stopped
+        return _convert_locked(args, out, debug, quiet)
+
+
+def _convert_locked(args: argparse.Namespace, out: Path, debug: bool, quiet: bool) -> int:
+    """:func:`run` once OUTDIR is checked and locked."""
     from tqdm import tqdm
 
     from coster_sumo.converters.read import iter_scenes
     from coster_sumo.converters.to_sumo import convert_scene
-
-    debug = bool(getattr(args, "debug", False))
-    quiet = bool(getattr(args, "quiet", False))
     from coster_sumo.formats.scene_folder import MAX_FOLDER_NAME, folder_name
 
-    out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder")
     created = not out.exists()
     t0 = time.perf_counter()
     used: set[str] = set()
@@ -102,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                 name = name_for(sid)
                 try:
                     out.mkdir(parents=True, exist_ok=True)
-                    result = convert_scene(scene, out, name=name)
+                    result = convert_scene(scene, out, name=name, overwrite=bool(getattr(args, "overwrite", False)))
                 except CosterError as exc:
                     if debug:
                         raise
@@ -141,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
                "failed": len(failures), "scenes": scenes, "failures": failures, "renamed": renamed,
                "wall_s": round(time.perf_counter() - t0, 3)}
     write_json(out / "summary.json", summary)
+    if not (out / MARKER).exists():
+        write_marker(out, "convert")
     if not quiet:
         print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")
     return 1 if failures else 0

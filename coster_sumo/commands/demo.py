@@ -27,12 +27,12 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--models", type=Path, help="folder with prior/rollout/vocab weights (default: shipped)")
     run_command.add_export_argument(p)
-    p.add_argument("-o", "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
+    run_command.add_output_arguments(p, "out/demo")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     args = argparse.Namespace(**vars(args), config=shipped_config(args.network), target=None, planner="replay",
                               samples=1000, collision_time="entropy", init="snapshot", rollout="cvae",
-                              begin=None, end=None, duration=None, traci=False, no_render=False)
+                              begin=None, end=None, duration=None, traci=False, no_render=False, timeout=None)
     return run_command.run(args)

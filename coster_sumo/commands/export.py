@@ -36,5 +36,6 @@ def run(args: argparse.Namespace) -> int:
             if "openscenario" in r:
                 o = r["openscenario"]
                 parts.append(f"{o['xosc']} ({o['vehicles']} vehicles, schema-valid)")
-            print(f"variant {r['variant']}: " + "; ".join(parts))
+            who = f"target {r['target']}, " if "target" in r else ""
+            print(f"{who}variant {r['variant']}: " + "; ".join(parts))
     return 0

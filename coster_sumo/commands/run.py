@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import sys
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.run import RunOptions
+from coster_sumo.run import RunOptions, failed_variants
 from coster_sumo.run import run as run_scenario
 from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
@@ -53,8 +55,24 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
     add_export_argument(p)
     p.add_argument("--models", type=Path, help="folder with prior/rollout/vocab weights (default: shipped)")
-    p.add_argument("-o", "--out", type=Path, default=Path("out/run"), help="output folder (default out/run)")
+    p.add_argument("--timeout", type=float, metavar="S",
+                   help="[s] wall clock per variant's injection pass; a variant past it is stopped and reported "
+                        "(default: no limit)")
+    p.add_argument("--copy-outside", action="store_true",
+                   help="copy into the exports also the files the configuration names outside its own folder "
+                        "(default: they are named by absolute path, listed in variant.json, never copied)")
+    add_output_arguments(p, "out/run")
     p.set_defaults(func=run)
+
+
+def add_output_arguments(p: argparse.ArgumentParser, default: str) -> None:
+    """-o/--out and --overwrite of the commands that write a run folder (run, demo)."""
+    p.add_argument("-o", "--out", type=Path, default=Path(default),
+                   help=f"output folder (default {default}): new or empty, or an earlier run output with "
+                        "--overwrite")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier coster-sumo run output in OUT (it is replaced only once the new one "
+                        "is complete); a folder holding anything else is never replaced")
 
 
 def add_export_argument(p: argparse.ArgumentParser) -> None:
@@ -101,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
     end = end_of(args)
     chosen: list[dict[str, Any]] = []
     lines: list[str] = []
+    failed: list[tuple[str, dict[str, Any]]] = []
     if getattr(args, "targets", None) is not None:
         from coster_sumo.targets import choose_targets, iter_lines
 
@@ -112,8 +131,10 @@ def run(args: argparse.Namespace) -> int:
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
                       traci=args.traci, render=not args.no_render, quiet=args.quiet,
                       snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False),
-                      more_targets=tuple(str(t) for t in targets[1:]), target_choice=tuple(chosen))
-    summary = run_scenario(opts)
+                      more_targets=tuple(str(t) for t in targets[1:]), target_choice=tuple(chosen),
+                      overwrite=getattr(args, "overwrite", False), timeout=_positive_timeout(args),
+                      copy_outside=getattr(args, "copy_outside", False))
+    summary = _supervised_run(opts)
     folders = [args.out] if "targets" not in summary else []
     if "targets" in summary:  # several targets: one folder each
         import json
@@ -123,10 +144,17 @@ def run(args: argparse.Namespace) -> int:
                 lines.append(f"target {t['target']}: no scenario ({t['error']})")
                 continue
             folder = args.out / t["folder"]
-            lines += target_lines(json.loads((folder / "summary.json").read_text()))
+            one = json.loads((folder / "summary.json").read_text())
+            lines += target_lines(one)
+            failed += [(str(t["target"]), f) for f in failed_variants(one)]
             folders.append(folder)
     else:
         lines += target_lines(summary)
+        failed = [(str(summary["target"]), f) for f in failed_variants(summary)]
+    for target, f in failed:  # one line each, on stderr like every failure; the other variants are kept
+        print(f"coster-sumo: error: {args.config}: target {target}, adversary {f['candidate']} (t_col "
+              f"{f['t_col']:.1f} s): {f['reason']}; its variant is left out, the others are kept",
+              file=sys.stderr, flush=True)
     if export != "sumo":
         from coster_sumo.exports.run_folder import OSC_DIR, export_run
 
@@ -140,7 +168,32 @@ def run(args: argparse.Namespace) -> int:
             lines.append(f"targets listed in {args.out}/summary.json")
     print("\n".join(lines))
     sys.stdout.flush()
-    return 0
+    return 1 if failed else 0  # 1: the work ran, some variants failed (each named above)
+
+
+def _supervised_run(opts: RunOptions) -> dict[str, Any]:
+    """:func:`coster_sumo.run.run` in a child process: a SUMO crash is one line, and whatever stops
+    the run (a crash, Ctrl-C) leaves nothing beside OUT (the old OUT, if any, stays as it was)."""
+    from coster_sumo.outdir import OutputLock, clean_leftovers
+    from coster_sumo.procs import run_supervised
+
+    try:
+        summary: dict[str, Any] = run_supervised(functools.partial(run_scenario, opts),
+                                                 f"run of {opts.spec.config}")
+    except BaseException as exc:
+        if not isinstance(exc, InputError):  # an input error stopped it before it wrote anything
+            # the child's own children (held copies) die with it: wait for them to let go of the lock
+            with contextlib.suppress(CosterError, OSError), OutputLock(opts.out, wait_s=10.0):
+                clean_leftovers(opts.out)
+        raise
+    return summary
+
+
+def _positive_timeout(args: argparse.Namespace) -> float | None:
+    timeout = getattr(args, "timeout", None)
+    if timeout is not None and not timeout > 0:
+        raise InputError(f"--timeout must be a positive number of seconds, not {timeout:g}")
+    return timeout
 
 
 # a target that stood still this long and for this share of its time gets a note under its results

@@ -21,6 +21,7 @@ from coster_sumo.errors import InputError
 from coster_sumo.exports.sumo import FCD_FILE, VTYPES_FILE
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, read_trajectories_csv, select_near, write_selection
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.outdir import refresh_marker
 
 FORMATS = ("sumo", "openscenario", "all")
 OSC_DIR = "openscenario"
@@ -118,6 +119,13 @@ def export_run(run_out: Path, fmt: str = "all", radius: float | None = None) -> 
         radius = DEFAULT_RADIUS_M if radius is None else radius
     run_out = Path(run_out)
     summary = _load_json(run_out / "summary.json")
+    if "targets" in summary:  # a run with several targets: one run folder per target
+        results = [{**r, "target": t["target"]} for t in summary["targets"] if "folder" in t
+                   for r in export_run(run_out / str(t["folder"]), fmt, radius)]
+        refresh_marker(run_out)
+        return results
+    if "variants" not in summary:
+        raise InputError(f"{run_out / 'summary.json'}: not the summary of a `coster-sumo run` output")
     results = []
     for record in summary["variants"]:
         vdir = run_out / "variants" / str(record["variant"])
@@ -130,4 +138,5 @@ def export_run(run_out: Path, fmt: str = "all", radius: float | None = None) -> 
         if fmt in ("openscenario", "all"):
             res["openscenario"] = openscenario_export(vdir, summary, record, float(radius or 0.0))
         results.append(res)
+    refresh_marker(run_out)  # the files written here are the tool's: a later --overwrite may replace them
     return results

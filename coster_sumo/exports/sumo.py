@@ -408,7 +408,8 @@ def _staging_lane(config: Path) -> str | None:
 
 
 def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan: AdversaryPlan, *,
-                      target_id: str, planner: str, seed: int | None) -> tuple[Path, dict[str, Any]]:
+                      target_id: str, planner: str, seed: int | None,
+                      copy_outside: bool = False) -> tuple[Path, dict[str, Any]]:
     """Write a standalone SUMO folder for one variant; plain ``sumo -c`` plays it with the adversary.
 
     Copies the configuration's net, route and additional files (basenames) into ``folder``, makes
@@ -426,6 +427,10 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
         target_id: the target's id.
         planner: the target's planner in the pass (``"replay"``: the FCD file drives the target too).
         seed: SUMO seed of the pass (None: SUMO's default).
+        copy_outside: also copy the files the configuration names outside its own folder. By
+            default they are not copied (an output holds only what lies in the configuration's
+            folder or what the tool wrote): the export names them by absolute path, unchanged,
+            and ``outside_files`` lists them.
 
     Returns:
         The exported .sumocfg and a JSON-able description (which vehicles the FCD file drives, who
@@ -440,13 +445,24 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
     if not inputs["net-file"]:
         raise InputError(f"{config}: the configuration names no net-file")
     names: dict[str, list[str]] = {}
+    home = config.resolve().parent
+    outside: list[str] = []
     for key, paths in inputs.items():
         for p in paths:
+            if not copy_outside and home not in p.resolve().parents:
+                outside.append(str(p.resolve()))
+                names.setdefault(key, []).append(str(p.resolve()))
+                continue
             shutil.copy2(p, folder / p.name)
             names.setdefault(key, []).append(p.name)
     converted = converted_scene_file(config) is not None
     notes: list[str] = []
-    demand_files = [folder / n for n in (*names.get("route-files", []), *names.get("additional-files", []))]
+    if outside:
+        notes.append(f"{len(outside)} file(s) the configuration names lie outside its folder and are named by "
+                     "absolute path, not copied and not adapted (copy them with --copy-outside): "
+                     + ", ".join(outside))
+    demand_files = [folder / n for n in (*names.get("route-files", []), *names.get("additional-files", []))
+                    if not Path(n).is_absolute()]
     checks: str | None = None
     drop: frozenset[str] = frozenset()
     flows: set[str] = set()
@@ -523,6 +539,7 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
         "demand": {"insertion_checks": checks, "dropped": sorted(drop), "expanded_flows": sorted(flows),
                    "expanded_vehicles": len(expanded), "expanded_file": EXPANDED_FILE if flows else None,
                    "flows_after_end": sorted(after_end)},
+        "outside_files": outside,
         "notes": notes,
     }
     return cfg, info
