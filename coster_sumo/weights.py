@@ -58,6 +58,33 @@ def missing_weights(names: tuple[str, ...], models_dir: str | Path | None = None
     return None
 
 
+_DIGESTS: dict[tuple[str, tuple[tuple[str, int, int], ...]], str] = {}
+
+
+def weights_digest(models_dir: str | Path | None = None) -> str:
+    """A short hash of the weights' contents in ``models_dir`` (default: the shipped ones).
+
+    Batches key their saved work by it, so the same weights reached by another path (``--models
+    ../m`` from another folder) resume instead of running again, and other weights at the same
+    path do not reuse results made with the old ones.
+    """
+    import hashlib
+
+    folder = models_folder(models_dir).resolve()
+    files = [folder / n for n in (PRIOR, ROLLOUT, ROLLOUT_NO_DSA, VOCAB) if (folder / n).is_file()]
+    stamp = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files)
+    key = (str(folder), stamp)
+    if key not in _DIGESTS:
+        h = hashlib.sha256()
+        for f in files:
+            h.update(f.name.encode() + b"\0")
+            with f.open("rb") as fh:
+                for chunk in iter(lambda: fh.read(1 << 20), b""):  # noqa: B023 - fh is this loop's
+                    h.update(chunk)
+        _DIGESTS[key] = h.hexdigest()[:16]
+    return _DIGESTS[key]
+
+
 _LOADED: dict[tuple[Any, str, int, int], Any] = {}
 
 

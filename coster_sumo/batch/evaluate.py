@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute
+from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, scene_key, slug
 from coster_sumo.batch.store import rate_with_ci, read_json
 from coster_sumo.core import missing_weights
@@ -32,8 +32,10 @@ from coster_sumo.metrics import (
     js_divergence,
     scene_bootstrap,
 )
+from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.weights import weights_digest
 
 
 @dataclass(frozen=True)
@@ -171,9 +173,35 @@ def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
                           target=opts.target)
     out = Path(opts.out)
+    check_output(out, kind="eval-scenarios", inputs=[Path(s.config) for s in specs], reusable=True)
+    out.mkdir(parents=True, exist_ok=True)
+    with OutputLock(out, inside=True):
+        if not (out / MARKER).exists():
+            write_marker(out, "eval-scenarios")
+        return _evaluate_locked(opts, t_start, methods, specs, out)
+
+
+def part_key(scene: str, method: str, variants: int, weights: str) -> str:
+    """The file stem of one method's part on one scene (the weights by their contents: other
+    weights are another part, the same weights by another path the same one)."""
+    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}"
+
+
+def _done(doc: dict[str, Any] | None) -> bool:
+    """A part written by an earlier batch that counts: ok, or failed for a reason of the input's."""
+    return doc is not None and (doc.get("status") != "failed" or not is_transient(str(doc.get("reason") or "")))
+
+
+def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorMethod], specs: list[ScenarioSpec],
+                     out: Path) -> dict[str, Any]:
+    """:func:`evaluate_generators` once OUT is checked and locked."""
     scenes_dir, parts_dir = out / "scenes", out / "parts"
     parts_dir.mkdir(parents=True, exist_ok=True)
     scenes_dir.mkdir(parents=True, exist_ok=True)
+    for folder in (scenes_dir, parts_dir):  # half-written files of a batch that was killed
+        for leftover in staged_names(folder, (".tmp.npz", ".tmp.json")):
+            leftover.unlink(missing_ok=True)
+    weights = weights_digest(opts.models_dir)
     skipped: dict[str, str] = {}
     for m in methods:
         reason = missing_weights(GenerationConfig(init=m.init, rollout=m.rollout, models_dir=opts.models_dir))
@@ -185,8 +213,8 @@ def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
     def method_tasks(key: str, scene_file: str) -> list[Task]:
         tasks = []
         for m in active:
-            pk = f"{key}__{slug(m.name)}__k{opts.variants}"
-            if (parts_dir / f"{pk}.json").exists():
+            pk = part_key(key, m.name, opts.variants, weights)
+            if _done(read_json(parts_dir / f"{pk}.json")):
                 continue
             tasks.append(Task(pk, method_task, {
                 "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
@@ -200,7 +228,7 @@ def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
         sp = read_json(parts_dir / f"{key}__scene.json")
         if sp is not None and sp.get("status") == "ok":
             initial.extend(method_tasks(key, sp["scene_file"]))
-        elif sp is None:
+        elif not _done(sp):
             initial.append(Task(f"{key}__scene", scene_task, {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir),
                                                               "scene_key": key}, kind="scene"))
 
@@ -219,7 +247,7 @@ def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
             quiet=opts.quiet, desc="eval scenarios", expected_total=len(keys) * (1 + len(active)),
             log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
             preload=SUMO_TASK_MODULES)
-    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants)
+    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
     summary = {"command": "eval scenarios", "scenes": {k: s.label() for k, s in keys.items()},
                "planner": opts.planner, "variants": opts.variants, "samples": opts.samples,
                "methods": table, "wall_time_s": round(time.perf_counter() - t_start, 3),
@@ -234,7 +262,7 @@ def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
 
 
 def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], methods: Sequence[GeneratorMethod],
-                                skipped: dict[str, str], variants: int) -> dict[str, Any]:
+                                skipped: dict[str, str], variants: int, weights: str) -> dict[str, Any]:
     """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD (with 95 %
     intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
     the same scenes (:func:`paired_diversity`)."""
@@ -260,7 +288,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if m.name in skipped:
             table[m.name] = {**entry, "status": "skipped", "reason": skipped[m.name]}
             continue
-        loaded = [read_json(parts_dir / f"{k}__{slug(m.name)}__k{variants}.json") for k in good_scenes]
+        loaded = [read_json(parts_dir / f"{part_key(k, m.name, variants, weights)}.json") for k in good_scenes]
         parts: list[dict[str, Any]] = [p for p in loaded if p is not None]
         skip = [p for p in parts if p.get("status") == "skipped"]
         if parts and len(skip) == len(parts):

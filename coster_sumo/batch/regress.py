@@ -22,11 +22,12 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute
+from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, scene_key, slug
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
 from coster_sumo.core import Variant, check_generation
 from coster_sumo.errors import InputError
+from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -135,21 +136,37 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
     t_start = time.perf_counter()
     check_planners(opts.planners)
     generation = GenerationConfig(init=opts.init, collision_time=opts.collision_time, rollout=opts.rollout,
-                                  samples=opts.samples, variants=opts.variants, models_dir=opts.models_dir)
+                                  samples=opts.samples, variants=opts.variants,
+                                  models_dir=opts.models_dir.resolve() if opts.models_dir else None)
     check_generation(generation)
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
                           target=opts.target)
     out = Path(opts.out)
+    check_output(out, kind="regress", inputs=[Path(s.config) for s in specs], reusable=True)
+    out.mkdir(parents=True, exist_ok=True)
+    with OutputLock(out, inside=True):
+        if not (out / MARKER).exists():
+            write_marker(out, "regress")
+        return _regress_locked(opts, t_start, generation, specs, out)
+
+
+def _regress_locked(opts: RegressOptions, t_start: float, generation: GenerationConfig,
+                    specs: list[ScenarioSpec], out: Path) -> dict[str, Any]:
+    """:func:`regress` once OUT is checked and locked: leftovers of stopped batches removed, then the runs."""
     plans_dir, logs_dir = out / "plans", out / "logs"
     plans_dir.mkdir(parents=True, exist_ok=True)
+    for folder in (plans_dir, out / "results"):  # half-written files of a batch that was killed
+        for leftover in staged_names(folder, (".tmp.npz", ".tmp.json", ".tmp.parquet")):
+            leftover.unlink(missing_ok=True)
     store = ResultStore(out / "results")
     gen = generation.to_dict()
     keys = {scene_key(s, gen): s for s in specs}
     write_json(out / "regress.json", {"options": {k: (str(v) if isinstance(v, Path) else v)
                                                     for k, v in dataclasses.asdict(opts).items()},
                                         "scenes": {k: s.label() for k, s in keys.items()}})
-    existing = store.read() if opts.retry_failed else []
-    failed_runs = {r["run_key"] for r in existing if r["status"] != "ok"}
+    # failed runs are done, unless the failure was the machine's (timeout, memory, disk) or --retry-failed
+    failed_runs = {r["run_key"] for r in store.read()
+                   if r["status"] != "ok" and (opts.retry_failed or is_transient(r["reason"] or ""))}
     done = store.keys() - failed_runs
     n_runs_expected = len(keys) * opts.variants * len(opts.planners)
 
@@ -169,7 +186,8 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
     for key, spec in keys.items():
         pf = plans_dir / f"{key}.json"
         doc = read_json(pf)
-        if doc is not None and (doc.get("status") == "ok" or not opts.retry_failed):
+        retry = opts.retry_failed or is_transient(str((doc or {}).get("reason") or ""))
+        if doc is not None and (doc.get("status") == "ok" or not retry):
             if doc.get("status") == "ok":
                 initial.extend(run_tasks_for(key, doc))
             continue

@@ -51,6 +51,16 @@ def _short_hash(obj: Any) -> str:
     return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:8]
 
 
+def generation_identity(generation: dict[str, Any]) -> dict[str, Any]:
+    """What a generation config is, for a key: the weights by their contents, not by the path given."""
+    from coster_sumo.weights import weights_digest
+
+    ident = dict(generation)
+    if "models_dir" in ident:
+        ident["models"] = weights_digest(ident.pop("models_dir"))
+    return ident
+
+
 def scene_key(spec: ScenarioSpec, generation: dict[str, Any] | None = None) -> str:
     """A readable, stable, file-safe key: ``<config stem>_s<seed>[_b<begin>][_e<end>]_<hash>``."""
     name = f"{slug(spec.config.stem)}_s{spec.seed}"
@@ -59,8 +69,14 @@ def scene_key(spec: ScenarioSpec, generation: dict[str, Any] | None = None) -> s
     if spec.end is not None:
         name += f"_e{spec.end:g}"
     ident = {"config": str(spec.config.resolve()), "seed": spec.seed, "begin": spec.begin, "end": spec.end,
-             "target": spec.target, "generation": generation or {}}
+             "target": spec.target, "generation": generation_identity(generation or {})}
     return f"{name}_{_short_hash(ident)}"
+
+
+def _staged_or_exported(relative: Path) -> bool:
+    """A configuration below a source folder that is no scene: inside a hidden folder (a staging
+    folder of a convert or run that was stopped, ``.git``) or inside a run's ``export/``."""
+    return any(part.startswith(".") or part == "export" for part in relative.parts)
 
 
 def _parse_overrides(text: str, where: str) -> dict[str, str]:
@@ -86,7 +102,7 @@ def parse_sources(sources: Sequence[str | Path], *, seed: int = 0, seeds: int = 
         if depth > 8:
             raise InputError(f"{where}: source lists nest too deeply")
         if path.is_dir():
-            cfgs = sorted(p for p in path.rglob("*.sumocfg") if "export" not in p.relative_to(path).parts)
+            cfgs = sorted(p for p in path.rglob("*.sumocfg") if not _staged_or_exported(p.relative_to(path)))
             if not cfgs:
                 raise InputError(f"{path}: no .sumocfg below this folder")
             for c in cfgs:

@@ -1,0 +1,203 @@
+"""Nothing lost, nothing counted twice, nothing left running: output folders and faults.
+
+One test per finding of the fault review (numbered as there): each failed on the code before
+coster_sumo.outdir existed and passes now. The slow harness that kills commands at chosen moments
+is tests/test_faults.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from coster_sumo.batch.executor import is_transient
+from coster_sumo.batch.sources import parse_sources, scene_key
+from coster_sumo.cli import main
+from coster_sumo.errors import InputError
+from coster_sumo.outdir import (
+    MARKER,
+    OutputLock,
+    check_output,
+    clean_leftovers,
+    clean_leftovers_in,
+    new_staging,
+    publish,
+    read_marker,
+)
+from coster_sumo.spec import ScenarioSpec
+
+REPO = Path(__file__).resolve().parents[1]
+NET = REPO / "networks" / "intersection"
+CFG = NET / "intersection.sumocfg"
+FAST = ["--init", "random", "--rollout", "cv", "--end", "45", "--variants", "2", "--samples", "50"]
+
+
+def _run(out: Path, *extra: str) -> int:
+    return main(["-q", "run", str(CFG), *FAST, "-o", str(out), *extra])
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+# ---------------------------------------------------------------- 1. run/demo never destroy a folder
+
+def test_run_refuses_a_folder_holding_a_users_file(tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    assert _run(out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "did not write" in err[0] and str(out) in err[0]
+    assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_run_refuses_the_working_directory_and_its_parents(tmp_path, capsys, monkeypatch):
+    work = tmp_path / "work"
+    (work / "sub").mkdir(parents=True)
+    (work / "important.txt").write_text("x")
+    (work / "sub" / "thesis.tex").write_text("y")
+    before = _tree(work)
+    monkeypatch.chdir(work / "sub")
+    for out in (".", "..", str(work)):
+        assert _run(Path(out)) == 2, out
+        assert "working directory" in capsys.readouterr().err
+    assert _tree(work) == before
+
+
+def test_run_refuses_a_folder_holding_its_inputs(tmp_path, capsys):
+    net = tmp_path / "net"
+    shutil.copytree(NET, net)
+    before = _tree(net)
+    for out in (net, tmp_path):
+        assert main(["-q", "run", str(net / "intersection.sumocfg"), *FAST, "-o", str(out)]) == 2
+        assert "holds the input" in capsys.readouterr().err
+    assert _tree(net) == before
+
+
+def test_an_earlier_output_is_replaced_only_with_overwrite_and_only_whole(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert _run(out) == 0
+    marker = read_marker(out)
+    assert marker is not None and marker["kind"] == "run" and "summary.json" in marker["files"]
+    first = _tree(out)
+    assert _run(out) == 2 and "--overwrite" in capsys.readouterr().err
+    assert _tree(out) == first
+    (out / "variants" / "0" / "my_notes.txt").write_text("mine")  # a user's file inside it
+    assert _run(out, "--overwrite") == 2 and "my_notes.txt" in capsys.readouterr().err
+    (out / "variants" / "0" / "my_notes.txt").unlink()
+    assert _run(out, "--overwrite", "--seed", "1") == 0
+    assert json.loads((out / "summary.json").read_text())["seed"] == 1
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]  # no staging, no lock left
+
+
+def test_an_existing_file_as_out_fails_before_any_work(tmp_path, capsys):
+    out = tmp_path / "file"
+    out.write_text("x")
+    assert _run(out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a folder" in err[0] and out.read_text() == "x"
+
+
+def test_a_kill_between_the_two_renames_loses_nothing(tmp_path, monkeypatch):
+    out = tmp_path / "o"
+    old = new_staging(out)
+    (old / "summary.json").write_text("old")
+    publish(old, out, kind="run")
+    new = new_staging(out)
+    (new / "summary.json").write_text("new")
+    real_replace = os.replace
+    calls = []
+
+    def killed_after_first(src, dst):  # the old output moved aside, then the process "dies"
+        calls.append((src, dst))
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", killed_after_first)
+    with pytest.raises(KeyboardInterrupt):
+        publish(new, out, kind="run")
+    monkeypatch.setattr(os, "replace", real_replace)
+    assert not out.exists() and new.exists()  # the state a SIGKILL at that moment leaves
+    with OutputLock(out):  # what the next command on this output does first
+        done = clean_leftovers(out)
+    assert (out / "summary.json").read_text() == "old"
+    assert any("restored" in line for line in done) and not new.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+
+
+def test_two_commands_on_one_output_the_second_refuses_in_one_line(tmp_path):
+    out = tmp_path / "o"
+    with OutputLock(out), pytest.raises(InputError, match="another coster-sumo command is writing it"):
+        with OutputLock(out):
+            pass
+    with OutputLock(out):  # released: free again
+        pass
+    assert not (tmp_path / ".o.lock").exists()
+
+
+def test_output_folders_get_the_users_umask(tmp_path):
+    old = os.umask(0o022)
+    try:
+        staging = new_staging(tmp_path / "o")
+    finally:
+        os.umask(old)
+    assert staging.stat().st_mode & 0o777 == 0o755
+
+
+# ---------------------------------------------------------------- 2. hidden and staging folders are no scenes
+
+def test_staging_folders_of_a_stopped_convert_are_no_scenes(tmp_path):
+    scenes = tmp_path / "scenes"
+    shutil.copytree(NET, scenes / "a")
+    shutil.copytree(NET, scenes / f".b.staging.{os.getpid()}.0a0b")  # what a convert killed before its rename leaves
+    shutil.copytree(NET, scenes / ".git" / "x")
+    specs = parse_sources([str(scenes)])
+    assert [s.config.parent.name for s in specs] == ["a"]
+    assert clean_leftovers_in(scenes) and not (scenes / f".b.staging.{os.getpid()}.0a0b").exists()
+
+
+# ---------------------------------------------------------------- 3. one resume key for the same work
+
+def test_resume_key_names_the_weights_by_content_not_by_path(tmp_path, monkeypatch):
+    models = tmp_path / "m"
+    shutil.copytree(REPO / "models", models, ignore=shutil.ignore_patterns("*.md", "*.png", "*.json"))
+    spec = ScenarioSpec(CFG, seed=0)
+    monkeypatch.chdir(tmp_path)
+    k1 = scene_key(spec, {"variants": 3, "models_dir": "m"})
+    (tmp_path / "sub").mkdir()
+    monkeypatch.chdir(tmp_path / "sub")
+    assert scene_key(spec, {"variants": 3, "models_dir": "../m"}) == k1
+    assert scene_key(spec, {"variants": 3, "models_dir": str(models)}) == k1
+    (models / "vocab.npz").write_bytes((models / "vocab.npz").read_bytes() + b"\0")  # other weights
+    assert scene_key(spec, {"variants": 3, "models_dir": str(models)}) != k1
+
+
+# ---------------------------------------------------------------- 7. transient failures are retried
+
+@pytest.mark.parametrize(("reason", "transient"), [
+    ("timed out after 30 s (killed)", True),
+    ("crashed (SIGKILL)", True),  # the kernel's OOM killer
+    ("OSError: [Errno 28] No space left on device: 'x.npz'", True),
+    ("MemoryError", True),
+    ("crashed (SIGSEGV)", False),  # a SUMO crash on this input: it would crash again
+    ("InputError: x.sumocfg: no such SUMO configuration", False),
+])
+def test_failures_of_the_machine_are_transient_those_of_the_input_are_not(reason, transient):
+    assert is_transient(reason) is transient
+
+
+# ---------------------------------------------------------------- 8. one line for a multi-target export
+
+def test_check_output_names_a_foreign_kind(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / MARKER).write_text(json.dumps({"tool": "coster-sumo", "kind": "convert", "files": []}))
+    (out / "summary.json").write_text("{}")
+    with pytest.raises(InputError, match="output of coster-sumo convert, not of run"):
+        check_output(out, kind="run", overwrite=True)
