@@ -85,6 +85,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"coster-sumo: error: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
+    except OSError as exc:  # the machine said no: a full disk, a read-only folder, a file that vanished
+        if args.debug:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"coster-sumo: error: {one_line(where + (exc.strerror or str(exc)))}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("coster-sumo: interrupted", file=sys.stderr)
         return 130

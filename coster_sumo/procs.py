@@ -17,6 +17,7 @@ module holds that mechanism once: the batch executor, the held copies of a nomin
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import functools
 import os
 import pickle
@@ -64,6 +65,7 @@ def _child_body(fn: Callable[[], Any], path: str) -> None:
     """In a forked child: run ``fn``, pickle its value to ``path`` (or its traceback to ``path.err``), exit."""
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    faulthandler.disable()  # a crash is reported by the parent as one line, not a dump on the terminal
     torch = sys.modules.get("torch")
     if torch is not None:
         # the parent's OpenMP pool does not survive a fork: a forked child that runs torch on more
@@ -159,12 +161,13 @@ def run_forked(fn: Callable[[], Any], timeout: float | None = None) -> Any:
 
 
 def _capture(fn: Callable[[], Any]) -> tuple[bool, Any]:
-    """In the child: ``(True, value)``, or ``(False, error)`` for one of our errors (it crosses back whole)."""
+    """In the child: ``(True, value)``, or ``(False, error)`` for one of our errors or an error of the
+    operating system (a full disk, a folder it may not write): they cross back whole."""
     from coster_sumo.errors import CosterError
 
     try:
         return True, fn()
-    except CosterError as exc:
+    except (CosterError, OSError) as exc:
         return False, exc
 
 

@@ -201,3 +201,62 @@ def test_check_output_names_a_foreign_kind(tmp_path):
     (out / "summary.json").write_text("{}")
     with pytest.raises(InputError, match="output of coster-sumo convert, not of run"):
         check_output(out, kind="run", overwrite=True)
+
+
+# ---------------------------------------------------------------- 4./5. hangs and crashes cost one variant
+
+@pytest.mark.parametrize(("planner", "extra", "why"), [
+    ("tests.misbehaving_planners:AbortOnce", (), "crashed (SIGABRT)"),
+    ("tests.misbehaving_planners:HangOnce", ("--timeout", "20"), "timed out after 20 s"),
+])
+def test_a_crashing_or_hanging_variant_is_one_line_and_the_others_are_kept(tmp_path, capfd, monkeypatch,
+                                                                           planner, extra, why):
+    monkeypatch.setenv("COSTER_TEST_ONCE", str(tmp_path / "once"))
+    out = tmp_path / "o"
+    # the CVAE makes several variants (the constant-velocity baseline only one)
+    assert _run(out, "--planner", planner, "--rollout", "cvae", "--samples", "200", "--variants", "3", *extra) == 1
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and why in err[0] and str(CFG) in err[0] and "adversary" in err[0], err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["num_variants"] == 2
+    assert [f["reason"] for f in summary["generation"]["failed"]] == [f"its SUMO pass {why}" + (
+        " (stopped)" if "timed out" in why else "")]
+
+
+# ---------------------------------------------------------------- 6. nothing from outside the configuration's folder
+
+def test_a_file_from_outside_the_configuration_is_named_not_copied(tmp_path):
+    net = tmp_path / "net"
+    shutil.copytree(NET, net)
+    secret = tmp_path / "elsewhere" / "token.add.xml"
+    secret.parent.mkdir()
+    secret.write_text('<additional><!-- secret-token-42 --></additional>\n')
+    cfg = net / "intersection.sumocfg"
+    text = cfg.read_text()
+    assert "<additional-files" not in text
+    cfg.write_text(text.replace("</input>", f'    <additional-files value="{secret}"/>\n    </input>'))
+    out = tmp_path / "o"
+    assert main(["-q", "run", str(cfg), *FAST, "-o", str(out)]) == 0
+    for variant in (out / "variants").iterdir():
+        export = variant / "export"
+        assert not any("secret-token-42" in p.read_text(errors="replace") for p in export.iterdir() if p.is_file()
+                       and p.name != "variant.json")
+        info = json.loads((export / "variant.json").read_text())["export"]
+        assert info["outside_files"] == [str(secret)]
+    assert main(["-q", "run", str(cfg), *FAST, "-o", str(tmp_path / "o2"), "--copy-outside"]) == 0
+    assert (tmp_path / "o2" / "variants" / "0" / "export" / "token.add.xml").is_file()
+
+
+# ---------------------------------------------------------------- 8. export of a run with several targets
+
+def test_export_of_a_run_with_several_targets(tmp_path, capsys):
+    out = tmp_path / "o"
+    rc = _run(out, "--seed", "2", "--no-render", "--planner", "replay", "--target", "ego", "--target", "pre_W.1")
+    assert rc == 0, capsys.readouterr().err
+    capsys.readouterr()
+    assert main(["export", str(out), "--format", "sumo"]) == 0
+    printed = capsys.readouterr().out
+    assert "target ego, variant 0: sumo -c" in printed
+    marker = read_marker(out)
+    assert marker is not None  # export's files are listed: a later --overwrite may replace them
+    assert _run(out, "--overwrite") == 0
