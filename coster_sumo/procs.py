@@ -61,16 +61,29 @@ def signal_name(code: int) -> str:
     return f"signal {code}"
 
 
+def _one_openmp_thread() -> None:
+    """In a forked child of a process that may have run OpenMP code (torch, scikit-learn's KMeans):
+    one thread. The parent's OpenMP pool does not survive the fork, and a child that starts a
+    parallel region on more than one thread hangs (measured: a torch matrix product and a KMeans fit
+    after fork never returned); on one thread both work. A parent that loaded neither (the CLI
+    forks before any model is loaded) leaves its children all threads."""
+    torch = sys.modules.get("torch")
+    if torch is None and "sklearn" not in sys.modules:
+        return
+    with contextlib.suppress(Exception):
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1, user_api="openmp")
+    if torch is not None:
+        torch.set_num_threads(1)
+
+
 def _child_body(fn: Callable[[], Any], path: str) -> None:
     """In a forked child: run ``fn``, pickle its value to ``path`` (or its traceback to ``path.err``), exit."""
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     faulthandler.disable()  # a crash is reported by the parent as one line, not a dump on the terminal
-    torch = sys.modules.get("torch")
-    if torch is not None:
-        # the parent's OpenMP pool does not survive a fork: a forked child that runs torch on more
-        # than one thread hangs (measured: a matrix product after fork never returned); one thread works
-        torch.set_num_threads(1)
+    _one_openmp_thread()
     code = 0
     try:
         value = fn()
