@@ -81,12 +81,14 @@ def refresh_marker(folder: Path) -> None:
 
 
 def check_output(out: Path, *, kind: str, inputs: Iterable[Path] = (), overwrite: bool = False,
-                 reusable: bool = False) -> None:
+                 reusable: bool = False, signature: str | None = None) -> None:
     """Raise :class:`InputError` (one line, exit code 2) where writing ``out`` could lose a user's file.
 
     ``kind`` names what the command writes ("run", "convert", "regress", ...). ``reusable``: the
     command adds to an earlier output of its kind (a batch that resumes, ``convert`` adding scenes)
-    instead of replacing it, so such a folder is accepted without ``overwrite``.
+    instead of replacing it, so such a folder is accepted without ``overwrite``. ``signature``: for
+    such a command, a file that marks its outputs written before markers existed (a dataset's
+    ``manifest.json``), so that they still resume.
     """
     real = _resolved(out)
     if out.exists() and not out.is_dir():
@@ -104,6 +106,8 @@ def check_output(out: Path, *, kind: str, inputs: Iterable[Path] = (), overwrite
     if not out.is_dir() or not any(out.iterdir()):
         return
     marker = read_marker(out)
+    if marker is None and reusable and signature is not None and (out / signature).is_file():
+        return
     if marker is None:
         raise InputError(f"{out}: exists and holds files coster-sumo did not write; give a new or empty "
                          "folder for -o")

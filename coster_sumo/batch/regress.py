@@ -142,7 +142,8 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
                           target=opts.target)
     out = Path(opts.out)
-    check_output(out, kind="regress", inputs=[Path(s.config) for s in specs], reusable=True)
+    check_output(out, kind="regress", inputs=[Path(s.config) for s in specs], reusable=True,
+                 signature="regress.json")
     out.mkdir(parents=True, exist_ok=True)
     with OutputLock(out, inside=True):
         if not (out / MARKER).exists():

@@ -37,6 +37,7 @@ from coster_sumo.batch.executor import Outcome, Task, execute
 from coster_sumo.batch.nets import Source, generate_nets, run_tool
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.outdir import MARKER, OutputLock, check_output, write_marker
 
 DEFAULT_DURATION_S = 300.0  # [s] per run when neither --duration nor the configuration says
 DEFAULT_TIMEOUT_S = 1800.0  # [s] wall clock per run
@@ -445,7 +446,17 @@ def run_simulate(cfg: SimulateConfig) -> dict[str, Any]:
         raise InputError("--seeds and --workers must be >= 1, --clips-per-run and --netgenerate >= 0")
     if not (0.0 < cfg.scale_range[0] <= cfg.scale_range[1]):
         raise InputError(f"--scale-range must be 0 < LO <= HI, got {cfg.scale_range}")
+    check_output(cfg.dataset, kind="dataset", inputs=[s.path for s in sources], reusable=True,
+                 signature=ds.MANIFEST)
     cfg.dataset.mkdir(parents=True, exist_ok=True)
+    with OutputLock(cfg.dataset, inside=True):
+        if not (cfg.dataset / MARKER).exists():
+            write_marker(cfg.dataset, "dataset")
+        return _simulate_locked(cfg, sources, t_wall)
+
+
+def _simulate_locked(cfg: SimulateConfig, sources: list[Source], t_wall: float) -> dict[str, Any]:
+    """:func:`run_simulate` once DATASET is checked and locked."""
     manifest = ds.read_manifest(cfg.dataset)
     failures: list[str] = []
     if cfg.netgenerate:
