@@ -38,6 +38,7 @@ from typing import Any
 from coster_sumo.errors import InputError
 
 MARKER = ".coster-sumo.json"  # written last into every output folder a command publishes
+LOCK_NAME = ".lock"  # the lock file inside an output that grows (a batch's)
 STAGING_TAG = "staging"
 OLD_TAG = "old"
 
@@ -60,7 +61,7 @@ def read_marker(folder: Path) -> dict[str, Any] | None:
 
 
 def _files_below(folder: Path) -> set[str]:
-    return {p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir()} - {MARKER}
+    return {p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir()} - {MARKER, LOCK_NAME}
 
 
 def write_marker(folder: Path, kind: str) -> None:
@@ -103,7 +104,7 @@ def check_output(out: Path, *, kind: str, inputs: Iterable[Path] = (), overwrite
         r = _resolved(Path(inp))
         if _inside(r, real) or (r.is_file() and r.parent == real):
             raise InputError(f"{out}: holds the input {inp}; give another folder for -o")
-    if not out.is_dir() or not any(out.iterdir()):
+    if not out.is_dir() or not any(p.name != LOCK_NAME for p in out.iterdir()):
         return
     marker = read_marker(out)
     if marker is None and reusable and signature is not None and (out / signature).is_file():
@@ -136,7 +137,7 @@ class OutputLock:
 
     def __init__(self, out: Path, *, inside: bool = False, wait_s: float = 0.0) -> None:
         self.out = out
-        self.path = out / ".lock" if inside else out.parent / f".{out.name}.lock"
+        self.path = out / LOCK_NAME if inside else out.parent / f".{out.name}.lock"
         self.wait_s = wait_s  # [s] how long to wait for another holder before giving up
         self._fd: int | None = None
 
@@ -251,10 +252,12 @@ def raise_if_disk_full(path: Path) -> None:
     For files written by other programs: netconvert reports success after a truncated write on a
     full disk, and the half net then reads as malformed XML; this says what really happened.
     """
-    with contextlib.suppress(OSError):
+    try:
         st = os.statvfs(path if path.is_dir() else path.parent)
-        if st.f_bavail * st.f_frsize < FULL_DISK_BYTES:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    except OSError:
+        return
+    if st.f_bavail * st.f_frsize < FULL_DISK_BYTES:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
 
 def staged_names(folder: Path, names: Sequence[str]) -> list[Path]:

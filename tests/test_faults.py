@@ -179,3 +179,30 @@ def test_a_folder_it_may_not_write_is_one_line(tmp_path, capfd, monkeypatch):
     rc = main(["-q", *RUN, "-o", str(tmp_path / "ro" / "o")])
     err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
     assert rc == 1 and len(err) == 1 and "Permission denied" in err[0], err
+
+
+def test_a_timed_out_run_is_retried_by_a_plain_rerun_a_crash_is_kept(tmp_path):
+    out = tmp_path / "r"
+    env_once = {"COSTER_TEST_ONCE": str(tmp_path / "once")}
+    args = ["regress", str(CFG), "--end", "40", "--init", "random", "--rollout", "cv", "--variants", "1",
+            "--planner", "tests.misbehaving_planners:HangOnce", "--planner", "tests.misbehaving_planners:Abort",
+            "--timeout", "20", "-o", str(out)]
+    for attempt in range(2):
+        env = {**os.environ, "PYTHONPATH": str(REPO), **env_once}
+        done = subprocess.run([sys.executable, "-m", "coster_sumo", "-q", *args], env=env, capture_output=True,
+                              text=True, timeout=600)
+        assert done.returncode == 1, done.stderr  # the Abort row fails both times
+        rows = {r["planner"].rsplit(":", 1)[1]: r for r in _rows(out)}
+        assert len(rows) == 2
+        if attempt == 0:
+            assert "timed out" in rows["HangOnce"]["reason"]
+            aborted_at = rows["Abort"]["finished_at"]
+        else:  # the timeout was the machine's: run again, and it finished; the crash is the input's: kept
+            assert rows["HangOnce"]["status"] == "ok"
+            assert rows["Abort"]["finished_at"] == aborted_at and "SIGABRT" in rows["Abort"]["reason"]
+
+
+def _rows(out: Path) -> list[dict]:
+    from coster_sumo.batch.store import ResultStore
+
+    return ResultStore(out / "results").read()

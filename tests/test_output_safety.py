@@ -260,3 +260,30 @@ def test_export_of_a_run_with_several_targets(tmp_path, capsys):
     marker = read_marker(out)
     assert marker is not None  # export's files are listed: a later --overwrite may replace them
     assert _run(out, "--overwrite") == 0
+
+
+def test_a_net_truncated_by_a_full_disk_blames_the_disk(tmp_path, monkeypatch):
+    from coster_sumo.converters.to_sumo import _parse_xml
+
+    net = tmp_path / "x.net.xml"
+    net.write_text("<net><edge id='a'")  # what netconvert leaves on a full disk, reporting success
+    real = os.statvfs
+
+    class Full:
+        def __init__(self, st):
+            self.f_frsize, self.f_bavail = st.f_frsize, 0
+
+    monkeypatch.setattr(os, "statvfs", lambda p: Full(real(p)))
+    with pytest.raises(OSError, match="No space left on device"):
+        _parse_xml(net)
+
+
+def test_a_second_batch_on_one_folder_refuses_in_one_line(tmp_path, capsys):
+    out = tmp_path / "r"
+    out.mkdir()
+    with OutputLock(out, inside=True):
+        rc = main(["-q", "regress", str(CFG), "--end", "40", "--init", "random", "--rollout", "cv",
+                   "--planner", "replay", "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "another coster-sumo command is writing it" in err[0]
+    assert not (out / "results").exists()
