@@ -287,3 +287,22 @@ def test_a_second_batch_on_one_folder_refuses_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "another coster-sumo command is writing it" in err[0]
     assert not (out / "results").exists()
+
+
+# ---------------------------------------------------------------- 5. a SUMO crash is one line, not a dead command
+
+@pytest.mark.parametrize("command", ["replay", "run"])
+def test_a_sumo_crash_outside_the_variants_is_one_line(tmp_path, capfd, monkeypatch, command):
+    def crash(*args, **kwargs):
+        os.abort()  # what a libsumo segfault does to its process
+
+    if command == "replay":
+        monkeypatch.setattr("coster_sumo.sim.replay.replay", crash)
+        rc = main(["-q", "replay", str(CFG), "-o", str(tmp_path / "o")])
+    else:
+        monkeypatch.setattr("coster_sumo.run.nominal_scene", crash)
+        rc = _run(tmp_path / "o")
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 1 and len(err) == 1, err
+    assert f"{command} of {CFG}: stopped, crashed (SIGABRT)" in err[0]
+    assert [p.name for p in tmp_path.iterdir()] == []  # no staging folder, no lock

@@ -10,11 +10,13 @@ simply run (``--fcd-output`` passes through). ``summary.json`` goes to ``--out``
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
+from coster_sumo.procs import run_supervised
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -49,9 +51,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.fcd_output is not None:
         args.fcd_output.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        summary = replay(args.config, ReplayOptions(end=args.end, fcd_output=args.fcd_output,
-                                                    traci=args.traci, progress=progress))
+    options = ReplayOptions(end=args.end, fcd_output=args.fcd_output, traci=args.traci, progress=progress)
+    try:  # in a child process: a SUMO crash is one line naming the configuration, not a dead command
+        summary = run_supervised(functools.partial(replay, args.config, options), f"replay of {args.config}")
     finally:
         bar.close()
     out: Path = args.out if args.out is not None else args.config.parent / "replay"
