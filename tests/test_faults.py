@@ -206,3 +206,30 @@ def _rows(out: Path) -> list[dict]:
     from coster_sumo.batch.store import ResultStore
 
     return ResultStore(out / "results").read()
+
+
+@pytest.mark.parametrize("how", ["SIGINT", "SIGKILL"])
+def test_a_hung_variant_dies_with_run(tmp_path, finished, how):
+    """A variant that hangs (no --timeout) is stopped with its run by Ctrl-C or kill -9: no holder,
+    no worker left (before, both survived at about 120 MB each)."""
+    _, seconds = finished
+    out = tmp_path / "o"
+    env_once = str(tmp_path / "once")
+    env = {**os.environ, "PYTHONPATH": str(REPO), "COSTER_TEST_ONCE": env_once}
+    proc = subprocess.Popen([sys.executable, "-m", "coster_sumo", "-q", *RUN, "--planner",
+                             "tests.misbehaving_planners:HangOnce", "-o", str(out)], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 10 * seconds
+    while not Path(env_once).exists() and time.monotonic() < deadline:  # a variant has started to hang
+        time.sleep(0.2)
+    assert Path(env_once).exists() and proc.poll() is None
+    time.sleep(1.0)
+    if how == "SIGINT":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=60)
+    assert _left_running(proc.pid) == []
+    assert not out.exists()
+    if how == "SIGINT":  # Ctrl-C cleans up itself; after kill -9 the next command on OUT does (tested above)
+        assert _hidden(tmp_path) == []
