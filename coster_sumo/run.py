@@ -15,7 +15,7 @@ import os
 import re
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +36,7 @@ from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
 from coster_sumo.outputs import write_run_outputs
+from coster_sumo.plan import AdversaryPlan
 from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
@@ -232,6 +233,27 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
                              options=opts.to_json(), copy_outside=opts.copy_outside)
 
 
+def _leave_out(planned: list[PlannedScenario], outcomes: Sequence[Any],
+               verdict: Callable[[AdversaryPlan, Any], tuple[str, dict[str, Any]] | None]
+               ) -> tuple[list[PlannedScenario], list[Any]]:
+    """The plans and outcomes (one per plan, in order) that ``verdict`` keeps (it returns None);
+    a left-out one is recorded under its snapshot's ``info[key]`` with the entry ``verdict`` gives."""
+    it = iter(outcomes)
+    kept_outcomes: list[Any] = []
+    for p in planned:
+        kept = []
+        for plan in p.plans:
+            res = next(it)
+            why = verdict(plan, res)
+            if why is None:
+                kept.append(plan)
+                kept_outcomes.append(res)
+            else:
+                p.info.setdefault(why[0], []).append(why[1])
+        p.plans = kept
+    return planned, kept_outcomes
+
+
 def drop_failed_variants(planned: list[PlannedScenario], outcomes: list[InjectionResult | VariantFailure]
                          ) -> tuple[list[PlannedScenario], list[InjectionResult]]:
     """The plans and results without the variants whose pass failed (SUMO crashed, timed out).
@@ -240,24 +262,16 @@ def drop_failed_variants(planned: list[PlannedScenario], outcomes: list[Injectio
     the adversary, its t_col and the reason), which ``coster-sumo run`` prints as one line each; the
     other variants go on.
     """
-    it = iter(outcomes)
-    results: list[InjectionResult] = []
-    for p in planned:
-        kept = []
-        for plan in p.plans:
-            res = next(it)
-            if isinstance(res, VariantFailure):
-                p.info.setdefault("failed", []).append({"candidate": plan.vehicle_id, "t_col": plan.t_col,
-                                                        "reason": f"its SUMO pass {res.reason}"})
-            else:
-                kept.append(plan)
-                results.append(res)
-        p.plans = kept
-    return planned, results
+    def failed(plan: AdversaryPlan, res: InjectionResult | VariantFailure) -> tuple[str, dict[str, Any]] | None:
+        if not isinstance(res, VariantFailure):
+            return None
+        return "failed", {"candidate": plan.vehicle_id, "t_col": plan.t_col, "reason": f"its SUMO pass {res.reason}"}
+
+    return _leave_out(planned, outcomes, failed)
 
 
-def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], target_id: str
-                          ) -> tuple[list[PlannedScenario], list[Any]]:
+def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[InjectionResult], target_id: str
+                          ) -> tuple[list[PlannedScenario], list[InjectionResult]]:
     """The plans and results without the variants whose adversary ran into another vehicle before
     t_col in the simulation (their ``info["dropped"]`` says so).
 
@@ -270,24 +284,16 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], ta
     adversary hit a car 1 s before t_col and the target hit both: its export no longer followed the
     plan).
     """
-    it = iter(results)
-    kept_results: list[InjectionResult] = []
-    for p in planned:
-        kept = []
-        for plan in p.plans:
-            res = next(it)
-            wreck = next((e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles
-                          and target_id not in e.vehicles and e.time < plan.t_col - 0.1 - 1e-6), None)
-            if wreck is not None:
-                other = next(v for v in wreck.vehicles if v != plan.vehicle_id)
-                p.info.setdefault("dropped", []).append(
-                    {"candidate": plan.vehicle_id, "reason": f"ran into {other} at {wreck.time:.1f} s in the "
-                                                              "simulation, before t_col"})
-                continue
-            kept.append(plan)
-            kept_results.append(res)
-        p.plans = kept
-    return planned, kept_results
+    def wrecked(plan: AdversaryPlan, res: InjectionResult) -> tuple[str, dict[str, Any]] | None:
+        wreck = next((e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles
+                      and target_id not in e.vehicles and e.time < plan.t_col - 0.1 - 1e-6), None)
+        if wreck is None:
+            return None
+        other = next(v for v in wreck.vehicles if v != plan.vehicle_id)
+        return "dropped", {"candidate": plan.vehicle_id,
+                           "reason": f"ran into {other} at {wreck.time:.1f} s in the simulation, before t_col"}
+
+    return _leave_out(planned, results, wrecked)
 
 
 def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None] | None:
