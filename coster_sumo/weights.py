@@ -21,6 +21,7 @@ PRIOR = "prior.pt"
 ROLLOUT = "rollout.pt"
 ROLLOUT_NO_DSA = "rollout_nodsa.pt"
 VOCAB = "vocab.npz"
+WEIGHT_FILES = (PRIOR, ROLLOUT, ROLLOUT_NO_DSA, VOCAB)  # what a models folder holds
 
 # what trains each file, for the "not found" message
 _TRAIN_COMMAND = {PRIOR: "coster-sumo train prior --data DATASET -o {path}",
@@ -71,7 +72,7 @@ def weights_digest(models_dir: str | Path | None = None) -> str:
     import hashlib
 
     folder = models_folder(models_dir).resolve()
-    files = [folder / n for n in (PRIOR, ROLLOUT, ROLLOUT_NO_DSA, VOCAB) if (folder / n).is_file()]
+    files = [folder / n for n in WEIGHT_FILES if (folder / n).is_file()]
     stamp = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files)
     key = (str(folder), stamp)
     if key not in _DIGESTS:

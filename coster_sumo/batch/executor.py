@@ -10,7 +10,10 @@ scratch files behind; folders of a batch that was itself killed are removed by t
 A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
 runs start as soon as its variants exist. ``executor="ray"`` runs the same functions on a Ray
 cluster (``ray.init()`` locally when no address is given; one worker process per task through
-``max_calls=1``; files in OUT must be on a file system the workers share).
+``max_calls=1``). On Ray, workers need no disk shared with the driver: a task names the folders
+of its payload it reads and writes (:attr:`Task.folders`); the files it reads travel through Ray's
+object store (each file put there once), the task runs on a private copy of those folders on the
+worker, and what it writes there comes back with its result and is written into OUT by the driver.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
@@ -54,6 +57,10 @@ class Task:
     fn: Callable[[dict[str, Any]], Any]
     payload: dict[str, Any]
     kind: str = "task"
+    folders: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    """Payload keys that name folders on the driver the task reads and writes, each with the names
+    of the files in it the task reads. Locally the task uses the folders themselves; on Ray the
+    files travel with the task and what it writes into the folders comes back (module docstring)."""
 
 
 @dataclass
@@ -247,8 +254,71 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
             shutil.rmtree(r.scratch, ignore_errors=True)
 
 
-def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any]) -> Any:
-    return fn(payload)
+def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any],
+               shipped: dict[str, dict[str, Any]]) -> tuple[Any, dict[str, dict[str, bytes]]]:
+    """On a Ray worker: the task on private copies of its folders; returns its value and every file
+    it wrote or changed in them (``{payload key: {name: bytes}}``), for the driver to write."""
+    if not shipped:
+        return fn(payload), {}
+    import ray
+
+    with tempfile.TemporaryDirectory(prefix="coster-ray-") as tmp:
+        local = dict(payload)
+        before: dict[str, dict[str, int]] = {}
+        for key, files in shipped.items():
+            folder = Path(tmp) / key
+            folder.mkdir()
+            for name, data in files.items():
+                (folder / name).parent.mkdir(parents=True, exist_ok=True)
+                (folder / name).write_bytes(ray.get(data) if isinstance(data, ray.ObjectRef) else data)
+            local[key] = str(folder)
+            before[key] = {p.relative_to(folder).as_posix(): p.stat().st_mtime_ns for p in folder.rglob("*")
+                           if p.is_file()}
+        value = fn(local)
+        back: dict[str, dict[str, bytes]] = {}
+        for key in shipped:
+            folder = Path(local[key])
+            back[key] = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
+                         if p.is_file() and not p.name.startswith(".")
+                         and before[key].get(p.relative_to(folder).as_posix()) != p.stat().st_mtime_ns}
+    return value, back
+
+
+class _Shipper:
+    """The driver's side of :attr:`Task.folders` on Ray: files put into the object store once each,
+    and files that come back written into the driver's folders (atomically)."""
+
+    def __init__(self, ray: Any) -> None:
+        self.ray = ray
+        self._refs: dict[tuple[str, int, int], Any] = {}
+
+    def ship(self, task: Task) -> dict[str, dict[str, Any]]:
+        shipped: dict[str, dict[str, Any]] = {}
+        for key, names in task.folders.items():
+            folder = Path(task.payload[key])
+            shipped[key] = {}
+            for name in names:
+                path = folder / name
+                if not path.is_file():
+                    continue
+                st = path.stat()
+                ident = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+                if ident not in self._refs:
+                    self._refs[ident] = self.ray.put(path.read_bytes())
+                shipped[key][name] = self._refs[ident]
+        return shipped
+
+    @staticmethod
+    def land(task: Task, back: dict[str, dict[str, bytes]]) -> None:
+        from coster_sumo.atomic import atomic_path
+
+        for key, files in back.items():
+            folder = Path(task.payload[key])
+            for name, data in files.items():
+                path = folder / name
+                path.parent.mkdir(parents=True, exist_ok=True)
+                with atomic_path(path) as tmp:
+                    tmp.write_bytes(data)
 
 
 def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
@@ -267,12 +337,13 @@ def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, o
         ray.init(**kwargs)
         started_here = True
     remote = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_entry)
+    shipper = _Shipper(ray)
     running: dict[Any, tuple[Task, float]] = {}
     try:
         while pending or running:
             while pending and len(running) < workers:
                 task = pending.popleft()
-                running[remote.remote(task.fn, task.payload)] = (task, time.monotonic())
+                running[remote.remote(task.fn, task.payload, shipper.ship(task))] = (task, time.monotonic())
             now = time.monotonic()
             wait_s = 1.0
             if timeout is not None:
@@ -284,7 +355,9 @@ def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, o
                 outcome: Outcome | None = None
                 if ref in ready:
                     try:
-                        outcome = Outcome(True, value=ray.get(ref), wall_time_s=now - start)
+                        value, back = ray.get(ref)
+                        shipper.land(task, back)
+                        outcome = Outcome(True, value=value, wall_time_s=now - start)
                     except ray.exceptions.RayTaskError as exc:
                         cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
                         outcome = Outcome(False, reason=_one_line(getattr(cause, "cause", None) or cause),

@@ -23,13 +23,24 @@ import numpy as np
 
 from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute, is_transient
-from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, scene_key, slug
+from coster_sumo.batch.sources import (
+    CONFIG_DIR,
+    BatchOptions,
+    config_dir,
+    located,
+    nominal_for,
+    parse_sources,
+    scene_key,
+    slug,
+    task_folders,
+)
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
 from coster_sumo.core import Variant, check_generation
 from coster_sumo.errors import InputError
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.weights import WEIGHT_FILES
 
 GENERATION_KEYS = ("init", "rollout", "collision_time", "variants", "samples")
 
@@ -40,9 +51,11 @@ def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.drivable import DrivableArea
 
     t0 = time.perf_counter()
-    spec = ScenarioSpec.from_dict(payload["spec"])
+    spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     plans_dir = Path(payload["plans_dir"])
     gen = GenerationConfig.from_dict(payload["generation"])
+    if payload.get("models_dir"):  # where the weights are for this task (a private copy on a Ray worker)
+        gen = dataclasses.replace(gen, models_dir=Path(payload["models_dir"]))
     scene, converted, scene_file = nominal_for(spec, plans_dir)
     target = choose_target(scene, spec.target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
@@ -78,7 +91,7 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
     plans_dir = Path(payload["plans_dir"])
     doc = json.loads((plans_dir / f"{payload['scene_key']}.json").read_text())
     scene = load_scene(plans_dir / doc["scene_file"])
-    spec = ScenarioSpec.from_dict(doc["spec"])
+    spec = located(ScenarioSpec.from_dict(doc["spec"]), payload)
     i = int(payload["variant"])
     variant = Variant.from_dict(doc["variants"][i])
     plan, t_col = variant.plan, variant.snapshot.time
@@ -125,6 +138,20 @@ def check_planners(planners: Sequence[str]) -> None:
         raise InputError(f"--planner values must be distinct: {', '.join(planners)}")
     for p in planners:
         check_planner(p)
+
+
+def generation_task_for(key: str, spec: ScenarioSpec, plans_dir: Path, gen: dict[str, Any],
+                        models_dir: Path | None) -> Task:
+    """The task that generates one scene's variants; with the folders it reads (the configuration,
+    a cached nominal scene, the weights given by ``--models``) named, so that it runs on a Ray worker
+    without a disk shared with OUT."""
+    payload: dict[str, Any] = {"scene_key": key, "spec": spec.to_dict(), "plans_dir": str(plans_dir),
+                               "generation": gen, CONFIG_DIR: config_dir(spec)}
+    folders = task_folders(spec, plans_dir=(f"{scene_key(spec)}.npz",))
+    if models_dir is not None:
+        payload["models_dir"] = str(models_dir)
+        folders["models_dir"] = WEIGHT_FILES
+    return Task(f"plan__{key}", generation_task, payload, kind="plan", folders=folders)
 
 
 def run_key(scene: str, variant: int, planner: str) -> str:
@@ -180,7 +207,8 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                 if rk not in done:
                     tasks.append(Task(rk, run_task, {"run_key": rk, "scene_key": key, "variant": i, "planner": p,
                                                      "plans_dir": str(plans_dir), "config": str(spec.config),
-                                                     "seed": spec.seed}, kind="run"))
+                                                     "seed": spec.seed, CONFIG_DIR: config_dir(spec)}, kind="run",
+                                      folders=task_folders(spec, plans_dir=(f"{key}.json", doc["scene_file"]))))
         return tasks
 
     initial: list[Task] = []
@@ -192,9 +220,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
             if doc.get("status") == "ok":
                 initial.extend(run_tasks_for(key, doc))
             continue
-        initial.append(Task(f"plan__{key}", generation_task, {"scene_key": key, "spec": spec.to_dict(),
-                                                             "plans_dir": str(plans_dir), "generation": gen},
-                            kind="plan"))
+        initial.append(generation_task_for(key, spec, plans_dir, gen, generation.models_dir))
 
     def on_done(task: Task, outcome: Outcome) -> list[Task]:
         key = task.payload["scene_key"]

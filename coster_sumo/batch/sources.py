@@ -8,8 +8,11 @@ with a readable, stable key; its nominal scene is recorded once and cached under
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import hashlib
 import json
+import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -142,6 +145,51 @@ def parse_sources(sources: Sequence[str | Path], *, seed: int = 0, seeds: int = 
             seen.add(s)
             unique.append(s)
     return unique
+
+
+CONFIG_DIR = "config_dir"  # the payload key of a task's configuration folder (a folder that travels on Ray)
+
+
+def config_files(config: Path) -> tuple[str, ...]:
+    """The files of the configuration's folder a task needs to simulate it: the ``.sumocfg``, the
+    files it names inside its folder, and a converted scene's log and lane map. A file the
+    configuration names outside its folder is not among them: on a cluster it must exist on every
+    worker at the same path."""
+    from coster_sumo.formats.scene_folder import SCENE_FILES
+    from coster_sumo.formats.sumocfg import read_sumocfg
+
+    folder = Path(os.path.abspath(config)).parent
+    names = [config.name]
+    try:
+        inputs = [p for paths in read_sumocfg(config).inputs().values() for p in paths]
+    except InputError:
+        inputs = []
+    for p in inputs:
+        with contextlib.suppress(ValueError):
+            names.append(Path(os.path.abspath(p)).relative_to(folder).as_posix())
+    if converted_scene_file(config) is not None:
+        names += SCENE_FILES
+    return tuple(dict.fromkeys(names))
+
+
+def config_dir(spec: ScenarioSpec) -> str:
+    """The payload value of :data:`CONFIG_DIR` for ``spec``: its configuration's folder."""
+    return str(Path(os.path.abspath(spec.config)).parent)
+
+
+def task_folders(spec: ScenarioSpec, **more: tuple[str, ...]) -> dict[str, tuple[str, ...]]:
+    """:attr:`~coster_sumo.batch.executor.Task.folders` of a task that simulates ``spec``: its
+    configuration's folder (payload key :data:`CONFIG_DIR`) and the payload folders in ``more``."""
+    return {CONFIG_DIR: config_files(spec.config), **more}
+
+
+def located(spec: ScenarioSpec, payload: dict[str, Any]) -> ScenarioSpec:
+    """``spec`` with its configuration where the task finds it: in the payload's configuration
+    folder (a private copy on a Ray worker), else where the driver named it."""
+    folder = payload.get(CONFIG_DIR)
+    if not folder:
+        return spec
+    return dataclasses.replace(spec, config=Path(folder) / spec.config.name)
 
 
 def nominal_for(spec: ScenarioSpec, cache_dir: Path) -> tuple[Scene, bool, Path]:

@@ -21,7 +21,9 @@ def add_scene_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=1, help="runs at a time, one process each (default 1)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local processes, or a Ray cluster (pip install ray)")
-    p.add_argument("--ray-address", help="Ray cluster address (default: a local Ray instance)")
+    p.add_argument("--address", "--ray-address", dest="ray_address",
+                   help="Ray cluster address HOST:PORT (default: a local Ray instance); its workers need no disk "
+                        "shared with OUT")
     p.add_argument("--timeout", type=float, default=900.0,
                    help="[s] wall clock per task; a task past it is killed and marked failed (default 900; 0 = none)")
     p.add_argument("--models", type=Path, help="folder with prior/rollout weights (default: shipped)")
