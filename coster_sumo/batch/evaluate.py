@@ -21,7 +21,17 @@ import numpy as np
 
 from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute, is_transient
-from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, scene_key, slug
+from coster_sumo.batch.sources import (
+    CONFIG_DIR,
+    BatchOptions,
+    config_dir,
+    located,
+    nominal_for,
+    parse_sources,
+    scene_key,
+    slug,
+    task_folders,
+)
 from coster_sumo.batch.store import rate_with_ci, read_json
 from coster_sumo.core import missing_weights
 from coster_sumo.errors import InputError
@@ -35,7 +45,7 @@ from coster_sumo.metrics import (
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
-from coster_sumo.weights import weights_digest
+from coster_sumo.weights import WEIGHT_FILES, weights_digest
 
 
 @dataclass(frozen=True)
@@ -78,7 +88,7 @@ def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.core import choose_target
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
 
-    spec = ScenarioSpec.from_dict(payload["spec"])
+    spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scene, _, path = nominal_for(spec, Path(payload["scenes_dir"]))
     choose_target(scene, spec.target, spec.config)
     t = scene.tracks
@@ -112,7 +122,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.sim.inject import inject_variant
     from coster_sumo.snapshot import NoSnapshot
 
-    spec = ScenarioSpec.from_dict(payload["spec"])
+    spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scenes_dir = Path(payload["scenes_dir"])
     scene = load_scene(scenes_dir / payload["scene_file"])
     target = choose_target(scene, spec.target, spec.config)
@@ -216,11 +226,15 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
             pk = part_key(key, m.name, opts.variants, weights)
             if _done(read_json(parts_dir / f"{pk}.json")):
                 continue
+            folders = task_folders(keys[key], scenes_dir=(scene_file,))
+            if opts.models_dir:
+                folders["models_dir"] = WEIGHT_FILES
             tasks.append(Task(pk, method_task, {
                 "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
                 "scenes_dir": str(scenes_dir), "method": dataclasses.asdict(m), "variants": opts.variants,
-                "samples": opts.samples, "planner": opts.planner,
-                "models_dir": str(opts.models_dir) if opts.models_dir else None}, kind="method"))
+                "samples": opts.samples, "planner": opts.planner, CONFIG_DIR: config_dir(keys[key]),
+                "models_dir": str(opts.models_dir.resolve()) if opts.models_dir else None}, kind="method",
+                folders=folders))
         return tasks
 
     initial = []
@@ -230,7 +244,8 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
             initial.extend(method_tasks(key, sp["scene_file"]))
         elif not _done(sp):
             initial.append(Task(f"{key}__scene", scene_task, {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir),
-                                                              "scene_key": key}, kind="scene"))
+                                                              "scene_key": key, CONFIG_DIR: config_dir(spec)},
+                                kind="scene", folders=task_folders(spec, scenes_dir=(f"{key}.npz",))))
 
     def on_done(task: Task, outcome: Outcome) -> list[Task]:
         key = task.payload["scene_key"]
