@@ -220,8 +220,8 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], ta
             if wreck is not None:
                 other = next(v for v in wreck.vehicles if v != plan.vehicle_id)
                 p.info.setdefault("dropped", []).append(
-                    {"candidate": plan.vehicle_id, "reason": f"ran into {other} at {wreck.time:.1f} s in the "
-                                                              "simulation, before t_col"})
+                    {"candidate": plan.vehicle_id,
+                     "reason": f"ran into {other} at {wreck.time:.1f} s in the simulation, before t_col"})
                 continue
             kept.append(plan)
             kept_results.append(res)

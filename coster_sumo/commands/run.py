@@ -165,7 +165,30 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
                      "its contacts are with a standing vehicle")
     for v in summary["variants"]:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
-               f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
+               f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else (
+            "no contact: " + (v.get("no_contact_reason") or "no reason recorded"))
+        others = v.get("other_collisions_list") or []
         lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else "")
+                     + (f"; {len(others)} other collision{'s' if len(others) != 1 else ''} ({others[0]}"
+                        + (", ..." if len(others) > 1 else "") + ")" if others else "")
                      + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else ""))
+    lines += dropped_lines(summary)
+    return lines
+
+
+def dropped_lines(summary: dict[str, Any]) -> list[str]:
+    """One line per candidate that did not become a variant, with its reason, and how many of the
+    variants asked for were kept."""
+    lines: list[str] = []
+    asked = (summary.get("options") or {}).get("variants")
+    for s in summary.get("snapshots", []):
+        gen = s.get("generation") or {}
+        for d in gen.get("dropped", []):
+            c = d["candidate"]
+            lines.append(f"  dropped {'candidate ' + str(c) if isinstance(c, int) else c}: {d['reason']}")
+        for t, why in (gen.get("collision_times_given_up") or {}).items():
+            lines.append(f"  gave up {t}: {why}")
+    n = len(summary.get("variants", []))
+    if asked is not None and n < asked * len(summary.get("snapshots", [1])):
+        lines.insert(0, f"  {n} of {asked * len(summary.get('snapshots', [1]))} variants kept; the others:")
     return lines
