@@ -31,7 +31,7 @@ import numpy as np
 from coster_sumo import weights
 from coster_sumo.dataset import crop_scene
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.geometry import box_signed_distance, make_boxes
@@ -148,7 +148,7 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
     """
     cfg = spec.config
     if not cfg.exists():
-        raise InputError(f"{cfg}: no such SUMO configuration")
+        raise not_found(cfg)
     log = converted_scene_file(cfg)
     if log is not None:
         return load_scene(log), True

@@ -25,6 +25,13 @@ from coster_sumo.atomic import write_text
 EXAMPLES_PER_PLANNER = 3
 
 
+
+def _legend(ax: Any, **kwargs: Any) -> None:
+    """A legend where something is labelled: a planner without contacts draws nothing, and
+    matplotlib would warn "No artists with labels found" on the console of a quiet run."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kwargs)
+
 def _pct(entry: dict[str, Any]) -> str:
     if entry.get("rate") is None:
         return "n/a"
@@ -90,7 +97,7 @@ def plot_rates(path: Path, summary: dict[str, Any]) -> Path:
     ax.set_xticks(np.arange(len(planners)), planners)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("rate (Wilson 95% CI)")
-    ax.legend()
+    _legend(ax)
     ax.set_title("route completion, collision and off-road rates per planner")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -113,7 +120,7 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[dict[str,
                    lw=0.5, label=f"{p} ({len(a)})")
     ax.set_theta_zero_location("E")
     ax.set_title("impact angle in the target frame (0 = ahead, 90 = left)", fontsize=10)
-    ax.legend(loc="lower left", fontsize=8, bbox_to_anchor=(-0.1, -0.15))
+    _legend(ax, loc="lower left", fontsize=8, bbox_to_anchor=(-0.1, -0.15))
     fig.tight_layout()
     fig.savefig(angles_path, dpi=110)
     plt.close(fig)
@@ -127,7 +134,7 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[dict[str,
             ax.hist(v, bins=edges, histtype="step", lw=1.5, label=f"{p} ({len(v)})")
     ax.set_xlabel("relative speed at first contact [m/s]")
     ax.set_ylabel("runs")
-    ax.legend(fontsize=8)
+    _legend(ax, fontsize=8)
     fig.tight_layout()
     fig.savefig(speeds_path, dpi=110)
     plt.close(fig)
@@ -190,7 +197,7 @@ def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, 
     what = ("collision" if row["collision"] else "off-road" if row["target_off_road"] else "route not completed")
     ax.set_title(f"{row['run_key']}\n{what}" + (f", {row['relative_speed']:.1f} m/s, {row['impact_angle']:.0f} deg"
                                                 if row["relative_speed"] is not None else ""), fontsize=8)
-    ax.legend(loc="upper right", fontsize=7)
+    _legend(ax, loc="upper right", fontsize=7)
     ax.set_xlim(window[0], window[2])
     ax.set_ylim(window[1], window[3])
     ax.set_aspect("equal")

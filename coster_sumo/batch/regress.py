@@ -27,6 +27,7 @@ from coster_sumo.batch.sources import BatchOptions, nominal_for, parse_sources, 
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
 from coster_sumo.core import Variant, check_generation
 from coster_sumo.errors import InputError
+from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -106,7 +107,8 @@ class RegressOptions(BatchOptions):
     """Everything ``coster-sumo regress`` takes (see its --help)."""
 
     planners: list[str]
-    variants: int = 3
+    variants: int = GenerationConfig.variants  # the same default as run and the API
+    duration: float | None = None  # [s] each scene's window from its begin (instead of end)
     init: str = "snapshot"
     rollout: str = "cvae"
     collision_time: str = "entropy"
@@ -126,6 +128,17 @@ def check_planners(planners: Sequence[str]) -> None:
         check_planner(p)
 
 
+def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
+    """``spec`` ending ``duration`` [s] after its begin (its own, else its configuration's), as
+    ``run --duration`` does; a source that names its own end keeps it."""
+    if duration <= 0:
+        raise InputError(f"--duration must be positive, not {duration:g}")
+    if spec.end is not None:
+        return spec
+    begin = spec.begin if spec.begin is not None else (read_sumocfg(spec.config).begin or 0.0)
+    return dataclasses.replace(spec, end=begin + duration)
+
+
 def run_key(scene: str, variant: int, planner: str) -> str:
     return f"{scene}__v{variant}__{slug(planner)}"
 
@@ -139,6 +152,8 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
     check_generation(generation)
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
                           target=opts.target)
+    if opts.duration is not None:
+        specs = [with_duration(s, opts.duration) for s in specs]
     out = Path(opts.out)
     plans_dir, logs_dir = out / "plans", out / "logs"
     plans_dir.mkdir(parents=True, exist_ok=True)

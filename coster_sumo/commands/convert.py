@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import CosterError, InputError, one_line
+from coster_sumo.errors import CosterError, InputError, not_found, one_line
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -57,6 +57,9 @@ def run(args: argparse.Namespace) -> int:
     from coster_sumo.formats.scene_folder import MAX_FOLDER_NAME, folder_name
 
     out: Path = args.out
+    missing = [p for p in args.inputs if not p.exists()]
+    if len(missing) == len(args.inputs):  # nothing to read: the one missing-file line, before any work
+        raise not_found(missing[0])
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
     created = not out.exists()
@@ -93,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
 
     for path in args.inputs:
         record = 0
+        if path in missing:
+            failures.append({"where": one_line(str(path)), "error": one_line(str(not_found(path)))})
+            tqdm.write(f"coster-sumo: error: {failures[-1]['error']}", file=sys.stderr)
+            continue
         try:
             for scene in iter_scenes(path):
                 read_any = True

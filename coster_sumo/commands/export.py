@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from coster_sumo.exports.run_folder import FORMATS, OSC_DIR, export_run
+from coster_sumo.errors import not_found
+from coster_sumo.exports.run_folder import FORMATS, OSC_DIR, available_formats, export_run
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -18,8 +19,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "trajectories.csv/.json of the target, the adversary and the vehicles near the target at "
                     "t_col). The openscenario format needs the optional extra: pip install "
                     "'coster-sumo[openscenario]'.")
-    p.add_argument("run_out", type=Path, help="output folder of `coster-sumo run`")
-    p.add_argument("--format", choices=FORMATS, default="all", help="(default %(default)s)")
+    p.add_argument("run_out", type=Path, metavar="RUN_OUT", help="output folder of `coster-sumo run`")
+    p.add_argument("--format", choices=FORMATS, default=None,
+                   help="(default: all where the OpenSCENARIO extra is installed, else sumo)")
     p.add_argument("--radius", type=float, default=None,
                    help="[m] OpenSCENARIO: vehicles within this distance of the target at t_col are included "
                         "(default 50)")
@@ -27,7 +29,21 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    results = export_run(args.run_out, args.format, args.radius)
+    from coster_sumo.progress import progress_bar
+
+    if not args.run_out.is_dir():  # before the bar: the error is the only line
+        raise not_found(args.run_out, "folder")
+    fmt = args.format or available_formats()
+    if args.format is None and fmt == "sumo" and not args.quiet:
+        from coster_sumo.exports.openscenario import EXTRA_HINT
+
+        print(f"OpenSCENARIO + OpenDRIVE skipped: the optional extra is not installed ({EXTRA_HINT})")
+    with progress_bar("export", "variant", quiet=args.quiet) as bar:
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        results = export_run(args.run_out, fmt, args.radius, progress=progress)
     if not args.quiet:
         for r in results:
             parts = []

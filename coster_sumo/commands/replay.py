@@ -3,8 +3,9 @@
 For a converted scene (the folder of CFG holds ``scene.npz`` and ``lane_map.json``) every logged
 agent follows its log through moveToXY and the signals follow the logged states; the summary
 reports the centre-position error SUMO reports back against the log. Any other configuration is
-simply run (``--fcd-output`` passes through). ``summary.json`` goes to ``--out`` (default: a
-``replay/`` folder beside CFG).
+simply run (``--fcd-output`` passes through). ``summary.json`` goes to ``-o/--out`` (default
+``out/replay``, like every command's output: never into the input's folder, which may be inside
+the installed package).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import sys
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import InputError
+from coster_sumo.errors import not_found
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -26,7 +27,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--fcd-output", type=Path, metavar="FILE", help="write SUMO's FCD output (positions per step)")
     p.add_argument("--end", type=float, metavar="T", help="[s] stop at this simulation time")
     p.add_argument("--traci", action="store_true", help="use a TraCI socket instead of libsumo")
-    p.add_argument("-o", "--out", type=Path, help="folder for summary.json (default: CFG's folder/replay)")
+    p.add_argument("-o", "--out", type=Path, default=Path("out/replay"),
+                   help="folder for summary.json (default out/replay)")
     p.set_defaults(func=run)
 
 
@@ -36,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from coster_sumo.sim.replay import ReplayOptions, replay
 
     if not args.config.is_file():
-        raise InputError(f"{args.config}: SUMO configuration not found")
+        raise not_found(args.config)
     quiet = bool(getattr(args, "quiet", False))
     bar = tqdm(desc="replay", unit="step", disable=quiet, file=sys.stderr, dynamic_ncols=True)
 
@@ -54,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
                                                     traci=args.traci, progress=progress))
     finally:
         bar.close()
-    out: Path = args.out if args.out is not None else args.config.parent / "replay"
+    out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "summary.json", summary)
     if not quiet:

@@ -22,7 +22,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
         description="Nominal pass, collision snapshot, backward rollout, one injection pass per variant. "
                     "Writes summary.json, events.jsonl, collisions.xml, trajectories, renders and "
                     "standalone exports into OUTDIR.")
-    p.add_argument("config", type=Path, help=".sumocfg (a converted WOMD scene or any SUMO configuration)")
+    p.add_argument("config", type=Path, metavar="CFG",
+                   help=".sumocfg (a converted WOMD scene or any SUMO configuration)")
     who = p.add_mutually_exclusive_group()
     who.add_argument("--target", action="append",
                      help="target vehicle id (default: the SDC of a converted scene, else 'ego'); repeat it for "
@@ -31,7 +32,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                      help="choose N targets: the vehicles of the demand expected to run longest in the window "
                           "(free-flow time of their routes; a converted scene: the longest in its log); the "
                           "choice is printed and kept in OUT/summary.json")
-    p.add_argument("--planner", help="replay | sumo | sumo:<carFollowModel> | module:Class "
+    p.add_argument("--planner", help="replay | sumo | sumo:<carFollowModel> | module:Class (a module on the "
+                                     "import path or in the working directory) | path/to/file.py:Class "
                                      "(default: replay for converted scenes, sumo otherwise)")
     p.add_argument("--samples", type=int, default=1000, help="trajectories oversampled (default 1000)")
     p.add_argument("--variants", type=int, default=5, help="representatives kept (K-means K, default 5)")
