@@ -7,7 +7,7 @@ OUTDIR/
   events.jsonl            one event per line, every variant ("variant" key)
   collisions.xml          SUMO-style collision list (our box check and SUMO's own)
   overview.png            map, agents at t_col, ellipse, all variants, heatmap of oversampled paths
-  variants/<i>/trajectory.csv   time, vehicle, x, y, yaw_deg, speed of target and adversary (10 Hz)
+  variants/<i>/trajectory.csv   time_s, vehicle, x_m, y_m, heading_deg, speed_mps of target and adversary (10 Hz)
   variants/<i>/trajectories.csv every vehicle of the pass (coster_sumo/exports/trajectories.py)
   variants/<i>/render.png       the variant
   variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg and
@@ -63,8 +63,11 @@ def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id:
     others = [e for e in res.events if e.kind == "collision" and set(e.vehicles) != pair]
     sumo_others = [e for e in res.events if e.kind == "sumo_collision" and set(e.vehicles) != pair]
     gap = closest_approach(res.scene, target_id, plan.vehicle_id)
+    xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
     return {
         "variant": i, "adversary_id": plan.vehicle_id,
+        # what sets variants of one snapshot apart (their contact is the same by construction)
+        "plan_start_s": round(plan.t_start, 3), "approach_m": round(float(np.hypot(np.diff(xs), np.diff(ys)).sum()), 1),
         "collision": c is not None, "collision_time": round(c.time, 3) if c else None,
         "contact_offset_s": round(c.time - t_col_sim, 3) if c else None,
         "relative_speed": c.relative_speed if c else None, "impact_angle": c.impact_angle if c else None,
@@ -141,7 +144,7 @@ def no_contact_reason(plan: AdversaryPlan, res: InjectionResult, target_id: str,
 
 def trajectory_csv(path: Path, res: InjectionResult, ids: list[str]) -> None:
     t = res.scene.tracks
-    lines = ["time,vehicle,x,y,yaw_deg,speed"]
+    lines = ["time_s,vehicle,x_m,y_m,heading_deg,speed_mps"]
     for vid in ids:
         if vid not in set(t.ids.tolist()):
             continue
@@ -284,13 +287,14 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
                                 snap.entropy or None, p.scene_2hz.timestamps, snap.time)
             renders.insert(k, name)
         angles = [r["impact_angle"] for r in mine if r["collision"]]
-        snapshots.append({"snapshot": k, "t_col": snap.time, "t_col_sim": sim_time_of(snap.time, step),
+        a = snap.adversary
+        snapshots.append({"snapshot": k, "t_col": round(snap.time, 3), "t_col_sim": sim_time_of(snap.time, step),
                           "t_col_index_2hz": snap.t_index, "collision_time_method": snap.collision_time_method,
-                          "init_method": snap.init_method, "signed_distance": snap.signed_distance,
-                          "adversary": {"x": snap.adversary.x, "y": snap.adversary.y,
-                                        "heading_deg": float(np.degrees(snap.adversary.yaw)),
-                                        "speed": snap.adversary.speed, "length": snap.adversary.length,
-                                        "width": snap.adversary.width},
+                          "init_method": snap.init_method, "signed_distance": round(snap.signed_distance, 3),
+                          "adversary": {"x": round(a.x, 3), "y": round(a.y, 3),
+                                        "heading_deg": round(float(np.degrees(a.yaw)), 2),
+                                        "speed": round(a.speed, 3), "length": round(a.length, 3),
+                                        "width": round(a.width, 3)},
                           "variants": [r["variant"] for r in mine], "generation": p.info,
                           "impact_angles_deg": angles})
     n = len(variants)
@@ -298,10 +302,10 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
     all_angles = [a for s in snapshots for a in s["impact_angles_deg"]]
     summary = {
         "config": str(spec.config), "scenario_id": scene.scenario_id, "target": target_id,
-        "planner": planner, "seed": spec.seed, "t_col": snap0.time, "t_col_sim": sim_time_of(snap0.time, step),
-        "t_col_index_2hz": snap0.t_index,
+        "planner": planner, "seed": spec.seed, "t_col": round(snap0.time, 3),
+        "t_col_sim": sim_time_of(snap0.time, step), "t_col_index_2hz": snap0.t_index,
         "collision_time_method": snap0.collision_time_method, "init_method": snap0.init_method,
-        "snapshot_signed_distance": snap0.signed_distance,
+        "snapshot_signed_distance": round(snap0.signed_distance, 3),
         "nominal_until_s": float(scene.timestamps[-1]),
         **({"nominal_cut_after_s": scene.meta["cut_after_s"]} if scene.meta.get("cut_after_s") else {}),
         "num_snapshots": len(snapshots), "num_variants": n,
@@ -312,6 +316,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         "variants": variants, "snapshots": snapshots, "generation": first.info,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "options": options, "renders": renders,
+        # where the README documents it: how --targets N chose (also under options)
+        **({"target_choice": options["target_choice"]} if options.get("target_choice") else {}),
     }
     write_json(out / "summary.json", summary)
     return summary

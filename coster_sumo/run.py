@@ -138,6 +138,7 @@ def run(opts: RunOptions) -> dict[str, Any]:
             if not any("folder" in t for t in listed):
                 raise InputError("; ".join(t["error"] for t in listed))
             summary = {"config": str(spec.config), "targets": listed, "num_targets": len(listed),
+                       **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
                        "nominal_until_s": float(scene.timestamps[-1]),
                        "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()}
             write_json(staging / "summary.json", summary)

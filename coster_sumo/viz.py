@@ -186,10 +186,22 @@ def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, targ
         draw_box(ax, adversary.x, adversary.y, adversary.yaw, adversary.length, adversary.width, ADVERSARY_COLOR,
                  label="adversary at t_col", zorder=7)
     cmap = plt.get_cmap("tab10")
-    for i, r in enumerate(representatives):
-        ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=6)
-        ax.plot(r[-1, 0], r[-1, 1], "o", color=cmap(i % 10), ms=4, zorder=7)
-    ax.legend(loc="upper right", fontsize=8)
+    for i, r in enumerate(representatives):  # above the boxes: a short path is not hidden under them
+        ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=9)
+        ax.plot(r[0, 0], r[0, 1], "o", color=cmap(i % 10), mec="black", mew=0.5, ms=5, zorder=10)
+    # what the picture's other marks are (they had no legend)
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles, _ = ax.get_legend_handles_labels()
+    handles += [Patch(facecolor=TARGET_COLOR, edgecolor="black", label="target at t_col"),
+                Patch(facecolor=OTHER_COLOR, edgecolor="black", alpha=0.5, label="other vehicles at t_col"),
+                Line2D([], [], color=TARGET_COLOR, ls="--", label="ellipse of the collision-time regions"),
+                Line2D([], [], color="grey", marker="o", ls="", mec="black", label="where a variant starts")]
+    if samples_xy is not None and len(samples_xy):
+        handles.append(Patch(facecolor=plt.get_cmap("magma_r")(0.6), alpha=0.75,
+                             label=f"density of the {len(samples_xy)} oversampled paths"))
+    ax.legend(handles=handles, loc="upper right", fontsize=7)
     ax.set_title(f"{scene.scenario_id}: target {scene.tracks.ids[target]}, t_col = {t_col:.1f} s",
                  fontsize=10)
     _finish(ax, window)

@@ -87,3 +87,69 @@ def test_cluster_without_usable_member_is_reported():
                                     rejected=rejected)
     assert len(reps) == 1 and len(rejected) == 1
     assert rejected[0]["members"] == 5 and "5 leave the road" in rejected[0]["reason"]
+
+
+@pytest.mark.slow
+def test_quiet_regress_keeps_its_failure_lines_and_the_html_report_says_what_the_markdown_says(
+        tmp_path, capsys, recwarn):
+    """`-q regress` with a failed run printed nothing but two matplotlib legend warnings; report.html
+    dropped the metric definitions, the examples' captions and the "no failure" line."""
+    import html as html_lib
+    import warnings
+
+    warnings.simplefilter("always")
+    repo = Path(__file__).resolve().parents[1]
+    out = tmp_path / "reg"
+    rc = main(["-q", "regress", str(repo / "networks/intersection/intersection.sumocfg"), "--end", "40",
+               "--init", "random", "--rollout", "cv", "--variants", "1", "--planner", "replay",
+               "--planner", "tests.misbehaving_planners:Abort", "--timeout", "60", "-o", str(out)])
+    assert rc == 1
+    printed = capsys.readouterr().out
+    assert re.search(r"run failed: \S+Abort: .*SIGABRT", printed), printed
+    assert "1 failed" in printed and "replay" in printed  # the table and the count stay
+    assert not [w for w in recwarn if "No artists with labels" in str(w.message)]
+    md = (out / "report.md").read_text()
+    page = html_lib.unescape(re.sub(r"<[^>]+>", " ", (out / "report.html").read_text()))
+    def words(text: str) -> str:  # tags became spaces: compare words and punctuation only
+        return re.sub(r"\s+([:.,;)])", r"\1", " ".join(text.split()))
+
+    page = words(page)
+    for line in md.splitlines():
+        text = re.sub(r"!\[[^]]*\]\([^)]*\)|`|^#+ |^- ", "", line).strip()
+        if text and not text.startswith("|"):
+            assert words(text) in page, text
+
+
+def test_outputs_name_their_units_carry_nulls_and_round_times(tmp_path, capsys):
+    """trajectory.csv had yaw_deg beside trajectories.csv's radians, off-road events carried
+    relative_speed 0.0 and impact_angle 0.0, summary.json t_col 2.20003, and --targets' choice
+    was only under options where the README says target_choice; the variants' console lines were
+    identical with nothing to tell them apart."""
+    from coster_sumo.sim.events import Event
+
+    repo = Path(__file__).resolve().parents[1]
+    out = tmp_path / "o"
+    assert main(["-q", "run", str(repo / "networks/intersection/intersection.sumocfg"), "--targets", "1",
+                 "--init", "random", "--rollout", "cv", "--end", "45", "--variants", "3", "--no-render",
+                 "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["target_choice"] and summary["target_choice"] == summary["options"]["target_choice"]
+    for key in ("t_col", "t_col_sim"):
+        assert summary[key] == round(summary[key], 3)
+    assert summary["snapshot_signed_distance"] == round(summary["snapshot_signed_distance"], 3)
+    lines = [x for x in printed.splitlines() if x.startswith("  variant ")]
+    assert lines and all(" approach " in x for x in lines)
+    assert len(set(lines)) == len(lines)
+    vdir = out / "variants" / "0"
+    assert (vdir / "trajectory.csv").read_text().splitlines()[0] == "time_s,vehicle,x_m,y_m,heading_deg,speed_mps"
+    head = (vdir / "trajectories.csv").read_text().splitlines()[0].split(",")
+    assert "heading_deg" in head and all(c in ("vehicle", "type") or c.rsplit("_", 1)[-1] in ("s", "m", "deg", "mps")
+                                         for c in head)
+    for line in (out / "events.jsonl").read_text().splitlines():
+        e = json.loads(line)
+        assert e["time"] == round(e["time"], 3)
+        if e["kind"] == "off_road":
+            assert e["relative_speed"] is None and e["impact_angle"] is None
+    off = Event(time=1.0, kind="off_road", vehicles=["a"], positions=[[0.0, 0.0]]).to_dict()
+    assert off["relative_speed"] is None and off["impact_angle"] is None

@@ -211,8 +211,12 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
         store.write(row)
         return []
 
+    generations = sum(t.key.startswith("plan__") for t in initial)
     execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
-            quiet=opts.quiet, desc="regress", expected_total=len(initial) + n_runs_expected - len(done),
+            # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
+            quiet=opts.quiet, desc=f"regress (first {generations} scene generation{'s' if generations != 1 else ''})"
+            if generations else "regress",
+            expected_total=len(initial) + n_runs_expected - len(done),
             start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
             ray_address=opts.ray_address, preload=SUMO_TASK_MODULES)
     summary = summarize_regression(out, keys, opts.planners)

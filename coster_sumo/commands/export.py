@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from coster_sumo.errors import not_found
 from coster_sumo.exports.run_folder import FORMATS, OSC_DIR, available_formats, export_run
@@ -31,19 +32,25 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 def run(args: argparse.Namespace) -> int:
     from coster_sumo.progress import progress_bar
 
-    if not args.run_out.is_dir():  # before the bar: the error is the only line
+    if not args.run_out.is_dir():
         raise not_found(args.run_out, "folder")
     fmt = args.format or available_formats()
     if args.format is None and fmt == "sumo" and not args.quiet:
         from coster_sumo.exports.openscenario import EXTRA_HINT
 
         print(f"OpenSCENARIO + OpenDRIVE skipped: the optional extra is not installed ({EXTRA_HINT})")
-    with progress_bar("export", "variant", quiet=args.quiet) as bar:
-        def progress(done: int, total: int) -> None:
-            bar.total = total
-            bar.update(done - bar.n)
+    bars: list[Any] = []  # opened at the first variant: an input error before it is the only line
 
+    def progress(done: int, total: int) -> None:
+        if not bars:
+            bars.append(progress_bar("export", "variant", total=total, quiet=args.quiet))
+        bars[0].update(done - bars[0].n)
+
+    try:
         results = export_run(args.run_out, fmt, args.radius, progress=progress)
+    finally:
+        for bar in bars:
+            bar.close()
     if not args.quiet:
         for r in results:
             parts = []

@@ -170,7 +170,10 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
                f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else (
             "no contact: " + (v.get("no_contact_reason") or "no reason recorded"))
         others = v.get("other_collisions_list") or []
-        lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else "")
+        approach = (f"; approach {v['approach_m']:.0f} m from {v['plan_start_s']:.1f} s"
+                    if v.get("approach_m") is not None else "")
+        lines.append(f"  variant {v['variant']}: {hit}" + approach
+                     + ("; adversary off-road" if v["adversary_off_road"] else "")
                      + (f"; {len(others)} other collision{'s' if len(others) != 1 else ''} ({others[0]}"
                         + (", ..." if len(others) > 1 else "") + ")" if others else "")
                      + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else ""))

@@ -126,7 +126,15 @@ class Event:
     detail: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The event for events.jsonl: times to the millisecond, positions to the millimetre."""
+        d = asdict(self)
+        d["time"] = round(self.time, 3)
+        d["positions"] = [[round(v, 3) for v in p] for p in self.positions]
+        if self.relative_speed is not None:
+            d["relative_speed"] = round(self.relative_speed, 3)
+        if self.impact_angle is not None:
+            d["impact_angle"] = round(self.impact_angle, 2)
+        return d
 
 
 class EventDetector:
