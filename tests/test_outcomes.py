@@ -153,3 +153,15 @@ def test_outputs_name_their_units_carry_nulls_and_round_times(tmp_path, capsys):
             assert e["relative_speed"] is None and e["impact_angle"] is None
     off = Event(time=1.0, kind="off_road", vehicles=["a"], positions=[[0.0, 0.0]]).to_dict()
     assert off["relative_speed"] is None and off["impact_angle"] is None
+
+
+def test_an_error_after_a_progress_bar_starts_its_own_line_in_a_log(tmp_path, capsys):
+    """In a log (stderr not a terminal) a closed bar's clearing is just characters on its line:
+    the error that followed landed on the bar's line."""
+    cfg = _sumo_game("square")  # no 'ego': the pass runs, then the run stops naming candidates
+    if not cfg.is_file():
+        pytest.skip(f"{cfg} not in this SUMO build")
+    assert main(["run", str(cfg), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    errors = [line for line in err.split("\n") if "coster-sumo: error:" in line]
+    assert len(errors) == 1 and errors[0].startswith("coster-sumo: error: "), err[-300:]

@@ -410,7 +410,8 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
 
 def _cluster_reason(tried: int, hit: int, off: int) -> str:
     """One line: why no member of a cluster of candidate trajectories was kept."""
-    parts = ([f"{hit} overlap another vehicle"] if hit else []) + ([f"{off} leave the road"] if off else [])
+    parts = (([f"{hit} overlap{'s' if hit == 1 else ''} another vehicle"] if hit else [])
+             + ([f"{off} leave{'s' if off == 1 else ''} the road"] if off else []))
     what = "its one trajectory is" if tried == 1 else f"all {tried} trajectories of its cluster are"
     return f"{what} unusable before t_col (" + (", ".join(parts) or "none checked") + ")"
 
