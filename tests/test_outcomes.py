@@ -165,3 +165,13 @@ def test_an_error_after_a_progress_bar_starts_its_own_line_in_a_log(tmp_path, ca
     err = capsys.readouterr().err
     errors = [line for line in err.split("\n") if "coster-sumo: error:" in line]
     assert len(errors) == 1 and errors[0].startswith("coster-sumo: error: "), err[-300:]
+
+
+def test_quiet_keeps_the_one_line_result_of_replay(tmp_path, capsys):
+    repo = Path(__file__).resolve().parents[1]
+    out = tmp_path / "r"
+    assert main(["-q", "replay", str(repo / "networks/intersection/intersection.sumocfg"), "--end", "3",
+                 "-o", str(out)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert len(printed) == 1 and "steps to t=3.0 s" in printed[0]
+    assert (out / "summary.json").is_file()

@@ -140,14 +140,12 @@ def run(args: argparse.Namespace) -> int:
     if not scenes and not read_any:  # nothing could be read: write nothing
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()
-        if not quiet:
-            print(f"converted 0 scene(s), {len(failures)} failed; nothing written")
+        print(f"converted 0 scene(s), {len(failures)} failed; nothing written")  # --quiet too: the result
         return 2
     out.mkdir(parents=True, exist_ok=True)
     summary = {"outdir": str(out), "inputs": [str(p) for p in args.inputs], "converted": len(scenes),
                "failed": len(failures), "scenes": scenes, "failures": failures, "renamed": renamed,
                "wall_s": round(time.perf_counter() - t0, 3)}
     write_json(out / "summary.json", summary)
-    if not quiet:
-        print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")
+    print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")  # --quiet too: the result
     return 1 if failures else 0

@@ -59,14 +59,15 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "summary.json", summary)
+    # the one-line result stays with --quiet; the name of the file written does not
+    if summary["mode"] == "replay":
+        print(f"{summary['scenario_id']}: {summary['steps']} steps, {summary['agents']} agents, "
+              f"centre error max {summary['centre_error_max_m']:.2e} m mean "
+              f"{summary['centre_error_mean_m']:.2e} m over {summary['valid_states_compared']} states, "
+              f"{summary['sim_s']:.2f} s ({summary['steps_per_s']} steps/s)")
+    else:
+        print(f"{summary['config']}: {summary['steps']} steps to t={summary['end_s']:.1f} s, "
+              f"{summary['vehicles']} vehicles, {summary['wall_s']:.2f} s")
     if not quiet:
-        if summary["mode"] == "replay":
-            print(f"{summary['scenario_id']}: {summary['steps']} steps, {summary['agents']} agents, "
-                  f"centre error max {summary['centre_error_max_m']:.2e} m mean "
-                  f"{summary['centre_error_mean_m']:.2e} m over {summary['valid_states_compared']} states, "
-                  f"{summary['sim_s']:.2f} s ({summary['steps_per_s']} steps/s)")
-        else:
-            print(f"{summary['config']}: {summary['steps']} steps to t={summary['end_s']:.1f} s, "
-                  f"{summary['vehicles']} vehicles, {summary['wall_s']:.2f} s")
         print(f"summary: {out / 'summary.json'}")
     return 0
