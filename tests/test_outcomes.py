@@ -175,3 +175,34 @@ def test_quiet_keeps_the_one_line_result_of_replay(tmp_path, capsys):
     printed = capsys.readouterr().out.splitlines()
     assert len(printed) == 1 and "steps to t=3.0 s" in printed[0]
     assert (out / "summary.json").is_file()
+
+
+def test_overview_has_a_legend_for_every_mark_and_paths_above_the_boxes(tmp_path, monkeypatch):
+    """The demo's overview had no legend for its heat map, dashed ellipse and boxes, and two
+    variants' short paths were hidden under the boxes."""
+    from coster_sumo import synthetic, viz
+    from coster_sumo.snapshot_state import AgentState
+
+    scene = synthetic.two_lane_road()
+    tr = scene.tracks
+    target_state = AgentState.from_tracks(tr, 0, 10)
+    reps = [np.stack([tr.x[0, 5:11] + d, tr.y[0, 5:11]], 1) for d in (0.0, 3.0)]
+    samples = np.stack([r for r in reps for _ in range(5)])
+    figures = []
+    monkeypatch.setattr(viz.plt, "close", figures.append)
+    viz.render_overview(tmp_path / "o.png", scene, 0, 10, target_state, reps, samples, None, None, 1.0)
+    ax = figures[0].axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert {"variant 0", "variant 1", "target at t_col", "other vehicles at t_col",
+            "ellipse of the collision-time regions", "where a variant starts"} <= set(labels)
+    assert any(label.startswith("density of the 10 oversampled paths") for label in labels)
+    boxes = max(p.get_zorder() for p in ax.patches)
+    assert all(line.get_zorder() > boxes for line in ax.get_lines() if line.get_label().startswith("variant"))
+
+
+def test_generation_is_not_silent(tmp_path, capsys):
+    """The console said nothing for about 10 s while the adversaries were generated."""
+    repo = Path(__file__).resolve().parents[1]
+    assert main(["run", str(repo / "networks/intersection/intersection.sumocfg"), "--init", "random",
+                 "--rollout", "cv", "--end", "45", "--variants", "1", "--no-render", "-o", str(tmp_path / "o")]) == 0
+    assert "generation (ego)" in capsys.readouterr().err
