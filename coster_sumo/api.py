@@ -19,6 +19,7 @@ For an external ``sumo`` or ``sumo-gui`` you started yourself with ``--remote-po
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from coster_sumo.core import PlannedScenario, choose_target, nominal_scene, plan_scenario
@@ -41,10 +42,19 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     Returns the :class:`~coster_sumo.core.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
     :class:`~coster_sumo.plan.AdversaryPlan` per kept variant, sim times in seconds). Inject one
     with :func:`~coster_sumo.sim.inject.inject_variant` or drive it in your own loop.
+
+    Fewer plans than ``variants`` is possible (a cluster of the oversampled trajectories had no
+    member that stays on the road, a candidate would hit the target or another vehicle before
+    t_col): ``.dropped`` then holds one line per missing candidate with its reason, and a
+    :class:`UserWarning` says the same.
     """
     spec = ScenarioSpec(Path(config), seed=seed, begin=begin, end=end, target=target)
     gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
                            variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
-    return plan_scenario(scene, index, seed, gen, DrivableArea.from_road_map(scene.road_map))
+    planned = plan_scenario(scene, index, seed, gen, DrivableArea.from_road_map(scene.road_map))
+    if len(planned.plans) < variants:
+        warnings.warn(f"{config}: {len(planned.plans)} of {variants} variants; "
+                      + "; ".join(planned.dropped or ["the rollout gave fewer representatives"]), stacklevel=2)
+    return planned

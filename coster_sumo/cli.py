@@ -12,12 +12,53 @@ traceback.
 from __future__ import annotations
 
 import argparse
+import copy
 import importlib
 import pkgutil
+import re
 import sys
 from collections.abc import Sequence
 
 from coster_sumo.errors import CosterError, one_line
+
+# old spellings of -o/--out that still parse but are not shown (`simulate --output`, `eval prior --json`)
+HIDDEN_ALIASES = ("--output", "--json")
+
+
+def plain_text(text: str) -> str:
+    """Help text without the reST markup of the docstrings it comes from: ``x`` -> x,
+    :func:`~a.b.c` -> c, :mod:`a.b` -> a.b, a closing :: -> :."""
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1]
+                  if m.group(0).split("`")[1].startswith("~") else m.group(1), text)
+    text = re.sub(r"``([^`]+)``", r"\1", text)
+    return re.sub(r"::(\s|$)", r":\1", text)
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Every command's help: plain text (no reST), the hidden aliases of -o/--out left out."""
+
+    def _format_action_invocation(self, action: argparse.Action) -> str:
+        if action.option_strings:
+            action = copy.copy(action)
+            action.option_strings = [o for o in action.option_strings if o not in HIDDEN_ALIASES]
+        return super()._format_action_invocation(action)
+
+    def _format_text(self, text: str) -> str:
+        return super()._format_text(plain_text(text))
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        return plain_text(super()._expand_help(action))
+
+
+def version() -> str:
+    """The installed distribution's version (``unknown`` from a source tree that was never installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("coster-sumo")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 class CommandLine:
@@ -25,8 +66,9 @@ class CommandLine:
 
     def __init__(self) -> None:
         self.parser = argparse.ArgumentParser(
-            prog="coster-sumo",
+            prog="coster-sumo", formatter_class=HelpFormatter,
             description="COSTER safety-critical scenario generation for SUMO.")
+        self.parser.add_argument("--version", action="version", version=f"coster-sumo {version()}")
         _global_options(self.parser, default=False)
         self.commands = self.parser.add_subparsers(dest="command", metavar="COMMAND")
         self._groups: dict[str, argparse._SubParsersAction] = {}
@@ -69,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
             register(cli)
     for sub in _subcommands(cli.parser):
         _global_options(sub, default=argparse.SUPPRESS)
+        sub.formatter_class = HelpFormatter
     return cli.parser
 
 

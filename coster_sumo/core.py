@@ -31,7 +31,7 @@ import numpy as np
 from coster_sumo import weights
 from coster_sumo.dataset import crop_scene
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.geometry import box_signed_distance, make_boxes
@@ -74,6 +74,18 @@ class PlannedScenario:
     plans: list[AdversaryPlan]
     samples_xy: np.ndarray | None = None
     info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def dropped(self) -> list[str]:
+        """One line per candidate that was generated or asked for and is not among :attr:`plans`,
+        with its reason (``cluster 3: all 12 trajectories ...``, ``candidate 1: would hit the target
+        at 20.1 s ...``)."""
+        return [f"{_candidate_name(d['candidate'])}: {d['reason']}" for d in self.info.get("dropped", ())]
+
+
+def _candidate_name(candidate: object) -> str:
+    """``candidate 2`` for a rollout's index, the name itself for a cluster or an adversary id."""
+    return f"candidate {candidate}" if isinstance(candidate, int) else str(candidate)
 
 
 # ----------------------------------------------------------------------------- checks
@@ -136,7 +148,7 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
     """
     cfg = spec.config
     if not cfg.exists():
-        raise InputError(f"{cfg}: no such SUMO configuration")
+        raise not_found(cfg)
     log = converted_scene_file(cfg)
     if log is not None:
         return load_scene(log), True
@@ -375,20 +387,24 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
             plans, samples_xy, info = rollout.generate(low, target, snap, drivable, samples=gen.samples,
                                                        variants=gen.variants, seed=seed, models_dir=gen.models_dir)
             kept: list[AdversaryPlan] = []
-            dropped: list[dict[str, Any]] = []
+            # a cluster of the rollout that gave no representative is a variant asked for and missing
+            dropped: list[dict[str, Any]] = [{"candidate": f"cluster {r['cluster']}", "reason": r["reason"]}
+                                             for r in info.get("rejected_clusters", ())]
             for i, plan in enumerate(plans):
                 early = early_contact(plan, scene, target)
                 other = bystander_contact(plan, scene, target) if early is None else None
                 if early is not None:
-                    dropped.append({"candidate": i, "reason": f"hits the target at {early:.1f} s, before t_col"})
+                    dropped.append({"candidate": i, "reason": f"would hit the target at {early:.1f} s, before "
+                                                              "t_col (on the target's nominal path)"})
                 elif other is not None:
-                    dropped.append({"candidate": i, "reason": f"hits {other[1]} at {other[0]:.1f} s, before t_col"})
+                    dropped.append({"candidate": i, "reason": f"would hit {other[1]} at {other[0]:.1f} s, before "
+                                                              "t_col (on its nominal path)"})
                 else:
                     kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
             if kept:
                 failed.pop(label(here), None)
                 info = {**info, "attempt": draws, "candidates": len(plans), "kept": len(kept), "dropped": dropped,
-                        "collision_times_given_up": list(failed)}
+                        "collision_times_given_up": dict(failed)}
                 return PlannedScenario(scene, low, target, snap, kept, samples_xy=samples_xy, info=info)
             failed[label(here)] = ("every trajectory hits the target or another vehicle before t_col" if plans
                                    else "no rollout stays on the road and clear of other vehicles")

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.scene import (
     Lanes,
     ObjectType,
@@ -329,7 +329,7 @@ def list_scenes(dataset: str | Path) -> list[Path]:
     and validation split is drawn from this list, so they are excluded by construction."""
     root = Path(dataset)
     if not root.is_dir():
-        raise InputError(f"{root}: dataset folder not found")
+        raise not_found(root, "folder")
     folder = root / SCENES_DIR if (root / SCENES_DIR).is_dir() else root
     return sorted(p for p in folder.glob("*.npz") if not p.name.endswith(".tmp.npz"))
 

@@ -21,6 +21,15 @@ class SumoError(CosterError):
     exit_code = 1
 
 
+def not_found(path: object, kind: str = "file", referenced_by: object = None, why: str | None = None
+              ) -> InputError:
+    """The one wording of a missing input, for every command: ``PATH: no such file`` (``kind``:
+    file, folder, or "file or folder"), then ``(referenced by CFG)`` where another file names it,
+    or ``(why)``: what the file is and how to get it."""
+    via = f" (referenced by {referenced_by})" if referenced_by is not None else f" ({why})" if why else ""
+    return InputError(f"{path}: no such {kind}{via}")
+
+
 def one_line(text: str) -> str:
     """``text`` as one printable line: newlines and other control characters escaped.
 

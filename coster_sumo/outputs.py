@@ -7,7 +7,7 @@ OUTDIR/
   events.jsonl            one event per line, every variant ("variant" key)
   collisions.xml          SUMO-style collision list (our box check and SUMO's own)
   overview.png            map, agents at t_col, ellipse, all variants, heatmap of oversampled paths
-  variants/<i>/trajectory.csv   time, vehicle, x, y, yaw_deg, speed of target and adversary (10 Hz)
+  variants/<i>/trajectory.csv   time_s, vehicle, x_m, y_m, heading_deg, speed_mps of target and adversary (10 Hz)
   variants/<i>/trajectories.csv every vehicle of the pass (coster_sumo/exports/trajectories.py)
   variants/<i>/render.png       the variant
   variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg and
@@ -34,40 +34,117 @@ from coster_sumo.atomic import json_default, write_json
 from coster_sumo.core import PlannedScenario
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
+from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
+from coster_sumo.snapshot_state import AgentState
 from coster_sumo.spec import ScenarioSpec
 
 VARIANT_FILE = "variant.json"
 
 
-def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float
-                   ) -> dict[str, Any]:
-    """Per-variant entry of summary.json; the contact offset is counted from t_col on SUMO's step grid."""
+# [m] a driven target this far from its nominal position at t_col was moved by its planner
+TARGET_MOVED_M = 0.5
+
+
+def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
+                   nominal: Scene | None = None) -> dict[str, Any]:
+    """Per-variant entry of summary.json; the contact offset is counted from t_col on SUMO's step grid.
+
+    ``nominal``: the nominal scene, for the reason of a variant without contact (where the target
+    was against where it would have been).
+    """
     t_col_sim = sim_time_of(t_col, float(res.scene.meta.get("step_length") or 0.1))
     c = res.contact
     pair = {plan.vehicle_id, target_id}
     others = [e for e in res.events if e.kind == "collision" and set(e.vehicles) != pair]
+    sumo_others = [e for e in res.events if e.kind == "sumo_collision" and set(e.vehicles) != pair]
+    gap = closest_approach(res.scene, target_id, plan.vehicle_id)
+    xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
     return {
         "variant": i, "adversary_id": plan.vehicle_id,
-        "collision": c is not None, "collision_time": c.time if c else None,
-        "contact_offset_s": round(c.time - t_col_sim, 6) if c else None,
+        # what sets variants of one snapshot apart (their contact is the same by construction)
+        "plan_start_s": round(plan.t_start, 3), "approach_m": round(float(np.hypot(np.diff(xs), np.diff(ys)).sum()), 1),
+        "collision": c is not None, "collision_time": round(c.time, 3) if c else None,
+        "contact_offset_s": round(c.time - t_col_sim, 3) if c else None,
         "relative_speed": c.relative_speed if c else None, "impact_angle": c.impact_angle if c else None,
+        "no_contact_reason": None if c else no_contact_reason(plan, res, target_id, t_col, nominal, gap),
+        "closest_distance_m": round(gap[0], 2) if gap else None,
         "adversary_off_road": res.adversary_off_road, "target_off_road": res.target_off_road,
         "route_completed": res.route_completed, "target_arrived": res.target_arrived,
         "min_ttc": res.min_ttc if np.isfinite(res.min_ttc) else None,
         "other_collisions": len(others),
+        "other_collisions_list": [f"{' vs '.join(e.vehicles)} at {e.time:.1f} s" for e in others],
+        "sumo_only_collisions": len(sumo_others),
         "sumo_reported_contact": any(e.kind == "sumo_collision" and set(e.vehicles) == pair for e in res.events),
         "wall_time_s": round(res.wall_time_s, 3),
     }
 
 
+def closest_approach(scene: Scene, a_id: str, b_id: str) -> tuple[float, float] | None:
+    """(gap [m], time [s]) of the smallest box-to-box distance of two vehicles of a pass (negative:
+    overlap depth), over the steps both are in it; None when they never are at once."""
+    t = scene.tracks
+    ids = t.ids.tolist()
+    if a_id not in ids or b_id not in ids:
+        return None
+    a, b = ids.index(a_id), ids.index(b_id)
+    both = np.flatnonzero(t.valid[a] & t.valid[b])
+    if not len(both):
+        return None
+    box = [make_boxes(t.x[k, both], t.y[k, both], t.heading[k, both], t.length[k, both], t.width[k, both])
+           for k in (a, b)]
+    d = box_signed_distance(box[0], box[1])  # (steps,)
+    j = int(np.argmin(d))
+    return float(d[j]), float(scene.timestamps[both[j]])
+
+
+def no_contact_reason(plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
+                      nominal: Scene | None, gap: tuple[float, float] | None) -> str:
+    """One line: why the adversary of a pass never touched the target.
+
+    In order: the adversary hit another vehicle first (it then stays there, frozen); the target
+    was not in the simulation at t_col; the target was not where its nominal pass had it at t_col
+    (its planner braked, sped up or swerved); else how close the two came.
+    """
+    first = next((e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles
+                  and target_id not in e.vehicles), None)
+    close = f"closest {gap[0]:.1f} m apart at {gap[1]:.1f} s" if gap else "never in the simulation together"
+    if first is not None and first.time <= t_col + 1e-6:
+        other = next(v for v in first.vehicles if v != plan.vehicle_id)
+        return f"the adversary hit {other} first, at {first.time:.1f} s, and stayed there; {close}"
+    t = res.scene.tracks
+    ids = t.ids.tolist()
+    step = int(np.argmin(np.abs(res.scene.timestamps - t_col)))
+    if target_id not in ids or not t.valid[ids.index(target_id), step]:
+        return f"the target was no longer in the simulation at t_col ({t_col:.1f} s); {close}"
+    if nominal is not None and target_id in nominal.tracks.ids.tolist():
+        n = nominal.tracks
+        k = n.index_of(target_id)
+        ns = int(np.argmin(np.abs(nominal.timestamps - t_col)))
+        if n.valid[k, ns]:
+            a = ids.index(target_id)
+            dx, dy = t.x[a, step] - n.x[k, ns], t.y[a, step] - n.y[k, ns]
+            along = float(dx * np.cos(n.heading[k, ns]) + dy * np.sin(n.heading[k, ns]))
+            across = float(-dx * np.sin(n.heading[k, ns]) + dy * np.cos(n.heading[k, ns]))
+            if abs(along) >= TARGET_MOVED_M:
+                how = "behind its nominal position at t_col (it braked)" if along < 0 else \
+                    "ahead of its nominal position at t_col (it went faster)"
+                return f"the target was {abs(along):.1f} m {how}; {close}"
+            if abs(across) >= TARGET_MOVED_M:
+                return f"the target was {abs(across):.1f} m to the side of its nominal position at t_col; {close}"
+    if first is not None:
+        other = next(v for v in first.vehicles if v != plan.vehicle_id)
+        return f"the adversary hit {other} at {first.time:.1f} s; {close}"
+    return f"the target kept its nominal path and the adversary missed it: {close}"
+
+
 def trajectory_csv(path: Path, res: InjectionResult, ids: list[str]) -> None:
     t = res.scene.tracks
-    lines = ["time,vehicle,x,y,yaw_deg,speed"]
+    lines = ["time_s,vehicle,x_m,y_m,heading_deg,speed_mps"]
     for vid in ids:
         if vid not in set(t.ids.tolist()):
             continue
@@ -89,7 +166,8 @@ def collisions_xml(path: Path, results: list[InjectionResult]) -> None:
                 "time": f"{e.time:.2f}", "type": str(e.detail.get("type", "collision")),
                 "lane": str(e.detail.get("lane", "")), "collider": e.vehicles[1], "victim": e.vehicles[0],
                 "source": "coster" if e.kind == "collision" else "sumo", "variant": str(i),
-                "relativeSpeed": f"{e.relative_speed:.3f}", "impactAngle": f"{e.impact_angle:.2f}"})
+                **({"relativeSpeed": f"{e.relative_speed:.3f}"} if e.relative_speed is not None else {}),
+                **({"impactAngle": f"{e.impact_angle:.2f}"} if e.impact_angle is not None else {})})
     ET.indent(root)
     ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)
 
@@ -123,6 +201,37 @@ def target_motion(scene: Scene, index: int) -> dict[str, float]:
             "distance_m": round(float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()), 1)}
 
 
+def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
+                  rec: dict[str, Any], nominal: Scene, target: int, planned_state: AgentState, t_col_step: int) -> None:
+    """A variant's render as SUMO drove it: every vehicle at the contact (else at t_col) where the
+    injection pass had it, the driven paths solid, the adversary's plan dashed; the title says so."""
+    xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
+    planned_xy = np.stack([xs, ys], 1)
+    c = res.contact
+    driven = res.scene
+    ids = driven.tracks.ids.tolist()
+    when = c.time if c else t_col
+    step = int(np.argmin(np.abs(driven.timestamps - when)))
+    what = (f"contact at {c.time:.1f} s, {c.relative_speed or 0.0:.1f} m/s, {round(c.impact_angle or 0.0):d} deg" if c
+            else f"no contact ({rec.get('closest_distance_m')} m at closest)")
+    if target_id in ids and plan.vehicle_id in ids:
+        a = ids.index(plan.vehicle_id)
+        upto = driven.tracks.valid[a] & (driven.timestamps <= when + 1e-6)
+        adv_xy = np.stack([driven.tracks.x[a, upto], driven.tracks.y[a, upto]], 1)
+        if driven.tracks.valid[a, step] and len(adv_xy):
+            at = f"{driven.timestamps[step]:.1f} s"
+            viz.render_variant(path, driven, ids.index(target_id), adv_xy,
+                               AgentState.from_tracks(driven.tracks, a, step), step,
+                               f"variant {i} as driven in SUMO: {what}\nvehicles at {at}",
+                               contact_xy=c.positions[1] if c else None, planned_xy=planned_xy,
+                               box_label=f"adversary at {at}")
+            return
+    # the pass lost the adversary or the target (it left early): the plan on the nominal scene, said so
+    viz.render_variant(path, nominal, target, planned_xy, planned_state, t_col_step,
+                       f"variant {i} as planned (not in the pass at {when:.1f} s): {what}",
+                       contact_xy=c.positions[1] if c else None)
+
+
 def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
                       results: list[InjectionResult], timings: dict[str, float], *, render: bool,
                       options: dict[str, Any], copy_outside: bool = False) -> dict[str, Any]:
@@ -153,7 +262,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
             res = results[i]
             vdir = out / "variants" / str(i)
             vdir.mkdir(parents=True)
-            rec = {**variant_record(i, plan, res, target_id, snap.time), "snapshot": k, "t_col": snap.time}
+            rec = {**variant_record(i, plan, res, target_id, snap.time, scene), "snapshot": k,
+                   "t_col": round(snap.time, 3)}
             variants.append(rec)
             mine.append(rec)
             trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
@@ -167,13 +277,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
                 shutil.rmtree(vdir / "export", ignore_errors=True)
                 rec["export_error"] = str(exc)
             if render:
-                xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
-                c = res.contact
-                viz.render_variant(vdir / "render.png", scene, target, np.stack([xs, ys], 1), snap.adversary,
-                                   t_col_step,
-                                   f"variant {i}: " + (f"contact at {c.time:.1f} s, {c.relative_speed:.1f} m/s, "
-                                                       f"{round(c.impact_angle):d} deg" if c else "no contact"),
-                                   contact_xy=c.positions[1] if c else None)
+                render_driven(vdir / "render.png", i, plan, res, target_id, snap.time, rec, scene, target,
+                              snap.adversary, t_col_step)
                 renders.append(f"variants/{i}/render.png")
             i += 1
         if render:
@@ -183,13 +288,14 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
                                 snap.entropy or None, p.scene_2hz.timestamps, snap.time)
             renders.insert(k, name)
         angles = [r["impact_angle"] for r in mine if r["collision"]]
-        snapshots.append({"snapshot": k, "t_col": snap.time, "t_col_sim": sim_time_of(snap.time, step),
+        a = snap.adversary
+        snapshots.append({"snapshot": k, "t_col": round(snap.time, 3), "t_col_sim": sim_time_of(snap.time, step),
                           "t_col_index_2hz": snap.t_index, "collision_time_method": snap.collision_time_method,
-                          "init_method": snap.init_method, "signed_distance": snap.signed_distance,
-                          "adversary": {"x": snap.adversary.x, "y": snap.adversary.y,
-                                        "heading_deg": float(np.degrees(snap.adversary.yaw)),
-                                        "speed": snap.adversary.speed, "length": snap.adversary.length,
-                                        "width": snap.adversary.width},
+                          "init_method": snap.init_method, "signed_distance": round(snap.signed_distance, 3),
+                          "adversary": {"x": round(a.x, 3), "y": round(a.y, 3),
+                                        "heading_deg": round(float(np.degrees(a.yaw)), 2),
+                                        "speed": round(a.speed, 3), "length": round(a.length, 3),
+                                        "width": round(a.width, 3)},
                           "variants": [r["variant"] for r in mine], "generation": p.info,
                           "impact_angles_deg": angles})
     n = len(variants)
@@ -197,10 +303,10 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
     all_angles = [a for s in snapshots for a in s["impact_angles_deg"]]
     summary = {
         "config": str(spec.config), "scenario_id": scene.scenario_id, "target": target_id,
-        "planner": planner, "seed": spec.seed, "t_col": snap0.time, "t_col_sim": sim_time_of(snap0.time, step),
-        "t_col_index_2hz": snap0.t_index,
+        "planner": planner, "seed": spec.seed, "t_col": round(snap0.time, 3),
+        "t_col_sim": sim_time_of(snap0.time, step), "t_col_index_2hz": snap0.t_index,
         "collision_time_method": snap0.collision_time_method, "init_method": snap0.init_method,
-        "snapshot_signed_distance": snap0.signed_distance,
+        "snapshot_signed_distance": round(snap0.signed_distance, 3),
         "nominal_until_s": float(scene.timestamps[-1]),
         **({"nominal_cut_after_s": scene.meta["cut_after_s"]} if scene.meta.get("cut_after_s") else {}),
         "num_snapshots": len(snapshots), "num_variants": n,
@@ -211,6 +317,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         "variants": variants, "snapshots": snapshots, "generation": first.info,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "options": options, "renders": renders,
+        # where the README documents it: how --targets N chose (also under options)
+        **({"target_choice": options["target_choice"]} if options.get("target_choice") else {}),
     }
     write_json(out / "summary.json", summary)
     return summary

@@ -25,6 +25,13 @@ from coster_sumo.atomic import write_text
 EXAMPLES_PER_PLANNER = 3
 
 
+
+def _legend(ax: Any, **kwargs: Any) -> None:
+    """A legend where something is labelled: a planner without contacts draws nothing, and
+    matplotlib would warn "No artists with labels found" on the console of a quiet run."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kwargs)
+
 def _pct(entry: dict[str, Any]) -> str:
     if entry.get("rate") is None:
         return "n/a"
@@ -90,7 +97,7 @@ def plot_rates(path: Path, summary: dict[str, Any]) -> Path:
     ax.set_xticks(np.arange(len(planners)), planners)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("rate (Wilson 95% CI)")
-    ax.legend()
+    _legend(ax)
     ax.set_title("route completion, collision and off-road rates per planner")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -113,7 +120,7 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[dict[str,
                    lw=0.5, label=f"{p} ({len(a)})")
     ax.set_theta_zero_location("E")
     ax.set_title("impact angle in the target frame (0 = ahead, 90 = left)", fontsize=10)
-    ax.legend(loc="lower left", fontsize=8, bbox_to_anchor=(-0.1, -0.15))
+    _legend(ax, loc="lower left", fontsize=8, bbox_to_anchor=(-0.1, -0.15))
     fig.tight_layout()
     fig.savefig(angles_path, dpi=110)
     plt.close(fig)
@@ -127,7 +134,7 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[dict[str,
             ax.hist(v, bins=edges, histtype="step", lw=1.5, label=f"{p} ({len(v)})")
     ax.set_xlabel("relative speed at first contact [m/s]")
     ax.set_ylabel("runs")
-    ax.legend(fontsize=8)
+    _legend(ax, fontsize=8)
     fig.tight_layout()
     fig.savefig(speeds_path, dpi=110)
     plt.close(fig)
@@ -190,7 +197,7 @@ def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, 
     what = ("collision" if row["collision"] else "off-road" if row["target_off_road"] else "route not completed")
     ax.set_title(f"{row['run_key']}\n{what}" + (f", {row['relative_speed']:.1f} m/s, {row['impact_angle']:.0f} deg"
                                                 if row["relative_speed"] is not None else ""), fontsize=8)
-    ax.legend(loc="upper right", fontsize=7)
+    _legend(ax, loc="upper right", fontsize=7)
     ax.set_xlim(window[0], window[2])
     ax.set_ylim(window[1], window[3])
     ax.set_aspect("equal")
@@ -229,14 +236,22 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
     head, table = regression_table(summary)
     failures = summary["runs"]["failures"]
     sc = summary["scenes"]
-    md = ["# Planner regression", "",
-          f"{sc['generated']} of {sc['total']} scenes generated, {summary['variants']} variants, "
-          f"{summary['runs']['recorded']} of {summary['runs']['expected']} runs recorded "
-          f"({summary['runs']['failed']} failed).", "",
-          "RCR: route completion rate; CR: collision rate (the target touches the adversary or anyone); "
-          "ORR: the target's off-road rate; median min TTC: over the runs where the adversary never touched "
-          "the target; mean rel. speed: at contact. Brackets: Wilson 95% interval. Failed runs are not in "
-          "the rates.", "",
+    # the same words in both reports (the HTML one had dropped the definitions, captions and the
+    # "no failure" line)
+    intro = (f"{sc['generated']} of {sc['total']} scenes generated, {summary['variants']} variants, "
+             f"{summary['runs']['recorded']} of {summary['runs']['expected']} runs recorded "
+             f"({summary['runs']['failed']} failed).")
+    definitions = ("RCR: route completion rate; CR: collision rate (the target touches the adversary or anyone); "
+                   "ORR: the target's off-road rate; median min TTC: over the runs where the adversary never "
+                   "touched the target; mean rel. speed: at contact. Brackets: Wilson 95% interval. Failed runs "
+                   "are not in the rates.")
+    no_failure = "No collision, off-road or incomplete route."
+
+    def caption(r: dict[str, Any]) -> str:
+        return (("collision" if r["collision"] else "off-road" if r["target_off_road"] else "route not completed")
+                + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else ""))
+
+    md = ["# Planner regression", "", intro, "", definitions, "",
           _md_table(head, table), "", "![rates](plots/rates.png)", "",
           "## Contacts", "", "![impact angles](plots/impact_angles.png) ![relative speeds](plots/relative_speeds.png)",
           ""]
@@ -251,11 +266,9 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
         md.append(f"### {p}")
         md.append("")
         if not ex_files.get(p):
-            md += ["No collision, off-road or incomplete route.", ""]
+            md += [no_failure, ""]
         for r, rel in ex_files.get(p, []):
-            md.append(f"- `{r['run_key']}`: " + ("collision" if r["collision"] else "off-road" if r["target_off_road"]
-                                                  else "route not completed")
-                      + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else ""))
+            md.append(f"- `{r['run_key']}`: " + caption(r))
             if rel.startswith("examples/"):
                 md.append(f"\n  ![{r['run_key']}]({rel})")
         md.append("")
@@ -263,10 +276,7 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>coster-sumo regression</title>",
          "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
          "td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}img{max-width:48%}</style></head><body>",
-         "<h1>Planner regression</h1>",
-         f"<p>{sc['generated']} of {sc['total']} scenes generated, {summary['variants']} variants, "
-         f"{summary['runs']['recorded']} of {summary['runs']['expected']} runs recorded "
-         f"({summary['runs']['failed']} failed). Rates with Wilson 95% intervals; failed runs excluded.</p>",
+         "<h1>Planner regression</h1>", f"<p>{html.escape(intro)}</p>", f"<p>{html.escape(definitions)}</p>",
          _html_table(head, table), "<p><img src='plots/rates.png'></p>", "<h2>Contacts</h2>",
          "<p><img src='plots/impact_angles.png'> <img src='plots/relative_speeds.png'></p>"]
     if sc["failed"]:
@@ -277,11 +287,13 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
                                                                      for f in failures])]
     h.append("<h2>Failure examples</h2>")
     for p in planners:
-        h.append(f"<h3>{html.escape(p)}</h3><p>")
-        for _r, rel in ex_files.get(p, []):
-            if rel.startswith("examples/"):
-                h.append(f"<img src='{html.escape(rel)}'>")
-        h.append("</p>")
+        h.append(f"<h3>{html.escape(p)}</h3>")
+        if not ex_files.get(p):
+            h.append(f"<p>{html.escape(no_failure)}</p>")
+        for r, rel in ex_files.get(p, []):
+            h.append(f"<figure><figcaption><code>{html.escape(r['run_key'])}</code>: {html.escape(caption(r))}"
+                     "</figcaption>" + (f"<img src='{html.escape(rel)}'>" if rel.startswith("examples/") else "")
+                     + "</figure>")
     h.append("</body></html>")
     write_text(out / "report.html", "\n".join(h) + "\n")
     return written

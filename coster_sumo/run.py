@@ -31,12 +31,13 @@ from coster_sumo.core import (
     simulation_window,
 )
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError, SumoError
+from coster_sumo.errors import InputError, SumoError, not_found
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
+from coster_sumo.progress import progress_bar
 from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
@@ -98,7 +99,7 @@ def run(opts: RunOptions) -> dict[str, Any]:
     if opts.snapshots < 1:
         raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
     if not opts.spec.config.is_file():
-        raise InputError(f"{opts.spec.config}: no such SUMO configuration")
+        raise not_found(opts.spec.config)
     converted = converted_scene_file(opts.spec.config) is not None
     end = None if converted else simulation_window(opts.spec)[1]  # a bad window is one line before any work
     if opts.planner is not None:
@@ -171,6 +172,7 @@ def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: l
             if not any("folder" in t for t in listed):
                 raise InputError("; ".join(t["error"] for t in listed))
             summary = {"config": str(spec.config), "targets": listed, "num_targets": len(listed),
+                       **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
                        "nominal_until_s": float(scene.timestamps[-1]),
                        "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()}
             write_json(staging / "summary.json", summary)
@@ -206,9 +208,18 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     spec = opts.spec
     target = choose_target(scene, requested, spec.config)
     t0 = time.perf_counter()
+    advance = _advance_held(held)
     try:
-        planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
-                                 on_snapshot=_advance_held(held))
+        # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
+        with _bar(opts, f"generation ({str(scene.tracks.ids[target])})", "draw") as bar:
+            def drawn(snap: CollisionSnapshot) -> None:
+                bar.set_postfix_str(f"t_col {snap.time:.1f} s", refresh=False)
+                bar.update(1)
+                if advance is not None:
+                    advance(snap)
+
+            planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
+                                     on_snapshot=drawn)
     except NoSnapshot as exc:
         raise InputError(f"{spec.config}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None
@@ -310,10 +321,7 @@ def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None
 
 def _bar(opts: RunOptions, desc: str, unit: str, total: float | None = None) -> Any:
     """A progress bar on stderr for one phase of the run (none with ``--quiet``)."""
-    from tqdm import tqdm
-
-    tqdm.monitor_interval = 0  # no monitor thread in a process that forks
-    return tqdm(total=total, desc=desc, unit=unit, disable=opts.quiet, leave=False, dynamic_ncols=True)
+    return progress_bar(desc, unit, total=total, quiet=opts.quiet)
 
 
 class _SimClock:

@@ -100,8 +100,14 @@ def heatmap(ax: Axes, xy: np.ndarray, window: tuple[float, float, float, float],
 
 
 def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarray, adversary_state: AgentState,
-                   t_col_step: int, title: str, contact_xy: Sequence[float] | None = None) -> Path:
-    """One variant: map, agents at t_col, the target's path, the adversary's path and box."""
+                   t_col_step: int, title: str, contact_xy: Sequence[float] | None = None,
+                   planned_xy: np.ndarray | None = None, box_label: str = "adversary at t_col") -> Path:
+    """One variant: map, agents at ``t_col_step`` of ``scene``, the target's path, the adversary's
+    path and box; ``planned_xy`` (the adversary's plan) dashed where it is given.
+
+    Pass the injection pass as ``scene`` (with the adversary's driven path) to draw what was driven:
+    a target that braked is then drawn where it was, not where the nominal pass had it.
+    """
     t = scene.tracks
     tv = t.valid[target]
     window = window_around(np.concatenate([adversary_xy, np.stack([t.x[target, tv], t.y[target, tv]], 1)]),
@@ -115,9 +121,12 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
         draw_agents(a, scene, t_col_step, {target: TARGET_COLOR})
         a.plot(t.x[target, tv], t.y[target, tv], color=TARGET_COLOR, lw=1.2, zorder=3,
                label="target path" if labels else None)
+        if planned_xy is not None:
+            a.plot(planned_xy[:, 0], planned_xy[:, 1], color=ADVERSARY_COLOR, lw=1.0, ls="--", zorder=3,
+                   label="adversary's plan" if labels else None)
         a.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, zorder=3,
                label="adversary path" if labels else None)
-        draw_box(a, s.x, s.y, s.yaw, s.length, s.width, ADVERSARY_COLOR, label="adversary at t_col" if labels else None)
+        draw_box(a, s.x, s.y, s.yaw, s.length, s.width, ADVERSARY_COLOR, label=box_label if labels else None)
         if contact_xy is not None:  # hollow in the close-up, so the boxes under it stay visible
             a.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8,
                    mfc="gold" if labels else "none", label="first contact" if labels else None)
@@ -177,10 +186,22 @@ def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, targ
         draw_box(ax, adversary.x, adversary.y, adversary.yaw, adversary.length, adversary.width, ADVERSARY_COLOR,
                  label="adversary at t_col", zorder=7)
     cmap = plt.get_cmap("tab10")
-    for i, r in enumerate(representatives):
-        ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=6)
-        ax.plot(r[-1, 0], r[-1, 1], "o", color=cmap(i % 10), ms=4, zorder=7)
-    ax.legend(loc="upper right", fontsize=8)
+    for i, r in enumerate(representatives):  # above the boxes: a short path is not hidden under them
+        ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=9)
+        ax.plot(r[0, 0], r[0, 1], "o", color=cmap(i % 10), mec="black", mew=0.5, ms=5, zorder=10)
+    # what the picture's other marks are (they had no legend)
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles, _ = ax.get_legend_handles_labels()
+    handles += [Patch(facecolor=TARGET_COLOR, edgecolor="black", label="target at t_col"),
+                Patch(facecolor=OTHER_COLOR, edgecolor="black", alpha=0.5, label="other vehicles at t_col"),
+                Line2D([], [], color=TARGET_COLOR, ls="--", label="ellipse of the collision-time regions"),
+                Line2D([], [], color="grey", marker="o", ls="", mec="black", label="where a variant starts")]
+    if samples_xy is not None and len(samples_xy):
+        handles.append(Patch(facecolor=plt.get_cmap("magma_r")(0.6), alpha=0.75,
+                             label=f"density of the {len(samples_xy)} oversampled paths"))
+    ax.legend(handles=handles, loc="upper right", fontsize=7)
     ax.set_title(f"{scene.scenario_id}: target {scene.tracks.ids[target]}, t_col = {t_col:.1f} s",
                  fontsize=10)
     _finish(ax, window)

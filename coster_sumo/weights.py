@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 
 T = TypeVar("T")
 
@@ -45,7 +45,7 @@ def weights_path(name: str, models_dir: str | Path | None = None, *, required: b
     path = models_folder(models_dir) / name
     if required and not path.is_file():
         train = _TRAIN_COMMAND.get(name, "coster-sumo train ...").format(path=path)
-        raise InputError(f"{path}: model weights not found (train them with `{train}` or pass --models DIR)")
+        raise not_found(path, why=f"model weights: train them with `{train}` or pass --models DIR")
     return path
 
 

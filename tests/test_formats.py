@@ -67,7 +67,7 @@ def test_a_bad_configuration_is_one_line_naming_the_file(tmp_path, content):
 
 
 def test_missing_configuration(tmp_path):
-    with pytest.raises(InputError, match="not found"):
+    with pytest.raises(InputError, match="nope.sumocfg: no such file"):
         read_sumocfg(tmp_path / "nope.sumocfg")
 
 

@@ -148,7 +148,7 @@ def test_checkpoint_round_trip(tmp_path, prepared):
 
 
 def test_bad_checkpoint_is_one_clear_line(tmp_path, capsys):
-    with pytest.raises(InputError, match="checkpoint not found"):
+    with pytest.raises(InputError, match="missing.pt: no such file"):
         load_prior(tmp_path / "missing.pt")
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")

@@ -24,11 +24,11 @@ SMALL = ["--end", "40", "--init", "random", "--rollout", "cv", "--variants", "2"
 def test_regress_rejects_bad_input_before_any_work(tmp_path, capsys):
     o = str(tmp_path / "o")
     assert main(["regress", str(tmp_path / "missing.sumocfg"), *SMALL, "--planner", "replay", "-o", o]) == 2
-    assert "no such scene source" in capsys.readouterr().err
+    assert "missing.sumocfg: no such file or folder" in capsys.readouterr().err
     assert main(["regress", str(INTERSECTION), *SMALL, "--planner", "sumo:NoSuchModel", "-o", o]) == 2
     assert "unknown SUMO car-following model" in capsys.readouterr().err
     assert main(["regress", str(INTERSECTION), "--planner", "replay", "--models", str(tmp_path), "-o", o]) == 2
-    assert "model weights not found" in capsys.readouterr().err
+    assert "no such file (model weights" in capsys.readouterr().err
     assert not (tmp_path / "o" / "results").exists()
 
 
@@ -105,7 +105,8 @@ def test_eval_scenarios_reports_missing_weights_as_skipped(tmp_path):
                  "-o", str(out)])
     assert code == 0
     metrics = json.loads((out / "metrics.json").read_text())["methods"]
-    assert metrics["Snapshot+CV"]["status"] == "skipped" and "weights not found" in metrics["Snapshot+CV"]["reason"]
+    skipped = metrics["Snapshot+CV"]
+    assert skipped["status"] == "skipped" and "no such file (model weights" in skipped["reason"]
     rc = metrics["Random+CV"]
     assert rc["status"] == "ok" and rc["variants"] == 2 and rc["scenes"] == 1
     for k in ("SUR", "CR", "ORR", "VDD", "ADD", "VDD_tcol"):

@@ -83,7 +83,7 @@ def test_same_seed_same_result(tmp_path):
     (["--target", "nobody"], "target 'nobody' is not in its demand"),
     (["--target", "ego", "--end", "1.5"], "target 'ego' never runs in the window (0.1-1.5 s)"),  # departs at 2 s
     (["--end", "1.5"], "no vehicle 'ego' runs in the window"),
-    (["--collision-time", "entropy", "--init", "snapshot", "--models", "/nonexistent"], "model weights not found"),
+    (["--collision-time", "entropy", "--init", "snapshot", "--models", "/nonexistent"], "no such file (model weights"),
 ])
 def test_bad_input_is_one_line_exit_2_and_no_output(tmp_path, capsys, args, message):
     rc, out = _run(tmp_path, *args)
@@ -193,7 +193,7 @@ def test_sumolib_rilsa_scenario_that_names_its_net_by_a_synonym(tmp_path, capsys
     shutil.copytree(src, folder, ignore=shutil.ignore_patterns("__pycache__"))
     assert main(["-q", "run", str(folder / "run.sumo.cfg"), "--targets", "1", "-o", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "flows.rou.xml: route file not found" in err[0], err
+    assert len(err) == 1 and "flows.rou.xml: no such file" in err[0], err
     subprocess.run([sys.executable, "makeRoutes.py"], cwd=folder, check=True, capture_output=True)
     out = tmp_path / "run"
     assert main(["-q", "run", str(folder / "run.sumo.cfg"), "--targets", "1", "--duration", "90", "--planner",

@@ -37,6 +37,7 @@ from coster_sumo.batch.sources import (
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
 from coster_sumo.core import Variant, check_generation
 from coster_sumo.errors import InputError
+from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
@@ -120,7 +121,8 @@ class RegressOptions(BatchOptions):
     """Everything ``coster-sumo regress`` takes (see its --help)."""
 
     planners: list[str]
-    variants: int = 3
+    variants: int = GenerationConfig.variants  # the same default as run and the API
+    duration: float | None = None  # [s] each scene's window from its begin (instead of end)
     init: str = "snapshot"
     rollout: str = "cvae"
     collision_time: str = "entropy"
@@ -152,6 +154,15 @@ def generation_task_for(key: str, spec: ScenarioSpec, plans_dir: Path, gen: dict
         payload["models_dir"] = str(models_dir)
         folders["models_dir"] = WEIGHT_FILES
     return Task(f"plan__{key}", generation_task, payload, kind="plan", folders=folders)
+def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
+    """``spec`` ending ``duration`` [s] after its begin (its own, else its configuration's), as
+    ``run --duration`` does; a source that names its own end keeps it."""
+    if duration <= 0:
+        raise InputError(f"--duration must be positive, not {duration:g}")
+    if spec.end is not None:
+        return spec
+    begin = spec.begin if spec.begin is not None else (read_sumocfg(spec.config).begin or 0.0)
+    return dataclasses.replace(spec, end=begin + duration)
 
 
 def run_key(scene: str, variant: int, planner: str) -> str:
@@ -168,6 +179,8 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
     check_generation(generation)
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
                           target=opts.target)
+    if opts.duration is not None:
+        specs = [with_duration(s, opts.duration) for s in specs]
     out = Path(opts.out)
     check_output(out, kind="regress", inputs=[Path(s.config) for s in specs], reusable=True,
                  signature="regress.json")
@@ -241,8 +254,12 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         store.write(row)
         return []
 
+    generations = sum(t.key.startswith("plan__") for t in initial)
     execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
-            quiet=opts.quiet, desc="regress", expected_total=len(initial) + n_runs_expected - len(done),
+            # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
+            quiet=opts.quiet, desc=f"regress (first {generations} scene generation{'s' if generations != 1 else ''})"
+            if generations else "regress",
+            expected_total=len(initial) + n_runs_expected - len(done),
             start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
             ray_address=opts.ray_address, preload=SUMO_TASK_MODULES)
     summary = summarize_regression(out, keys, opts.planners)

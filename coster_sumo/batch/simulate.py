@@ -35,7 +35,7 @@ from coster_sumo import dataset as ds
 from coster_sumo.atomic import atomic_path, write_json, write_text
 from coster_sumo.batch.executor import Outcome, Task, execute
 from coster_sumo.batch.nets import Source, generate_nets, run_tool
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import MARKER, OutputLock, check_output, write_marker
 
@@ -123,7 +123,7 @@ def resolve_sources(paths: list[Path]) -> list[Source]:
     used: set[str] = set()
     for p in paths:
         if not p.is_file():
-            raise InputError(f"{p}: file not found")
+            raise not_found(p)
         is_cfg = p.suffix == ".sumocfg"
         if not is_cfg and not p.name.endswith((".net.xml", ".net.xml.gz")):
             raise InputError(f"{p}: expected a .sumocfg or a .net.xml")

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import CosterError, one_line
+from coster_sumo.errors import CosterError, not_found, one_line
 from coster_sumo.outdir import MARKER, OutputLock, check_output, clean_leftovers_in, write_marker
 
 
@@ -55,6 +55,9 @@ def run(args: argparse.Namespace) -> int:
     debug = bool(getattr(args, "debug", False))
     quiet = bool(getattr(args, "quiet", False))
     out: Path = args.out
+    missing = [p for p in args.inputs if not p.exists()]
+    if len(missing) == len(args.inputs):  # nothing to read: the one missing-file line, before any work
+        raise not_found(missing[0])
     check_output(out, kind="convert", inputs=args.inputs, reusable=True)
     with OutputLock(out):
         if out.is_dir():
@@ -104,6 +107,10 @@ def _convert_locked(args: argparse.Namespace, out: Path, debug: bool, quiet: boo
 
     for path in args.inputs:
         record = 0
+        if not path.exists():
+            failures.append({"where": one_line(str(path)), "error": one_line(str(not_found(path)))})
+            tqdm.write(f"coster-sumo: error: {failures[-1]['error']}", file=sys.stderr)
+            continue
         try:
             for scene in iter_scenes(path):
                 read_any = True
@@ -144,8 +151,7 @@ def _convert_locked(args: argparse.Namespace, out: Path, debug: bool, quiet: boo
     if not scenes and not read_any:  # nothing could be read: write nothing
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()
-        if not quiet:
-            print(f"converted 0 scene(s), {len(failures)} failed; nothing written")
+        print(f"converted 0 scene(s), {len(failures)} failed; nothing written")  # --quiet too: the result
         return 2
     out.mkdir(parents=True, exist_ok=True)
     summary = {"outdir": str(out), "inputs": [str(p) for p in args.inputs], "converted": len(scenes),
@@ -154,6 +160,5 @@ def _convert_locked(args: argparse.Namespace, out: Path, debug: bool, quiet: boo
     write_json(out / "summary.json", summary)
     if not (out / MARKER).exists():
         write_marker(out, "convert")
-    if not quiet:
-        print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")
+    print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")  # --quiet too: the result
     return 1 if failures else 0

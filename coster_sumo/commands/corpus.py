@@ -5,6 +5,7 @@ authored freeways, roundabouts, rural roads, netgenerate families, the repositor
 flow to congestion; every vehicle class; Krauss / IDM / EIDM; part sublane) into DATASET as 9.1 s
 clips, held-out networks apart, then writes the card (docs/corpus.md). Rerunning it finishes
 what is missing.
+
 ``card`` writes DATASET/card.md and its histograms (DATASET/card/*.png) from the manifest and the
 per-run statistics. The libraries are :mod:`coster_sumo.batch.corpus` and
 :mod:`coster_sumo.batch.card`.
@@ -39,7 +40,7 @@ def _build(args: argparse.Namespace) -> int:
 def _card(args: argparse.Namespace) -> int:
     from coster_sumo.batch.card import write_card
 
-    path = write_card(Path(args.dataset), Path(args.output) if args.output else None)
+    path = write_card(Path(args.dataset), Path(args.out) if args.out else None)
     if not args.quiet:
         print(f"wrote {path}")
     return 0
@@ -62,7 +63,9 @@ def register(cli: Any) -> None:
     b.add_argument("--timeout", type=float, default=1800.0, metavar="S", help="wall-clock limit per run")
     b.add_argument("--no-card", action="store_true", help="do not write the corpus card at the end")
     b.set_defaults(func=_build)
-    c = group.add_parser("card", help="write the corpus card (markdown + PNG histograms)")
+    c = group.add_parser("card", help="write the corpus card (markdown + PNG histograms)",
+                         description=__doc__.split("\n\n")[2] if __doc__ else None)
     c.add_argument("dataset", metavar="DATASET", help="corpus folder")
-    c.add_argument("-o", "--output", metavar="DIR", help="write card.md and card/*.png here (default: DATASET)")
+    c.add_argument("-o", "--out", "--output", dest="out", metavar="DIR",
+                   help="write card.md and card/*.png here (default: DATASET)")
     c.set_defaults(func=_card)

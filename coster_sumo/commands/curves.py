@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -16,8 +16,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "(one record per epoch). Label a run with LABEL=PATH. A file may list its own vertical marks as "
                     "\"marks\": [[EPOCH, TEXT], ...] (a run continued with --init at another rate, whose "
                     "histories were joined).")
-    p.add_argument("metrics", nargs="+", help="metrics JSON of a training run, optionally LABEL=PATH")
-    p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
+    p.add_argument("metrics", nargs="+", metavar="METRICS",
+                   help="metrics JSON of a training run, optionally LABEL=PATH")
+    p.add_argument("-o", "--out", "--output", dest="out", type=Path, required=True, metavar="PNG",
+                   help="PNG to write")
     p.set_defaults(func=run)
 
 
@@ -30,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
         label, sep, name = item.partition("=")
         path = Path(name if sep else item)
         if not path.is_file():
-            raise InputError(f"{path}: no such metrics file")
+            raise not_found(path)
         try:
             metrics = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -47,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         if not rows:
             raise InputError(f"{path}: no per-epoch records ('epochs' or 'history')")
         runs[label if sep else path.stem] = rows
-    out = viz.training_curves(runs, args.output, marks)
+    out = viz.training_curves(runs, args.out, marks)
     if not args.quiet:
         print(f"{out}: {', '.join(f'{k} ({len(v)} epochs)' for k, v in runs.items())}")
     return 0

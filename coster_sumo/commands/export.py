@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
-from coster_sumo.exports.run_folder import FORMATS, OSC_DIR, export_run
+from coster_sumo.errors import not_found
+from coster_sumo.exports.run_folder import FORMATS, OSC_DIR, available_formats, export_run
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -18,8 +20,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "trajectories.csv/.json of the target, the adversary and the vehicles near the target at "
                     "t_col). The openscenario format needs the optional extra: pip install "
                     "'coster-sumo[openscenario]'.")
-    p.add_argument("run_out", type=Path, help="output folder of `coster-sumo run`")
-    p.add_argument("--format", choices=FORMATS, default="all", help="(default %(default)s)")
+    p.add_argument("run_out", type=Path, metavar="RUN_OUT", help="output folder of `coster-sumo run`")
+    p.add_argument("--format", choices=FORMATS, default=None,
+                   help="(default: all where the OpenSCENARIO extra is installed, else sumo)")
     p.add_argument("--radius", type=float, default=None,
                    help="[m] OpenSCENARIO: vehicles within this distance of the target at t_col are included "
                         "(default 50)")
@@ -27,7 +30,27 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    results = export_run(args.run_out, args.format, args.radius)
+    from coster_sumo.progress import progress_bar
+
+    if not args.run_out.is_dir():
+        raise not_found(args.run_out, "folder")
+    fmt = args.format or available_formats()
+    if args.format is None and fmt == "sumo" and not args.quiet:
+        from coster_sumo.exports.openscenario import EXTRA_HINT
+
+        print(f"OpenSCENARIO + OpenDRIVE skipped: the optional extra is not installed ({EXTRA_HINT})")
+    bars: list[Any] = []  # opened at the first variant: an input error before it is the only line
+
+    def progress(done: int, total: int) -> None:
+        if not bars:
+            bars.append(progress_bar("export", "variant", total=total, quiet=args.quiet))
+        bars[0].update(done - bars[0].n)
+
+    try:
+        results = export_run(args.run_out, fmt, args.radius, progress=progress)
+    finally:
+        for bar in bars:
+            bar.close()
     if not args.quiet:
         for r in results:
             parts = []

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 
 DEFAULT_CHECKPOINT = "models/prior.pt"
 
@@ -32,7 +32,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "Writes the best held-out checkpoint to OUTPUT, metrics to OUTPUT with .json, and a "
                     "resumable training state to OUTPUT.state (rerun the same command to resume).")
     train.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
-    train.add_argument("-o", "--output", default=DEFAULT_CHECKPOINT, help="checkpoint to write (%(default)s)")
+    train.add_argument("-o", "--out", "--output", dest="out", default=DEFAULT_CHECKPOINT,
+                       help="checkpoint to write (%(default)s)")
     train.add_argument("--epochs", type=int, default=20)
     train.add_argument("--batch-size", type=int, default=32)
     train.add_argument("--lr", type=float, default=1e-3)
@@ -74,7 +75,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                          "agents when a scene has few) or unbiased (scored on the scenes where every method "
                          "has two samples) (%(default)s)")
     ev.add_argument("--threads", type=int, default=1, help="torch threads (%(default)s)")
-    ev.add_argument("--json", required=True, help="where to write the results (JSON)")
+    ev.add_argument("-o", "--out", "--json", dest="out", required=True, metavar="JSON",
+                    help="where to write the results (JSON)")
     ev.set_defaults(func=run_eval)
 
 
@@ -104,10 +106,10 @@ def run_train(args: argparse.Namespace) -> int:
     val = load_prepared(val_files, radius=mcfg.radius, progress=progress)
     meta = {"data": str(args.data), "command": "coster-sumo " + shlex.join(sys.argv[1:]) if sys.argv else "",
             "train_files": len(train_files), "val_files": len(val_files)}
-    metrics = train_prior(train, val, args.output, mcfg, tcfg, state_path=args.state, resume=not args.restart,
+    metrics = train_prior(train, val, args.out, mcfg, tcfg, state_path=args.state, resume=not args.restart,
                           progress=progress, meta=meta, log=_log(args), device=args.device)
     if not args.quiet:
-        print(f"wrote {args.output} (best epoch {metrics['best_epoch']}, score {metrics['best_score']:.4f}, "
+        print(f"wrote {args.out} (best epoch {metrics['best_epoch']}, score {metrics['best_score']:.4f}, "
               f"{time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
 
@@ -138,7 +140,7 @@ def run_eval(args: argparse.Namespace) -> int:
             for scene in iter_scenes(path):
                 scenes.append(prepare_scene(at_prior_rate(scene), radius=radius))
         else:
-            raise InputError(f"{path}: no such file or folder")
+            raise not_found(path, "file or folder")
     if args.max_scenes:
         scenes = scenes[: args.max_scenes]
     if not scenes:
@@ -153,7 +155,7 @@ def run_eval(args: argparse.Namespace) -> int:
     result.update({"checkpoint": str(args.checkpoint), "data": [str(d) for d in args.data],
                    "baselines_fitted_on": str(train_src) if train_src else None, "seed": args.seed,
                    "split": args.split})
-    out = Path(args.json)
+    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_json(out, result, indent=2)
     if not args.quiet:

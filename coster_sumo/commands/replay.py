@@ -3,8 +3,9 @@
 For a converted scene (the folder of CFG holds ``scene.npz`` and ``lane_map.json``) every logged
 agent follows its log through moveToXY and the signals follow the logged states; the summary
 reports the centre-position error SUMO reports back against the log. Any other configuration is
-simply run (``--fcd-output`` passes through). ``summary.json`` goes to ``--out`` (default: a
-``replay/`` folder beside CFG).
+simply run (``--fcd-output`` passes through). ``summary.json`` goes to ``-o/--out`` (default
+``out/replay``, like every command's output: never into the input's folder, which may be inside
+the installed package).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import sys
 from pathlib import Path
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import InputError
+from coster_sumo.errors import not_found
 from coster_sumo.procs import run_supervised
 
 
@@ -28,7 +29,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--fcd-output", type=Path, metavar="FILE", help="write SUMO's FCD output (positions per step)")
     p.add_argument("--end", type=float, metavar="T", help="[s] stop at this simulation time")
     p.add_argument("--traci", action="store_true", help="use a TraCI socket instead of libsumo")
-    p.add_argument("-o", "--out", type=Path, help="folder for summary.json (default: CFG's folder/replay)")
+    p.add_argument("-o", "--out", type=Path, default=Path("out/replay"),
+                   help="folder for summary.json (default out/replay)")
     p.set_defaults(func=run)
 
 
@@ -38,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from coster_sumo.sim.replay import ReplayOptions, replay
 
     if not args.config.is_file():
-        raise InputError(f"{args.config}: SUMO configuration not found")
+        raise not_found(args.config)
     quiet = bool(getattr(args, "quiet", False))
     bar = tqdm(desc="replay", unit="step", disable=quiet, file=sys.stderr, dynamic_ncols=True)
 
@@ -56,17 +58,18 @@ def run(args: argparse.Namespace) -> int:
         summary = run_supervised(functools.partial(replay, args.config, options), f"replay of {args.config}")
     finally:
         bar.close()
-    out: Path = args.out if args.out is not None else args.config.parent / "replay"
+    out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "summary.json", summary)
+    # the one-line result stays with --quiet; the name of the file written does not
+    if summary["mode"] == "replay":
+        print(f"{summary['scenario_id']}: {summary['steps']} steps, {summary['agents']} agents, "
+              f"centre error max {summary['centre_error_max_m']:.2e} m mean "
+              f"{summary['centre_error_mean_m']:.2e} m over {summary['valid_states_compared']} states, "
+              f"{summary['sim_s']:.2f} s ({summary['steps_per_s']} steps/s)")
+    else:
+        print(f"{summary['config']}: {summary['steps']} steps to t={summary['end_s']:.1f} s, "
+              f"{summary['vehicles']} vehicles, {summary['wall_s']:.2f} s")
     if not quiet:
-        if summary["mode"] == "replay":
-            print(f"{summary['scenario_id']}: {summary['steps']} steps, {summary['agents']} agents, "
-                  f"centre error max {summary['centre_error_max_m']:.2e} m mean "
-                  f"{summary['centre_error_mean_m']:.2e} m over {summary['valid_states_compared']} states, "
-                  f"{summary['sim_s']:.2f} s ({summary['steps_per_s']} steps/s)")
-        else:
-            print(f"{summary['config']}: {summary['steps']} steps to t={summary['end_s']:.1f} s, "
-                  f"{summary['vehicles']} vehicles, {summary['wall_s']:.2f} s")
         print(f"summary: {out / 'summary.json'}")
     return 0

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import write_json
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.rollout.config import RolloutConfig
 
 DEFAULT_CHECKPOINT = "models/rollout.pt"
@@ -27,7 +27,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "Writes the checkpoint to OUTPUT after every epoch, metrics to OUTPUT with .json and a "
                     "training state to OUTPUT.state: rerun the same command to resume.")
     train.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
-    train.add_argument("-o", "--output", default=DEFAULT_CHECKPOINT, help="checkpoint to write (%(default)s)")
+    train.add_argument("-o", "--out", "--output", dest="out", default=DEFAULT_CHECKPOINT,
+                       help="checkpoint to write (%(default)s)")
     train.add_argument("--no-dsa", action="store_true",
                        help="the w/o-DSA ablation: neighbours only as they were at t_rev")
     train.add_argument("--no-map-steps", action="store_true", help="attend to the map only for the first state")
@@ -86,7 +87,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "and cover them with about SIZE tokens by k-disks on the mean box-corner error. Writes "
                     "OUTPUT (.npz) and OUTPUT with .json (coverage).")
     vocab.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
-    vocab.add_argument("-o", "--output", default=DEFAULT_VOCAB, help="vocabulary to write (%(default)s)")
+    vocab.add_argument("-o", "--out", "--output", dest="out", default=DEFAULT_VOCAB,
+                       help="vocabulary to write (%(default)s)")
     vocab.add_argument("--size", type=int, default=384, help="number of tokens (%(default)s)")
     vocab.add_argument("--seed", type=int, default=0)
     vocab.add_argument("--max-transitions", type=int, default=50_000,
@@ -121,7 +123,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     ev.add_argument("--device", default="cpu",
                     help="cpu (default), cuda, cuda:N or auto: where the CVAEs sample (the same draws: the noise "
                          "is seeded on the CPU)")
-    ev.add_argument("--json", required=True, help="where to write the results (JSON)")
+    ev.add_argument("-o", "--out", "--json", dest="out", required=True, metavar="JSON",
+                    help="where to write the results (JSON)")
     ev.set_defaults(func=run_eval)
 
 
@@ -156,13 +159,13 @@ def run_train(args: argparse.Namespace) -> int:
                        warmup_steps=args.warmup_steps, lr_drop_epoch=args.lr_drop_epoch,
                        lr_drop_factor=args.lr_drop_factor, precision=args.precision)
     t0 = time.perf_counter()
-    metrics = train_rollout(args.data, args.output, cfg, tcfg, resume=not args.restart, quiet=args.quiet,
+    metrics = train_rollout(args.data, args.out, cfg, tcfg, resume=not args.restart, quiet=args.quiet,
                             command=_command(), cache=not args.no_cache, cache_dir=args.cache_dir,
                             init=args.init, device=args.device)
     if not args.quiet:
         final = metrics.get("final", {})
         shown = ", ".join(f"{k} {final[k]:.3f}" for k in ("val_minADE", "val_minFDE", "val_loss") if k in final)
-        print(f"wrote {args.output} ({shown or 'no held-out scenes'}; {time.perf_counter() - t0:.0f} s)",
+        print(f"wrote {args.out} ({shown or 'no held-out scenes'}; {time.perf_counter() - t0:.0f} s)",
               file=sys.stderr)
     return 0
 
@@ -186,7 +189,7 @@ def run_vocab(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     vocab = replace(vocab, meta=meta)
-    out = Path(args.output)
+    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     vocab.save(out)
     report = {"format": "coster-sumo-vocab-metrics", "tokens": len(vocab), "epsilon_m": vocab.epsilon_m,
@@ -215,7 +218,7 @@ def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
         elif p.is_file():
             scenes += list(iter_scenes(p))
         else:
-            raise InputError(f"{p}: no such file or folder")
+            raise not_found(p, "file or folder")
     return scenes
 
 
@@ -260,7 +263,7 @@ def run_eval(args: argparse.Namespace) -> int:
               "seed": args.seed, "threads": torch.get_num_threads(), "torch": torch.__version__,
               "machine": platform.machine(), "wall_time_s": time.perf_counter() - t0, "command": _command(),
               "units": {"ADE/FDE": "m", "time_per_trajectory_s": "s (CPU wall time)"}}
-    _write_json(Path(args.json), report)
+    _write_json(Path(args.out), report)
     if not args.quiet:
         for name, m in result["methods"].items():
             print(f"{name:18s} minADE {m['minADE']:.3f} minFDE {m['minFDE']:.3f} avgADE {m['avgADE']:.3f} "

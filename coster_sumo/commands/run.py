@@ -24,7 +24,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
         description="Nominal pass, collision snapshot, backward rollout, one injection pass per variant. "
                     "Writes summary.json, events.jsonl, collisions.xml, trajectories, renders and "
                     "standalone exports into OUTDIR.")
-    p.add_argument("config", type=Path, help=".sumocfg (a converted WOMD scene or any SUMO configuration)")
+    p.add_argument("config", type=Path, metavar="CFG",
+                   help=".sumocfg (a converted WOMD scene or any SUMO configuration)")
     who = p.add_mutually_exclusive_group()
     who.add_argument("--target", action="append",
                      help="target vehicle id (default: the SDC of a converted scene, else 'ego'); repeat it for "
@@ -33,7 +34,8 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                      help="choose N targets: the vehicles of the demand expected to run longest in the window "
                           "(free-flow time of their routes; a converted scene: the longest in its log); the "
                           "choice is printed and kept in OUT/summary.json")
-    p.add_argument("--planner", help="replay | sumo | sumo:<carFollowModel> | module:Class "
+    p.add_argument("--planner", help="replay | sumo | sumo:<carFollowModel> | module:Class (a module on the "
+                                     "import path or in the working directory) | path/to/file.py:Class "
                                      "(default: replay for converted scenes, sumo otherwise)")
     p.add_argument("--samples", type=int, default=1000, help="trajectories oversampled (default 1000)")
     p.add_argument("--variants", type=int, default=5, help="representatives kept (K-means K, default 5)")
@@ -218,7 +220,33 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
                      "its contacts are with a standing vehicle")
     for v in summary["variants"]:
         hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
-               f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
-        lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else "")
+               f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else (
+            "no contact: " + (v.get("no_contact_reason") or "no reason recorded"))
+        others = v.get("other_collisions_list") or []
+        approach = (f"; approach {v['approach_m']:.0f} m from {v['plan_start_s']:.1f} s"
+                    if v.get("approach_m") is not None else "")
+        lines.append(f"  variant {v['variant']}: {hit}" + approach
+                     + ("; adversary off-road" if v["adversary_off_road"] else "")
+                     + (f"; {len(others)} other collision{'s' if len(others) != 1 else ''} ({others[0]}"
+                        + (", ..." if len(others) > 1 else "") + ")" if others else "")
                      + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else ""))
+    lines += dropped_lines(summary)
+    return lines
+
+
+def dropped_lines(summary: dict[str, Any]) -> list[str]:
+    """One line per candidate that did not become a variant, with its reason, and how many of the
+    variants asked for were kept."""
+    lines: list[str] = []
+    asked = (summary.get("options") or {}).get("variants")
+    for s in summary.get("snapshots", []):
+        gen = s.get("generation") or {}
+        for d in gen.get("dropped", []):
+            c = d["candidate"]
+            lines.append(f"  dropped {'candidate ' + str(c) if isinstance(c, int) else c}: {d['reason']}")
+        for t, why in (gen.get("collision_times_given_up") or {}).items():
+            lines.append(f"  gave up {t}: {why}")
+    n = len(summary.get("variants", []))
+    if asked is not None and n < asked * len(summary.get("snapshots", [1])):
+        lines.insert(0, f"  {n} of {asked * len(summary.get('snapshots', [1]))} variants kept; the others:")
     return lines

@@ -28,7 +28,7 @@ from coster_sumo.batch.simulate import (
 
 def _cmd(args: argparse.Namespace) -> int:
     cfg = SimulateConfig(
-        sources=[Path(p) for p in args.sources], dataset=Path(args.output), seeds=args.seeds, seed=args.seed,
+        sources=[Path(p) for p in args.sources], dataset=Path(args.out), seeds=args.seeds, seed=args.seed,
         duration_s=args.duration, warmup_s=args.warmup, workers=args.workers, netgenerate=args.netgenerate,
         clips_per_run=args.clips_per_run, targets_per_window=args.targets_per_window,
         scale_range=(args.scale_range[0], args.scale_range[1]), timeout_s=args.timeout, quiet=args.quiet,
@@ -46,9 +46,10 @@ def register(cli: Any) -> None:
     p = cli.commands.add_parser(
         "simulate", help="simulate nominal traffic into a dataset of WOMD-like clips",
         description=__doc__.split("\n\n")[1] if __doc__ else None)
-    p.add_argument("sources", nargs="*", metavar="CFG",
+    p.add_argument("sources", nargs="*", metavar="SOURCE",
                    help=".sumocfg files (their own demand) or .net.xml files (random trips)")
-    p.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset folder (created)")
+    p.add_argument("-o", "--out", "--output", dest="out", required=True, metavar="DATASET",
+                   help="dataset folder (created)")
     p.add_argument("--seeds", type=int, default=3, metavar="N", help="runs per source (default 3)")
     p.add_argument("--seed", type=int, default=0, help="first seed; runs use seed, seed+1, ... (default 0)")
     p.add_argument("--duration", type=float, default=None, metavar="S",

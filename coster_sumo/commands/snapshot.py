@@ -17,7 +17,8 @@ def register(cli: Any) -> None:
         description="Find when (velocity entropy) and where (prior placement) a collision with the target "
                     "is plausible. SCENE_OR_CFG is a .sumocfg (simulated and recorded), a converted scene "
                     "folder's .sumocfg, a scene .npz, or a WOMD .tfrecord / ScenarioNet .pkl (first record).")
-    p.add_argument("source", type=Path, help=".sumocfg, scene .npz, WOMD .tfrecord or ScenarioNet .pkl")
+    p.add_argument("source", type=Path, metavar="SCENE_OR_CFG",
+                   help=".sumocfg, scene .npz, WOMD .tfrecord or ScenarioNet .pkl")
     p.add_argument("--target", help="target id (default: the SDC / 'ego')")
     p.add_argument("--collision-time", default="entropy", choices=tuple(COLLISION_TIME_RULES))
     p.add_argument("--init", default="snapshot", choices=tuple(SNAPSHOT_INITS))

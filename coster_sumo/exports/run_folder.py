@@ -14,10 +14,11 @@ Per variant ``RUN_OUT/variants/<i>/``:
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.exports.sumo import FCD_FILE, VTYPES_FILE
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, read_trajectories_csv, select_near, write_selection
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -28,6 +29,8 @@ OSC_DIR = "openscenario"
 
 
 def _load_json(path: Path) -> Any:
+    if not path.is_file():
+        raise not_found(path)
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError) as exc:
@@ -107,9 +110,23 @@ def openscenario_export(vdir: Path, summary: dict[str, Any], record: dict[str, A
             "vehicles": len(ids), "schema_valid": True}
 
 
-def export_run(run_out: Path, fmt: str = "all", radius: float | None = None) -> list[dict[str, Any]]:
+def available_formats() -> str:
+    """The widest format whose dependencies are installed: ``all`` with the OpenSCENARIO extra,
+    else ``sumo``."""
+    from coster_sumo.exports.openscenario import require_extra
+
+    try:
+        require_extra()
+    except InputError:
+        return "sumo"
+    return "all"
+
+
+def export_run(run_out: Path, fmt: str = "all", radius: float | None = None,
+               progress: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
     """Export every variant of ``run_out`` in ``fmt`` (sumo | openscenario | all); one dict per variant
-    (``skipped``: why a variant has no export, where the run could not write its SUMO folder)."""
+    (``skipped``: why a variant has no export, where the run could not write its SUMO folder).
+    ``progress(done, total)`` is called after every variant."""
     if fmt not in FORMATS:
         raise InputError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
     if fmt in ("openscenario", "all"):
@@ -118,16 +135,20 @@ def export_run(run_out: Path, fmt: str = "all", radius: float | None = None) -> 
         require_extra()
         radius = DEFAULT_RADIUS_M if radius is None else radius
     run_out = Path(run_out)
+    if not run_out.is_dir():
+        raise not_found(run_out, "folder")
     summary = _load_json(run_out / "summary.json")
+    results: list[dict[str, Any]] = []
     if "targets" in summary:  # a run with several targets: one run folder per target
         results = [{**r, "target": t["target"]} for t in summary["targets"] if "folder" in t
-                   for r in export_run(run_out / str(t["folder"]), fmt, radius)]
+                   for r in export_run(run_out / str(t["folder"]), fmt, radius, progress)]
         refresh_marker(run_out)
         return results
     if "variants" not in summary:
         raise InputError(f"{run_out / 'summary.json'}: not the summary of a `coster-sumo run` output")
-    results = []
     for record in summary["variants"]:
+        if progress is not None:
+            progress(len(results), len(summary["variants"]))
         vdir = run_out / "variants" / str(record["variant"])
         res: dict[str, Any] = {"variant": record["variant"]}
         if record.get("export_error"):  # the run could not write its SUMO folder, which both formats read
@@ -138,5 +159,7 @@ def export_run(run_out: Path, fmt: str = "all", radius: float | None = None) -> 
         if fmt in ("openscenario", "all"):
             res["openscenario"] = openscenario_export(vdir, summary, record, float(radius or 0.0))
         results.append(res)
+    if progress is not None:
+        progress(len(results), len(summary["variants"]))
     refresh_marker(run_out)  # the files written here are the tool's: a later --overwrite may replace them
     return results

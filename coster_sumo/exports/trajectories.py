@@ -6,10 +6,12 @@
 the vehicles near the target at t_col) as ``trajectories.csv`` and ``trajectories.json``, the
 forms other tools import most easily.
 
-Columns (units: s, m, rad, m/s): ``time`` (SUMO simulation time after the step), ``vehicle``,
-``type`` (WOMD object type name: VEHICLE, PEDESTRIAN, CYCLIST, OTHER, UNSET), ``x``, ``y`` (box
-centre in the SUMO network's own coordinates), ``heading`` (counter-clockwise from +x), ``speed``,
-``length``, ``width``. Only the steps where the vehicle was in the simulation are listed.
+Columns, each named with its unit: ``time_s`` (SUMO simulation time after the step),
+``vehicle``, ``type`` (WOMD object type name: VEHICLE, PEDESTRIAN, CYCLIST, OTHER, UNSET), ``x_m``,
+``y_m`` (box centre in the SUMO network's own coordinates), ``heading_deg`` (counter-clockwise from
++x, degrees like every angle in the user-facing files), ``speed_mps``, ``length_m``, ``width_m``.
+Only the steps where the vehicle was in the simulation are listed. The reader also takes the older
+columns (``time``, ``x``, ..., ``heading`` in radians) of run folders written before.
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ from coster_sumo.scene import ObjectType, Scene
 
 TRAJECTORIES_FILE = "trajectories.csv"
 TRAJECTORIES_JSON = "trajectories.json"
-COLUMNS = ("time", "vehicle", "type", "x", "y", "heading", "speed", "length", "width")
+COLUMNS = ("time_s", "vehicle", "type", "x_m", "y_m", "heading_deg", "speed_mps", "length_m", "width_m")
+OLD_COLUMNS = ("time", "vehicle", "type", "x", "y", "heading", "speed", "length", "width")  # heading [rad]
 
 
 @dataclass
@@ -61,9 +64,10 @@ class Trajectory:
         return float(np.interp(t, self.t, self.x)), float(np.interp(t, self.t, self.y))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"type": self.kind, "length": float(np.median(self.length)), "width": float(np.median(self.width)),
-                "time": _r(self.t, 3), "x": _r(self.x, 4), "y": _r(self.y, 4), "heading": _r(self.heading, 6),
-                "speed": _r(self.speed, 4)}
+        return {"type": self.kind, "length_m": float(np.median(self.length)),
+                "width_m": float(np.median(self.width)),
+                "time_s": _r(self.t, 3), "x_m": _r(self.x, 4), "y_m": _r(self.y, 4),
+                "heading_deg": _r(np.degrees(self.heading), 5), "speed_mps": _r(self.speed, 4)}
 
 
 def _r(a: np.ndarray, digits: int) -> list[float]:
@@ -81,7 +85,7 @@ def write_trajectories_csv(path: Path, scene: Scene) -> None:
             kind = _type_name(int(tr.object_type[a]))
             for s in np.flatnonzero(tr.valid[a]):
                 w.writerow((f"{scene.timestamps[s]:.3f}", vid, kind, f"{tr.x[a, s]:.4f}", f"{tr.y[a, s]:.4f}",
-                            f"{tr.heading[a, s]:.6f}", f"{speed[a, s]:.4f}", f"{tr.length[a, s]:.3f}",
+                            f"{np.degrees(tr.heading[a, s]):.5f}", f"{speed[a, s]:.4f}", f"{tr.length[a, s]:.3f}",
                             f"{tr.width[a, s]:.3f}"))
 
 
@@ -99,13 +103,15 @@ def read_trajectories_csv(path: Path) -> dict[str, Trajectory]:
     try:
         with Path(path).open(newline="") as fh:
             reader = csv.DictReader(fh)
-            missing = set(COLUMNS) - set(reader.fieldnames or ())
+            names = set(reader.fieldnames or ())
+            columns = OLD_COLUMNS if not set(COLUMNS) <= names and set(OLD_COLUMNS) <= names else COLUMNS
+            missing = set(columns) - names
             if missing:
                 raise InputError(f"{path}: not a trajectories file (missing columns {sorted(missing)})")
             for r in reader:
                 vid = r["vehicle"]
                 kinds[vid] = r["type"]
-                rows.setdefault(vid, []).append(tuple(float(r[c]) for c in COLUMNS if c not in ("vehicle", "type")))
+                rows.setdefault(vid, []).append(tuple(float(r[c]) for c in columns if c not in ("vehicle", "type")))
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
@@ -113,6 +119,8 @@ def read_trajectories_csv(path: Path) -> dict[str, Trajectory]:
     out = {}
     for vid, rs in rows.items():
         a = np.array(sorted(rs), np.float64)
+        if columns is COLUMNS:
+            a[:, 3] = np.radians(a[:, 3])  # heading_deg -> the radians of Trajectory
         out[vid] = Trajectory(vid, kinds[vid], a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6])
     return out
 
@@ -156,7 +164,7 @@ def write_selection(folder: Path, trajs: dict[str, Trajectory], ids: list[str], 
             tr = trajs[vid]
             for k in range(len(tr.t)):
                 w.writerow((f"{tr.t[k]:.3f}", vid, tr.kind, f"{tr.x[k]:.4f}", f"{tr.y[k]:.4f}",
-                            f"{tr.heading[k]:.6f}", f"{tr.speed[k]:.4f}", f"{tr.length[k]:.3f}",
+                            f"{np.degrees(tr.heading[k]):.5f}", f"{tr.speed[k]:.4f}", f"{tr.length[k]:.3f}",
                             f"{tr.width[k]:.3f}", roles.get(vid, "other")))
     doc = {**header, "vehicles": {vid: {"role": roles.get(vid, "other"), **trajs[vid].to_dict()} for vid in ids}}
     json_path.write_text(json.dumps(doc, indent=1) + "\n")

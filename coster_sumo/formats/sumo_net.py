@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.sumocfg import check_xml
 from coster_sumo.scene import Lanes, LaneType, Polylines, Ragged, RoadMap
 from coster_sumo.sumo_env import import_sumolib
@@ -104,7 +104,7 @@ def read_sumolib_net(path: str | Path) -> Any:
     """``sumolib.net.readNet(path, withInternal=True)`` with a one-line error naming the file."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: SUMO net file not found")
+        raise not_found(path)
     # well-formed, and no entity declarations (XML bombs) before sumolib's own SAX parser sees it
     check_xml(path, "SUMO net")
     sumolib = import_sumolib()
@@ -335,7 +335,7 @@ def load_sumo_net(path: str | Path, *, include_non_road: bool = False) -> SumoNe
     """
     path = Path(path).resolve()
     if not path.is_file():
-        raise InputError(f"{path}: SUMO net file not found")
+        raise not_found(path)
     st = path.stat()
     return _cached(str(path), st.st_mtime_ns, st.st_size, include_non_road)
 

@@ -23,7 +23,7 @@ from typing import IO
 
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 
 INPUT_KEYS = ("net-file", "route-files", "additional-files")
 
@@ -139,7 +139,7 @@ def check_xml(path: Path, what: str, referenced_by: Path | None = None) -> None:
     """
     via = f" (referenced by {referenced_by})" if referenced_by is not None else ""
     if not path.is_file():
-        raise InputError(f"{path}: {what} not found{via}")
+        raise not_found(path, referenced_by=referenced_by)
     st = path.stat()
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
     if key in _XML_OK:

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from coster_sumo.atomic import atomic_path
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import ScenePriorData, at_prior_rate, prepare_scene, scene_tokens
 from coster_sumo.prior.features import Tokens
@@ -75,7 +75,7 @@ def read_checkpoint(path: str | Path) -> dict:
     """The raw checkpoint dict; :class:`InputError` (one line) when it is missing or not a prior."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: prior checkpoint not found (train one with `coster-sumo train prior`)")
+        raise not_found(path, why="prior checkpoint: train one with `coster-sumo train prior`")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for corrupt files

@@ -13,7 +13,7 @@ from typing import Any
 import torch
 
 from coster_sumo.atomic import atomic_path
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
 
 FORMAT_NAME = "coster-sumo-rollout"
@@ -40,7 +40,7 @@ def read_torch_file(path: str | Path) -> Any:
     """``torch.load(weights_only=True)`` with one-line InputErrors."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: checkpoint not found")
+        raise not_found(path, why="checkpoint")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many kinds (UnpicklingError, RuntimeError, EOFError...)

@@ -321,7 +321,8 @@ def _hits_others(others: OtherAgents, poses: np.ndarray, length: float, width: f
 def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: int = 0,
                            vocab: MotionVocab | None = None, drivable: DrivableArea | OffRoadFn | None = None,
                            others: OtherAgents | None = None, *, size: tuple[float, float],
-                           times: np.ndarray | None = None, max_tries: int | None = None) -> list[Trajectory]:
+                           times: np.ndarray | None = None, max_tries: int | None = None,
+                           rejected: list[dict[str, Any]] | None = None) -> list[Trajectory]:
     """Cluster oversampled trajectories and keep one feasible, refined representative per cluster.
 
     Args:
@@ -336,6 +337,9 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
         size: (length, width) [m] of the adversary.
         times: (T,) [s] stored in the results (default relative times, 0 at t_col).
         max_tries: at most this many members of a cluster are tried (default all).
+        rejected: where given, one entry per cluster that yields nothing is appended to it
+            (``cluster``, ``members``, ``reason``: one line, how many members hit another agent and
+            how many left the road before t_col).
 
     Returns:
         Up to ``k`` :class:`Trajectory`, largest cluster first. A pose **before** t_col that is
@@ -369,6 +373,7 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
     for ci, in_pool in enumerate(cluster_trajectories(trajs[pool], k, seed)):
         members = pool[in_pool]
         tries = members if max_tries is None else members[:max_tries]
+        hit_count = off_count = 0
         for start in range(0, len(tries), 32):  # refine and check a few members at a time
             chunk = tries[start:start + 32]
             raw = trajs[chunk]
@@ -381,11 +386,13 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
             if others is not None and t >= 2:
                 bad |= _hits_others(OtherAgents(others.boxes[:, :-1], others.valid[:, :-1], others.ids),
                                     before, length, width)
+                hit_count += int(bad.sum())
             if drivable is not None and t >= 2:
                 todo = ~bad
                 if todo.any():
                     off = np.zeros(len(chunk), bool)
                     off[todo] = _off_road(drivable, before[todo], length, width)
+                    off_count += int(off.sum())
                     bad |= off
             ok = np.flatnonzero(~bad)
             if len(ok):
@@ -394,7 +401,19 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
                                       cluster_size=len(members), rank=start + j, sample_index=int(chunk[j]),
                                       refine_error_m=float(err[j]), refined=vocab is not None))
                 break
+        else:
+            if rejected is not None:
+                rejected.append({"cluster": ci, "members": len(members),
+                                 "reason": _cluster_reason(len(tries), hit_count, off_count)})
     return out
+
+
+def _cluster_reason(tried: int, hit: int, off: int) -> str:
+    """One line: why no member of a cluster of candidate trajectories was kept."""
+    parts = (([f"{hit} overlap{'s' if hit == 1 else ''} another vehicle"] if hit else [])
+             + ([f"{off} leave{'s' if off == 1 else ''} the road"] if off else []))
+    what = "its one trajectory is" if tried == 1 else f"all {tried} trajectories of its cluster are"
+    return f"{what} unusable before t_col (" + (", ".join(parts) or "none checked") + ")"
 
 
 # ----------------------------------------------------------------------------- pipeline entry
@@ -435,8 +454,9 @@ def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
     times = trajectory_times(scene_2hz, snapshot.t_index, h)
     others = others_from_scene(scene_2hz, snapshot.t_index, h, exclude=exclude)
     adv = snapshot.adversary
+    rejected: list[dict[str, Any]] = []
     reps = select_representatives(trajs, k=k, seed=seed, vocab=vocab, drivable=drivable, others=others,
-                                  size=(adv.length, adv.width), times=times)
+                                  size=(adv.length, adv.width), times=times, rejected=rejected)
     t3 = time.perf_counter()
     plans = [AdversaryPlan.from_knots(r.times, r.poses, adv) for r in reps]
     info: dict[str, Any] = {
@@ -444,6 +464,7 @@ def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
         "use_dsa": bool(model.cfg.use_dsa), "vocab_tokens": len(vocab) if vocab is not None else None,
         "representatives": [{"cluster": r.cluster, "cluster_size": r.cluster_size, "rank": r.rank,
                              "sample_index": r.sample_index, "refine_error_m": r.refine_error_m} for r in reps],
+        "rejected_clusters": rejected,
         "time_load_s": t1 - t0, "time_sample_s": t2 - t1, "time_select_s": t3 - t2,
     }
     return plans, trajs[..., :2].copy(), info

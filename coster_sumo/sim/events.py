@@ -110,8 +110,10 @@ class Event:
         kind: "collision" (our box check), "sumo_collision" (SUMO's list) or "off_road".
         vehicles: the vehicle ids involved (reference vehicle first: the target when involved).
         positions: [[x, y], ...] centres [m] in the same order.
-        relative_speed: [m/s] |v_a - v_b| (collisions), 0 for off-road.
-        impact_angle: [deg] the other vehicle's position in the first vehicle's frame (collisions).
+        relative_speed: [m/s] |v_a - v_b| (collisions); None where it does not apply (off-road, a
+            SUMO collision of a vehicle no longer in the states).
+        impact_angle: [deg] the other vehicle's position in the first vehicle's frame (collisions);
+            None where it does not apply.
         detail: free-form extra data (SUMO's collision type, area off the road...).
     """
 
@@ -119,12 +121,20 @@ class Event:
     kind: str
     vehicles: list[str]
     positions: list[list[float]]
-    relative_speed: float = 0.0
-    impact_angle: float = 0.0
+    relative_speed: float | None = None
+    impact_angle: float | None = None
     detail: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The event for events.jsonl: times to the millisecond, positions to the millimetre."""
+        d = asdict(self)
+        d["time"] = round(self.time, 3)
+        d["positions"] = [[round(v, 3) for v in p] for p in self.positions]
+        if self.relative_speed is not None:
+            d["relative_speed"] = round(self.relative_speed, 3)
+        if self.impact_angle is not None:
+            d["impact_angle"] = round(self.impact_angle, 2)
+        return d
 
 
 class EventDetector:
@@ -267,6 +277,10 @@ class EventDetector:
             j = ids.index(b) if b in ids else -1
             detail = {"type": c.get("type", ""), "lane": c.get("lane", "")}
             if i >= 0 and j >= 0:
+                # SUMO's check is lane-based: say how far apart the boxes really were
+                gap = box_signed_distance(*(make_boxes(states.x[k], states.y[k], states.yaw[k], states.length[k],
+                                                       states.width[k]) for k in (i, j)))
+                detail["box_gap_m"] = round(float(gap), 3)
                 out.append(self._collision_event(time, states, i, j, "sumo_collision", detail))
             else:
                 out.append(Event(time=float(time), kind="sumo_collision", vehicles=[a, b], positions=[],

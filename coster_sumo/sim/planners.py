@@ -20,13 +20,16 @@ Built-ins:
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 
 if TYPE_CHECKING:
     from coster_sumo.sim.session import SumoSession
@@ -163,21 +166,52 @@ PLANNERS: dict[str, Callable[[str | None, ReplayPlanner | None], Planner]] = {
 }
 
 
+def _planner_class(spec: str) -> type:
+    """The class a ``module:Class`` or ``path/to/file.py:Class`` planner names.
+
+    A module is looked for on the usual import path and then in the working directory (a console
+    script does not put the working directory on ``sys.path``, so ``my_planner:Mine`` next to the
+    user was not found without ``PYTHONPATH=.``); a file is loaded from its path.
+    """
+    where, _, cls_name = spec.rpartition(":")
+    try:
+        if where.endswith(".py"):
+            path = Path(where)
+            if not path.is_file():
+                raise not_found(path)
+            name = "coster_planner_" + "".join(c if c.isalnum() else "_" for c in str(path.resolve()))
+            module = sys.modules.get(name)
+            if module is None:
+                loader = importlib.util.spec_from_file_location(name, path)
+                if loader is None or loader.loader is None:
+                    raise InputError(f"{path}: not a Python module")
+                module = importlib.util.module_from_spec(loader)
+                sys.modules[name] = module  # pickling and dataclasses look the module up by name
+                loader.loader.exec_module(module)
+        else:
+            cwd = os.getcwd()
+            if cwd not in sys.path:
+                sys.path.append(cwd)  # after everything installed: it never shadows a package
+            module = importlib.import_module(where)
+        return getattr(module, cls_name)  # type: ignore[no-any-return]
+    except (ImportError, AttributeError, SyntaxError) as exc:
+        raise InputError(f"planner {spec!r}: cannot import ({exc})") from None
+
+
 def make_planner(spec: str, replay: ReplayPlanner | None = None) -> Planner:
-    """``replay`` | ``sumo`` | ``sumo:<carFollowModel>`` | ``module:Class`` (see :data:`PLANNERS`)."""
+    """``replay`` | ``sumo`` | ``sumo:<carFollowModel>`` | ``module:Class`` | ``path/to/file.py:Class``
+    (see :data:`PLANNERS`; a module is also found in the working directory)."""
     name, sep, arg = spec.partition(":")
     if name in PLANNERS:
         return PLANNERS[name](arg if sep else None, replay)
     if sep:
-        try:
-            cls = getattr(importlib.import_module(name), arg)
-        except (ImportError, AttributeError) as exc:
-            raise InputError(f"planner {spec!r}: cannot import ({exc})") from None
+        cls = _planner_class(spec)
         planner = cls()
         if not isinstance(planner, Planner):
             raise InputError(f"planner {spec!r} lacks additional_files/setup/before_step")
         return planner
-    raise InputError(f"unknown planner {spec!r}: use {', '.join(PLANNERS)}, sumo:<carFollowModel> or module:Class")
+    raise InputError(f"unknown planner {spec!r}: use {', '.join(PLANNERS)}, sumo:<carFollowModel>, module:Class "
+                     "or path/to/file.py:Class")
 
 
 def check_planner(spec: str) -> None:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_folder import (
     LANE_MAP_FILE,
     SCENE_FILE,
@@ -295,7 +295,7 @@ def replay(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:
     """Replay a converted scene, or just run a plain configuration."""
     cfg = Path(cfg)
     if not cfg.is_file():
-        raise InputError(f"{cfg}: SUMO configuration not found")
+        raise not_found(cfg)
     if converted_scene_file(cfg) is not None:
         return replay_scene(cfg, opts)
     return run_config(cfg, opts)

@@ -1,0 +1,32 @@
+"""Progress bars on stderr that leave nothing behind on a terminal and end their line in a log.
+
+A bar that closes with ``leave=False`` clears its line with a carriage return and spaces; in a log
+file (stderr not a terminal) those are just more characters on the same line, so whatever comes
+next (an error naming a file) was appended to the bar's last state. :func:`progress_bar` ends the
+line in that case.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+
+def progress_bar(desc: str, unit: str, total: float | None = None, quiet: bool = False) -> Any:
+    """A tqdm bar on stderr (none with ``quiet``), cleared on a terminal, its line ended in a log."""
+    from tqdm import tqdm
+
+    class _Bar(tqdm):  # type: ignore[misc,type-arg]
+        def close(self) -> None:
+            shown = not self.disable and not getattr(self, "_ended", False)
+            self._ended = True
+            super().close()
+            if not shown:
+                return
+            stream = getattr(self, "fp", None) or sys.stderr
+            if not (hasattr(stream, "isatty") and stream.isatty()):
+                stream.write("\n")
+                stream.flush()
+
+    tqdm.monitor_interval = 0  # no monitor thread in a process that forks
+    return _Bar(total=total, desc=desc, unit=unit, disable=quiet, leave=False, file=sys.stderr, dynamic_ncols=True)
