@@ -31,11 +31,12 @@ def test_ramp_every_missing_variant_and_every_miss_has_its_reason(tmp_path, caps
     cfg = _sumo_game("ramp")
     if not cfg.is_file():
         pytest.skip(f"{cfg} not in this SUMO build")
-    drawn: list[tuple[str, object]] = []
     real = outputs.viz.render_variant
+    log = tmp_path / "drawn.jsonl"  # run works in a child process: the spy reports through a file
 
     def spy(path, scene, *args, **kwargs):  # type: ignore[no-untyped-def]
-        drawn.append((args[4], scene))
+        with log.open("a") as fh:
+            fh.write(json.dumps([str(args[4]), scene.tracks.ids.tolist()]) + "\n")
         return real(path, scene, *args, **kwargs)
 
     monkeypatch.setattr(outputs.viz, "render_variant", spy)
@@ -61,8 +62,9 @@ def test_ramp_every_missing_variant_and_every_miss_has_its_reason(tmp_path, caps
             assert f"{v['other_collisions']} other collision" in line
             assert len(v["other_collisions_list"]) == v["other_collisions"]
     # the renders draw the injection pass (not the nominal scene) and say so
-    assert drawn and all("as driven in SUMO" in str(title) for title, _ in drawn)
-    assert all(any(i.startswith("adversary") for i in scene.tracks.ids.tolist()) for _, scene in drawn)
+    drawn = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+    assert drawn and all("as driven in SUMO" in title for title, _ in drawn)
+    assert all(any(str(i).startswith("adversary") for i in ids) for _, ids in drawn)
 
 
 def test_dropped_lines_name_every_candidate_with_its_reason():
@@ -200,9 +202,9 @@ def test_overview_has_a_legend_for_every_mark_and_paths_above_the_boxes(tmp_path
     assert all(line.get_zorder() > boxes for line in ax.get_lines() if line.get_label().startswith("variant"))
 
 
-def test_generation_is_not_silent(tmp_path, capsys):
+def test_generation_is_not_silent(tmp_path, capfd):
     """The console said nothing for about 10 s while the adversaries were generated."""
     repo = Path(__file__).resolve().parents[1]
     assert main(["run", str(repo / "networks/intersection/intersection.sumocfg"), "--init", "random",
                  "--rollout", "cv", "--end", "45", "--variants", "1", "--no-render", "-o", str(tmp_path / "o")]) == 0
-    assert "generation (ego)" in capsys.readouterr().err
+    assert "generation (ego)" in capfd.readouterr().err  # the bar is drawn by run's child process
