@@ -9,7 +9,10 @@ forms other tools import most easily.
 Columns (units: s, m, rad, m/s): ``time`` (SUMO simulation time after the step), ``vehicle``,
 ``type`` (WOMD object type name: VEHICLE, PEDESTRIAN, CYCLIST, OTHER, UNSET), ``x``, ``y`` (box
 centre in the SUMO network's own coordinates), ``heading`` (counter-clockwise from +x), ``speed``,
-``length``, ``width``. Only the steps where the vehicle was in the simulation are listed.
+``length``, ``width``, ``vclass`` (the SUMO vehicle class: passenger, truck, delivery, bus,
+motorcycle, bicycle, ...; empty where the recording does not say). Only the steps where the vehicle
+was in the simulation are listed. Files without the ``vclass`` column (written before it existed)
+still read.
 """
 
 from __future__ import annotations
@@ -27,7 +30,9 @@ from coster_sumo.scene import ObjectType, Scene
 
 TRAJECTORIES_FILE = "trajectories.csv"
 TRAJECTORIES_JSON = "trajectories.json"
-COLUMNS = ("time", "vehicle", "type", "x", "y", "heading", "speed", "length", "width")
+COLUMNS = ("time", "vehicle", "type", "x", "y", "heading", "speed", "length", "width", "vclass")
+OPTIONAL_COLUMNS = frozenset({"vclass"})
+NUMERIC_COLUMNS = ("time", "x", "y", "heading", "speed", "length", "width")
 
 
 @dataclass
@@ -42,6 +47,7 @@ class Trajectory:
         heading: (N,) float64 [rad] counter-clockwise from +x.
         speed: (N,) float64 [m/s].
         length, width: (N,) float64 [m].
+        vclass: SUMO vehicle class ("" where unknown).
     """
 
     vehicle_id: str
@@ -53,6 +59,7 @@ class Trajectory:
     speed: np.ndarray
     length: np.ndarray
     width: np.ndarray
+    vclass: str = ""
 
     def state_at(self, t: float) -> tuple[float, float] | None:
         """Box centre (x, y) [m] linearly interpolated at ``t`` [s]; None outside the recording."""
@@ -61,7 +68,8 @@ class Trajectory:
         return float(np.interp(t, self.t, self.x)), float(np.interp(t, self.t, self.y))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"type": self.kind, "length": float(np.median(self.length)), "width": float(np.median(self.width)),
+        return {"type": self.kind, "vclass": self.vclass, "length": float(np.median(self.length)),
+                "width": float(np.median(self.width)),
                 "time": _r(self.t, 3), "x": _r(self.x, 4), "y": _r(self.y, 4), "heading": _r(self.heading, 6),
                 "speed": _r(self.speed, 4)}
 
@@ -74,15 +82,17 @@ def write_trajectories_csv(path: Path, scene: Scene) -> None:
     """Write every vehicle of a recorded pass (see the module docstring for the columns)."""
     tr = scene.tracks
     speed = tr.speed
+    vclasses = scene.meta.get("vehicle_classes") or {}
     with Path(path).open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(COLUMNS)
         for a, vid in enumerate(tr.ids.tolist()):
             kind = _type_name(int(tr.object_type[a]))
+            vclass = str(vclasses.get(vid, ""))
             for s in np.flatnonzero(tr.valid[a]):
                 w.writerow((f"{scene.timestamps[s]:.3f}", vid, kind, f"{tr.x[a, s]:.4f}", f"{tr.y[a, s]:.4f}",
                             f"{tr.heading[a, s]:.6f}", f"{speed[a, s]:.4f}", f"{tr.length[a, s]:.3f}",
-                            f"{tr.width[a, s]:.3f}"))
+                            f"{tr.width[a, s]:.3f}", vclass))
 
 
 def _type_name(value: int) -> str:
@@ -95,17 +105,17 @@ def _type_name(value: int) -> str:
 def read_trajectories_csv(path: Path) -> dict[str, Trajectory]:
     """Vehicle id -> :class:`Trajectory` of a ``trajectories.csv`` (rows of a vehicle in any order)."""
     rows: dict[str, list[tuple[float, ...]]] = {}
-    kinds: dict[str, str] = {}
+    kinds: dict[str, tuple[str, str]] = {}
     try:
         with Path(path).open(newline="") as fh:
             reader = csv.DictReader(fh)
-            missing = set(COLUMNS) - set(reader.fieldnames or ())
+            missing = set(COLUMNS) - OPTIONAL_COLUMNS - set(reader.fieldnames or ())
             if missing:
                 raise InputError(f"{path}: not a trajectories file (missing columns {sorted(missing)})")
             for r in reader:
                 vid = r["vehicle"]
-                kinds[vid] = r["type"]
-                rows.setdefault(vid, []).append(tuple(float(r[c]) for c in COLUMNS if c not in ("vehicle", "type")))
+                kinds[vid] = (r["type"], r.get("vclass") or "")
+                rows.setdefault(vid, []).append(tuple(float(r[c]) for c in NUMERIC_COLUMNS))
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
@@ -113,7 +123,8 @@ def read_trajectories_csv(path: Path) -> dict[str, Trajectory]:
     out = {}
     for vid, rs in rows.items():
         a = np.array(sorted(rs), np.float64)
-        out[vid] = Trajectory(vid, kinds[vid], a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6])
+        kind, vclass = kinds[vid]
+        out[vid] = Trajectory(vid, kind, a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6], vclass)
     return out
 
 
@@ -157,7 +168,7 @@ def write_selection(folder: Path, trajs: dict[str, Trajectory], ids: list[str], 
             for k in range(len(tr.t)):
                 w.writerow((f"{tr.t[k]:.3f}", vid, tr.kind, f"{tr.x[k]:.4f}", f"{tr.y[k]:.4f}",
                             f"{tr.heading[k]:.6f}", f"{tr.speed[k]:.4f}", f"{tr.length[k]:.3f}",
-                            f"{tr.width[k]:.3f}", roles.get(vid, "other")))
+                            f"{tr.width[k]:.3f}", tr.vclass, roles.get(vid, "other")))
     doc = {**header, "vehicles": {vid: {"role": roles.get(vid, "other"), **trajs[vid].to_dict()} for vid in ids}}
     json_path.write_text(json.dumps(doc, indent=1) + "\n")
     return csv_path, json_path
