@@ -46,7 +46,13 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo import sumo_env
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.net_joints import measure_joints
-from coster_sumo.formats.scene_folder import folder_name, is_converted_scene, tls_state_strings, vtype_for
+from coster_sumo.formats.scene_folder import (
+    STAGING_EDGE,
+    folder_name,
+    is_converted_scene,
+    tls_state_strings,
+    vtype_for,
+)
 from coster_sumo.geometry import polyline_arc_length, project_points
 from coster_sumo.scene import ObjectType, Scene, save_scene
 
@@ -79,7 +85,6 @@ NETCONVERT_OPTIONS = [
 # An isolated lane far below the map where the replay puts each agent for one step before it first
 # appears: a vehicle whose very first placement is off every lane crashes SUMO in its outputs
 # (FCD) and in some getters (docs/sumo.md §3).
-STAGING_EDGE = "coster_staging"
 STAGING_OFFSET_M = 1000.0  # [m] below the map
 STAGING_LENGTH_M = 15000.0  # [m] room for 600 agents appearing in one step
 MATCH_DISTANCE_M = 0.5  # [m] a WOMD lane is matched when its mean distance to its SUMO lane is below

@@ -146,3 +146,18 @@ def test_all_womd_samples(tmp_path):
     for net in nets:
         cmp = assert_xodr_on_lanes(odr.write_xodr(net, tmp_path / f"{net.stem}.xodr"), net)
         assert cmp["roads"]["xodr_to_net_max"] <= XODR_TOLERANCE_M
+
+
+@pytest.mark.sumo
+def test_converted_scene_xodr_has_no_staging_road(tmp_path):
+    from coster_sumo.converters.to_sumo import convert_scene
+
+    from coster_sumo import synthetic
+    from coster_sumo.formats.scene_folder import STAGING_EDGE
+
+    folder = convert_scene(synthetic.four_way_junction(), tmp_path).folder
+    net = next(folder.glob("*.net.xml"))
+    assert STAGING_EDGE in net.read_text()  # the log replay still stages agents there
+    root = SafeET.parse(str(odr.write_xodr(net, tmp_path / "j.xodr"))).getroot()
+    names = {u.get("value") for u in root.iter("userData") if u.get("code") == "sumoId"}
+    assert names and STAGING_EDGE not in names

@@ -3,7 +3,8 @@
 :func:`write_xodr`: ``netconvert --opendrive-output`` with ``--offset.disable-normalization true``,
 so the OpenDRIVE inertial frame is the SUMO net's own frame (netconvert would otherwise shift the
 net to start at the origin), and ``--output.original-names true``, so every road names its SUMO
-edge (``<userData code="sumoId">``); then :func:`coster_sumo.exports.opendrive_fit.fit_lanes` moves
+edge (``<userData code="sumoId">``); a converted scene's staging edge is left out (it is no road);
+then :func:`coster_sumo.exports.opendrive_fit.fit_lanes` moves
 the lanes onto the SUMO lane shapes (netconvert writes an edge's leftmost lane border plus constant
 widths, and one cubic curve per junction connection). netconvert writes one road per edge (and one
 connecting road per junction connection), lanes as right lanes (negative ids).
@@ -29,6 +30,7 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.opendrive_fit import FILLER_CODE, fit_lanes
+from coster_sumo.formats.scene_folder import STAGING_EDGE
 
 SAMPLE_STEP_M = 0.5  # [m] spacing of the xodr samples in compare_with_net
 MIN_WIDTH_M = 1e-3  # [m] a lane narrower than this is no lane there (it starts or ends)
@@ -38,7 +40,9 @@ def write_xodr(net_file: Path, out: Path, fit: bool = True) -> Path:
     """OpenDRIVE of a SUMO net by netconvert, in the net's own coordinates, its lanes fitted onto
     the SUMO lane shapes (``fit=False``: netconvert's file as it is)."""
     cmd = [sumo_env.binary("netconvert"), "--sumo-net-file", str(net_file), "--opendrive-output", str(out),
-           "--offset.disable-normalization", "true", "--output.original-names", "true", "--no-warnings", "true"]
+           "--offset.disable-normalization", "true", "--output.original-names", "true", "--no-warnings", "true",
+           # a converted scene's staging edge is no road (netconvert ignores the name in other nets)
+           "--remove-edges.explicit", STAGING_EDGE]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(), timeout=600)
     if proc.returncode != 0 or not out.is_file():
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
