@@ -274,3 +274,44 @@ def hermite_pieces(points: np.ndarray, step: float = REFERENCE_STEP_M) -> list[d
         arc = float(np.sum((speed[1:] + speed[:-1]) / 2) / 32)
         out.append({"x": float(pts[i, 0]), "y": float(pts[i, 1]), "hdg": float(h0), "length": arc, **coef})
     return out
+
+
+def hermite_through(points: np.ndarray, start_heading: float, end_heading: float,
+                    min_step: float = 0.01) -> list[dict[str, float]]:
+    """Cubic pieces (as :func:`hermite_pieces`) through every point of a polyline (N, 2) (points
+    closer than ``min_step`` [m] to the previous one dropped), leaving the first point at
+    ``start_heading`` and reaching the last at ``end_heading`` [rad]; inside, each point's tangent
+    is the direction from its predecessor to its successor, so the heading is continuous at every
+    joint of two pieces."""
+    pts = [np.asarray(points[0], np.float64)]
+    for p in np.asarray(points, np.float64)[1:]:
+        if np.hypot(*(p - pts[-1])) >= min_step:
+            pts.append(p)
+    if len(pts) < 2:  # everything within min_step: one piece to the last point
+        pts.append(np.asarray(points[-1], np.float64))
+    elif np.hypot(*(np.asarray(points[-1]) - pts[-1])) > 0:
+        pts[-1] = np.asarray(points[-1], np.float64)  # end exactly at the last point
+    p = np.stack(pts)
+    heading = np.empty(len(p))
+    heading[0], heading[-1] = start_heading, end_heading
+    if len(p) > 2:
+        d = p[2:] - p[:-2]
+        heading[1:-1] = np.arctan2(d[:, 1], d[:, 0])
+    out = []
+    for i in range(len(p) - 1):
+        h0 = heading[i]
+        c, sn = np.cos(h0), np.sin(h0)
+        dx, dy = p[i + 1] - p[i]
+        u1, v1 = c * dx + sn * dy, -sn * dx + c * dy  # end point in the start's frame
+        chord = float(np.hypot(u1, v1))
+        turn = (heading[i + 1] - h0 + np.pi) % (2 * np.pi) - np.pi
+        cu, su = chord * np.cos(turn), chord * np.sin(turn)
+        coef = {"aU": 0.0, "bU": chord, "cU": 3 * u1 - 2 * chord - cu, "dU": -2 * u1 + chord + cu,
+                "aV": 0.0, "bV": 0.0, "cV": 3 * v1 - su, "dV": -2 * v1 + su}
+        q = np.linspace(0.0, 1.0, 65)
+        du = coef["bU"] + 2 * coef["cU"] * q + 3 * coef["dU"] * q ** 2
+        dv = 2 * coef["cV"] * q + 3 * coef["dV"] * q ** 2
+        speed = np.hypot(du, dv)
+        arc = float(np.sum((speed[1:] + speed[:-1]) / 2) / 64)
+        out.append({"x": float(p[i, 0]), "y": float(p[i, 1]), "hdg": float(h0), "length": arc, **coef})
+    return out
