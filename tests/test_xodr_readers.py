@@ -33,8 +33,7 @@ VERSION_SKIPPED = {"check_asam_xodr_junctions_connection_one_connection_element"
 # what still fails on the WOMD samples: lanes of one edge that begin or end at different stations
 # (a logged lane opening beside its neighbours) are lanes of zero width at the road's end
 WOMD_OPEN = {"check_asam_xodr_road_lane_link_new_lane_appear", "check_asam_xodr_road_lane_link_zero_width_at_end",
-             "check_asam_xodr_lane_smoothness_contact_point_no_horizontal_gaps",
-             "check_asam_xodr_performance_avoid_redundant_info"}
+             "check_asam_xodr_lane_smoothness_contact_point_no_horizontal_gaps"}
 
 
 def _python(extra: str) -> Path | None:

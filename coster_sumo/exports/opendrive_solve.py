@@ -21,6 +21,8 @@ PROJECTION_ITERATIONS = 4
 SMOOTH_WINDOW_M = 4.0  # [m] averaging window of a road's reference line (WOMD lanes jitter)
 REFERENCE_STEP_M = 2.0  # [m] length of the cubic pieces of a road's reference line
 MIN_WIDTH_M = 0.01  # [m] narrowest a lane with a SUMO shape gets (readers take a 0 width for no lane)
+MERGE_SLOPE = 1e-6  # [-] a record whose slope and start value continue the one before within these
+MERGE_VALUE_M = 1e-5  # [m] is left out (at most 0.1 mm off over 100 m; records are written to 8 digits)
 
 
 def project(ref_x: np.ndarray, ref_y: np.ndarray, ref_h: np.ndarray, s: np.ndarray, shape: np.ndarray
@@ -220,7 +222,8 @@ def records(s: np.ndarray, v: np.ndarray, runs: list[tuple[int, int]]) -> list[t
     merged = out[:1]
     for rec in out[1:]:  # a piece that only continues the one before says nothing new
         s0, a0, b0 = merged[-1]
-        if abs(rec[2] - b0) <= 1e-9 and abs(a0 + b0 * (rec[0] - s0) - rec[1]) <= 1e-6:
+        # (readers count two records that agree to 1e-6 in value and slope as one declared twice)
+        if abs(rec[2] - b0) <= MERGE_SLOPE and abs(a0 + b0 * (rec[0] - s0) - rec[1]) <= MERGE_VALUE_M:
             continue
         merged.append(rec)
     return merged
