@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/demo
 
-.PHONY: setup demo test test-slow lint clean
+.PHONY: setup demo test test-slow lint clean xodr-readers
 
 # CPU torch first, from a pinned version: a bare `torch` would pull a multi-GB CUDA build.
 $(BIN)/coster-sumo: pyproject.toml
@@ -31,5 +31,14 @@ test: lint
 test-slow: setup
 	$(BIN)/python -m pytest -q -m "slow" || [ $$? -eq 5 ]  # 5 = no slow tests collected
 
+# the third-party OpenDRIVE readers, each in its own environment, at the versions pyproject.toml's
+# extras xodr-asam and xodr-readers pin (tests/test_xodr_readers.py skips without them)
+xodr-readers: setup
+	for extra in xodr-asam xodr-readers; do \
+	  test -x .venv-$$extra/bin/python || $(PYTHON) -m venv .venv-$$extra; \
+	  .venv-$$extra/bin/python -m pip install -q $$($(BIN)/python -c "import tomllib; \
+	    print(' '.join(tomllib.load(open('pyproject.toml', 'rb'))['project']['optional-dependencies']['$$extra']))"); \
+	done
+
 clean:
-	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) .venv-xodr-asam .venv-xodr-readers out .pytest_cache .mypy_cache .ruff_cache

@@ -6,7 +6,8 @@
   :mod:`converters.to_sumo_net`, then netconvert with
   ``--offset.disable-normalization true --precision 4 --junctions.endpoint-shape true`` and
   ``spreadType="center"``, docs/sumo.md §2); lanes netconvert cut back to its junction polygons get
-  their WOMD polyline back (:func:`restore_womd_geometry`); a staging lane 1 km below the map is
+  their WOMD polyline back and internal lanes the logged interior lanes, joined end to end
+  (:func:`set_womd_geometry`); a staging lane 1 km below the map is
   added for the replay;
 - ``<id>.rou.xml``: vTypes for the logged agents (``womd_vehicle`` passenger, ``womd_pedestrian``
   and ``womd_cyclist`` as vehicles of class pedestrian / bicycle, ``womd_other``);
@@ -43,14 +44,23 @@ from defusedxml import ElementTree as SafeET
 
 from coster_sumo import sumo_env
 from coster_sumo.errors import CosterError, InputError
-from coster_sumo.formats.scene_folder import folder_name, is_converted_scene, tls_state_strings, vtype_for
-from coster_sumo.geometry import project_points
+from coster_sumo.formats.net_joints import measure_joints
+from coster_sumo.formats.scene_folder import (
+    STAGING_EDGE,
+    folder_name,
+    is_converted_scene,
+    tls_state_strings,
+    vtype_for,
+)
+from coster_sumo.geometry import polyline_arc_length, project_points
 from coster_sumo.outdir import check_output, new_staging, publish, raise_if_disk_full
 from coster_sumo.scene import ObjectType, Scene, save_scene
 
 from .to_sumo_net import (
+    Connection,
     PlainNet,
     build_plain_net,
+    clean_polyline,
     cut_polyline,
     is_bike_lane,
     lane_speed,
@@ -64,7 +74,7 @@ NETCONVERT_OPTIONS = [
     "--precision", "4",                        # 0.1 mm output instead of 1 cm
     # Junction polygons from the lane end points, and no pushing lane ends apart where they overlap:
     # the least cutting of WOMD lanes (on the real samples: 94-100 % of lanes within 0.5 m before
-    # restore_womd_geometry). --junctions.minimal-shape (docs/sumo.md §2, right for lane-per-edge
+    # set_womd_geometry). --junctions.minimal-shape (docs/sumo.md §2, right for lane-per-edge
     # chains) builds a tiny polygon around the node's centroid and *extends* every lane of an
     # intersection up to it (measured: 86 % / 72 % of lanes matched on the two TFRecord samples).
     "--junctions.endpoint-shape", "true",
@@ -75,7 +85,6 @@ NETCONVERT_OPTIONS = [
 # An isolated lane far below the map where the replay puts each agent for one step before it first
 # appears: a vehicle whose very first placement is off every lane crashes SUMO in its outputs
 # (FCD) and in some getters (docs/sumo.md §3).
-STAGING_EDGE = "coster_staging"
 STAGING_OFFSET_M = 1000.0  # [m] below the map
 STAGING_LENGTH_M = 15000.0  # [m] room for 600 agents appearing in one step
 MATCH_DISTANCE_M = 0.5  # [m] a WOMD lane is matched when its mean distance to its SUMO lane is below
@@ -242,33 +251,110 @@ def _length(points: np.ndarray) -> float:
     return float(np.sum(np.hypot(*np.diff(points, axis=0).T)))
 
 
-def restore_womd_geometry(net: Path, plain: PlainNet, info: NetInfo) -> dict:
-    """Put WOMD's exact polylines back into the lanes netconvert trimmed.
+JOIN_CARVE_M = 1.0  # [m] a lane end at a straight join lends this much (at most a quarter of it) to the join
+BLEND_M = 3.0  # [m] a logged interior lane a little off its lanes' ends is bent onto them over this length
 
-    Returns ``{"lanes": how many lanes changed, "max_trim_m": the largest length difference}``.
 
-    netconvert cuts lanes back to its junction polygons. WOMD junctions are wide, so a lane that
-    starts or ends inside one (short turn pockets, lanes branching inside an intersection) can lose
-    most of its length. The topology, connections, right-of-way and signals netconvert computed stay
-    as they are; only lane ``shape`` and ``length`` are rewritten: normal lanes get their WOMD
-    piece polyline, internal lanes the part of the WOMD interior polyline(s) of their connection,
-    split in the same length proportions netconvert used.
+def _carves(plain: PlainNet) -> tuple[np.ndarray, np.ndarray]:
+    """[m] how much of its start and of its end each piece lends to its junction's internal lanes.
+
+    A connection without a logged interior lane (a lane into its successor, or a lane's pieces
+    into each other) has no WOMD shape of its own: its internal lane is the last stretch of the
+    incoming lane followed by the first stretch of the outgoing one, :data:`JOIN_CARVE_M` each
+    (at most a quarter of the piece). Every other connection out of (into) such a lane end starts
+    (ends) with the same stretch, so that every internal lane begins where the incoming lane now
+    ends and ends where the outgoing lane now begins.
+    """
+    head = np.zeros(len(plain.pieces))
+    tail = np.zeros(len(plain.pieces))
+    for c in plain.connections:
+        if c.shape is None or len(c.shape) < 2:
+            for p, out in ((c.src, tail), (c.dst, head)):
+                length = plain.pieces[p].s1 - plain.pieces[p].s0
+                out[p] = min(JOIN_CARVE_M, 0.25 * length)
+    return head, tail
+
+
+def _stretch(points: np.ndarray, s0: float, s1: float) -> np.ndarray:
+    """The part of a polyline between arc lengths s0 < s1 (clipped to the line)."""
+    length = _length(points)
+    s0, s1 = max(0.0, s0), min(length, s1)
+    if s1 - s0 < 1e-9:
+        return np.zeros((0, 2))
+    return cut_polyline(points, s0, s1)
+
+
+def _bend_onto(shape: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """``shape`` (K, 2) moved so that it starts at ``start`` and ends at ``end``: the offsets fade
+    out linearly over :data:`BLEND_M` (at most half the shape) from each end."""
+    cum = polyline_arc_length(shape)
+    total = float(cum[-1])
+    if total < 1e-9:
+        return np.stack([start, end])
+    blend = min(BLEND_M, 0.5 * total)
+    w0 = np.clip(1.0 - cum / blend, 0.0, 1.0)[:, None]
+    w1 = np.clip(1.0 - (total - cum) / blend, 0.0, 1.0)[:, None]
+    return shape + w0 * (start - shape[0]) + w1 * (end - shape[-1])
+
+
+def connection_shape(plain: PlainNet, c: Connection, head: np.ndarray, tail: np.ndarray) -> np.ndarray:
+    """(K, 2) the whole path of one connection: the stretch its incoming piece lends, the logged
+    interior lane(s) (if any), the stretch its outgoing piece lends; it starts exactly at the
+    incoming lane's new end and ends exactly at the outgoing lane's new start."""
+    a, b = plain.pieces[c.src], plain.pieces[c.dst]
+    la = _length(a.points)
+    start = _stretch(a.points, la - tail[c.src], la)
+    end = _stretch(b.points, 0.0, head[c.dst])
+    a_end = cut_polyline(a.points, la - tail[c.src], la)[0] if tail[c.src] > 0 else a.points[-1]
+    b_start = cut_polyline(b.points, 0.0, head[c.dst])[-1] if head[c.dst] > 0 else b.points[0]
+    middle = c.shape if c.shape is not None and len(c.shape) >= 2 else np.zeros((0, 2))
+    if len(middle):
+        middle = _bend_onto(middle, a.points[-1], b.points[0])
+    parts = [p for p in (start, middle, end) if len(p)]
+    path = clean_polyline(np.concatenate(parts)) if parts else np.zeros((0, 2))
+    if len(path) < 2:  # the two lanes meet in one point: a join of no length
+        return np.stack([a_end, b_start])
+    path[0], path[-1] = a_end, b_start
+    return path
+
+
+def set_womd_geometry(net: Path, plain: PlainNet, info: NetInfo) -> dict:
+    """Give every lane of the net its WOMD geometry, with lanes and internal lanes joined.
+
+    Returns ``{"lanes": how many lanes changed, "max_trim_m": the largest length change}``.
+
+    netconvert cuts lanes back to its junction polygons and draws internal lanes between the cut
+    ends. WOMD junctions are wide, so a lane that starts or ends inside one (short turn pockets,
+    lanes branching inside an intersection) can lose most of its length, and netconvert's internal
+    lanes do not follow the logged interior lanes. The topology, connections, right-of-way and
+    signals netconvert computed stay as they are; only lane ``shape`` and ``length`` are rewritten:
+    a normal lane is its WOMD piece less the stretches it lends to straight joins
+    (:func:`_carves`), a connection's internal lane(s) are :func:`connection_shape`, split over an
+    internal-junction chain in the same length proportions netconvert used. So every internal
+    lane starts where its incoming lane ends and ends where its outgoing lane starts.
     """
     tree = _parse_xml(net)
     by_id = {ln.get("id", ""): ln for ln in tree.getroot().iter("lane")}
-    targets: dict[str, np.ndarray] = {p.sumo_lane: p.points for p in plain.pieces if p.edge}
-    for c in plain.connections:
-        if c.shape is None or len(c.shape) < 2:
+    head, tail = _carves(plain)
+    targets: dict[str, np.ndarray] = {}
+    for k, p in enumerate(plain.pieces):
+        if not p.edge:
             continue
+        length = _length(p.points)
+        targets[p.sumo_lane] = cut_polyline(p.points, head[k], length - tail[k]) if head[k] or tail[k] else p.points
+    for c in plain.connections:
         a, b = plain.pieces[c.src], plain.pieces[c.dst]
         got = info.connections.get((a.sumo_lane, b.sumo_lane))
         if not got or not got[0]:
             continue
+        shape = connection_shape(plain, c, head, tail)
         chain = [v for v in got[0] if v in info.lane_shapes]
+        if not chain:
+            continue
         lens = np.array([max(_length(info.lane_shapes[v]), 1e-3) for v in chain])
-        cum = np.concatenate([[0.0], np.cumsum(lens)]) / lens.sum() * _length(c.shape)
+        cum = np.concatenate([[0.0], np.cumsum(lens)]) / lens.sum() * _length(shape)
         for k, v in enumerate(chain):
-            targets[v] = cut_polyline(c.shape, cum[k], cum[k + 1]) if len(chain) > 1 else c.shape
+            targets[v] = cut_polyline(shape, cum[k], cum[k + 1]) if len(chain) > 1 else shape
     changed = 0
     max_trim = 0.0
     for lane_id, pts in targets.items():
@@ -276,7 +362,7 @@ def restore_womd_geometry(net: Path, plain: PlainNet, info: NetInfo) -> dict:
         old = info.lane_shapes.get(lane_id)
         if el is None or old is None or len(pts) < 2:
             continue
-        if len(old) == len(pts) and np.allclose(old, pts, atol=1e-3):
+        if len(old) == len(pts) and np.allclose(old, pts, rtol=0.0, atol=1e-4):  # (rtol: coordinates are ~1e4 m)
             continue
         max_trim = max(max_trim, abs(_length(pts) - _length(old)))
         el.set("shape", _shape_attr(pts))
@@ -304,6 +390,7 @@ def measure_fidelity(plain: PlainNet, scene: Scene, info: NetInfo) -> tuple[dict
     interior_shapes: dict[int, list[np.ndarray]] = {}
     interior_sumo: dict[int, list[str]] = {}
     realised_links: set[tuple[int, int]] = set()
+    join_shape: dict[tuple[int, str], np.ndarray] = {}  # (piece, "in"/"out") -> a straight join's path
     tls_links: dict[str, list[str | None]] = {t: [None] * k for t, k in info.tls.items()}
     for c in plain.connections:
         a, b = plain.pieces[c.src], plain.pieces[c.dst]
@@ -323,6 +410,10 @@ def measure_fidelity(plain: PlainNet, scene: Scene, info: NetInfo) -> tuple[dict
         if tl and 0 <= idx < len(tls_links.get(tl, [])) and c.signal_lane >= 0:
             tls_links[tl][idx] = str(lanes.ids[c.signal_lane])
         from_to_conn[(c.src, c.dst)] = tl
+        if not c.via_lanes and chain:  # a straight join: its internal lanes carry both lane ends
+            joined = np.concatenate([info.lane_shapes[v] for v in chain if v in info.lane_shapes])
+            join_shape.setdefault((c.src, "out"), joined)
+            join_shape.setdefault((c.dst, "in"), joined)
     per_lane: list[dict] = []
     lane_map: dict[str, list[str]] = {}
     skipped = set(plain.skipped)
@@ -342,7 +433,16 @@ def measure_fidelity(plain: PlainNet, scene: Scene, info: NetInfo) -> tuple[dict
             lane_map[lid] = interior_sumo.get(i, [])
         else:
             ids = [plain.pieces[p].sumo_lane for p in plain.lane_pieces[i]]
-            shape = np.concatenate([info.lane_shapes.get(s, np.zeros((0, 2))) for s in ids])
+            # the lane's pieces in order, with the straight joins that carry their ends between and
+            # around them (set_womd_geometry lends a lane's ends to those joins' internal lanes)
+            parts = []
+            for k, p in enumerate(plain.lane_pieces[i]):
+                if k == 0 and (p, "in") in join_shape:
+                    parts.append(join_shape[(p, "in")])
+                parts.append(info.lane_shapes.get(plain.pieces[p].sumo_lane, np.zeros((0, 2))))
+                if (p, "out") in join_shape:
+                    parts.append(join_shape[(p, "out")])
+            shape = np.concatenate(parts)
             mean, mx = _mean_max_distance(pts, shape)
             lane_map[lid] = ids
         per_lane.append({"lane": lid, "matched": bool(mean < MATCH_DISTANCE_M),
@@ -496,10 +596,11 @@ def convert_scene(scene: Scene, outdir: str | Path, *, overwrite: bool = True, n
         t_net = time.perf_counter() - t0
         t_plain = t_plain - t0
         info = read_net(net)
-        restored = restore_womd_geometry(net, plain, info)
+        restored = set_womd_geometry(net, plain, info)
         t_restore = time.perf_counter() - t0
         fidelity, mapping = measure_fidelity(plain, scene, info)
         fidelity["lanes_restored"] = restored
+        fidelity["continuity"] = measure_joints(net).summary()
         t_measure = time.perf_counter() - t0
         tls_states = tls_state_strings(scene, mapping["tls"])
         sumo_scene = on_sumo_clock(scene)

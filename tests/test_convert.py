@@ -20,6 +20,7 @@ from coster_sumo.formats.scene_folder import is_converted_scene
 from coster_sumo.scene import Lanes, ObjectType, Ragged, RoadMap, Scene, load_scene
 from coster_sumo.sim.session import SumoSession
 from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
+from tests.drive_connections import drive_every_connection
 
 pytestmark = pytest.mark.sumo
 
@@ -48,6 +49,7 @@ def test_synthetic_scene_converts_with_exact_geometry(name, tmp_path):
     assert fid["lanes_matched_share"] == 1.0
     assert fid["links_realised_share"] == 1.0
     assert fid["centreline_mean_m"] < 0.01 and fid["centreline_max_m"] < 0.01
+    assert fid["continuity"]["joints_over_tolerance"] == 0
     # coordinates are WOMD's: no offset in the net
     loc = ET.parse(folder / f"{sid}.net.xml").getroot().find("location")
     assert loc is not None and [float(v) for v in loc.get("netOffset", "").split(",")] == [0.0, 0.0]
@@ -55,6 +57,13 @@ def test_synthetic_scene_converts_with_exact_geometry(name, tmp_path):
     with SumoSession(folder / f"{sid}.sumocfg") as sim:
         sim.step()
         assert f"{STAGING_EDGE}_0" in sim.api.lane.getIDList()
+
+
+def test_sumo_drives_every_connection_of_a_junction_without_a_jump(tmp_path):
+    folder = convert_scene(synthetic.four_way_junction(), tmp_path).folder
+    got = drive_every_connection(next(folder.glob("*.net.xml")), tmp_path, frozenset({STAGING_EDGE}))
+    assert got.routes >= 12 and got.arrived == got.routes and got.teleports == 0
+    assert got.jumps == []
 
 
 def test_parallel_lanes_become_one_edge(tmp_path):
@@ -222,5 +231,12 @@ def test_real_samples_meet_fidelity_targets(tmp_path, capsys):
         assert fid["lanes_matched_share"] >= 0.95, row["scenario_id"]
         assert fid["links_realised_share"] >= 0.90, row["scenario_id"]
         assert fid["centreline_mean_m"] < 0.1, row["scenario_id"]
+        # every lane end meets the internal lane of each of its connections (issue 46: 41-136 joints
+        # per sample were 0.5-31 m apart before), and SUMO drives every connection without a jump
+        assert fid["continuity"]["joints"] > 150 and fid["continuity"]["joints_over_tolerance"] == 0, row
+        got = drive_every_connection(Path(row["folder"]) / f"{row['scenario_id']}.net.xml", tmp_path,
+                                     frozenset({STAGING_EDGE}))
+        assert got.arrived == got.routes > 40 and got.teleports == 0, row["scenario_id"]
+        assert got.jumps == [], (row["scenario_id"], got.jumps[:5])
         with SumoSession(Path(row["folder"]) / f"{row['scenario_id']}.sumocfg") as sim:
             sim.step()

@@ -131,7 +131,43 @@ def test_demo_and_sumo_game_nets(name):
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        assert_xodr_on_lanes(odr.write_xodr(net, Path(tmp) / f"{name}.xodr"), net)
+        xodr = odr.write_xodr(net, Path(tmp) / f"{name}.xodr")
+        assert_xodr_on_lanes(xodr, net)
+        assert_readable(xodr)
+        # netconvert's own nets: every lane link closed at both borders (ASAM: within 1 cm)
+        gaps = [g for *_, g in odr.lane_link_gaps(xodr)]
+        assert gaps and max(gaps) <= LINK_TOLERANCE_M, max(gaps)
+
+
+LINK_TOLERANCE_M = 0.01  # [m] ASAM's checker: linked lanes' borders no further apart
+HEADING_TOLERANCE_RAD = 0.01  # heading continuity between the geometry pieces of a connecting road
+
+
+def assert_readable(xodr: Path) -> None:
+    """What readers need (coster_sumo.exports.opendrive_readers): OpenDRIVE 1.8, integer signal and
+    controller ids, links only to junctions the file has, no road shorter than MIN_ROAD_M, and no
+    heading jump inside a connecting road."""
+    from coster_sumo.exports.opendrive_readers import MIN_ROAD_M
+
+    root = SafeET.parse(str(xodr)).getroot()
+    header = root.find("header")
+    assert header is not None and (header.get("revMajor"), header.get("revMinor")) == ("1", "8")
+    for el in [*root.iter("signal"), *root.findall("controller")]:
+        assert el.get("id", "").isdigit(), el.attrib
+    junctions = {j.get("id") for j in root.findall("junction")}
+    for road in root.findall("road"):
+        assert float(road.get("length", "0")) >= MIN_ROAD_M, road.attrib
+        for end in road.findall("link/*"):
+            assert end.get("elementType") != "junction" or end.get("elementId") in junctions, end.attrib
+        if road.get("junction", "-1") == "-1":
+            continue
+        plan = road.find("planView")
+        starts = np.array([float(g.get("s", "0")) for g in plan.findall("geometry")][1:])
+        if len(starts):
+            _, _, before = odr._reference_line(plan, starts - 1e-7)
+            _, _, after = odr._reference_line(plan, starts)
+            jump = np.abs(np.remainder(after - before + np.pi, 2 * np.pi) - np.pi)
+            assert jump.max() <= HEADING_TOLERANCE_RAD, (road.get("id"), float(jump.max()))
 
 
 @pytest.mark.sumo
@@ -144,5 +180,23 @@ def test_all_womd_samples(tmp_path):
     nets = sorted((tmp_path / "conv").glob("*/*.net.xml"))
     assert len(nets) == len(WOMD_PROTO) + len(WOMD_PKL)
     for net in nets:
-        cmp = assert_xodr_on_lanes(odr.write_xodr(net, tmp_path / f"{net.stem}.xodr"), net)
+        xodr = odr.write_xodr(net, tmp_path / f"{net.stem}.xodr")
+        cmp = assert_xodr_on_lanes(xodr, net)
         assert cmp["roads"]["xodr_to_net_max"] <= XODR_TOLERANCE_M
+        assert cmp["junctions"]["xodr_to_net_max"] <= XODR_TOLERANCE_M  # logged interior lanes have no kinks
+        assert_readable(xodr)
+
+
+@pytest.mark.sumo
+def test_converted_scene_xodr_has_no_staging_road(tmp_path):
+    from coster_sumo.converters.to_sumo import convert_scene
+
+    from coster_sumo import synthetic
+    from coster_sumo.formats.scene_folder import STAGING_EDGE
+
+    folder = convert_scene(synthetic.four_way_junction(), tmp_path).folder
+    net = next(folder.glob("*.net.xml"))
+    assert STAGING_EDGE in net.read_text()  # the log replay still stages agents there
+    root = SafeET.parse(str(odr.write_xodr(net, tmp_path / "j.xodr"))).getroot()
+    names = {u.get("value") for u in root.iter("userData") if u.get("code") == "sumoId"}
+    assert names and STAGING_EDGE not in names

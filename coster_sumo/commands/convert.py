@@ -48,7 +48,17 @@ def fidelity_line(summary: dict) -> str:
     return (f"{summary['scenario_id']}: lanes matched {f['lanes_matched']}/{f['lanes']} "
             f"({100 * f['lanes_matched_share']:.1f}%), links realised {f['links_realised']}/{f['links']} "
             f"({100 * f['links_realised_share']:.1f}%), centreline mean {_fmt(f['centreline_mean_m'], ' m', 4)} "
-            f"max {_fmt(f['centreline_max_m'], ' m', 4)}, {summary['conversion_s']:.2f} s")
+            f"max {_fmt(f['centreline_max_m'], ' m', 4)}{_continuity(f)}, {summary['conversion_s']:.2f} s")
+
+
+def _continuity(fidelity: dict) -> str:
+    """How the net's lanes join at its connections (absent in summaries of older conversions)."""
+    c = fidelity.get("continuity")
+    if not c:
+        return ""
+    return (f", joints apart > {c['tolerance_m']:g} m {c['joints_over_tolerance']}/{c['joints']} "
+            f"(max gap {c['max_gap_m']:.3f} m, max kink {c['max_kink_deg']:.1f} deg, "
+            f"junction curvature max {c['max_internal_curvature_per_m']:.2f} 1/m)")
 
 
 def run(args: argparse.Namespace) -> int:

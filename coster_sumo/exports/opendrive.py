@@ -3,7 +3,8 @@
 :func:`write_xodr`: ``netconvert --opendrive-output`` with ``--offset.disable-normalization true``,
 so the OpenDRIVE inertial frame is the SUMO net's own frame (netconvert would otherwise shift the
 net to start at the origin), and ``--output.original-names true``, so every road names its SUMO
-edge (``<userData code="sumoId">``); then :func:`coster_sumo.exports.opendrive_fit.fit_lanes` moves
+edge (``<userData code="sumoId">``); a converted scene's staging edge is left out (it is no road);
+then :func:`coster_sumo.exports.opendrive_fit.fit_lanes` moves
 the lanes onto the SUMO lane shapes (netconvert writes an edge's leftmost lane border plus constant
 widths, and one cubic curve per junction connection). netconvert writes one road per edge (and one
 connecting road per junction connection), lanes as right lanes (negative ids).
@@ -29,6 +30,8 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.opendrive_fit import FILLER_CODE, fit_lanes
+from coster_sumo.exports.opendrive_readers import MIN_ROAD_M, make_readable
+from coster_sumo.formats.scene_folder import STAGING_EDGE
 
 SAMPLE_STEP_M = 0.5  # [m] spacing of the xodr samples in compare_with_net
 MIN_WIDTH_M = 1e-3  # [m] a lane narrower than this is no lane there (it starts or ends)
@@ -36,15 +39,22 @@ MIN_WIDTH_M = 1e-3  # [m] a lane narrower than this is no lane there (it starts 
 
 def write_xodr(net_file: Path, out: Path, fit: bool = True) -> Path:
     """OpenDRIVE of a SUMO net by netconvert, in the net's own coordinates, its lanes fitted onto
-    the SUMO lane shapes (``fit=False``: netconvert's file as it is)."""
+    the SUMO lane shapes and what readers need rewritten
+    (:func:`~coster_sumo.exports.opendrive_readers.make_readable`; ``fit=False``: netconvert's file
+    as it is)."""
     cmd = [sumo_env.binary("netconvert"), "--sumo-net-file", str(net_file), "--opendrive-output", str(out),
-           "--offset.disable-normalization", "true", "--output.original-names", "true", "--no-warnings", "true"]
+           "--offset.disable-normalization", "true", "--output.original-names", "true", "--no-warnings", "true",
+           # a converted scene's staging edge is no road (netconvert ignores the name in other nets)
+           "--remove-edges.explicit", STAGING_EDGE]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(), timeout=600)
     if proc.returncode != 0 or not out.is_file():
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
         raise SumoError(f"netconvert --opendrive-output failed on {net_file}: {tail[0]}")
     if fit:
         fit_lanes(out, net_file, _reference_line)
+        tree = SafeET.parse(str(out), forbid_dtd=True)
+        make_readable(tree.getroot())
+        tree.write(out, encoding="UTF-8", xml_declaration=True)
     return out
 
 
@@ -180,18 +190,24 @@ def xodr_lane_centres(path: Path, step: float = SAMPLE_STEP_M) -> list[XodrLane]
 
 
 def net_lane_shapes(net_file: Path) -> tuple[list[str], list[np.ndarray], np.ndarray]:
-    """SUMO lane ids, shapes (K, 2) [m] and whether each lies in a junction, read with sumolib."""
+    """SUMO lane ids, shapes (K, 2) [m] and whether each lies in a junction, read with sumolib
+    (a converted scene's staging lane left out)."""
     from coster_sumo.formats.sumo_net import read_sumolib_net
 
     net = read_sumolib_net(str(net_file))
     ids, shapes, internal = [], [], []
     for edge in net.getEdges(withInternal=True):
+        if edge.getID() == STAGING_EDGE:  # not written (write_xodr)
+            continue
         for lane in edge.getLanes():
             shape = np.asarray(lane.getShape(), np.float64)[:, :2]
             if len(shape) >= 2:
                 ids.append(lane.getID())
                 shapes.append(shape)
-                internal.append(edge.getID().startswith(":"))
+                # an internal lane of no length (two edges meeting end to end) is a point where two
+                # roads meet: the .xodr links those roads directly (opendrive_readers)
+                length = float(np.hypot(*np.diff(shape, axis=0).T).sum())
+                internal.append(edge.getID().startswith(":") and length >= MIN_ROAD_M)
     return ids, shapes, np.array(internal, bool)
 
 
@@ -238,3 +254,67 @@ def _nearest_distance(points: np.ndarray, lines: list[Any]) -> np.ndarray:
     tree = shapely.STRtree(shapely.linestrings(segs))
     _, dist = tree.query_nearest(shapely.points(points), return_distance=True, all_matches=False)
     return np.asarray(dist, np.float64)
+
+
+def _borders_at(road: Any, s: float) -> dict[int, tuple[float, float]]:
+    """Lane id -> (inner, outer) border offset [m] (left positive) of every lane at station ``s``."""
+    lanes_el = road.find("lanes")
+    at = np.array([s], np.float64)
+    offset = float(_poly([(_f(o, "s"), _f(o, "a"), _f(o, "b"), _f(o, "c"), _f(o, "d"))
+                          for o in lanes_el.iter("laneOffset")], at)[0])
+    sections = [sec for sec in lanes_el.iter("laneSection") if _f(sec, "s") <= s + 1e-9]
+    out: dict[int, tuple[float, float]] = {}
+    if not sections:
+        return out
+    sec = sections[-1]
+    for side, sign in (("right", -1.0), ("left", 1.0)):
+        side_el = sec.find(side)
+        if side_el is None:
+            continue
+        inner = 0.0
+        for lane in sorted(side_el.iter("lane"), key=lambda e: abs(int(e.get("id", "0")))):
+            w = float(_poly([(_f(sec, "s") + _f(r, "sOffset"), _f(r, "a"), _f(r, "b"), _f(r, "c"), _f(r, "d"))
+                             for r in lane.iter("width")], at)[0])
+            out[int(lane.get("id", "0"))] = (offset + sign * inner, offset + sign * (inner + w))
+            inner += w
+    return out
+
+
+def lane_link_gaps(path: Path) -> list[tuple[str, int, str, int, float]]:
+    """Every lane link between two roads of an OpenDRIVE file and how far apart the linked lanes'
+    borders are at the contact: (road, lane, other road, other lane, the larger of the inner and the
+    outer border's distance [m]). Both directions of a link are listed (each road names the other)."""
+    root = SafeET.parse(str(path), forbid_dtd=True).getroot()
+    roads = {r.get("id", ""): r for r in root.iter("road")}
+    out = []
+    for road in roads.values():
+        link = road.find("link")
+        if link is None or road.find("lanes") is None:
+            continue
+        for tag, s_here in (("successor", _f(road, "length")), ("predecessor", 0.0)):
+            el = link.find(tag)
+            other = roads.get(el.get("elementId", "")) if el is not None and el.get("elementType") == "road" else None
+            if el is None or other is None or other.find("lanes") is None:
+                continue
+            s_other = 0.0 if el.get("contactPoint") == "start" else _f(other, "length")
+            mine, theirs = _borders_at(road, s_here), _borders_at(other, s_other)
+            here = _reference_line(road.find("planView"), np.array([s_here], np.float64))
+            there = _reference_line(other.find("planView"), np.array([s_other], np.float64))
+            for lane in road.iter("lane"):
+                ll = lane.find(f"link/{tag}")
+                a = int(lane.get("id", "0"))
+                if ll is None or a == 0 or a not in mine or int(ll.get("id", "0")) not in theirs:
+                    continue
+                b = int(ll.get("id", "0"))
+                gap = 0.0
+                for k in (0, 1):
+                    p = _offset_point(here, mine[a][k])
+                    q = _offset_point(there, theirs[b][k])
+                    gap = max(gap, float(np.hypot(*(p - q))))
+                out.append((road.get("id", ""), a, other.get("id", ""), b, gap))
+    return out
+
+
+def _offset_point(pose: tuple[np.ndarray, np.ndarray, np.ndarray], t: float) -> np.ndarray:
+    x, y, h = (float(v[0]) for v in pose)
+    return np.array([x - t * np.sin(h), y + t * np.cos(h)])

@@ -40,6 +40,7 @@ from coster_sumo.exports.opendrive_roads import (
     Sampler,
     extend_reference,
     fmt,
+    join_connecting_roads,
     one_lane_road,
     overhang,
     renumber,
@@ -263,6 +264,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
             counts["roads_fitted" if ids is not None else "roads_kept"] += 1
     counts["with_fillers"] = len(renumbered)
     renumber(root, renumbered)
+    counts["connecting_joined"] = join_connecting_roads(root, sample)
     ET.indent(tree)
     tree.write(xodr, encoding="UTF-8", xml_declaration=True)
     return counts

@@ -16,9 +16,16 @@ from collections.abc import Callable
 
 import numpy as np
 
-from coster_sumo.exports.opendrive_solve import END_TOLERANCE_M, STATION_M, hermite_pieces, station_of
+from coster_sumo.exports.opendrive_solve import (
+    END_TOLERANCE_M,
+    STATION_M,
+    hermite_pieces,
+    hermite_through,
+    station_of,
+)
 
 Sampler = Callable[[ET.Element, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+MIN_JOIN_WIDTH_M = 0.5  # [m] a connecting road joins a lane at least this wide at the contact
 
 
 def fmt(v: float) -> str:
@@ -207,3 +214,98 @@ def one_lane_road(road: ET.Element, shape: np.ndarray, width: float, lane: ET.El
 def _poly_record(tag: str, start: str, a: float) -> ET.Element:
     """A constant OpenDRIVE polynomial record (``<width>``, ``<laneOffset>``) from 0 on."""
     return ET.Element(tag, {start: "0", "a": fmt(a), "b": "0", "c": "0", "d": "0"})
+
+
+def _records_at(records: list[ET.Element], start_key: str, s: float, base: float = 0.0) -> float:
+    """Value at ``s`` of the piecewise cubic given by OpenDRIVE records (each from base + its start)."""
+    value = 0.0
+    for rec in sorted(records, key=lambda r: float(r.get(start_key, "0"))):
+        s0 = base + float(rec.get(start_key, "0"))
+        if s0 <= s + 1e-9:
+            ds = s - s0
+            value = sum(float(rec.get(k, "0")) * ds ** n for n, k in enumerate(("a", "b", "c", "d")))
+    return value
+
+
+def lane_at(road: ET.Element, s: float, lane_id: int, sample: Sampler) -> tuple[np.ndarray, float, float] | None:
+    """Centre point (2,) [m], width [m] and heading [rad] of right lane ``lane_id`` at station ``s``
+    of a road (one lane section; None where the road does not hold that lane)."""
+    lanes_el, plan = road.find("lanes"), road.find("planView")
+    right = road.find("lanes/laneSection/right")
+    if lanes_el is None or plan is None or right is None or lane_id >= 0:
+        return None
+    offset = _records_at(lanes_el.findall("laneOffset"), "s", s)
+    border = offset
+    for lane in sorted(right.findall("lane"), key=lambda e: -int(e.get("id", "0"))):
+        width = _records_at(lane.findall("width"), "sOffset", s)
+        if int(lane.get("id", "0")) == lane_id:
+            t = border - width / 2
+            x, y, h = sample(plan, np.array([s], np.float64))
+            return np.array([x[0] - t * np.sin(h[0]), y[0] + t * np.cos(h[0])]), width, float(h[0])
+        border -= width
+    return None
+
+
+def join_connecting_roads(root: ET.Element, sample: Sampler) -> int:
+    """Make every one-lane connecting road start exactly where its incoming lane ends and end where
+    its outgoing lane starts: same centre point, heading and width, so both borders of the two lanes
+    meet (readers check each border, within 1 cm). Its reference line becomes a smooth curve
+    (:func:`~coster_sumo.exports.opendrive_solve.hermite_through`) through its own polyline from the
+    one end to the other, its width changes linearly between the two lanes' widths. Returns how
+    many roads were joined."""
+    roads = {r.get("id", ""): r for r in root.findall("road")}
+    joined = 0
+    for road in roads.values():
+        if road.get("junction", "-1") == "-1":
+            continue
+        lanes = road.findall("lanes/laneSection/right/lane")
+        pred, succ = road.find("link/predecessor"), road.find("link/successor")
+        if len(lanes) != 1 or pred is None or succ is None or pred.get("contactPoint") != "end" \
+                or succ.get("contactPoint") != "start":
+            continue
+        lp, ls = lanes[0].find("link/predecessor"), lanes[0].find("link/successor")
+        a, b = roads.get(pred.get("elementId", "")), roads.get(succ.get("elementId", ""))
+        if lp is None or ls is None or a is None or b is None:
+            continue
+        plan = road.find("planView")
+        if plan is None:
+            continue
+        length = float(road.get("length", "0"))
+        s = np.unique(np.concatenate([[float(g.get("s", "0")) for g in plan.findall("geometry")], [length]]))
+        x, y, h = sample(plan, s)
+        path = np.column_stack([x, y])
+        own = _records_at(lanes[0].findall("width"), "sOffset", 0.0)
+        start = lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")), sample)
+        end = lane_at(b, 0.0, int(ls.get("id", "0")), sample)
+        # a lane that has not begun yet at the contact (width ~0: a logged lane that starts later
+        # than its edge's others) is no place to join: that end stays on the SUMO lane
+        if start is None or start[1] < MIN_JOIN_WIDTH_M:
+            start = (path[0].copy(), own, float(h[0]))
+        if end is None or end[1] < MIN_JOIN_WIDTH_M:
+            end = (path[-1].copy(), own, float(h[-1]))
+        path[0], path[-1] = start[0], end[0]
+        for g in list(plan):
+            plan.remove(g)
+        s0 = 0.0
+        for piece in hermite_through(path, start[2], end[2]):
+            g = ET.SubElement(plan, "geometry", {"s": fmt(s0), "x": fmt(piece["x"]), "y": fmt(piece["y"]),
+                                                  "hdg": fmt(piece["hdg"]), "length": fmt(piece["length"])})
+            ET.SubElement(g, "paramPoly3", {**{k: fmt(piece[k]) for k in ("aU", "bU", "cU", "dU", "aV", "bV",
+                                                                          "cV", "dV")}, "pRange": "normalized"})
+            s0 += piece["length"]
+        road.set("length", f"{s0:.8f}")
+        slope = (end[1] - start[1]) / s0 if s0 > 0 else 0.0
+        lanes_el = road.find("lanes")
+        if lanes_el is None:
+            continue
+        for el in lanes_el.findall("laneOffset"):
+            lanes_el.remove(el)
+        lanes_el.insert(0, ET.Element("laneOffset", {"s": "0", "a": fmt(start[1] / 2), "b": fmt(slope / 2),
+                                                     "c": "0", "d": "0"}))
+        for w in lanes[0].findall("width"):
+            lanes[0].remove(w)
+        lanes[0].insert(1 if lanes[0].find("link") is not None else 0,
+                        ET.Element("width", {"sOffset": "0", "a": fmt(start[1]), "b": fmt(slope), "c": "0",
+                                             "d": "0"}))
+        joined += 1
+    return joined

@@ -21,6 +21,8 @@ PROJECTION_ITERATIONS = 4
 SMOOTH_WINDOW_M = 4.0  # [m] averaging window of a road's reference line (WOMD lanes jitter)
 REFERENCE_STEP_M = 2.0  # [m] length of the cubic pieces of a road's reference line
 MIN_WIDTH_M = 0.01  # [m] narrowest a lane with a SUMO shape gets (readers take a 0 width for no lane)
+MERGE_SLOPE = 1e-6  # [-] a record whose slope and start value continue the one before within these
+MERGE_VALUE_M = 1e-5  # [m] is left out (at most 0.1 mm off over 100 m; records are written to 8 digits)
 
 
 def project(ref_x: np.ndarray, ref_y: np.ndarray, ref_h: np.ndarray, s: np.ndarray, shape: np.ndarray
@@ -220,7 +222,8 @@ def records(s: np.ndarray, v: np.ndarray, runs: list[tuple[int, int]]) -> list[t
     merged = out[:1]
     for rec in out[1:]:  # a piece that only continues the one before says nothing new
         s0, a0, b0 = merged[-1]
-        if abs(rec[2] - b0) <= 1e-9 and abs(a0 + b0 * (rec[0] - s0) - rec[1]) <= 1e-6:
+        # (readers count two records that agree to 1e-6 in value and slope as one declared twice)
+        if abs(rec[2] - b0) <= MERGE_SLOPE and abs(a0 + b0 * (rec[0] - s0) - rec[1]) <= MERGE_VALUE_M:
             continue
         merged.append(rec)
     return merged
@@ -273,4 +276,45 @@ def hermite_pieces(points: np.ndarray, step: float = REFERENCE_STEP_M) -> list[d
         speed = np.hypot(du, dv)
         arc = float(np.sum((speed[1:] + speed[:-1]) / 2) / 32)
         out.append({"x": float(pts[i, 0]), "y": float(pts[i, 1]), "hdg": float(h0), "length": arc, **coef})
+    return out
+
+
+def hermite_through(points: np.ndarray, start_heading: float, end_heading: float,
+                    min_step: float = 0.01) -> list[dict[str, float]]:
+    """Cubic pieces (as :func:`hermite_pieces`) through every point of a polyline (N, 2) (points
+    closer than ``min_step`` [m] to the previous one dropped), leaving the first point at
+    ``start_heading`` and reaching the last at ``end_heading`` [rad]; inside, each point's tangent
+    is the direction from its predecessor to its successor, so the heading is continuous at every
+    joint of two pieces."""
+    pts = [np.asarray(points[0], np.float64)]
+    for p in np.asarray(points, np.float64)[1:]:
+        if np.hypot(*(p - pts[-1])) >= min_step:
+            pts.append(p)
+    if len(pts) < 2:  # everything within min_step: one piece to the last point
+        pts.append(np.asarray(points[-1], np.float64))
+    elif np.hypot(*(np.asarray(points[-1]) - pts[-1])) > 0:
+        pts[-1] = np.asarray(points[-1], np.float64)  # end exactly at the last point
+    p = np.stack(pts)
+    heading = np.empty(len(p))
+    heading[0], heading[-1] = start_heading, end_heading
+    if len(p) > 2:
+        d = p[2:] - p[:-2]
+        heading[1:-1] = np.arctan2(d[:, 1], d[:, 0])
+    out = []
+    for i in range(len(p) - 1):
+        h0 = heading[i]
+        c, sn = np.cos(h0), np.sin(h0)
+        dx, dy = p[i + 1] - p[i]
+        u1, v1 = c * dx + sn * dy, -sn * dx + c * dy  # end point in the start's frame
+        chord = float(np.hypot(u1, v1))
+        turn = (heading[i + 1] - h0 + np.pi) % (2 * np.pi) - np.pi
+        cu, su = chord * np.cos(turn), chord * np.sin(turn)
+        coef = {"aU": 0.0, "bU": chord, "cU": 3 * u1 - 2 * chord - cu, "dU": -2 * u1 + chord + cu,
+                "aV": 0.0, "bV": 0.0, "cV": 3 * v1 - su, "dV": -2 * v1 + su}
+        q = np.linspace(0.0, 1.0, 65)
+        du = coef["bU"] + 2 * coef["cU"] * q + 3 * coef["dU"] * q ** 2
+        dv = 2 * coef["cV"] * q + 3 * coef["dV"] * q ** 2
+        speed = np.hypot(du, dv)
+        arc = float(np.sum((speed[1:] + speed[:-1]) / 2) / 64)
+        out.append({"x": float(p[i, 0]), "y": float(p[i, 1]), "hdg": float(h0), "length": arc, **coef})
     return out

@@ -39,6 +39,27 @@ EXTRA_HINT = f"pip install 'coster-sumo[{EXTRA}]'"
 DEFAULT_RADIUS_M = 50.0
 OSC_MINOR = 2
 HEIGHT_M = {"VEHICLE": 1.5, "PEDESTRIAN": 1.8, "CYCLIST": 1.7}
+# SUMO vehicle class -> OpenSCENARIO 1.2 VehicleCategory. SUMO's "trailer" is a truck pulling a
+# trailer (a combination, like OpenSCENARIO's semitrailer); OpenSCENARIO has no scooter: the
+# nearest two-wheeler without an engine of its own is the bicycle. Classes not listed are cars.
+VEHICLE_CATEGORY = {
+    "passenger": "car", "private": "car", "taxi": "car", "hov": "car", "evehicle": "car", "vip": "car",
+    "authority": "car", "army": "car", "emergency": "car", "custom1": "car", "custom2": "car",
+    "delivery": "van", "truck": "truck", "trailer": "semitrailer",
+    "bus": "bus", "coach": "bus",
+    "motorcycle": "motorbike", "moped": "motorbike",
+    "bicycle": "bicycle", "scooter": "bicycle",
+    "tram": "tram", "rail_urban": "train", "rail": "train", "rail_electric": "train", "rail_fast": "train",
+}
+PEDESTRIAN_CLASSES = frozenset({"pedestrian", "wheelchair"})
+
+
+def vehicle_category(vclass: str, kind: str) -> str:
+    """The OpenSCENARIO VehicleCategory name of a SUMO vehicle class; without a class, from the
+    object type (CYCLIST: bicycle, anything else: car)."""
+    if vclass:
+        return VEHICLE_CATEGORY.get(vclass, "car")
+    return "bicycle" if kind == "CYCLIST" else "car"
 
 
 def _f(el: Any, key: str, default: float = 0.0) -> float:
@@ -82,9 +103,9 @@ def _entity(xosc: Any, tr: Trajectory) -> Any:
     length, width = float(np.median(tr.length)), float(np.median(tr.width))
     height = HEIGHT_M.get(tr.kind, 1.5)
     box = xosc.BoundingBox(width, length, height, 0.0, 0.0, height / 2)
-    if tr.kind == "PEDESTRIAN":
+    if tr.vclass in PEDESTRIAN_CLASSES or (not tr.vclass and tr.kind == "PEDESTRIAN"):
         return xosc.Pedestrian(tr.vehicle_id, 80, xosc.PedestrianCategory.pedestrian, box, model="pedestrian")
-    category = xosc.VehicleCategory.bicycle if tr.kind == "CYCLIST" else xosc.VehicleCategory.car
+    category = getattr(xosc.VehicleCategory, vehicle_category(tr.vclass, tr.kind))
     front = xosc.Axle(0.5, 0.7, min(width, 1.8), 0.3 * length, 0.35)
     rear = xosc.Axle(0.0, 0.7, min(width, 1.8), -0.3 * length, 0.35)
     return xosc.Vehicle(tr.vehicle_id, category, box, front, rear, 100.0, 20.0, 20.0)

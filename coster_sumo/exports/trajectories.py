@@ -9,9 +9,11 @@ forms other tools import most easily.
 Columns, each named with its unit: ``time_s`` (SUMO simulation time after the step),
 ``vehicle``, ``type`` (WOMD object type name: VEHICLE, PEDESTRIAN, CYCLIST, OTHER, UNSET), ``x_m``,
 ``y_m`` (box centre in the SUMO network's own coordinates), ``heading_deg`` (counter-clockwise from
-+x, degrees like every angle in the user-facing files), ``speed_mps``, ``length_m``, ``width_m``.
-Only the steps where the vehicle was in the simulation are listed. The reader also takes the older
-columns (``time``, ``x``, ..., ``heading`` in radians) of run folders written before.
++x, degrees like every angle in the user-facing files), ``speed_mps``, ``length_m``, ``width_m``,
+``vclass`` (the SUMO vehicle class: passenger, truck, delivery, bus, motorcycle, bicycle, ...; empty
+where the recording does not say). Only the steps where the vehicle was in the simulation are
+listed. The reader also takes the older columns (``time``, ``x``, ..., ``heading`` in radians, no
+``vclass``) of run folders written before.
 """
 
 from __future__ import annotations
@@ -29,8 +31,10 @@ from coster_sumo.scene import ObjectType, Scene
 
 TRAJECTORIES_FILE = "trajectories.csv"
 TRAJECTORIES_JSON = "trajectories.json"
-COLUMNS = ("time_s", "vehicle", "type", "x_m", "y_m", "heading_deg", "speed_mps", "length_m", "width_m")
+COLUMNS = ("time_s", "vehicle", "type", "x_m", "y_m", "heading_deg", "speed_mps", "length_m", "width_m", "vclass")
 OLD_COLUMNS = ("time", "vehicle", "type", "x", "y", "heading", "speed", "length", "width")  # heading [rad]
+OPTIONAL_COLUMNS = frozenset({"vclass"})
+TEXT_COLUMNS = ("vehicle", "type", "vclass")
 
 
 @dataclass
@@ -45,6 +49,7 @@ class Trajectory:
         heading: (N,) float64 [rad] counter-clockwise from +x.
         speed: (N,) float64 [m/s].
         length, width: (N,) float64 [m].
+        vclass: SUMO vehicle class ("" where unknown).
     """
 
     vehicle_id: str
@@ -56,6 +61,7 @@ class Trajectory:
     speed: np.ndarray
     length: np.ndarray
     width: np.ndarray
+    vclass: str = ""
 
     def state_at(self, t: float) -> tuple[float, float] | None:
         """Box centre (x, y) [m] linearly interpolated at ``t`` [s]; None outside the recording."""
@@ -64,7 +70,7 @@ class Trajectory:
         return float(np.interp(t, self.t, self.x)), float(np.interp(t, self.t, self.y))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"type": self.kind, "length_m": float(np.median(self.length)),
+        return {"type": self.kind, "vclass": self.vclass, "length_m": float(np.median(self.length)),
                 "width_m": float(np.median(self.width)),
                 "time_s": _r(self.t, 3), "x_m": _r(self.x, 4), "y_m": _r(self.y, 4),
                 "heading_deg": _r(np.degrees(self.heading), 5), "speed_mps": _r(self.speed, 4)}
@@ -78,6 +84,7 @@ def write_trajectories_csv(path: Path, scene: Scene) -> None:
     """Write every vehicle of a recorded pass (see the module docstring for the columns)."""
     tr = scene.tracks
     speed = tr.speed
+    vclasses = scene.meta.get("vehicle_classes") or {}
     with Path(path).open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(COLUMNS)
@@ -86,7 +93,7 @@ def write_trajectories_csv(path: Path, scene: Scene) -> None:
             for s in np.flatnonzero(tr.valid[a]):
                 w.writerow((f"{scene.timestamps[s]:.3f}", vid, kind, f"{tr.x[a, s]:.4f}", f"{tr.y[a, s]:.4f}",
                             f"{np.degrees(tr.heading[a, s]):.5f}", f"{speed[a, s]:.4f}", f"{tr.length[a, s]:.3f}",
-                            f"{tr.width[a, s]:.3f}"))
+                            f"{tr.width[a, s]:.3f}", str(vclasses.get(vid, ""))))
 
 
 def _type_name(value: int) -> str:
@@ -99,19 +106,19 @@ def _type_name(value: int) -> str:
 def read_trajectories_csv(path: Path) -> dict[str, Trajectory]:
     """Vehicle id -> :class:`Trajectory` of a ``trajectories.csv`` (rows of a vehicle in any order)."""
     rows: dict[str, list[tuple[float, ...]]] = {}
-    kinds: dict[str, str] = {}
+    kinds: dict[str, tuple[str, str]] = {}
     try:
         with Path(path).open(newline="") as fh:
             reader = csv.DictReader(fh)
             names = set(reader.fieldnames or ())
             columns = OLD_COLUMNS if not set(COLUMNS) <= names and set(OLD_COLUMNS) <= names else COLUMNS
-            missing = set(columns) - names
+            missing = set(columns) - OPTIONAL_COLUMNS - names
             if missing:
                 raise InputError(f"{path}: not a trajectories file (missing columns {sorted(missing)})")
             for r in reader:
                 vid = r["vehicle"]
-                kinds[vid] = r["type"]
-                rows.setdefault(vid, []).append(tuple(float(r[c]) for c in columns if c not in ("vehicle", "type")))
+                kinds[vid] = (r["type"], r.get("vclass") or "")
+                rows.setdefault(vid, []).append(tuple(float(r[c]) for c in columns if c not in TEXT_COLUMNS))
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
@@ -121,7 +128,8 @@ def read_trajectories_csv(path: Path) -> dict[str, Trajectory]:
         a = np.array(sorted(rs), np.float64)
         if columns is COLUMNS:
             a[:, 3] = np.radians(a[:, 3])  # heading_deg -> the radians of Trajectory
-        out[vid] = Trajectory(vid, kinds[vid], a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6])
+        kind, vclass = kinds[vid]
+        out[vid] = Trajectory(vid, kind, a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6], vclass)
     return out
 
 
@@ -165,7 +173,7 @@ def write_selection(folder: Path, trajs: dict[str, Trajectory], ids: list[str], 
             for k in range(len(tr.t)):
                 w.writerow((f"{tr.t[k]:.3f}", vid, tr.kind, f"{tr.x[k]:.4f}", f"{tr.y[k]:.4f}",
                             f"{np.degrees(tr.heading[k]):.5f}", f"{tr.speed[k]:.4f}", f"{tr.length[k]:.3f}",
-                            f"{tr.width[k]:.3f}", roles.get(vid, "other")))
+                            f"{tr.width[k]:.3f}", tr.vclass, roles.get(vid, "other")))
     doc = {**header, "vehicles": {vid: {"role": roles.get(vid, "other"), **trajs[vid].to_dict()} for vid in ids}}
     json_path.write_text(json.dumps(doc, indent=1) + "\n")
     return csv_path, json_path

@@ -23,6 +23,9 @@ from coster_sumo.scene import ObjectType, Scene, SignalState
 
 SCENE_FILE = "scene.npz"
 LANE_MAP_FILE = "lane_map.json"
+# the isolated edge 1 km below a converted map where the log replay stages agents for one step
+# (converters/to_sumo.py builds it); no export shows it
+STAGING_EDGE = "coster_staging"
 SCENE_FILES = (SCENE_FILE, LANE_MAP_FILE)
 MIN_SIZE_M = 0.1  # [m] SUMO rejects zero-length types; WOMD zero-fills invalid sizes
 

@@ -275,6 +275,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
 
     agent: dict[str, int] = {}
     kinds: list[int] = []
+    vclasses: dict[str, str] = {}
     times: list[float] = []
     rows: list[tuple[np.ndarray, VehicleStates]] = []
     signal_rows: list[np.ndarray] = []
@@ -357,6 +358,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
                 if names[i] not in agent:
                     agent[names[i]] = len(agent)
                     kinds.append(int(_OBJECT_TYPE.get(str(st.vclass[i]), ObjectType.VEHICLE)))
+                    vclasses[names[i]] = str(st.vclass[i])
             idx = np.fromiter(map(agent.__getitem__, names), np.int64, len(names))
             times.append(t)
             sampled.append(full)
@@ -396,6 +398,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         "step_length": session.step_length,
         "begin": times[0] if times else None, "end": times[-1] if times else None,
         "location_offset": [float(v) for v in net.location_offset],
+        "vehicle_classes": vclasses,  # id -> SUMO vClass when first seen (object_type keeps less)
     }
     if cut and focus is not None:
         info["cut_after_s"] = focus.max_life_s
