@@ -146,8 +146,8 @@ def test_outputs_name_their_units_carry_nulls_and_round_times(tmp_path, capsys):
     vdir = out / "variants" / "0"
     assert (vdir / "trajectory.csv").read_text().splitlines()[0] == "time_s,vehicle,x_m,y_m,heading_deg,speed_mps"
     head = (vdir / "trajectories.csv").read_text().splitlines()[0].split(",")
-    assert "heading_deg" in head and all(c in ("vehicle", "type") or c.rsplit("_", 1)[-1] in ("s", "m", "deg", "mps")
-                                         for c in head)
+    assert "heading_deg" in head and all(c in ("vehicle", "type", "vclass")
+                                         or c.rsplit("_", 1)[-1] in ("s", "m", "deg", "mps") for c in head)
     for line in (out / "events.jsonl").read_text().splitlines():
         e = json.loads(line)
         assert e["time"] == round(e["time"], 3)
