@@ -455,10 +455,10 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         else:
             _execute_ray(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
                          ray_address=ray_address)
-    finally:
-        progress.total = len(finished)  # the estimate may have been high (fewer variants than asked)
+        progress.total = len(finished)  # done: the estimate may have been high (fewer variants than asked)
         progress.refresh()
-        progress.close()
+    finally:
+        progress.close()  # interrupted: the bar keeps its total ("3/12 task", not "0task")
     return finished
 
 
