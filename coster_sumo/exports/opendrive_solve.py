@@ -259,23 +259,30 @@ def hermite_pieces(points: np.ndarray, step: float = REFERENCE_STEP_M) -> list[d
     pts = shapely.get_coordinates(shapely.line_interpolate_point(line, np.linspace(0.0, length, n + 1)))
     d = np.gradient(pts, axis=0) if len(pts) > 2 else np.repeat(pts[1:] - pts[:1], len(pts), axis=0)
     heading = np.arctan2(d[:, 1], d[:, 0])
+    return _cubic_pieces(pts, heading, samples=32)
+
+
+def _cubic_pieces(points: np.ndarray, heading: np.ndarray, samples: int) -> list[dict[str, float]]:
+    """One parametric cubic (paramPoly3, normalised parameter) per segment of ``points`` (N, 2) [m],
+    leaving point i at ``heading[i]`` and reaching point i+1 at ``heading[i+1]`` [rad]; each piece's
+    arc length integrated with the trapezoid rule over ``samples`` steps of its parameter."""
     out = []
-    for i in range(len(pts) - 1):
+    for i in range(len(points) - 1):
         h0 = heading[i]
         c, sn = np.cos(h0), np.sin(h0)
-        dx, dy = pts[i + 1] - pts[i]
+        dx, dy = points[i + 1] - points[i]
         u1, v1 = c * dx + sn * dy, -sn * dx + c * dy  # end point in the start's frame
         chord = float(np.hypot(u1, v1))
         turn = (heading[i + 1] - h0 + np.pi) % (2 * np.pi) - np.pi
         cu, su = chord * np.cos(turn), chord * np.sin(turn)
         coef = {"aU": 0.0, "bU": chord, "cU": 3 * u1 - 2 * chord - cu, "dU": -2 * u1 + chord + cu,
                 "aV": 0.0, "bV": 0.0, "cV": 3 * v1 - su, "dV": -2 * v1 + su}
-        p = np.linspace(0.0, 1.0, 33)
-        du = coef["bU"] + 2 * coef["cU"] * p + 3 * coef["dU"] * p ** 2
-        dv = 2 * coef["cV"] * p + 3 * coef["dV"] * p ** 2
+        q = np.linspace(0.0, 1.0, samples + 1)
+        du = coef["bU"] + 2 * coef["cU"] * q + 3 * coef["dU"] * q ** 2
+        dv = 2 * coef["cV"] * q + 3 * coef["dV"] * q ** 2
         speed = np.hypot(du, dv)
-        arc = float(np.sum((speed[1:] + speed[:-1]) / 2) / 32)
-        out.append({"x": float(pts[i, 0]), "y": float(pts[i, 1]), "hdg": float(h0), "length": arc, **coef})
+        arc = float(np.sum((speed[1:] + speed[:-1]) / 2) / samples)
+        out.append({"x": float(points[i, 0]), "y": float(points[i, 1]), "hdg": float(h0), "length": arc, **coef})
     return out
 
 
@@ -300,21 +307,4 @@ def hermite_through(points: np.ndarray, start_heading: float, end_heading: float
     if len(p) > 2:
         d = p[2:] - p[:-2]
         heading[1:-1] = np.arctan2(d[:, 1], d[:, 0])
-    out = []
-    for i in range(len(p) - 1):
-        h0 = heading[i]
-        c, sn = np.cos(h0), np.sin(h0)
-        dx, dy = p[i + 1] - p[i]
-        u1, v1 = c * dx + sn * dy, -sn * dx + c * dy  # end point in the start's frame
-        chord = float(np.hypot(u1, v1))
-        turn = (heading[i + 1] - h0 + np.pi) % (2 * np.pi) - np.pi
-        cu, su = chord * np.cos(turn), chord * np.sin(turn)
-        coef = {"aU": 0.0, "bU": chord, "cU": 3 * u1 - 2 * chord - cu, "dU": -2 * u1 + chord + cu,
-                "aV": 0.0, "bV": 0.0, "cV": 3 * v1 - su, "dV": -2 * v1 + su}
-        q = np.linspace(0.0, 1.0, 65)
-        du = coef["bU"] + 2 * coef["cU"] * q + 3 * coef["dU"] * q ** 2
-        dv = 2 * coef["cV"] * q + 3 * coef["dV"] * q ** 2
-        speed = np.hypot(du, dv)
-        arc = float(np.sum((speed[1:] + speed[:-1]) / 2) / 64)
-        out.append({"x": float(p[i, 0]), "y": float(p[i, 1]), "hdg": float(h0), "length": arc, **coef})
-    return out
+    return _cubic_pieces(p, heading, samples=64)
