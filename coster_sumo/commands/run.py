@@ -175,10 +175,17 @@ def run(args: argparse.Namespace) -> int:
 
 def _supervised_run(opts: RunOptions) -> dict[str, Any]:
     """:func:`coster_sumo.run.run` in a child process: a SUMO crash is one line, and whatever stops
-    the run (a crash, Ctrl-C) leaves nothing beside OUT (the old OUT, if any, stays as it was)."""
+    the run (a crash, Ctrl-C) leaves nothing beside OUT (the old OUT, if any, stays as it was).
+
+    Only where this process has not loaded torch yet (the command line): a process that has run
+    torch cannot fork a child that runs it again (its thread pools' locks stay taken in the child:
+    a test calling ``main`` after others hung in the CVAE), so such a caller runs in-process.
+    """
     from coster_sumo.outdir import OutputLock, clean_leftovers
     from coster_sumo.procs import run_supervised
 
+    if "torch" in sys.modules:
+        return run_scenario(opts)
     try:
         summary: dict[str, Any] = run_supervised(functools.partial(run_scenario, opts),
                                                  f"run of {opts.spec.config}")
