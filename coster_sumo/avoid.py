@@ -32,7 +32,13 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.geometry import box_signed_distance, make_boxes, point_at_arc_length, project_points
+from coster_sumo.geometry import (
+    box_signed_distance,
+    make_boxes,
+    point_at_arc_length,
+    project_points,
+    sat_overlap_depth,
+)
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import ObjectType, Scene
 
@@ -252,7 +258,7 @@ class Avoidability:
         return {"avoidable": self.avoidable, "reaction_time_s": self.reaction_time_s,
                 "avoidable_at": {f"{r:g}": self.avoidable_at(r) for r in sorted(self.escapes)},
                 "contact_kind": self.contact_kind, "vehicle_class": self.vehicle_class,
-                "t_appear": round(self.t_appear, 3), "t_threat": round(self.t_threat, 3),
+                "t_col": round(self.t_col, 3), "t_appear": round(self.t_appear, 3), "t_threat": round(self.t_threat, 3),
                 "threat_before_tcol_s": round(self.t_col - self.t_threat, 3),
                 "last_moment_to_act_s": None if self.last_moment_s is None else round(self.last_moment_s, 3),
                 "escapes": {f"{r:g}": (e.summary() if e is not None else None)
@@ -448,15 +454,20 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     # clearance to the adversary (its plan, then constant velocity) and to every other vehicle
     ax, ay, ayaw, _ = plan.sample(times)
     adv_box = make_boxes(ax, ay, ayaw, plan.length, plan.width)  # (n, 5)
-    cand = make_boxes(pos[..., 0], pos[..., 1], yaw, length, width)  # (K, M, n, 5)
-    clear = box_signed_distance(cand, adv_box[None, None])  # (K, M, n)
-    clear_after = np.where(after, clear, np.inf).min(-1)  # (K, M) from the moment of acting on
+    # boxes grown by the clearance on every side: an overlap (SAT, no corners) means too close
+    grown = make_boxes(pos[..., 0], pos[..., 1], yaw, length + 2 * MIN_CLEARANCE_M,
+                       width + 2 * MIN_CLEARANCE_M)  # (K, M, n, 5)
+    good = feasible.copy()
+    kk, mm = np.nonzero(good)
+    if len(kk):  # the adversary first: it rules out most candidates
+        hit = (sat_overlap_depth(grown[kk, mm], adv_box[None]) > 0.0) & after[kk, 0]
+        good[kk[hit.any(-1)], mm[hit.any(-1)]] = False
     others = _other_boxes(scene, target, times, path)
-    if others is not None:
+    kk, mm = np.nonzero(good)
+    if others is not None and len(kk):
         o_box, o_valid = others  # (N, n, 5), (N, n)
-        gap = _gap_to_others(cand, o_box, o_valid)  # (K, M, n)
-        clear_after = np.minimum(clear_after, np.where(after, gap, np.inf).min(-1))
-    good = feasible & (clear_after >= MIN_CLEARANCE_M)
+        hit = _too_close(grown[kk, mm], o_box, o_valid & after[kk, 0][:, None, :].any(0))  # (G,)
+        good[kk[hit], mm[hit]] = False
     # only what is clear is checked against the road (the costlier test)
     if drivable is not None and good.any():
         kk, mm = np.nonzero(good)
@@ -481,16 +492,20 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
         ok_r = good & allowed[:, None]
         if not ok_r.any():
             continue
-        # least demanding: smallest peak acceleration; then the earlier act; then the larger clearance
+        # least demanding: smallest peak acceleration; then the earlier act; then the first manoeuvre
+        # (longitudinal before lateral, the gentler first)
         score = np.where(ok_r, demand, np.inf)
-        best = np.flatnonzero(score == score.min())
-        kk_all, mm_all = np.unravel_index(best, good.shape)
-        order = np.lexsort((-clear_after[kk_all, mm_all], kk_all))
-        kb, mb = int(kk_all[order[0]]), int(mm_all[order[0]])
+        best = np.flatnonzero(score <= score.min() + 1e-9)
+        kb, mb = (int(v) for v in np.unravel_index(best[0], good.shape))
+        box = make_boxes(pos[kb, mb, :, 0], pos[kb, mb, :, 1], yaw[kb, mb], length, width)  # (n, 5)
+        gap = box_signed_distance(box, adv_box)
+        if others is not None:
+            gap = np.minimum(gap, np.where(others[1], box_signed_distance(box[None], others[0]), np.inf).min(0))
+        clearance = float(gap[after[kb, 0]].min())
         escapes[r] = Escape(t_act=float(t_acts[kb]), manoeuvre=man[mb], times=times.copy(),
                             x=pos[kb, mb, :, 0].copy(), y=pos[kb, mb, :, 1].copy(),
                             yaw=(yaw[kb, mb] + np.pi) % (2 * np.pi) - np.pi, speed=v[kb, mb].copy(),
-                            clearance_m=float(clear_after[kb, mb]), peak_decel=float(peak_decel[kb, mb]),
+                            clearance_m=clearance, peak_decel=float(peak_decel[kb, mb]),
                             peak_lateral_accel=float(peak_lat[kb, mb]), peak_accel=float(demand[kb, mb]))
     return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, last_moment, escapes, reaction_time_s,
                         candidates=int(k_count * m_count))
@@ -521,22 +536,22 @@ def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
     return boxes, valid[keep]
 
 
-def _gap_to_others(cand: np.ndarray, o_box: np.ndarray, o_valid: np.ndarray) -> np.ndarray:
-    """(K, M, T) smallest signed distance from every candidate pose to the other vehicles.
+def _too_close(grown: np.ndarray, o_box: np.ndarray, o_valid: np.ndarray) -> np.ndarray:
+    """(G,) whether each candidate's grown boxes overlap another vehicle at some step.
 
-    Only pairs whose centres are within reach of each other are measured exactly (the rest are
-    further than their half diagonals, so their gap is at least the centre distance minus them).
+    Args:
+        grown: (G, T, 5) candidate boxes grown by the clearance; o_box: (N, T, 5); o_valid: (N, T)
+            the other vehicles, valid where they exist (and the candidates have acted).
+
+    Only pairs whose centres are within reach of each other (half diagonals) are tested exactly.
     """
-    k, m, t, _ = cand.shape
-    flat = cand.reshape(-1, t, 5)  # (C, T, 5)
-    dx = flat[:, None, :, 0] - o_box[None, :, :, 0]  # (C, N, T)
-    dy = flat[:, None, :, 1] - o_box[None, :, :, 1]
-    dist = np.hypot(dx, dy)
-    reach = 0.5 * (np.hypot(flat[:, None, :, 3], flat[:, None, :, 4]) + np.hypot(o_box[None, :, :, 3],
-                                                                                  o_box[None, :, :, 4]))
-    approx = np.where(o_valid[None], dist - reach, np.inf)
-    near = approx < MIN_CLEARANCE_M + 1.0
+    dx = grown[:, None, :, 0] - o_box[None, :, :, 0]  # (G, N, T)
+    dy = grown[:, None, :, 1] - o_box[None, :, :, 1]
+    reach = 0.5 * (np.hypot(grown[0, 0, 3], grown[0, 0, 4]) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
+    near = o_valid[None] & (dx * dx + dy * dy < (reach * reach)[None])
+    hit = np.zeros(len(grown), bool)
     if near.any():
         c, o, s = np.nonzero(near)
-        approx[c, o, s] = box_signed_distance(flat[c, s], o_box[o, s])
-    return approx.min(1).reshape(k, m, t)
+        overlap = sat_overlap_depth(grown[c, s], o_box[o, s]) > 0.0
+        hit[c[overlap]] = True
+    return hit
