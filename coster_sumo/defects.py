@@ -138,6 +138,7 @@ def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidabil
 
 def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: bool, label: dict[str, Any] | None
                     ) -> str:
+    # ``contact``: the target touched someone up to the label's horizon
     """How the planner's pass ended, in words: how it avoided (its lowest speed, its smallest gap to
     the adversary) or whether a hit was a defect or unavoidable. ``scene``: the pass recorded."""
     if contact:
@@ -208,3 +209,69 @@ def keep_avoidable(planned: list[Any], labels: dict[str, Avoidability], draw: An
             planned.append(extra)
     planned = [p for p in planned if p.plans] or planned[:1]
     return planned, {"tried": tried, "kept": kept, "extra_draws": draws}
+
+
+# ----------------------------------------------------------------------------- batches
+
+def escape_dict(e: Escape | None) -> dict[str, Any] | None:
+    """The escape's 10 Hz arrays for a batch's plans file (None where there is none)."""
+    if e is None:
+        return None
+    return {"times": e.times.round(3).tolist(), "x": e.x.round(4).tolist(), "y": e.y.round(4).tolist(),
+            "yaw": e.yaw.round(5).tolist(), "speed": e.speed.round(4).tolist()}
+
+
+def escape_replay(d: dict[str, Any], length_m: float) -> Any:
+    """The ``escape`` planner of a batch: a replay of a stored escape (:func:`escape_dict`)."""
+    from coster_sumo.sim.planners import ReplayPlanner
+
+    times = np.asarray(d["times"], float)
+    return ReplayPlanner(times, np.asarray(d["x"], float), np.asarray(d["y"], float), np.asarray(d["yaw"], float),
+                         np.asarray(d["speed"], float), np.ones(len(times), bool), length_m)
+
+
+def defect_rates(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The defect rate (a contact of the target in an avoidable variant) beside the unavoidable-contact
+    rate, and every rate split by the label, of one planner's finished rows (``avoidable`` set).
+
+    A contact counts up to the label's horizon (:data:`~coster_sumo.avoid.HORIZON_AFTER_TCOL_S` after
+    t_col): that is what an escape is proven for; what happens later (the pass goes on until the
+    target arrives) stays in the plain collision rate.
+    """
+    from coster_sumo.batch.store import rate_with_ci
+
+    labelled = [r for r in rows if r.get("avoidable") is not None]
+    av = [r for r in labelled if r["avoidable"]]
+    un = [r for r in labelled if not r["avoidable"]]
+
+    def hit(r: dict[str, Any]) -> bool:
+        return bool(r["contact_in_horizon"] if r.get("contact_in_horizon") is not None else r["collision"])
+
+    return {"defect_rate": rate_with_ci([hit(r) for r in av]),
+            "unavoidable_contact_rate": rate_with_ci([hit(r) for r in un]),
+            "avoidable_runs": len(av), "unavoidable_runs": len(un), "unlabelled_runs": len(rows) - len(labelled),
+            "by_label": {name: {"CR": rate_with_ci([r["collision"] for r in part]),
+                                "RCR": rate_with_ci([r["route_completed"] for r in part]),
+                                "ORR": rate_with_ci([r["target_off_road"] for r in part])}
+                         for name, part in (("avoidable", av), ("unavoidable", un))}}
+
+
+def _pct(entry: dict[str, Any]) -> str:
+    if entry.get("rate") is None:
+        return "n/a"
+    return (f"{100 * entry['rate']:.1f}% [{100 * entry['ci_low']:.1f}, {100 * entry['ci_high']:.1f}] "
+            f"({entry['k']}/{entry['n']})")
+
+
+def defect_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """The headline table of a regression: per planner, the defect rate beside the unavoidable-contact rate."""
+    head = ["planner", "defect rate (contact in an avoidable variant)", "unavoidable-contact rate",
+            "RCR avoidable", "RCR unavoidable"]
+    rows = []
+    for name, p in summary["planners"].items():
+        d = p.get("defects")
+        if not d:
+            continue
+        rows.append([name, _pct(d["defect_rate"]), _pct(d["unavoidable_contact_rate"]),
+                     _pct(d["by_label"]["avoidable"]["RCR"]), _pct(d["by_label"]["unavoidable"]["RCR"])])
+    return head, rows
