@@ -275,3 +275,61 @@ def defect_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
         rows.append([name, _pct(d["defect_rate"]), _pct(d["unavoidable_contact_rate"]),
                      _pct(d["by_label"]["avoidable"]["RCR"]), _pct(d["by_label"]["unavoidable"]["RCR"])])
     return head, rows
+
+
+# ----------------------------------------------------------------------------- label statistics
+
+def label_record(lab: Avoidability) -> dict[str, Any]:
+    """The flat per-variant fields of a label that statistics over many variants read."""
+    kinematic = {f"{r:g}": e is not None for r, e in lab.escapes.items()}
+    return {"avoidable": lab.avoidable, "avoidable_at": {f"{r:g}": lab.avoidable_at(r) for r in sorted(lab.escapes)},
+            "escape_found_at": kinematic,
+            "escapes_replayed": sum(e is not None and e.proven is not None for e in lab.escapes.values()),
+            "escapes_refuted": sum(e is not None and e.proven is False for e in lab.escapes.values()),
+            "contact_kind": lab.contact_kind, "last_moment_s": lab.last_moment_s,
+            "threat_before_tcol_s": lab.t_col - lab.t_threat}
+
+
+def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Share of avoidable variants (Wilson 95 %) per reaction time, overall and per kind of contact;
+    the distribution of the last moment to act; how many kinematic escapes SUMO refuted."""
+    from coster_sumo.batch.store import rate_with_ci
+
+    recs = [r for r in records if r.get("avoidable_at")]
+    times = sorted({t for r in recs for t in r["avoidable_at"]}, key=float)
+
+    def shares(part: Sequence[dict[str, Any]]) -> dict[str, Any]:
+        return {t: rate_with_ci([bool(r["avoidable_at"].get(t)) for r in part]) for t in times}
+
+    last = np.array([r["last_moment_s"] for r in recs if r.get("last_moment_s") is not None], float)
+    found = {t: sum(bool(r["escape_found_at"].get(t)) for r in recs) for t in times}
+    return {"variants": len(recs), "avoidable_share": shares(recs),
+            "CR_by_label": {"avoidable": rate_with_ci([bool(r.get("collision")) for r in recs if r["avoidable"]]),
+                            "unavoidable": rate_with_ci([bool(r.get("collision")) for r in recs
+                                                         if not r["avoidable"]])},
+            "by_contact_kind": {k: {"variants": sum(r["contact_kind"] == k for r in recs),
+                                    "avoidable_share": shares([r for r in recs if r["contact_kind"] == k])}
+                                for k in sorted({r["contact_kind"] for r in recs})},
+            "last_moment_s": {"with_escape": int(len(last)), "none": len(recs) - int(len(last)),
+                              **({f"p{q}": round(float(np.percentile(last, q)), 2) for q in (10, 25, 50, 75, 90)}
+                                 if len(last) else {})},
+            "escapes_found": found,
+            "escapes_replayed": sum(int(r.get("escapes_replayed", 0)) for r in recs),
+            "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs)}
+
+
+def avoidability_report_table(methods: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """Per generator: avoidable share at each reaction time, the collision rate split by the label,
+    and the median last moment to act (``eval scenarios``' report)."""
+    head = ["method", "variants", "avoidable @0.5 s", "avoidable @1 s", "avoidable @1.5 s", "CR avoidable",
+            "CR unavoidable", "last moment to act, median [s]"]
+    rows = []
+    for name, m in methods.items():
+        a = m.get("avoidability")
+        if m.get("status") != "ok" or not a or not a["variants"]:
+            continue
+        sh = a["avoidable_share"]
+        rows.append([name, str(a["variants"]), *(_pct(sh[t]) if t in sh else "n/a" for t in ("0.5", "1", "1.5")),
+                     _pct(a["CR_by_label"]["avoidable"]), _pct(a["CR_by_label"]["unavoidable"]),
+                     str(a["last_moment_s"].get("p50", "n/a"))])
+    return head, rows

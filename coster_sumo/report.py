@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_text
-from coster_sumo.defects import defect_table
+from coster_sumo.defects import avoidability_report_table, defect_table
 
 EXAMPLES_PER_PLANNER = 3
 
@@ -415,6 +415,12 @@ def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
           "many adversaries); sizes in class: adversaries whose length and width fit one vehicle class of the "
           "corpus.", "",
           _md_table(head, rows), "", "![metrics](metrics.png)", "", *diversity_section(summary)]
+    a_head, a_rows = avoidability_report_table(table)
+    if a_rows:
+        md += ["## Avoidability", "", "Share of variants the target could have avoided (an escape proven in SUMO "
+               "acting that long after the adversary became a threat; docs/method.md step 8), Wilson 95% interval; "
+               "the collision rate of each part (a contact in an avoidable variant is a planner's defect).", "",
+               _md_table(a_head, a_rows), ""]
     failed = summary["methods"]["failed_scenes"]
     if failed:
         md += ["## Scenes that failed", "", _md_table(["scene", "reason"],
