@@ -80,20 +80,23 @@ class ClassLimits:
         return float(np.tan(self.max_steer_rad) / max(self.wheelbase_ratio * length_m, 0.5))
 
 
-# SUMO's vType defaults for accel and emergencyDecel of these classes (docs/sumo.md, "Vehicle
-# classes and their limits"); steering limits of ordinary road vehicles.
+# SUMO's vType defaults for accel and emergencyDecel of these classes (docs/sumo.md §13); steering
+# limits of ordinary road vehicles.
 CLASS_LIMITS: dict[str, ClassLimits] = {
     "passenger": ClassLimits("passenger", 2.6, 9.0, np.radians(35.0), 0.6),
     "heavy": ClassLimits("heavy", 1.3, 7.0, np.radians(35.0), 0.55),
-    "two_wheeler": ClassLimits("two_wheeler", 6.0, 10.0, np.radians(30.0), 0.65),
+    "motorcycle": ClassLimits("motorcycle", 6.0, 10.0, np.radians(30.0), 0.65),
+    "bicycle": ClassLimits("bicycle", 1.2, 7.0, np.radians(30.0), 0.65),
 }
 HEAVY_LENGTH_M = 7.5  # [m] a longer vehicle brakes like a truck or bus
 
 
 def vehicle_class(object_type: int, length_m: float, width_m: float) -> ClassLimits:
     """The limits of a target from what the scene knows: its object type and its size."""
-    if object_type == ObjectType.CYCLIST or width_m < 1.2:
-        return CLASS_LIMITS["two_wheeler"]
+    if object_type == ObjectType.CYCLIST or width_m < 0.8:
+        return CLASS_LIMITS["bicycle"]
+    if width_m < 1.2:
+        return CLASS_LIMITS["motorcycle"]
     if length_m >= HEAVY_LENGTH_M:
         return CLASS_LIMITS["heavy"]
     return CLASS_LIMITS["passenger"]
