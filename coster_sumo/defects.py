@@ -112,13 +112,23 @@ def label_line(lab: dict[str, Any]) -> str:
     return f"unavoidable ({why}), {lab['contact_kind'].replace('_', ' ')}"
 
 
-def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidability]) -> dict[str, Any]:
+def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidability],
+                  passes: Sequence[tuple[AdversaryPlan, Any]] = ()) -> dict[str, Any]:
     """Add each variant's label to ``summary`` (and ``out/summary.json``), write its escape plan
-    (``variants/<i>/escape.csv``, 10 Hz), and count avoidable variants; returns the summary."""
-    for rec, lab in zip(summary["variants"], labels, strict=True):
+    (``variants/<i>/escape.csv``, 10 Hz), and count avoidable variants; returns the summary.
+
+    ``passes``: (plan, injection result) per variant: each then gets its planner's ``outcome`` line.
+    """
+    for k, (rec, lab) in enumerate(zip(summary["variants"], labels, strict=True)):
         entry = lab.summary()
         rec["avoidability"] = entry
         rec["label"] = label_line(entry)
+        if k < len(passes):
+            plan, res = passes[k]
+            tid = summary["target"]
+            hit = any(e.kind == "collision" and tid in e.vehicles and e.time <= lab.t_col + HORIZON_AFTER_TCOL_S + 1e-6
+                      for e in res.events)
+            rec["outcome"] = planner_outcome(res.scene, tid, plan, hit, entry)
         esc = lab.escape
         if esc is not None:
             (out / "variants" / str(rec["variant"]) / ESCAPE_FILE).write_text(esc.csv())

@@ -224,7 +224,8 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
                                 options=opts.to_json())
     if tried is not None:
         summary["avoidable_only"] = tried
-    return attach_labels(out, summary, [labels[pl.vehicle_id] for p in planned for pl in p.plans])
+    kept = [pl for p in planned for pl in p.plans]
+    return attach_labels(out, summary, [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
 
 
 def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Any], target_id: str

@@ -180,6 +180,7 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
                f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else "no contact"
         lines.append(f"  variant {v['variant']}: {hit}" + ("; adversary off-road" if v["adversary_off_road"] else "")
                      + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else "")
+                     + (f"; {v['outcome']}" if v.get("outcome") else "")
                      + (f"; {v['label']}" if v.get("label") else ""))
     if summary.get("avoidable_only"):
         a = summary["avoidable_only"]
