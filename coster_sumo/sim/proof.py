@@ -82,8 +82,7 @@ def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> dict[str, A
     else:
         reason = f"left the road at {off[0].time:.1f} s"
     return {"ok": ok, "reason": reason, "min_gap_to_adversary_m": None if gap is None else round(gap, 3),
-            "max_deviation_m": None if deviation is None else round(deviation, 4), "max_deviation_at_s": dev_at,
-            "sumo_time_s": round(res.wall_time_s, 3)}
+            "max_deviation_m": None if deviation is None else round(deviation, 4), "max_deviation_at_s": dev_at}
 
 
 def _prove_held(session: Any, payload: dict[str, Any]) -> dict[str, Any]:
