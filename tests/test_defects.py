@@ -84,3 +84,15 @@ def test_run_labels_every_variant_and_avoidable_only_keeps_the_avoidable(tmp_pat
     s2 = json.loads((only / "summary.json").read_text())
     assert all(v["avoidability"]["avoidable"] for v in s2["variants"])
     assert s2["avoidable_only"]["tried"] >= len(s2["variants"]) >= n_avoidable
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_the_api_labels_every_plan_and_keeps_only_avoidable_ones_when_asked():
+    from coster_sumo.api import plan_adversaries
+
+    planned = plan_adversaries(NETWORKS[0], seed=0, variants=5, avoidable="only")
+    labels = planned.info["avoidability"]
+    assert planned.plans and set(labels) == {p.vehicle_id for p in planned.plans}
+    assert all(lab["avoidable"] for lab in labels.values())
+    assert planned.info["avoidable_only"]["tried"] >= len(planned.plans)
