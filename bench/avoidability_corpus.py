@@ -53,6 +53,8 @@ def table(title: str, groups: dict[str, list[dict[str, Any]]]) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path)
+    ap.add_argument("--all-scenes", action="store_true",
+                    help="every finished part (default: only the scenes every method finished, so the rules compare)")
     args = ap.parse_args()
     records: list[dict[str, Any]] = []
     gen_s = avoid_s = 0.0
@@ -67,7 +69,12 @@ def main() -> None:
         gen_s += doc["generation_s"]
         avoid_s += doc["avoidability_s"]
         for r in doc["records"]:
-            records.append({**r, "method": doc["method"], "network": network_of(doc["scene_key"])})
+            records.append({**r, "method": doc["method"], "network": network_of(doc["scene_key"]),
+                            "scene_key": doc["scene_key"]})
+    if not args.all_scenes and scenes:
+        common = set.intersection(*scenes.values())
+        records = [r for r in records if r["scene_key"] in common]
+        scenes = {m: s & common for m, s in scenes.items()}
     print(f"{len(records)} variants; scenes per method: " + ", ".join(f"{m} {len(s)}" for m, s in scenes.items()))
     out = table("By collision-time rule", _group(records, "method"))
     for method in sorted({r["method"] for r in records}):
