@@ -96,3 +96,18 @@ def test_the_api_labels_every_plan_and_keeps_only_avoidable_ones_when_asked():
     assert planned.plans and set(labels) == {p.vehicle_id for p in planned.plans}
     assert all(lab["avoidable"] for lab in labels.values())
     assert planned.info["avoidable_only"]["tried"] >= len(planned.plans)
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_regress_avoidable_only_replaces_unavoidable_variants_and_says_how_many_were_tried(tmp_path, capsys):
+    out = tmp_path / "only"
+    assert main(["regress", str(NETWORKS[0]), "--planner", "sumo", "--variants", "3", "--avoidable", "only",
+                 "-o", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    (doc,) = [json.loads(p.read_text()) for p in (out / "plans").glob("*.json")]
+    assert all(a["avoidable"] for a in doc["avoidability"]) and doc["avoidability"]
+    assert summary["variants_tried"] == doc["avoidable_only"]["tried"] >= summary["variants"]
+    assert summary["planners"]["sumo"]["defects"]["unavoidable_runs"] == 0
+    if summary["variants_tried"] != summary["variants"]:
+        assert f"of {summary['variants_tried']} tried" in capsys.readouterr().out

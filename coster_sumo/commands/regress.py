@@ -68,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
             for r in rows:
                 print("  ".join(c.ljust(w) for c, w in zip(r, width, strict=True)))
         sc, runs = summary["scenes"], summary["runs"]
+        if summary.get("variants_tried", summary["variants"]) != summary["variants"]:
+            print(f"--avoidable only: {summary['variants']} avoidable variants of {summary['variants_tried']} tried")
         print(f"{sc['generated']}/{sc['total']} scenes, {runs['recorded']}/{runs['expected']} runs "
               f"({runs['failed']} failed) in {summary['wall_time_s']:.1f} s; wrote {args.out}/summary.json"
               + (f", {args.out}/report.html" if not args.no_report else ""))
