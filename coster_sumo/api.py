@@ -21,12 +21,15 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import Any
 
-from coster_sumo.core import PlannedScenario, choose_target, nominal_scene, plan_scenario
+from coster_sumo.core import PlannedScenario, choose_target, derived_seed, nominal_scene, plan_scenario
+from coster_sumo.defects import check_avoidable, check_reaction_time, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
+from coster_sumo.snapshot import NoSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 __all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
@@ -36,7 +39,8 @@ __all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedS
 def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int = 0, samples: int = 1000,
                      variants: int = 5, collision_time: str = "entropy", init: str = "snapshot",
                      rollout: str = "cvae", begin: float | None = None, end: float | None = None,
-                     models_dir: str | Path | None = None) -> PlannedScenario:
+                     models_dir: str | Path | None = None, avoidable: str = "any",
+                     reaction_time: float = 1.0) -> PlannedScenario:
     """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
 
     Returns the :class:`~coster_sumo.core.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
@@ -47,13 +51,38 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     member that stays on the road, a candidate would hit the target or another vehicle before
     t_col): ``.dropped`` then holds one line per missing candidate with its reason, and a
     :class:`UserWarning` says the same.
+    Every plan is labelled (docs/method.md step 8; escapes proven in SUMO from the begin):
+    ``.info["avoidability"]`` maps each plan's ``vehicle_id`` to its label (``avoidable`` at
+    ``reaction_time`` [s], the escapes, the last moment to act, the kind of contact). With
+    ``avoidable="only"`` the unavoidable plans are dropped and replaced by plans of up to three
+    further draws (their own collision snapshots: each label carries its ``t_col``);
+    ``.info["avoidable_only"]`` says how many were tried.
     """
     spec = ScenarioSpec(Path(config), seed=seed, begin=begin, end=end, target=target)
     gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
                            variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
+    check_avoidable(avoidable)
+    check_reaction_time(reaction_time)
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
-    planned = plan_scenario(scene, index, seed, gen, DrivableArea.from_road_map(scene.road_map))
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    planned = plan_scenario(scene, index, seed, gen, drivable)
+
+    def label(plans: list[AdversaryPlan]) -> list[Any]:
+        return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=reaction_time)
+
+    labels = dict(zip((p.vehicle_id for p in planned.plans), label(planned.plans), strict=True))
+    if avoidable == "only":
+        def draw(j: int) -> PlannedScenario | None:
+            try:
+                return plan_scenario(scene, index, derived_seed(seed, 100 + j), gen, drivable)
+            except NoSnapshot:
+                return None
+
+        kept, tried = keep_avoidable([planned], labels, draw, label, variants)
+        planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable
+        planned.info["avoidable_only"] = tried
+    planned.info["avoidability"] = {p.vehicle_id: labels[p.vehicle_id].summary() for p in planned.plans}
     if len(planned.plans) < variants:
         warnings.warn(f"{config}: {len(planned.plans)} of {variants} variants; "
                       + "; ".join(planned.dropped or ["the rollout gave fewer representatives"]), stacklevel=2)

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_text
+from coster_sumo.defects import avoidability_report_table, defect_table
 
 EXAMPLES_PER_PLANNER = 3
 
@@ -67,6 +68,27 @@ def regression_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]
                      _pct(p["adversary_contact_rate"]), _fmt(p["median_min_ttc_s"], 2),
                      _fmt(p["mean_relative_speed_mps"], 2)])
     return head, rows
+
+
+def defect_section_md(summary: dict[str, Any], head: list[str], rows: list[list[str]]) -> list[str]:
+    """The headline of a regression: defects (contact in an avoidable variant) apart from unavoidable contacts."""
+    if not rows:
+        return []
+    return ["## Defects", "",
+            f"{summary.get('avoidable_variants', 0)} of {summary['variants']} variants were avoidable "
+            "(an escape proven in SUMO from the stated reaction time after the adversary became a threat, "
+            "docs/method.md step 8). A contact in an avoidable variant is a defect of the planner; a contact "
+            "in an unavoidable one is not. Brackets: Wilson 95% interval (k/n runs).", "",
+            _md_table(head, rows), ""]
+
+
+def defect_section_html(summary: dict[str, Any], head: list[str], rows: list[list[str]]) -> list[str]:
+    if not rows:
+        return []
+    return ["<h2>Defects</h2>",
+            f"<p>{summary.get('avoidable_variants', 0)} of {summary['variants']} variants were avoidable (an escape "
+            "proven in SUMO). A contact in an avoidable variant is a defect of the planner; one in an unavoidable "
+            "variant is not. Brackets: Wilson 95% interval (k/n runs).</p>", _html_table(head, rows)]
 
 
 def _md_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -189,6 +211,9 @@ def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, 
         ax.plot(driven[:, 0], driven[:, 1], color="#2ca02c", lw=1.6, label=f"target driven ({row['planner']})",
                 zorder=4)
     ax.plot(ax_, ay_, color=viz.ADVERSARY_COLOR, lw=1.5, label="adversary plan", zorder=4)
+    escape = (doc.get("escapes") or [None] * (row["variant"] + 1))[row["variant"]]
+    if escape:  # the variant was avoidable: the escape proven in SUMO
+        ax.plot(escape["x"], escape["y"], ":", color="#9467bd", lw=1.8, label="escape (proven in SUMO)", zorder=5)
     s = v["snapshot"]["adversary"]
     viz.draw_box(ax, s["x"], s["y"], s["yaw"], s["length"], s["width"], viz.ADVERSARY_COLOR, label="adversary at t_col")
     if row["contact_time"] is not None:
@@ -234,6 +259,7 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
             if rel.startswith("examples/"):
                 written.append(rel)
     head, table = regression_table(summary)
+    d_head, d_table = defect_table(summary)
     failures = summary["runs"]["failures"]
     sc = summary["scenes"]
     # the same words in both reports (the HTML one had dropped the definitions, captions and the
@@ -249,9 +275,10 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
 
     def caption(r: dict[str, Any]) -> str:
         return (("collision" if r["collision"] else "off-road" if r["target_off_road"] else "route not completed")
-                + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else ""))
+                + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else "")
+                + (f"; {r['outcome']}" if r.get("outcome") else ""))
 
-    md = ["# Planner regression", "", intro, "", definitions, "",
+    md = ["# Planner regression", "", *defect_section_md(summary, d_head, d_table), intro, "", definitions, "",
           _md_table(head, table), "", "![rates](plots/rates.png)", "",
           "## Contacts", "", "![impact angles](plots/impact_angles.png) ![relative speeds](plots/relative_speeds.png)",
           ""]
@@ -276,7 +303,8 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>coster-sumo regression</title>",
          "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
          "td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}img{max-width:48%}</style></head><body>",
-         "<h1>Planner regression</h1>", f"<p>{html.escape(intro)}</p>", f"<p>{html.escape(definitions)}</p>",
+         "<h1>Planner regression</h1>", *defect_section_html(summary, d_head, d_table),
+         f"<p>{html.escape(intro)}</p>", f"<p>{html.escape(definitions)}</p>",
          _html_table(head, table), "<p><img src='plots/rates.png'></p>", "<h2>Contacts</h2>",
          "<p><img src='plots/impact_angles.png'> <img src='plots/relative_speeds.png'></p>"]
     if sc["failed"]:
@@ -400,6 +428,12 @@ def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
           "many adversaries); sizes in class: adversaries whose length and width fit one vehicle class of the "
           "corpus.", "",
           _md_table(head, rows), "", "![metrics](metrics.png)", "", *diversity_section(summary)]
+    a_head, a_rows = avoidability_report_table(table)
+    if a_rows:
+        md += ["## Avoidability", "", "Share of variants the target could have avoided (an escape proven in SUMO "
+               "acting that long after the adversary became a threat; docs/method.md step 8), Wilson 95% interval; "
+               "the collision rate of each part (a contact in an avoidable variant is a planner's defect).", "",
+               _md_table(a_head, a_rows), ""]
     failed = summary["methods"]["failed_scenes"]
     if failed:
         md += ["## Scenes that failed", "", _md_table(["scene", "reason"],

@@ -26,10 +26,13 @@ from coster_sumo.core import (
     PlannedScenario,
     check_generation,
     choose_target,
+    derived_seed,
     nominal_scene,
+    plan_scenario,
     plan_scenarios,
     simulation_window,
 )
+from coster_sumo.defects import attach_labels, check_avoidable, check_reaction_time, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, SumoError, not_found
 from coster_sumo.formats.scene_folder import converted_scene_file
@@ -69,11 +72,14 @@ class RunOptions:
     overwrite: bool = False  # replace an earlier coster-sumo run output in ``out``
     timeout: float | None = None  # [s] wall clock per variant's injection pass (None: no limit)
     copy_outside: bool = False  # exports also copy the files the configuration names outside its folder
+    reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
+    avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
         return {**self.spec.to_dict(), **self.generation.to_dict(), "out": str(self.out), "planner": self.planner,
                 "traci": self.traci, "render": self.render, "snapshots": self.snapshots, "from_begin": self.from_begin,
+                "reaction_time": self.reaction_time, "avoidable": self.avoidable,
                 **({"more_targets": list(self.more_targets)} if self.more_targets else {}),
                 **({"target_choice": list(self.target_choice)} if self.target_choice else {})}
 
@@ -96,6 +102,8 @@ def run(opts: RunOptions) -> dict[str, Any]:
     lists them (a target without a scenario is listed with its reason; the others go on).
     """
     check_generation(opts.generation)
+    check_avoidable(opts.avoidable)
+    check_reaction_time(opts.reaction_time)
     if opts.snapshots < 1:
         raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
     if not opts.spec.config.is_file():
@@ -224,6 +232,27 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
         raise InputError(f"{spec.config}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None
     timings["generation_s"] = time.perf_counter() - t0
+    # every variant's avoidability, its escapes proven in SUMO (part of generation: docs/method.md step 8)
+    target_id = str(scene.tracks.ids[target])
+
+    def label(plans: list[Any]) -> list[Any]:
+        return label_plans(spec, scene, target, plans, drivable=drivable, held=held, workers=opts.workers,
+                           traci=opts.traci, reaction_time_s=opts.reaction_time, timings=timings)
+
+    labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
+                      label([pl for p in planned for pl in p.plans]), strict=True))
+    tried: dict[str, Any] | None = None
+    if opts.avoidable == "only":
+        def draw(j: int) -> PlannedScenario | None:
+            try:
+                return plan_scenario(scene, target, derived_seed(spec.seed, 100 + j), opts.generation, drivable)
+            except NoSnapshot:
+                return None
+
+        planned, tried = keep_avoidable(planned, labels, draw, label, opts.generation.variants * opts.snapshots)
+        if not any(p.plans for p in planned):
+            raise InputError(f"{spec.config}: none of the {tried['tried']} variants for target {target_id!r} "
+                             f"was avoidable at a reaction time of {opts.reaction_time:g} s (--avoidable only)")
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with _bar(opts, "variants", "variant", total=len(plans)) as bar:
@@ -240,8 +269,12 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
                             f"{str(scene.tracks.ids[target])!r} failed (first: {failed[0]['reason']})")
         raise InputError(f"{spec.config}: every adversary of target {str(scene.tracks.ids[target])!r} ran into "
                          "another vehicle before t_col in the simulation")
-    return write_run_outputs(out, spec, planner, planned, results, timings, render=opts.render,
-                             options=opts.to_json(), copy_outside=opts.copy_outside)
+    summary = write_run_outputs(out, spec, planner, planned, results, timings, render=opts.render,
+                                options=opts.to_json(), copy_outside=opts.copy_outside)
+    if tried is not None:
+        summary["avoidable_only"] = tried
+    kept = [pl for p in planned for pl in p.plans]
+    return attach_labels(out, summary, [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
 
 
 def _leave_out(planned: list[PlannedScenario], outcomes: Sequence[Any],

@@ -141,6 +141,11 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
         return {"status": "no_scenario", "reason": str(exc), "generation_s": time.perf_counter() - t0,
                 "records": []}
     gen_s = time.perf_counter() - t0
+    from coster_sumo.defects import label_plans, label_record
+
+    t1 = time.perf_counter()
+    labels = label_plans(spec, scene, target, [v.plan for v in variants], drivable=drivable)
+    avoid_s = time.perf_counter() - t1
     records = []
     speeds, accels = [], []
     lane_types = scene.road_map.lane_type_at(np.array([[v.snapshot.adversary.x, v.snapshot.adversary.y]
@@ -155,7 +160,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
                         "relative_speed": c.relative_speed if c else None,
                         "impact_angle": c.impact_angle if c else None, "t_col": v.snapshot.time,
                         "adversary_speed": adv.speed, "adversary_length": adv.length, "adversary_width": adv.width,
-                        "adversary_lane_type": LaneType(int(lane_types[i])).name})
+                        "adversary_lane_type": LaneType(int(lane_types[i])).name, **label_record(labels[i])})
         tr = res.scene.tracks
         if plan.vehicle_id in set(tr.ids.tolist()):
             a = tr.index_of(plan.vehicle_id)
@@ -166,7 +171,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
             accels.append(sa)
     sv = np.concatenate(speeds) if speeds else np.zeros(0)
     sa = np.concatenate(accels) if accels else np.zeros(0)
-    return {"status": "ok", "records": records, "generation_s": gen_s,
+    return {"status": "ok", "records": records, "generation_s": gen_s, "avoidability_s": avoid_s,
             "speed_hist": _hist(sv, SPEED_BINS, 0, 50), "accel_hist": _hist(sa, ACCEL_BINS, -10, 10)}
 
 
@@ -340,6 +345,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
             "CPD": f(collision_position_diversity(ang)) if ang else None,
             "CPD_circular": f(circular_std_deg(ang)) if ang else None,
             "generation_s_per_variant": float(np.mean(gen_time)) if gen_time else None,
+            "avoidability": avoidability_summary(records),
             "relative_speeds": rel, "impact_angles": ang,
             **snapshot_state_metrics(records, by_type),
         }
@@ -432,6 +438,13 @@ def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: d
                   for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values()) for r in rows]
     out["size_in_class"] = float(np.mean(inside))
     return out
+
+
+def avoidability_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The labels of a method's variants (:func:`coster_sumo.defects.avoidability_table`)."""
+    from coster_sumo.defects import avoidability_table
+
+    return avoidability_table(records)
 
 
 def eval_exit_code(summary: dict[str, Any]) -> int:

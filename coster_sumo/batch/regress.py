@@ -36,14 +36,17 @@ from coster_sumo.batch.sources import (
 )
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
 from coster_sumo.core import Variant, check_generation
+from coster_sumo.defects import check_avoidable, check_reaction_time, defect_rates, escape_dict
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
+from coster_sumo.snapshot import NoSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.weights import WEIGHT_FILES
 
 GENERATION_KEYS = ("init", "rollout", "collision_time", "variants", "samples")
+ESCAPE_PLANNER = "escape"  # the reference planner: the target drives the variant's proven escape (replay without one)
 
 
 def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
@@ -62,15 +65,56 @@ def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     drivable = DrivableArea.from_road_map(scene.road_map)
     t1 = time.perf_counter()
     variants, info = generate_variants(scene, target, spec.seed, gen, drivable)
+    t2 = time.perf_counter()
+    variants, labels, extra = label_variants(spec, scene, target, variants, gen, drivable, payload)
     doc = {"scene_key": payload["scene_key"], "status": "ok", "spec": spec.to_dict(), "converted": converted,
            "scene_file": scene_file.name, "target_id": str(scene.tracks.ids[target]),
            "end": float(scene.timestamps[-1]), "generation": payload["generation"],
            "variants": [v.to_dict() for v in variants], "info": info,
-           "timings_s": {"nominal": round(t1 - t0, 3), "generation": round(time.perf_counter() - t1, 3)}}
+           "avoidability": [lab.summary() for lab in labels], "escapes": [escape_dict(lab.escape) for lab in labels],
+           **extra, "timings_s": {"nominal": round(t1 - t0, 3), "generation": round(t2 - t1, 3),
+                                  "avoidability": round(time.perf_counter() - t2, 3)}}
     write_json(plans_dir / f"{payload['scene_key']}.json", doc)
     return {"scene_key": payload["scene_key"], "variants": len(variants)}
 
 
+
+
+def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[Variant], gen: GenerationConfig,
+                   drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, Any]]:
+    """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.defects`);
+    with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws."""
+    from coster_sumo.core import derived_seed, generate_variants
+    from coster_sumo.defects import EXTRA_DRAWS, label_plans
+
+    reaction = float(payload.get("reaction_time", 1.0))
+
+    def label(vs: list[Variant]) -> list[Any]:
+        return label_plans(spec, scene, target, [v.plan for v in vs], drivable=drivable, reaction_time_s=reaction)
+
+    labels = label(variants)
+    if payload.get("avoidable", "any") != "only":
+        return variants, labels, {}
+    tried = len(variants)
+    kept = [(v, lab) for v, lab in zip(variants, labels, strict=True) if lab.avoidable]
+    draws = 0
+    for j in range(1, EXTRA_DRAWS + 1):
+        if len(kept) >= gen.variants:
+            break
+        draws += 1
+        try:
+            more, _ = generate_variants(scene, target, derived_seed(spec.seed, 100 + j), gen, drivable)
+        except NoSnapshot:
+            continue
+        tried += len(more)
+        kept += [(v, lab) for v, lab in zip(more, label(more), strict=True) if lab.avoidable]
+    kept = kept[:gen.variants]
+    out = [dataclasses.replace(v, plan=dataclasses.replace(v.plan, vehicle_id=f"adversary{i}"))
+           for i, (v, _) in enumerate(kept)]
+    if not out:
+        raise NoSnapshot(f"none of the {tried} variants was avoidable at a reaction time of {reaction:g} s "
+                         "(--avoidable only)")
+    return out, [lab for _, lab in kept], {"avoidable_only": {"tried": tried, "kept": len(out), "extra_draws": draws}}
 
 
 def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
@@ -84,6 +128,8 @@ def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
 
 def run_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
+    from coster_sumo.avoid import HORIZON_AFTER_TCOL_S
+    from coster_sumo.defects import escape_replay, planner_outcome
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.outputs import variant_record
     from coster_sumo.scene import load_scene
@@ -99,9 +145,19 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
     target_id = doc["target_id"]
     target = scene.tracks.index_of(target_id)
     drivable = DrivableArea.from_road_map(scene.road_map)
+    labels = doc.get("avoidability") or []
+    label = labels[i] if i < len(labels) else None
+    driver = None
+    if payload["planner"] == ESCAPE_PLANNER:  # the reference: the variant's own escape, where it has one
+        esc = (doc.get("escapes") or [None] * (i + 1))[i]
+        length = float(np.median(scene.tracks.length[target][scene.tracks.valid[target]]))
+        driver = escape_replay(esc, length) if esc else None
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
-        res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
+        res = inject_variant(spec, scene, target, plan, "replay" if payload["planner"] == ESCAPE_PLANNER
+                             else payload["planner"], drivable=drivable, workdir=Path(wd), driver=driver)
     rec = variant_record(i, plan, res, target_id, t_col)
+    in_horizon = any(e.kind == "collision" and target_id in e.vehicles and e.time <= t_col + HORIZON_AFTER_TCOL_S + 1e-6
+                     for e in res.events)
     target_any = any(e.kind == "collision" and target_id in e.vehicles for e in res.events)
     return result_row(payload, status="ok", reason="", collision=bool(rec["collision"]) or target_any,
                       adversary_contact=bool(rec["collision"]),
@@ -113,7 +169,11 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
                       contact_offset_s=rec["contact_offset_s"], relative_speed=rec["relative_speed"],
                       impact_angle=rec["impact_angle"], sumo_reported_contact=bool(rec["sumo_reported_contact"]),
                       t_col=t_col, sim_wall_time_s=float(res.wall_time_s),
-                      target_path=json.dumps(_target_path(res, target_id)))
+                      target_path=json.dumps(_target_path(res, target_id)),
+                      avoidable=None if label is None else bool(label["avoidable"]),
+                      contact_in_horizon=in_horizon,
+                      contact_kind=None if label is None else label["contact_kind"],
+                      outcome=planner_outcome(res.scene, target_id, plan, in_horizon, label))
 
 
 @dataclass(kw_only=True)
@@ -130,6 +190,8 @@ class RegressOptions(BatchOptions):
     retry_failed: bool = False
     report: bool = True
     start_method: str | None = None
+    reaction_time: float = 1.0  # [s] the avoidability labels' reaction time (coster_sumo.defects)
+    avoidable: str = "any"  # any | only
 
 
 def check_planners(planners: Sequence[str]) -> None:
@@ -139,16 +201,17 @@ def check_planners(planners: Sequence[str]) -> None:
     if len(set(planners)) != len(planners) or len({slug(p) for p in planners}) != len(planners):
         raise InputError(f"--planner values must be distinct: {', '.join(planners)}")
     for p in planners:
-        check_planner(p)
+        if p != ESCAPE_PLANNER:
+            check_planner(p)
 
 
 def generation_task_for(key: str, spec: ScenarioSpec, plans_dir: Path, gen: dict[str, Any],
-                        models_dir: Path | None) -> Task:
+                        models_dir: Path | None, labels: dict[str, Any]) -> Task:
     """The task that generates one scene's variants; with the folders it reads (the configuration,
     a cached nominal scene, the weights given by ``--models``) named, so that it runs on a Ray worker
-    without a disk shared with OUT."""
+    without a disk shared with OUT. ``labels``: the avoidability settings (reaction time, any|only)."""
     payload: dict[str, Any] = {"scene_key": key, "spec": spec.to_dict(), "plans_dir": str(plans_dir),
-                               "generation": gen, CONFIG_DIR: config_dir(spec)}
+                               "generation": gen, CONFIG_DIR: config_dir(spec), **labels}
     folders = task_folders(spec, plans_dir=(f"{scene_key(spec)}.npz",))
     if models_dir is not None:
         payload["models_dir"] = str(models_dir)
@@ -173,6 +236,8 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
     """Run the regression (module docstring); returns the summary (also OUT/summary.json)."""
     t_start = time.perf_counter()
     check_planners(opts.planners)
+    check_avoidable(opts.avoidable)
+    check_reaction_time(opts.reaction_time)
     generation = GenerationConfig(init=opts.init, collision_time=opts.collision_time, rollout=opts.rollout,
                                   samples=opts.samples, variants=opts.variants,
                                   models_dir=opts.models_dir.resolve() if opts.models_dir else None)
@@ -233,7 +298,8 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
             if doc.get("status") == "ok":
                 initial.extend(run_tasks_for(key, doc))
             continue
-        initial.append(generation_task_for(key, spec, plans_dir, gen, generation.models_dir))
+        initial.append(generation_task_for(key, spec, plans_dir, gen, generation.models_dir,
+                                           {"reaction_time": opts.reaction_time, "avoidable": opts.avoidable}))
 
     def on_done(task: Task, outcome: Outcome) -> list[Task]:
         key = task.payload["scene_key"]
@@ -288,11 +354,13 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
     """summary.json content of a regression over ``keys`` x ``planners`` (rows already in OUT/results)."""
     plans_dir = out / "plans"
     rows = [r for r in ResultStore(out / "results").read() if r["scene_key"] in keys and r["planner"] in planners]
-    scenes_failed, n_variants = [], 0
+    scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
     for key, spec in keys.items():
         doc = read_json(plans_dir / f"{key}.json") or {"status": "failed", "reason": "not generated"}
         if doc.get("status") == "ok":
             n_variants += len(doc["variants"])
+            n_avoidable += sum(bool(a["avoidable"]) for a in doc.get("avoidability") or [])
+            tried += (doc.get("avoidable_only") or {}).get("tried", len(doc["variants"]))
         else:
             scenes_failed.append({"scene_key": key, "scene": spec.label(), "reason": doc.get("reason")})
     per_planner: dict[str, Any] = {}
@@ -309,17 +377,20 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
             "adversary_contact_rate": rate_with_ci([r["adversary_contact"] for r in ok]),
             "median_min_ttc_s": float(np.median(ttc)) if ttc else None,
             "mean_relative_speed_mps": float(np.mean(rel)) if rel else None,
+            "defects": defect_rates(ok),
         }
     failures = [{"run_key": r["run_key"], "reason": r["reason"]} for r in rows if r["status"] != "ok"]
     return {
         "command": "regress",
         "scenes": {"total": len(keys), "generated": len(keys) - len(scenes_failed), "failed": scenes_failed},
-        "variants": n_variants,
+        "variants": n_variants, "avoidable_variants": n_avoidable, "variants_tried": tried,
         "runs": {"expected": n_variants * len(planners), "recorded": len(rows), "ok": len(rows) - len(failures),
                  "failed": len(failures), "failures": failures},
         "planners": per_planner,
         "results": "results/ (Parquet dataset, one part per run)",
-        "units": {"rates": "fraction of runs, Wilson 95% interval", "min_ttc": "s", "relative_speed": "m/s",
+        "units": {"rates": "fraction of runs, Wilson 95% interval",
+                  "defect_rate": "fraction of runs on avoidable variants with a contact of the target",
+                  "min_ttc": "s", "relative_speed": "m/s",
                   "impact_angle": "deg"},
     }
 

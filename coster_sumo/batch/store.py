@@ -41,6 +41,7 @@ RESULT_FIELDS: dict[str, str] = {
     "min_ttc": "float64", "contact_time": "float64", "contact_offset_s": "float64", "relative_speed": "float64",
     "impact_angle": "float64", "sumo_reported_contact": "bool", "t_col": "float64",
     "sim_wall_time_s": "float64", "wall_time_s": "float64", "target_path": "string", "finished_at": "string",
+    "avoidable": "bool", "contact_kind": "string", "outcome": "string", "contact_in_horizon": "bool",  # defects
 }
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from coster_sumo.commands.run import add_method_arguments
+from coster_sumo.commands.run import add_avoidability_arguments, add_method_arguments
 from coster_sumo.errors import not_found
 from coster_sumo.spec import GenerationConfig
 
@@ -51,6 +51,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--samples", type=int, default=GenerationConfig.samples,
                    help="CVAE trajectories oversampled (default %(default)s)")
     add_method_arguments(p)
+    add_avoidability_arguments(p)
     p.add_argument("--retry-failed", action="store_true", help="run again what failed before (default: keep)")
     p.add_argument("--no-report", action="store_true", help="summary.json only (no Markdown/HTML/plots)")
     p.add_argument("-o", "--out", type=Path, default=Path("out/regress"), help="output folder (default out/regress)")
@@ -75,17 +76,21 @@ def run(args: argparse.Namespace) -> int:
                           seed=args.seed, seeds=args.seeds, begin=args.begin, end=args.end, target=args.target,
                           init=args.init, rollout=args.rollout, collision_time=args.collision_time,
                           samples=args.samples, models_dir=args.models, retry_failed=args.retry_failed,
-                          report=not args.no_report, quiet=args.quiet, ray_address=args.ray_address)
+                          report=not args.no_report, quiet=args.quiet, ray_address=args.ray_address,
+                          reaction_time=args.reaction_time, avoidable=args.avoidable)
     summary = regress(opts)
-    # --quiet drops the progress bars and the file list; the table and every failure line stay
+    # --quiet drops the progress bars and the file list; the tables and every failure line stay
+    from coster_sumo.defects import defect_table
     from coster_sumo.report import regression_table
 
-    head, rows = regression_table(summary)
-    width = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(head)]
-    print("  ".join(h.ljust(w) for h, w in zip(head, width, strict=True)))
-    for r in rows:
-        print("  ".join(c.ljust(w) for c, w in zip(r, width, strict=True)))
+    for head, rows in (defect_table(summary), regression_table(summary)):
+        width = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(head)]
+        print("  ".join(h.ljust(w) for h, w in zip(head, width, strict=True)))
+        for r in rows:
+            print("  ".join(c.ljust(w) for c, w in zip(r, width, strict=True)))
     sc, runs = summary["scenes"], summary["runs"]
+    if summary.get("variants_tried", summary["variants"]) != summary["variants"]:
+        print(f"--avoidable only: {summary['variants']} avoidable variants of {summary['variants_tried']} tried")
     print(f"{sc['generated']}/{sc['total']} scenes, {runs['recorded']}/{runs['expected']} runs "
           f"({runs['failed']} failed) in {summary['wall_time_s']:.1f} s"
           + ("" if args.quiet else f"; wrote {args.out}/summary.json"

@@ -54,6 +54,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                    help="simulate every variant from the begin instead of continuing a held copy of the nominal "
                         "pass (same outcome, slower; TraCI always does this)")
     p.add_argument("--traci", action="store_true", help="use a TraCI socket instead of libsumo")
+    add_avoidability_arguments(p)
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
     add_export_argument(p)
     p.add_argument("--models", type=Path, help="folder with prior/rollout/vocab weights (default: shipped)")
@@ -93,6 +94,16 @@ def add_method_arguments(p: argparse.ArgumentParser) -> None:
                    help="snapshot = the prior's placement; random = random pose offset baseline")
     p.add_argument("--rollout", default="cvae", choices=tuple(ROLLOUTS),
                    help="cvae = time-reversed CVAE; cv = constant-velocity baseline")
+
+
+def add_avoidability_arguments(p: argparse.ArgumentParser) -> None:
+    """--reaction-time and --avoidable (coster_sumo.defects)."""
+    p.add_argument("--reaction-time", type=float, default=1.0, metavar="S",
+                   help="[s] reaction time after the adversary becomes a threat that each variant's avoidable / "
+                        "unavoidable label is stated for (default 1.0; 0.5 and 1.5 are reported too)")
+    p.add_argument("--avoidable", choices=("any", "only"), default="any",
+                   help="any (default) = keep every variant; only = keep the variants the target could have "
+                        "avoided (escape proven in SUMO), drawing more to replace the others")
 
 
 def generation_config(args: argparse.Namespace) -> GenerationConfig:
@@ -135,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
                       snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False),
                       more_targets=tuple(str(t) for t in targets[1:]), target_choice=tuple(chosen),
                       overwrite=getattr(args, "overwrite", False), timeout=_positive_timeout(args),
-                      copy_outside=getattr(args, "copy_outside", False))
+                      copy_outside=getattr(args, "copy_outside", False),
+                      reaction_time=getattr(args, "reaction_time", 1.0), avoidable=getattr(args, "avoidable", "any"))
     summary = _supervised_run(opts)
     folders = [args.out] if "targets" not in summary else []
     if "targets" in summary:  # several targets: one folder each
@@ -236,7 +248,13 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
                      + ("; adversary off-road" if v["adversary_off_road"] else "")
                      + (f"; {len(others)} other collision{'s' if len(others) != 1 else ''} ({others[0]}"
                         + (", ..." if len(others) > 1 else "") + ")" if others else "")
-                     + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else ""))
+                     + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else "")
+                     + (f"; {v['outcome']}" if v.get("outcome") else "")
+                     + (f"; {v['label']}" if v.get("label") else ""))
+    if summary.get("avoidable_only"):
+        a = summary["avoidable_only"]
+        lines.append(f"  --avoidable only: {a['kept']} avoidable of {a['tried']} variants tried "
+                     f"({a['extra_draws']} extra draws)")
     lines += dropped_lines(summary)
     return lines
 

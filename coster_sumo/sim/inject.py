@@ -287,7 +287,7 @@ def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
 def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: AdversaryPlan, planner: str | None = None,
                    *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
                    detect_events: bool = True, freeze_at: float | None = None,
-                   post_contact_s: float | None = POST_CONTACT_S) -> InjectionResult:
+                   post_contact_s: float | None = POST_CONTACT_S, driver: Planner | None = None) -> InjectionResult:
     """Inject one variant: the one place that decides who drives whom (every command goes through it).
 
     Who drives the target: the ``planner`` spec (default :func:`default_planner`).
@@ -303,7 +303,8 @@ def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: Adversar
 
     The pass runs from the spec's begin with its seed to the end of the nominal scene, or until the
     target has arrived, or ``post_contact_s`` after the adversary's contact with the target (or after
-    t_col, when the adversary hit another vehicle first and stays there). On a SUMO configuration
+    t_col, when the adversary hit another vehicle first and stays there). ``driver``: a planner object
+    that replaces the one ``planner`` names (a replay of another trajectory). On a SUMO configuration
     only the target's surroundings are recorded and checked (the converted scenes are small:
     everything is).
     """
@@ -314,10 +315,11 @@ def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: Adversar
     if converted:
         from coster_sumo.sim.replay import LogReplayer
 
-        handover = {} if planner_spec == "replay" else {target_id: plan.t_start}
+        handover = {} if planner_spec == "replay" and driver is None else {target_id: plan.t_start}
         actors = (LogReplayer.for_config(spec.config, scene, handover=handover),)
-        driver: Planner = LoggedPlanner() if planner_spec == "replay" else make_planner(planner_spec)
-    else:
+        if driver is None:
+            driver = LoggedPlanner() if planner_spec == "replay" else make_planner(planner_spec)
+    elif driver is None:
         driver = make_planner(planner_spec, nominal_replay(scene, target))
     end = float(scene.timestamps[-1]) + 1e-9
     return run_injection(spec.config, target_id, plan, driver, seed=spec.seed, end=end, begin=spec.begin,

@@ -1,0 +1,560 @@
+"""Avoidability of a generated variant: could the target have escaped, how late, how hard.
+
+A generated collision is a planner's *defect* only where the target could have avoided it
+(docs/method.md, "Step 8 Avoidability"). This module searches the target's evasive plans with what
+generation already knows, before any planner runs:
+
+- the adversary follows its plan to t_col and then goes on at constant velocity along its final
+  heading (what the injection pass does with an adversary whose contact was avoided,
+  :meth:`coster_sumo.plan.AdversaryPlan.sample`);
+- every other vehicle follows its nominal trajectory (the scene at 10 Hz);
+- the target follows its nominal trajectory until it acts at ``t_act``; from then on it keeps to
+  its nominal path, shifted sideways by a lateral profile (none, a swerve inside its lane, a lane
+  change to either side) and driven with a longitudinal profile (its nominal speeds, hold the
+  speed, jerk-limited braking at several decelerations up to its class's emergency deceleration,
+  jerk-limited acceleration);
+- a plan counts when its boxes keep at least :data:`MIN_CLEARANCE_M` from the adversary and from
+  every other vehicle, it stays on the drivable area, both up to :data:`HORIZON_AFTER_TCOL_S` after
+  t_col, and it respects the limits of a kinematic bicycle model (curvature from the steering
+  limit, lateral and combined acceleration from the friction limit).
+
+All candidate plans of a variant (every moment to act x every manoeuvre) are built and checked as
+one batch of arrays; there is no Python loop over candidates or time steps.
+
+Times are simulation seconds, distances metres, accelerations m/s^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.geometry import (
+    box_signed_distance,
+    make_boxes,
+    point_at_arc_length,
+    project_points,
+    sat_overlap_depth,
+)
+from coster_sumo.plan import AdversaryPlan
+from coster_sumo.scene import ObjectType, Scene
+
+DT_S = 0.1  # [s] the plans' step (SUMO's step in the injection pass)
+HORIZON_AFTER_TCOL_S = 3.0  # [s] an escape must stay clear and on the road this long after t_col
+MIN_CLEARANCE_M = 0.3  # [m] smallest gap an escape keeps to every box (the SUMO replay is the arbiter)
+THREAT_LOOKAHEAD_S = 3.0  # [s] constant-velocity look-ahead that makes the adversary a threat
+REACTION_TIMES_S = (0.5, 1.0, 1.5)  # [s] reaction times reported for every variant
+DEFAULT_REACTION_S = 1.0  # [s] a careful driver's reaction time: the one ``avoidable`` is stated for
+ACT_SPACING_S = 0.2  # [s] moments to act are searched on this grid (plus the reaction moments)
+JERK_MPS3 = 10.0  # [m/s^3] how fast braking or acceleration builds up
+SWERVE_M = 1.0  # [m] a swerve inside the lane
+LANE_CHANGE_M = 3.5  # [m] a change to the next lane
+OFF_ROAD_SPACING_S = 0.2  # [s] on-road checks every other step (a car moves < 8 m in it)
+NEAR_M = 60.0  # [m] other vehicles further than this from the target's path never matter
+
+
+@dataclass(frozen=True)
+class ClassLimits:
+    """What a vehicle class can do (kinematic bicycle model with a friction limit).
+
+    Attributes:
+        name: the class.
+        max_accel: [m/s^2] largest acceleration.
+        emergency_decel: [m/s^2] largest deceleration; also the friction limit of the combined
+            (longitudinal and lateral) acceleration.
+        max_steer_rad: [rad] largest front-wheel angle.
+        wheelbase_ratio: wheelbase as a share of the vehicle's length.
+    """
+
+    name: str
+    max_accel: float
+    emergency_decel: float
+    max_steer_rad: float
+    wheelbase_ratio: float
+
+    def max_curvature(self, length_m: float) -> float:
+        """[1/m] the tightest turn: tan(steer) / wheelbase."""
+        return float(np.tan(self.max_steer_rad) / max(self.wheelbase_ratio * length_m, 0.5))
+
+
+# SUMO's vType defaults for accel and emergencyDecel of these classes (docs/sumo.md §13); steering
+# limits of ordinary road vehicles.
+CLASS_LIMITS: dict[str, ClassLimits] = {
+    "passenger": ClassLimits("passenger", 2.6, 9.0, np.radians(35.0), 0.6),
+    "heavy": ClassLimits("heavy", 1.3, 7.0, np.radians(35.0), 0.55),
+    "motorcycle": ClassLimits("motorcycle", 6.0, 10.0, np.radians(30.0), 0.65),
+    "bicycle": ClassLimits("bicycle", 1.2, 7.0, np.radians(30.0), 0.65),
+}
+HEAVY_LENGTH_M = 7.5  # [m] a longer vehicle brakes like a truck or bus
+
+
+def vehicle_class(object_type: int, length_m: float, width_m: float) -> ClassLimits:
+    """The limits of a target from what the scene knows: its object type and its size."""
+    if object_type == ObjectType.CYCLIST or width_m < 0.8:
+        return CLASS_LIMITS["bicycle"]
+    if width_m < 1.2:
+        return CLASS_LIMITS["motorcycle"]
+    if length_m >= HEAVY_LENGTH_M:
+        return CLASS_LIMITS["heavy"]
+    return CLASS_LIMITS["passenger"]
+
+
+CONTACT_KINDS = ("rear_end_by_adversary", "into_vehicle_ahead", "side_swipe", "crossing", "head_on")
+
+
+def contact_kind(tx: float, ty: float, tyaw: float, tl: float, tw: float, tspeed: float,
+                 ax: float, ay: float, ayaw: float, al: float, aw: float, aspeed: float) -> str:
+    """The kind of contact between the target (t*) and the adversary (a*) at t_col.
+
+    By the angle between their headings: over 135 deg head-on, 45-135 deg crossing; under 45 deg
+    (the same direction) by the side of the target the adversary touches, judged by which gap of
+    the two centres, along or across the target, is closer to the touching distance: front (the
+    target runs into a vehicle ahead), back (the adversary runs into the target) or side
+    (side-swipe).
+    """
+    rel = abs((ayaw - tyaw + np.pi) % (2 * np.pi) - np.pi)
+    if rel > np.radians(135.0):
+        return "head_on"
+    if rel > np.radians(45.0):
+        return "crossing"
+    c, s = np.cos(tyaw), np.sin(tyaw)
+    lon = (ax - tx) * c + (ay - ty) * s
+    lat = -(ax - tx) * s + (ay - ty) * c
+    lon_gap = abs(lon) - 0.5 * (tl + al)
+    lat_gap = abs(lat) - 0.5 * (tw + aw)
+    if lat_gap >= lon_gap:
+        return "side_swipe"
+    return "into_vehicle_ahead" if lon > 0 else "rear_end_by_adversary"
+
+
+@dataclass(frozen=True)
+class Manoeuvre:
+    """One evasive manoeuvre: a longitudinal and a lateral profile.
+
+    Attributes:
+        longitudinal: ``nominal`` (the nominal speeds), ``hold``, ``brake`` or ``accelerate``.
+        accel: [m/s^2] the goal acceleration (negative when braking; 0 for nominal and hold).
+        lateral_m: [m] final sideways shift of the path, > 0 to the left.
+        lateral_accel: [m/s^2] the lateral acceleration the shift is planned with (0: none).
+    """
+
+    longitudinal: str
+    accel: float
+    lateral_m: float
+    lateral_accel: float
+
+    def describe(self) -> str:
+        lon = {"nominal": "keep the nominal speed", "hold": "hold the speed",
+               "brake": f"brake at {-self.accel:.1f} m/s^2", "accelerate": f"accelerate at {self.accel:.1f} m/s^2"}
+        side = "" if self.lateral_m == 0 else (
+            f", {'swerve' if abs(self.lateral_m) < LANE_CHANGE_M else 'change lane'} "
+            f"{'left' if self.lateral_m > 0 else 'right'} {abs(self.lateral_m):.1f} m")
+        return lon[self.longitudinal] + side
+
+
+def manoeuvres(limits: ClassLimits) -> list[Manoeuvre]:
+    """Every manoeuvre searched for a vehicle of ``limits``: 8 longitudinal x 9 lateral profiles."""
+    e = limits.emergency_decel
+    lon = [("nominal", 0.0), ("hold", 0.0), ("brake", -2.0), ("brake", -4.0), ("brake", -0.7 * e), ("brake", -e),
+           ("accelerate", 0.5 * limits.max_accel), ("accelerate", limits.max_accel)]
+    lat = [(0.0, 0.0)] + [(sign * d, a) for d in (SWERVE_M, LANE_CHANGE_M) for sign in (1.0, -1.0)
+                          for a in (0.3 * e, 0.6 * e)]
+    return [Manoeuvre(kind, acc, d, a) for kind, acc in lon for d, a in lat]
+
+
+@dataclass
+class Escape:
+    """The least demanding escape found from one moment on.
+
+    Attributes:
+        t_act: [s] when the target starts to act.
+        manoeuvre: what it does.
+        times: (T,) [s] 10 Hz from the adversary's appearance to t_col + the horizon.
+        x, y, yaw, speed: (T,) the target's plan (box centre [m], heading [rad], [m/s]).
+        clearance_m: [m] smallest gap to any vehicle over the plan.
+        peak_decel: [m/s^2] largest deceleration. peak_lateral_accel: [m/s^2]. peak_accel:
+            [m/s^2] largest combined acceleration (what the escape demands).
+        proven: None before the SUMO replay; then whether SUMO confirmed it (no contact, on road).
+        proof: what the replay found.
+    """
+
+    t_act: float
+    manoeuvre: Manoeuvre
+    times: np.ndarray = field(repr=False)
+    x: np.ndarray = field(repr=False)
+    y: np.ndarray = field(repr=False)
+    yaw: np.ndarray = field(repr=False)
+    speed: np.ndarray = field(repr=False)
+    clearance_m: float
+    peak_decel: float
+    peak_lateral_accel: float
+    peak_accel: float
+    proven: bool | None = None
+    proof: dict[str, Any] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        return {"t_act": round(self.t_act, 3), "manoeuvre": self.manoeuvre.describe(),
+                "longitudinal": self.manoeuvre.longitudinal, "accel_goal": self.manoeuvre.accel,
+                "lateral_m": self.manoeuvre.lateral_m, "clearance_m": round(self.clearance_m, 3),
+                "peak_decel": round(self.peak_decel, 3), "peak_lateral_accel": round(self.peak_lateral_accel, 3),
+                "peak_accel": round(self.peak_accel, 3), "min_speed": round(float(self.speed.min()), 3),
+                "proven_in_sumo": self.proven, **({"proof": self.proof} if self.proof else {})}
+
+    def csv(self) -> str:
+        """The plan at 10 Hz: time [s], x, y [m] (box centre), yaw_deg, speed [m/s]."""
+        lines = ["time,x,y,yaw_deg,speed"]
+        lines += [f"{t:.2f},{x:.4f},{y:.4f},{np.degrees(h):.3f},{v:.4f}"
+                  for t, x, y, h, v in zip(self.times, self.x, self.y, self.yaw, self.speed, strict=True)]
+        return "\n".join(lines) + "\n"
+
+
+@dataclass
+class Avoidability:
+    """Avoidability of one variant (docs/method.md, step 8).
+
+    Attributes:
+        t_col: [s]. t_appear: [s] the adversary's appearance. t_threat: [s] when it becomes a threat.
+        contact_kind: one of :data:`CONTACT_KINDS`.
+        vehicle_class: the target's class (its limits).
+        last_moment_s: [s] before t_col, the latest moment from which an escape exists (None: none).
+        escapes: reaction time [s] -> the least demanding escape acting at t_threat + reaction
+            time or later (None where there is none).
+        reaction_time_s: [s] the reaction time ``avoidable`` is stated for.
+        candidates: how many plans were checked.
+    """
+
+    t_col: float
+    t_appear: float
+    t_threat: float
+    contact_kind: str
+    vehicle_class: str
+    last_moment_s: float | None
+    escapes: dict[float, Escape | None]
+    reaction_time_s: float = DEFAULT_REACTION_S
+    candidates: int = 0
+
+    def avoidable_at(self, reaction_s: float) -> bool:
+        """An escape acting ``reaction_s`` after the threat or later that SUMO did not refute.
+
+        A slower driver's escape serves a quicker one too, so the label is monotone in the
+        reaction time.
+        """
+        return any(e is not None and e.proven is not False for r, e in self.escapes.items() if r >= reaction_s - 1e-9)
+
+    @property
+    def avoidable(self) -> bool:
+        return self.avoidable_at(self.reaction_time_s)
+
+    @property
+    def escape(self) -> Escape | None:
+        """The escape behind the label: the least demanding one proven at the stated reaction time."""
+        for r in sorted(self.escapes):
+            e = self.escapes[r]
+            if r >= self.reaction_time_s - 1e-9 and e is not None and e.proven is not False:
+                return e
+        return None
+
+    def summary(self) -> dict[str, Any]:
+        return {"avoidable": self.avoidable, "reaction_time_s": self.reaction_time_s,
+                "avoidable_at": {f"{r:g}": self.avoidable_at(r) for r in sorted(self.escapes)},
+                "contact_kind": self.contact_kind, "vehicle_class": self.vehicle_class,
+                "t_col": round(self.t_col, 3), "t_appear": round(self.t_appear, 3), "t_threat": round(self.t_threat, 3),
+                "threat_before_tcol_s": round(self.t_col - self.t_threat, 3),
+                "last_moment_to_act_s": None if self.last_moment_s is None else round(self.last_moment_s, 3),
+                "escapes": {f"{r:g}": (e.summary() if e is not None else None)
+                            for r, e in sorted(self.escapes.items())},
+                "candidates_checked": self.candidates}
+
+
+# ----------------------------------------------------------------------------- profiles
+
+def speed_profiles(v0: float, a0: float, goal: np.ndarray, steps: int, v_cap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Jerk-limited speed profiles from (v0, a0) towards goal accelerations.
+
+    Args:
+        v0: [m/s], a0: [m/s^2] the target's state when it acts.
+        goal: (P,) [m/s^2] goal accelerations (negative: braking).
+        steps: T, the number of steps of DT_S after acting.
+        v_cap: [m/s] acceleration stops here.
+
+    Returns:
+        speed (P, T+1) [m/s] from the moment of acting (index 0 = v0), accel (P, T+1) [m/s^2].
+    """
+    tau = np.arange(steps + 1) * DT_S  # (T+1,)
+    # the acceleration moves from a0 to its goal at JERK_MPS3
+    a = a0 + np.clip(goal[:, None] - a0, -JERK_MPS3 * tau, JERK_MPS3 * tau)  # (P, T+1)
+    v = v0 + np.concatenate([np.zeros((len(goal), 1)), np.cumsum(0.5 * (a[:, 1:] + a[:, :-1]) * DT_S, axis=1)], 1)
+    # a vehicle that brakes to a standstill stays there; one that accelerates stops at the cap
+    stopped = np.maximum.accumulate(v <= 0.0, axis=1)
+    capped = np.maximum.accumulate(v >= max(v_cap, v0), axis=1) & (goal[:, None] > 0)
+    v = np.where(stopped, 0.0, np.where(capped, max(v_cap, v0), v))
+    a = np.where(stopped | capped, 0.0, a)
+    return v, a
+
+
+def lateral_profile(tau: np.ndarray, shift_m: np.ndarray, lat_accel: np.ndarray) -> np.ndarray:
+    """Sideways shift over time: a smooth change (zero sideways speed at both ends).
+
+    d(tau) = D (u - sin(2 pi u) / (2 pi)), u = tau / tau_d, with tau_d chosen so that the peak of
+    d'' (2 pi D / tau_d^2) equals ``lat_accel``.
+
+    Args:
+        tau: (T,) [s] time since acting; shift_m, lat_accel: (M,).
+
+    Returns:
+        (M, T) [m].
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau_d = np.where(lat_accel > 0, np.sqrt(2 * np.pi * np.abs(shift_m) / np.maximum(lat_accel, 1e-9)), 1.0)
+    u = np.clip(tau[None, :] / tau_d[:, None], 0.0, 1.0)
+    return shift_m[:, None] * (u - np.sin(2 * np.pi * u) / (2 * np.pi))
+
+
+# ----------------------------------------------------------------------------- the target's path
+
+def _path(xy: np.ndarray, heading: np.ndarray, extend_m: float) -> np.ndarray:
+    """The target's nominal path as a polyline with points >= 0.2 m apart, extended straight
+    by ``extend_m`` at both ends (an escape may drive further or back less far than the log)."""
+    keep = [0]
+    last = xy[0]
+    for i in range(1, len(xy)):  # once per variant over the target's own log, not per candidate
+        if np.hypot(*(xy[i] - last)) >= 0.2:
+            keep.append(i)
+            last = xy[i]
+    pts = xy[keep]
+    h0 = heading[0] if len(pts) < 2 else np.arctan2(*(pts[1] - pts[0])[::-1])
+    h1 = heading[-1] if len(pts) < 2 else np.arctan2(*(pts[-1] - pts[-2])[::-1])
+    start = pts[0] - extend_m * np.array([np.cos(h0), np.sin(h0)])
+    end = pts[-1] + extend_m * np.array([np.cos(h1), np.sin(h1)])
+    return np.concatenate([start[None], pts, end[None]])
+
+
+# ----------------------------------------------------------------------------- the search
+
+def threat_time(times: np.ndarray, tx: np.ndarray, ty: np.ndarray, tyaw: np.ndarray, tv: np.ndarray,
+                tl: float, tw: float, plan: AdversaryPlan) -> float:
+    """The first moment from the adversary's appearance at which it is a threat: both vehicles,
+    extrapolated at their current velocities, overlap within :data:`THREAT_LOOKAHEAD_S`.
+
+    Args:
+        times: (K,) [s] from t_start to t_col; tx, ty, tyaw, tv: (K,) the target's nominal state.
+    """
+    ax, ay, ayaw, av = plan.sample(times)
+    tau = np.arange(0.0, THREAT_LOOKAHEAD_S + 1e-9, DT_S)  # (L,)
+    t_box = make_boxes(tx[:, None] + tv[:, None] * np.cos(tyaw)[:, None] * tau,
+                       ty[:, None] + tv[:, None] * np.sin(tyaw)[:, None] * tau, tyaw[:, None], tl, tw)
+    a_box = make_boxes(ax[:, None] + av[:, None] * np.cos(ayaw)[:, None] * tau,
+                       ay[:, None] + av[:, None] * np.sin(ayaw)[:, None] * tau, ayaw[:, None], plan.length, plan.width)
+    hit = (box_signed_distance(t_box, a_box) <= 0.0).any(axis=1)  # (K,)
+    return float(times[np.argmax(hit)]) if hit.any() else float(times[-1])
+
+
+def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableArea | None,
+           reaction_times: tuple[float, ...] = REACTION_TIMES_S, reaction_time_s: float = DEFAULT_REACTION_S
+           ) -> Avoidability:
+    """Search the target's escapes from ``plan`` in ``scene`` (module docstring); kinematic only
+    (the SUMO replay, :mod:`coster_sumo.sim.proof`, confirms or refutes each escape)."""
+    tr = scene.tracks
+    ts = scene.timestamps
+    valid_t = tr.valid[target]
+    t_col = plan.t_col
+    times = np.round(np.arange(plan.t_start, t_col + HORIZON_AFTER_TCOL_S + 1e-9, DT_S), 6)  # (T,)
+    n = len(times)
+    # the target's nominal state on the grid (its log's nearest step)
+    idx = np.clip(np.searchsorted(ts, times - 1e-6), 0, len(ts) - 1)
+    prev = np.clip(idx - 1, 0, len(ts) - 1)
+    idx = np.where(np.abs(ts[prev] - times) < np.abs(ts[idx] - times), prev, idx)
+    ok = valid_t[idx]
+    steps_valid = np.flatnonzero(valid_t)
+    last_valid = steps_valid[-1]
+    idx = np.where(ok, idx, np.minimum(idx, last_valid))
+    length = float(np.median(tr.length[target][valid_t]))
+    width = float(np.median(tr.width[target][valid_t]))
+    limits = vehicle_class(int(tr.object_type[target]), length, width)
+    nx, ny, nyaw = tr.x[target, idx], tr.y[target, idx], tr.heading[target, idx]
+    nv = np.hypot(tr.vx[target, idx], tr.vy[target, idx])
+    # after the log ends the nominal target drives on at its last speed (only the horizon needs it)
+    beyond = times > ts[last_valid] + 1e-6
+    if beyond.any():
+        extra = times[beyond] - ts[last_valid]
+        nx[beyond] += nv[beyond] * np.cos(nyaw[beyond]) * extra
+        ny[beyond] += nv[beyond] * np.sin(nyaw[beyond]) * extra
+    tcol_k = int(np.argmin(np.abs(times - t_col)))
+    # the kind of contact, from both states at t_col
+    ax_c, ay_c, ayaw_c, av_c = (float(v[0]) for v in plan.sample(np.array([t_col])))
+    kind = contact_kind(float(nx[tcol_k]), float(ny[tcol_k]), float(nyaw[tcol_k]), length, width, float(nv[tcol_k]),
+                        ax_c, ay_c, ayaw_c, plan.length, plan.width, av_c)
+    t_threat = threat_time(times[:tcol_k + 1], nx[:tcol_k + 1], ny[:tcol_k + 1], nyaw[:tcol_k + 1],
+                           nv[:tcol_k + 1], length, width, plan)
+    # moments to act: a grid from the appearance to t_col plus each reaction moment
+    grid = np.arange(plan.t_start, t_col + 1e-9, ACT_SPACING_S)
+    react = np.array([t_threat + r for r in reaction_times])
+    acts = np.unique(np.round(np.concatenate([grid, react[react < t_col]]) / DT_S) * DT_S)
+    act_k = np.clip(np.round((acts - plan.t_start) / DT_S).astype(int), 0, tcol_k)
+    act_k = np.unique(act_k)
+    escapes: dict[float, Escape | None] = {r: None for r in reaction_times}
+    if not len(act_k):
+        return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, None, escapes, reaction_time_s)
+
+    man = manoeuvres(limits)
+    m_count = len(man)
+    k_count = len(act_k)
+    path = _path(np.stack([tr.x[target][valid_t], tr.y[target][valid_t]], 1), tr.heading[target][valid_t], 400.0)
+    s_nom, d_nom, _ = project_points(np.stack([nx, ny], 1), path)  # (T,)
+    # nominal acceleration at each moment to act
+    a_nom = np.gradient(nv, DT_S) if n > 1 else np.zeros(n)
+    v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
+    # longitudinal: arc length along the path for every (act, manoeuvre) pair
+    goals = np.array([m.accel for m in man])
+    lon_kind = np.array([m.longitudinal for m in man])
+    tau = np.arange(n) * DT_S  # time since acting, long enough for the earliest act
+    s = np.empty((k_count, m_count, n))
+    v = np.empty((k_count, m_count, n))
+    a_lon = np.empty((k_count, m_count, n))
+    lat_shift = np.array([m.lateral_m for m in man])
+    lat_acc = np.array([m.lateral_accel for m in man])
+    d_prof = lateral_profile(tau, lat_shift, lat_acc)  # (M, n) from the moment of acting
+    d = np.empty((k_count, m_count, n))
+    for j, k in enumerate(act_k):  # once per moment to act; each call is batched over manoeuvres and steps
+        rest = n - k
+        sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (M, rest)
+        nominal = lon_kind == "nominal"
+        sp[nominal] = nv[k:]
+        ac[nominal] = a_nom[k:]
+        ds = np.concatenate([np.zeros((m_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
+        s[j, :, :k] = s_nom[:k]
+        s[j, :, k:] = np.where(nominal[:, None], s_nom[k:], s_nom[k] + ds)
+        v[j, :, :k] = nv[:k]
+        v[j, :, k:] = sp
+        a_lon[j, :, :k] = a_nom[:k]
+        a_lon[j, :, k:] = ac
+        d[j, :, :k] = d_nom[:k]
+        d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
+    # poses: along the path plus the sideways shift; the nominal part is the log itself
+    xy, hd = point_at_arc_length(path, s)  # (K, M, n, 2), (K, M, n)
+    normal = np.stack([-np.sin(hd), np.cos(hd)], -1)
+    pos = xy + d[..., None] * normal
+    dd = np.gradient(d, DT_S, axis=-1)
+    yaw = hd + np.arctan2(dd, np.maximum(v, 0.5))
+    pre = np.arange(n)[None, :] < act_k[:, None]  # (K, n) steps before acting: the log
+    pos = np.where(pre[:, None, :, None], np.stack([nx, ny], -1)[None, None], pos)
+    yaw = np.where(pre[:, None, :], nyaw[None, None], yaw)
+    # kinematic limits: curvature and accelerations from the poses themselves
+    dyaw = np.gradient(np.unwrap(yaw, axis=-1), DT_S, axis=-1)
+    speed_pos = np.hypot(*np.moveaxis(np.gradient(pos, DT_S, axis=2), -1, 0))
+    a_lat = np.abs(dyaw * speed_pos)
+    after = ~pre[:, None, :]  # (K, 1, n)
+    moving = speed_pos > 1.0
+    curv = np.where(moving, np.abs(dyaw) / np.maximum(speed_pos, 1e-6), 0.0)
+    # a sideways shift at a crawl turns the wheels further than they go: that is the curvature check
+    slow_shift = (np.abs(dd) > 0.05) & (speed_pos <= 1.0)
+    a_comb = np.hypot(a_lon, np.where(moving, a_lat, 0.0))
+    feasible = ~(after & ((curv > limits.max_curvature(length) * 1.02) | slow_shift
+                          | (a_comb > limits.emergency_decel * 1.02))).any(-1)  # (K, M)
+    # clearance to the adversary (its plan, then constant velocity) and to every other vehicle
+    ax, ay, ayaw, _ = plan.sample(times)
+    adv_box = make_boxes(ax, ay, ayaw, plan.length, plan.width)  # (n, 5)
+    # boxes grown by the clearance on every side: an overlap (SAT, no corners) means too close
+    grown = make_boxes(pos[..., 0], pos[..., 1], yaw, length + 2 * MIN_CLEARANCE_M,
+                       width + 2 * MIN_CLEARANCE_M)  # (K, M, n, 5)
+    good = feasible.copy()
+    kk, mm = np.nonzero(good)
+    if len(kk):  # the adversary first: it rules out most candidates
+        hit = (sat_overlap_depth(grown[kk, mm], adv_box[None]) > 0.0) & after[kk, 0]
+        good[kk[hit.any(-1)], mm[hit.any(-1)]] = False
+    others = _other_boxes(scene, target, times, path)
+    kk, mm = np.nonzero(good)
+    if others is not None and len(kk):
+        o_box, o_valid = others  # (N, n, 5), (N, n)
+        hit = _too_close(grown[kk, mm], o_box, o_valid & after[kk, 0][:, None, :].any(0))  # (G,)
+        good[kk[hit], mm[hit]] = False
+    # only what is clear is checked against the road (the costlier test)
+    if drivable is not None and good.any():
+        kk, mm = np.nonzero(good)
+        sub = np.arange(0, n, max(1, round(OFF_ROAD_SPACING_S / DT_S)))
+        sel_x = pos[kk, mm][:, sub, 0]
+        sel_y = pos[kk, mm][:, sub, 1]
+        sel_yaw = yaw[kk, mm][:, sub]
+        off = drivable.off_road(sel_x, sel_y, sel_yaw, np.asarray(length), np.asarray(width))  # (G, S)
+        off &= after[kk, 0][:, sub]
+        # where the log itself is off the road (a map that misses a driveway) the same spot is forgiven
+        nominal_off = drivable.off_road(nx[sub], ny[sub], nyaw[sub], np.asarray(length), np.asarray(width))
+        off &= ~nominal_off[None, :]
+        good[kk, mm] = ~off.any(-1)
+    demand = np.max(np.where(after, a_comb, 0.0), -1)  # (K, M)
+    peak_decel = np.max(np.where(after, np.maximum(-a_lon, 0.0), 0.0), -1)
+    peak_lat = np.max(np.where(after & moving, a_lat, 0.0), -1)
+    t_acts = times[act_k]
+    any_good = good.any(1)
+    last_moment = float(t_col - t_acts[any_good].max()) if any_good.any() else None
+    for r in reaction_times:
+        allowed = t_acts >= t_threat + r - 1e-6
+        ok_r = good & allowed[:, None]
+        if not ok_r.any():
+            continue
+        # least demanding: smallest peak acceleration; then the earlier act; then the first manoeuvre
+        # (longitudinal before lateral, the gentler first)
+        score = np.where(ok_r, demand, np.inf)
+        best = np.flatnonzero(score <= score.min() + 1e-9)
+        kb, mb = (int(v) for v in np.unravel_index(best[0], good.shape))
+        box = make_boxes(pos[kb, mb, :, 0], pos[kb, mb, :, 1], yaw[kb, mb], length, width)  # (n, 5)
+        gap = box_signed_distance(box, adv_box)
+        if others is not None:
+            gap = np.minimum(gap, np.where(others[1], box_signed_distance(box[None], others[0]), np.inf).min(0))
+        clearance = float(gap[after[kb, 0]].min())
+        escapes[r] = Escape(t_act=float(t_acts[kb]), manoeuvre=man[mb], times=times.copy(),
+                            x=pos[kb, mb, :, 0].copy(), y=pos[kb, mb, :, 1].copy(),
+                            yaw=(yaw[kb, mb] + np.pi) % (2 * np.pi) - np.pi, speed=v[kb, mb].copy(),
+                            clearance_m=clearance, peak_decel=float(peak_decel[kb, mb]),
+                            peak_lateral_accel=float(peak_lat[kb, mb]), peak_accel=float(demand[kb, mb]))
+    return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, last_moment, escapes, reaction_time_s,
+                        candidates=int(k_count * m_count))
+
+
+def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(N, T, 5) boxes and (N, T) validity of the other vehicles near the target's path on the grid."""
+    tr = scene.tracks
+    ts = scene.timestamps
+    idx = np.clip(np.searchsorted(ts, times - 1e-6), 0, len(ts) - 1)
+    prev = np.clip(idx - 1, 0, len(ts) - 1)
+    idx = np.where(np.abs(ts[prev] - times) < np.abs(ts[idx] - times), prev, idx)
+    inside = np.abs(ts[idx] - times) <= 0.06
+    others = np.flatnonzero(np.arange(tr.num_agents) != target)
+    if not len(others):
+        return None
+    valid = tr.valid[np.ix_(others, idx)] & inside[None]
+    ox, oy = tr.x[np.ix_(others, idx)], tr.y[np.ix_(others, idx)]
+    lo, hi = path[1:-1].min(0) - NEAR_M, path[1:-1].max(0) + NEAR_M
+    near = valid & (ox >= lo[0]) & (ox <= hi[0]) & (oy >= lo[1]) & (oy <= hi[1])
+    keep = near.any(1)
+    if not keep.any():
+        return None
+    rows = others[keep]
+    boxes = make_boxes(tr.x[np.ix_(rows, idx)], tr.y[np.ix_(rows, idx)], tr.heading[np.ix_(rows, idx)],
+                       tr.length[np.ix_(rows, idx)], tr.width[np.ix_(rows, idx)])
+    return boxes, valid[keep]
+
+
+def _too_close(grown: np.ndarray, o_box: np.ndarray, o_valid: np.ndarray) -> np.ndarray:
+    """(G,) whether each candidate's grown boxes overlap another vehicle at some step.
+
+    Args:
+        grown: (G, T, 5) candidate boxes grown by the clearance; o_box: (N, T, 5); o_valid: (N, T)
+            the other vehicles, valid where they exist (and the candidates have acted).
+
+    Only pairs whose centres are within reach of each other (half diagonals) are tested exactly.
+    """
+    dx = grown[:, None, :, 0] - o_box[None, :, :, 0]  # (G, N, T)
+    dy = grown[:, None, :, 1] - o_box[None, :, :, 1]
+    reach = 0.5 * (np.hypot(grown[0, 0, 3], grown[0, 0, 4]) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
+    near = o_valid[None] & (dx * dx + dy * dy < (reach * reach)[None])
+    hit = np.zeros(len(grown), bool)
+    if near.any():
+        c, o, s = np.nonzero(near)
+        overlap = sat_overlap_depth(grown[c, s], o_box[o, s]) > 0.0
+        hit[c[overlap]] = True
+    return hit

@@ -1,0 +1,345 @@
+"""Defects, not crashes: every variant's avoidability label, proven in SUMO, and what a planner did.
+
+Generation calls :func:`label_plans` for its kept plans: :func:`coster_sumo.avoid.assess` searches
+the target's escapes, :func:`coster_sumo.sim.proof.prove_escapes` replays each one in the variant's
+own pass, and an escape that SUMO refutes no longer counts (docs/method.md, step 8). The rest of
+this module turns labels and a planner's pass into what users read: the summary entries, the
+outcome lines ("avoided: braked to 3.1 m/s, clearance 1.2 m"; "hit, unavoidable") and the defect
+rate of a regression (contact in an avoidable variant, Wilson interval).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.atomic import write_json
+from coster_sumo.avoid import DEFAULT_REACTION_S, HORIZON_AFTER_TCOL_S, Avoidability, Escape, assess
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.errors import InputError
+from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.plan import AdversaryPlan
+from coster_sumo.scene import Scene
+from coster_sumo.sim.hold import HeldStates
+from coster_sumo.sim.proof import EscapeJob, prove_escapes
+from coster_sumo.spec import ScenarioSpec
+
+AVOIDABLE_CHOICES = ("any", "only")
+ESCAPE_FILE = "escape.csv"
+
+
+def check_avoidable(choice: str) -> None:
+    """``--avoidable``: any (default) or only."""
+    if choice not in AVOIDABLE_CHOICES:
+        raise InputError(f"--avoidable must be one of {', '.join(AVOIDABLE_CHOICES)}, not {choice!r}")
+
+
+def check_reaction_time(seconds: float) -> None:
+    if not 0.0 <= seconds <= 5.0:
+        raise InputError(f"--reaction-time must be between 0 and 5 s, not {seconds:g}")
+
+
+def label_plans(spec: ScenarioSpec, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
+                drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
+                traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
+                timings: dict[str, float] | None = None) -> list[Avoidability]:
+    """The avoidability of every plan, each escape proven (or refuted) in SUMO.
+
+    ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays).
+    """
+    reaction_times = tuple(sorted({0.5, 1.0, 1.5, float(reaction_time_s)}))
+    t0 = time.perf_counter()
+    labels = [assess(scene, target, plan, drivable, reaction_times=reaction_times, reaction_time_s=reaction_time_s)
+              for plan in plans]
+    t1 = time.perf_counter()
+    jobs: list[EscapeJob] = []
+    owners: list[Escape] = []
+    for plan, lab in zip(plans, labels, strict=True):
+        seen: set[tuple[float, str]] = set()
+        for e in lab.escapes.values():  # equal plans at several reaction times are replayed once
+            if e is not None and _key(e) not in seen:
+                seen.add(_key(e))
+                jobs.append(EscapeJob(plan, e))
+                owners.append(e)
+    if jobs:
+        verdicts = prove_escapes(spec, scene, target, jobs, drivable=drivable, held=held, workers=workers,
+                                 traci=traci, horizon_s=HORIZON_AFTER_TCOL_S)
+        for e, v in zip(owners, verdicts, strict=True):
+            e.proven, e.proof = bool(v["ok"]), v
+    # several reaction times may share one plan: the same object got one verdict
+    for lab in labels:
+        _share_verdicts(lab)
+    if timings is not None:
+        timings["avoidability_s"] = timings.get("avoidability_s", 0.0) + t1 - t0
+        timings["proof_s"] = timings.get("proof_s", 0.0) + time.perf_counter() - t1
+    return labels
+
+
+def _key(e: Escape) -> tuple[float, str]:
+    return round(e.t_act, 3), e.manoeuvre.describe()
+
+
+def _share_verdicts(lab: Avoidability) -> None:
+    """Equal escapes (same act and manoeuvre) at several reaction times carry one verdict."""
+    by_key: dict[tuple[float, str], Escape] = {}
+    for e in lab.escapes.values():
+        if e is not None and e.proven is not None:
+            by_key[_key(e)] = e
+    for e in lab.escapes.values():
+        if e is not None and e.proven is None:
+            twin = by_key.get(_key(e))
+            if twin is not None:
+                e.proven, e.proof = twin.proven, twin.proof
+
+
+def label_line(lab: dict[str, Any]) -> str:
+    """One phrase for a variant's label (``run`` prints it after the variant's result)."""
+    if lab.get("avoidable"):
+        e = lab["escapes"][f"{lab['reaction_time_s']:g}"] or next(
+            (x for x in lab["escapes"].values() if x and x.get("proven_in_sumo") is not False), None)
+        how = f" by '{e['manoeuvre']}' from {lab['t_col'] - e['t_act']:.1f} s before t_col" if e else ""
+        return (f"avoidable at {lab['reaction_time_s']:g} s reaction{how} (proven in SUMO; last moment to act "
+                f"{lab['last_moment_to_act_s']:.1f} s before t_col), {lab['contact_kind'].replace('_', ' ')}")
+    last = lab.get("last_moment_to_act_s")
+    refuted = any(e and e.get("proven_in_sumo") is False for e in lab["escapes"].values())
+    why = ("no escape from a reaction of {r:g} s after the threat" if last is None or not refuted
+           else "its escape failed in SUMO").format(r=lab["reaction_time_s"])
+    return f"unavoidable ({why}), {lab['contact_kind'].replace('_', ' ')}"
+
+
+def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidability],
+                  passes: Sequence[tuple[AdversaryPlan, Any]] = ()) -> dict[str, Any]:
+    """Add each variant's label to ``summary`` (and ``out/summary.json``), write its escape plan
+    (``variants/<i>/escape.csv``, 10 Hz), and count avoidable variants; returns the summary.
+
+    ``passes``: (plan, injection result) per variant: each then gets its planner's ``outcome`` line.
+    """
+    for k, (rec, lab) in enumerate(zip(summary["variants"], labels, strict=True)):
+        entry = lab.summary()
+        rec["avoidability"] = entry
+        rec["label"] = label_line(entry)
+        if k < len(passes):
+            plan, res = passes[k]
+            tid = summary["target"]
+            hit = any(e.kind == "collision" and tid in e.vehicles and e.time <= lab.t_col + HORIZON_AFTER_TCOL_S + 1e-6
+                      for e in res.events)
+            rec["outcome"] = planner_outcome(res.scene, tid, plan, hit, entry)
+        esc = lab.escape
+        if esc is not None:
+            (out / "variants" / str(rec["variant"]) / ESCAPE_FILE).write_text(esc.csv())
+            rec["avoidability"]["escape_file"] = f"variants/{rec['variant']}/{ESCAPE_FILE}"
+    n = len(labels)
+    summary["avoidable_variants"] = sum(lab.avoidable for lab in labels)
+    summary["reaction_time_s"] = labels[0].reaction_time_s if labels else DEFAULT_REACTION_S
+    summary["defects"] = sum(bool(r["collision"]) and r["avoidability"]["avoidable"] for r in summary["variants"])
+    summary["unavoidable_contacts"] = sum(bool(r["collision"]) and not r["avoidability"]["avoidable"]
+                                          for r in summary["variants"])
+    summary["avoidable_share"] = summary["avoidable_variants"] / n if n else None
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+# ----------------------------------------------------------------------------- a planner's outcome
+
+def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: bool, label: dict[str, Any] | None
+                    ) -> str:
+    # ``contact``: the target touched someone up to the label's horizon
+    """How the planner's pass ended, in words: how it avoided (its lowest speed, its smallest gap to
+    the adversary) or whether a hit was a defect or unavoidable. ``scene``: the pass recorded."""
+    if contact:
+        if label is None:
+            return "hit"
+        return "hit, a defect: the contact was avoidable" if label["avoidable"] else "hit, unavoidable"
+    tr = scene.tracks
+    ids = tr.ids.tolist()
+    if target_id not in ids:
+        return "no contact"
+    a = tr.index_of(target_id)
+    window = tr.valid[a] & (scene.timestamps >= plan.t_start - 1e-6) & (scene.timestamps <= plan.t_col + 3.0)
+    steps = np.flatnonzero(window)
+    if not len(steps):
+        return "no contact"
+    speed = np.hypot(tr.vx[a, steps], tr.vy[a, steps])
+    parts = [f"lowest speed {speed.min():.1f} m/s"]
+    v0 = float(speed[0])
+    if speed.min() < v0 - 1.0:
+        parts[0] = f"braked to {speed.min():.1f} m/s"
+    elif speed.max() > v0 + 1.0:
+        parts[0] = f"accelerated to {speed.max():.1f} m/s"
+    if plan.vehicle_id in ids:
+        b = tr.index_of(plan.vehicle_id)
+        both = steps[tr.valid[b, steps]]
+        if len(both):
+            gap = box_signed_distance(
+                make_boxes(tr.x[a, both], tr.y[a, both], tr.heading[a, both], tr.length[a, both], tr.width[a, both]),
+                make_boxes(tr.x[b, both], tr.y[b, both], tr.heading[b, both], tr.length[b, both], tr.width[b, both]))
+            parts.append(f"clearance {float(gap.min()):.1f} m")
+    return "avoided: " + ", ".join(parts)
+
+
+# ----------------------------------------------------------------------------- --avoidable only
+
+EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under --avoidable only
+
+
+def keep_avoidable(planned: list[Any], labels: dict[str, Avoidability], draw: Any, label: Any,
+                   wanted: int) -> tuple[list[Any], dict[str, Any]]:
+    """Drop the unavoidable plans of ``planned`` (PlannedScenario list, labels by adversary id) and
+    replace them by plans of further draws until ``wanted`` are avoidable or :data:`EXTRA_DRAWS`
+    more draws are spent.
+
+    ``draw(j)`` returns the PlannedScenario of extra draw j (or None: no snapshot); ``label(plans)``
+    the labels of its plans. Returns the kept scenarios and what was tried.
+    """
+    tried = sum(len(p.plans) for p in planned)
+    for p in planned:
+        p.plans = [pl for pl in p.plans if labels[pl.vehicle_id].avoidable]
+    kept = sum(len(p.plans) for p in planned)
+    draws = 0
+    for j in range(1, EXTRA_DRAWS + 1):
+        if kept >= wanted:
+            break
+        extra = draw(j)
+        draws += 1
+        if extra is None:
+            continue
+        ids = [f"adversary{tried + i}" for i in range(len(extra.plans))]
+        extra.plans = [dataclasses.replace(pl, vehicle_id=v) for pl, v in zip(extra.plans, ids, strict=True)]
+        tried += len(extra.plans)
+        for pl, lab in zip(extra.plans, label(extra.plans), strict=True):
+            labels[pl.vehicle_id] = lab
+        extra.plans = [pl for pl in extra.plans if labels[pl.vehicle_id].avoidable][:wanted - kept]
+        kept += len(extra.plans)
+        if extra.plans:
+            planned.append(extra)
+    planned = [p for p in planned if p.plans] or planned[:1]
+    return planned, {"tried": tried, "kept": kept, "extra_draws": draws}
+
+
+# ----------------------------------------------------------------------------- batches
+
+def escape_dict(e: Escape | None) -> dict[str, Any] | None:
+    """The escape's 10 Hz arrays for a batch's plans file (None where there is none)."""
+    if e is None:
+        return None
+    return {"times": e.times.round(3).tolist(), "x": e.x.round(4).tolist(), "y": e.y.round(4).tolist(),
+            "yaw": e.yaw.round(5).tolist(), "speed": e.speed.round(4).tolist()}
+
+
+def escape_replay(d: dict[str, Any], length_m: float) -> Any:
+    """The ``escape`` planner of a batch: a replay of a stored escape (:func:`escape_dict`)."""
+    from coster_sumo.sim.planners import ReplayPlanner
+
+    times = np.asarray(d["times"], float)
+    return ReplayPlanner(times, np.asarray(d["x"], float), np.asarray(d["y"], float), np.asarray(d["yaw"], float),
+                         np.asarray(d["speed"], float), np.ones(len(times), bool), length_m)
+
+
+def defect_rates(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The defect rate (a contact of the target in an avoidable variant) beside the unavoidable-contact
+    rate, and every rate split by the label, of one planner's finished rows (``avoidable`` set).
+
+    A contact counts up to the label's horizon (:data:`~coster_sumo.avoid.HORIZON_AFTER_TCOL_S` after
+    t_col): that is what an escape is proven for; what happens later (the pass goes on until the
+    target arrives) stays in the plain collision rate.
+    """
+    from coster_sumo.batch.store import rate_with_ci
+
+    labelled = [r for r in rows if r.get("avoidable") is not None]
+    av = [r for r in labelled if r["avoidable"]]
+    un = [r for r in labelled if not r["avoidable"]]
+
+    def hit(r: dict[str, Any]) -> bool:
+        return bool(r["contact_in_horizon"] if r.get("contact_in_horizon") is not None else r["collision"])
+
+    return {"defect_rate": rate_with_ci([hit(r) for r in av]),
+            "unavoidable_contact_rate": rate_with_ci([hit(r) for r in un]),
+            "avoidable_runs": len(av), "unavoidable_runs": len(un), "unlabelled_runs": len(rows) - len(labelled),
+            "by_label": {name: {"CR": rate_with_ci([r["collision"] for r in part]),
+                                "RCR": rate_with_ci([r["route_completed"] for r in part]),
+                                "ORR": rate_with_ci([r["target_off_road"] for r in part])}
+                         for name, part in (("avoidable", av), ("unavoidable", un))}}
+
+
+def _pct(entry: dict[str, Any]) -> str:
+    if entry.get("rate") is None:
+        return "n/a"
+    return (f"{100 * entry['rate']:.1f}% [{100 * entry['ci_low']:.1f}, {100 * entry['ci_high']:.1f}] "
+            f"({entry['k']}/{entry['n']})")
+
+
+def defect_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """The headline table of a regression: per planner, the defect rate beside the unavoidable-contact rate."""
+    head = ["planner", "defect rate (contact in an avoidable variant)", "unavoidable-contact rate",
+            "RCR avoidable", "RCR unavoidable"]
+    rows = []
+    for name, p in summary["planners"].items():
+        d = p.get("defects")
+        if not d:
+            continue
+        rows.append([name, _pct(d["defect_rate"]), _pct(d["unavoidable_contact_rate"]),
+                     _pct(d["by_label"]["avoidable"]["RCR"]), _pct(d["by_label"]["unavoidable"]["RCR"])])
+    return head, rows
+
+
+# ----------------------------------------------------------------------------- label statistics
+
+def label_record(lab: Avoidability) -> dict[str, Any]:
+    """The flat per-variant fields of a label that statistics over many variants read."""
+    kinematic = {f"{r:g}": e is not None for r, e in lab.escapes.items()}
+    return {"avoidable": lab.avoidable, "avoidable_at": {f"{r:g}": lab.avoidable_at(r) for r in sorted(lab.escapes)},
+            "escape_found_at": kinematic,
+            "escapes_replayed": sum(e is not None and e.proven is not None for e in lab.escapes.values()),
+            "escapes_refuted": sum(e is not None and e.proven is False for e in lab.escapes.values()),
+            "contact_kind": lab.contact_kind, "last_moment_s": lab.last_moment_s,
+            "threat_before_tcol_s": lab.t_col - lab.t_threat}
+
+
+def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Share of avoidable variants (Wilson 95 %) per reaction time, overall and per kind of contact;
+    the distribution of the last moment to act; how many kinematic escapes SUMO refuted."""
+    from coster_sumo.batch.store import rate_with_ci
+
+    recs = [r for r in records if r.get("avoidable_at")]
+    times = sorted({t for r in recs for t in r["avoidable_at"]}, key=float)
+
+    def shares(part: Sequence[dict[str, Any]]) -> dict[str, Any]:
+        return {t: rate_with_ci([bool(r["avoidable_at"].get(t)) for r in part]) for t in times}
+
+    last = np.array([r["last_moment_s"] for r in recs if r.get("last_moment_s") is not None], float)
+    found = {t: sum(bool(r["escape_found_at"].get(t)) for r in recs) for t in times}
+    return {"variants": len(recs), "avoidable_share": shares(recs),
+            "CR_by_label": {"avoidable": rate_with_ci([bool(r.get("collision")) for r in recs if r["avoidable"]]),
+                            "unavoidable": rate_with_ci([bool(r.get("collision")) for r in recs
+                                                         if not r["avoidable"]])},
+            "by_contact_kind": {k: {"variants": sum(r["contact_kind"] == k for r in recs),
+                                    "avoidable_share": shares([r for r in recs if r["contact_kind"] == k])}
+                                for k in sorted({r["contact_kind"] for r in recs})},
+            "last_moment_s": {"with_escape": int(len(last)), "none": len(recs) - int(len(last)),
+                              **({f"p{q}": round(float(np.percentile(last, q)), 2) for q in (10, 25, 50, 75, 90)}
+                                 if len(last) else {})},
+            "escapes_found": found,
+            "escapes_replayed": sum(int(r.get("escapes_replayed", 0)) for r in recs),
+            "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs)}
+
+
+def avoidability_report_table(methods: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """Per generator: avoidable share at each reaction time, the collision rate split by the label,
+    and the median last moment to act (``eval scenarios``' report)."""
+    head = ["method", "variants", "avoidable @0.5 s", "avoidable @1 s", "avoidable @1.5 s", "CR avoidable",
+            "CR unavoidable", "last moment to act, median [s]"]
+    rows = []
+    for name, m in methods.items():
+        a = m.get("avoidability")
+        if m.get("status") != "ok" or not a or not a["variants"]:
+            continue
+        sh = a["avoidable_share"]
+        rows.append([name, str(a["variants"]), *(_pct(sh[t]) if t in sh else "n/a" for t in ("0.5", "1", "1.5")),
+                     _pct(a["CR_by_label"]["avoidable"]), _pct(a["CR_by_label"]["unavoidable"]),
+                     str(a["last_moment_s"].get("p50", "n/a"))])
+    return head, rows

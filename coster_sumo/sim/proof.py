@@ -1,0 +1,137 @@
+"""Proof of an escape in SUMO: the target replays its escape plan in the variant's own pass.
+
+An escape found by :mod:`coster_sumo.avoid` is kinematic: the other vehicles follow their nominal
+paths there, while in SUMO they react (to the adversary, and to a target that brakes or changes
+lane). So every escape is replayed as the target's trajectory (moveToXY every step, the ``replay``
+planner's mechanism) in the same injection pass as the variant: the same held moment of the
+nominal pass, the same traffic, the adversary driven along its plan (frozen at a first contact, at
+constant velocity after t_col), up to the escape's horizon after t_col. The escape is proven when
+the target touches nobody (our box check, the ground truth of every pass) and stays on the road.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.avoid import Escape
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.formats.scene_folder import converted_scene_file
+from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.plan import AdversaryPlan
+from coster_sumo.scene import Scene
+from coster_sumo.sim.hold import HeldStates
+from coster_sumo.sim.inject import TIME_EPS, InjectionResult, StepActor, continue_injection, run_injection
+from coster_sumo.sim.planners import ReplayPlanner
+from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M
+from coster_sumo.spec import ScenarioSpec
+
+
+@dataclass(frozen=True)
+class EscapeJob:
+    """One escape to prove: the variant's adversary plan and the target's escape."""
+
+    plan: AdversaryPlan
+    escape: Escape
+
+
+def escape_planner(escape: Escape, length_m: float) -> ReplayPlanner:
+    """The target's planner that drives the escape (box centres, 10 Hz) with moveToXY."""
+    return ReplayPlanner(escape.times, escape.x, escape.y, escape.yaw, escape.speed,
+                         np.ones(len(escape.times), bool), length_m)
+
+
+def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> dict[str, Any]:
+    """What the replay shows: contacts of the target, off-road, the smallest gap to the adversary
+    and how far SUMO's target strayed from the escape (moveToXY places it exactly)."""
+    plan, esc = job.plan, job.escape
+    t0 = plan.t_start - TIME_EPS
+    contacts = [e for e in res.events if e.kind == "collision" and target_id in e.vehicles and e.time >= t0]
+    off = [e for e in res.events if e.kind == "off_road" and e.vehicles == [target_id] and e.time >= t0]
+    tr = res.scene.tracks
+    ids = tr.ids.tolist()
+    gap = deviation = dev_at = None
+    if target_id in ids:
+        a = tr.index_of(target_id)
+        ts_all = res.scene.timestamps
+        steps = np.flatnonzero(tr.valid[a] & (ts_all >= t0) & (ts_all <= esc.times[-1] + TIME_EPS))
+        if len(steps):
+            ts = res.scene.timestamps[steps]
+            k = np.clip(np.round((ts - esc.times[0]) / 0.1).astype(int), 0, len(esc.times) - 1)
+            dev = np.hypot(tr.x[a, steps] - esc.x[k], tr.y[a, steps] - esc.y[k])
+            deviation = float(dev.max())
+            dev_at = float(ts[int(np.argmax(dev))])
+            if plan.vehicle_id in ids:
+                b = tr.index_of(plan.vehicle_id)
+                both = steps[tr.valid[b, steps]]
+                if len(both):
+                    gap = float(box_signed_distance(
+                        make_boxes(tr.x[a, both], tr.y[a, both], tr.heading[a, both], tr.length[a, both],
+                                   tr.width[a, both]),
+                        make_boxes(tr.x[b, both], tr.y[b, both], tr.heading[b, both], tr.length[b, both],
+                                   tr.width[b, both])).min())
+    ok = not contacts and not off
+    if ok:
+        reason = "no contact, on road"
+    elif contacts:
+        first = contacts[0]
+        other = next((v for v in first.vehicles if v != target_id), "?")
+        reason = f"touched {other} at {first.time:.1f} s"
+    else:
+        reason = f"left the road at {off[0].time:.1f} s"
+    return {"ok": ok, "reason": reason, "min_gap_to_adversary_m": None if gap is None else round(gap, 3),
+            "max_deviation_m": None if deviation is None else round(deviation, 4), "max_deviation_at_s": dev_at}
+
+
+def _prove_held(session: Any, payload: dict[str, Any]) -> dict[str, Any]:
+    """One escape's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
+    job: EscapeJob = payload["job"]
+    res = continue_injection(session, payload["target_id"], job.plan,
+                             escape_planner(job.escape, payload["length"]), end=payload["end"],
+                             drivable=payload["drivable"], surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=None)
+    return verdict(res, payload["target_id"], job)
+
+
+def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob], *,
+                  drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
+                  traci: bool = False, horizon_s: float = 3.0) -> list[dict[str, Any]]:
+    """Replay every escape in SUMO; one verdict (:func:`verdict`) per job, in order.
+
+    From the held copy of the nominal pass before the adversary appears where there is one (as the
+    variant's own pass), else from the configuration's begin with its seed; a converted WOMD scene's
+    log drives every other agent and hands the target over to the escape when the adversary
+    appears. Each pass ends ``horizon_s`` after t_col.
+    """
+    tr = scene.tracks
+    target_id = str(tr.ids[target])
+    length = float(np.median(tr.length[target][tr.valid[target]]))
+    converted = converted_scene_file(spec.config) is not None
+    out: list[dict[str, Any] | None] = [None] * len(jobs)
+    groups: dict[int, list[int]] = {}
+    if held is not None and not converted and not traci:
+        for i, job in enumerate(jobs):
+            h = held.holder_before(job.plan.t_start - TIME_EPS)
+            if h is not None:
+                groups.setdefault(held.holders.index(h), []).append(i)
+    for h_index, members in groups.items():
+        assert held is not None
+        payloads = [(_prove_held, {"job": jobs[i], "target_id": target_id, "length": length, "drivable": drivable,
+                                   "end": jobs[i].plan.t_col + horizon_s + 1e-6}) for i in members]
+        for i, v in zip(members, held.run(held.holders[h_index], payloads, workers), strict=True):
+            out[i] = v
+    for i, job in enumerate(jobs):
+        if out[i] is not None:
+            continue
+        actors: tuple[StepActor, ...] = ()
+        if converted:
+            from coster_sumo.sim.replay import LogReplayer
+
+            actors = (LogReplayer.for_config(spec.config, scene, handover={target_id: job.plan.t_start}),)
+        res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), seed=spec.seed,
+                            end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
+                            actors=actors, traci=traci,
+                            surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=None)
+        out[i] = verdict(res, target_id, job)
+    return [v for v in out if v is not None]
