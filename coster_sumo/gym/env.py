@@ -38,7 +38,8 @@ path, so ``(0, 0)`` drives it along its nominal path at constant speed.
 
 Reward, per step: 0.1 per metre of route progress; -10 and the end at a collision (our box check,
 with any vehicle); -5 and the end when the target leaves the drivable area; +5 and the end at the
-end of the route (completion). The episode is truncated at the end of the scenario's replay.
+end of the route (completion; a route shorter than 5 m, a target that waited, is not completed
+early). The episode is truncated at the end of the scenario's replay.
 
 ``info``: ``scenario``, ``network``, ``kind`` (nominal / variant), ``time`` [s], ``outcome``
 (``running``, ``collision``, ``off_road``, ``completed``, ``timeout``), ``collided_with`` (a vehicle
@@ -59,7 +60,7 @@ from gymnasium import spaces
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.geometry import polyline_arc_length, resample_polyline
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
-from coster_sumo.scene import Scene
+from coster_sumo.scene import Scene, Tracks
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
 
 STEP_S = 0.1  # [s] SUMO's step (the replay scenes' rate)
@@ -79,7 +80,12 @@ OBS_SIZE = EGO_FEATURES + NUM_NEIGHBOURS * NEIGHBOUR_FEATURES
 ROUTE_SPACING_M = 0.5  # [m] the route polyline is resampled to this spacing
 ROUTE_EXTENSION_M = 60.0  # [m] straight run-on beyond the route's end (lookahead only)
 COMPLETION_MARGIN_M = 1.0  # [m] the route counts as completed this close to its end
-ROUTE_SLACK_S = 3.0  # [s] the route ends where the target was this long before the replay ends
+MIN_ROUTE_M = 5.0  # [m] a shorter route (a target that hardly moved) ends by time only
+ROUTE_SLACK_S = 3.0
+# [m] agents that never come this close to the target's route (its run-on included) are not replayed:
+# the observation sees 50 m, the target strays at most MAX_OFFSET_M from the route, and a converted
+# WOMD scene logs many agents far away (moveToXY costs ~50 us each on its network)
+REPLAY_RADIUS_M = NEIGHBOUR_RADIUS_M + 30.0  # [s] the route ends where the target was this long before the replay ends
 
 REWARD_PER_M = 0.1
 COLLISION_PENALTY = -10.0
@@ -224,11 +230,13 @@ class ScenarioEnv(gymnasium.Env):
         self.off_road = False
         if self._session is not None:
             self._session.close()
-        self._session = SumoSession(net=self.set.net_file(entry), begin=round(float(ts[k0]) - STEP_S, 6),
+        begin = round((round(float(ts[k0]) / STEP_S) - 1) * STEP_S, 6)  # on SUMO's grid (WOMD times jitter)
+        self._session = SumoSession(net=self.set.net_file(entry), begin=begin,
                                     end=self.t_end + 10.0, step_length=STEP_S, seed=0,
                                     additional=[self.set.vtypes_file]).start()
+        far = _far_agents(scene.tracks, k0, self.route.points[::4], REPLAY_RADIUS_M)
         self._replayer = LogReplayer(_from_step(scene, k0), entry.tls, entry.staging_lane,
-                                     exclude={entry.target})
+                                     exclude={entry.target, *far})
         drivable = self._drivable.get(entry.id)
         if drivable is None:
             drivable = DrivableArea.from_road_map(scene.road_map)
@@ -298,7 +306,7 @@ class ScenarioEnv(gymnasium.Env):
                 self.outcome, terminated = "collision", True
             elif self.off_road:
                 self.outcome, terminated = "off_road", True
-            elif self.s >= self.route.length_m - COMPLETION_MARGIN_M:
+            elif self.route.length_m >= MIN_ROUTE_M and self.s >= self.route.length_m - COMPLETION_MARGIN_M:
                 self.outcome, terminated = "completed", True
             elif self._session.time >= self.t_end - 1e-6:
                 self.outcome, truncated = "timeout", True
@@ -385,6 +393,22 @@ class ScenarioEnv(gymnasium.Env):
             self._session.close()
             self._session = None
         super().close()
+
+
+def _far_agents(tracks: Tracks, k0: int, route_points: np.ndarray, radius_m: float) -> list[str]:
+    """Ids of the agents whose valid positions from step ``k0`` on all lie farther than ``radius_m``
+    from every point of ``route_points`` (Q, 2) [m]."""
+    xy = np.stack([tracks.x[:, k0:], tracks.y[:, k0:]], -1)  # (A, T, 2)
+    far = []
+    for a in range(tracks.num_agents):
+        pts = xy[a, tracks.valid[a, k0:]]  # (n, 2)
+        if len(pts) == 0:
+            continue
+        lo, hi = pts.min(axis=0) - radius_m, pts.max(axis=0) + radius_m
+        box = route_points[((route_points >= lo) & (route_points <= hi)).all(axis=1)]  # cheap prefilter
+        if len(box) == 0 or np.min(np.hypot(*(pts[:, None, :] - box[None, :, :]).transpose(2, 0, 1))) > radius_m:
+            far.append(str(tracks.ids[a]))
+    return far
 
 
 def _row(ids: list[str], vid: str) -> int:
