@@ -136,7 +136,98 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-class ScenarioEnv(gymnasium.Env):
+class Driver:
+    """The agent's target: its route, Frenet state and kinematics, and what it observes.
+
+    Shared by the environment and by a trained policy driving the target of an injection pass
+    (:class:`coster_sumo.gym.policy.PolicyPlanner`), so both see and move alike.
+    """
+
+    route: Route
+    s: float = 0.0  # [m] arc length along the route
+    d: float = 0.0  # [m] lateral offset (> 0 left)
+    d_dot: float = 0.0  # [m/s]
+    v: float = 0.0  # [m/s]
+    accel: float = 0.0  # [m/s^2] last commanded
+    length: float = 4.5  # [m]
+    width: float = 1.9  # [m]
+    target_id: str = "ego"
+    states: Any = None  # VehicleStates of the last step
+    api: Any = None  # the SUMO API of the session
+
+    def _ego_pose(self) -> tuple[float, float, float]:
+        x, y, h = self.route.pose(self.s)
+        return (x - self.d * math.sin(h), y + self.d * math.cos(h),
+                _wrap(h + math.atan2(self.d_dot, max(self.v, 0.1))))
+
+    def _command(self, action: np.ndarray) -> float:
+        """Set the acceleration from ``action``; returns the commanded lateral offset [m]."""
+        a = np.clip(np.asarray(action, np.float64).reshape(2), -1.0, 1.0)
+        self.accel = float(a[0] * (MAX_ACCEL if a[0] >= 0 else MAX_DECEL))
+        return float(a[1]) * MAX_OFFSET_M
+
+    def _kinematic_step(self, d_target: float) -> None:
+        """Advance speed, offset and arc length by one SUMO step."""
+        self.v = min(max(self.v + self.accel * STEP_S, 0.0), MAX_SPEED)
+        lat_max = min(MAX_LATERAL_SPEED, MAX_LATERAL_RATIO * self.v)
+        self.d_dot = min(max((d_target - self.d) / LATERAL_TIME_S, -lat_max), lat_max)
+        self.d += self.d_dot * STEP_S
+        self.s += math.sqrt(max(self.v * self.v - self.d_dot * self.d_dot, 0.0)) * STEP_S
+
+    def _observe(self) -> np.ndarray:
+        obs = np.zeros(OBS_SIZE, np.float64)
+        x, y, yaw = self._ego_pose()
+        rx, ry, rh = self.route.pose(self.s)
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        length = self.route.length_m
+        obs[0] = self.v / 30.0
+        obs[1] = self.accel / MAX_DECEL
+        obs[2] = self.d / MAX_OFFSET_M
+        obs[3] = _wrap(yaw - rh) / math.pi
+        obs[4] = min(self.s / length, 1.0) if length > 0 else 1.0
+        obs[5] = max(length - self.s, 0.0) / 100.0
+        target = self.target_id
+        api = self.api
+        try:
+            obs[6] = float(api.vehicle.getAllowedSpeed(target)) / 30.0
+        except Exception:
+            obs[6] = 0.0
+        obs[7] = self.length / 10.0
+        for i, ahead in enumerate(LOOKAHEAD_M):
+            px, py, _ = self.route.pose(self.s + ahead)
+            dx, dy = px - x, py - y
+            obs[8 + 2 * i] = (c * dx + s_ * dy) / 50.0
+            obs[9 + 2 * i] = (-s_ * dx + c * dy) / 50.0
+        obs[16], obs[17] = 1.0, 0.0
+        try:
+            lights = api.vehicle.getNextTLS(target)
+            if lights:
+                _, _, dist, state = lights[0]
+                obs[16] = min(float(dist) / 100.0, 1.0)
+                obs[17] = 1.0 if str(state) in "rRyYu" else 0.0
+        except Exception:
+            pass
+        st = self.states
+        others = np.flatnonzero(st.ids != target) if len(st) else np.zeros(0, np.int64)
+        if len(others):
+            dx, dy = st.x[others] - x, st.y[others] - y
+            dist = np.hypot(dx, dy)
+            near = others[dist <= NEIGHBOUR_RADIUS_M]
+            order = np.argsort(dist[dist <= NEIGHBOUR_RADIUS_M])[:NUM_NEIGHBOURS]
+            rows = near[order]
+            if len(rows):
+                dx, dy = st.x[rows] - x, st.y[rows] - y
+                vx = st.speed[rows] * np.cos(st.yaw[rows]) - self.v * c
+                vy = st.speed[rows] * np.sin(st.yaw[rows]) - self.v * s_
+                rel = st.yaw[rows] - yaw
+                feats = np.stack([np.ones(len(rows)), (c * dx + s_ * dy) / 50.0, (-s_ * dx + c * dy) / 50.0,
+                                  (c * vx + s_ * vy) / 30.0, (-s_ * vx + c * vy) / 30.0, np.cos(rel), np.sin(rel),
+                                  st.length[rows] / 10.0, st.width[rows] / 5.0], -1)  # (k, 9)
+                obs[EGO_FEATURES:EGO_FEATURES + feats.size] = feats.reshape(-1)
+        return np.clip(obs, -1.0, 1.0).astype(np.float32)
+
+
+class ScenarioEnv(gymnasium.Env, Driver):
     """Drive the target of scenarios from a scenario set (module docstring: spaces, reward, info).
 
     Args:
@@ -203,6 +294,7 @@ class ScenarioEnv(gymnasium.Env):
         from coster_sumo.sim.session import SumoSession
 
         self.entry = entry
+        self.target_id = entry.target
         scene = self.set.scene(entry)
         self.scene = scene
         tr = scene.tracks
@@ -234,6 +326,7 @@ class ScenarioEnv(gymnasium.Env):
         self._session = SumoSession(net=self.set.net_file(entry), begin=begin,
                                     end=self.t_end + 10.0, step_length=STEP_S, seed=0,
                                     additional=[self.set.vtypes_file]).start()
+        self.api = self._session.api
         far = _far_agents(scene.tracks, k0, self.route.points[::4], REPLAY_RADIUS_M)
         self._replayer = LogReplayer(_from_step(scene, k0), entry.tls, entry.staging_lane,
                                      exclude={entry.target, *far})
@@ -245,11 +338,6 @@ class ScenarioEnv(gymnasium.Env):
         self._drivable_now = drivable
         self._added = False
         self._advance()  # the first step shows the scenario's first state
-
-    def _ego_pose(self) -> tuple[float, float, float]:
-        x, y, h = self.route.pose(self.s)
-        return (x - self.d * math.sin(h), y + self.d * math.cos(h),
-                _wrap(h + math.atan2(self.d_dot, max(self.v, 0.1))))
 
     def _advance(self) -> None:
         """One SUMO step: replay the others, place the target, step, check events."""
@@ -290,17 +378,11 @@ class ScenarioEnv(gymnasium.Env):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._session is None or self.entry is None:
             raise RuntimeError("call reset() before step()")
-        a = np.clip(np.asarray(action, np.float64).reshape(2), -1.0, 1.0)
-        self.accel = float(a[0] * (MAX_ACCEL if a[0] >= 0 else MAX_DECEL))
-        d_target = float(a[1]) * MAX_OFFSET_M
+        d_target = self._command(action)
         s_before = self.s
         terminated = truncated = False
         for _ in range(self.substeps):
-            self.v = min(max(self.v + self.accel * STEP_S, 0.0), MAX_SPEED)
-            lat_max = min(MAX_LATERAL_SPEED, MAX_LATERAL_RATIO * self.v)
-            self.d_dot = min(max((d_target - self.d) / LATERAL_TIME_S, -lat_max), lat_max)
-            self.d += self.d_dot * STEP_S
-            self.s += math.sqrt(max(self.v * self.v - self.d_dot * self.d_dot, 0.0)) * STEP_S
+            self._kinematic_step(d_target)
             self._advance()
             if self.collided_with is not None:
                 self.outcome, terminated = "collision", True
@@ -323,58 +405,6 @@ class ScenarioEnv(gymnasium.Env):
         return self._observe(), float(reward), terminated, truncated, self._info()
 
     # ------------------------------------------------------------------------- observation
-
-    def _observe(self) -> np.ndarray:
-        obs = np.zeros(OBS_SIZE, np.float64)
-        x, y, yaw = self._ego_pose()
-        rx, ry, rh = self.route.pose(self.s)
-        c, s_ = math.cos(yaw), math.sin(yaw)
-        length = self.route.length_m
-        obs[0] = self.v / 30.0
-        obs[1] = self.accel / MAX_DECEL
-        obs[2] = self.d / MAX_OFFSET_M
-        obs[3] = _wrap(yaw - rh) / math.pi
-        obs[4] = min(self.s / length, 1.0) if length > 0 else 1.0
-        obs[5] = max(length - self.s, 0.0) / 100.0
-        target = self.entry.target if self.entry is not None else "ego"
-        api = self._session.api
-        try:
-            obs[6] = float(api.vehicle.getAllowedSpeed(target)) / 30.0
-        except Exception:
-            obs[6] = 0.0
-        obs[7] = self.length / 10.0
-        for i, ahead in enumerate(LOOKAHEAD_M):
-            px, py, _ = self.route.pose(self.s + ahead)
-            dx, dy = px - x, py - y
-            obs[8 + 2 * i] = (c * dx + s_ * dy) / 50.0
-            obs[9 + 2 * i] = (-s_ * dx + c * dy) / 50.0
-        obs[16], obs[17] = 1.0, 0.0
-        try:
-            lights = api.vehicle.getNextTLS(target)
-            if lights:
-                _, _, dist, state = lights[0]
-                obs[16] = min(float(dist) / 100.0, 1.0)
-                obs[17] = 1.0 if str(state) in "rRyYu" else 0.0
-        except Exception:
-            pass
-        st = self.states
-        others = np.flatnonzero(st.ids != target) if len(st) else np.zeros(0, np.int64)
-        if len(others):
-            dx, dy = st.x[others] - x, st.y[others] - y
-            dist = np.hypot(dx, dy)
-            near = others[dist <= NEIGHBOUR_RADIUS_M]
-            order = np.argsort(dist[dist <= NEIGHBOUR_RADIUS_M])[:NUM_NEIGHBOURS]
-            rows = near[order]
-            if len(rows):
-                dx, dy = st.x[rows] - x, st.y[rows] - y
-                vx = st.speed[rows] * np.cos(st.yaw[rows]) - self.v * c
-                vy = st.speed[rows] * np.sin(st.yaw[rows]) - self.v * s_
-                rel = st.yaw[rows] - yaw
-                feats = np.stack([np.ones(len(rows)), (c * dx + s_ * dy) / 50.0, (-s_ * dx + c * dy) / 50.0,
-                                  (c * vx + s_ * vy) / 30.0, (-s_ * vx + c * vy) / 30.0, np.cos(rel), np.sin(rel),
-                                  st.length[rows] / 10.0, st.width[rows] / 5.0], -1)  # (k, 9)
-                obs[EGO_FEATURES:EGO_FEATURES + feats.size] = feats.reshape(-1)
-        return np.clip(obs, -1.0, 1.0).astype(np.float32)
 
     def _info(self) -> dict[str, Any]:
         e = self.entry
