@@ -163,3 +163,30 @@ def test_short_episode_on_a_converted_womd_scene(tmp_path):
             break
     assert info["outcome"] in ("running", "completed"), info
     env.close()
+
+
+@pytest.mark.slow
+def test_a_trained_policy_is_a_planner_for_run(nominal_set, tmp_path):
+    from stable_baselines3 import PPO
+
+    from coster_sumo.cli import main
+
+    env = ScenarioEnv(nominal_set, split="train")
+    model = PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    model.learn(64)
+    path = tmp_path / "policy.zip"
+    model.save(path)
+    env.close()  # libsumo: one simulation per process
+    out = tmp_path / "run"
+    assert main(["run", CONFIGS[0], "--planner", f"policy:{path}", "-o", str(out), "--variants", "1",
+                 "--samples", "50", "--from-begin", "-q"]) == 0  # no fork after torch ran here
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["planner"] == f"policy:{path}" and summary["num_variants"] == 1
+
+
+def test_policy_planner_names_a_missing_file():
+    from coster_sumo.errors import InputError
+    from coster_sumo.sim.planners import check_planner
+
+    with pytest.raises(InputError, match="no such policy file"):
+        check_planner("policy:/nonexistent/policy.zip")
