@@ -190,3 +190,24 @@ def test_policy_planner_names_a_missing_file():
 
     with pytest.raises(InputError, match="no such policy file"):
         check_planner("policy:/nonexistent/policy.zip")
+
+
+def test_hard_set_leader_braking_hits_a_target_that_keeps_its_speed(tmp_path):
+    out = tmp_path / "hard"
+    build_set(BuildOptions(sources=CONFIGS[2:], out=out, method="hard"))
+    s = ScenarioSet.load(out)
+    assert {e.extra.get("adversity") for e in s.select(kind="variant")} == {"leader-braking", "cut-in"}
+    assert "score" in s.select(kind="nominal")[0].extra["criticality"]
+    (entry,) = [e for e in s.entries if e.extra.get("adversity") == "leader-braking"]
+    env = ScenarioEnv(out)
+    outcomes = {}
+    for name, action in (("keep", [0.0, 0.0]), ("brake", [-1.0, 0.0])):
+        env.reset(options={"scenario": entry.id})
+        done, info = False, {}
+        while not done:
+            _, _, terminated, truncated, info = env.step(np.array(action, np.float32))
+            done = terminated or truncated
+        outcomes[name] = info["collided_with"]
+    env.close()
+    assert outcomes["keep"] == "adversity"
+    assert outcomes["brake"] != "adversity"  # (a replayed follower may still run into it: replay does not react)

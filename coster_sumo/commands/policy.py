@@ -31,7 +31,7 @@ def _eval(args: argparse.Namespace) -> int:
 
     policy = None if args.policy == "none" else args.policy
     result, rows = evaluate(policy, args.scenarios, split=None if args.split == "all" else args.split,
-                            max_episodes=args.max_episodes)
+                            max_episodes=args.max_episodes, hard=args.hard)
     out = {"policy": str(args.policy), "scenarios": str(args.scenarios), "split": args.split, **result.to_json(),
            "episodes_detail": rows}
     if args.json:
@@ -58,5 +58,8 @@ def register(cli: Any) -> None:
     e.add_argument("scenarios", type=Path, metavar="SET", help="scenario set")
     e.add_argument("--split", choices=("train", "test", "all"), default="test", help="default test")
     e.add_argument("--max-episodes", type=int, help="at most this many scenarios")
+    e.add_argument("--hard", action="store_true",
+                   help="Hard (a set built with --method hard): the hand-specified adversities and the top 20 %% "
+                        "of the nominal scenes by criticality")
     e.add_argument("--json", type=Path, help="also write the result (and every episode) to this JSON file")
     e.set_defaults(func=_eval)

@@ -45,7 +45,19 @@ METHODS: dict[str, Method] = {
     "coster-one-per-snapshot": Method("snapshot", "cvae", one_per_snapshot=True),
     "random-cvae": Method("random", "cvae"),  # a random contact pose instead of the prior's
     "snapshot-cv": Method("snapshot", "cv"),  # the prior's snapshot, constant-velocity approach
+    # hand-specified adversities no generator here makes (a leader braking hard, a cut-in) and the
+    # nominal scene's criticality score, for an evaluation set independent of every generator
+    "hard": Method(None, None),
 }
+
+HARD_START_S = 2.0  # [s] a hand-specified adversity starts this long after the target departs
+LEADER_GAP_M = 20.0  # [m] bumper-to-bumper gap of the braking leader at the start
+LEADER_BRAKE_AFTER_S = 2.0  # [s] the leader drives at the target's speed this long, then brakes
+LEADER_DECEL = 7.0  # [m/s^2]
+CUT_IN_AHEAD_M = 8.0  # [m] centre-to-centre, ahead of the target, in the next lane
+CUT_IN_LATERAL_M = 3.5  # [m] the next lane
+CUT_IN_AFTER_S = 1.0  # [s] it starts moving over after this long
+CUT_IN_DURATION_S = 2.5  # [s] to reach the target's path
 
 LEAD_S = 3.0  # [s] an episode of a variant starts this long before its adversary appears
 HORIZON_S = 20.0  # [s] an episode of a nominal scene lasts at most this long from the target's departure
@@ -205,7 +217,9 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
         nominal = _crop_steps(scene, t_dep - 0.1, t_end)
         save_scene(nominal, out / "scenarios" / f"{base}_nominal.npz")
         new = [ScenarioEntry(id=f"{base}_nominal", kind="nominal", method="nominal", t_start=t_dep, t_end=t_end,
-                             **common)]
+                             extra={"criticality": criticality(scene, target)}, **common)]
+        if opts.method == "hard":
+            new.extend(_hard_variants(out, scene, target, base, common, t_dep, t_last, opts.horizon_s))
         if gen is not None:
             drivable = DrivableArea.from_road_map(scene.road_map)
             try:
@@ -237,6 +251,95 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
                    {**opts.to_json(), "done_sources": sorted(done_sources), "failed": failed})
     return {"scenarios": len(entries), "variants": sum(e.kind == "variant" for e in entries),
             "networks": {n: v["split"] for n, v in networks.items()}, "failed": failed}
+
+
+def criticality(scene: Scene, target: int) -> dict[str, float]:
+    """A SafeShift-like criticality of the target's nominal scene, from the log alone.
+
+    ``min_ttc_s``: smallest time-to-collision (bounding discs, constant velocity) with any agent
+    within 50 m; ``max_decel``: the target's hardest braking [m/s^2] (speed differences over 0.5 s);
+    ``conflicts``: agents whose path crosses the target's within 2 m with a time gap under 3 s;
+    ``score``: 1 / max(min TTC, 0.5) + max decel / 4 + conflicts (larger is more critical).
+    """
+    tr = scene.tracks
+    ts = scene.timestamps
+    v = tr.valid[target]
+    speed = np.hypot(tr.vx[target], tr.vy[target])
+    k = np.flatnonzero(v)
+    lag = 5  # 0.5 s at 10 Hz
+    decel = float(max(0.0, np.max((speed[k[:-lag]] - speed[k[lag:]]) / (ts[k[lag:]] - ts[k[:-lag]])))) \
+        if len(k) > lag else 0.0
+    min_ttc = np.inf
+    conflicts = 0
+    tx, ty = tr.x[target], tr.y[target]
+    for a in range(tr.num_agents):
+        if a == target:
+            continue
+        both = v & tr.valid[a]
+        if both.any():
+            dx, dy = tr.x[a, both] - tx[both], tr.y[a, both] - ty[both]
+            dvx, dvy = tr.vx[a, both] - tr.vx[target, both], tr.vy[a, both] - tr.vy[target, both]
+            near = np.hypot(dx, dy) < 50.0
+            radius = 0.5 * (np.hypot(tr.length[a, both], tr.width[a, both])
+                            + np.hypot(tr.length[target, both], tr.width[target, both]))
+            closing = -(dx * dvx + dy * dvy) / np.maximum(np.hypot(dvx, dvy), 1e-6)
+            gap = np.hypot(dx, dy) - radius
+            ttc = np.where(near & (closing > 0.1), np.maximum(gap, 0.0) / np.maximum(closing, 1e-6), np.inf)
+            min_ttc = min(min_ttc, float(ttc.min()))
+        pa = np.stack([tr.x[a, tr.valid[a]], tr.y[a, tr.valid[a]]], -1)[::5]
+        pt = np.stack([tx[v], ty[v]], -1)[::5]
+        if len(pa) and len(pt):
+            d = np.hypot(*(pa[:, None, :] - pt[None, :, :]).transpose(2, 0, 1))
+            i, j = np.unravel_index(np.argmin(d), d.shape)
+            if d[i, j] < 2.0 and abs(ts[tr.valid[a]][::5][i] - ts[v][::5][j]) < 3.0:
+                conflicts += 1
+    score = 1.0 / max(min_ttc, 0.5) + decel / 4.0 + conflicts
+    return {"min_ttc_s": float(min_ttc), "max_decel": decel, "conflicts": float(conflicts), "score": float(score)}
+
+
+def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict[str, Any], t_dep: float,
+                   t_last: float, horizon_s: float) -> list[ScenarioEntry]:
+    """The hand-specified adversities against ``target`` (leader emergency braking, cut-in)."""
+    from coster_sumo.gym.env import Route
+
+    tr = scene.tracks
+    ts = scene.timestamps
+    v = tr.valid[target]
+    t0 = t_dep + HARD_START_S
+    if t0 + 4.0 > t_last:
+        return []
+    k0 = int(np.argmin(np.abs(ts - t0)))
+    route = Route(np.stack([tr.x[target, v & (ts >= t0 - 1e-6)], tr.y[target, v & (ts >= t0 - 1e-6)]], -1),
+                  float(tr.heading[target, k0]))
+    length = float(np.median(tr.length[target, v]))
+    speed0 = max(float(np.hypot(tr.vx[target, k0], tr.vy[target, k0])), 5.0)
+    t_stop = min(t_last, t_dep + horizon_s)
+    times = ts
+    after = (times >= t0 - 1e-6) & (times <= t_stop + 1e-6)
+    dt = np.clip(times - t0, 0.0, None)
+    entries = []
+    # leader emergency braking: ahead on the target's path at its speed, then a hard stop
+    t_b = LEADER_BRAKE_AFTER_S
+    braking = np.clip(dt - t_b, 0.0, speed0 / LEADER_DECEL)  # [s] spent braking (until it stands)
+    s_lead = speed0 * np.minimum(dt, t_b) + speed0 * braking - 0.5 * LEADER_DECEL * braking**2
+    v_lead = np.where(dt <= t_b, speed0, np.maximum(speed0 - LEADER_DECEL * (dt - t_b), 0.0))
+    s_lead = s_lead + LEADER_GAP_M + length
+    # cut-in: the next lane (left) a little ahead at the target's speed, moving onto its path
+    f = np.clip((dt - CUT_IN_AFTER_S) / CUT_IN_DURATION_S, 0.0, 1.0)
+    lateral = CUT_IN_LATERAL_M * (1.0 - (3 * f**2 - 2 * f**3))  # smooth step
+    s_cut = CUT_IN_AHEAD_M + 0.9 * speed0 * dt
+    for name, s_along, d_off, speed in (("leader-braking", s_lead, np.zeros_like(dt), v_lead),
+                                        ("cut-in", s_cut, lateral, np.full_like(dt, 0.9 * speed0))):
+        xs, ys, hs = np.zeros(len(times)), np.zeros(len(times)), np.zeros(len(times))
+        for k in np.flatnonzero(after):
+            x, y, h = route.pose(float(s_along[k]))
+            xs[k], ys[k], hs[k] = x - d_off[k] * np.sin(h), y + d_off[k] * np.cos(h), h
+        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, after, 4.5, 1.9)
+        sid = f"{base}_hard_{name}"
+        save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
+        entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
+                                     adversary="adversity", extra={"adversity": name}, **common))
+    return entries
 
 
 def parse_networks(text: Sequence[str]) -> tuple[str, ...]:

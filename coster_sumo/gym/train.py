@@ -147,12 +147,30 @@ def _summary(rows: list[dict[str, Any]]) -> tuple[float, float, float]:
             float(np.mean([r["outcome"] == "off_road" for r in rows])))
 
 
+HARD_TOP_FRACTION = 0.2  # the most critical nominal scenes of a hard set (by criticality score) that count
+
+
+def hard_ids(scenarios: str | Path, split: str | None) -> list[str]:
+    """Hard: every hand-specified adversity of the split, and its nominal scenes in the top 20 % by
+    criticality (``coster-sumo scenarios build --method hard``)."""
+    from coster_sumo.gym.scenario_set import ScenarioSet
+
+    entries = ScenarioSet.load(scenarios).select(split)
+    nominal = sorted((e for e in entries if e.kind == "nominal" and "criticality" in e.extra),
+                     key=lambda e: -e.extra["criticality"]["score"])
+    top = nominal[:max(1, int(round(HARD_TOP_FRACTION * len(nominal))))] if nominal else []
+    return [e.id for e in entries if e.kind == "variant"] + [e.id for e in top]
+
+
 def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None = "test",
-             control_period_s: float = 0.2, max_episodes: int | None = None) -> tuple[EvalResult, list[dict[str, Any]]]:
-    """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0))."""
+             control_period_s: float = 0.2, max_episodes: int | None = None,
+             hard: bool = False) -> tuple[EvalResult, list[dict[str, Any]]]:
+    """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0));
+    ``hard``: only the scenarios of :func:`hard_ids`."""
     from coster_sumo.gym.env import ScenarioEnv
 
-    env = ScenarioEnv(scenarios, split=split, order="cycle", control_period_s=control_period_s)
+    ids = hard_ids(scenarios, split) if hard else None
+    env = ScenarioEnv(scenarios, split=split, order="cycle", control_period_s=control_period_s, scenario_ids=ids)
     model = None
     if policy is not None:
         from stable_baselines3 import PPO
