@@ -65,6 +65,7 @@ def train(opts: TrainOptions) -> dict[str, Any]:
                                 "outcomes": {}, "curve": []}
     if ckpt.exists() and progress_path.exists():
         progress = json.loads(progress_path.read_text())
+        progress["options"] = {k: str(v) for k, v in asdict(opts).items()}  # the budget may have grown
         model = PPO.load(ckpt, env=venv, device="cpu")
     else:
         model = PPO("MlpPolicy", venv, seed=opts.seed, device="cpu", n_steps=512, batch_size=128, n_epochs=5,
