@@ -54,7 +54,7 @@ def test_missing_weights_name_the_file_and_the_training_command(tmp_path):
 
 
 def test_planner_registry_and_module_planners():
-    assert set(PLANNERS) == {"replay", "sumo"}
+    assert set(PLANNERS) == {"replay", "sumo", "policy"}
     check_planner("sumo:IDM")
     check_planner("misbehaving_planners:Hang")
     for bad in ("sumo:NoSuchModel", "teleport", "no_such_module:Planner"):

@@ -12,6 +12,8 @@ Built-ins:
 - ``replay``: the target follows its nominal trajectory exactly (moveToXY every step). With a
   replay target, contact happens at t_col by construction.
 - ``sumo``: SUMO's own driver model keeps control of the target, so it may react to the adversary.
+- ``policy:PATH``: a driving policy trained with ``coster-sumo policy train`` (``policy.zip``) drives
+  the target as in the Gymnasium environment (:mod:`coster_sumo.gym.policy`).
 - ``sumo:<model>``: the same with SUMO car-following model ``<model>`` (Krauss, IDM, EIDM, ACC,
   CACC, ...), set through a vType written to an additional file and given to the target when it
   departs (TraCI cannot change a type's car-following model at run time).
@@ -158,11 +160,20 @@ def _sumo(arg: str | None, nominal: ReplayPlanner | None) -> Planner:
     return SumoPlanner(arg)
 
 
+def _policy(arg: str | None, nominal: ReplayPlanner | None) -> Planner:
+    try:  # needs the rl extra (gymnasium, stable-baselines3); imported only when asked
+        from coster_sumo.gym.policy import make_policy_planner
+    except ImportError as exc:
+        raise InputError(f"planner policy:...: {exc.name} is missing (pip install coster-sumo[rl])") from None
+    return make_policy_planner(arg, nominal)
+
+
 # Built-in planners (``--planner NAME[:ARG]``): (ARG or None, the target's nominal replay) -> planner.
 # A new built-in is one function and one line; anything else of the form module:Class is imported.
 PLANNERS: dict[str, Callable[[str | None, ReplayPlanner | None], Planner]] = {
     "replay": _replay,  # the target follows its nominal trajectory (contact at t_col by construction)
     "sumo": _sumo,  # SUMO's driver keeps the target; sumo:<carFollowModel> picks the model
+    "policy": _policy,  # policy:PATH, a policy trained in coster_sumo/Scenario-v0 (coster_sumo.gym.policy)
 }
 
 
@@ -199,8 +210,8 @@ def _planner_class(spec: str) -> type:
 
 
 def make_planner(spec: str, replay: ReplayPlanner | None = None) -> Planner:
-    """``replay`` | ``sumo`` | ``sumo:<carFollowModel>`` | ``module:Class`` | ``path/to/file.py:Class``
-    (see :data:`PLANNERS`; a module is also found in the working directory)."""
+    """``replay`` | ``sumo`` | ``sumo:<carFollowModel>`` | ``policy:PATH`` | ``module:Class`` |
+    ``path/to/file.py:Class`` (see :data:`PLANNERS`; a module is also found in the working directory)."""
     name, sep, arg = spec.partition(":")
     if name in PLANNERS:
         return PLANNERS[name](arg if sep else None, replay)

@@ -1,0 +1,65 @@
+"""``coster-sumo policy train SET -o DIR`` and ``coster-sumo policy eval POLICY SET``.
+
+``train`` trains a driving policy (stable-baselines3 PPO, a small MLP) on the ``train`` split of a
+scenario set in ``coster_sumo/Scenario-v0``; rerunning the same command resumes from
+DIR/checkpoint.zip. ``eval`` drives every scenario of a split once and prints RCR, CR and ORR
+(JSON with ``--json``). The library is :mod:`coster_sumo.gym.train`; both need the ``rl`` extra.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+
+def _train(args: argparse.Namespace) -> int:
+    from coster_sumo.gym.train import TrainOptions, train
+
+    progress = train(TrainOptions(scenarios=args.scenarios, out=args.out, timesteps=args.timesteps, seed=args.seed,
+                                  envs=args.envs, checkpoint_steps=args.checkpoint_steps, quiet=args.quiet))
+    if not args.quiet:
+        print(f"{progress['steps']} steps in {progress['wall_s']:.0f} s; outcomes {progress['outcomes']}; "
+              f"wrote {args.out}")
+    return 0
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from coster_sumo.atomic import write_json
+    from coster_sumo.gym.train import evaluate
+
+    policy = None if args.policy == "none" else args.policy
+    result, rows = evaluate(policy, args.scenarios, split=None if args.split == "all" else args.split,
+                            max_episodes=args.max_episodes, hard=args.hard)
+    out = {"policy": str(args.policy), "scenarios": str(args.scenarios), "split": args.split, **result.to_json(),
+           "episodes_detail": rows}
+    if args.json:
+        write_json(args.json, out)
+    if not args.quiet:
+        print(json.dumps({k: v for k, v in out.items() if k != "episodes_detail"}, indent=1))
+    return 0
+
+
+def register(cli: Any) -> None:
+    group = cli.group("policy", help="train and evaluate driving policies on scenario sets (needs coster-sumo[rl])")
+    t = group.add_parser("train", help="PPO on a scenario set's train split (resumable)",
+                         description=__doc__.split("\n\n")[1] if __doc__ else None)
+    t.add_argument("scenarios", type=Path, metavar="SET", help="scenario set (coster-sumo scenarios build)")
+    t.add_argument("-o", "--out", type=Path, required=True, help="folder for checkpoint.zip, progress.json, policy.zip")
+    t.add_argument("--timesteps", type=int, default=20_000, help="environment steps in all (default 20000)")
+    t.add_argument("--seed", type=int, default=0, help="seed of the learner and the scenario draws (default 0)")
+    t.add_argument("--envs", type=int, default=1, help="environments, one process each when > 1 (default 1)")
+    t.add_argument("--checkpoint-steps", type=int, default=2048, help="save every N steps (default 2048)")
+    t.set_defaults(func=_train)
+    e = group.add_parser("eval", help="drive every scenario of a split once: RCR, CR, ORR")
+    e.add_argument("policy", help="policy.zip or checkpoint.zip ('none': the action (0, 0), the nominal path at "
+                                  "constant speed)")
+    e.add_argument("scenarios", type=Path, metavar="SET", help="scenario set")
+    e.add_argument("--split", choices=("train", "test", "all"), default="test", help="default test")
+    e.add_argument("--max-episodes", type=int, help="at most this many scenarios")
+    e.add_argument("--hard", action="store_true",
+                   help="Hard (a set built with --method hard): the hand-specified adversities and the top 20 %% "
+                        "of the nominal scenes by criticality")
+    e.add_argument("--json", type=Path, help="also write the result (and every episode) to this JSON file")
+    e.set_defaults(func=_eval)

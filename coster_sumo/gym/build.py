@@ -1,0 +1,347 @@
+"""``coster-sumo scenarios build``: nominal scenes and generated variants into a scenario set.
+
+For every source (a SUMO configuration or a converted WOMD scene) the nominal pass is recorded
+once (:func:`coster_sumo.core.nominal_scene`); its scene is a nominal scenario (the episode starts
+at the target's departure). Unless the method is ``nominal``, the generator then plans adversaries
+against the target (:func:`coster_sumo.core.plan_scenarios`), and each kept plan becomes a variant:
+the same recorded pass with the adversary's plan sampled at 10 Hz as one more agent, the episode
+starting ``lead_s`` before the adversary appears. Adversarial sets keep the nominal scenes too
+(the paper trains on adversarial scenes mixed with nominal ones).
+
+The set is written incrementally: the manifest is rewritten after every source, and a source the
+manifest already lists is skipped, so an interrupted build resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.errors import InputError
+from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, write_manifest, write_vtypes
+from coster_sumo.scene import ObjectType, Scene, Tracks, save_scene
+from coster_sumo.spec import GenerationConfig
+
+
+@dataclass(frozen=True)
+class Method:
+    """A generator of a scenario set: a snapshot init and a rollout, and how many plans to keep."""
+
+    init: str | None  # None: no adversaries (nominal only)
+    rollout: str | None
+    one_per_snapshot: bool = False  # keep the first plan of each snapshot only
+
+
+METHODS: dict[str, Method] = {
+    "nominal": Method(None, None),
+    "coster": Method("snapshot", "cvae"),  # every variant of each snapshot (the paper's augmentation)
+    "coster-one-per-snapshot": Method("snapshot", "cvae", one_per_snapshot=True),
+    "random-cvae": Method("random", "cvae"),  # a random contact pose instead of the prior's
+    "snapshot-cv": Method("snapshot", "cv"),  # the prior's snapshot, constant-velocity approach
+    # hand-specified adversities no generator here makes (a leader braking hard, a cut-in) and the
+    # nominal scene's criticality score, for an evaluation set independent of every generator
+    "hard": Method(None, None),
+}
+
+HARD_START_S = 2.0  # [s] a hand-specified adversity starts this long after the target departs
+LEADER_GAP_M = 20.0  # [m] bumper-to-bumper gap of the braking leader at the start
+LEADER_BRAKE_AFTER_S = 2.0  # [s] the leader drives at the target's speed this long, then brakes
+LEADER_DECEL = 7.0  # [m/s^2]
+CUT_IN_AHEAD_M = 8.0  # [m] centre-to-centre, ahead of the target, in the next lane
+CUT_IN_LATERAL_M = 3.5  # [m] the next lane
+CUT_IN_AFTER_S = 1.0  # [s] it starts moving over after this long
+CUT_IN_DURATION_S = 2.5  # [s] to reach the target's path
+
+LEAD_S = 3.0  # [s] an episode of a variant starts this long before its adversary appears
+HORIZON_S = 20.0  # [s] an episode of a nominal scene lasts at most this long from the target's departure
+POST_COLLISION_S = 3.0  # [s] a variant's episode runs on this long after t_col (the agent may have slowed)
+
+
+@dataclass
+class BuildOptions:
+    """What ``coster-sumo scenarios build`` takes."""
+
+    sources: list[str]
+    out: Path
+    method: str = "coster"
+    seed: int = 0
+    seeds: int = 1
+    target: str | None = None
+    heldout: tuple[str, ...] = ()  # networks of the test split
+    snapshots: int = 2  # collision snapshots per scene
+    variants: int = 5  # variants per snapshot (K)
+    samples: int = 1000
+    models_dir: Path | None = None
+    lead_s: float = LEAD_S
+    horizon_s: float = HORIZON_S
+    quiet: bool = False
+    progress: Callable[[str], None] | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"sources": list(self.sources), "method": self.method, "seed": self.seed, "seeds": self.seeds,
+                "target": self.target, "heldout": list(self.heldout), "snapshots": self.snapshots,
+                "variants": self.variants, "samples": self.samples, "lead_s": self.lead_s,
+                "horizon_s": self.horizon_s,
+                "models_dir": str(self.models_dir) if self.models_dir is not None else None}
+
+
+def network_name(config: Path) -> str:
+    """The network a source belongs to: a converted scene's folder, else the configuration's net file stem."""
+    from coster_sumo.formats.scene_folder import converted_scene_file
+    from coster_sumo.formats.sumocfg import read_sumocfg
+
+    if converted_scene_file(config) is not None:
+        return config.parent.name
+    nets = read_sumocfg(config).inputs().get("net-file", [])
+    return Path(nets[0]).name.split(".")[0] if nets else config.stem
+
+
+def _net_file(config: Path) -> Path:
+    from coster_sumo.formats.sumocfg import read_sumocfg
+
+    nets = read_sumocfg(config).inputs().get("net-file", [])
+    if not nets:
+        raise InputError(f"{config}: names no net file")
+    return Path(nets[0])
+
+
+def _append_agent(scene: Scene, agent_id: str, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, speed: np.ndarray,
+                  valid: np.ndarray, length: float, width: float) -> Scene:
+    """``scene`` with one more (vehicle) agent; arrays (T,) on the scene's timestamps."""
+    tr = scene.tracks
+    T = tr.num_steps
+
+    def row(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return np.concatenate([a, v.reshape(1, T).astype(a.dtype)], axis=0)
+
+    tracks = Tracks(ids=np.array([*tr.ids.tolist(), agent_id], dtype=str),  # widened to the longest id
+                    object_type=np.append(tr.object_type, ObjectType.VEHICLE).astype(tr.object_type.dtype),
+                    x=row(tr.x, x), y=row(tr.y, y), heading=row(tr.heading, yaw),
+                    vx=row(tr.vx, speed * np.cos(yaw)), vy=row(tr.vy, speed * np.sin(yaw)),
+                    length=row(tr.length, np.full(T, length)), width=row(tr.width, np.full(T, width)),
+                    valid=row(tr.valid, valid))
+    return dataclasses.replace(scene, tracks=tracks)
+
+
+def _crop_steps(scene: Scene, t0: float, t1: float) -> Scene:
+    """The scene between SUMO times ``t0`` and ``t1`` [s] (both kept), agents never valid there dropped."""
+    ts = scene.timestamps
+    steps = np.flatnonzero((ts >= t0 - 1e-6) & (ts <= t1 + 1e-6))
+    tracks = scene.tracks.select(steps=steps)
+    keep = np.flatnonzero(tracks.valid.any(axis=1))
+    tracks = tracks.select(agents=keep)
+    signals = scene.signals
+    signals = dataclasses.replace(signals, state=signals.state[steps] if signals.state.ndim == 2 else signals.state)
+    return dataclasses.replace(scene, timestamps=ts[steps], tracks=tracks, signals=signals, current_time_index=0,
+                               sdc_index=-1)
+
+
+def build_set(opts: BuildOptions) -> dict[str, Any]:
+    """Build (or resume) the scenario set ``opts.out``; returns the manifest's counts."""
+    from coster_sumo.batch.sources import parse_sources
+    from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenarios
+    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.formats.scene_folder import LANE_MAP_FILE, converted_scene_file
+    from coster_sumo.snapshot import NoSnapshot
+
+    if opts.method not in METHODS:
+        raise InputError(f"--method must be one of {', '.join(METHODS)}, not {opts.method!r}")
+    method = METHODS[opts.method]
+    gen = None
+    if method.init is not None and method.rollout is not None:
+        gen = GenerationConfig(init=method.init, rollout=method.rollout, samples=opts.samples,
+                               variants=opts.variants, models_dir=opts.models_dir)
+        check_generation(gen)
+    specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, target=opts.target)
+    out = opts.out
+    (out / "scenarios").mkdir(parents=True, exist_ok=True)
+    (out / "nets").mkdir(exist_ok=True)
+    write_vtypes(out)
+    entries: list[ScenarioEntry] = []
+    networks: dict[str, dict[str, Any]] = {}
+    done_sources: set[str] = set()
+    failed: list[dict[str, str]] = []
+    if (out / MANIFEST).exists():  # resume
+        old = json.loads((out / MANIFEST).read_text())
+        if old.get("method") != opts.method:
+            raise InputError(f"{out}: holds a {old.get('method')!r} set, not {opts.method!r}")
+        entries = [ScenarioEntry.from_dict(d) for d in old.get("scenarios", [])]
+        networks = dict(old.get("networks", {}))
+        done_sources = set(old.get("options", {}).get("done_sources", []))
+        failed = list(old.get("options", {}).get("failed", []))
+
+    def say(text: str) -> None:
+        if opts.progress is not None:
+            opts.progress(text)
+
+    for spec in specs:
+        label = spec.label()
+        if label in done_sources:
+            continue
+        net_name = network_name(spec.config)
+        split = "test" if net_name in opts.heldout else "train"
+        networks.setdefault(net_name, {"split": split, "sources": []})
+        networks[net_name]["sources"].append(label)
+        net_rel = f"nets/{net_name}.net.xml"
+        if not (out / net_rel).exists():
+            shutil.copyfile(_net_file(spec.config), out / net_rel)
+        converted = converted_scene_file(spec.config) is not None
+        staging, tls = None, {}
+        if converted:
+            lane_map = json.loads((spec.config.parent / LANE_MAP_FILE).read_text())
+            staging, tls = lane_map.get("staging_lane"), lane_map.get("tls", {})
+        try:
+            scene, _ = nominal_scene(spec)
+            target = choose_target(scene, spec.target, spec.config)
+        except InputError as exc:
+            failed.append({"source": label, "reason": str(exc)})
+            done_sources.add(label)
+            say(f"{label}: skipped ({exc})")
+            continue
+        tr = scene.tracks
+        target_id = str(tr.ids[target])
+        ts = scene.timestamps
+        valid_t = ts[tr.valid[target]]
+        base = f"{net_name}_s{spec.seed}_{target_id}".replace("/", "_").replace("#", "_")
+        common: dict[str, Any] = {"network": net_name, "split": split, "source": label, "target": target_id,
+                                  "net": net_rel, "staging_lane": staging, "tls": tls}
+        t_dep, t_last = float(valid_t[0]), float(valid_t[-1])
+        t_end = min(t_last, t_dep + opts.horizon_s)
+        nominal = _crop_steps(scene, t_dep - 0.1, t_end)
+        save_scene(nominal, out / "scenarios" / f"{base}_nominal.npz")
+        new = [ScenarioEntry(id=f"{base}_nominal", kind="nominal", method="nominal", t_start=t_dep, t_end=t_end,
+                             extra={"criticality": criticality(scene, target)}, **common)]
+        if opts.method == "hard":
+            new.extend(_hard_variants(out, scene, target, base, common, t_dep, t_last, opts.horizon_s))
+        if gen is not None:
+            drivable = DrivableArea.from_road_map(scene.road_map)
+            try:
+                planned = plan_scenarios(scene, target, spec.seed, gen, drivable, opts.snapshots)
+            except NoSnapshot as exc:
+                planned = []
+                failed.append({"source": label, "reason": f"no snapshot: {exc}"})
+            for k, p in enumerate(planned):
+                plans = p.plans[:1] if method.one_per_snapshot else p.plans
+                for j, plan in enumerate(plans):
+                    t_start = max(t_dep, plan.t_start - opts.lead_s)
+                    t_stop = min(t_last, plan.t_col + POST_COLLISION_S)
+                    times = ts
+                    xs, ys, yaws, speeds = plan.sample(times, lead=0.05)
+                    valid = (times >= plan.t_start - 0.05) & (times <= t_stop + 1e-6)
+                    with_adv = _append_agent(scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
+                                             float(plan.length), float(plan.width))
+                    sid = f"{base}_{opts.method}_k{k}_v{j}"
+                    save_scene(_crop_steps(with_adv, t_start - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
+                    new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start,
+                                             t_end=t_stop, t_col=float(plan.t_col), adversary=plan.vehicle_id,
+                                             extra={"snapshot": k, "variant": j}, **common))
+        entries.extend(new)
+        done_sources.add(label)
+        write_manifest(out, opts.method, opts.seed, entries, networks,
+                       {**opts.to_json(), "done_sources": sorted(done_sources), "failed": failed})
+        say(f"{label}: {len(new)} scenario(s) ({sum(e.kind == 'variant' for e in new)} variants)")
+    write_manifest(out, opts.method, opts.seed, entries, networks,
+                   {**opts.to_json(), "done_sources": sorted(done_sources), "failed": failed})
+    return {"scenarios": len(entries), "variants": sum(e.kind == "variant" for e in entries),
+            "networks": {n: v["split"] for n, v in networks.items()}, "failed": failed}
+
+
+def criticality(scene: Scene, target: int) -> dict[str, float]:
+    """A SafeShift-like criticality of the target's nominal scene, from the log alone.
+
+    ``min_ttc_s``: smallest time-to-collision (bounding discs, constant velocity) with any agent
+    within 50 m; ``max_decel``: the target's hardest braking [m/s^2] (speed differences over 0.5 s);
+    ``conflicts``: agents whose path crosses the target's within 2 m with a time gap under 3 s;
+    ``score``: 1 / max(min TTC, 0.5) + max decel / 4 + conflicts (larger is more critical).
+    """
+    tr = scene.tracks
+    ts = scene.timestamps
+    v = tr.valid[target]
+    speed = np.hypot(tr.vx[target], tr.vy[target])
+    k = np.flatnonzero(v)
+    lag = 5  # 0.5 s at 10 Hz
+    decel = float(max(0.0, np.max((speed[k[:-lag]] - speed[k[lag:]]) / (ts[k[lag:]] - ts[k[:-lag]])))) \
+        if len(k) > lag else 0.0
+    min_ttc = np.inf
+    conflicts = 0
+    tx, ty = tr.x[target], tr.y[target]
+    for a in range(tr.num_agents):
+        if a == target:
+            continue
+        both = v & tr.valid[a]
+        if both.any():
+            dx, dy = tr.x[a, both] - tx[both], tr.y[a, both] - ty[both]
+            dvx, dvy = tr.vx[a, both] - tr.vx[target, both], tr.vy[a, both] - tr.vy[target, both]
+            near = np.hypot(dx, dy) < 50.0
+            radius = 0.5 * (np.hypot(tr.length[a, both], tr.width[a, both])
+                            + np.hypot(tr.length[target, both], tr.width[target, both]))
+            closing = -(dx * dvx + dy * dvy) / np.maximum(np.hypot(dvx, dvy), 1e-6)
+            gap = np.hypot(dx, dy) - radius
+            ttc = np.where(near & (closing > 0.1), np.maximum(gap, 0.0) / np.maximum(closing, 1e-6), np.inf)
+            min_ttc = min(min_ttc, float(ttc.min()))
+        pa = np.stack([tr.x[a, tr.valid[a]], tr.y[a, tr.valid[a]]], -1)[::5]
+        pt = np.stack([tx[v], ty[v]], -1)[::5]
+        if len(pa) and len(pt):
+            d = np.hypot(*(pa[:, None, :] - pt[None, :, :]).transpose(2, 0, 1))
+            i, j = np.unravel_index(np.argmin(d), d.shape)
+            if d[i, j] < 2.0 and abs(ts[tr.valid[a]][::5][i] - ts[v][::5][j]) < 3.0:
+                conflicts += 1
+    score = 1.0 / max(min_ttc, 0.5) + decel / 4.0 + conflicts
+    return {"min_ttc_s": float(min_ttc), "max_decel": decel, "conflicts": float(conflicts), "score": float(score)}
+
+
+def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict[str, Any], t_dep: float,
+                   t_last: float, horizon_s: float) -> list[ScenarioEntry]:
+    """The hand-specified adversities against ``target`` (leader emergency braking, cut-in)."""
+    from coster_sumo.gym.env import Route
+
+    tr = scene.tracks
+    ts = scene.timestamps
+    v = tr.valid[target]
+    t0 = t_dep + HARD_START_S
+    if t0 + 4.0 > t_last:
+        return []
+    k0 = int(np.argmin(np.abs(ts - t0)))
+    route = Route(np.stack([tr.x[target, v & (ts >= t0 - 1e-6)], tr.y[target, v & (ts >= t0 - 1e-6)]], -1),
+                  float(tr.heading[target, k0]))
+    length = float(np.median(tr.length[target, v]))
+    speed0 = max(float(np.hypot(tr.vx[target, k0], tr.vy[target, k0])), 5.0)
+    t_stop = min(t_last, t_dep + horizon_s)
+    times = ts
+    after = (times >= t0 - 1e-6) & (times <= t_stop + 1e-6)
+    dt = np.clip(times - t0, 0.0, None)
+    entries = []
+    # leader emergency braking: ahead on the target's path at its speed, then a hard stop
+    t_b = LEADER_BRAKE_AFTER_S
+    braking = np.clip(dt - t_b, 0.0, speed0 / LEADER_DECEL)  # [s] spent braking (until it stands)
+    s_lead = speed0 * np.minimum(dt, t_b) + speed0 * braking - 0.5 * LEADER_DECEL * braking**2
+    v_lead = np.where(dt <= t_b, speed0, np.maximum(speed0 - LEADER_DECEL * (dt - t_b), 0.0))
+    s_lead = s_lead + LEADER_GAP_M + length
+    # cut-in: the next lane (left) a little ahead at the target's speed, moving onto its path
+    f = np.clip((dt - CUT_IN_AFTER_S) / CUT_IN_DURATION_S, 0.0, 1.0)
+    lateral = CUT_IN_LATERAL_M * (1.0 - (3 * f**2 - 2 * f**3))  # smooth step
+    s_cut = CUT_IN_AHEAD_M + 0.9 * speed0 * dt
+    for name, s_along, d_off, speed in (("leader-braking", s_lead, np.zeros_like(dt), v_lead),
+                                        ("cut-in", s_cut, lateral, np.full_like(dt, 0.9 * speed0))):
+        xs, ys, hs = np.zeros(len(times)), np.zeros(len(times)), np.zeros(len(times))
+        for k in np.flatnonzero(after):
+            x, y, h = route.pose(float(s_along[k]))
+            xs[k], ys[k], hs[k] = x - d_off[k] * np.sin(h), y + d_off[k] * np.cos(h), h
+        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, after, 4.5, 1.9)
+        sid = f"{base}_hard_{name}"
+        save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
+        entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
+                                     adversary="adversity", extra={"adversity": name}, **common))
+    return entries
+
+
+def parse_networks(text: Sequence[str]) -> tuple[str, ...]:
+    """``--heldout a,b --heldout c`` -> (a, b, c)."""
+    return tuple(n.strip() for t in text for n in t.split(",") if n.strip())

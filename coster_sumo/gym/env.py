@@ -1,0 +1,460 @@
+"""``coster_sumo/Scenario-v0``: drive the target of a scenario set's scenarios in SUMO.
+
+Each :meth:`ScenarioEnv.reset` draws one scenario of the set (with the episode's seed), starts
+SUMO (libsumo, in this process) at the scenario's start and replays every vehicle but the target
+from the recorded pass (:class:`coster_sumo.sim.replay.LogReplayer`: moveToXY every step), the
+adversary of a generated variant among them; the agent drives the target. docs/gym.md explains the
+choice of replay over SUMO-driven traffic, with the measurements.
+
+Observation (``Box(-1, 1, (90,))``, float32; every entry scaled by a stated constant and clipped):
+
+====== ============================================================================================
+index  meaning (unit / scale)
+====== ============================================================================================
+0      speed [m/s] / 30
+1      last commanded acceleration [m/s^2] / 8
+2      lateral offset from the route [m] / 3.5 (> 0: left)
+3      heading relative to the route [rad] / pi
+4      route progress, fraction of the route
+5      route left [m] / 100
+6      allowed speed on the lane under the target [m/s] / 30 (0 off the lanes)
+7      the target's length [m] / 10
+8-15   route points 5, 10, 20 and 40 m ahead: (x, y) in the target's frame [m] / 50
+16     distance to the next traffic light on the target's lane [m] / 100 (1: none within 100 m)
+17     that light is red or yellow (1) or not / none (0)
+18-89  the K = 8 nearest vehicles within 50 m, nearest first, 9 numbers each: present (0/1),
+       x, y in the target's frame [m] / 50, relative velocity x, y in the target's frame
+       [m/s] / 30, cos and sin of the relative heading, length [m] / 10, width [m] / 5
+====== ============================================================================================
+
+The adversary is one of the vehicles, not marked. The target's frame: origin at its box centre,
++x along its heading, +y to its left.
+
+Action (``Box(-1, 1, (2,))``): ``a[0]`` the longitudinal acceleration (-1 -> -8 m/s^2, +1 -> +3
+m/s^2, 0 -> keep speed); ``a[1]`` the lateral offset from the route the target steers to
+(-1 -> 3.5 m right, +1 -> 3.5 m left, 0 -> on the route), reached at most at 2 m/s sideways (and at
+most 0.3 of the speed, so a stopped car does not slide). The route is the target's own recorded
+path, so ``(0, 0)`` drives it along its nominal path at constant speed.
+
+Reward, per step: 0.1 per metre of route progress; -10 and the end at a collision (our box check,
+with any vehicle); -5 and the end when the target leaves the drivable area; +5 and the end at the
+end of the route (completion; a route shorter than 5 m, a target that waited, is not completed
+early). The episode is truncated at the end of the scenario's replay.
+
+``info``: ``scenario``, ``network``, ``kind`` (nominal / variant), ``time`` [s], ``outcome``
+(``running``, ``collision``, ``off_road``, ``completed``, ``timeout``), ``collided_with`` (a vehicle
+id or None), ``collided_with_adversary``, ``off_road``, ``completed``, ``route_completion``
+(fraction), ``avoidable`` (None where unknown).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from coster_sumo.drivable import DrivableArea
+from coster_sumo.geometry import polyline_arc_length, resample_polyline
+from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
+from coster_sumo.scene import Scene, Tracks
+from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
+
+STEP_S = 0.1  # [s] SUMO's step (the replay scenes' rate)
+MAX_ACCEL = 3.0  # [m/s^2]
+MAX_DECEL = 8.0  # [m/s^2]
+MAX_SPEED = 40.0  # [m/s]
+MAX_OFFSET_M = 3.5  # [m] lateral offset at |a[1]| = 1 (one lane)
+MAX_LATERAL_SPEED = 2.0  # [m/s]
+LATERAL_TIME_S = 1.0  # [s] time constant of the approach to the commanded offset
+MAX_LATERAL_RATIO = 0.3  # lateral speed at most this share of the speed
+NUM_NEIGHBOURS = 8
+NEIGHBOUR_RADIUS_M = 50.0  # [m]
+NEIGHBOUR_FEATURES = 9
+LOOKAHEAD_M = (5.0, 10.0, 20.0, 40.0)  # [m]
+EGO_FEATURES = 8 + 2 * len(LOOKAHEAD_M) + 2
+OBS_SIZE = EGO_FEATURES + NUM_NEIGHBOURS * NEIGHBOUR_FEATURES
+ROUTE_SPACING_M = 0.5  # [m] the route polyline is resampled to this spacing
+ROUTE_EXTENSION_M = 60.0  # [m] straight run-on beyond the route's end (lookahead only)
+COMPLETION_MARGIN_M = 1.0  # [m] the route counts as completed this close to its end
+MIN_ROUTE_M = 5.0  # [m] a shorter route (a target that hardly moved) ends by time only
+ROUTE_SLACK_S = 3.0
+# [m] agents that never come this close to the target's route (its run-on included) are not replayed:
+# the observation sees 50 m, the target strays at most MAX_OFFSET_M from the route, and a converted
+# WOMD scene logs many agents far away (moveToXY costs ~50 us each on its network)
+REPLAY_RADIUS_M = NEIGHBOUR_RADIUS_M + 30.0  # [s] the route ends where the target was this long before the replay ends
+
+REWARD_PER_M = 0.1
+COLLISION_PENALTY = -10.0
+OFF_ROAD_PENALTY = -5.0
+COMPLETION_BONUS = 5.0
+
+
+class Route:
+    """The target's path as an evenly resampled polyline with tangents, for Frenet coordinates.
+
+    Args:
+        points: (P, 2) [m] the recorded path (repeated points allowed).
+        heading: [rad] heading to use when the path has no length (a target that never moved).
+    """
+
+    def __init__(self, points: np.ndarray, heading: float) -> None:
+        pts = np.asarray(points, np.float64).reshape(-1, 2)
+        keep = np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-3]) if len(pts) else np.zeros(0, bool)
+        pts = pts[keep]
+        if len(pts) >= 2 and polyline_arc_length(pts)[-1] > ROUTE_SPACING_M:
+            pts = resample_polyline(pts, ROUTE_SPACING_M)
+        else:
+            pts = pts[:1] if len(pts) else np.zeros((1, 2))
+        self.length_m = float(polyline_arc_length(pts)[-1]) if len(pts) >= 2 else 0.0
+        if len(pts) >= 2:
+            end_dir = pts[-1] - pts[-2]
+            end_heading = math.atan2(end_dir[1], end_dir[0])
+        else:
+            end_heading = heading
+        ext = pts[-1] + np.outer(np.arange(1, int(ROUTE_EXTENSION_M / ROUTE_SPACING_M) + 1) * ROUTE_SPACING_M,
+                                 [math.cos(end_heading), math.sin(end_heading)])
+        self.points = np.concatenate([pts, ext])  # (Q, 2)
+        self.cum = polyline_arc_length(self.points)  # (Q,)
+        seg = np.diff(self.points, axis=0)
+        self.seg_heading = np.arctan2(seg[:, 1], seg[:, 0])  # (Q-1,)
+
+    def pose(self, s: float) -> tuple[float, float, float]:
+        """Point (x, y) [m] and tangent heading [rad] at arc length ``s`` [m]."""
+        s = min(max(s, 0.0), float(self.cum[-1]))
+        k = min(int(np.searchsorted(self.cum, s, side="right")) - 1, len(self.seg_heading) - 1)
+        k = max(k, 0)
+        f = (s - self.cum[k]) / max(self.cum[k + 1] - self.cum[k], 1e-9)
+        p = self.points[k] + f * (self.points[k + 1] - self.points[k])
+        return float(p[0]), float(p[1]), float(self.seg_heading[k])
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class Driver:
+    """The agent's target: its route, Frenet state and kinematics, and what it observes.
+
+    Shared by the environment and by a trained policy driving the target of an injection pass
+    (:class:`coster_sumo.gym.policy.PolicyPlanner`), so both see and move alike.
+    """
+
+    route: Route
+    s: float = 0.0  # [m] arc length along the route
+    d: float = 0.0  # [m] lateral offset (> 0 left)
+    d_dot: float = 0.0  # [m/s]
+    v: float = 0.0  # [m/s]
+    accel: float = 0.0  # [m/s^2] last commanded
+    length: float = 4.5  # [m]
+    width: float = 1.9  # [m]
+    target_id: str = "ego"
+    states: Any = None  # VehicleStates of the last step
+    api: Any = None  # the SUMO API of the session
+
+    def _ego_pose(self) -> tuple[float, float, float]:
+        x, y, h = self.route.pose(self.s)
+        return (x - self.d * math.sin(h), y + self.d * math.cos(h),
+                _wrap(h + math.atan2(self.d_dot, max(self.v, 0.1))))
+
+    def _command(self, action: np.ndarray) -> float:
+        """Set the acceleration from ``action``; returns the commanded lateral offset [m]."""
+        a = np.clip(np.asarray(action, np.float64).reshape(2), -1.0, 1.0)
+        self.accel = float(a[0] * (MAX_ACCEL if a[0] >= 0 else MAX_DECEL))
+        return float(a[1]) * MAX_OFFSET_M
+
+    def _kinematic_step(self, d_target: float) -> None:
+        """Advance speed, offset and arc length by one SUMO step."""
+        self.v = min(max(self.v + self.accel * STEP_S, 0.0), MAX_SPEED)
+        lat_max = min(MAX_LATERAL_SPEED, MAX_LATERAL_RATIO * self.v)
+        self.d_dot = min(max((d_target - self.d) / LATERAL_TIME_S, -lat_max), lat_max)
+        self.d += self.d_dot * STEP_S
+        self.s += math.sqrt(max(self.v * self.v - self.d_dot * self.d_dot, 0.0)) * STEP_S
+
+    def _observe(self) -> np.ndarray:
+        obs = np.zeros(OBS_SIZE, np.float64)
+        x, y, yaw = self._ego_pose()
+        rx, ry, rh = self.route.pose(self.s)
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        length = self.route.length_m
+        obs[0] = self.v / 30.0
+        obs[1] = self.accel / MAX_DECEL
+        obs[2] = self.d / MAX_OFFSET_M
+        obs[3] = _wrap(yaw - rh) / math.pi
+        obs[4] = min(self.s / length, 1.0) if length > 0 else 1.0
+        obs[5] = max(length - self.s, 0.0) / 100.0
+        target = self.target_id
+        api = self.api
+        try:
+            obs[6] = float(api.vehicle.getAllowedSpeed(target)) / 30.0
+        except Exception:
+            obs[6] = 0.0
+        obs[7] = self.length / 10.0
+        for i, ahead in enumerate(LOOKAHEAD_M):
+            px, py, _ = self.route.pose(self.s + ahead)
+            dx, dy = px - x, py - y
+            obs[8 + 2 * i] = (c * dx + s_ * dy) / 50.0
+            obs[9 + 2 * i] = (-s_ * dx + c * dy) / 50.0
+        obs[16], obs[17] = 1.0, 0.0
+        try:
+            lights = api.vehicle.getNextTLS(target)
+            if lights:
+                _, _, dist, state = lights[0]
+                obs[16] = min(float(dist) / 100.0, 1.0)
+                obs[17] = 1.0 if str(state) in "rRyYu" else 0.0
+        except Exception:
+            pass
+        st = self.states
+        others = np.flatnonzero(st.ids != target) if len(st) else np.zeros(0, np.int64)
+        if len(others):
+            dx, dy = st.x[others] - x, st.y[others] - y
+            dist = np.hypot(dx, dy)
+            near = others[dist <= NEIGHBOUR_RADIUS_M]
+            order = np.argsort(dist[dist <= NEIGHBOUR_RADIUS_M])[:NUM_NEIGHBOURS]
+            rows = near[order]
+            if len(rows):
+                dx, dy = st.x[rows] - x, st.y[rows] - y
+                vx = st.speed[rows] * np.cos(st.yaw[rows]) - self.v * c
+                vy = st.speed[rows] * np.sin(st.yaw[rows]) - self.v * s_
+                rel = st.yaw[rows] - yaw
+                feats = np.stack([np.ones(len(rows)), (c * dx + s_ * dy) / 50.0, (-s_ * dx + c * dy) / 50.0,
+                                  (c * vx + s_ * vy) / 30.0, (-s_ * vx + c * vy) / 30.0, np.cos(rel), np.sin(rel),
+                                  st.length[rows] / 10.0, st.width[rows] / 5.0], -1)  # (k, 9)
+                obs[EGO_FEATURES:EGO_FEATURES + feats.size] = feats.reshape(-1)
+        return np.clip(obs, -1.0, 1.0).astype(np.float32)
+
+
+class ScenarioEnv(gymnasium.Env, Driver):
+    """Drive the target of scenarios from a scenario set (module docstring: spaces, reward, info).
+
+    Args:
+        scenarios: the scenario set folder (``coster-sumo scenarios build``).
+        split: ``train``, ``test`` or None (all).
+        kind: ``nominal``, ``variant`` or None (all).
+        networks: only these networks (None: all).
+        scenario_ids: only these scenarios (overrides the filters above).
+        control_period_s: [s] simulated time per :meth:`step` (a multiple of 0.1 s; collisions and
+            off-road are checked every 0.1 s in between).
+        order: ``random`` (a scenario drawn per reset with the episode's seed) or ``cycle`` (every
+            scenario in turn, for evaluation; ``reset(seed=s)`` restarts the cycle at scenario
+            ``s mod n``). ``reset(options={"scenario": ID})`` starts that scenario.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}
+
+    def __init__(self, scenarios: str | Path, split: str | None = None, kind: str | None = None,
+                 networks: tuple[str, ...] | list[str] | None = None,
+                 scenario_ids: tuple[str, ...] | list[str] | None = None, control_period_s: float = 0.2,
+                 order: str = "random") -> None:
+        super().__init__()
+        self.set = ScenarioSet.load(scenarios)
+        if scenario_ids is not None:
+            wanted = set(scenario_ids)
+            self.entries = [e for e in self.set.entries if e.id in wanted]
+        else:
+            self.entries = self.set.select(split, kind, tuple(networks) if networks is not None else None)
+        if not self.entries:
+            raise ValueError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
+        if order not in ("random", "cycle"):
+            raise ValueError(f"order must be 'random' or 'cycle', not {order!r}")
+        self.order = order
+        self.substeps = max(1, int(round(control_period_s / STEP_S)))
+        self.observation_space = spaces.Box(-1.0, 1.0, (OBS_SIZE,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self._session: Any = None
+        self._drivable: dict[str, DrivableArea] = {}
+        self._next_index = 0
+        self.entry: ScenarioEntry | None = None
+        self.episodes = 0
+        self.sim_steps = 0
+
+    # ------------------------------------------------------------------------- episode
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if options and "scenario" in options:
+            entry = next(e for e in self.entries if e.id == options["scenario"])
+        elif self.order == "cycle":
+            if seed is not None:  # a seeded reset restarts the cycle (at the seed's place in it)
+                self._next_index = int(seed) % len(self.entries)
+            entry = self.entries[self._next_index % len(self.entries)]
+            self._next_index += 1
+        else:
+            entry = self.entries[int(self.np_random.integers(len(self.entries)))]
+        self._start(entry)
+        self.episodes += 1
+        return self._observe(), self._info()
+
+    def _start(self, entry: ScenarioEntry) -> None:
+        from coster_sumo.sim.replay import LogReplayer
+        from coster_sumo.sim.session import SumoSession
+
+        self.entry = entry
+        self.target_id = entry.target
+        scene = self.set.scene(entry)
+        self.scene = scene
+        tr = scene.tracks
+        ti = tr.index_of(entry.target)
+        ts = scene.timestamps
+        k0 = int(np.argmin(np.abs(ts - entry.t_start)))
+        valid = tr.valid[ti]
+        if not valid[k0]:
+            k0 = int(np.flatnonzero(valid)[0])
+        self.length = float(np.median(tr.length[ti][valid]))
+        self.width = float(np.median(tr.width[ti][valid]))
+        route_until = max(entry.t_end - ROUTE_SLACK_S, float(ts[k0]))
+        if entry.t_col is not None:
+            route_until = min(route_until, entry.t_col)  # a variant's route ends where the contact was planned
+        keep = valid & (ts >= ts[k0] - 1e-6) & (ts <= route_until + 1e-6)
+        self.route = Route(np.stack([tr.x[ti, keep], tr.y[ti, keep]], -1), float(tr.heading[ti, k0]))
+        self.s = 0.0
+        self.d = 0.0
+        self.d_dot = 0.0
+        self.v = float(np.hypot(tr.vx[ti, k0], tr.vy[ti, k0]))
+        self.accel = 0.0
+        self.t_end = float(ts[-1])
+        self.outcome = "running"
+        self.collided_with: str | None = None
+        self.off_road = False
+        if self._session is not None:
+            self._session.close()
+        begin = round((round(float(ts[k0]) / STEP_S) - 1) * STEP_S, 6)  # on SUMO's grid (WOMD times jitter)
+        self._session = SumoSession(net=self.set.net_file(entry), begin=begin,
+                                    end=self.t_end + 10.0, step_length=STEP_S, seed=0,
+                                    additional=[self.set.vtypes_file]).start()
+        self.api = self._session.api
+        far = _far_agents(scene.tracks, k0, self.route.points[::4], REPLAY_RADIUS_M)
+        self._replayer = LogReplayer(_from_step(scene, k0), entry.tls, entry.staging_lane,
+                                     exclude={entry.target, *far})
+        drivable = self._drivable.get(entry.id)
+        if drivable is None:
+            drivable = DrivableArea.from_road_map(scene.road_map)
+            if len(self._drivable) < 64:
+                self._drivable[entry.id] = drivable
+        self._drivable_now = drivable
+        self._added = False
+        self._advance()  # the first step shows the scenario's first state
+
+    def _advance(self) -> None:
+        """One SUMO step: replay the others, place the target, step, check events."""
+        sess = self._session
+        t_next = round(sess.time + STEP_S, 9)
+        self._replayer.before_step(sess, t_next)
+        x, y, yaw = self._ego_pose()
+        target = self.entry.target if self.entry is not None else "ego"
+        if not self._added:
+            edges = None
+            try:
+                fx = x + 0.5 * self.length * math.cos(yaw)
+                fy = y + 0.5 * self.length * math.sin(yaw)
+                edge, _, _ = sess.api.simulation.convertRoad(fx, fy, False, "passenger")
+                edges = [str(edge)] if edge and not str(edge).startswith(":") else None
+            except Exception:  # no lane nearby: SUMO picks an edge, moveToXY places it anyway
+                edges = None
+            sess.add_vehicle(target, self.length, self.width, "passenger", route_edges=edges,
+                             color=(40, 120, 255, 255))
+            self._added = True
+        sess.move_to_xy(target, x, y, yaw, self.length, speed=self.v)
+        sess.step()
+        self.sim_steps += 1
+        self.states = st = sess.vehicle_states()
+        # the target's events only (the pass detector's checks of the adversary's other contacts and
+        # its batching cost more than the rest of a step here): the same box test, the same area
+        i = _row(st.id_list(), target)
+        if i < 0:
+            return
+        reach = 0.5 * (np.hypot(st.length, st.width) + math.hypot(st.length.item(i), st.width.item(i)))
+        near = np.flatnonzero(np.hypot(st.x - st.x.item(i), st.y - st.y.item(i)) <= reach + CONTACT_TOLERANCE_M)
+        for j in near.tolist():
+            if j != i and self.collided_with is None and EventDetector._in_contact(st, i, j):
+                self.collided_with = str(st.ids[j])
+        if not self.off_road:
+            self.off_road = bool(self._drivable_now.off_road(st.x[i], st.y[i], st.yaw[i], st.length[i], st.width[i]))
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._session is None or self.entry is None:
+            raise RuntimeError("call reset() before step()")
+        d_target = self._command(action)
+        s_before = self.s
+        terminated = truncated = False
+        for _ in range(self.substeps):
+            self._kinematic_step(d_target)
+            self._advance()
+            if self.collided_with is not None:
+                self.outcome, terminated = "collision", True
+            elif self.off_road:
+                self.outcome, terminated = "off_road", True
+            elif self.route.length_m >= MIN_ROUTE_M and self.s >= self.route.length_m - COMPLETION_MARGIN_M:
+                self.outcome, terminated = "completed", True
+            elif self._session.time >= self.t_end - 1e-6:
+                self.outcome, truncated = "timeout", True
+            if terminated or truncated:
+                break
+        progress = min(self.s, self.route.length_m) - min(s_before, self.route.length_m)
+        reward = REWARD_PER_M * progress
+        if self.outcome == "collision":
+            reward += COLLISION_PENALTY
+        elif self.outcome == "off_road":
+            reward += OFF_ROAD_PENALTY
+        elif self.outcome == "completed":
+            reward += COMPLETION_BONUS
+        return self._observe(), float(reward), terminated, truncated, self._info()
+
+    # ------------------------------------------------------------------------- observation
+
+    def _info(self) -> dict[str, Any]:
+        e = self.entry
+        assert e is not None
+        length = self.route.length_m
+        done = self.outcome in ("completed",)
+        return {"scenario": e.id, "network": e.network, "kind": e.kind, "time": float(self._session.time),
+                "outcome": self.outcome, "collided_with": self.collided_with,
+                "collided_with_adversary": self.collided_with is not None and self.collided_with == e.adversary,
+                "off_road": self.off_road, "completed": done,
+                "route_completion": 1.0 if done or length <= 0 else float(min(self.s / length, 1.0)),
+                "avoidable": e.avoidable}
+
+    def close(self) -> None:
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+        super().close()
+
+
+def _far_agents(tracks: Tracks, k0: int, route_points: np.ndarray, radius_m: float) -> list[str]:
+    """Ids of the agents whose valid positions from step ``k0`` on all lie farther than ``radius_m``
+    from every point of ``route_points`` (Q, 2) [m]."""
+    xy = np.stack([tracks.x[:, k0:], tracks.y[:, k0:]], -1)  # (A, T, 2)
+    far = []
+    for a in range(tracks.num_agents):
+        pts = xy[a, tracks.valid[a, k0:]]  # (n, 2)
+        if len(pts) == 0:
+            continue
+        lo, hi = pts.min(axis=0) - radius_m, pts.max(axis=0) + radius_m
+        box = route_points[((route_points >= lo) & (route_points <= hi)).all(axis=1)]  # cheap prefilter
+        if len(box) == 0 or np.min(np.hypot(*(pts[:, None, :] - box[None, :, :]).transpose(2, 0, 1))) > radius_m:
+            far.append(str(tracks.ids[a]))
+    return far
+
+
+def _row(ids: list[str], vid: str) -> int:
+    """Row of ``vid`` in ``ids`` (-1: absent)."""
+    try:
+        return ids.index(vid)
+    except ValueError:
+        return -1
+
+
+def _from_step(scene: Scene, k0: int) -> Scene:
+    """``scene`` from step ``k0`` on (the replayer starts at its first timestamp)."""
+    import dataclasses
+
+    if k0 == 0:
+        return scene
+    tracks = scene.tracks.select(steps=slice(k0, None))
+    signals = dataclasses.replace(scene.signals, state=scene.signals.state[k0:])
+    return dataclasses.replace(scene, timestamps=scene.timestamps[k0:], tracks=tracks, signals=signals)

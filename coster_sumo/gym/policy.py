@@ -1,0 +1,106 @@
+"""A trained policy as a planner (``--planner policy:PATH``) for ``run``, ``regress`` and the API.
+
+The policy (a stable-baselines3 ``policy.zip`` from ``coster-sumo policy train``) drives the target
+exactly as in ``coster_sumo/Scenario-v0``: the same observation, the same action and kinematics
+(:class:`coster_sumo.gym.env.Driver`). Its route is the target's nominal trajectory. At takeover
+(the first :meth:`before_step` with the target present, when the adversary's plan starts) the
+target's pose and speed are read from SUMO and projected onto the route; from then on the planner
+places the target with moveToXY every step and asks the policy for an action every 0.2 s.
+
+Needs the nominal trajectory of the target, which ``run`` and ``regress`` give planners on SUMO
+configurations (on converted WOMD scenes the built-in planners only).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from coster_sumo.errors import InputError
+from coster_sumo.geometry import project_points
+from coster_sumo.gym.env import STEP_S, Driver, Route
+
+if TYPE_CHECKING:
+    from coster_sumo.sim.planners import ReplayPlanner
+    from coster_sumo.sim.session import SumoSession
+
+CONTROL_PERIOD_S = 0.2  # [s] as Scenario-v0's default
+
+
+class PolicyPlanner(Driver):
+    """Drives the target with a trained policy (see the module docstring).
+
+    Args:
+        path: the policy's ``.zip`` (stable-baselines3 PPO).
+        nominal: the target's nominal trajectory (its route); None where the caller has none
+            (``run`` asks a planner for its files before the nominal pass): then it cannot drive.
+    """
+
+    def __init__(self, path: str | Path, nominal: ReplayPlanner | None) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise InputError(f"planner policy:{path}: no such policy file")
+        self.name = f"policy:{self.path.name}"
+        self.nominal = nominal
+        self.substeps = max(1, int(round(CONTROL_PERIOD_S / STEP_S)))
+        self._model: Any = None
+        self._taken = False
+        self._count = 0
+        self._d_target = 0.0
+
+    def additional_files(self, workdir: Path) -> list[Path]:
+        return []
+
+    def setup(self, session: SumoSession, target_id: str) -> None:
+        if self._model is None:
+            try:
+                from stable_baselines3 import PPO
+            except ImportError:
+                raise InputError("planner policy:...: needs stable-baselines3 (pip install coster-sumo[rl])") from None
+            self._model = PPO.load(self.path, device="cpu")
+        self._taken = False
+        self.target_id = target_id
+        self.api = session.api
+
+    def _take_over(self, session: SumoSession, target_id: str) -> None:
+        n = self.nominal
+        if n is None:
+            raise InputError("planner policy:PATH needs the target's nominal trajectory, which converted WOMD "
+                             "scenes do not give planners (use it on SUMO configurations)")
+        ok = n.valid & (n.times >= session.time - 1e-6)
+        self.route = Route(np.stack([n.x[ok], n.y[ok]], -1), float(n.yaw[ok][0]) if ok.any() else 0.0)
+        st = session.vehicle_states([target_id])
+        x, y, yaw, v = float(st.x[0]), float(st.y[0]), float(st.yaw[0]), float(st.speed[0])
+        s, d, _ = project_points(np.array([x, y]), self.route.points)
+        self.s, self.d, self.d_dot, self.v, self.accel = float(s), float(d), 0.0, v, 0.0
+        self.length, self.width = float(st.length[0]), float(st.width[0])
+        _, _, h = self.route.pose(self.s)
+        del yaw, h  # the heading follows from the route and the lateral speed, as in the environment
+        self._taken = True
+        self._count = 0
+
+    def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
+        if not present:
+            return
+        if not self._taken:
+            self._take_over(session, target_id)
+        if self._count % self.substeps == 0:
+            self.states = session.vehicle_states()
+            action = self._model.predict(self._observe(), deterministic=True)[0]
+            self._d_target = self._command(action)
+        self._count += 1
+        self._kinematic_step(self._d_target)
+        x, y, yaw = self._ego_pose()
+        if not all(math.isfinite(v) for v in (x, y, yaw)):
+            return
+        session.move_to_xy(target_id, x, y, yaw, self.length, speed=self.v)
+
+
+def make_policy_planner(arg: str | None, nominal: ReplayPlanner | None) -> PolicyPlanner:
+    """``policy:PATH`` (the :data:`coster_sumo.sim.planners.PLANNERS` entry)."""
+    if not arg:
+        raise InputError("planner policy:PATH needs the path of a policy.zip")
+    return PolicyPlanner(arg, nominal)  # without the nominal trajectory it refuses at takeover

@@ -1,0 +1,197 @@
+"""Train a driving policy on a scenario set (stable-baselines3 PPO) and evaluate it (RCR, CR, ORR).
+
+Training is resumable: every ``checkpoint_steps`` environment steps the model is saved as
+``OUT/checkpoint.zip`` (atomically, with ``OUT/progress.json``: steps done, wall time, episode
+outcomes so far); the same command after an interruption loads it and trains on up to the budget.
+The finished policy is ``OUT/policy.zip``. Every arm of the downstream experiment uses the same
+network (an MLP of two hidden layers of 64), the same PPO settings and the same budget.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.atomic import write_json
+
+POLICY_LAYERS = (64, 64)  # hidden units of the policy and value MLPs (the same for every arm)
+
+
+@dataclass
+class TrainOptions:
+    """What ``coster-sumo policy train`` takes."""
+
+    scenarios: Path
+    out: Path
+    timesteps: int = 20_000
+    seed: int = 0
+    envs: int = 1  # environments (processes when > 1)
+    checkpoint_steps: int = 2_048
+    control_period_s: float = 0.2
+    quiet: bool = False
+
+
+def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: float):  # type: ignore[no-untyped-def]
+    def make():  # type: ignore[no-untyped-def]
+        from stable_baselines3.common.monitor import Monitor
+
+        from coster_sumo.gym.env import ScenarioEnv
+
+        env = ScenarioEnv(scenarios, split=split, control_period_s=control_period_s)
+        env.reset(seed=seed)
+        return Monitor(env, info_keywords=("outcome",))
+    return make
+
+
+def train(opts: TrainOptions) -> dict[str, Any]:
+    """Train (or resume) PPO on the ``train`` split of ``opts.scenarios``; returns the progress record."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    opts.out.mkdir(parents=True, exist_ok=True)
+    makers = [_make_env(str(opts.scenarios), "train", opts.seed * 1000 + i, opts.control_period_s)
+              for i in range(opts.envs)]
+    venv = SubprocVecEnv(makers) if opts.envs > 1 else DummyVecEnv(makers)
+    ckpt = opts.out / "checkpoint.zip"
+    progress_path = opts.out / "progress.json"
+    progress: dict[str, Any] = {"options": {k: str(v) for k, v in asdict(opts).items()}, "steps": 0, "wall_s": 0.0,
+                                "outcomes": {}, "curve": []}
+    if ckpt.exists() and progress_path.exists():
+        progress = json.loads(progress_path.read_text())
+        progress["options"] = {k: str(v) for k, v in asdict(opts).items()}  # the budget may have grown
+        model = PPO.load(ckpt, env=venv, device="cpu")
+    else:
+        model = PPO("MlpPolicy", venv, seed=opts.seed, device="cpu", n_steps=512, batch_size=128, n_epochs=5,
+                    learning_rate=3e-4, gamma=0.99, policy_kwargs={"net_arch": list(POLICY_LAYERS)}, verbose=0)
+    t_start = time.perf_counter()
+    wall_before = float(progress["wall_s"])
+    outcomes: dict[str, int] = dict(progress.get("outcomes", {}))
+    returns: list[float] = []
+
+    def save() -> None:
+        tmp = opts.out / ".checkpoint.tmp.zip"
+        model.save(tmp)
+        os.replace(tmp, ckpt)
+        progress.update(steps=int(model.num_timesteps), wall_s=wall_before + time.perf_counter() - t_start,
+                        outcomes=outcomes)
+        if returns:
+            progress["curve"].append([int(model.num_timesteps), float(np.mean(returns))])
+            returns.clear()
+        write_json(progress_path, progress)
+
+    class Checkpoints(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.last = int(progress["steps"])
+
+        def _on_step(self) -> bool:
+            for info in self.locals.get("infos", []):
+                ep = info.get("episode")
+                if ep is not None:
+                    returns.append(float(ep["r"]))
+                    outcomes[info.get("outcome", "?")] = outcomes.get(info.get("outcome", "?"), 0) + 1
+            if self.num_timesteps - self.last >= opts.checkpoint_steps:
+                self.last = self.num_timesteps
+                save()
+                if not opts.quiet:
+                    print(f"{opts.out}: {self.num_timesteps} steps, {progress['wall_s']:.0f} s", flush=True)
+            return True
+
+    left = opts.timesteps - int(progress["steps"])
+    if left > 0:
+        model.learn(total_timesteps=left, callback=Checkpoints(), reset_num_timesteps=False, progress_bar=False)
+        save()
+    venv.close()
+    final = opts.out / "policy.zip"
+    if int(progress["steps"]) >= opts.timesteps:
+        tmp = opts.out / ".policy.tmp.zip"
+        model.save(tmp)
+        os.replace(tmp, final)
+    return progress
+
+
+@dataclass
+class EvalResult:
+    """Outcomes of a policy on the scenarios of a split (fractions over episodes).
+
+    Attributes:
+        episodes: scenarios driven (each once).
+        rcr: mean route completion (fraction of the route driven without collision or off-road; an
+            episode ended by either counts the part before it).
+        cr: share of episodes that ended in a collision.
+        orr: share that ended off the road.
+        per_kind: the same three per scenario kind (nominal / variant).
+    """
+
+    episodes: int
+    rcr: float
+    cr: float
+    orr: float
+    per_kind: dict[str, dict[str, float]]
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _summary(rows: list[dict[str, Any]]) -> tuple[float, float, float]:
+    if not rows:
+        return float("nan"), float("nan"), float("nan")
+    return (float(np.mean([r["route_completion"] for r in rows])),
+            float(np.mean([r["outcome"] == "collision" for r in rows])),
+            float(np.mean([r["outcome"] == "off_road" for r in rows])))
+
+
+HARD_TOP_FRACTION = 0.2  # the most critical nominal scenes of a hard set (by criticality score) that count
+
+
+def hard_ids(scenarios: str | Path, split: str | None) -> list[str]:
+    """Hard: every hand-specified adversity of the split, and its nominal scenes in the top 20 % by
+    criticality (``coster-sumo scenarios build --method hard``)."""
+    from coster_sumo.gym.scenario_set import ScenarioSet
+
+    entries = ScenarioSet.load(scenarios).select(split)
+    nominal = sorted((e for e in entries if e.kind == "nominal" and "criticality" in e.extra),
+                     key=lambda e: -e.extra["criticality"]["score"])
+    top = nominal[:max(1, int(round(HARD_TOP_FRACTION * len(nominal))))] if nominal else []
+    return [e.id for e in entries if e.kind == "variant"] + [e.id for e in top]
+
+
+def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None = "test",
+             control_period_s: float = 0.2, max_episodes: int | None = None,
+             hard: bool = False) -> tuple[EvalResult, list[dict[str, Any]]]:
+    """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0));
+    ``hard``: only the scenarios of :func:`hard_ids`."""
+    from coster_sumo.gym.env import ScenarioEnv
+
+    ids = hard_ids(scenarios, split) if hard else None
+    env = ScenarioEnv(scenarios, split=split, order="cycle", control_period_s=control_period_s, scenario_ids=ids)
+    model = None
+    if policy is not None:
+        from stable_baselines3 import PPO
+
+        model = PPO.load(policy, device="cpu")
+    rows: list[dict[str, Any]] = []
+    n = len(env.entries) if max_episodes is None else min(max_episodes, len(env.entries))
+    for i in range(n):
+        obs, info = env.reset(seed=0) if i == 0 else env.reset()
+        done = False
+        while not done:
+            action = model.predict(obs, deterministic=True)[0] if model is not None else np.zeros(2, np.float32)
+            obs, _, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+        rows.append({k: info[k] for k in ("scenario", "network", "kind", "outcome", "route_completion",
+                                          "collided_with_adversary")})
+    env.close()
+    rcr, cr, orr = _summary(rows)
+    per_kind = {}
+    for kind in sorted({r["kind"] for r in rows}):
+        k_rcr, k_cr, k_orr = _summary([r for r in rows if r["kind"] == kind])
+        per_kind[kind] = {"rcr": k_rcr, "cr": k_cr, "orr": k_orr, "episodes": sum(r["kind"] == kind for r in rows)}
+    return EvalResult(len(rows), rcr, cr, orr, per_kind), rows
