@@ -3,7 +3,8 @@
 ``train`` trains a driving policy (stable-baselines3 PPO, a small MLP) on the ``train`` split of a
 scenario set in ``coster_sumo/Scenario-v0``; rerunning the same command resumes from
 DIR/checkpoint.zip. ``eval`` drives every scenario of a split once and prints RCR, CR and ORR
-(JSON with ``--json``). The library is :mod:`coster_sumo.gym.train`; both need the ``rl`` extra.
+(and writes them with every episode to the JSON file ``-o`` names). The library is
+:mod:`coster_sumo.gym.train`; both need the ``rl`` extra.
 """
 
 from __future__ import annotations
@@ -34,8 +35,8 @@ def _eval(args: argparse.Namespace) -> int:
                             max_episodes=args.max_episodes, hard=args.hard)
     out = {"policy": str(args.policy), "scenarios": str(args.scenarios), "split": args.split, **result.to_json(),
            "episodes_detail": rows}
-    if args.json:
-        write_json(args.json, out)
+    if args.out:
+        write_json(args.out, out)
     if not args.quiet:
         print(json.dumps({k: v for k, v in out.items() if k != "episodes_detail"}, indent=1))
     return 0
@@ -53,13 +54,14 @@ def register(cli: Any) -> None:
     t.add_argument("--checkpoint-steps", type=int, default=2048, help="save every N steps (default 2048)")
     t.set_defaults(func=_train)
     e = group.add_parser("eval", help="drive every scenario of a split once: RCR, CR, ORR")
-    e.add_argument("policy", help="policy.zip or checkpoint.zip ('none': the action (0, 0), the nominal path at "
-                                  "constant speed)")
+    e.add_argument("policy", metavar="POLICY",
+                   help="policy.zip or checkpoint.zip ('none': the action (0, 0), the nominal path at constant speed)")
     e.add_argument("scenarios", type=Path, metavar="SET", help="scenario set")
     e.add_argument("--split", choices=("train", "test", "all"), default="test", help="default test")
     e.add_argument("--max-episodes", type=int, help="at most this many scenarios")
     e.add_argument("--hard", action="store_true",
                    help="Hard (a set built with --method hard): the hand-specified adversities and the top 20 %% "
                         "of the nominal scenes by criticality")
-    e.add_argument("--json", type=Path, help="also write the result (and every episode) to this JSON file")
+    e.add_argument("-o", "--out", "--json", dest="out", type=Path, metavar="JSON",
+                   help="also write the result (and every episode) to this JSON file")
     e.set_defaults(func=_eval)

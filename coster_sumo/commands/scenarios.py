@@ -36,7 +36,7 @@ def register(cli: Any) -> None:
     group = cli.group("scenarios", help="scenario sets for training driving policies (Gymnasium)")
     b = group.add_parser("build", help="nominal scenes and generated variants into a scenario set (resumable)",
                          description=__doc__.split("\n\n")[1] if __doc__ else None)
-    b.add_argument("sources", nargs="+",
+    b.add_argument("sources", nargs="+", metavar="SOURCE",
                    help="scene sources: CFG.sumocfg[@seed=N,target=ID], a folder (every .sumocfg below, e.g. "
                         "converted WOMD scenes) or a text file listing sources")
     b.add_argument("-o", "--out", type=Path, required=True, help="scenario set folder (created; resumed if present)")
