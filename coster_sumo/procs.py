@@ -61,21 +61,22 @@ def signal_name(code: int) -> str:
     return f"signal {code}"
 
 
-def _one_openmp_thread() -> None:
+def one_openmp_thread_after_fork() -> bool:
     """In a forked child of a process that may have run OpenMP code (torch, scikit-learn's KMeans):
     one thread. The parent's OpenMP pool does not survive the fork, and a child that starts a
     parallel region on more than one thread hangs (measured: a torch matrix product and a KMeans fit
     after fork never returned); on one thread both work. A parent that loaded neither (the CLI
-    forks before any model is loaded) leaves its children all threads."""
+    forks before any model is loaded) leaves its children all threads. Returns whether it limited."""
     torch = sys.modules.get("torch")
     if torch is None and "sklearn" not in sys.modules:
-        return
+        return False
     with contextlib.suppress(Exception):
         from threadpoolctl import threadpool_limits
 
         threadpool_limits(1, user_api="openmp")
     if torch is not None:
         torch.set_num_threads(1)
+    return True
 
 
 def _child_body(fn: Callable[[], Any], path: str) -> None:
@@ -83,7 +84,7 @@ def _child_body(fn: Callable[[], Any], path: str) -> None:
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     faulthandler.disable()  # a crash is reported by the parent as one line, not a dump on the terminal
-    _one_openmp_thread()
+    one_openmp_thread_after_fork()
     code = 0
     try:
         value = fn()

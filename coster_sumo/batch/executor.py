@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.errors import InputError
-from coster_sumo.procs import die_with_parent, signal_name
+from coster_sumo.procs import die_with_parent, one_openmp_thread_after_fork, signal_name
 
 DEFAULT_TIMEOUT_S = 900.0  # [s] wall clock per task
 
@@ -109,6 +109,8 @@ def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], wr
     if scratch is not None:
         os.environ["TMPDIR"] = scratch  # SUMO's and other child processes' temporary files too
         tempfile.tempdir = scratch
+    if one_openmp_thread_after_fork():  # the parent ran torch or scikit-learn: one thread or a hang
+        threads = 1
     if threads is not None:
         _limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
