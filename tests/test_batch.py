@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -103,11 +104,34 @@ def _thread_limits(payload: dict) -> dict:
 
 
 def test_workers_share_the_cores_instead_of_oversubscribing_them():
+    """As the command line runs a batch: a driver that has not loaded torch gives each task the
+    cores divided among the workers."""
+    code = textwrap.dedent("""
+        import json, os, sys
+        from coster_sumo.batch.executor import Task, execute
+        from tests.test_batch import _thread_limits
+        assert "torch" not in sys.modules
+        got = {w: execute([Task("t", _thread_limits, {})], workers=w, timeout=120)[0][1].value for w in (1, 2, 64)}
+        print(json.dumps(got))
+    """)
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == 0, done.stderr
     cores = os.cpu_count() or 1
-    for workers in (1, 2, 64):
-        out = _outcomes(execute([Task("t", _thread_limits, {})], workers=workers, timeout=120))
-        expect = max(1, cores // workers)
-        assert out["t"].ok and out["t"].value == {"torch": expect, "omp": str(expect)}, (workers, out["t"])
+    for workers, value in json.loads(done.stdout.strip().splitlines()[-1]).items():
+        expect = max(1, cores // int(workers))
+        assert value == {"torch": expect, "omp": str(expect)}, (workers, value)
+
+
+def test_a_driver_that_ran_torch_gives_its_tasks_one_thread():
+    """A task process forked from a process that has run torch hangs when it runs torch on more than
+    one thread (the parent's thread pool does not survive the fork): such a driver (a test, the
+    Python API) gives every task one thread."""
+    import torch
+
+    torch.ones(4) @ torch.ones(4)
+    out = _outcomes(execute([Task("t", _thread_limits, {})], workers=1, timeout=120))
+    assert out["t"].ok and out["t"].value == {"torch": 1, "omp": "1"}, out["t"]
 
 
 @pytest.mark.parametrize(("k", "n", "low", "high"), [
