@@ -70,25 +70,25 @@ def regression_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]
     return head, rows
 
 
+def _defect_words(summary: dict[str, Any]) -> str:
+    return (f"{summary.get('avoidable_variants', 0)} of {summary['variants']} variants were avoidable "
+            "(an escape proven in SUMO from the stated reaction time after the adversary became a threat, "
+            "docs/method.md step 8). A contact in an avoidable variant is a defect of the planner; a contact "
+            "in an unavoidable one is not. Brackets: Wilson 95% interval (k/n runs).")
+
+
 def defect_section_md(summary: dict[str, Any], head: list[str], rows: list[list[str]]) -> list[str]:
     """The headline of a regression: defects (contact in an avoidable variant) apart from unavoidable contacts."""
     if not rows:
         return []
-    return ["## Defects", "",
-            f"{summary.get('avoidable_variants', 0)} of {summary['variants']} variants were avoidable "
-            "(an escape proven in SUMO from the stated reaction time after the adversary became a threat, "
-            "docs/method.md step 8). A contact in an avoidable variant is a defect of the planner; a contact "
-            "in an unavoidable one is not. Brackets: Wilson 95% interval (k/n runs).", "",
-            _md_table(head, rows), ""]
+    return ["## Defects", "", _defect_words(summary), "", _md_table(head, rows), ""]
 
 
 def defect_section_html(summary: dict[str, Any], head: list[str], rows: list[list[str]]) -> list[str]:
+    """:func:`defect_section_md` in HTML, in the same words."""
     if not rows:
         return []
-    return ["<h2>Defects</h2>",
-            f"<p>{summary.get('avoidable_variants', 0)} of {summary['variants']} variants were avoidable (an escape "
-            "proven in SUMO). A contact in an avoidable variant is a defect of the planner; one in an unavoidable "
-            "variant is not. Brackets: Wilson 95% interval (k/n runs).</p>", _html_table(head, rows)]
+    return ["<h2>Defects</h2>", f"<p>{html.escape(_defect_words(summary))}</p>", _html_table(head, rows)]
 
 
 def _md_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:

@@ -578,7 +578,8 @@ def run_convert_batch(batch: list[FuzzInput], good: Path, workdir: Path, timeout
         summary = json.loads((out / "summary.json").read_text())
     converted = {s["input"]: s for s in summary.get("scenes", [])}
     listed = {Path(s["folder"]).name for s in summary.get("scenes", [])}
-    present = {p.name for p in out.iterdir()} - {"summary.json"} if out.is_dir() else set()
+    # the scene folders; summary.json and the marker that says coster-sumo wrote the folder are not scenes
+    present = {p.name for p in out.iterdir()} - {"summary.json", ".coster-sumo.json"} if out.is_dir() else set()
     batch_problems = []
     if "Traceback" in stderr or rc < 0:
         batch_problems.append(f"traceback or crash (rc {rc})")
