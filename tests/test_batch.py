@@ -42,6 +42,9 @@ def test_segfault_and_hang_become_failed_outcomes_and_the_rest_finish(tmp_path):
         assert out[k].ok and out[k].value["name"] == k
     assert not out["crash"].ok and "SIGSEGV" in out["crash"].reason
     assert not out["stuck"].ok and "timed out after 2 s" in out["stuck"].reason
+    # where it hung, from the task's own stack: the sleep in probe_task
+    assert "in coster_sumo/batch/executor.py:" in out["stuck"].reason and "(probe_task)" in out["stuck"].reason
+    assert "time.sleep" not in out["stuck"].reason and "Current thread" in out["stuck"].detail
     assert not out["oops"].ok and "ValueError: probe oops failed on purpose" in out["oops"].reason
     assert "Traceback" in out["oops"].detail
     assert not out["quit"].ok and "code 3" in out["quit"].reason
@@ -123,15 +126,30 @@ def test_workers_share_the_cores_instead_of_oversubscribing_them():
         assert value == {"torch": expect, "omp": str(expect)}, (workers, value)
 
 
-def test_a_driver_that_ran_torch_gives_its_tasks_one_thread():
-    """A task process forked from a process that has run torch hangs when it runs torch on more than
-    one thread (the parent's thread pool does not survive the fork): such a driver (a test, the
-    Python API) gives every task one thread."""
+def _torch_on_all_threads(payload: dict) -> dict:
     import torch
 
-    torch.ones(4) @ torch.ones(4)
-    out = _outcomes(execute([Task("t", _thread_limits, {})], workers=1, timeout=120))
-    assert out["t"].ok and out["t"].value == {"torch": 1, "omp": "1"}, out["t"]
+    x = torch.ones(512, 512)
+    for _ in range(20):  # big enough for torch to start its OpenMP pool on every thread it has
+        x = (x @ x).clamp(max=1.0)
+    return {"torch": torch.get_num_threads(), "omp": os.environ.get("OMP_NUM_THREADS")}
+
+
+def test_a_driver_that_ran_torch_starts_its_tasks_from_a_clean_fork_server():
+    """A task forked from a process that has run torch hangs when it runs torch on more than one
+    thread (the parent's OpenMP pool does not survive the fork). Such a driver (a test, the Python
+    API) starts its tasks from a fork server that never ran a thread pool: they run torch on their
+    share of the cores and return."""
+    import torch
+
+    from coster_sumo.batch.executor import _default_start_method
+
+    x = torch.ones(256, 256)
+    _ = x @ x  # the driver's OpenMP pool is up
+    assert _default_start_method() == "forkserver"
+    out = _outcomes(execute([Task("t", _torch_on_all_threads, {})], workers=1, timeout=120))
+    cores = os.cpu_count() or 1
+    assert out["t"].ok and out["t"].value == {"torch": cores, "omp": str(cores)}, out["t"]
 
 
 @pytest.mark.parametrize(("k", "n", "low", "high"), [

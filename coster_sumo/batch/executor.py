@@ -102,14 +102,18 @@ def _limit_threads(n: int) -> None:
 
 
 def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], writer: Connection,
-                log_path: str | None, threads: int | None = None, scratch: str | None = None) -> None:
+                log_path: str | None, threads: int | None = None, scratch: str | None = None,
+                forked_from_driver: bool = True) -> None:
     """Body of a task process: run, send ("ok", value) or ("error", reason, traceback), exit hard.
-    ``scratch``: the task's temporary folder (the parent removes it)."""
+    ``scratch``: the task's temporary folder (the parent removes it); on a timeout the parent asks
+    for the task's Python stack (SIGUSR1), which goes to ``scratch/STACK_FILE``."""
     die_with_parent()
     if scratch is not None:
         os.environ["TMPDIR"] = scratch  # SUMO's and other child processes' temporary files too
         tempfile.tempdir = scratch
-    if one_openmp_thread_after_fork():  # the parent ran torch or scikit-learn: one thread or a hang
+    # forked from a driver that ran torch or scikit-learn: one thread or a hang (a task from the
+    # fork server, which ran neither, keeps its share of the cores)
+    if forked_from_driver and one_openmp_thread_after_fork():
         threads = 1
     if threads is not None:
         _limit_threads(threads)
@@ -117,6 +121,9 @@ def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], wr
     import faulthandler
 
     faulthandler.disable()  # a crash is reported as one line by the parent, not a dump on its terminal
+    if scratch is not None:  # kept open for the process's life: faulthandler writes to its descriptor
+        stack = open(os.path.join(scratch, STACK_FILE), "w")  # noqa: SIM115
+        faulthandler.register(signal.SIGUSR1, file=stack, all_threads=True)
     if log_path is not None:
         with contextlib.suppress(OSError):
             fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
@@ -139,6 +146,49 @@ def _child_main(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], wr
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(0)  # skip atexit handlers inherited from the parent (libsumo, tqdm)
+
+
+STACK_FILE = ".stack.txt"  # in a task's scratch folder: its Python stack, written on SIGUSR1
+
+
+def _stack_of(r: _Running, wait_s: float = 2.0) -> tuple[str, str]:
+    """A hung task's Python stack (faulthandler's dump on SIGUSR1) and, for the one-line reason,
+    where its main thread was: `` in FILE:LINE (FUNCTION)``, innermost frame of the package."""
+    path = Path(r.scratch) / STACK_FILE
+    with contextlib.suppress(OSError):
+        os.kill(r.proc.pid, signal.SIGUSR1)
+    text = ""
+    deadline = time.monotonic() + wait_s
+    while not text and time.monotonic() < deadline:
+        time.sleep(0.05)
+        with contextlib.suppress(OSError):
+            text = path.read_text(errors="replace")
+    if text:  # faulthandler writes the dump in one go from its signal handler; let it finish
+        time.sleep(0.1)
+        with contextlib.suppress(OSError):
+            text = path.read_text(errors="replace")
+    return where_it_hung(text), text
+
+
+def where_it_hung(stack: str) -> str:
+    """From a faulthandler dump: the innermost frame of the thread that runs the task, in the
+    package's own code where it has one (``File "…/coster_sumo/x.py", line 3 in f``)."""
+    for block in stack.split("\n\n"):
+        frames = [ln.strip() for ln in block.splitlines() if ln.strip().startswith("File ")]
+        if not any(ln.endswith(" in _child_main") for ln in frames):
+            continue
+        ours = [ln for ln in frames if "/coster_sumo/" in ln and not ln.endswith(" in _child_main")]
+        line = (ours or frames)[0]
+        try:
+            file = line.split('"')[1]
+            lineno = line.split(", line ")[1].split()[0]
+            func = line.rsplit(" in ", 1)[1]
+        except IndexError:
+            return ""
+        if "/coster_sumo/" in file:
+            file = "coster_sumo/" + file.rsplit("/coster_sumo/", 1)[1]
+        return f" in {file}:{lineno} ({func})"
+    return ""
 
 
 def _one_line(exc: BaseException) -> str:
@@ -185,13 +235,32 @@ def _remove_orphaned_scratch() -> None:
             pass
 
 
+def _driver_has_run_threads() -> bool:
+    """Whether this process may have started thread pools that a forked child would inherit broken:
+    torch's and scikit-learn's OpenMP pools (a child that runs them on more than one thread hangs)
+    and the locks other threads may hold at the moment of the fork. The command line forks its tasks
+    before it loads either; a test or a Python API user may have run both."""
+    return "torch" in sys.modules or "sklearn" in sys.modules
+
+
 def _default_start_method() -> str:
-    return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+    """``fork`` from a driver that has run no thread pools (fast: the child inherits the imports);
+    ``forkserver`` from one that has (tasks fork from a clean server process that only imported
+    the task modules, so they run every library on all their threads); ``spawn`` where there is
+    no fork."""
+    methods = mp.get_all_start_methods()
+    if "fork" not in methods:
+        return "spawn"
+    return "forkserver" if _driver_has_run_threads() and "forkserver" in methods else "fork"
 
 
 def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
-                   progress: Any, start_method: str | None, log_dir: Path | None) -> None:
-    ctx: Any = mp.get_context(start_method or _default_start_method())
+                   progress: Any, start_method: str | None, log_dir: Path | None,
+                   preload: Sequence[str] = ()) -> None:
+    method = start_method or _default_start_method()
+    ctx: Any = mp.get_context(method)
+    if method == "forkserver":  # the server imports these once; every task forks from it
+        ctx.set_forkserver_preload(sorted({*preload, *(t.fn.__module__ for t in pending)}))
     running: list[_Running] = []
     threads = max(1, (os.cpu_count() or 1) // max(1, workers))  # the cores shared among the workers
     _remove_orphaned_scratch()
@@ -212,7 +281,8 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
                 log = (log_dir / f"{task.key}.log") if log_dir is not None else None
                 scratch = tempfile.mkdtemp(prefix=f"{_SCRATCH_PREFIX}{os.getpid()}-")
                 proc = ctx.Process(target=_child_main, args=(task.fn, task.payload, writer,
-                                                             str(log) if log else None, threads, scratch),
+                                                             str(log) if log else None, threads, scratch,
+                                                             method == "fork"),
                                    name=f"coster-{task.key}", daemon=True)
                 proc.start()
                 writer.close()  # the child holds the only writer: EOF when it dies
@@ -245,9 +315,11 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
                     else:
                         finish(r, Outcome(False, reason=msg[1], wall_time_s=wall, detail=msg[2]))
                 elif timeout is not None and wall > timeout:
+                    where, stack = _stack_of(r)
                     r.proc.kill()
                     r.proc.join()
-                    finish(r, Outcome(False, reason=f"timed out after {timeout:g} s (killed)", wall_time_s=wall))
+                    finish(r, Outcome(False, reason=f"timed out after {timeout:g} s (killed){where}",
+                                      wall_time_s=wall, detail=stack))
     finally:
         for r in running:
             with contextlib.suppress(Exception):
@@ -453,7 +525,7 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
             log_dir.mkdir(parents=True, exist_ok=True)
         if executor == "local":
             _execute_local(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
-                           start_method=start_method, log_dir=log_dir)
+                           start_method=start_method, log_dir=log_dir, preload=preload)
         else:
             _execute_ray(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
                          ray_address=ray_address)
