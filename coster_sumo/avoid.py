@@ -471,25 +471,18 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
         o_box, o_valid = others  # (N, n, 5), (N, n)
         hit = _too_close(grown[kk, mm], o_box, o_valid & after[kk, 0][:, None, :].any(0))  # (G,)
         good[kk[hit], mm[hit]] = False
-    # only what is clear is checked against the road (the costlier test)
-    if drivable is not None and good.any():
-        kk, mm = np.nonzero(good)
-        sub = np.arange(0, n, max(1, round(OFF_ROAD_SPACING_S / DT_S)))
-        sel_x = pos[kk, mm][:, sub, 0]
-        sel_y = pos[kk, mm][:, sub, 1]
-        sel_yaw = yaw[kk, mm][:, sub]
-        off = drivable.off_road(sel_x, sel_y, sel_yaw, np.asarray(length), np.asarray(width))  # (G, S)
-        off &= after[kk, 0][:, sub]
-        # where the log itself is off the road (a map that misses a driveway) the same spot is forgiven
-        nominal_off = drivable.off_road(nx[sub], ny[sub], nyaw[sub], np.asarray(length), np.asarray(width))
-        off &= ~nominal_off[None, :]
-        good[kk, mm] = ~off.any(-1)
+    # only what is clear is checked against the road (the costlier test), and only as far as the
+    # answer needs it: the least demanding escape per reaction time and the last moment to act
+    on_road = _RoadCheck(drivable, pos, yaw, length, width, after[:, 0], nx, ny, nyaw, n)
     demand = np.max(np.where(after, a_comb, 0.0), -1)  # (K, M)
     peak_decel = np.max(np.where(after, np.maximum(-a_lon, 0.0), 0.0), -1)
     peak_lat = np.max(np.where(after & moving, a_lat, 0.0), -1)
     t_acts = times[act_k]
-    any_good = good.any(1)
-    last_moment = float(t_col - t_acts[any_good].max()) if any_good.any() else None
+    last_moment = None
+    for k in np.flatnonzero(good.any(1))[::-1]:  # the latest moment with an escape on the road
+        if on_road(np.full(int(good[k].sum()), k), np.flatnonzero(good[k])).any():
+            last_moment = float(t_col - t_acts[k])
+            break
     for r in reaction_times:
         allowed = t_acts >= t_threat + r - 1e-6
         ok_r = good & allowed[:, None]
@@ -497,9 +490,10 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
             continue
         # least demanding: smallest peak acceleration; then the earlier act; then the first manoeuvre
         # (longitudinal before lateral, the gentler first)
-        score = np.where(ok_r, demand, np.inf)
-        best = np.flatnonzero(score <= score.min() + 1e-9)
-        kb, mb = (int(v) for v in np.unravel_index(best[0], good.shape))
+        best = on_road.least(ok_r, demand)
+        if best is None:
+            continue
+        kb, mb = best
         box = make_boxes(pos[kb, mb, :, 0], pos[kb, mb, :, 1], yaw[kb, mb], length, width)  # (n, 5)
         gap = box_signed_distance(box, adv_box)
         if others is not None:
@@ -512,6 +506,61 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
                             peak_lateral_accel=float(peak_lat[kb, mb]), peak_accel=float(demand[kb, mb]))
     return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, last_moment, escapes, reaction_time_s,
                         candidates=int(k_count * m_count))
+
+
+class _RoadCheck:
+    """Whether candidate escapes stay on the drivable area, computed on demand and remembered.
+
+    The test (footprints every :data:`OFF_ROAD_SPACING_S` against the area) costs most of the
+    search when run on every clear candidate; the search needs it for few of them.
+    """
+
+    CHUNK = 32  # candidates tested at a time, in order of demand
+
+    def __init__(self, drivable: DrivableArea | None, pos: np.ndarray, yaw: np.ndarray, length: float,
+                 width: float, acted: np.ndarray, nx: np.ndarray, ny: np.ndarray, nyaw: np.ndarray, n: int):
+        self.drivable, self.pos, self.yaw, self.length, self.width = drivable, pos, yaw, length, width
+        self.acted = acted  # (K, n): steps after acting
+        self.sub = np.arange(0, n, max(1, round(OFF_ROAD_SPACING_S / DT_S)))
+        self.known: dict[tuple[int, int], bool] = {}
+        self.nominal_off: np.ndarray | None = None
+        if drivable is not None:  # where the log itself is off the road (a map that misses a driveway) the spot is forgiven
+            self.nominal_off = drivable.off_road(nx[self.sub], ny[self.sub], nyaw[self.sub], np.asarray(length),
+                                                 np.asarray(width))
+
+    def __call__(self, kk: np.ndarray, mm: np.ndarray) -> np.ndarray:
+        """(G,) on the road, for candidates (kk[i], mm[i])."""
+        if self.drivable is None or self.nominal_off is None:
+            return np.ones(len(kk), bool)
+        todo = [i for i, key in enumerate(zip(kk.tolist(), mm.tolist(), strict=True)) if key not in self.known]
+        if todo:
+            tk, tm = kk[todo], mm[todo]
+            sub = self.sub
+            off = self.drivable.off_road(self.pos[tk, tm][:, sub, 0], self.pos[tk, tm][:, sub, 1],
+                                         self.yaw[tk, tm][:, sub], np.asarray(self.length), np.asarray(self.width))
+            off &= self.acted[tk][:, sub] & ~self.nominal_off[None, :]
+            for k, m, bad in zip(tk.tolist(), tm.tolist(), off.any(-1).tolist(), strict=True):
+                self.known[(k, m)] = not bad
+        return np.array([self.known[key] for key in zip(kk.tolist(), mm.tolist(), strict=True)], bool)
+
+    def least(self, allowed: np.ndarray, demand: np.ndarray) -> tuple[int, int] | None:
+        """The allowed candidate on the road with the smallest demand (ties within 1e-9: the first
+        in (act, manoeuvre) order), or None."""
+        flat = np.flatnonzero(allowed)
+        flat = flat[np.lexsort((flat, demand.ravel()[flat]))]  # by demand, then position
+        shape = allowed.shape
+        for start in range(0, len(flat), self.CHUNK):
+            chunk = flat[start:start + self.CHUNK]
+            kk, mm = np.unravel_index(chunk, shape)
+            ok = self(kk, mm)
+            if ok.any():
+                low = float(demand.ravel()[chunk[np.argmax(ok)]])
+                near = flat[demand.ravel()[flat] <= low + 1e-9]  # every tie, tested too
+                kk, mm = np.unravel_index(near, shape)
+                ok_near = near[self(kk, mm)]
+                first = int(ok_near.min())
+                return int(first // shape[1]), int(first % shape[1])
+        return None
 
 
 def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
