@@ -524,7 +524,7 @@ class _RoadCheck:
         self.sub = np.arange(0, n, max(1, round(OFF_ROAD_SPACING_S / DT_S)))
         self.known: dict[tuple[int, int], bool] = {}
         self.nominal_off: np.ndarray | None = None
-        if drivable is not None:  # where the log itself is off the road (a map that misses a driveway) the spot is forgiven
+        if drivable is not None:  # where the log itself is off the road (a map that misses a driveway): forgiven
             self.nominal_off = drivable.off_road(nx[self.sub], ny[self.sub], nyaw[self.sub], np.asarray(length),
                                                  np.asarray(width))
 
@@ -539,7 +539,9 @@ class _RoadCheck:
             off = self.drivable.off_road(self.pos[tk, tm][:, sub, 0], self.pos[tk, tm][:, sub, 1],
                                          self.yaw[tk, tm][:, sub], np.asarray(self.length), np.asarray(self.width))
             off &= self.acted[tk][:, sub] & ~self.nominal_off[None, :]
-            for k, m, bad in zip(tk.tolist(), tm.tolist(), off.any(-1).tolist(), strict=True):
+            bad_rows: np.ndarray = np.any(off, axis=-1)
+            bad_any: list[bool] = bad_rows.tolist()
+            for k, m, bad in zip(tk.tolist(), tm.tolist(), bad_any, strict=True):
                 self.known[(k, m)] = not bad
         return np.array([self.known[key] for key in zip(kk.tolist(), mm.tolist(), strict=True)], bool)
 
