@@ -1,14 +1,16 @@
 """Speed and leaks of ``coster_sumo/Scenario-v0``, against highway-env's ``highway-fast-v0`` in the same run.
 
     pip install highway-env            # only for this bench (not a dependency of coster-sumo)
-    python bench/bench_gym.py --set SET [--womd-set WSET] [--episodes 1000] [--seconds 20]
+    python bench/bench_gym.py --set SET [--womd-set WSET] [--episodes 1000] [--seconds 20] [--traffic log,sumo]
 
 1. Speed, per process: for every network of ``SET`` (and of ``WSET``, a set built from converted
    WOMD scenes) episodes run back to back with a fixed action (0, 0) for ``--seconds`` of wall
-   time; it prints simulated seconds per wall second (resets included) and environment steps per
-   second. Then ``highway-fast-v0`` (its default configuration: 1 policy step = 1 simulated
-   second, 15 simulation steps per policy step) runs the same way with its idle action, and the
-   ratio is printed. Both run in this one process, one after the other.
+   time, once per traffic mode (``log``: the other vehicles read from the recorded pass, the
+   default; ``sumo``: every vehicle in SUMO, moved by moveToXY); it prints simulated seconds per
+   wall second (resets included) and environment steps per second. Then ``highway-fast-v0`` (its
+   default configuration: 1 policy step = 1 simulated second, 15 simulation steps per policy step)
+   runs the same way with its idle action, and the ratio is printed. Both run in this one process,
+   in ``--rounds`` interleaved slices (highway-fast-v0 in each round); the medians are printed.
 2. Leaks: ``--episodes`` episodes (resets and steps) of Scenario-v0 in turn over every scenario of
    ``SET``; resident memory (VmRSS), open file descriptors and child processes are read after the
    first 50 episodes and at the end.
@@ -72,57 +74,84 @@ def main() -> None:
     ap.add_argument("--womd-set", type=Path, help="scenario set of converted WOMD scenes")
     ap.add_argument("--seconds", type=float, default=20.0, help="wall seconds per speed measurement")
     ap.add_argument("--episodes", type=int, default=1000, help="episodes of the leak check (0: skip)")
+    ap.add_argument("--rounds", type=int, default=5, help="slices per measurement, interleaved (default: %(default)s)")
+    ap.add_argument("--traffic", default="log,sumo",
+                    help="the environment's traffic modes to time, comma-separated (default: %(default)s)")
     args = ap.parse_args()
 
     from coster_sumo.gym.env import STEP_S, ScenarioEnv
     from coster_sumo.gym.scenario_set import ScenarioSet
 
-    rows: list[tuple[str, float, float, int]] = []
-    sets = [args.set] + ([args.womd_set] if args.womd_set else [])
-    for root in sets:
-        for net in sorted({e.network for e in ScenarioSet.load(root).entries}):
-            env = ScenarioEnv(root, networks=(net,))
-            per_step = env.substeps * STEP_S
-            rate, sps, eps = run_for(env, args.seconds, np.zeros(2, np.float32), per_step)
-            env.close()
-            rows.append((f"Scenario-v0 {net}", rate, sps, eps))
-            print(f"Scenario-v0 {net:24s} {rate:8.1f} sim s/wall s  {sps:7.1f} steps/s  ({eps} episodes)", flush=True)
     try:
         import gymnasium
         import highway_env  # noqa: F401
 
         gymnasium.register_envs(highway_env)
         hw = gymnasium.make("highway-fast-v0")
-        freq = hw.unwrapped.config["policy_frequency"]
-        idle = 1  # DiscreteMetaAction: IDLE
-        rate, sps, eps = run_for(hw, args.seconds, idle, 1.0 / freq)
-        hw.close()
-        print(f"highway-fast-v0 {'':20s} {rate:8.1f} sim s/wall s  {sps:7.1f} steps/s  ({eps} episodes)")
-        ours = [r[1] for r in rows]
-        print(f"ratio Scenario-v0 / highway-fast-v0: min {min(ours) / rate:.2f}, max {max(ours) / rate:.2f}")
+        hw_per_step = 1.0 / hw.unwrapped.config["policy_frequency"]
     except ImportError:
+        hw = None
         print("highway-env not installed (pip install highway-env): no comparison")
+    idle = 1  # highway-env's DiscreteMetaAction: IDLE
+    configs = [(root, net, traffic) for root in [args.set] + ([args.womd_set] if args.womd_set else [])
+               for net in sorted({e.network for e in ScenarioSet.load(root).entries})
+               for traffic in args.traffic.split(",")]
+    # rounds of short slices, highway-fast-v0 in every round: a ratio per round, robust to a load that
+    # changes during the bench (other processes on the machine)
+    slice_s = args.seconds / args.rounds
+    rates: dict[str, list[float]] = {}
+    ratios: dict[str, list[float]] = {}
+    for _ in range(args.rounds):
+        hw_rate = run_for(hw, slice_s, idle, hw_per_step)[0] if hw is not None else float("nan")
+        rates.setdefault("highway-fast-v0", []).append(hw_rate)
+        for root, net, traffic in configs:
+            env = ScenarioEnv(root, networks=(net,), traffic=traffic)
+            rate = run_for(env, slice_s, np.zeros(2, np.float32), env.substeps * STEP_S)[0]
+            env.close()
+            key = f"Scenario-v0 {net} traffic={traffic}"
+            rates.setdefault(key, []).append(rate)
+            ratios.setdefault(key, []).append(rate / hw_rate if hw_rate > 0 else float("nan"))
+    if hw is not None:
+        hw.close()
+    print(f"{'environment':52s} {'sim s / wall s (median of rounds)':>34s} {'/ highway-fast-v0':>18s}")
+    for key, vals in rates.items():
+        ratio = f"{float(np.median(ratios[key])):.2f}" if key in ratios else ""
+        print(f"{key:52s} {float(np.median(vals)):34.1f} {ratio:>18s}")
+    for traffic in args.traffic.split(","):
+        mine = [float(np.median(v)) for k, v in ratios.items() if k.endswith(f"traffic={traffic}")]
+        if mine:
+            print(f"ratio Scenario-v0 (traffic={traffic}) / highway-fast-v0: min {min(mine):.2f}, max {max(mine):.2f}")
 
     if args.episodes > 0:
-        env = ScenarioEnv(args.set, order="cycle")
-        env.reset(seed=0)
-        t0 = time.perf_counter()
-        first: tuple[float, int, int] | None = None
-        for ep in range(args.episodes):
-            if ep:
-                env.reset()
-            for _ in range(15):  # 3 simulated seconds per episode: resets dominate, as they would for leaks
-                _, _, term, trunc, _ = env.step(env.action_space.sample())
-                if term or trunc:
-                    break
-            if ep == 49:
-                first = (_rss_mb(), _fds(), _children())
-        env.close()
-        rss, fds, kids = _rss_mb(), _fds(), _children()
-        if first is not None:
-            print(f"leaks over {args.episodes} episodes ({time.perf_counter() - t0:.0f} s): RSS {first[0]:.1f} -> "
-                  f"{rss:.1f} MB after episode 50 -> end; fds {first[1]} -> {fds}; "
-                  f"child processes {first[2]} -> {kids}")
+        for root in [args.set] + ([args.womd_set] if args.womd_set else []):
+            leak_check(root, args.episodes)
+
+
+def leak_check(root: Path, episodes: int) -> None:
+    """``episodes`` short episodes in turn over every scenario of ``root`` in one environment
+    (which keeps a network loaded across the episodes on it where it can): memory, descriptors and
+    child processes after episode 50 and at the end."""
+    from coster_sumo.gym.env import ScenarioEnv
+
+    env = ScenarioEnv(root, order="cycle")
+    env.reset(seed=0)
+    t0 = time.perf_counter()
+    first: tuple[float, int, int] | None = None
+    for ep in range(episodes):
+        if ep:
+            env.reset()
+        for _ in range(15):  # 3 simulated seconds per episode: resets dominate, as they would for leaks
+            _, _, term, trunc, _ = env.step(env.action_space.sample())
+            if term or trunc:
+                break
+        if ep == 49:
+            first = (_rss_mb(), _fds(), _children())
+    env.close()
+    rss, fds, kids = _rss_mb(), _fds(), _children()
+    if first is not None:
+        print(f"leaks, {root.name}, over {episodes} episodes ({time.perf_counter() - t0:.0f} s): RSS "
+              f"{first[0]:.1f} -> {rss:.1f} MB after episode 50 -> end; fds {first[1]} -> {fds}; "
+              f"child processes {first[2]} -> {kids}")
 
 
 if __name__ == "__main__":

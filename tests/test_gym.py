@@ -142,6 +142,56 @@ def test_vectorised_with_async_vector_env(nominal_set):
     envs.close()
 
 
+def _episode(scenarios: Path, scenario: str, traffic: str, actions: np.ndarray,
+             env: ScenarioEnv | None = None) -> list[tuple]:
+    """One episode of ``scenario`` driven by ``actions``: (obs, reward, terminated, truncated, outcome,
+    collided_with) per step; in a new environment, or in ``env`` (left open)."""
+    own = env is None
+    if env is None:
+        env = ScenarioEnv(scenarios, scenario_ids=[scenario], traffic=traffic)
+    obs, info = env.reset(seed=0, options={"scenario": scenario})
+    rows = [(obs, 0.0, False, False, info["outcome"], info["collided_with"])]
+    for a in actions:
+        obs, reward, terminated, truncated, info = env.step(a)
+        rows.append((obs, reward, terminated, truncated, info["outcome"], info["collided_with"]))
+        if terminated or truncated:
+            break
+    if own:
+        env.close()
+    return rows
+
+
+def _same_episodes_with_the_log_as_with_sumo(scenarios: Path) -> list[str]:
+    """Every scenario of the set driven by the same random actions with the other vehicles read from
+    the log and with them in SUMO: the same observations, rewards and outcomes, step for step. The
+    log's episodes run one after the other in one environment (which keeps a network loaded where it
+    can), SUMO's each in a new one."""
+    ids = [e.id for e in ScenarioSet.load(scenarios).entries]
+    ids = ids + ids[:1]  # the first again, after the others
+    rng = np.random.default_rng(0)
+    actions = [rng.uniform(-0.4, 0.4, (300, 2)).astype(np.float32) for _ in ids]
+    one = ScenarioEnv(scenarios, traffic="log")  # libsumo: one simulation per process, so one after the other
+    logs = [_episode(scenarios, sid, "log", a, one) for sid, a in zip(ids, actions, strict=True)]
+    one.close()
+    outcomes = []
+    for sid, acts, log in zip(ids, actions, logs, strict=True):
+        sumo = _episode(scenarios, sid, "sumo", acts)
+        assert len(log) == len(sumo), sid
+        for k, (a, b) in enumerate(zip(log, sumo, strict=True)):
+            # SUMO reports the pose moveToXY gave it; the observation is float32 of values scaled to
+            # [-1, 1]: equal to float32 rounding (measured: equal bit for bit)
+            np.testing.assert_allclose(a[0], b[0], rtol=0, atol=1e-6, err_msg=f"{sid} step {k}")
+            assert a[2:] == b[2:] and a[1] == pytest.approx(b[1], abs=1e-9), (sid, k, a[1:], b[1:])
+        outcomes.append(log[-1][4])
+    return outcomes
+
+
+def test_the_other_vehicles_read_from_the_log_give_the_same_episodes_as_in_sumo(nominal_set, variant_set):
+    outcomes = _same_episodes_with_the_log_as_with_sumo(nominal_set) + _same_episodes_with_the_log_as_with_sumo(
+        variant_set)
+    assert "collision" in outcomes  # the variants' adversaries are among the vehicles read from the log
+
+
 @pytest.mark.realdata
 @pytest.mark.skipif(not (WOMD_PROTO or WOMD_PKL), reason=NO_WOMD_REASON)
 def test_short_episode_on_a_converted_womd_scene(tmp_path):
@@ -163,6 +213,7 @@ def test_short_episode_on_a_converted_womd_scene(tmp_path):
             break
     assert info["outcome"] in ("running", "completed"), info
     env.close()
+    _same_episodes_with_the_log_as_with_sumo(out)  # some 75 logged agents around the target
 
 
 @pytest.mark.slow

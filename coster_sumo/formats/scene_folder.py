@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -117,13 +118,17 @@ def tls_state_strings(scene: Scene, tls: dict[str, dict]) -> dict[str, list[str]
 def agent_sizes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(num_agents,) length and width [m]: the median over valid steps (SUMO's size is fixed)."""
     tr = scene.tracks
-    lengths = np.zeros(tr.num_agents)
-    widths = np.zeros(tr.num_agents)
-    for a in range(tr.num_agents):
-        v = tr.valid[a]
-        default = vtype_for(int(tr.object_type[a]))
-        lengths[a] = float(np.median(tr.length[a, v])) if v.any() else default[3]
-        widths[a] = float(np.median(tr.width[a, v])) if v.any() else default[4]
+    valid = tr.valid
+    seen = valid.any(axis=1)
+    defaults = np.array([vtype_for(int(t))[3:5] for t in tr.object_type], np.float64).reshape(-1, 2)
+    sizes = []
+    for values, default in ((tr.length, defaults[:, 0]), (tr.width, defaults[:, 1])):
+        with warnings.catch_warnings():  # rows without a valid step: their default below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(np.where(valid, values, np.nan), axis=1).astype(np.float64)
+        med[(valid & ~np.isfinite(values)).any(axis=1)] = np.nan  # a non-finite logged size: as np.median gives
+        sizes.append(np.where(seen, med, default))
+    lengths, widths = sizes
     bad_l = ~np.isfinite(lengths) | (lengths < MIN_SIZE_M)
     bad_w = ~np.isfinite(widths) | (widths < MIN_SIZE_M)
     lengths[bad_l] = MIN_SIZE_M

@@ -2,9 +2,12 @@
 
 Each :meth:`ScenarioEnv.reset` draws one scenario of the set (with the episode's seed), starts
 SUMO (libsumo, in this process) at the scenario's start and replays every vehicle but the target
-from the recorded pass (:class:`coster_sumo.sim.replay.LogReplayer`: moveToXY every step), the
-adversary of a generated variant among them; the agent drives the target. docs/gym.md explains the
-choice of replay over SUMO-driven traffic, with the measurements.
+from the recorded pass, the adversary of a generated variant among them; the agent drives the
+target. As nothing in SUMO reacts to replayed vehicles, their states are read from the recorded
+pass (:class:`coster_sumo.sim.replay.LogTraffic`) while SUMO holds the target and runs the
+signals; ``traffic="sumo"`` puts every vehicle into SUMO instead
+(:class:`coster_sumo.sim.replay.LogReplayer`: moveToXY every step), with the same episodes.
+docs/gym.md explains the choice of replay over SUMO-driven traffic, with the measurements.
 
 Observation (``Box(-1, 1, (90,))``, float32; every entry scaled by a stated constant and clipped):
 
@@ -62,6 +65,7 @@ from coster_sumo.geometry import polyline_arc_length, resample_polyline
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
 from coster_sumo.scene import Scene, Tracks
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
+from coster_sumo.sim.states import concat_states
 
 STEP_S = 0.1  # [s] SUMO's step (the replay scenes' rate)
 MAX_ACCEL = 3.0  # [m/s^2]
@@ -241,6 +245,10 @@ class ScenarioEnv(gymnasium.Env, Driver):
         order: ``random`` (a scenario drawn per reset with the episode's seed) or ``cycle`` (every
             scenario in turn, for evaluation; ``reset(seed=s)`` restarts the cycle at scenario
             ``s mod n``). ``reset(options={"scenario": ID})`` starts that scenario.
+        traffic: ``log`` (default: the other vehicles' states read from the recorded pass; SUMO
+            holds the target and runs the signals) or ``sumo`` (every vehicle put into SUMO and
+            moved there by moveToXY each step). Both give the same episodes (``tests/test_gym.py``);
+            ``log`` costs no moveToXY per vehicle.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -248,7 +256,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
     def __init__(self, scenarios: str | Path, split: str | None = None, kind: str | None = None,
                  networks: tuple[str, ...] | list[str] | None = None,
                  scenario_ids: tuple[str, ...] | list[str] | None = None, control_period_s: float = 0.2,
-                 order: str = "random") -> None:
+                 order: str = "random", traffic: str = "log") -> None:
         super().__init__()
         self.set = ScenarioSet.load(scenarios)
         if scenario_ids is not None:
@@ -260,11 +268,20 @@ class ScenarioEnv(gymnasium.Env, Driver):
             raise ValueError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
         if order not in ("random", "cycle"):
             raise ValueError(f"order must be 'random' or 'cycle', not {order!r}")
+        if traffic not in ("log", "sumo"):
+            raise ValueError(f"traffic must be 'log' or 'sumo', not {traffic!r}")
+        self.traffic = traffic
         self.order = order
         self.substeps = max(1, int(round(control_period_s / STEP_S)))
         self.observation_space = spaces.Box(-1.0, 1.0, (OBS_SIZE,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._session: Any = None
+        self._traffic: Any = None  # LogTraffic when traffic == "log"
+        self._session_net: Path | None = None  # the network the session has loaded
+        self._sumo_target: str | None = None  # the target's id in SUMO once added
+        self._t_shift = 0.0  # [s] SUMO's clock minus the scenario's
+        # per scenario (64 at most): its scene, the agents too far to replay, the replayed part, LogTraffic
+        self._replays: dict[str, tuple[Scene, list[str], Scene, Any]] = {}
         self._drivable: dict[str, DrivableArea] = {}
         self._next_index = 0
         self.entry: ScenarioEntry | None = None
@@ -290,12 +307,13 @@ class ScenarioEnv(gymnasium.Env, Driver):
         return self._observe(), self._info()
 
     def _start(self, entry: ScenarioEntry) -> None:
-        from coster_sumo.sim.replay import LogReplayer
+        from coster_sumo.sim.replay import LogReplayer, LogTraffic
         from coster_sumo.sim.session import SumoSession
 
         self.entry = entry
         self.target_id = entry.target
-        scene = self.set.scene(entry)
+        cached = self._replays.get(entry.id)  # what an episode of this scenario replays never changes
+        scene = cached[0] if cached is not None else self.set.scene(entry)
         self.scene = scene
         tr = scene.tracks
         ti = tr.index_of(entry.target)
@@ -320,16 +338,38 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self.outcome = "running"
         self.collided_with: str | None = None
         self.off_road = False
-        if self._session is not None:
-            self._session.close()
         begin = round((round(float(ts[k0]) / STEP_S) - 1) * STEP_S, 6)  # on SUMO's grid (WOMD times jitter)
-        self._session = SumoSession(net=self.set.net_file(entry), begin=begin,
-                                    end=self.t_end + 10.0, step_length=STEP_S, seed=0,
-                                    additional=[self.set.vtypes_file]).start()
+        net = self.set.net_file(entry)
+        sess = self._session
+        # SUMO loads a network once for the episodes on it when nothing in it depends on SUMO's clock:
+        # the log drives every signal (a converted scene) and SUMO holds the target only
+        if (sess is not None and self.traffic == "log" and self._session_net == net
+                and set(sess.tls_ids()) <= set(entry.tls)):
+            if self._sumo_target is not None:
+                sess.remove_vehicle(self._sumo_target)
+                sess.step()  # gone before the next target comes (it may have the same id)
+            self._t_shift = round(sess.time - begin, 6)
+        else:
+            if sess is not None:
+                sess.close()
+            self._session = SumoSession(net=net, begin=begin, end=None, step_length=STEP_S, seed=0,
+                                        additional=[self.set.vtypes_file]).start()
+            self._session_net = net
+            self._t_shift = 0.0
+        self._sumo_target = None
         self.api = self._session.api
-        far = _far_agents(scene.tracks, k0, self.route.points[::4], REPLAY_RADIUS_M)
-        self._replayer = LogReplayer(_from_step(scene, k0), entry.tls, entry.staging_lane,
-                                     exclude={entry.target, *far})
+        if cached is None:
+            far = _far_agents(scene.tracks, k0, self.route.points[::4], REPLAY_RADIUS_M)
+            replayed = _from_step(scene, k0)
+            traffic = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic == "log" else None
+            cached = (scene, far, replayed, traffic)
+            if len(self._replays) < 64:
+                self._replays[entry.id] = cached
+        _, far, replayed, self._traffic = cached
+        if self.traffic == "sumo":  # every agent in SUMO, moved by moveToXY each step
+            self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude={entry.target, *far})
+        else:  # SUMO holds the target and runs the signals; the agents are read from the log
+            self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude=set(tr.ids.tolist()))
         drivable = self._drivable.get(entry.id)
         if drivable is None:
             drivable = DrivableArea.from_road_map(scene.road_map)
@@ -342,7 +382,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
     def _advance(self) -> None:
         """One SUMO step: replay the others, place the target, step, check events."""
         sess = self._session
-        t_next = round(sess.time + STEP_S, 9)
+        t_next = round(self._now() + STEP_S, 9)
         self._replayer.before_step(sess, t_next)
         x, y, yaw = self._ego_pose()
         target = self.entry.target if self.entry is not None else "ego"
@@ -358,10 +398,16 @@ class ScenarioEnv(gymnasium.Env, Driver):
             sess.add_vehicle(target, self.length, self.width, "passenger", route_edges=edges,
                              color=(40, 120, 255, 255))
             self._added = True
+            self._sumo_target = target
         sess.move_to_xy(target, x, y, yaw, self.length, speed=self.v)
         sess.step()
         self.sim_steps += 1
-        self.states = st = sess.vehicle_states()
+        st = sess.vehicle_states()
+        if self._traffic is not None:
+            k = self._replayer.step_at(self._now())
+            if k is not None:
+                st = concat_states(st, self._traffic.states_at(k))
+        self.states = st
         # the target's events only (the pass detector's checks of the adversary's other contacts and
         # its batching cost more than the rest of a step here): the same box test, the same area
         i = _row(st.id_list(), target)
@@ -390,7 +436,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
                 self.outcome, terminated = "off_road", True
             elif self.route.length_m >= MIN_ROUTE_M and self.s >= self.route.length_m - COMPLETION_MARGIN_M:
                 self.outcome, terminated = "completed", True
-            elif self._session.time >= self.t_end - 1e-6:
+            elif self._now() >= self.t_end - 0.5 * STEP_S:  # the last logged step (WOMD times jitter)
                 self.outcome, truncated = "timeout", True
             if terminated or truncated:
                 break
@@ -411,12 +457,16 @@ class ScenarioEnv(gymnasium.Env, Driver):
         assert e is not None
         length = self.route.length_m
         done = self.outcome in ("completed",)
-        return {"scenario": e.id, "network": e.network, "kind": e.kind, "time": float(self._session.time),
+        return {"scenario": e.id, "network": e.network, "kind": e.kind, "time": self._now(),
                 "outcome": self.outcome, "collided_with": self.collided_with,
                 "collided_with_adversary": self.collided_with is not None and self.collided_with == e.adversary,
                 "off_road": self.off_road, "completed": done,
                 "route_completion": 1.0 if done or length <= 0 else float(min(self.s / length, 1.0)),
                 "avoidable": e.avoidable}
+
+    def _now(self) -> float:
+        """[s] the scenario's time (SUMO's clock runs on over the episodes of a loaded network)."""
+        return round(float(self._session.time) - self._t_shift, 9)
 
     def close(self) -> None:
         if self._session is not None:

@@ -44,6 +44,7 @@ from coster_sumo.formats.scene_folder import (
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.scene import Scene, load_scene
 from coster_sumo.sim.session import SumoSession
+from coster_sumo.sim.states import VehicleStates, empty_states
 
 STAGING_SPACING_M = 25.0  # [m] between agents parked on the staging lane (longer than any vehicle)
 TIME_EPS_S = 1e-6  # [s] two simulation times this close are the same step
@@ -207,6 +208,44 @@ class LogReplayer:
             for a in np.flatnonzero(self.valid[:, nxt]).tolist():
                 if a not in self.active:
                     self._add(session, a)
+
+
+class LogTraffic:
+    """The logged agents as states read straight from the log, without putting them into SUMO.
+
+    Where nothing in SUMO reacts to them (every agent driven by moveToXY, as in a replay), SUMO
+    would report exactly the logged poses, sizes and speeds that :class:`LogReplayer` gives it
+    (``tests/test_gym.py`` compares the two); reading them here skips a moveToXY per agent and
+    step (about 50 us each on a converted network). An agent is present at the steps where the log
+    has it valid, under its log id, with :func:`agent_sizes`' length and width.
+
+    Args:
+        scene: the logged scene (its first timestamp is step 0).
+        exclude: agent ids left out (the target, agents too far to matter).
+    """
+
+    def __init__(self, scene: Scene, exclude: set[str] | frozenset[str] = frozenset()) -> None:
+        tr = scene.tracks
+        keep = np.array([str(i) not in exclude for i in tr.ids], bool)
+        rows = np.flatnonzero(keep)
+        lengths, widths = agent_sizes(scene)
+        self.valid = tr.valid[rows]  # (A, T)
+        self.x, self.y, self.yaw = tr.x[rows], tr.y[rows], (tr.heading[rows] + np.pi) % (2 * np.pi) - np.pi
+        self.speed = np.hypot(tr.vx[rows], tr.vy[rows])
+        self.length, self.width = lengths[rows].astype(np.float64), widths[rows].astype(np.float64)
+        vt = [vtype_for(int(tr.object_type[a])) for a in rows]
+        self.ids = np.array([str(tr.ids[a]) for a in rows], dtype=str)
+        self.vclass = np.array([v[1] for v in vt], dtype=str)
+        self.type_id = np.array([v[0] for v in vt], dtype=str)
+
+    def states_at(self, k: int) -> VehicleStates:
+        """The agents present at log step ``k`` (none outside the log)."""
+        if not 0 <= k < self.valid.shape[1]:
+            return empty_states()
+        a = np.flatnonzero(self.valid[:, k])
+        return VehicleStates(ids=self.ids[a], x=self.x[a, k], y=self.y[a, k], yaw=self.yaw[a, k],
+                             speed=self.speed[a, k], length=self.length[a], width=self.width[a],
+                             vclass=self.vclass[a], type_id=self.type_id[a])
 
 
 def replay_scene(cfg: str | Path, opts: ReplayOptions | None = None) -> dict:

@@ -124,6 +124,8 @@ class SumoSession:
         self._time = 0.0
         self._stderr: IO[bytes] | None = None
         self._tls_ids: tuple[str, ...] = ()
+        self._types: dict[tuple[str, str, bool], str] = {}  # (vehicle id, base type, remote) -> its vType
+        self._routes: dict[tuple[str, ...], str] = {}  # edges -> the route add_vehicle made of them
 
     # ------------------------------------------------------------------------- life cycle
 
@@ -468,9 +470,16 @@ class SumoSession:
         libsumo on some getters (docs/sumo.md §3).
         """
         api = self.api
-        type_id = f"{veh_id}@coster"
         vt = api.vehicletype
-        vt.copy(base_type, type_id)
+        # a vehicle added again after its removal (an environment's target, episode after episode)
+        # reuses its type and any route it had: SUMO keeps every type and route it was given
+        kind = (veh_id, base_type, remote)
+        type_id = self._types.get(kind)
+        if type_id is None:
+            n = sum(1 for k in self._types if k[0] == veh_id)
+            type_id = f"{veh_id}@coster" + ("" if n == 0 else f"#{n}")
+            vt.copy(base_type, type_id)
+            self._types[kind] = type_id
         vt.setLength(type_id, float(length))
         vt.setWidth(type_id, float(width))
         vt.setVehicleClass(type_id, vclass)
@@ -479,8 +488,11 @@ class SumoSession:
             vt.setMaxSpeed(type_id, REMOTE_MAX_SPEED_MPS)
             vt.setSpeedDeviation(type_id, 0.0)
         if route_edges is not None:
-            route_id = f"{veh_id}@route"
-            api.route.add(route_id, list(route_edges))
+            route_id = self._routes.get(tuple(route_edges))
+            if route_id is None:
+                route_id = f"{veh_id}@route" + ("" if not self._routes else f"#{len(self._routes)}")
+                api.route.add(route_id, list(route_edges))
+                self._routes[tuple(route_edges)] = route_id
         try:
             api.vehicle.add(veh_id, route_id or "", typeID=type_id, depart=depart)
         except Exception as exc:

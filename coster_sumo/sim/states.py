@@ -64,3 +64,16 @@ def empty_states() -> VehicleStates:
     f = np.zeros(0, np.float64)
     s = np.zeros(0, dtype=str)
     return VehicleStates(ids=s, x=f, y=f, yaw=f, speed=f, length=f, width=f, vclass=s, type_id=s)
+
+
+def concat_states(*parts: VehicleStates) -> VehicleStates:
+    """The vehicles of ``parts``, in order, as one :class:`VehicleStates`."""
+    parts = tuple(p for p in parts if len(p))
+    if not parts:
+        return empty_states()
+    if len(parts) == 1:
+        return parts[0]
+    names = [n for p in parts for n in p.id_list()]
+    return VehicleStates(**{f: np.concatenate([getattr(p, f) for p in parts])
+                            for f in ("ids", "x", "y", "yaw", "speed", "length", "width", "vclass", "type_id")},
+                         names=names)
