@@ -127,6 +127,9 @@ def test_variant_replays_its_contact_at_t_col(variant_set):
             _, _, terminated, truncated, info = env.step(nominal_action(env))
         assert info["outcome"] == "collision" and info["collided_with_adversary"], info
         assert info["time"] == pytest.approx(entry.t_col, abs=0.25)
+        # generation's label, proven in SUMO (docs/method.md), travels with the scenario
+        assert isinstance(info["avoidable"], bool) and info["avoidable"] == entry.avoidable
+        assert entry.extra["contact"] and ("last_moment_s" in entry.extra)
     env.close()
 
 
@@ -247,7 +250,8 @@ def test_hard_set_leader_braking_hits_a_target_that_keeps_its_speed(tmp_path):
     out = tmp_path / "hard"
     build_set(BuildOptions(sources=CONFIGS[2:], out=out, method="hard"))
     s = ScenarioSet.load(out)
-    assert {e.extra.get("adversity") for e in s.select(kind="variant")} == {"leader-braking", "cut-in"}
+    assert {e.extra.get("adversity") for e in s.select(kind="variant")} == {"leader-braking", "cut-in",
+                                                                          "red-light-runner"}
     assert "score" in s.select(kind="nominal")[0].extra["criticality"]
     (entry,) = [e for e in s.entries if e.extra.get("adversity") == "leader-braking"]
     env = ScenarioEnv(out)
@@ -262,3 +266,38 @@ def test_hard_set_leader_braking_hits_a_target_that_keeps_its_speed(tmp_path):
     env.close()
     assert outcomes["keep"] == "adversity"
     assert outcomes["brake"] != "adversity"  # (a replayed follower may still run into it: replay does not react)
+
+
+def test_hard_set_red_light_runner_crosses_on_red_into_a_target_that_keeps_its_nominal_speed(tmp_path):
+    from coster_sumo.scene import SignalState
+
+    out = tmp_path / "hard"
+    build_set(BuildOptions(sources=CONFIGS[2:], out=out, method="hard"))
+    s = ScenarioSet.load(out)
+    (entry,) = [e for e in s.entries if e.extra.get("adversity") == "red-light-runner"]
+    scene = s.scene(entry)
+    tr, sig = scene.tracks, scene.signals
+    runner = tr.index_of("adversity")
+    t_conflict = entry.extra["t_conflict"]
+    k = int(np.argmin(np.abs(scene.timestamps - t_conflict)))
+    # the lane it runs shows stop then, and the runner is on that lane's centreline
+    column = entry.extra["signal"]
+    assert int(sig.state[k, column]) in (SignalState.STOP, SignalState.ARROW_STOP)
+    line = np.asarray(scene.road_map.lanes.centerline[int(sig.lane_index[column])])
+    import shapely
+
+    assert shapely.LineString(line).distance(shapely.Point(tr.x[runner, k], tr.y[runner, k])) < 0.5
+    env = ScenarioEnv(out)
+    outcomes = {}
+    for name in ("nominal", "brake"):
+        env.reset(options={"scenario": entry.id})
+        done, info = False, {}
+        while not done:
+            action = nominal_action(env) if name == "nominal" else np.array([-1.0, 0.0], np.float32)
+            _, _, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+        outcomes[name] = (info["collided_with"], info["time"])
+    env.close()
+    assert outcomes["nominal"][0] == "adversity" and abs(outcomes["nominal"][1] - t_conflict) < 1.0, outcomes
+    assert outcomes["brake"][0] != "adversity", outcomes
+

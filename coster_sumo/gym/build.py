@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -26,7 +27,7 @@ import numpy as np
 
 from coster_sumo.errors import InputError
 from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, write_manifest, write_vtypes
-from coster_sumo.scene import ObjectType, Scene, Tracks, save_scene
+from coster_sumo.scene import ObjectType, Scene, SignalState, Tracks, save_scene
 from coster_sumo.spec import GenerationConfig
 
 
@@ -61,6 +62,10 @@ CUT_IN_DURATION_S = 2.5  # [s] to reach the target's path
 
 LEAD_S = 3.0  # [s] an episode of a variant starts this long before its adversary appears
 HORIZON_S = 20.0  # [s] an episode of a nominal scene lasts at most this long from the target's departure
+RED_RUNNER_SPEED = 12.0  # [m/s] the red-light runner's constant speed through the junction
+RED_RUNNER_MIN_ANGLE = math.radians(30.0)  # a crossing movement, not one beside the target's
+RED_RUNNER_LEAD_S = 3.0  # [s] the target reaches the conflict point at least this long after the start
+RED_RUNNER_TAIL_S = 4.0  # [s] and this long before the episode ends (its route ends 3 s before)
 POST_COLLISION_S = 3.0  # [s] a variant's episode runs on this long after t_col (the agent may have slowed)
 
 
@@ -227,9 +232,13 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
             except NoSnapshot as exc:
                 planned = []
                 failed.append({"source": label, "reason": f"no snapshot: {exc}"})
+            from coster_sumo.defects import label_plans
+
             for k, p in enumerate(planned):
                 plans = p.plans[:1] if method.one_per_snapshot else p.plans
-                for j, plan in enumerate(plans):
+                # whether the target could have avoided each contact (docs/method.md), for info["avoidable"]
+                labels = label_plans(spec, scene, target, plans, drivable=drivable) if plans else []
+                for j, (plan, lab) in enumerate(zip(plans, labels, strict=True)):
                     t_start = max(t_dep, plan.t_start - opts.lead_s)
                     t_stop = min(t_last, plan.t_col + POST_COLLISION_S)
                     times = ts
@@ -241,7 +250,9 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
                     save_scene(_crop_steps(with_adv, t_start - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
                     new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start,
                                              t_end=t_stop, t_col=float(plan.t_col), adversary=plan.vehicle_id,
-                                             extra={"snapshot": k, "variant": j}, **common))
+                                             avoidable=lab.avoidable,
+                                             extra={"snapshot": k, "variant": j, "contact": lab.contact_kind,
+                                                    "last_moment_s": lab.last_moment_s}, **common))
         entries.extend(new)
         done_sources.add(label)
         write_manifest(out, opts.method, opts.seed, entries, networks,
@@ -299,7 +310,8 @@ def criticality(scene: Scene, target: int) -> dict[str, float]:
 
 def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict[str, Any], t_dep: float,
                    t_last: float, horizon_s: float) -> list[ScenarioEntry]:
-    """The hand-specified adversities against ``target`` (leader emergency braking, cut-in)."""
+    """The hand-specified adversities against ``target`` (leader emergency braking, cut-in, and a
+    red-light runner where a crossing lane shows stop as the target passes)."""
     from coster_sumo.gym.env import Route
 
     tr = scene.tracks
@@ -339,7 +351,94 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
         save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
         entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
                                      adversary="adversity", extra={"adversity": name}, **common))
+    runner = red_light_runner(scene, target, t0, t_stop)
+    if runner is not None:
+        xs, ys, hs, speed, present, t_hit, signal = runner
+        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, present, 4.5, 1.9)
+        sid = f"{base}_hard_red-light-runner"
+        save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
+        entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
+                                     adversary="adversity",
+                                     extra={"adversity": "red-light-runner", "signal": signal, "t_conflict": t_hit},
+                                     **common))
     return entries
+
+
+def red_light_runner(scene: Scene, target: int, t0: float, t_stop: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, int] | None:
+    """A vehicle that runs a red light across the target's path: its states on the scene's steps
+    (x, y, heading, speed, present), the time it reaches the target's path and the column of
+    ``scene.signals`` of the lane it runs, or None.
+
+    The conflict: the first signal-controlled lane whose centreline crosses the target's logged path
+    (at more than 30 degrees) at a point the target reaches at least 3 s after ``t0`` and 4 s
+    before ``t_stop``, while that lane's signal shows stop (red or red arrow). The runner drives along the
+    lane (extended straight before and after it) at 12 m/s, timed so that its centre is at the
+    crossing point when the target's is; before ``t0`` and after ``t_stop`` it is absent.
+    """
+    tr, ts, lanes, sig = scene.tracks, scene.timestamps, scene.road_map.lanes, scene.signals
+    v = tr.valid[target] & (ts >= t0 - 1e-6) & (ts <= t_stop + 1e-6)
+    if v.sum() < 2 or not len(sig.lane_index):
+        return None
+    path = np.stack([tr.x[target, v], tr.y[target, v]], -1)  # (P, 2), on the scene's steps
+    path_t = ts[v]
+    red = {int(SignalState.STOP), int(SignalState.ARROW_STOP)}
+    best: tuple[float, int, np.ndarray, int, int] | None = None  # (time, lane, point, lane segment, column)
+    for c, lane in enumerate(sig.lane_index.tolist()):
+        line = np.asarray(lanes.centerline[lane], np.float64)
+        if len(line) < 2:
+            continue
+        hit = _first_crossing(path, line)
+        if hit is None:
+            continue
+        i, j, point = hit  # path segment i, lane segment j
+        t_hit = float(path_t[i])
+        if not (t0 + RED_RUNNER_LEAD_S <= t_hit <= t_stop - RED_RUNNER_TAIL_S):
+            continue
+        k_hit = int(np.argmin(np.abs(ts - t_hit)))
+        if int(sig.state[k_hit, c]) not in red:
+            continue
+        d_path, d_lane = path[i + 1] - path[i], line[j + 1] - line[j]
+        cross = abs(math.atan2(d_path[0] * d_lane[1] - d_path[1] * d_lane[0], float(d_path @ d_lane)))
+        if cross < RED_RUNNER_MIN_ANGLE or (best is not None and t_hit >= best[0]):
+            continue
+        best = (t_hit, lane, point, j, c)
+    if best is None:
+        return None
+    t_hit, lane, point, j, column = best
+    line = np.asarray(lanes.centerline[lane], np.float64)
+    # the runner's route: the lane's centreline, extended straight backwards far enough to start from
+    back = RED_RUNNER_SPEED * (t_hit - t0) + 10.0
+    start_dir = (line[1] - line[0]) / max(float(np.hypot(*(line[1] - line[0]))), 1e-9)
+    points = np.concatenate([line[:1] - back * start_dir, line])
+    from coster_sumo.gym.env import Route
+
+    route = Route(points, math.atan2(start_dir[1], start_dir[0]))
+    s_hit = back + float(np.sum(np.hypot(*np.diff(line[:j + 1], axis=0).T))) + float(np.hypot(*(point - line[j])))
+    present = (ts >= t0 - 1e-6) & (ts <= t_stop + 1e-6)
+    n = len(ts)
+    xs, ys, hs = np.zeros(n), np.zeros(n), np.zeros(n)
+    for k in np.flatnonzero(present):
+        xs[k], ys[k], hs[k] = route.pose(s_hit + RED_RUNNER_SPEED * (float(ts[k]) - t_hit))
+    return xs, ys, hs, np.full(n, RED_RUNNER_SPEED), present, t_hit, column
+
+
+def _first_crossing(path: np.ndarray, line: np.ndarray) -> tuple[int, int, np.ndarray] | None:
+    """Where polyline ``path`` (P, 2) first crosses polyline ``line`` (L, 2): (segment of path,
+    segment of line, point), or None."""
+    p0, p1 = path[:-1, None, :], path[1:, None, :]  # (P-1, 1, 2)
+    q0, q1 = line[None, :-1, :], line[None, 1:, :]  # (1, L-1, 2)
+    r, s_ = p1 - p0, q1 - q0
+    denom = r[..., 0] * s_[..., 1] - r[..., 1] * s_[..., 0]  # (P-1, L-1)
+    qp = q0 - p0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (qp[..., 0] * s_[..., 1] - qp[..., 1] * s_[..., 0]) / denom
+        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
+    ok = (np.abs(denom) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    if not ok.any():
+        return None
+    i, j = (int(x) for x in np.argwhere(ok)[0])  # argwhere is row-major: the earliest path segment first
+    return i, j, path[i] + t[i, j] * (path[i + 1] - path[i])
 
 
 def parse_networks(text: Sequence[str]) -> tuple[str, ...]:

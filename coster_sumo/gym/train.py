@@ -128,6 +128,8 @@ class EvalResult:
         cr: share of episodes that ended in a collision.
         orr: share that ended off the road.
         per_kind: the same three per scenario kind (nominal / variant).
+        defect_rate: share of the variants labelled avoidable that ended in a collision with their
+            adversary (None: no variant with a label); ``avoidable_variants`` how many there were.
     """
 
     episodes: int
@@ -135,6 +137,8 @@ class EvalResult:
     cr: float
     orr: float
     per_kind: dict[str, dict[str, float]]
+    defect_rate: float | None = None
+    avoidable_variants: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -187,11 +191,13 @@ def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None
             obs, _, terminated, truncated, info = env.step(action)
             done = terminated or truncated
         rows.append({k: info[k] for k in ("scenario", "network", "kind", "outcome", "route_completion",
-                                          "collided_with_adversary")})
+                                          "collided_with_adversary", "avoidable")})
     env.close()
     rcr, cr, orr = _summary(rows)
     per_kind = {}
     for kind in sorted({r["kind"] for r in rows}):
         k_rcr, k_cr, k_orr = _summary([r for r in rows if r["kind"] == kind])
         per_kind[kind] = {"rcr": k_rcr, "cr": k_cr, "orr": k_orr, "episodes": sum(r["kind"] == kind for r in rows)}
-    return EvalResult(len(rows), rcr, cr, orr, per_kind), rows
+    avoidable = [r for r in rows if r["kind"] == "variant" and r["avoidable"] is True]
+    defects = float(np.mean([r["collided_with_adversary"] for r in avoidable])) if avoidable else None
+    return EvalResult(len(rows), rcr, cr, orr, per_kind, defects, len(avoidable)), rows
