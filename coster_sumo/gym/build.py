@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.errors import InputError
+from coster_sumo.geometry import make_boxes, sat_overlap_depth
 from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, write_manifest, write_vtypes
 from coster_sumo.scene import ObjectType, Scene, SignalState, Tracks, save_scene
 from coster_sumo.spec import GenerationConfig
@@ -66,6 +67,7 @@ RED_RUNNER_SPEED = 12.0  # [m/s] the red-light runner's constant speed through t
 RED_RUNNER_MIN_ANGLE = math.radians(30.0)  # a crossing movement, not one beside the target's
 RED_RUNNER_LEAD_S = 3.0  # [s] the target reaches the conflict point at least this long after the start
 RED_RUNNER_TAIL_S = 4.0  # [s] and this long before the episode ends (its route ends 3 s before)
+TTC_HORIZON_S = 5.0  # [s] criticality's time-to-collision looks this far ahead
 POST_COLLISION_S = 3.0  # [s] a variant's episode runs on this long after t_col (the agent may have slowed)
 
 
@@ -267,8 +269,10 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
 def criticality(scene: Scene, target: int) -> dict[str, float]:
     """A SafeShift-like criticality of the target's nominal scene, from the log alone.
 
-    ``min_ttc_s``: smallest time-to-collision (bounding discs, constant velocity) with any agent
-    within 50 m; ``max_decel``: the target's hardest braking [m/s^2] (speed differences over 0.5 s);
+    ``min_ttc_s``: smallest time-to-collision with any agent within 50 m, every 0.5 s of the log:
+    the first look-ahead (0.1 s steps up to 5 s) at which the two oriented boxes, moved at their
+    logged velocities, overlap (inf: none); ``max_decel``: the target's hardest braking [m/s^2]
+    (speed differences over 0.5 s);
     ``conflicts``: agents whose path crosses the target's within 2 m with a time gap under 3 s;
     ``score``: 1 / max(min TTC, 0.5) + max decel / 4 + conflicts (larger is more critical).
     """
@@ -283,20 +287,22 @@ def criticality(scene: Scene, target: int) -> dict[str, float]:
     min_ttc = np.inf
     conflicts = 0
     tx, ty = tr.x[target], tr.y[target]
+    tau = np.arange(0.0, TTC_HORIZON_S + 1e-9, 0.1)  # [s] look-ahead at constant velocity
+    steps = np.flatnonzero(v)[::5]  # every 0.5 s of the target's log
     for a in range(tr.num_agents):
         if a == target:
             continue
-        both = v & tr.valid[a]
-        if both.any():
-            dx, dy = tr.x[a, both] - tx[both], tr.y[a, both] - ty[both]
-            dvx, dvy = tr.vx[a, both] - tr.vx[target, both], tr.vy[a, both] - tr.vy[target, both]
-            near = np.hypot(dx, dy) < 50.0
-            radius = 0.5 * (np.hypot(tr.length[a, both], tr.width[a, both])
-                            + np.hypot(tr.length[target, both], tr.width[target, both]))
-            closing = -(dx * dvx + dy * dvy) / np.maximum(np.hypot(dvx, dvy), 1e-6)
-            gap = np.hypot(dx, dy) - radius
-            ttc = np.where(near & (closing > 0.1), np.maximum(gap, 0.0) / np.maximum(closing, 1e-6), np.inf)
-            min_ttc = min(min_ttc, float(ttc.min()))
+        both = steps[tr.valid[a, steps]]
+        both = both[np.hypot(tr.x[a, both] - tx[both], tr.y[a, both] - ty[both]) < 50.0]
+        if len(both):
+            # oriented boxes moved at their logged velocities: the first look-ahead at which they overlap
+            boxes = [make_boxes(tr.x[i, both][:, None] + tr.vx[i, both][:, None] * tau,
+                                tr.y[i, both][:, None] + tr.vy[i, both][:, None] * tau,
+                                tr.heading[i, both][:, None], tr.length[i, both][:, None],
+                                tr.width[i, both][:, None]) for i in (target, a)]
+            hit = sat_overlap_depth(boxes[0], boxes[1]) > 0.0  # (steps, taus)
+            if hit.any():
+                min_ttc = min(min_ttc, float(tau[np.argmax(hit, axis=1)[hit.any(axis=1)]].min()))
         pa = np.stack([tr.x[a, tr.valid[a]], tr.y[a, tr.valid[a]]], -1)[::5]
         pt = np.stack([tx[v], ty[v]], -1)[::5]
         if len(pa) and len(pt):
