@@ -301,3 +301,20 @@ def test_hard_set_red_light_runner_crosses_on_red_into_a_target_that_keeps_its_n
     assert outcomes["nominal"][0] == "adversity" and abs(outcomes["nominal"][1] - t_conflict) < 1.0, outcomes
     assert outcomes["brake"][0] != "adversity", outcomes
 
+
+
+@pytest.mark.slow
+def test_policy_training_resumes_and_leaves_nothing_in_the_temporary_directory(nominal_set, tmp_path, monkeypatch):
+    import tempfile
+
+    from coster_sumo.gym.train import TrainOptions, train
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    out = tmp_path / "policy"
+    first = train(TrainOptions(scenarios=nominal_set, out=out, timesteps=512, checkpoint_steps=512, quiet=True))
+    assert first["steps"] >= 512 and (out / "policy.zip").exists() and (out / "checkpoint.zip").exists()
+    again = train(TrainOptions(scenarios=nominal_set, out=out, timesteps=1024, checkpoint_steps=512, quiet=True))
+    assert again["steps"] >= 1024 and again["wall_s"] > first["wall_s"]  # went on from the checkpoint
+    assert not [p.name for p in scratch.iterdir() if p.name.startswith("SB3-")]  # SB3's default logger folders

@@ -70,6 +70,11 @@ def train(opts: TrainOptions) -> dict[str, Any]:
     else:
         model = PPO("MlpPolicy", venv, seed=opts.seed, device="cpu", n_steps=512, batch_size=128, n_epochs=5,
                     learning_rate=3e-4, gamma=0.99, policy_kwargs={"net_arch": list(POLICY_LAYERS)}, verbose=0)
+    # a logger that writes nowhere: SB3's default makes an empty SB3-<date> folder in the temporary
+    # directory on every learn() (progress.json holds what this training reports)
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(folder=None, output_formats=[]))
     t_start = time.perf_counter()
     wall_before = float(progress["wall_s"])
     outcomes: dict[str, int] = dict(progress.get("outcomes", {}))
