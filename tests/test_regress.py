@@ -116,3 +116,18 @@ def test_eval_scenarios_reports_missing_weights_as_skipped(tmp_path):
         "SURFACE_STREET", "FREEWAY", "BIKE_LANE", "UNDEFINED"}
     assert (out / "metrics.md").read_text().count("skipped") >= 1
     assert (out / "metrics.png").stat().st_size > 0
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_eval_scenarios_resumed_says_what_was_done_and_runs_nothing_again(tmp_path, capsys):
+    out = tmp_path / "ev"
+    args = ["eval", "scenarios", str(INTERSECTION), "--end", "40", "--variants", "1", "--method", "Random+CV",
+            "-o", str(out)]
+    assert main(args) == 0
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "parts").iterdir()}
+    capsys.readouterr()
+    assert main(args) == 0
+    said = capsys.readouterr().out
+    assert "resuming" in said and "2 of 2 tasks done before" in said, said  # the scene and the method
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "parts").iterdir()} == before

@@ -263,8 +263,13 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
                      {**doc, "method": task.payload["method"]["name"], "scene_key": key})
         return []
 
+    # what is left: a resumed batch's bar counts the tasks still to run, not those done before
+    todo = sum(1 + len(active) if t.kind == "scene" else 1 for t in initial)
+    if not opts.quiet and todo < len(keys) * (1 + len(active)):
+        print(f"resuming {out}: {len(keys) * (1 + len(active)) - todo} of {len(keys) * (1 + len(active))} tasks "
+              "done before", flush=True)
     execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
-            quiet=opts.quiet, desc="eval scenarios", expected_total=len(keys) * (1 + len(active)),
+            quiet=opts.quiet, desc="eval scenarios", expected_total=todo,
             log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
             preload=SUMO_TASK_MODULES)
     table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
