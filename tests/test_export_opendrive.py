@@ -139,6 +139,10 @@ def test_demo_and_sumo_game_nets(name):
         assert gaps and max(gaps) <= LINK_TOLERANCE_M, max(gaps)
 
 
+# [m] a road spans only the stretch its linked lanes share (opendrive_ends): a lane that no
+# connection enters loses what sticks out before that (on the four samples one lane of 637f20, by
+# 0.79 m: its SUMO points up to 0.23 m from the xodr)
+CUT_OFF_TOLERANCE_M = 0.25
 LINK_TOLERANCE_M = 0.01  # [m] ASAM's checker: linked lanes' borders no further apart
 HEADING_TOLERANCE_RAD = 0.01  # heading continuity between the geometry pieces of a connecting road
 
@@ -181,7 +185,7 @@ def test_all_womd_samples(tmp_path):
     assert len(nets) == len(WOMD_PROTO) + len(WOMD_PKL)
     for net in nets:
         xodr = odr.write_xodr(net, tmp_path / f"{net.stem}.xodr")
-        cmp = assert_xodr_on_lanes(xodr, net)
+        cmp = assert_xodr_on_lanes(xodr, net, roads_net_to_xodr=CUT_OFF_TOLERANCE_M)
         assert cmp["roads"]["xodr_to_net_max"] <= XODR_TOLERANCE_M
         assert cmp["junctions"]["xodr_to_net_max"] <= XODR_TOLERANCE_M  # logged interior lanes have no kinks
         assert_readable(xodr)

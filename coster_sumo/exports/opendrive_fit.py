@@ -29,6 +29,7 @@ smallest error over the lanes involved.
 
 from __future__ import annotations
 
+import copy
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +37,8 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
+from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
+from coster_sumo.exports.opendrive_ends import length as piece_length
 from coster_sumo.exports.opendrive_roads import (
     Sampler,
     extend_reference,
@@ -63,6 +66,8 @@ STUB_M = 0.01  # [m] length of the connecting road written for a zero-length int
 FIT_TOLERANCE_M = 0.005  # [m] lanes whose centres touching lanes miss by more than this get fillers
 WIDTH_SLACK_M = 0.5  # [m] ... or that differ from SUMO's widths by more than this get fillers too
 FILLER_CODE = "costerFiller"  # userData code marking a filler lane
+SECTION_LINK_M = 0.005  # [m] a lane continues into the next section (linked) where its borders meet so
+SPAN_TRIES = 4  # placements of a road's ends until its linked lanes reach both (opendrive_ends)
 SHORT_M = 0.05  # [m] an internal lane this short pointing backwards is rounding: written along its incoming lane
 
 
@@ -78,6 +83,9 @@ class NetLanes:
         via: (from edge, from lane index, to edge, to lane index) -> the internal lane the connection
             starts with (also from an internal lane to its continuation behind an internal junction).
         lefthand: the net drives on the left (netconvert mirrors lane ids then; not fitted).
+        enters, leaves: lane ids of normal edges that a connection enters (at their start) / leaves.
+        head, tail: lane id -> (K, 2) [m] the piece of a lane before its road's start / past its
+            road's end (:mod:`~coster_sumo.exports.opendrive_ends`), driven on the connecting roads.
     """
 
     shape: dict[str, np.ndarray] = field(default_factory=dict)
@@ -85,6 +93,10 @@ class NetLanes:
     edge_lanes: dict[str, list[str]] = field(default_factory=dict)
     via: dict[tuple[str, int, str, int], str] = field(default_factory=dict)
     lefthand: bool = False
+    enters: set[str] = field(default_factory=set)
+    leaves: set[str] = field(default_factory=set)
+    head: dict[str, np.ndarray] = field(default_factory=dict)
+    tail: dict[str, np.ndarray] = field(default_factory=dict)
 
     @classmethod
     def read(cls, net_file: Path) -> NetLanes:
@@ -99,15 +111,26 @@ class NetLanes:
                 out.shape[str(el.get("id"))] = np.asarray(pts, np.float64).reshape(-1, 2)
                 out.width[str(el.get("id"))] = float(el.get("width", DEFAULT_LANE_WIDTH_M))
         for c in root.iter("connection"):
+            frm, to = c.get("from", ""), c.get("to", "")
+            if not frm.startswith(":") and frm in out.edge_lanes and to in out.edge_lanes:
+                lanes_from, lanes_to = out.edge_lanes[frm], out.edge_lanes[to]
+                i, j = int(c.get("fromLane", "0")), int(c.get("toLane", "0"))
+                if 0 <= i < len(lanes_from) and 0 <= j < len(lanes_to):
+                    out.leaves.add(lanes_from[i])
+                    out.enters.add(lanes_to[j])
             if c.get("via"):
                 key = (c.get("from", ""), int(c.get("fromLane", "0")), c.get("to", ""), int(c.get("toLane", "0")))
                 out.via[key] = str(c.get("via"))
         return out
 
     def connection_shape(self, frm: str, from_lane: int, to: str, to_lane: int) -> np.ndarray | None:
-        """The internal lane shape(s) of one connection, joined (None: no such connection)."""
+        """The internal lane shape(s) of one connection, joined, after the tail of the lane it leaves
+        and before the head of the lane it enters (None: no such connection)."""
         lane = self.via.get((frm, from_lane, to, to_lane))
         parts = []
+        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
+        tail = self.tail.get(lanes_from[from_lane]) if 0 <= from_lane < len(lanes_from) else None
+        head = self.head.get(lanes_to[to_lane]) if 0 <= to_lane < len(lanes_to) else None
         seen = set()
         while lane is not None and lane not in seen and lane in self.shape:
             seen.add(lane)
@@ -116,18 +139,19 @@ class NetLanes:
             lane = self.via.get((edge, int(idx), to, to_lane))
         if not parts:
             return None
-        pts = np.concatenate(parts)
+        pts = np.concatenate([p for p in (tail, *parts, head) if p is not None])
         keep = np.ones(len(pts), bool)
         keep[1:] = np.hypot(*np.diff(pts, axis=0).T) > 1e-6  # joined parts repeat their shared point
         return pts[keep]
 
 
 def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, sample: Sampler
-              ) -> tuple[dict[int, int] | None, float]:
+              ) -> tuple[dict[str, dict[int, int]] | None, float]:
     """Rewrite one road's laneOffset and its right lanes' widths (lane -1 first in ``targets``),
-    lengthening its reference line where SUMO lanes start before or end after it, and with filler
-    lanes between its lanes where they run apart. Returns the new id of each lane when fillers
-    renumbered them (empty: ids kept; None: not fitted)."""
+    lengthening its reference line where SUMO lanes start before or end after it, with filler
+    lanes between its lanes where they run apart and a lane section per stretch with the same
+    lanes (:func:`_write_sections`). Returns, per road end, the new id of each lane where fillers
+    or sections renumbered them (empty: ids kept; None: not fitted)."""
     lanes_el = road.find("lanes")
     plan = road.find("planView")
     if lanes_el is None or plan is None or len(list(lanes_el.iter("laneSection"))) != 1:
@@ -183,20 +207,101 @@ def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, s
         lanes_el.remove(el)
     for j, (s0, a, b) in enumerate(records(s, offset, runs)):
         lanes_el.insert(j, ET.Element("laneOffset", {"s": fmt(s0), "a": fmt(a), "b": fmt(b), "c": "0", "d": "0"}))
-    for k, el in enumerate(lane_els):
-        _set_widths(el, records(s, width[:, k], runs))
-    if not with_fillers:
+    if len(runs) == 1 and not with_fillers:
+        for k, el in enumerate(lane_els):
+            _set_widths(el, records(s, width[:, k], runs))
         return {}, error
-    for el in lane_els:
-        right.remove(el)
-    ids = {}
-    for k, el in enumerate(lane_els):
-        ids[int(el.get("id", "0"))] = -(2 * k + 1)
-        el.set("id", str(-(2 * k + 1)))
-        right.append(el)
-        if k < n - 1:
-            right.append(_filler(-(2 * k + 2), records(s, filler[:, k], runs)))
-    return ids, error
+    return _write_sections(lanes_el, lane_els, s, width, filler if with_fillers else None, present, runs), error
+
+
+def _write_sections(lanes_el: ET.Element, lane_els: list[ET.Element], s: np.ndarray, width: np.ndarray,
+                    filler: np.ndarray | None, present: np.ndarray, runs: list[tuple[int, int]]
+                    ) -> dict[str, dict[int, int]]:
+    """One lane section per run of stations where the same lanes are present (a lane that has not
+    begun or has ended is left out of the section, rather than written with width 0, which readers
+    take for a lane there), each holding its present lanes (``lane_els``, lane -1 first) and, with
+    ``filler`` (S, n - 1) [m], the fillers between them, numbered -1, -2, ... from the centre.
+    A lane that goes on into the next section is linked to itself there where both its borders
+    meet within :data:`SECTION_LINK_M`. Returns, per road end (``start``, ``end``), the new id of
+    each old lane id there (a lane absent at that end has none)."""
+    template = lanes_el.find("laneSection")
+    assert template is not None
+    at = list(lanes_el).index(template)
+    lanes_el.remove(template)
+    n = len(lane_els)
+    sections = []  # per run: [(("lane"|"filler", k), element, records)]
+    for i, j in runs:
+        here = []
+        for k in range(n):
+            if present[i, k]:
+                here.append((("lane", k), records(s[i:j + 1] - s[i], width[i:j + 1, k], [(0, j - i)])))
+            if filler is not None and k < n - 1 and float(filler[i:j + 1, k].max()) > 0.0:
+                here.append((("filler", k), records(s[i:j + 1] - s[i], filler[i:j + 1, k], [(0, j - i)])))
+        sec = copy.deepcopy(template)
+        sec.set("s", fmt(float(s[i])))
+        right = sec.find("right")
+        assert right is not None
+        for el in list(right):
+            right.remove(el)
+        els = {}
+        for m, (key, recs) in enumerate(here):
+            if key[0] == "lane":
+                el = copy.deepcopy(lane_els[key[1]])
+                el.set("id", str(-(m + 1)))
+                link = el.find("link")
+                if link is not None:  # a road's own lanes link to other roads at its ends only
+                    for end in list(link):
+                        if (end.tag == "predecessor" and i != runs[0][0]) or \
+                                (end.tag == "successor" and j != runs[-1][1]):
+                            link.remove(end)
+                _set_widths(el, recs)
+            else:
+                el = _filler(-(m + 1), recs)
+            right.append(el)
+            els[key] = el
+        sections.append((float(s[i]), here, els, right))
+        lanes_el.insert(at + len(sections) - 1, sec)
+    for (s_a, here_a, els_a, _), (s_b, here_b, els_b, _) in zip(sections[:-1], sections[1:], strict=True):
+        inner_a, inner_b = _inner_borders(here_a, s_b - s_a), _inner_borders(here_b, 0.0)
+        for key in els_a.keys() & els_b.keys():
+            if max(abs(inner_a[key][0] - inner_b[key][0]), abs(inner_a[key][1] - inner_b[key][1])) > SECTION_LINK_M:
+                continue
+            _link_lane(els_a[key], "successor", els_b[key].get("id", "0"))
+            _link_lane(els_b[key], "predecessor", els_a[key].get("id", "0"))
+    ends = {}
+    for name, (_, here, els, _) in (("start", sections[0]), ("end", sections[-1])):
+        ends[name] = {-(key[1] + 1): int(els[key].get("id", "0")) for key, _ in here if key[0] == "lane"}
+    return ends
+
+
+def _inner_borders(here: list[tuple[tuple[str, int], list[tuple[float, float, float]]]], at: float
+                   ) -> dict[tuple[str, int], tuple[float, float]]:
+    """Inner and outer border [m] (from the section's left border, positive to the right) of each
+    lane of a section at ``at`` [m] from the section's start, as a reader evaluates the width records."""
+    out, border = {}, 0.0
+    for key, recs in here:
+        w = 0.0
+        for s0, a, b in recs:
+            if s0 <= at + 1e-9:
+                w = a + b * (at - s0)
+        out[key] = (border, border + w)
+        border += w
+    return out
+
+
+def _link_lane(lane: ET.Element, tag: str, other: str) -> None:
+    """Give a lane a ``predecessor``/``successor`` lane link (predecessors first, as the schema wants)."""
+    link = lane.find("link")
+    if link is None:
+        link = ET.Element("link")
+        lane.insert(0, link)
+    for el in link.findall(tag):
+        link.remove(el)
+    el = ET.Element(tag, {"id": other})
+    if tag == "predecessor":
+        link.insert(0, el)
+    else:
+        link.append(el)
 
 
 def _set_widths(lane: ET.Element, recs: list[tuple[float, float, float]]) -> None:
@@ -232,7 +337,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     tree = SafeET.parse(str(xodr), forbid_dtd=True)
     root = tree.getroot()
     counts = {"roads_fitted": 0, "roads_kept": 0, "connecting_fitted": 0, "connecting_kept": 0, "connecting_split": 0,
-              "with_fillers": 0}
+              "renumbered": 0}
     if net.lefthand:
         counts["roads_kept"] = len(root.findall("road"))
         return counts
@@ -241,9 +346,11 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
         user = road.find("userData[@code='sumoId']")
         if user is not None:
             edge_of[road.get("id", "")] = user.get("value", "")
-    renumbered: dict[str, dict[int, int]] = {}
+    renumbered: dict[str, dict[str, dict[int, int]]] = {}
     next_id = [max((int(r.get("id", "0")) for r in root.findall("road") if r.get("id", "").isdigit()), default=0) + 1]
-    for road in root.findall("road"):
+    # normal roads first: where one starts and ends decides what its connecting roads drive on
+    roads = sorted(root.findall("road"), key=lambda r: r.get("junction", "-1") != "-1")
+    for road in roads:
         connecting = road.get("junction", "-1") != "-1"
         targets, widths = _targets(road, net, edge_of, connecting)
         if targets is None:
@@ -257,17 +364,66 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
             counts["connecting_fitted"] += 1
         else:  # netconvert's curve through a jittery WOMD lane wiggles; lanes far from it fold
             longest = max(targets, key=lambda sh: float(np.hypot(*np.diff(sh, axis=0).T).sum()))
-            set_smooth_plan_view(road, smooth_polyline(longest), sample)
+            axis = smooth_polyline(longest)
+            lane_ids = _road_lane_ids(road, net, edge_of)
+            enters, leaves = [lane in net.enters for lane in lane_ids], [lane in net.leaves for lane in lane_ids]
+            inset = (0.0, 0.0)
+            for _ in range(SPAN_TRIES):
+                span, moved = road_span(axis, targets, enters, leaves, inset)
+                set_smooth_plan_view(road, span if moved else axis, sample)
+                if not moved:
+                    break
+                x, y, h = sample(road.find("planView"), np.array([0.0, float(road.get("length", "0"))]))
+                short = shortfall(targets, enters, leaves, np.array([x[0], y[0]]), float(h[0]),
+                                  np.array([x[-1], y[-1]]), float(h[-1]))
+                if max(short) <= CUT_EPS_M:
+                    break
+                inset = (inset[0] + short[0] + CUT_EPS_M, inset[1] + short[1] + CUT_EPS_M)
+            if moved:  # the lanes cut at the road's ends (opendrive_ends)
+                targets, lost = _cut_lanes(road, lane_ids, net, sample)
+                counts["roads_moved"] = counts.get("roads_moved", 0) + 1
+                counts["lost_cm"] = counts.get("lost_cm", 0) + int(round(100 * lost))
             ids, _ = _fit_road(road, targets, widths, sample)
             if ids:
                 renumbered[road.get("id", "")] = ids
             counts["roads_fitted" if ids is not None else "roads_kept"] += 1
-    counts["with_fillers"] = len(renumbered)
-    renumber(root, renumbered)
+    counts["renumbered"] = len(renumbered)
+    counts["sections"] = sum(len(r.findall("lanes/laneSection")) > 1 for r in root.findall("road"))
+    counts["links_to_no_lane_removed"] = renumber(root, renumbered)
     counts["connecting_joined"] = join_connecting_roads(root, sample)
     ET.indent(tree)
     tree.write(xodr, encoding="UTF-8", xml_declaration=True)
     return counts
+
+
+def _road_lane_ids(road: ET.Element, net: NetLanes, edge_of: dict[str, str]) -> list[str]:
+    """The SUMO lane ids of a normal road's right lanes, lane -1 (the leftmost) first."""
+    lanes = net.edge_lanes.get(edge_of.get(road.get("id", ""), ""), [])
+    return lanes[::-1]
+
+
+def _cut_lanes(road: ET.Element, lane_ids: list[str], net: NetLanes, sample: Sampler
+               ) -> tuple[list[np.ndarray], float]:
+    """Cut every lane of a road on the normals of its reference line's two ends
+    (:func:`~coster_sumo.exports.opendrive_ends.cut_both`): the pieces before and past go to
+    ``net.head`` and ``net.tail``, what lies between becomes the lane's shape. Returns the new
+    shapes (lane -1 first) and the length [m] cut off where no connection takes it up."""
+    plan = road.find("planView")
+    assert plan is not None  # (set_smooth_plan_view wrote it)
+    x, y, h = sample(plan, np.array([0.0, float(road.get("length", "0"))]))
+    shapes, lost = [], 0.0
+    for lane in lane_ids:
+        head, mid, tail = cut_both(net.shape[lane], np.array([x[0], y[0]]), float(h[0]),
+                                   np.array([x[-1], y[-1]]), float(h[-1]))
+        if head is not None:
+            net.head[lane] = head
+            lost += 0.0 if lane in net.enters else piece_length(head)
+        if tail is not None:
+            net.tail[lane] = tail
+            lost += 0.0 if lane in net.leaves else piece_length(tail)
+        net.shape[lane] = mid
+        shapes.append(mid)
+    return shapes, lost
 
 
 def _targets(road: ET.Element, net: NetLanes, edge_of: dict[str, str], connecting: bool
