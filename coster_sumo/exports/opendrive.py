@@ -29,7 +29,7 @@ from defusedxml import ElementTree as SafeET
 
 from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
-from coster_sumo.exports.opendrive_fit import FILLER_CODE, fit_lanes
+from coster_sumo.exports.opendrive_fit import FILLER_CODE, NetLanes, fit_lanes
 from coster_sumo.exports.opendrive_readers import MIN_ROAD_M, make_readable
 from coster_sumo.formats.scene_folder import STAGING_EDGE
 
@@ -191,15 +191,20 @@ def xodr_lane_centres(path: Path, step: float = SAMPLE_STEP_M) -> list[XodrLane]
 
 def net_lane_shapes(net_file: Path) -> tuple[list[str], list[np.ndarray], np.ndarray]:
     """SUMO lane ids, shapes (K, 2) [m] and whether each lies in a junction, read with sumolib
-    (a converted scene's staging lane left out)."""
+    (the lanes :func:`write_xodr` leaves out left out: a converted scene's staging lane, U-turns
+    between lanes side by side)."""
     from coster_sumo.formats.sumo_net import read_sumolib_net
 
     net = read_sumolib_net(str(net_file))
+    lanes_of = NetLanes.read(net_file)
+    left_out = {lane for key in lanes_of.pinched_uturns for lane in lanes_of.internal_lanes(key)}
     ids, shapes, internal = [], [], []
     for edge in net.getEdges(withInternal=True):
         if edge.getID() == STAGING_EDGE:  # not written (write_xodr)
             continue
         for lane in edge.getLanes():
+            if lane.getID() in left_out:  # not written either (NetLanes.uturn_is_pinched)
+                continue
             shape = np.asarray(lane.getShape(), np.float64)[:, :2]
             if len(shape) >= 2:
                 ids.append(lane.getID())

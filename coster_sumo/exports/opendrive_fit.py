@@ -68,6 +68,7 @@ WIDTH_SLACK_M = 0.5  # [m] ... or that differ from SUMO's widths by more than th
 FILLER_CODE = "costerFiller"  # userData code marking a filler lane
 SECTION_LINK_M = 0.005  # [m] a lane continues into the next section (linked) where its borders meet so
 SPAN_TRIES = 4  # placements of a road's ends until its linked lanes reach both (opendrive_ends)
+PINCH_M = 0.05  # [m] a U-turn's two lanes whose left borders are this close share them (NetLanes)
 SHORT_M = 0.05  # [m] an internal lane this short pointing backwards is rounding: written along its incoming lane
 
 
@@ -86,6 +87,8 @@ class NetLanes:
         enters, leaves: lane ids of normal edges that a connection enters (at their start) / leaves.
         head, tail: lane id -> (K, 2) [m] the piece of a lane before its road's start / past its
             road's end (:mod:`~coster_sumo.exports.opendrive_ends`), driven on the connecting roads.
+        pinched_uturns: the connections (keys as ``via``) of U-turns between two lanes whose left
+            borders meet where the U-turn leaves and enters them (:meth:`uturn_is_pinched`).
     """
 
     shape: dict[str, np.ndarray] = field(default_factory=dict)
@@ -97,6 +100,7 @@ class NetLanes:
     leaves: set[str] = field(default_factory=set)
     head: dict[str, np.ndarray] = field(default_factory=dict)
     tail: dict[str, np.ndarray] = field(default_factory=dict)
+    pinched_uturns: set[tuple[str, int, str, int]] = field(default_factory=set)
 
     @classmethod
     def read(cls, net_file: Path) -> NetLanes:
@@ -121,6 +125,33 @@ class NetLanes:
             if c.get("via"):
                 key = (c.get("from", ""), int(c.get("fromLane", "0")), c.get("to", ""), int(c.get("toLane", "0")))
                 out.via[key] = str(c.get("via"))
+                if c.get("dir") == "t" and out.uturn_is_pinched(key):
+                    out.pinched_uturns.add(key)
+        return out
+
+    def uturn_is_pinched(self, key: tuple[str, int, str, int]) -> bool:
+        """Whether a connection leaves its lane's end and enters its next lane's start at one left
+        border point (within :data:`PINCH_M`): a U-turn between two lanes side by side. Its lane's
+        inner border would start and end there, and no lane outline can pass one point twice
+        (commonroad-scenario-designer's lanelets of such a connecting road are invalid polygons)."""
+        frm, i, to, j = key
+        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
+        if not (0 <= i < len(lanes_from) and 0 <= j < len(lanes_to)):
+            return False
+        a, b = self.shape.get(lanes_from[i]), self.shape.get(lanes_to[j])
+        if a is None or b is None or len(a) < 2 or len(b) < 2:
+            return False
+        left_a = _left_border(a[-1], a[-1] - a[-2], self.width[lanes_from[i]])
+        left_b = _left_border(b[0], b[1] - b[0], self.width[lanes_to[j]])
+        return float(np.hypot(*(left_a - left_b))) <= PINCH_M
+
+    def internal_lanes(self, key: tuple[str, int, str, int]) -> list[str]:
+        """The internal lane ids a connection runs on (through internal junctions)."""
+        lane, out = self.via.get(key), []
+        while lane is not None and lane not in out and lane in self.shape:
+            out.append(lane)
+            edge, _, idx = lane.rpartition("_")
+            lane = self.via.get((edge, int(idx), key[2], key[3]))
         return out
 
     def connection_shape(self, frm: str, from_lane: int, to: str, to_lane: int) -> np.ndarray | None:
@@ -143,6 +174,12 @@ class NetLanes:
         keep = np.ones(len(pts), bool)
         keep[1:] = np.hypot(*np.diff(pts, axis=0).T) > 1e-6  # joined parts repeat their shared point
         return pts[keep]
+
+
+def _left_border(point: np.ndarray, direction: np.ndarray, width: float) -> np.ndarray:
+    """(2,) [m] the left border point of a lane at ``point`` heading along ``direction``."""
+    d = direction / max(float(np.hypot(*direction)), 1e-9)
+    return point + 0.5 * width * np.array([-d[1], d[0]])
 
 
 def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, sample: Sampler
@@ -355,6 +392,9 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
         targets, widths = _targets(road, net, edge_of, connecting)
         if targets is None:
             counts["connecting_kept" if connecting else "roads_kept"] += 1
+        elif connecting and _keys(road, net, edge_of) <= net.pinched_uturns:
+            _remove_connecting(root, road)  # (NetLanes.uturn_is_pinched: no lane outline holds it)
+            counts["pinched_uturns_left_out"] = counts.get("pinched_uturns_left_out", 0) + 1
         elif connecting:  # one road per lane, each on its lane's SUMO shape (module docstring)
             if len(targets) == 1:
                 one_lane_road(road, targets[0], float(widths[0]))
@@ -424,6 +464,35 @@ def _cut_lanes(road: ET.Element, lane_ids: list[str], net: NetLanes, sample: Sam
         net.shape[lane] = mid
         shapes.append(mid)
     return shapes, lost
+
+
+def _keys(road: ET.Element, net: NetLanes, edge_of: dict[str, str]) -> set[tuple[str, int, str, int]]:
+    """The SUMO connections (keys as ``NetLanes.via``) a connecting road's lanes came from."""
+    pred, succ = road.find("link/predecessor"), road.find("link/successor")
+    if pred is None or succ is None:
+        return set()
+    frm, to = edge_of.get(pred.get("elementId", ""), ""), edge_of.get(succ.get("elementId", ""), "")
+    n_from, n_to = len(net.edge_lanes.get(frm, [])), len(net.edge_lanes.get(to, []))
+    keys = set()
+    for lane in road.findall("lanes/laneSection/right/lane"):
+        p, q = lane.find("link/predecessor"), lane.find("link/successor")
+        if p is None or q is None:
+            return set()
+        keys.add((frm, n_from + int(p.get("id", "0")), to, n_to + int(q.get("id", "0"))))
+    return keys
+
+
+def _remove_connecting(root: ET.Element, road: ET.Element) -> None:
+    """Take a connecting road out of the file with its junction's connections to it (and the
+    junction, where none is left; make_readable drops the roads' links to it)."""
+    junction = root.find(f"junction[@id='{road.get('junction', '')}']")
+    if junction is not None:
+        for conn in junction.findall("connection"):
+            if conn.get("connectingRoad") == road.get("id"):
+                junction.remove(conn)
+        if junction.find("connection") is None:
+            root.remove(junction)
+    root.remove(road)
 
 
 def _targets(road: ET.Element, net: NetLanes, edge_of: dict[str, str], connecting: bool
