@@ -55,7 +55,9 @@ from coster_sumo.exports.opendrive_solve import (
     centre_error,
     extent,
     lateral,
+    merge_short_runs,
     records,
+    runs_of,
     smooth_polyline,
     solve_borders,
 )
@@ -230,6 +232,7 @@ def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, s
             centres[:, k], present[:, k] = got
     if not present.any():
         return None, 0.0
+    present = merge_short_runs(s, present)
     offset, width, filler = solve_borders(centres, present, widths)
     error = centre_error(centres, present, offset, width, filler)
     odd = float(np.abs(width - widths)[present].max())  # touching lanes keep centres by odd widths
@@ -237,9 +240,7 @@ def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, s
     if with_fillers:  # neighbours apart by more than their widths: room between them for fillers
         offset, width, filler = solve_borders(centres, present, widths, fillers=True)
         error = centre_error(centres, present, offset, width, filler)
-    change = np.flatnonzero((present[1:] != present[:-1]).any(axis=1)) + 1
-    starts = np.concatenate([[0], change])
-    runs = list(zip(starts.tolist(), (np.append(change, len(s)) - 1).tolist(), strict=True))
+    runs = runs_of(present)
     for el in lanes_el.findall("laneOffset"):
         lanes_el.remove(el)
     for j, (s0, a, b) in enumerate(records(s, offset, runs)):
