@@ -215,15 +215,15 @@ def test_missing_extra_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "never").exists()
 
 
-def assert_xodr_on_lanes(xodr: Path, net: Path, roads_net_to_xodr: float = XODR_TOLERANCE_M) -> dict:
-    """The .xodr lane centre lines within :data:`XODR_TOLERANCE_M` of the SUMO lane shapes, both
-    ways, on roads (:data:`XODR_JUNCTION_TOLERANCE_M` in junctions; ``roads_net_to_xodr`` [m] from
-    the SUMO road lanes to the xodr); returns the comparison."""
+def assert_xodr_on_lanes(xodr: Path, net: Path, roads: float = XODR_TOLERANCE_M) -> dict:
+    """The .xodr lane centre lines within ``roads`` [m] (:data:`XODR_TOLERANCE_M`) of the SUMO lane
+    shapes, both ways, on roads (:data:`XODR_JUNCTION_TOLERANCE_M` in junctions); returns the
+    comparison."""
     cmp = odr.compare_with_net(xodr, net)
-    for part, bound in (("roads", XODR_TOLERANCE_M), ("junctions", XODR_JUNCTION_TOLERANCE_M)):
+    for part, bound in (("roads", roads), ("junctions", XODR_JUNCTION_TOLERANCE_M)):
         if "xodr_to_net_max" in cmp[part]:
             assert cmp[part]["xodr_to_net_max"] <= bound, (part, cmp)
-            assert cmp[part]["net_to_xodr_max"] <= (roads_net_to_xodr if part == "roads" else bound), (part, cmp)
+            assert cmp[part]["net_to_xodr_max"] <= bound, (part, cmp)
     print(f"{net.name}: " + ", ".join(f"{p} {d}_max {cmp[p][d + '_max']:.4f} m mean {cmp[p][d + '_mean']:.4f} m"
                                       for p in ("roads", "junctions") if "xodr_to_net_max" in cmp[p]
                                       for d in ("xodr_to_net", "net_to_xodr")))

@@ -21,7 +21,10 @@ PROJECTION_ITERATIONS = 4
 SMOOTH_WINDOW_M = 4.0  # [m] averaging window of a road's reference line (WOMD lanes jitter)
 REFERENCE_STEP_M = 2.0  # [m] length of the cubic pieces of a road's reference line
 MIN_WIDTH_M = 0.01  # [m] narrowest a lane with a SUMO shape gets (readers take a 0 width for no lane)
-MIN_SECTION_M = 0.05  # [m] lanes that start or end closer together than this do so together
+# [m] lanes that start or end closer together than this do so together: pyxodr samples a road every
+# 0.1 m and fails on a lane section with fewer than two samples; commonroad makes a lanelet of no
+# area of a section of millimetres
+MIN_SECTION_M = 0.25
 MERGE_SLOPE = 1e-6  # [-] a record whose slope and start value continue the one before within these
 MERGE_VALUE_M = 1e-5  # [m] is left out (at most 0.1 mm off over 100 m; records are written to 8 digits)
 
@@ -129,8 +132,8 @@ def runs_of(present: np.ndarray) -> list[tuple[int, int]]:
 def merge_short_runs(s: np.ndarray, present: np.ndarray, min_m: float = MIN_SECTION_M) -> np.ndarray:
     """``present`` (S, n) with every run of stations shorter than ``min_m`` [m] (up to the next
     run's start) given the lanes of the run before it (the first run: of the one after), so that
-    lanes that start or end within ``min_m`` of each other start or end together: a lane section
-    of a few millimetres is a lanelet of no area to readers."""
+    lanes that start or end within ``min_m`` of each other start or end together (a lane moves its
+    start or end by less than ``min_m``; see :data:`MIN_SECTION_M` for why)."""
     out = present.copy()
     while True:
         runs = runs_of(out)
