@@ -17,9 +17,15 @@ lane section; a road that does not match the net is left as it is and counted):
   :data:`STATION_M` (the SUMO lane's lateral offset where its shape crosses the normal there), and
   the borders are solved station by station: lane centre = middle of its two borders, borders in
   order (widths >= 0), widths as close to SUMO's as that leaves room for (a small least-squares
-  weight); ``laneOffset`` carries the left border. Where a lane has no SUMO shape (before its start,
-  after its end) its width is 0. The border and width curves are written as piecewise-linear
-  ``<laneOffset>`` and ``<width>`` records, simplified to :data:`RECORD_TOLERANCE_M`.
+  weight); ``laneOffset`` carries the left border. The border and width curves are written as
+  piecewise-linear ``<laneOffset>`` and ``<width>`` records, simplified to :data:`RECORD_TOLERANCE_M`;
+  a lane that has no SUMO shape somewhere (before its start, after its end) is left out of the
+  lane section there (a section per stretch with the same lanes, :func:`_write_sections`);
+- a **normal road** first spans only the stretch where every lane a connection enters or leaves
+  exists, its lanes cut at its ends and the pieces handed to the connecting roads
+  (:mod:`~coster_sumo.exports.opendrive_ends`), so that no link meets a lane of width 0; those
+  are fitted first;
+- a U-turn between two lanes side by side is left out (:meth:`NetLanes.uturn_is_pinched`).
 
 The centres are then exact wherever the SUMO lanes of one edge lie side by side in order. Where two
 lanes of one edge overlap (a WOMD lane splitting from or merging into its neighbour), adjacent
