@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 from defusedxml import ElementTree as SafeET
-from test_export_openscenario import XODR_TOLERANCE_M, assert_xodr_on_lanes
+from test_export_openscenario import LANE_END_TOLERANCE_M, XODR_TOLERANCE_M, assert_xodr_on_lanes
 
 from coster_sumo import sumo_env
 from coster_sumo.cli import main
@@ -139,12 +139,6 @@ def test_demo_and_sumo_game_nets(name):
         assert gaps and max(gaps) <= LINK_TOLERANCE_M, max(gaps)
 
 
-# [m] on the converted WOMD maps, where logged lanes start and end apart, a road spans only the
-# stretch its linked lanes share (opendrive_ends): a lane that no connection enters loses what sticks
-# out before that (one lane of 637f20, 0.79 m: its SUMO points up to 0.23 m from the xodr); and lanes
-# that start or end within MIN_SECTION_M of each other do so together (no lane section shorter
-# than pyxodr's 0.1 m sampling can hold): up to 0.33 m (637f20) at such a lane end
-LANE_END_TOLERANCE_M = 0.35
 LINK_TOLERANCE_M = 0.01  # [m] ASAM's checker: linked lanes' borders no further apart
 HEADING_TOLERANCE_RAD = 0.01  # heading continuity between the geometry pieces of a connecting road
 
