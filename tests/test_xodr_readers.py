@@ -30,10 +30,9 @@ DEMO = ("intersection", "arterial", "merge")
 GAME = ("square", "grid6")
 # applies to OpenDRIVE up to 1.7 only: the checker skips it on a 1.8 file (its 22 other checks run)
 VERSION_SKIPPED = {"check_asam_xodr_junctions_connection_one_connection_element"}
-# what still fails on the WOMD samples: lanes of one edge that begin or end at different stations
-# (a logged lane opening beside its neighbours) are lanes of zero width at the road's end
-WOMD_OPEN = {"check_asam_xodr_road_lane_link_new_lane_appear", "check_asam_xodr_road_lane_link_zero_width_at_end",
-             "check_asam_xodr_lane_smoothness_contact_point_no_horizontal_gaps"}
+# commonroad lanelets still invalid (measured; a bound, not a goal): connecting roads that turn so
+# tightly that the inner border folds back on itself near a contact (docs/sumo.md §12a)
+TIGHT_TURNS = {"grid6": 2, "637f20cafde22ff8": 2, "ee519cf571686d19": 4}
 
 
 def _python(extra: str) -> Path | None:
@@ -78,11 +77,7 @@ def test_asam_checker(exports):
             assert ch["status"] == ("skipped" if cid in VERSION_SKIPPED else "completed"), (name, cid, ch)
         issues = {cid: ch["issues"] for cid, ch in checkers.items() if ch["issues"]}
         print(f"{name}: {sum(sum(v.values()) for v in issues.values())} issues {issues}", file=sys.stderr)
-        if name in DEMO or name in GAME:
-            assert issues == {}, (name, issues)
-        else:
-            assert set(issues) <= WOMD_OPEN, (name, issues)
-            assert "check_asam_xodr_xml_valid_schema" not in issues
+        assert issues == {}, (name, issues)
 
 
 def test_commonroad_converts_every_file(exports):
@@ -92,8 +87,7 @@ def test_commonroad_converts_every_file(exports):
         assert "error" not in row, (name, row)
         print(f"{name}: {row['lanelets']} lanelets, {len(row['invalid'])} invalid", file=sys.stderr)
         assert row["lanelets"] > 0
-        if name in DEMO:
-            assert row["invalid"] == [], (name, row["invalid"])
+        assert len(row["invalid"]) <= TIGHT_TURNS.get(name, 0), (name, row["invalid"])
 
 
 def test_pyxodr_reads_every_road(exports):

@@ -29,7 +29,7 @@ from defusedxml import ElementTree as SafeET
 
 from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
-from coster_sumo.exports.opendrive_fit import FILLER_CODE, fit_lanes
+from coster_sumo.exports.opendrive_fit import FILLER_CODE, NetLanes, fit_lanes
 from coster_sumo.exports.opendrive_readers import MIN_ROAD_M, make_readable
 from coster_sumo.formats.scene_folder import STAGING_EDGE
 
@@ -191,15 +191,20 @@ def xodr_lane_centres(path: Path, step: float = SAMPLE_STEP_M) -> list[XodrLane]
 
 def net_lane_shapes(net_file: Path) -> tuple[list[str], list[np.ndarray], np.ndarray]:
     """SUMO lane ids, shapes (K, 2) [m] and whether each lies in a junction, read with sumolib
-    (a converted scene's staging lane left out)."""
+    (the lanes :func:`write_xodr` leaves out left out: a converted scene's staging lane, U-turns
+    between lanes side by side)."""
     from coster_sumo.formats.sumo_net import read_sumolib_net
 
     net = read_sumolib_net(str(net_file))
+    lanes_of = NetLanes.read(net_file)
+    left_out = {lane for key in lanes_of.pinched_uturns for lane in lanes_of.internal_lanes(key)}
     ids, shapes, internal = [], [], []
     for edge in net.getEdges(withInternal=True):
         if edge.getID() == STAGING_EDGE:  # not written (write_xodr)
             continue
         for lane in edge.getLanes():
+            if lane.getID() in left_out:  # not written either (NetLanes.uturn_is_pinched)
+                continue
             shape = np.asarray(lane.getShape(), np.float64)[:, :2]
             if len(shape) >= 2:
                 ids.append(lane.getID())
@@ -214,36 +219,39 @@ def net_lane_shapes(net_file: Path) -> tuple[list[str], list[np.ndarray], np.nda
 def compare_with_net(xodr: Path, net_file: Path, step: float = SAMPLE_STEP_M) -> dict[str, Any]:
     """Distances [m] between the OpenDRIVE lane centre lines and the SUMO lane shapes they came from.
 
-    Roads outside junctions are compared with the SUMO lanes outside junctions, connecting roads
-    with the junction-internal lanes. ``xodr_to_net``: from every xodr sample to the nearest SUMO
-    lane shape (the xodr lies on a SUMO lane); ``net_to_xodr``: from every SUMO lane shape point
-    (vertices, and every ``step`` m between them) to the nearest xodr lane centre line (every SUMO
-    lane is in the xodr). Max and mean of each, and the sample counts.
+    ``roads``: the samples of roads outside junctions and the SUMO lanes outside junctions;
+    ``junctions``: those of connecting roads and the junction-internal lanes. ``xodr_to_net``: from
+    every such xodr sample to the nearest SUMO lane shape of either kind (the xodr lies on a SUMO
+    lane); ``net_to_xodr``: from every such SUMO lane shape point (vertices, and every ``step`` m
+    between them) to the nearest xodr lane centre line of either kind (every SUMO lane is in the
+    xodr). Either kind, because where the lanes of a SUMO edge start or end apart, the xodr road
+    spans only the stretch its linked lanes share and the connecting roads drive the rest
+    (:mod:`~coster_sumo.exports.opendrive_ends`): the same lanes, the border between road and
+    junction elsewhere. Max and mean of each, and the sample counts.
     """
     ids, shapes, internal = net_lane_shapes(net_file)
-    lanes = xodr_lane_centres(xodr, step)
+    lanes = [ln for ln in xodr_lane_centres(xodr, step) if len(ln.xy) >= 2 and not ln.filler]
+    all_sumo = [shapely.LineString(sh) for sh in shapes]
+    all_xodr = [shapely.LineString(ln.xy) for ln in lanes]
     res: dict[str, Any] = {}
     for name, in_junction in (("roads", False), ("junctions", True)):
         sumo_lines = [shapely.LineString(sh) for sh, i in zip(shapes, internal, strict=True) if i == in_junction]
-
-        mine = [ln for ln in lanes if (ln.junction != "-1") == in_junction and len(ln.xy) >= 2 and not ln.filler]
+        mine = [ln for ln in lanes if (ln.junction != "-1") == in_junction]
         if not sumo_lines or not mine:
             res[name] = {"xodr_samples": sum(len(ln.xy) for ln in mine), "sumo_lanes": len(sumo_lines)}
             continue
         pts = np.concatenate([ln.xy for ln in mine])
-        d1 = _nearest_distance(pts, sumo_lines)
+        d1 = _nearest_distance(pts, all_sumo)
         # (a zero-length lane, e.g. a dead end's turnaround, is its points)
         sp = np.concatenate([shapely.get_coordinates(shapely.segmentize(ln, step) if ln.length > 0 else ln)
                              for ln in sumo_lines])
-        d2 = _nearest_distance(sp, [shapely.LineString(ln.xy) for ln in mine])
+        d2 = _nearest_distance(sp, all_xodr)
         res[name] = {"xodr_samples": len(pts), "xodr_to_net_max": float(d1.max()), "xodr_to_net_mean": float(d1.mean()),
                      "xodr_to_net_p99": float(np.percentile(d1, 99)),
                      "xodr_to_net_over_0.1m": float(np.mean(d1 > 0.1)),
                      "sumo_lanes": len(sumo_lines), "sumo_samples": len(sp), "net_to_xodr_max": float(d2.max()),
                      "net_to_xodr_mean": float(d2.mean()), "net_to_xodr_p99": float(np.percentile(d2, 99))}
     return res
-
-
 
 
 def _nearest_distance(points: np.ndarray, lines: list[Any]) -> np.ndarray:

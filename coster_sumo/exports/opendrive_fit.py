@@ -17,9 +17,15 @@ lane section; a road that does not match the net is left as it is and counted):
   :data:`STATION_M` (the SUMO lane's lateral offset where its shape crosses the normal there), and
   the borders are solved station by station: lane centre = middle of its two borders, borders in
   order (widths >= 0), widths as close to SUMO's as that leaves room for (a small least-squares
-  weight); ``laneOffset`` carries the left border. Where a lane has no SUMO shape (before its start,
-  after its end) its width is 0. The border and width curves are written as piecewise-linear
-  ``<laneOffset>`` and ``<width>`` records, simplified to :data:`RECORD_TOLERANCE_M`.
+  weight); ``laneOffset`` carries the left border. The border and width curves are written as
+  piecewise-linear ``<laneOffset>`` and ``<width>`` records, simplified to :data:`RECORD_TOLERANCE_M`;
+  a lane that has no SUMO shape somewhere (before its start, after its end) is left out of the
+  lane section there (a section per stretch with the same lanes, :func:`_write_sections`);
+- a **normal road** first spans only the stretch where every lane a connection enters or leaves
+  exists, its lanes cut at its ends and the pieces handed to the connecting roads
+  (:mod:`~coster_sumo.exports.opendrive_ends`), so that no link meets a lane of width 0; those
+  are fitted first;
+- a U-turn between two lanes side by side is left out (:meth:`NetLanes.uturn_is_pinched`).
 
 The centres are then exact wherever the SUMO lanes of one edge lie side by side in order. Where two
 lanes of one edge overlap (a WOMD lane splitting from or merging into its neighbour), adjacent
@@ -29,6 +35,7 @@ smallest error over the lanes involved.
 
 from __future__ import annotations
 
+import copy
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +43,8 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
+from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
+from coster_sumo.exports.opendrive_ends import length as piece_length
 from coster_sumo.exports.opendrive_roads import (
     Sampler,
     extend_reference,
@@ -52,7 +61,9 @@ from coster_sumo.exports.opendrive_solve import (
     centre_error,
     extent,
     lateral,
+    merge_short_runs,
     records,
+    runs_of,
     smooth_polyline,
     solve_borders,
 )
@@ -63,6 +74,9 @@ STUB_M = 0.01  # [m] length of the connecting road written for a zero-length int
 FIT_TOLERANCE_M = 0.005  # [m] lanes whose centres touching lanes miss by more than this get fillers
 WIDTH_SLACK_M = 0.5  # [m] ... or that differ from SUMO's widths by more than this get fillers too
 FILLER_CODE = "costerFiller"  # userData code marking a filler lane
+SECTION_LINK_M = 0.005  # [m] a lane continues into the next section (linked) where its borders meet so
+SPAN_TRIES = 4  # placements of a road's ends until its linked lanes reach both (opendrive_ends)
+PINCH_M = 0.05  # [m] a U-turn's two lanes whose left borders are this close share them (NetLanes)
 SHORT_M = 0.05  # [m] an internal lane this short pointing backwards is rounding: written along its incoming lane
 
 
@@ -78,6 +92,11 @@ class NetLanes:
         via: (from edge, from lane index, to edge, to lane index) -> the internal lane the connection
             starts with (also from an internal lane to its continuation behind an internal junction).
         lefthand: the net drives on the left (netconvert mirrors lane ids then; not fitted).
+        enters, leaves: lane ids of normal edges that a connection enters (at their start) / leaves.
+        head, tail: lane id -> (K, 2) [m] the piece of a lane before its road's start / past its
+            road's end (:mod:`~coster_sumo.exports.opendrive_ends`), driven on the connecting roads.
+        pinched_uturns: the connections (keys as ``via``) of U-turns between two lanes whose left
+            borders meet where the U-turn leaves and enters them (:meth:`uturn_is_pinched`).
     """
 
     shape: dict[str, np.ndarray] = field(default_factory=dict)
@@ -85,6 +104,11 @@ class NetLanes:
     edge_lanes: dict[str, list[str]] = field(default_factory=dict)
     via: dict[tuple[str, int, str, int], str] = field(default_factory=dict)
     lefthand: bool = False
+    enters: set[str] = field(default_factory=set)
+    leaves: set[str] = field(default_factory=set)
+    head: dict[str, np.ndarray] = field(default_factory=dict)
+    tail: dict[str, np.ndarray] = field(default_factory=dict)
+    pinched_uturns: set[tuple[str, int, str, int]] = field(default_factory=set)
 
     @classmethod
     def read(cls, net_file: Path) -> NetLanes:
@@ -99,15 +123,53 @@ class NetLanes:
                 out.shape[str(el.get("id"))] = np.asarray(pts, np.float64).reshape(-1, 2)
                 out.width[str(el.get("id"))] = float(el.get("width", DEFAULT_LANE_WIDTH_M))
         for c in root.iter("connection"):
+            frm, to = c.get("from", ""), c.get("to", "")
+            if not frm.startswith(":") and frm in out.edge_lanes and to in out.edge_lanes:
+                lanes_from, lanes_to = out.edge_lanes[frm], out.edge_lanes[to]
+                i, j = int(c.get("fromLane", "0")), int(c.get("toLane", "0"))
+                if 0 <= i < len(lanes_from) and 0 <= j < len(lanes_to):
+                    out.leaves.add(lanes_from[i])
+                    out.enters.add(lanes_to[j])
             if c.get("via"):
                 key = (c.get("from", ""), int(c.get("fromLane", "0")), c.get("to", ""), int(c.get("toLane", "0")))
                 out.via[key] = str(c.get("via"))
+                if c.get("dir") == "t" and out.uturn_is_pinched(key):
+                    out.pinched_uturns.add(key)
+        return out
+
+    def uturn_is_pinched(self, key: tuple[str, int, str, int]) -> bool:
+        """Whether a connection leaves its lane's end and enters its next lane's start at one left
+        border point (within :data:`PINCH_M`): a U-turn between two lanes side by side. Its lane's
+        inner border would start and end there, and no lane outline can pass one point twice
+        (commonroad-scenario-designer's lanelets of such a connecting road are invalid polygons)."""
+        frm, i, to, j = key
+        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
+        if not (0 <= i < len(lanes_from) and 0 <= j < len(lanes_to)):
+            return False
+        a, b = self.shape.get(lanes_from[i]), self.shape.get(lanes_to[j])
+        if a is None or b is None or len(a) < 2 or len(b) < 2:
+            return False
+        left_a = _left_border(a[-1], a[-1] - a[-2], self.width[lanes_from[i]])
+        left_b = _left_border(b[0], b[1] - b[0], self.width[lanes_to[j]])
+        return float(np.hypot(*(left_a - left_b))) <= PINCH_M
+
+    def internal_lanes(self, key: tuple[str, int, str, int]) -> list[str]:
+        """The internal lane ids a connection runs on (through internal junctions)."""
+        lane, out = self.via.get(key), []
+        while lane is not None and lane not in out and lane in self.shape:
+            out.append(lane)
+            edge, _, idx = lane.rpartition("_")
+            lane = self.via.get((edge, int(idx), key[2], key[3]))
         return out
 
     def connection_shape(self, frm: str, from_lane: int, to: str, to_lane: int) -> np.ndarray | None:
-        """The internal lane shape(s) of one connection, joined (None: no such connection)."""
+        """The internal lane shape(s) of one connection, joined, after the tail of the lane it leaves
+        and before the head of the lane it enters (None: no such connection)."""
         lane = self.via.get((frm, from_lane, to, to_lane))
         parts = []
+        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
+        tail = self.tail.get(lanes_from[from_lane]) if 0 <= from_lane < len(lanes_from) else None
+        head = self.head.get(lanes_to[to_lane]) if 0 <= to_lane < len(lanes_to) else None
         seen = set()
         while lane is not None and lane not in seen and lane in self.shape:
             seen.add(lane)
@@ -116,18 +178,25 @@ class NetLanes:
             lane = self.via.get((edge, int(idx), to, to_lane))
         if not parts:
             return None
-        pts = np.concatenate(parts)
+        pts = np.concatenate([p for p in (tail, *parts, head) if p is not None])
         keep = np.ones(len(pts), bool)
         keep[1:] = np.hypot(*np.diff(pts, axis=0).T) > 1e-6  # joined parts repeat their shared point
         return pts[keep]
 
 
+def _left_border(point: np.ndarray, direction: np.ndarray, width: float) -> np.ndarray:
+    """(2,) [m] the left border point of a lane at ``point`` heading along ``direction``."""
+    d = direction / max(float(np.hypot(*direction)), 1e-9)
+    return point + 0.5 * width * np.array([-d[1], d[0]])
+
+
 def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, sample: Sampler
-              ) -> tuple[dict[int, int] | None, float]:
+              ) -> tuple[dict[str, dict[int, int]] | None, float]:
     """Rewrite one road's laneOffset and its right lanes' widths (lane -1 first in ``targets``),
-    lengthening its reference line where SUMO lanes start before or end after it, and with filler
-    lanes between its lanes where they run apart. Returns the new id of each lane when fillers
-    renumbered them (empty: ids kept; None: not fitted)."""
+    lengthening its reference line where SUMO lanes start before or end after it, with filler
+    lanes between its lanes where they run apart and a lane section per stretch with the same
+    lanes (:func:`_write_sections`). Returns, per road end, the new id of each lane where fillers
+    or sections renumbered them (empty: ids kept; None: not fitted)."""
     lanes_el = road.find("lanes")
     plan = road.find("planView")
     if lanes_el is None or plan is None or len(list(lanes_el.iter("laneSection"))) != 1:
@@ -169,6 +238,7 @@ def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, s
             centres[:, k], present[:, k] = got
     if not present.any():
         return None, 0.0
+    present = merge_short_runs(s, present)
     offset, width, filler = solve_borders(centres, present, widths)
     error = centre_error(centres, present, offset, width, filler)
     odd = float(np.abs(width - widths)[present].max())  # touching lanes keep centres by odd widths
@@ -176,27 +246,106 @@ def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, s
     if with_fillers:  # neighbours apart by more than their widths: room between them for fillers
         offset, width, filler = solve_borders(centres, present, widths, fillers=True)
         error = centre_error(centres, present, offset, width, filler)
-    change = np.flatnonzero((present[1:] != present[:-1]).any(axis=1)) + 1
-    starts = np.concatenate([[0], change])
-    runs = list(zip(starts.tolist(), (np.append(change, len(s)) - 1).tolist(), strict=True))
+    runs = runs_of(present)
     for el in lanes_el.findall("laneOffset"):
         lanes_el.remove(el)
     for j, (s0, a, b) in enumerate(records(s, offset, runs)):
         lanes_el.insert(j, ET.Element("laneOffset", {"s": fmt(s0), "a": fmt(a), "b": fmt(b), "c": "0", "d": "0"}))
-    for k, el in enumerate(lane_els):
-        _set_widths(el, records(s, width[:, k], runs))
-    if not with_fillers:
+    if len(runs) == 1 and not with_fillers:
+        for k, el in enumerate(lane_els):
+            _set_widths(el, records(s, width[:, k], runs))
         return {}, error
-    for el in lane_els:
-        right.remove(el)
-    ids = {}
-    for k, el in enumerate(lane_els):
-        ids[int(el.get("id", "0"))] = -(2 * k + 1)
-        el.set("id", str(-(2 * k + 1)))
-        right.append(el)
-        if k < n - 1:
-            right.append(_filler(-(2 * k + 2), records(s, filler[:, k], runs)))
-    return ids, error
+    return _write_sections(lanes_el, lane_els, s, width, filler if with_fillers else None, present, runs), error
+
+
+def _write_sections(lanes_el: ET.Element, lane_els: list[ET.Element], s: np.ndarray, width: np.ndarray,
+                    filler: np.ndarray | None, present: np.ndarray, runs: list[tuple[int, int]]
+                    ) -> dict[str, dict[int, int]]:
+    """One lane section per run of stations where the same lanes are present (a lane that has not
+    begun or has ended is left out of the section, rather than written with width 0, which readers
+    take for a lane there), each holding its present lanes (``lane_els``, lane -1 first) and, with
+    ``filler`` (S, n - 1) [m], the fillers between them, numbered -1, -2, ... from the centre.
+    A lane that goes on into the next section is linked to itself there where both its borders
+    meet within :data:`SECTION_LINK_M`. Returns, per road end (``start``, ``end``), the new id of
+    each old lane id there (a lane absent at that end has none)."""
+    template = lanes_el.find("laneSection")
+    assert template is not None
+    at = list(lanes_el).index(template)
+    lanes_el.remove(template)
+    n = len(lane_els)
+    sections = []  # per run: [(("lane"|"filler", k), element, records)]
+    for i, j in runs:
+        here = []
+        for k in range(n):
+            if present[i, k]:
+                here.append((("lane", k), records(s[i:j + 1] - s[i], width[i:j + 1, k], [(0, j - i)])))
+            if filler is not None and k < n - 1 and float(filler[i:j + 1, k].max()) > 0.0:
+                here.append((("filler", k), records(s[i:j + 1] - s[i], filler[i:j + 1, k], [(0, j - i)])))
+        sec = copy.deepcopy(template)
+        sec.set("s", fmt(float(s[i])))
+        right = sec.find("right")
+        assert right is not None
+        for el in list(right):
+            right.remove(el)
+        els = {}
+        for m, (key, recs) in enumerate(here):
+            if key[0] == "lane":
+                el = copy.deepcopy(lane_els[key[1]])
+                el.set("id", str(-(m + 1)))
+                link = el.find("link")
+                if link is not None:  # a road's own lanes link to other roads at its ends only
+                    for end in list(link):
+                        if (end.tag == "predecessor" and i != runs[0][0]) or \
+                                (end.tag == "successor" and j != runs[-1][1]):
+                            link.remove(end)
+                _set_widths(el, recs)
+            else:
+                el = _filler(-(m + 1), recs)
+            right.append(el)
+            els[key] = el
+        sections.append((float(s[i]), here, els, right))
+        lanes_el.insert(at + len(sections) - 1, sec)
+    for (s_a, here_a, els_a, _), (s_b, here_b, els_b, _) in zip(sections[:-1], sections[1:], strict=True):
+        inner_a, inner_b = _inner_borders(here_a, s_b - s_a), _inner_borders(here_b, 0.0)
+        for key in els_a.keys() & els_b.keys():
+            if max(abs(inner_a[key][0] - inner_b[key][0]), abs(inner_a[key][1] - inner_b[key][1])) > SECTION_LINK_M:
+                continue
+            _link_lane(els_a[key], "successor", els_b[key].get("id", "0"))
+            _link_lane(els_b[key], "predecessor", els_a[key].get("id", "0"))
+    ends = {}
+    for name, (_, here, els, _) in (("start", sections[0]), ("end", sections[-1])):
+        ends[name] = {-(key[1] + 1): int(els[key].get("id", "0")) for key, _ in here if key[0] == "lane"}
+    return ends
+
+
+def _inner_borders(here: list[tuple[tuple[str, int], list[tuple[float, float, float]]]], at: float
+                   ) -> dict[tuple[str, int], tuple[float, float]]:
+    """Inner and outer border [m] (from the section's left border, positive to the right) of each
+    lane of a section at ``at`` [m] from the section's start, as a reader evaluates the width records."""
+    out, border = {}, 0.0
+    for key, recs in here:
+        w = 0.0
+        for s0, a, b in recs:
+            if s0 <= at + 1e-9:
+                w = a + b * (at - s0)
+        out[key] = (border, border + w)
+        border += w
+    return out
+
+
+def _link_lane(lane: ET.Element, tag: str, other: str) -> None:
+    """Give a lane a ``predecessor``/``successor`` lane link (predecessors first, as the schema wants)."""
+    link = lane.find("link")
+    if link is None:
+        link = ET.Element("link")
+        lane.insert(0, link)
+    for el in link.findall(tag):
+        link.remove(el)
+    el = ET.Element(tag, {"id": other})
+    if tag == "predecessor":
+        link.insert(0, el)
+    else:
+        link.append(el)
 
 
 def _set_widths(lane: ET.Element, recs: list[tuple[float, float, float]]) -> None:
@@ -232,7 +381,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     tree = SafeET.parse(str(xodr), forbid_dtd=True)
     root = tree.getroot()
     counts = {"roads_fitted": 0, "roads_kept": 0, "connecting_fitted": 0, "connecting_kept": 0, "connecting_split": 0,
-              "with_fillers": 0}
+              "renumbered": 0}
     if net.lefthand:
         counts["roads_kept"] = len(root.findall("road"))
         return counts
@@ -241,13 +390,18 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
         user = road.find("userData[@code='sumoId']")
         if user is not None:
             edge_of[road.get("id", "")] = user.get("value", "")
-    renumbered: dict[str, dict[int, int]] = {}
+    renumbered: dict[str, dict[str, dict[int, int]]] = {}
     next_id = [max((int(r.get("id", "0")) for r in root.findall("road") if r.get("id", "").isdigit()), default=0) + 1]
-    for road in root.findall("road"):
+    # normal roads first: where one starts and ends decides what its connecting roads drive on
+    roads = sorted(root.findall("road"), key=lambda r: r.get("junction", "-1") != "-1")
+    for road in roads:
         connecting = road.get("junction", "-1") != "-1"
         targets, widths = _targets(road, net, edge_of, connecting)
         if targets is None:
             counts["connecting_kept" if connecting else "roads_kept"] += 1
+        elif connecting and _keys(road, net, edge_of) <= net.pinched_uturns:
+            _remove_connecting(root, road)  # (NetLanes.uturn_is_pinched: no lane outline holds it)
+            counts["pinched_uturns_left_out"] = counts.get("pinched_uturns_left_out", 0) + 1
         elif connecting:  # one road per lane, each on its lane's SUMO shape (module docstring)
             if len(targets) == 1:
                 one_lane_road(road, targets[0], float(widths[0]))
@@ -257,17 +411,95 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
             counts["connecting_fitted"] += 1
         else:  # netconvert's curve through a jittery WOMD lane wiggles; lanes far from it fold
             longest = max(targets, key=lambda sh: float(np.hypot(*np.diff(sh, axis=0).T).sum()))
-            set_smooth_plan_view(road, smooth_polyline(longest), sample)
+            axis = smooth_polyline(longest)
+            lane_ids = _road_lane_ids(road, net, edge_of)
+            enters, leaves = [lane in net.enters for lane in lane_ids], [lane in net.leaves for lane in lane_ids]
+            inset = (0.0, 0.0)
+            for _ in range(SPAN_TRIES):
+                span, moved = road_span(axis, targets, enters, leaves, inset)
+                set_smooth_plan_view(road, span if moved else axis, sample)
+                if not moved:
+                    break
+                x, y, h = sample(road.find("planView"), np.array([0.0, float(road.get("length", "0"))]))
+                short = shortfall(targets, enters, leaves, np.array([x[0], y[0]]), float(h[0]),
+                                  np.array([x[-1], y[-1]]), float(h[-1]))
+                if max(short) <= CUT_EPS_M:
+                    break
+                inset = (inset[0] + short[0] + CUT_EPS_M, inset[1] + short[1] + CUT_EPS_M)
+            if moved:  # the lanes cut at the road's ends (opendrive_ends)
+                targets, lost = _cut_lanes(road, lane_ids, net, sample)
+                counts["roads_moved"] = counts.get("roads_moved", 0) + 1
+                counts["lost_cm"] = counts.get("lost_cm", 0) + int(round(100 * lost))
             ids, _ = _fit_road(road, targets, widths, sample)
             if ids:
                 renumbered[road.get("id", "")] = ids
             counts["roads_fitted" if ids is not None else "roads_kept"] += 1
-    counts["with_fillers"] = len(renumbered)
-    renumber(root, renumbered)
+    counts["renumbered"] = len(renumbered)
+    counts["sections"] = sum(len(r.findall("lanes/laneSection")) > 1 for r in root.findall("road"))
+    counts["links_to_no_lane_removed"] = renumber(root, renumbered)
     counts["connecting_joined"] = join_connecting_roads(root, sample)
     ET.indent(tree)
     tree.write(xodr, encoding="UTF-8", xml_declaration=True)
     return counts
+
+
+def _road_lane_ids(road: ET.Element, net: NetLanes, edge_of: dict[str, str]) -> list[str]:
+    """The SUMO lane ids of a normal road's right lanes, lane -1 (the leftmost) first."""
+    lanes = net.edge_lanes.get(edge_of.get(road.get("id", ""), ""), [])
+    return lanes[::-1]
+
+
+def _cut_lanes(road: ET.Element, lane_ids: list[str], net: NetLanes, sample: Sampler
+               ) -> tuple[list[np.ndarray], float]:
+    """Cut every lane of a road on the normals of its reference line's two ends
+    (:func:`~coster_sumo.exports.opendrive_ends.cut_both`): the pieces before and past go to
+    ``net.head`` and ``net.tail``, what lies between becomes the lane's shape. Returns the new
+    shapes (lane -1 first) and the length [m] cut off where no connection takes it up."""
+    plan = road.find("planView")
+    assert plan is not None  # (set_smooth_plan_view wrote it)
+    x, y, h = sample(plan, np.array([0.0, float(road.get("length", "0"))]))
+    shapes, lost = [], 0.0
+    for lane in lane_ids:
+        head, mid, tail = cut_both(net.shape[lane], np.array([x[0], y[0]]), float(h[0]),
+                                   np.array([x[-1], y[-1]]), float(h[-1]))
+        if head is not None:
+            net.head[lane] = head
+            lost += 0.0 if lane in net.enters else piece_length(head)
+        if tail is not None:
+            net.tail[lane] = tail
+            lost += 0.0 if lane in net.leaves else piece_length(tail)
+        net.shape[lane] = mid
+        shapes.append(mid)
+    return shapes, lost
+
+
+def _keys(road: ET.Element, net: NetLanes, edge_of: dict[str, str]) -> set[tuple[str, int, str, int]]:
+    """The SUMO connections (keys as ``NetLanes.via``) a connecting road's lanes came from."""
+    pred, succ = road.find("link/predecessor"), road.find("link/successor")
+    if pred is None or succ is None:
+        return set()
+    frm, to = edge_of.get(pred.get("elementId", ""), ""), edge_of.get(succ.get("elementId", ""), "")
+    n_from, n_to = len(net.edge_lanes.get(frm, [])), len(net.edge_lanes.get(to, []))
+    keys = set()
+    for lane in road.findall("lanes/laneSection/right/lane"):
+        p, q = lane.find("link/predecessor"), lane.find("link/successor")
+        if p is None or q is None:
+            return set()
+        keys.add((frm, n_from + int(p.get("id", "0")), to, n_to + int(q.get("id", "0"))))
+    return keys
+
+
+def _remove_connecting(root: ET.Element, road: ET.Element) -> None:
+    """Take a connecting road out of the file with its junction's connections to it (and the
+    junction, where none is left; make_readable drops the roads' links to it)."""
+    junction = root.find(f"junction[@id='{road.get('junction', '')}']")
+    if junction is not None:
+        for conn in junction.findall("connection"):
+            if conn.get("connectingRoad") == road.get("id"):
+                junction.remove(conn)
+        if junction.find("connection") is None:
+            root.remove(junction)
+    root.remove(road)
 
 
 def _targets(road: ET.Element, net: NetLanes, edge_of: dict[str, str], connecting: bool

@@ -138,7 +138,10 @@ def _link_through(roads: dict[str, ET.Element], conn: ET.Element, pred: ET.Eleme
         ET.SubElement(link, tag, {"elementType": "road", "elementId": other.get("id", ""),
                                   "contactPoint": other_end})
         for lane_id, other_id in ((pair[mine], pair[1 - mine]) for pair in lane_pairs):
-            found = [ln for ln in road.iter("lane") if ln.get("id") == lane_id]
+            # the lane section at that end (a road's lanes may differ from section to section)
+            sections = road.findall("lanes/laneSection")
+            section = (sections[-1] if end == "end" else sections[0]) if sections else road
+            found = [ln for ln in section.iter("lane") if ln.get("id") == lane_id]
             if not found:
                 continue
             lane = found[0]

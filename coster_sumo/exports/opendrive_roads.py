@@ -25,7 +25,10 @@ from coster_sumo.exports.opendrive_solve import (
 )
 
 Sampler = Callable[[ET.Element, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
-MIN_JOIN_WIDTH_M = 0.5  # [m] a connecting road joins a lane at least this wide at the contact
+# [m] a connecting road joins a lane at least this wide at the contact: every lane the fit gave a
+# SUMO shape there (it is at least opendrive_solve.MIN_WIDTH_M wide, even where two logged lanes
+# overlap and share the room), not one that has not begun (width 0)
+MIN_JOIN_WIDTH_M = 0.005
 
 
 def fmt(v: float) -> str:
@@ -129,25 +132,48 @@ def overhang(x: np.ndarray, y: np.ndarray, h: np.ndarray, targets: list[np.ndarr
     return (before if before > END_TOLERANCE_M else 0.0), (after if after > END_TOLERANCE_M else 0.0)
 
 
-def renumber(root: ET.Element, ids: dict[str, dict[int, int]]) -> None:
-    """Rewrite the lane ids other roads and the junctions use for roads that got fillers."""
+def renumber(root: ET.Element, ids: dict[str, dict[str, dict[int, int]]]) -> int:
+    """Rewrite the lane ids that connecting roads and junctions use for roads whose lanes were
+    renumbered (fillers, lane sections): ``ids[road]["start"|"end"]`` maps an old lane id to its id
+    at that end of the road. A link to a lane that is not there at that end is removed (it has not
+    begun or has ended; readers take a link into no lane for an error). Returns how many."""
+    removed = 0
+    junction_of = {r.get("id", ""): r for r in root.findall("road")}
     for road in root.findall("road"):
         if road.get("junction", "-1") == "-1":
             continue
         pred, succ = road.find("link/predecessor"), road.find("link/successor")
         for lane in road.findall("lanes/laneSection/right/lane"):
             for end, ref in (("predecessor", pred), ("successor", succ)):
-                el = lane.find(f"link/{end}")
-                mapping = ids.get(ref.get("elementId", "")) if ref is not None else None
-                if el is not None and mapping:
-                    el.set("id", str(mapping.get(int(el.get("id", "0")), int(el.get("id", "0")))))
-    for conn in root.iter("connection"):
-        inc, via = ids.get(conn.get("incomingRoad", "")), ids.get(conn.get("connectingRoad", ""))
-        for ll in conn.findall("laneLink"):
-            if inc:
-                ll.set("from", str(inc.get(int(ll.get("from", "0")), int(ll.get("from", "0")))))
-            if via:
-                ll.set("to", str(via.get(int(ll.get("to", "0")), int(ll.get("to", "0")))))
+                link = lane.find("link")
+                el = link.find(end) if link is not None else None
+                mapping = ids.get(ref.get("elementId", ""), {}).get(ref.get("contactPoint", "")) \
+                    if ref is not None else None
+                if link is None or el is None or mapping is None:
+                    continue
+                new = mapping.get(int(el.get("id", "0")))
+                if new is None:
+                    link.remove(el)
+                    removed += 1
+                else:
+                    el.set("id", str(new))
+    for junction in root.findall("junction"):
+        for conn in junction.findall("connection"):
+            incoming = junction_of.get(conn.get("incomingRoad", ""))
+            if incoming is None or conn.get("incomingRoad", "") not in ids:
+                continue
+            succ = incoming.find("link/successor")
+            at_end = succ is not None and succ.get("elementType") == "junction" \
+                and succ.get("elementId") == junction.get("id")
+            mapping = ids[conn.get("incomingRoad", "")]["end" if at_end else "start"]
+            for ll in conn.findall("laneLink"):
+                new = mapping.get(int(ll.get("from", "0")))
+                if new is None:
+                    conn.remove(ll)
+                    removed += 1
+                else:
+                    ll.set("from", str(new))
+    return removed
 
 
 def split_connecting(root: ET.Element, road: ET.Element, shapes: list[np.ndarray], widths: np.ndarray,
@@ -229,15 +255,20 @@ def _records_at(records: list[ET.Element], start_key: str, s: float, base: float
 
 def lane_at(road: ET.Element, s: float, lane_id: int, sample: Sampler) -> tuple[np.ndarray, float, float] | None:
     """Centre point (2,) [m], width [m] and heading [rad] of right lane ``lane_id`` at station ``s``
-    of a road (one lane section; None where the road does not hold that lane)."""
+    of a road, in the lane section there (the last one that starts at or before ``s``; None where
+    the road does not hold that lane)."""
     lanes_el, plan = road.find("lanes"), road.find("planView")
-    right = road.find("lanes/laneSection/right")
-    if lanes_el is None or plan is None or right is None or lane_id >= 0:
+    if lanes_el is None or plan is None or lane_id >= 0:
         return None
+    sections = [sec for sec in lanes_el.findall("laneSection") if float(sec.get("s", "0")) <= s + 1e-9]
+    right = sections[-1].find("right") if sections else None
+    if right is None:
+        return None
+    base = float(sections[-1].get("s", "0"))
     offset = _records_at(lanes_el.findall("laneOffset"), "s", s)
     border = offset
     for lane in sorted(right.findall("lane"), key=lambda e: -int(e.get("id", "0"))):
-        width = _records_at(lane.findall("width"), "sOffset", s)
+        width = _records_at(lane.findall("width"), "sOffset", s, base)
         if int(lane.get("id", "0")) == lane_id:
             t = border - width / 2
             x, y, h = sample(plan, np.array([s], np.float64))
@@ -277,8 +308,9 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> int:
         own = _records_at(lanes[0].findall("width"), "sOffset", 0.0)
         start = lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")), sample)
         end = lane_at(b, 0.0, int(ls.get("id", "0")), sample)
-        # a lane that has not begun yet at the contact (width ~0: a logged lane that starts later
-        # than its edge's others) is no place to join: that end stays on the SUMO lane
+        # a lane that has not begun yet at the contact (width 0: a logged lane that starts later
+        # than its edge's others where the road's end could not move) is no place to join: that
+        # end stays on the SUMO lane
         if start is None or start[1] < MIN_JOIN_WIDTH_M:
             start = (path[0].copy(), own, float(h[0]))
         if end is None or end[1] < MIN_JOIN_WIDTH_M:

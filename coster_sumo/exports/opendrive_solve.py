@@ -21,6 +21,10 @@ PROJECTION_ITERATIONS = 4
 SMOOTH_WINDOW_M = 4.0  # [m] averaging window of a road's reference line (WOMD lanes jitter)
 REFERENCE_STEP_M = 2.0  # [m] length of the cubic pieces of a road's reference line
 MIN_WIDTH_M = 0.01  # [m] narrowest a lane with a SUMO shape gets (readers take a 0 width for no lane)
+# [m] lanes that start or end closer together than this do so together: pyxodr samples a road every
+# 0.1 m and fails on a lane section with fewer than two samples; commonroad makes a lanelet of no
+# area of a section of millimetres
+MIN_SECTION_M = 0.25
 MERGE_SLOPE = 1e-6  # [-] a record whose slope and start value continue the one before within these
 MERGE_VALUE_M = 1e-5  # [m] is left out (at most 0.1 mm off over 100 m; records are written to 8 digits)
 
@@ -115,6 +119,33 @@ def lateral(ref_x: np.ndarray, ref_y: np.ndarray, ref_h: np.ndarray, s: np.ndarr
     last = s[-1] if last >= s[-1] - END_TOLERANCE_M else last
     covered = (s >= first - 1e-6) & (s <= last + 1e-6)
     return np.interp(s, sk, tk), covered
+
+
+def runs_of(present: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) station index of each run of stations where the same lanes are present
+    (``present`` (S, n) bool)."""
+    change = np.flatnonzero((present[1:] != present[:-1]).any(axis=1)) + 1
+    starts = np.concatenate([[0], change])
+    return list(zip(starts.tolist(), (np.append(change, len(present)) - 1).tolist(), strict=True))
+
+
+def merge_short_runs(s: np.ndarray, present: np.ndarray, min_m: float = MIN_SECTION_M) -> np.ndarray:
+    """``present`` (S, n) with every run of stations shorter than ``min_m`` [m] (up to the next
+    run's start) given the lanes of the run before it (the first run: of the one after), so that
+    lanes that start or end within ``min_m`` of each other start or end together (a lane moves its
+    start or end by less than ``min_m``; see :data:`MIN_SECTION_M` for why)."""
+    out = present.copy()
+    while True:
+        runs = runs_of(out)
+        if len(runs) < 2:
+            return out
+        ends = [s[r[1] + 1] if r[1] + 1 < len(s) else s[-1] for r in runs]
+        short = [k for k, (r, e) in enumerate(zip(runs, ends, strict=True)) if e - s[r[0]] < min_m]
+        if not short:
+            return out
+        k = short[0]
+        i, j = runs[k]
+        out[i:j + 1] = out[runs[k - 1][0]] if k > 0 else out[runs[1][0]]
 
 
 def solve_borders(centres: np.ndarray, present: np.ndarray, widths: np.ndarray, fillers: bool = False
