@@ -116,17 +116,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from coster_sumo import genserver
-
-    # before the commands are imported: a run's generation loads torch and the weights meanwhile
-    genserver.start_early(list(sys.argv[1:] if argv is None else argv))
-    try:
-        return _main(argv)
-    finally:
-        genserver.stop()
-
-
-def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:

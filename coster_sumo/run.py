@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo import genserver
 from coster_sumo.atomic import write_json
 from coster_sumo.core import (
     PRIOR_RATE_HZ,
@@ -228,15 +227,9 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
                 if advance is not None:
                     advance(snap)
 
-            threads = generation_threads(opts.generation, held)
-            server = genserver.current()
-            if server is not None and threads is not None:  # the models' work, loaded while the pass ran
-                planned = server.plan_scenarios(scene, target, spec.seed, opts.generation, opts.snapshots,
-                                                on_snapshot=drawn, threads=threads)
-            else:
-                with torch_threads(threads):
-                    planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
-                                             on_snapshot=drawn)
+            with torch_threads(generation_threads(opts.generation, held)):
+                planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
+                                         on_snapshot=drawn)
     except NoSnapshot as exc:
         raise InputError(f"{spec.config}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None
@@ -352,10 +345,10 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Injectio
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:
     """torch threads for the generation of a run: one core less than the process may use when held
     copies of the nominal pass advance beside it (a drawn snapshot starts one, see
-    :func:`_advance_held`), else all of them; None without a model (no torch)."""
-    if not (SNAPSHOT_INITS[gen.init].weights or ROLLOUTS[gen.rollout].weights):
+    :func:`_advance_held`); None (torch's own choice) without held copies or without a model."""
+    if held is None or not (SNAPSHOT_INITS[gen.init].weights or ROLLOUTS[gen.rollout].weights):
         return None
-    return max(1, usable_cores() - (held is not None))
+    return max(1, usable_cores() - 1)
 
 
 def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None] | None:
