@@ -92,8 +92,9 @@ def torch_threads(n: int | None) -> Iterator[None]:
 
     For work that shares the machine with processes of its own: the models' thread pool spin-waits
     for every thread at every operation, so a pool as wide as the machine beside one busy process
-    makes every operation wait for a core (measured: the demo's generation took 5-7 s on two
-    threads beside a held copy advancing, 2 s on one; the results are bit for bit the same).
+    makes every operation wait for a core (measured on the 2-core machine at a load average of 5:
+    the demo's generation, torch and the weights already loaded, 0.59-0.71 s on one thread against
+    1.6-8.9 s on two, three runs each; the variants are bit for bit the same on one and two).
     """
     if n is None:
         yield
