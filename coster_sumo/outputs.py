@@ -21,12 +21,9 @@ in ``OUTDIR/summary.json`` (see :func:`coster_sumo.run.run`).
 
 from __future__ import annotations
 
-import functools
 import json
 import shutil
-import tempfile
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +37,6 @@ from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectori
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan, sim_time_of
-from coster_sumo.procs import ChildFailed, fork_and_wait, usable_cores
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
@@ -256,7 +252,6 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
     variants: list[dict[str, Any]] = []
     snapshots: list[dict[str, Any]] = []
     renders: list[str] = []
-    jobs: list[Callable[[], object]] = []  # the pictures, drawn at the end side by side
     i = 0
     for k, p in enumerate(planned):
         snap = p.snapshot
@@ -282,16 +277,15 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
                 shutil.rmtree(vdir / "export", ignore_errors=True)
                 rec["export_error"] = str(exc)
             if render:
-                jobs.append(functools.partial(render_driven, vdir / "render.png", i, plan, res, target_id, snap.time,
-                                              rec, scene, target, snap.adversary, t_col_step))
+                render_driven(vdir / "render.png", i, plan, res, target_id, snap.time, rec, scene, target,
+                              snap.adversary, t_col_step)
                 renders.append(f"variants/{i}/render.png")
             i += 1
         if render:
             name = "overview.png" if k == 0 else f"overview_{k}.png"
             reps = [np.stack([q.x, q.y], 1) for q in p.plans]
-            jobs.insert(0, functools.partial(viz.render_overview, out / name, scene, target, t_col_step, snap.target,
-                                             reps, p.samples_xy, snap.entropy or None, p.scene_2hz.timestamps,
-                                             snap.time))
+            viz.render_overview(out / name, scene, target, t_col_step, snap.target, reps, p.samples_xy,
+                                snap.entropy or None, p.scene_2hz.timestamps, snap.time)
             renders.insert(k, name)
         angles = [r["impact_angle"] for r in mine if r["collision"]]
         a = snap.adversary
@@ -327,25 +321,4 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         **({"target_choice": options["target_choice"]} if options.get("target_choice") else {}),
     }
     write_json(out / "summary.json", summary)
-    render_side_by_side(jobs)
     return summary
-
-
-def render_side_by_side(jobs: list[Callable[[], object]]) -> None:
-    """Run the render calls ``jobs`` in forked children, as many at a time as there are cores.
-
-    Each picture takes a few tenths of a second of matplotlib in one thread, and they need nothing
-    from each other: the demo's six took 1.4-2.2 s one after the other. A child inherits the scene
-    and the results (nothing is copied) and writes its file; a render that fails fails the run with
-    its reason, as it did in-process.
-    """
-    if len(jobs) <= 1:
-        for job in jobs:
-            job()
-        return
-    with tempfile.TemporaryDirectory(prefix="coster-render-") as tmp:
-        calls = [(job, str(Path(tmp) / f"{k}.pickle")) for k, job in enumerate(jobs)]
-        for (job, _), (ok, reason) in zip(calls, fork_and_wait(calls, workers=usable_cores()), strict=True):
-            if not ok:
-                what = job.args[0] if isinstance(job, functools.partial) else job
-                raise ChildFailed(f"render of {what}: {reason}")
