@@ -104,13 +104,40 @@ class DrivableArea:
         out = np.zeros(len(flat))
         todo = ~corner_in
         if todo.any():
-            boxes = shapely.polygons(flat[todo])
-            tree, pieces = self._index()
-            bi, pi = tree.query(boxes, predicate="intersects")
-            inside = np.bincount(bi, weights=shapely.area(shapely.intersection(boxes[bi], pieces[pi])),
-                                 minlength=len(boxes))
-            out[todo] = np.maximum(shapely.area(boxes) - inside, 0.0)
+            out[todo] = self._area_outside(flat[todo])
         return out.reshape(shape)
+
+    def _area_outside(self, corners: np.ndarray) -> np.ndarray:
+        """(N,) [m^2] of the boxes with corners (N, 4, 2) outside the area (the exact intersection)."""
+        boxes = shapely.polygons(corners)
+        tree, pieces = self._index()
+        bi, pi = tree.query(boxes, predicate="intersects")
+        inside = np.bincount(bi, weights=shapely.area(shapely.intersection(boxes[bi], pieces[pi])),
+                             minlength=len(boxes))
+        return np.maximum(shapely.area(boxes) - inside, 0.0)  # type: ignore[no-any-return]
+
+    def any_off_road(self, cx: np.ndarray, cy: np.ndarray, yaw: np.ndarray, length: np.ndarray,
+                     width: np.ndarray) -> np.ndarray:
+        """bool (...): :meth:`off_road` of any footprint along the inputs' last axis (a path's poses).
+
+        The same answer as ``off_road(...).any(-1)``, box for box the same areas, but a path's
+        areas are computed only up to its first footprint off the road: oversampled paths that leave
+        the road leave it at several poses, and the exact areas are most of the check's cost.
+        """
+        corners = _corners(np.asarray(cx, float), np.asarray(cy, float), np.asarray(yaw, float),
+                           np.asarray(length, float), np.asarray(width, float))  # (..., T, 4, 2)
+        lead, steps = corners.shape[:-3], corners.shape[-3]
+        flat = corners.reshape(-1, steps, 4, 2)
+        todo = ~shapely.contains_xy(self.geometry, flat[..., 0], flat[..., 1]).all(axis=-1)  # (P, T)
+        off = np.zeros(len(flat), bool)
+        pending = todo.any(axis=1)
+        while pending.any():  # each round: every undecided path's next footprint with a corner out
+            rows = np.flatnonzero(pending)
+            cols = np.argmax(todo[rows], axis=1)
+            off[rows] = self._area_outside(flat[rows, cols]) > self.tolerance_m2
+            todo[rows, cols] = False
+            pending = todo.any(axis=1) & ~off
+        return off.reshape(lead)
 
     def _index(self) -> tuple[shapely.STRtree, np.ndarray]:
         """The area split into small disjoint pieces and their STRtree (built on first use)."""

@@ -26,7 +26,7 @@ import sys
 import tempfile
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +77,36 @@ def one_openmp_thread_after_fork() -> bool:
     if torch is not None:
         torch.set_num_threads(1)
     return True
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system has one)."""
+    with contextlib.suppress(AttributeError, OSError):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """torch computes on ``n`` threads inside the block, on as many as before after it (None: no change).
+
+    For work that shares the machine with processes of its own: the models' thread pool spin-waits
+    for every thread at every operation, so a pool as wide as the machine beside one busy process
+    makes every operation wait for a core (measured on the 2-core machine at a load average of 5:
+    the demo's generation, torch and the weights already loaded, 0.59-0.71 s on one thread against
+    1.6-8.9 s on two, three runs each; the variants are bit for bit the same on one and two).
+    """
+    if n is None:
+        yield
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, n))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _child_body(fn: Callable[[], Any], path: str) -> None:

@@ -40,13 +40,14 @@ from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
+from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import progress_bar
-from coster_sumo.rollout.methods import HORIZON_STEPS
+from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
-from coster_sumo.snapshot import NoSnapshot
+from coster_sumo.snapshot import SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -226,8 +227,9 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
                 if advance is not None:
                     advance(snap)
 
-            planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
-                                     on_snapshot=drawn)
+            with torch_threads(generation_threads(opts.generation, held)):
+                planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
+                                         on_snapshot=drawn)
     except NoSnapshot as exc:
         raise InputError(f"{spec.config}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None
@@ -338,6 +340,15 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Injectio
                            "reason": f"ran into {other} at {wreck.time:.1f} s in the simulation, before t_col"}
 
     return _leave_out(planned, results, wrecked)
+
+
+def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:
+    """torch threads for the generation of a run: one core less than the process may use when held
+    copies of the nominal pass advance beside it (a drawn snapshot starts one, see
+    :func:`_advance_held`); None (torch's own choice) without held copies or without a model."""
+    if held is None or not (SNAPSHOT_INITS[gen.init].weights or ROLLOUTS[gen.rollout].weights):
+        return None
+    return max(1, usable_cores() - 1)
 
 
 def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None] | None:

@@ -15,6 +15,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
+from matplotlib.colors import to_rgba  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 
 from coster_sumo.drivable import _corners  # noqa: E402
@@ -28,18 +30,25 @@ OTHER_COLOR = "#7f7f7f"
 
 def draw_map(ax: Axes, road_map: RoadMap, window: tuple[float, float, float, float] | None = None) -> None:
     """Lanes (thin grey centrelines), junctions (light fill), road edges (black)."""
-    for poly in road_map.junctions.points:
-        if len(poly) >= 3:
-            ax.add_patch(Polygon(poly, closed=True, facecolor="#eeeeee", edgecolor="none", zorder=0))
-    for i, pts in enumerate(road_map.lanes.centerline):
-        if window is not None and (pts[:, 0].max() < window[0] or pts[:, 0].min() > window[2]
-                                   or pts[:, 1].max() < window[1] or pts[:, 1].min() > window[3]):
-            continue
-        ax.plot(pts[:, 0], pts[:, 1], color="#bbbbbb", lw=road_map.lanes.width[i] * 2.0, alpha=0.35,
-                solid_capstyle="butt", zorder=1)
-        ax.plot(pts[:, 0], pts[:, 1], color="#999999", lw=0.4, zorder=1)
-    for pts in road_map.road_edges.points:
-        ax.plot(pts[:, 0], pts[:, 1], color="black", lw=0.6, zorder=1)
+    # one collection per kind of line: a few artists instead of two per lane (a city map's thousands
+    # of artists made every render, its layout and its file several times slower), drawn alike
+    polys = [poly for poly in road_map.junctions.points if len(poly) >= 3]
+    if polys:
+        ax.add_collection(PolyCollection(polys, closed=True, facecolor="#eeeeee", edgecolor="none", zorder=0))
+    lanes = [(i, pts) for i, pts in enumerate(road_map.lanes.centerline)
+             if window is None or not (pts[:, 0].max() < window[0] or pts[:, 0].min() > window[2]
+                                       or pts[:, 1].max() < window[1] or pts[:, 1].min() > window[3])]
+    if lanes:
+        lines = [pts[:, :2] for _, pts in lanes]
+        widths = [float(road_map.lanes.width[i]) * 2.0 for i, _ in lanes]
+        ax.add_collection(LineCollection(lines, colors="#bbbbbb", linewidths=widths, alpha=0.35, capstyle="butt",
+                                         joinstyle="round", zorder=1))
+        ax.add_collection(LineCollection(lines, colors="#999999", linewidths=0.4, capstyle="projecting",
+                                         joinstyle="round", zorder=1))
+    edges = [pts[:, :2] for pts in road_map.road_edges.points]
+    if edges:
+        ax.add_collection(LineCollection(edges, colors="black", linewidths=0.6, capstyle="projecting",
+                                         joinstyle="round", zorder=1))
 
 
 def draw_box(ax: Axes, x: float, y: float, yaw: float, length: float, width: float, color: str,
@@ -53,11 +62,25 @@ def draw_box(ax: Axes, x: float, y: float, yaw: float, length: float, width: flo
 
 
 def draw_agents(ax: Axes, scene: Scene, step: int, highlight: dict[int, str] | None = None) -> None:
+    """Every vehicle at ``step`` as :func:`draw_box` draws one (``highlight``: agent -> colour, less
+    transparent), all boxes in one collection and all heading ticks in another (two artists, not two
+    per vehicle: a busy scene's boxes were a good part of a render's drawing and layout time)."""
     t = scene.tracks
     highlight = highlight or {}
-    for a in np.flatnonzero(t.valid[:, step]):
-        draw_box(ax, t.x[a, step], t.y[a, step], t.heading[a, step], t.length[a, step], t.width[a, step],
-                 highlight.get(int(a), OTHER_COLOR), alpha=0.8 if a in highlight else 0.5)
+    agents = np.flatnonzero(t.valid[:, step])
+    if not len(agents):
+        return
+    x, y, yaw, length = t.x[agents, step], t.y[agents, step], t.heading[agents, step], t.length[agents, step]
+    corners = _corners(x, y, yaw, length, t.width[agents, step])  # (N, 4, 2)
+    alpha = [0.8 if int(a) in highlight else 0.5 for a in agents]  # a patch's alpha dims its edge too
+    faces = [to_rgba(highlight.get(int(a), OTHER_COLOR), al) for a, al in zip(agents, alpha, strict=True)]
+    edges = [to_rgba("black", al) for al in alpha]
+    ax.add_collection(PolyCollection(list(corners), closed=True, facecolors=faces, edgecolors=edges, linewidths=0.5,
+                                     zorder=5))
+    ticks = np.stack([np.stack([x, y], -1), np.stack([x + 0.5 * length * np.cos(yaw),
+                                                       y + 0.5 * length * np.sin(yaw)], -1)], 1)  # (N, 2, 2)
+    ax.add_collection(LineCollection(list(ticks), colors="black", linewidths=0.6, capstyle="projecting",
+                                     joinstyle="round", zorder=6))
 
 
 def window_around(points: np.ndarray, margin: float = 25.0) -> tuple[float, float, float, float]:

@@ -89,3 +89,18 @@ def test_osm_network_whose_closed_area_self_intersects_still_answers():
                             np.full(2, 4.5), np.full(2, 1.9))
     assert out.shape == (2,) and np.isfinite(out).all() and (out >= 0).all()
     assert out[0] > 0  # the far box really went through the pieces
+
+
+def test_any_off_road_answers_as_off_road_of_every_pose():
+    """A path is off the road when any of its footprints is; any_off_road stops at the first."""
+    scene = synthetic.four_way_junction()
+    area = DrivableArea.from_road_map(scene.road_map)
+    t = scene.tracks
+    rng = np.random.default_rng(3)
+    start = rng.integers(0, int(t.valid.sum()), 60)
+    x = t.x[t.valid][start][:, None] + np.cumsum(rng.normal(0.0, 2.0, (60, 8)), axis=1)  # (paths, poses)
+    y = t.y[t.valid][start][:, None] + np.cumsum(rng.normal(0.0, 2.0, (60, 8)), axis=1)
+    yaw, length, width = rng.uniform(-np.pi, np.pi, (60, 8)), np.full((60, 8), 4.5), np.full((60, 8), 1.9)
+    every = area.off_road(x, y, yaw, length, width).any(axis=-1)
+    assert 0 < every.sum() < len(every)  # both kinds of path are there
+    np.testing.assert_array_equal(area.any_off_road(x, y, yaw, length, width), every)

@@ -8,6 +8,7 @@ import torch
 
 from coster_sumo import synthetic, weights
 from coster_sumo.errors import InputError
+from coster_sumo.geometry import box_corners
 from coster_sumo.rollout import sample as S
 from coster_sumo.rollout import vocab as V
 from coster_sumo.rollout.baselines import constant_lane_backward, constant_velocity_backward
@@ -128,6 +129,26 @@ def test_projection_keeps_the_snapshot_and_uses_tokens_only(vocab):
     dist = np.abs(steps[:, :, None, :] - vocab.tokens[None, None]).max(-1).min(-1)
     assert dist.max() < 1e-9  # every transition is a token
     assert err.shape == (3,) and np.all(err >= 0)
+
+
+def test_projection_takes_the_token_of_the_smallest_mean_corner_error(vocab):
+    """Each step back from the refined later pose, the token whose moved box has the smallest mean
+    corner distance to the raw box (computed here the plain way, on the whole difference array)."""
+    rng = np.random.default_rng(4)
+    trajs = fan([0.0, 2.0], length_m=15.0, steps=6)
+    trajs[..., :2] += rng.normal(0, 0.2, trajs[..., :2].shape)
+    refined, err = V.project_backward(trajs, vocab, 4.6, 1.9)
+    back = V.invert(vocab.tokens)
+    token_c = box_corners(back[:, 0], back[:, 1], back[:, 2], 4.6, 1.9)  # (V, 4, 2)
+    for r in range(len(trajs)):
+        for k in range(trajs.shape[1] - 2, -1, -1):
+            q = refined[r, k + 1]
+            raw = box_corners(trajs[r, k, 0], trajs[r, k, 1], trajs[r, k, 2], 4.6, 1.9) - q[:2]  # (4, 2)
+            c, s = np.cos(q[2]), np.sin(q[2])
+            local = np.stack([c * raw[:, 0] + s * raw[:, 1], -s * raw[:, 0] + c * raw[:, 1]], -1)
+            mean_err = np.sqrt(((token_c - local) ** 2).sum(-1)).mean(-1)  # (V,)
+            np.testing.assert_allclose(refined[r, k], V.compose(q[None], back[[int(np.argmin(mean_err))]])[0],
+                                       atol=1e-12)
 
 
 def test_invert_and_compose_round_trip():

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -271,7 +271,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
     execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
             quiet=opts.quiet, desc="eval scenarios", expected_total=todo,
             log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
-            preload=SUMO_TASK_MODULES)
+            preload=GENERATION_TASK_MODULES)
     table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
     summary = {"command": "eval scenarios", "scenes": {k: s.label() for k, s in keys.items()},
                "planner": opts.planner, "variants": opts.variants, "samples": opts.samples,

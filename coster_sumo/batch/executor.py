@@ -485,7 +485,9 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         log_dir: the local executor sends each task's stdout/stderr to ``log_dir/<key>.log``.
         ray_address: Ray cluster address (default: start a local Ray instance).
         preload: modules imported here first, so that forked task processes inherit them instead of
-            importing them again (about 1 s per task for the SUMO side of the package).
+            importing them again (about 1 s per task for the SUMO side of the package);
+            :data:`GENERATION_TASK_MODULES` (torch) are imported by a fork server instead, which
+            every task forks from.
     """
     if workers < 1:
         raise InputError(f"--workers must be >= 1, not {workers}")
@@ -493,7 +495,10 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         raise InputError(f"--executor must be local or ray, not {executor!r}")
     pending = deque(tasks)
     finished: list[tuple[Task, Outcome]] = []
-    if executor == "local" and (start_method or _default_start_method()) == "fork":
+    method = start_method or _default_start_method()
+    if method == "fork" and set(preload) & set(GENERATION_TASK_MODULES) and "forkserver" in mp.get_all_start_methods():
+        method = "forkserver"  # the server imports torch; this process stays free of it and forks cheaply
+    if executor == "local" and method == "fork":
         import importlib
         import io
 
@@ -525,7 +530,7 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
             log_dir.mkdir(parents=True, exist_ok=True)
         if executor == "local":
             _execute_local(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
-                           start_method=start_method, log_dir=log_dir, preload=preload)
+                           start_method=method, log_dir=log_dir, preload=preload)
         else:
             _execute_ray(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
                          ray_address=ray_address)
@@ -562,3 +567,7 @@ def probe_task(payload: dict[str, Any]) -> dict[str, Any]:
 # modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
 SUMO_TASK_MODULES = ("libsumo", "coster_sumo.core", "coster_sumo.sim.inject", "coster_sumo.outputs",
                      "coster_sumo.drivable", "pyarrow.parquet")
+# the preload of tasks that generate scenarios: SUMO, torch and the models' code, imported by a fork
+# server (coster_sumo/batch/task_imports.py) so that no task imports them again and this process
+# stays free of torch
+GENERATION_TASK_MODULES = ("coster_sumo.batch.task_imports",)

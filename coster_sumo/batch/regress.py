@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.batch.executor import SUMO_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -327,7 +327,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
             if generations else "regress",
             expected_total=len(initial) + n_runs_expected - len(done),
             start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
-            ray_address=opts.ray_address, preload=SUMO_TASK_MODULES)
+            ray_address=opts.ray_address, preload=GENERATION_TASK_MODULES)
     summary = summarize_regression(out, keys, opts.planners)
     summary["wall_time_s"] = round(time.perf_counter() - t_start, 3)
     summary["options"] = {"variants": opts.variants, "workers": opts.workers, "executor": opts.executor,

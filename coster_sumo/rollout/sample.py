@@ -265,10 +265,9 @@ def _off_road(drivable: DrivableArea | OffRoadFn, poses: np.ndarray, length: flo
     """(R,) any pose of (R, T, 3) off the drivable area."""
     ln = np.full(poses.shape[:2], length)
     wd = np.full(poses.shape[:2], width)
-    if isinstance(drivable, DrivableArea):
-        off = drivable.off_road(poses[..., 0], poses[..., 1], poses[..., 2], ln, wd)
-    else:
-        off = np.asarray(drivable(poses[..., 0], poses[..., 1], poses[..., 2], ln, wd), bool)
+    if isinstance(drivable, DrivableArea):  # areas only up to each path's first pose off the road
+        return drivable.any_off_road(poses[..., 0], poses[..., 1], poses[..., 2], ln, wd)
+    off = np.asarray(drivable(poses[..., 0], poses[..., 1], poses[..., 2], ln, wd), bool)
     return np.any(np.asarray(off, bool).reshape(poses.shape[:2]), axis=1)  # type: ignore[no-any-return]
 
 

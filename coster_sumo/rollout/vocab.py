@@ -215,12 +215,19 @@ def project_backward(traj: np.ndarray, vocab: MotionVocab, length: float | None 
     raw_c = box_corners(traj[..., 0], traj[..., 1], traj[..., 2], length, width)  # (R, T, 4, 2)
     worst = np.zeros(r)
     rows = np.arange(r)
+    tx, ty = np.ascontiguousarray(token_c[..., 0].T), np.ascontiguousarray(token_c[..., 1].T)  # (4, V) each
     for k in range(t - 2, -1, -1):
         q = out[:, k + 1]  # (R, 3) the refined later pose
         c, s = np.cos(q[:, 2])[:, None], np.sin(q[:, 2])[:, None]
         rel = raw_c[:, k] - q[:, None, :2]  # (R, 4, 2) raw corners in q's frame:
-        local = np.stack([c * rel[..., 0] + s * rel[..., 1], -s * rel[..., 0] + c * rel[..., 1]], -1)
-        err = np.sqrt(((token_c[None] - local[:, None]) ** 2).sum(-1)).mean(-1)  # (R, V)
+        lx, ly = c * rel[..., 0] + s * rel[..., 1], -s * rel[..., 0] + c * rel[..., 1]  # (R, 4) each
+        # mean corner distance, corner by corner on (R, V) planes: the same operations in the same
+        # order as the mean over an (R, V, 4, 2) difference (bit for bit), without building it
+        total = np.zeros((r, len(back)))
+        for j in range(4):
+            dx, dy = tx[j] - lx[:, j, None], ty[j] - ly[:, j, None]  # (R, V)
+            total += np.sqrt(dx * dx + dy * dy)
+        err = total / 4.0  # (R, V)
         best = np.argmin(err, axis=1)
         out[:, k] = compose(q, back[best])
         worst = np.maximum(worst, err[rows, best])
