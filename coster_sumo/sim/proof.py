@@ -128,10 +128,37 @@ def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esca
         if converted:
             from coster_sumo.sim.replay import LogReplayer
 
-            actors = (LogReplayer.for_config(spec.config, scene, handover={target_id: job.plan.t_start}),)
+            # logged agents that never come near the escape are left out: they are replayed, so they
+            # react to nothing, and the verdict is about the target's contacts
+            far = _far_agents(scene, np.stack([job.escape.x, job.escape.y], -1), target_id)
+            actors = (LogReplayer.for_config(spec.config, scene, exclude=far,
+                                             handover={target_id: job.plan.t_start}),)
         res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), seed=spec.seed,
                             end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
                             actors=actors, traci=traci,
                             surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=None)
         out[i] = verdict(res, target_id, job)
     return [v for v in out if v is not None]
+
+
+PROOF_RADIUS_M = 30.0  # [m] a logged agent never this close to an escape's path cannot touch the target
+
+
+def _far_agents(scene: Scene, path: np.ndarray, target_id: str) -> set[str]:
+    """Ids of the logged agents none of whose valid positions comes within :data:`PROOF_RADIUS_M`
+    of a point of ``path`` (N, 2) [m] (time aside: conservative). The largest vehicles are under
+    25 m long, so two boxes in contact have centres under 15 m apart, and the path's points are at
+    most a few metres apart."""
+    tr = scene.tracks
+    lo, hi = path.min(axis=0) - PROOF_RADIUS_M, path.max(axis=0) + PROOF_RADIUS_M
+    far: set[str] = set()
+    for a in range(tr.num_agents):
+        aid = str(tr.ids[a])
+        if aid == target_id:
+            continue
+        pts = np.stack([tr.x[a, tr.valid[a]], tr.y[a, tr.valid[a]]], -1)
+        pts = pts[((pts >= lo) & (pts <= hi)).all(axis=1)]  # the box around the path first
+        if len(pts) == 0 or np.min(np.hypot(*(pts[:, None, :] - path[None, :, :]).transpose(2, 0, 1))) > PROOF_RADIUS_M:
+            far.add(aid)
+    return far
+
