@@ -45,6 +45,7 @@ from defusedxml import ElementTree as SafeET
 
 from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
 from coster_sumo.exports.opendrive_ends import length as piece_length
+from coster_sumo.exports.opendrive_readers import link_lane
 from coster_sumo.exports.opendrive_roads import (
     Sampler,
     extend_reference,
@@ -310,8 +311,8 @@ def _write_sections(lanes_el: ET.Element, lane_els: list[ET.Element], s: np.ndar
         for key in els_a.keys() & els_b.keys():
             if max(abs(inner_a[key][0] - inner_b[key][0]), abs(inner_a[key][1] - inner_b[key][1])) > SECTION_LINK_M:
                 continue
-            _link_lane(els_a[key], "successor", els_b[key].get("id", "0"))
-            _link_lane(els_b[key], "predecessor", els_a[key].get("id", "0"))
+            link_lane(els_a[key], "successor", els_b[key].get("id", "0"))
+            link_lane(els_b[key], "predecessor", els_a[key].get("id", "0"))
     ends = {}
     for name, (_, here, els, _) in (("start", sections[0]), ("end", sections[-1])):
         ends[name] = {-(key[1] + 1): int(els[key].get("id", "0")) for key, _ in here if key[0] == "lane"}
@@ -331,21 +332,6 @@ def _inner_borders(here: list[tuple[tuple[str, int], list[tuple[float, float, fl
         out[key] = (border, border + w)
         border += w
     return out
-
-
-def _link_lane(lane: ET.Element, tag: str, other: str) -> None:
-    """Give a lane a ``predecessor``/``successor`` lane link (predecessors first, as the schema wants)."""
-    link = lane.find("link")
-    if link is None:
-        link = ET.Element("link")
-        lane.insert(0, link)
-    for el in link.findall(tag):
-        link.remove(el)
-    el = ET.Element(tag, {"id": other})
-    if tag == "predecessor":
-        link.insert(0, el)
-    else:
-        link.append(el)
 
 
 def _set_widths(lane: ET.Element, recs: list[tuple[float, float, float]]) -> None:

@@ -144,16 +144,24 @@ def _link_through(roads: dict[str, ET.Element], conn: ET.Element, pred: ET.Eleme
             found = [ln for ln in section.iter("lane") if ln.get("id") == lane_id]
             if not found:
                 continue
-            lane = found[0]
-            lane_link = lane.find("link")
-            if lane_link is None:
-                lane_link = ET.Element("link")
-                lane.insert(0, lane_link)
-            for el in lane_link.findall(tag):
-                lane_link.remove(el)
-            ET.SubElement(lane_link, tag, {"id": other_id})
-            _order_link(lane_link)
+            link_lane(found[0], tag, other_id)
         _order_link(link)
+
+
+def link_lane(lane: ET.Element, tag: str, other: str) -> None:
+    """Give a lane a ``predecessor``/``successor`` lane link to lane ``other`` (replacing one it had),
+    predecessors first, as the schema wants."""
+    link = lane.find("link")
+    if link is None:
+        link = ET.Element("link")
+        lane.insert(0, link)
+    for el in link.findall(tag):
+        link.remove(el)
+    el = ET.Element(tag, {"id": other})
+    if tag == "predecessor":
+        link.insert(0, el)
+    else:
+        link.append(el)
 
 
 def _order_link(link: ET.Element) -> None:
