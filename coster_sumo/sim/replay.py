@@ -186,12 +186,9 @@ class LogReplayer:
         if k is not None:
             valid = self.valid[:, k].copy()
             valid[list(self.released)] = False
-            for a in np.flatnonzero(~valid).tolist():
-                if a in self.released:
-                    continue
-                sid = self.active.pop(a, None)
-                if sid is not None:
-                    session.remove_vehicle(sid)
+            # those in SUMO that the log no longer has (not every agent the log lacks: most never came)
+            for a in [a for a in self.active if not valid[a] and a not in self.released]:
+                session.remove_vehicle(self.active.pop(a))
             for a in np.flatnonzero(valid).tolist():
                 sid = self.active.get(a) or self._add(session, a)  # not staged: added in place
                 session.hidden.discard(sid)  # at its logged pose after this step
