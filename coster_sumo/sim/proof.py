@@ -11,6 +11,7 @@ the target touches nobody (our box check, the ground truth of every pass) and st
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,14 +19,25 @@ import numpy as np
 
 from coster_sumo.avoid import Escape
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.formats.scene_folder import converted_scene_file
+from coster_sumo.formats.scene_folder import agent_sizes, converted_scene_file, vtype_for
 from coster_sumo.geometry import box_signed_distance, make_boxes
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.scene import Scene
+from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.sim.inject import TIME_EPS, InjectionResult, StepActor, continue_injection, run_injection
+from coster_sumo.sim.inject import (
+    TIME_EPS,
+    AdversaryController,
+    InjectionResult,
+    StepActor,
+    continue_injection,
+    edge_under,
+    run_injection,
+)
 from coster_sumo.sim.planners import ReplayPlanner
-from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M
+from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, record
+from coster_sumo.sim.session import SumoSession
+from coster_sumo.sim.states import VehicleStates
 from coster_sumo.spec import ScenarioSpec
 
 
@@ -46,25 +58,30 @@ def escape_planner(escape: Escape, length_m: float) -> ReplayPlanner:
 def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> dict[str, Any]:
     """What the replay shows: contacts of the target, off-road, the smallest gap to the adversary
     and how far SUMO's target strayed from the escape (moveToXY places it exactly)."""
+    return _verdict(res.events, res.scene, target_id, job.plan.vehicle_id, job)
+
+
+def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: str, job: EscapeJob) -> dict[str, Any]:
+    """:func:`verdict` from a pass's events and recording, the target and adversary by their ids there."""
     plan, esc = job.plan, job.escape
     t0 = plan.t_start - TIME_EPS
-    contacts = [e for e in res.events if e.kind == "collision" and target_id in e.vehicles and e.time >= t0]
-    off = [e for e in res.events if e.kind == "off_road" and e.vehicles == [target_id] and e.time >= t0]
-    tr = res.scene.tracks
+    contacts = [e for e in events if e.kind == "collision" and target_id in e.vehicles and e.time >= t0]
+    off = [e for e in events if e.kind == "off_road" and e.vehicles == [target_id] and e.time >= t0]
+    tr = scene.tracks
     ids = tr.ids.tolist()
     gap = deviation = dev_at = None
     if target_id in ids:
         a = tr.index_of(target_id)
-        ts_all = res.scene.timestamps
+        ts_all = scene.timestamps
         steps = np.flatnonzero(tr.valid[a] & (ts_all >= t0) & (ts_all <= esc.times[-1] + TIME_EPS))
         if len(steps):
-            ts = res.scene.timestamps[steps]
+            ts = ts_all[steps]
             k = np.clip(np.round((ts - esc.times[0]) / 0.1).astype(int), 0, len(esc.times) - 1)
             dev = np.hypot(tr.x[a, steps] - esc.x[k], tr.y[a, steps] - esc.y[k])
             deviation = float(dev.max())
             dev_at = float(ts[int(np.argmax(dev))])
-            if plan.vehicle_id in ids:
-                b = tr.index_of(plan.vehicle_id)
+            if adversary_id in ids:
+                b = tr.index_of(adversary_id)
                 both = steps[tr.valid[b, steps]]
                 if len(both):
                     gap = float(box_signed_distance(
@@ -96,13 +113,18 @@ def _prove_held(session: Any, payload: dict[str, Any]) -> dict[str, Any]:
 
 def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob], *,
                   drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
-                  traci: bool = False, horizon_s: float = 3.0) -> list[dict[str, Any]]:
+                  traci: bool = False, horizon_s: float = 3.0, together: bool = True) -> list[dict[str, Any]]:
     """Replay every escape in SUMO; one verdict (:func:`verdict`) per job, in order.
 
     From the held copy of the nominal pass before the adversary appears where there is one (as the
     variant's own pass), else from the configuration's begin with its seed; a converted WOMD scene's
     log drives every other agent and hands the target over to the escape when the adversary
     appears. Each pass ends ``horizon_s`` after t_col.
+
+    On a converted scene nothing in SUMO reacts (the log moves every other agent, the plans move
+    the adversary and the target), so with ``together`` every escape is replayed in one pass
+    (:class:`_JointProof`), each by a copy of the target facing its own copy of the adversary; the
+    verdicts are those of one pass per escape (``together=False``).
     """
     tr = scene.tracks
     target_id = str(tr.ids[target])
@@ -121,6 +143,8 @@ def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esca
                                    "end": jobs[i].plan.t_col + horizon_s + 1e-6}) for i in members]
         for i, v in zip(members, held.run(held.holders[h_index], payloads, workers), strict=True):
             out[i] = v
+    if converted and together and not traci and jobs:
+        return _JointProof(spec, scene, target, jobs, drivable, horizon_s).run()
     for i, job in enumerate(jobs):
         if out[i] is not None:
             continue
@@ -139,6 +163,104 @@ def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esca
                             surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=None)
         out[i] = verdict(res, target_id, job)
     return [v for v in out if v is not None]
+
+
+class _JointProof:
+    """Every escape of a converted scene in one SUMO pass from the configuration's begin.
+
+    Job k adds two vehicles when its adversary appears: ``<target>#escape<k>``, which drives the
+    escape (moveToXY, as the ``replay`` planner), and ``<adversary>#escape<k>``, driven by the
+    injection's own :class:`~coster_sumo.sim.inject.AdversaryController` (frozen at a first contact).
+    The log replays every other agent that comes near any escape, as in a pass of its own. Each job
+    has its own :class:`~coster_sumo.sim.events.EventDetector`, which sees the logged agents and its
+    two vehicles only: the copies of other jobs do not exist for it. Its two vehicles leave the
+    network when its horizon ends.
+    """
+
+    def __init__(self, spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
+                 drivable: DrivableArea | None, horizon_s: float) -> None:
+        from coster_sumo.sim.replay import LogReplayer
+
+        self.spec, self.scene, self.jobs = spec, scene, jobs
+        tr = scene.tracks
+        self.target_id = str(tr.ids[target])
+        lengths, widths = agent_sizes(scene)
+        self.size = (float(lengths[target]), float(widths[target]))
+        self.vtype = vtype_for(int(tr.object_type[target]))
+        self.length = float(np.median(tr.length[target][tr.valid[target]]))
+        paths = np.concatenate([np.stack([j.escape.x, j.escape.y], -1) for j in jobs])
+        far = _far_agents(scene, paths, self.target_id)
+        self.replayer = LogReplayer.for_config(spec.config, scene, exclude=far | {self.target_id})
+        self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
+        self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
+        self.adversaries = [AdversaryController(dataclasses.replace(j.plan, vehicle_id=a))
+                            for j, (_, a) in zip(jobs, self.ids, strict=True)]
+        self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
+        self.starts = [sim_time_of(j.plan.t_start, 0.1) for j in jobs]
+        self.ends = [j.plan.t_col + horizon_s + 1e-6 for j in jobs]
+        self.copies = {v for pair in self.ids for v in pair}
+        self.added: set[int] = set()
+        self.removed: set[int] = set()
+
+    def _live(self, k: int, t: float) -> bool:
+        return self.starts[k] - TIME_EPS <= t <= self.ends[k] and k not in self.removed
+
+    def before(self, session: SumoSession) -> None:
+        t_next = round(session.time + session.step_length, 9)
+        self.replayer.before_step(session, t_next)
+        for k, (tid, aid) in enumerate(self.ids):
+            if k in self.added and k not in self.removed and t_next > self.ends[k]:
+                for vid in (tid, aid):
+                    if vid in session.vehicle_ids():
+                        session.remove_vehicle(vid)
+                self.removed.add(k)
+            if not self._live(k, t_next):
+                continue
+            if k not in self.added:
+                esc = self.jobs[k].escape
+                session.add_vehicle(tid, *self.size, self.vtype[1], base_type=self.vtype[0],
+                                    route_edges=edge_under(session, float(esc.x[0]), float(esc.y[0]),
+                                                            float(esc.yaw[0]), self.length))
+                self.added.add(k)
+            self.drivers[k].before_step(session, tid, t_next, True)
+            self.adversaries[k].before_step(session, t_next)
+
+    def after(self, session: SumoSession, states: VehicleStates) -> bool:
+        t = session.time
+        names = states.id_list()
+        rows = {v: i for i, v in enumerate(names) if v in self.copies}
+        base = [i for i, v in enumerate(names) if v not in self.copies]
+        for k, (tid, aid) in enumerate(self.ids):
+            if not self._live(k, t):
+                continue
+            own = sorted(base + [rows[v] for v in (tid, aid) if v in rows])
+            sub = _take(states, own)
+            new = self.detectors[k].check(t, sub)
+            adversary = self.adversaries[k]
+            if new and adversary.frozen_pose is None:
+                adversary.on_events(sub, new)
+                if adversary.frozen_pose is not None:
+                    self.detectors[k].settle_adversary()
+        return False
+
+    def run(self) -> list[dict[str, Any]]:
+        end = max(self.ends)
+        with SumoSession(self.spec.config, seed=self.spec.seed, begin=self.spec.begin, end=end) as session:
+            rec = record(session, begin=self.spec.begin, end=end, before_step=self.before, after_step=self.after)
+        out = []
+        for det, (tid, aid), job in zip(self.detectors, self.ids, self.jobs, strict=True):
+            det.flush()
+            out.append(_verdict(det.events, rec, tid, aid, job))
+        return out
+
+
+def _take(states: VehicleStates, rows: list[int]) -> VehicleStates:
+    """The vehicles of ``states`` at ``rows``, in that order."""
+    idx = np.asarray(rows, np.int64)
+    names = states.id_list()
+    return VehicleStates(ids=states.ids[idx], x=states.x[idx], y=states.y[idx], yaw=states.yaw[idx],
+                         speed=states.speed[idx], length=states.length[idx], width=states.width[idx],
+                         vclass=states.vclass[idx], type_id=states.type_id[idx], names=[names[i] for i in rows])
 
 
 PROOF_RADIUS_M = 30.0  # [m] a logged agent never this close to an escape's path cannot touch the target
