@@ -463,8 +463,8 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     good = feasible.copy()
     kk, mm = np.nonzero(good)
     if len(kk):  # the adversary first: it rules out most candidates
-        hit = (sat_overlap_depth(grown[kk, mm], adv_box[None]) > 0.0) & after[kk, 0]
-        good[kk[hit.any(-1)], mm[hit.any(-1)]] = False
+        hit = _hits_adversary(pos[kk, mm], grown[kk, mm], adv_box, after[kk, 0])
+        good[kk[hit], mm[hit]] = False
     others = _other_boxes(scene, target, times, path)
     kk, mm = np.nonzero(good)
     if others is not None and len(kk):
@@ -588,6 +588,27 @@ def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
     boxes = make_boxes(tr.x[np.ix_(rows, idx)], tr.y[np.ix_(rows, idx)], tr.heading[np.ix_(rows, idx)],
                        tr.length[np.ix_(rows, idx)], tr.width[np.ix_(rows, idx)])
     return boxes, valid[keep]
+
+
+def _hits_adversary(centres: np.ndarray, grown: np.ndarray, adv_box: np.ndarray, acted: np.ndarray) -> np.ndarray:
+    """(G,) whether each candidate's grown boxes overlap the adversary at a step after acting.
+
+    Args:
+        centres: (G, T, 2) candidate box centres; grown: (G, T, 5) their boxes grown by the
+            clearance; adv_box: (T, 5); acted: (G, T).
+
+    Two boxes overlap only where their centres are closer than the sum of their half diagonals:
+    the exact test runs on those steps alone (the same answer as on every step).
+    """
+    reach = 0.5 * (np.hypot(grown[0, 0, 3], grown[0, 0, 4]) + np.hypot(adv_box[0, 3], adv_box[0, 4]))
+    dx = centres[..., 0] - adv_box[None, :, 0]
+    dy = centres[..., 1] - adv_box[None, :, 1]
+    near = acted & (dx * dx + dy * dy < reach * reach * (1.0 + 1e-9))
+    hit = np.zeros(len(grown), bool)
+    if near.any():
+        g, t = np.nonzero(near)
+        hit[g[sat_overlap_depth(grown[g, t], adv_box[t]) > 0.0]] = True
+    return hit
 
 
 def _too_close(grown: np.ndarray, o_box: np.ndarray, o_valid: np.ndarray) -> np.ndarray:
