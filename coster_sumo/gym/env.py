@@ -91,6 +91,10 @@ ROUTE_SLACK_S = 3.0
 # WOMD scene logs many agents far away (moveToXY costs ~50 us each on its network)
 REPLAY_RADIUS_M = NEIGHBOUR_RADIUS_M + 30.0  # [s] the route ends where the target was this long before the replay ends
 
+# scenarios whose replay an environment keeps in memory (a converted clip's takes about 1 MB): a
+# training set of a few hundred scenarios then loads each from disk once
+CACHED_SCENARIOS = 512
+
 REWARD_PER_M = 0.1
 COLLISION_PENALTY = -10.0
 OFF_ROAD_PENALTY = -5.0
@@ -280,9 +284,10 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._session_net: Path | None = None  # the network the session has loaded
         self._sumo_target: str | None = None  # the target's id in SUMO once added
         self._t_shift = 0.0  # [s] SUMO's clock minus the scenario's
-        # per scenario (64 at most): its scene, the agents too far to replay, the replayed part, LogTraffic
+        # per scenario (CACHED_SCENARIOS at most): its scene, the agents too far to replay, the replayed
+        # part, LogTraffic
         self._replays: dict[str, tuple[Scene, list[str], Scene, Any]] = {}
-        self._drivable: dict[str, DrivableArea] = {}
+        self._drivable: dict[Path, DrivableArea] = {}  # per network (a clip's variants share its network)
         self._next_index = 0
         self.entry: ScenarioEntry | None = None
         self.episodes = 0
@@ -363,18 +368,18 @@ class ScenarioEnv(gymnasium.Env, Driver):
             replayed = _from_step(scene, k0)
             traffic = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic == "log" else None
             cached = (scene, far, replayed, traffic)
-            if len(self._replays) < 64:
+            if len(self._replays) < CACHED_SCENARIOS:
                 self._replays[entry.id] = cached
         _, far, replayed, self._traffic = cached
         if self.traffic == "sumo":  # every agent in SUMO, moved by moveToXY each step
             self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude={entry.target, *far})
         else:  # SUMO holds the target and runs the signals; the agents are read from the log
             self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude=set(tr.ids.tolist()))
-        drivable = self._drivable.get(entry.id)
+        drivable = self._drivable.get(net)
         if drivable is None:
             drivable = DrivableArea.from_road_map(scene.road_map)
-            if len(self._drivable) < 64:
-                self._drivable[entry.id] = drivable
+            if len(self._drivable) < CACHED_SCENARIOS:
+                self._drivable[net] = drivable
         self._drivable_now = drivable
         self._added = False
         self._advance()  # the first step shows the scenario's first state
