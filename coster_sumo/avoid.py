@@ -362,7 +362,6 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     valid_t = tr.valid[target]
     t_col = plan.t_col
     times = np.round(np.arange(plan.t_start, t_col + HORIZON_AFTER_TCOL_S + 1e-9, DT_S), 6)  # (T,)
-    n = len(times)
     # the target's nominal state on the grid (its log's nearest step)
     idx = np.clip(np.searchsorted(ts, times - 1e-6), 0, len(ts) - 1)
     prev = np.clip(idx - 1, 0, len(ts) - 1)
@@ -400,112 +399,167 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
         return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, None, escapes, reaction_time_s)
 
     man = manoeuvres(limits)
-    m_count = len(man)
-    k_count = len(act_k)
     path = _path(np.stack([tr.x[target][valid_t], tr.y[target][valid_t]], 1), tr.heading[target][valid_t], 400.0)
-    s_nom, d_nom, _ = project_points(np.stack([nx, ny], 1), path)  # (T,)
-    # nominal acceleration at each moment to act
-    a_nom = np.gradient(nv, DT_S) if n > 1 else np.zeros(n)
-    v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
-    # longitudinal: arc length along the path for every (act, manoeuvre) pair
-    goals = np.array([m.accel for m in man])
-    lon_kind = np.array([m.longitudinal for m in man])
-    tau = np.arange(n) * DT_S  # time since acting, long enough for the earliest act
-    s = np.empty((k_count, m_count, n))
-    v = np.empty((k_count, m_count, n))
-    a_lon = np.empty((k_count, m_count, n))
-    lat_shift = np.array([m.lateral_m for m in man])
-    lat_acc = np.array([m.lateral_accel for m in man])
-    d_prof = lateral_profile(tau, lat_shift, lat_acc)  # (M, n) from the moment of acting
-    d = np.empty((k_count, m_count, n))
-    for j, k in enumerate(act_k):  # once per moment to act; each call is batched over manoeuvres and steps
-        rest = n - k
-        sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (M, rest)
-        nominal = lon_kind == "nominal"
-        sp[nominal] = nv[k:]
-        ac[nominal] = a_nom[k:]
-        ds = np.concatenate([np.zeros((m_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
-        s[j, :, :k] = s_nom[:k]
-        s[j, :, k:] = np.where(nominal[:, None], s_nom[k:], s_nom[k] + ds)
-        v[j, :, :k] = nv[:k]
-        v[j, :, k:] = sp
-        a_lon[j, :, :k] = a_nom[:k]
-        a_lon[j, :, k:] = ac
-        d[j, :, :k] = d_nom[:k]
-        d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
-    # poses: along the path plus the sideways shift; the nominal part is the log itself
-    xy, hd = point_at_arc_length(path, s)  # (K, M, n, 2), (K, M, n)
-    normal = np.stack([-np.sin(hd), np.cos(hd)], -1)
-    pos = xy + d[..., None] * normal
-    dd = np.gradient(d, DT_S, axis=-1)
-    yaw = hd + np.arctan2(dd, np.maximum(v, 0.5))
-    pre = np.arange(n)[None, :] < act_k[:, None]  # (K, n) steps before acting: the log
-    pos = np.where(pre[:, None, :, None], np.stack([nx, ny], -1)[None, None], pos)
-    yaw = np.where(pre[:, None, :], nyaw[None, None], yaw)
-    # kinematic limits: curvature and accelerations from the poses themselves
-    dyaw = np.gradient(np.unwrap(yaw, axis=-1), DT_S, axis=-1)
-    speed_pos = np.hypot(*np.moveaxis(np.gradient(pos, DT_S, axis=2), -1, 0))
-    a_lat = np.abs(dyaw * speed_pos)
-    after = ~pre[:, None, :]  # (K, 1, n)
-    moving = speed_pos > 1.0
-    curv = np.where(moving, np.abs(dyaw) / np.maximum(speed_pos, 1e-6), 0.0)
-    # a sideways shift at a crawl turns the wheels further than they go: that is the curvature check
-    slow_shift = (np.abs(dd) > 0.05) & (speed_pos <= 1.0)
-    a_comb = np.hypot(a_lon, np.where(moving, a_lat, 0.0))
-    feasible = ~(after & ((curv > limits.max_curvature(length) * 1.02) | slow_shift
-                          | (a_comb > limits.emergency_decel * 1.02))).any(-1)  # (K, M)
-    # clearance to the adversary (its plan, then constant velocity) and to every other vehicle
-    ax, ay, ayaw, _ = plan.sample(times)
-    adv_box = make_boxes(ax, ay, ayaw, plan.length, plan.width)  # (n, 5)
-    # boxes grown by the clearance on every side: an overlap (SAT, no corners) means too close
-    grown = make_boxes(pos[..., 0], pos[..., 1], yaw, length + 2 * MIN_CLEARANCE_M,
-                       width + 2 * MIN_CLEARANCE_M)  # (K, M, n, 5)
-    good = feasible.copy()
-    kk, mm = np.nonzero(good)
-    if len(kk):  # the adversary first: it rules out most candidates
-        hit = _hits_adversary(pos[kk, mm], grown[kk, mm], adv_box, after[kk, 0])
-        good[kk[hit], mm[hit]] = False
-    others = _other_boxes(scene, target, times, path)
-    kk, mm = np.nonzero(good)
-    if others is not None and len(kk):
-        o_box, o_valid = others  # (N, n, 5), (N, n)
-        hit = _too_close(grown[kk, mm], o_box, o_valid & after[kk, 0][:, None, :].any(0))  # (G,)
-        good[kk[hit], mm[hit]] = False
-    # only what is clear is checked against the road (the costlier test), and only as far as the
-    # answer needs it: the least demanding escape per reaction time and the last moment to act
-    on_road = _RoadCheck(drivable, pos, yaw, length, width, after[:, 0], nx, ny, nyaw, n)
-    demand = np.max(np.where(after, a_comb, 0.0), -1)  # (K, M)
-    peak_decel = np.max(np.where(after, np.maximum(-a_lon, 0.0), 0.0), -1)
-    peak_lat = np.max(np.where(after & moving, a_lat, 0.0), -1)
-    t_acts = times[act_k]
-    last_moment = None
-    for k in np.flatnonzero(good.any(1))[::-1]:  # the latest moment with an escape on the road
-        if on_road(np.full(int(good[k].sum()), k), np.flatnonzero(good[k])).any():
-            last_moment = float(t_col - t_acts[k])
-            break
-    for r in reaction_times:
-        allowed = t_acts >= t_threat + r - 1e-6
-        ok_r = good & allowed[:, None]
-        if not ok_r.any():
-            continue
-        # least demanding: smallest peak acceleration; then the earlier act; then the first manoeuvre
-        # (longitudinal before lateral, the gentler first)
-        best = on_road.least(ok_r, demand)
-        if best is None:
-            continue
-        kb, mb = best
-        box = make_boxes(pos[kb, mb, :, 0], pos[kb, mb, :, 1], yaw[kb, mb], length, width)  # (n, 5)
-        gap = box_signed_distance(box, adv_box)
-        if others is not None:
-            gap = np.minimum(gap, np.where(others[1], box_signed_distance(box[None], others[0]), np.inf).min(0))
-        clearance = float(gap[after[kb, 0]].min())
-        escapes[r] = Escape(t_act=float(t_acts[kb]), manoeuvre=man[mb], times=times.copy(),
-                            x=pos[kb, mb, :, 0].copy(), y=pos[kb, mb, :, 1].copy(),
-                            yaw=(yaw[kb, mb] + np.pi) % (2 * np.pi) - np.pi, speed=v[kb, mb].copy(),
-                            clearance_m=clearance, peak_decel=float(peak_decel[kb, mb]),
-                            peak_lateral_accel=float(peak_lat[kb, mb]), peak_accel=float(demand[kb, mb]))
+    ctx = _SearchContext(scene, target, plan, drivable, man, limits, times, nx, ny, nyaw, nv, length, width, path)
+    t_acts_all = times[act_k]
+    # the moments before the shortest reaction serve only the last moment to act, which is searched
+    # from the latest moment back: they are computed only when no later moment has an escape (rare)
+    late = t_acts_all >= t_threat + min(reaction_times) - 1e-6
+    late_cand = _Candidates(ctx, act_k[late]) if late.any() else None
+    last_moment = late_cand.last_moment(t_col) if late_cand is not None else None
+    if last_moment is None and not late.all():
+        last_moment = _Candidates(ctx, act_k[~late]).last_moment(t_col)
+    if late_cand is not None:
+        for r in reaction_times:
+            escapes[r] = late_cand.least_escape(t_threat + r, man)
     return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, last_moment, escapes, reaction_time_s,
-                        candidates=int(k_count * m_count))
+                        candidates=int(len(act_k) * len(man)))
+
+
+@dataclass(frozen=True)
+class _SearchContext:
+    """What every candidate of one variant's search shares: the scene, the plan, the target's nominal
+    states on the time grid (nx, ny, nyaw, nv), its size and its path."""
+
+    scene: Scene
+    target: int
+    plan: AdversaryPlan
+    drivable: DrivableArea | None
+    man: list[Manoeuvre]
+    limits: ClassLimits
+    times: np.ndarray
+    nx: np.ndarray
+    ny: np.ndarray
+    nyaw: np.ndarray
+    nv: np.ndarray
+    length: float
+    width: float
+    path: np.ndarray
+
+
+class _Candidates:
+    """The (act, manoeuvre) candidates of the moments to act ``act_k`` (steps of the time grid): their
+    poses, kinematic feasibility and clearance to the adversary and the other vehicles.
+
+    Every row (one moment to act) is computed on its own, so a subset of the moments gives the same
+    rows as the whole grid.
+    """
+
+    def __init__(self, ctx: _SearchContext, act_k: np.ndarray) -> None:
+        self.ctx, self.act_k = ctx, act_k
+        nx, ny, nyaw, nv, man, times = ctx.nx, ctx.ny, ctx.nyaw, ctx.nv, ctx.man, ctx.times
+        n = len(times)
+        m_count, k_count = len(man), len(act_k)
+        s_nom, d_nom, _ = project_points(np.stack([nx, ny], 1), ctx.path)  # (T,)
+        # nominal acceleration at each moment to act
+        a_nom = np.gradient(nv, DT_S) if n > 1 else np.zeros(n)
+        v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
+        # longitudinal: arc length along the path for every (act, manoeuvre) pair
+        goals = np.array([m.accel for m in man])
+        lon_kind = np.array([m.longitudinal for m in man])
+        tau = np.arange(n) * DT_S  # time since acting, long enough for the earliest act
+        s = np.empty((k_count, m_count, n))
+        v = np.empty((k_count, m_count, n))
+        a_lon = np.empty((k_count, m_count, n))
+        lat_shift = np.array([m.lateral_m for m in man])
+        lat_acc = np.array([m.lateral_accel for m in man])
+        d_prof = lateral_profile(tau, lat_shift, lat_acc)  # (M, n) from the moment of acting
+        d = np.empty((k_count, m_count, n))
+        for j, k in enumerate(act_k):  # once per moment to act; each call is batched over manoeuvres and steps
+            rest = n - k
+            sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (M, rest)
+            nominal = lon_kind == "nominal"
+            sp[nominal] = nv[k:]
+            ac[nominal] = a_nom[k:]
+            ds = np.concatenate([np.zeros((m_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
+            s[j, :, :k] = s_nom[:k]
+            s[j, :, k:] = np.where(nominal[:, None], s_nom[k:], s_nom[k] + ds)
+            v[j, :, :k] = nv[:k]
+            v[j, :, k:] = sp
+            a_lon[j, :, :k] = a_nom[:k]
+            a_lon[j, :, k:] = ac
+            d[j, :, :k] = d_nom[:k]
+            d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
+        # poses: along the path plus the sideways shift; the nominal part is the log itself
+        xy, hd = point_at_arc_length(ctx.path, s)  # (K, M, n, 2), (K, M, n)
+        normal = np.stack([-np.sin(hd), np.cos(hd)], -1)
+        pos = xy + d[..., None] * normal
+        dd = np.gradient(d, DT_S, axis=-1)
+        yaw = hd + np.arctan2(dd, np.maximum(v, 0.5))
+        pre = np.arange(n)[None, :] < act_k[:, None]  # (K, n) steps before acting: the log
+        pos = np.where(pre[:, None, :, None], np.stack([nx, ny], -1)[None, None], pos)
+        yaw = np.where(pre[:, None, :], nyaw[None, None], yaw)
+        # kinematic limits: curvature and accelerations from the poses themselves
+        dyaw = np.gradient(np.unwrap(yaw, axis=-1), DT_S, axis=-1)
+        speed_pos = np.hypot(*np.moveaxis(np.gradient(pos, DT_S, axis=2), -1, 0))
+        a_lat = np.abs(dyaw * speed_pos)
+        after = ~pre[:, None, :]  # (K, 1, n)
+        moving = speed_pos > 1.0
+        curv = np.where(moving, np.abs(dyaw) / np.maximum(speed_pos, 1e-6), 0.0)
+        # a sideways shift at a crawl turns the wheels further than they go: that is the curvature check
+        slow_shift = (np.abs(dd) > 0.05) & (speed_pos <= 1.0)
+        a_comb = np.hypot(a_lon, np.where(moving, a_lat, 0.0))
+        limits, length, width = ctx.limits, ctx.length, ctx.width
+        feasible = ~(after & ((curv > limits.max_curvature(length) * 1.02) | slow_shift
+                              | (a_comb > limits.emergency_decel * 1.02))).any(-1)  # (K, M)
+        # clearance to the adversary (its plan, then constant velocity) and to every other vehicle
+        plan = ctx.plan
+        ax, ay, ayaw, _ = plan.sample(times)
+        self.adv_box = make_boxes(ax, ay, ayaw, plan.length, plan.width)  # (n, 5)
+        # boxes grown by the clearance on every side: an overlap (SAT, no corners) means too close
+        grown = (length + 2 * MIN_CLEARANCE_M, width + 2 * MIN_CLEARANCE_M)
+        good = feasible.copy()
+        kk, mm = np.nonzero(good)
+        if len(kk):  # the adversary first: it rules out most candidates
+            hit = _hits_adversary(pos[kk, mm], yaw[kk, mm], grown, self.adv_box, after[kk, 0])
+            good[kk[hit], mm[hit]] = False
+        self.others = _other_boxes(ctx.scene, ctx.target, times, ctx.path)
+        kk, mm = np.nonzero(good)
+        if self.others is not None and len(kk):
+            o_box, o_valid = self.others  # (N, n, 5), (N, n)
+            hit = _too_close(pos[kk, mm], yaw[kk, mm], grown, o_box, o_valid & after[kk, 0][:, None, :].any(0))
+            good[kk[hit], mm[hit]] = False
+        # only what is clear is checked against the road (the costlier test), and only as far as the
+        # answer needs it: the least demanding escape per reaction time and the last moment to act
+        self.on_road = _RoadCheck(ctx.drivable, pos, yaw, length, width, after[:, 0], nx, ny, nyaw, n)
+        self.demand = np.max(np.where(after, a_comb, 0.0), -1)  # (K, M)
+        self.peak_decel = np.max(np.where(after, np.maximum(-a_lon, 0.0), 0.0), -1)
+        self.peak_lat = np.max(np.where(after & moving, a_lat, 0.0), -1)
+        self.t_acts = times[act_k]
+        self.pos, self.yaw, self.v, self.after, self.good = pos, yaw, v, after, good
+
+    def last_moment(self, t_col: float) -> float | None:
+        """[s] before t_col: the latest of these moments with an escape on the road (None: none)."""
+        good = self.good
+        for k in np.flatnonzero(good.any(1))[::-1]:
+            if self.on_road(np.full(int(good[k].sum()), k), np.flatnonzero(good[k])).any():
+                return float(t_col - self.t_acts[k])
+        return None
+
+    def least_escape(self, t_from: float, man: list[Manoeuvre]) -> Escape | None:
+        """The least demanding escape acting at ``t_from`` [s] or later: smallest peak acceleration;
+        then the earlier act; then the first manoeuvre (longitudinal before lateral, the gentler
+        first)."""
+        allowed = self.t_acts >= t_from - 1e-6
+        ok_r = self.good & allowed[:, None]
+        if not ok_r.any():
+            return None
+        best = self.on_road.least(ok_r, self.demand)
+        if best is None:
+            return None
+        kb, mb = best
+        pos, yaw, ctx = self.pos, self.yaw, self.ctx
+        box = make_boxes(pos[kb, mb, :, 0], pos[kb, mb, :, 1], yaw[kb, mb], ctx.length, ctx.width)  # (n, 5)
+        gap = box_signed_distance(box, self.adv_box)
+        if self.others is not None:
+            gap = np.minimum(gap, np.where(self.others[1], box_signed_distance(box[None], self.others[0]),
+                                           np.inf).min(0))
+        clearance = float(gap[self.after[kb, 0]].min())
+        return Escape(t_act=float(self.t_acts[kb]), manoeuvre=man[mb], times=ctx.times.copy(),
+                      x=pos[kb, mb, :, 0].copy(), y=pos[kb, mb, :, 1].copy(),
+                      yaw=(yaw[kb, mb] + np.pi) % (2 * np.pi) - np.pi, speed=self.v[kb, mb].copy(),
+                      clearance_m=clearance, peak_decel=float(self.peak_decel[kb, mb]),
+                      peak_lateral_accel=float(self.peak_lat[kb, mb]), peak_accel=float(self.demand[kb, mb]))
 
 
 class _RoadCheck:
@@ -590,43 +644,47 @@ def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
     return boxes, valid[keep]
 
 
-def _hits_adversary(centres: np.ndarray, grown: np.ndarray, adv_box: np.ndarray, acted: np.ndarray) -> np.ndarray:
+def _hits_adversary(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], adv_box: np.ndarray,
+                    acted: np.ndarray) -> np.ndarray:
     """(G,) whether each candidate's grown boxes overlap the adversary at a step after acting.
 
     Args:
-        centres: (G, T, 2) candidate box centres; grown: (G, T, 5) their boxes grown by the
-            clearance; adv_box: (T, 5); acted: (G, T).
+        centres: (G, T, 2) candidate box centres [m]; yaws: (G, T) [rad]; size: the grown boxes'
+            length and width [m]; adv_box: (T, 5); acted: (G, T).
 
     Two boxes overlap only where their centres are closer than the sum of their half diagonals:
     the exact test runs on those steps alone (the same answer as on every step).
     """
-    reach = 0.5 * (np.hypot(grown[0, 0, 3], grown[0, 0, 4]) + np.hypot(adv_box[0, 3], adv_box[0, 4]))
+    reach = 0.5 * (np.hypot(*size) + np.hypot(adv_box[0, 3], adv_box[0, 4]))
     dx = centres[..., 0] - adv_box[None, :, 0]
     dy = centres[..., 1] - adv_box[None, :, 1]
     near = acted & (dx * dx + dy * dy < reach * reach * (1.0 + 1e-9))
-    hit = np.zeros(len(grown), bool)
+    hit = np.zeros(len(centres), bool)
     if near.any():
         g, t = np.nonzero(near)
-        hit[g[sat_overlap_depth(grown[g, t], adv_box[t]) > 0.0]] = True
+        boxes = make_boxes(centres[g, t, 0], centres[g, t, 1], yaws[g, t], *size)
+        hit[g[sat_overlap_depth(boxes, adv_box[t]) > 0.0]] = True
     return hit
 
 
-def _too_close(grown: np.ndarray, o_box: np.ndarray, o_valid: np.ndarray) -> np.ndarray:
+def _too_close(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], o_box: np.ndarray,
+               o_valid: np.ndarray) -> np.ndarray:
     """(G,) whether each candidate's grown boxes overlap another vehicle at some step.
 
     Args:
-        grown: (G, T, 5) candidate boxes grown by the clearance; o_box: (N, T, 5); o_valid: (N, T)
-            the other vehicles, valid where they exist (and the candidates have acted).
+        centres: (G, T, 2) candidate box centres [m]; yaws: (G, T) [rad]; size: the boxes' length
+            and width grown by the clearance [m]; o_box: (N, T, 5); o_valid: (N, T) the other
+            vehicles, valid where they exist (and the candidates have acted).
 
     Only pairs whose centres are within reach of each other (half diagonals) are tested exactly.
     """
-    dx = grown[:, None, :, 0] - o_box[None, :, :, 0]  # (G, N, T)
-    dy = grown[:, None, :, 1] - o_box[None, :, :, 1]
-    reach = 0.5 * (np.hypot(grown[0, 0, 3], grown[0, 0, 4]) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
+    dx = centres[:, None, :, 0] - o_box[None, :, :, 0]  # (G, N, T)
+    dy = centres[:, None, :, 1] - o_box[None, :, :, 1]
+    reach = 0.5 * (np.hypot(*size) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
     near = o_valid[None] & (dx * dx + dy * dy < (reach * reach)[None])
-    hit = np.zeros(len(grown), bool)
+    hit = np.zeros(len(centres), bool)
     if near.any():
-        c, o, s = np.nonzero(near)
-        overlap = sat_overlap_depth(grown[c, s], o_box[o, s]) > 0.0
-        hit[c[overlap]] = True
+        c, o, t = np.nonzero(near)
+        boxes = make_boxes(centres[c, t, 0], centres[c, t, 1], yaws[c, t], *size)
+        hit[c[sat_overlap_depth(boxes, o_box[o, t]) > 0.0]] = True
     return hit

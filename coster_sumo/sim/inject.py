@@ -65,10 +65,15 @@ def edge_under(session: SumoSession, x: float, y: float, yaw: float, length: flo
 
 
 class AdversaryController:
-    """Drives the adversary along its plan with moveToXY; freezes it after its first contact."""
+    """Drives the adversary along its plan with moveToXY; freezes it after its first contact.
 
-    def __init__(self, plan: AdversaryPlan, step_length: float = 0.1, freeze_at: float | None = None) -> None:
+    ``vehicle_id``: its id in SUMO (default the plan's).
+    """
+
+    def __init__(self, plan: AdversaryPlan, step_length: float = 0.1, freeze_at: float | None = None,
+                 vehicle_id: str | None = None) -> None:
         self.plan = plan
+        self.vehicle_id = plan.vehicle_id if vehicle_id is None else vehicle_id
         self.step_length = step_length
         # a log time jitters around SUMO's step grid: the first knot belongs to the step nearest to
         # it, which may come a few milliseconds before it
@@ -82,7 +87,7 @@ class AdversaryController:
     def before_step(self, session: SumoSession, t_next: float) -> None:
         if self.gone or t_next < self.first_step - TIME_EPS:
             return
-        vid = self.plan.vehicle_id
+        vid = self.vehicle_id
         if self.frozen_pose is None and self.freeze_at is not None and t_next > self.freeze_at + TIME_EPS:
             xs, ys, yaws, _ = self.plan.sample(np.array([self.freeze_at]))
             self.frozen_pose = (float(xs[0]), float(ys[0]), float(yaws[0]))
@@ -110,7 +115,7 @@ class AdversaryController:
         return pose
 
     def on_events(self, states: VehicleStates, events: list[Event]) -> None:
-        vid = self.plan.vehicle_id
+        vid = self.vehicle_id
         if self.frozen_pose is None and any(e.kind == "collision" and vid in e.vehicles for e in events):
             i = int(np.flatnonzero(states.ids == vid)[0])
             self.frozen_pose = (float(states.x[i]), float(states.y[i]), float(states.yaw[i]))

@@ -11,7 +11,6 @@ the target touches nobody (our box check, the ground truth of every pass) and st
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -193,8 +192,7 @@ class _JointProof:
         self.replayer = LogReplayer.for_config(spec.config, scene, exclude=far | {self.target_id})
         self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
         self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
-        self.adversaries = [AdversaryController(dataclasses.replace(j.plan, vehicle_id=a))
-                            for j, (_, a) in zip(jobs, self.ids, strict=True)]
+        self.adversaries = [AdversaryController(j.plan, vehicle_id=a) for j, (_, a) in zip(jobs, self.ids, strict=True)]
         self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
         self.starts = [sim_time_of(j.plan.t_start, 0.1) for j in jobs]
         self.ends = [j.plan.t_col + horizon_s + 1e-6 for j in jobs]
