@@ -63,7 +63,7 @@ from gymnasium import spaces
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.geometry import polyline_arc_length, resample_polyline
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
-from coster_sumo.scene import Scene, Tracks
+from coster_sumo.scene import Scene
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
 from coster_sumo.sim.states import concat_states
 
@@ -286,7 +286,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._t_shift = 0.0  # [s] SUMO's clock minus the scenario's
         # per scenario (CACHED_SCENARIOS at most): its scene, the agents too far to replay, the replayed
         # part, LogTraffic
-        self._replays: dict[str, tuple[Scene, list[str], Scene, Any]] = {}
+        self._replays: dict[str, tuple[Scene, set[str], Scene, Any]] = {}
         self._drivable: dict[Path, DrivableArea] = {}  # per network (a clip's variants share its network)
         self._next_index = 0
         self.entry: ScenarioEntry | None = None
@@ -312,7 +312,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
         return self._observe(), self._info()
 
     def _start(self, entry: ScenarioEntry) -> None:
-        from coster_sumo.sim.replay import LogReplayer, LogTraffic
+        from coster_sumo.sim.replay import LogReplayer, LogTraffic, far_agents
         from coster_sumo.sim.session import SumoSession
 
         self.entry = entry
@@ -364,7 +364,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._sumo_target = None
         self.api = self._session.api
         if cached is None:
-            far = _far_agents(scene.tracks, k0, self.route.points[::4], REPLAY_RADIUS_M)
+            far = far_agents(scene.tracks, self.route.points[::4], REPLAY_RADIUS_M, from_step=k0)
             replayed = _from_step(scene, k0)
             traffic = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic == "log" else None
             cached = (scene, far, replayed, traffic)
@@ -478,22 +478,6 @@ class ScenarioEnv(gymnasium.Env, Driver):
             self._session.close()
             self._session = None
         super().close()
-
-
-def _far_agents(tracks: Tracks, k0: int, route_points: np.ndarray, radius_m: float) -> list[str]:
-    """Ids of the agents whose valid positions from step ``k0`` on all lie farther than ``radius_m``
-    from every point of ``route_points`` (Q, 2) [m]."""
-    xy = np.stack([tracks.x[:, k0:], tracks.y[:, k0:]], -1)  # (A, T, 2)
-    far = []
-    for a in range(tracks.num_agents):
-        pts = xy[a, tracks.valid[a, k0:]]  # (n, 2)
-        if len(pts) == 0:
-            continue
-        lo, hi = pts.min(axis=0) - radius_m, pts.max(axis=0) + radius_m
-        box = route_points[((route_points >= lo) & (route_points <= hi)).all(axis=1)]  # cheap prefilter
-        if len(box) == 0 or np.min(np.hypot(*(pts[:, None, :] - box[None, :, :]).transpose(2, 0, 1))) > radius_m:
-            far.append(str(tracks.ids[a]))
-    return far
 
 
 def _row(ids: list[str], vid: str) -> int:

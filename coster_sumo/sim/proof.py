@@ -149,11 +149,11 @@ def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esca
             continue
         actors: tuple[StepActor, ...] = ()
         if converted:
-            from coster_sumo.sim.replay import LogReplayer
+            from coster_sumo.sim.replay import LogReplayer, far_agents
 
             # logged agents that never come near the escape are left out: they are replayed, so they
             # react to nothing, and the verdict is about the target's contacts
-            far = _far_agents(scene, np.stack([job.escape.x, job.escape.y], -1), target_id)
+            far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
             actors = (LogReplayer.for_config(spec.config, scene, exclude=far,
                                              handover={target_id: job.plan.t_start}),)
         res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), seed=spec.seed,
@@ -178,7 +178,7 @@ class _JointProof:
 
     def __init__(self, spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
                  drivable: DrivableArea | None, horizon_s: float) -> None:
-        from coster_sumo.sim.replay import LogReplayer
+        from coster_sumo.sim.replay import LogReplayer, far_agents
 
         self.spec, self.scene, self.jobs = spec, scene, jobs
         tr = scene.tracks
@@ -188,7 +188,7 @@ class _JointProof:
         self.vtype = vtype_for(int(tr.object_type[target]))
         self.length = float(np.median(tr.length[target][tr.valid[target]]))
         paths = np.concatenate([np.stack([j.escape.x, j.escape.y], -1) for j in jobs])
-        far = _far_agents(scene, paths, self.target_id)
+        far = far_agents(scene.tracks, paths, PROOF_RADIUS_M)
         self.replayer = LogReplayer.for_config(spec.config, scene, exclude=far | {self.target_id})
         self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
         self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
@@ -261,24 +261,8 @@ def _take(states: VehicleStates, rows: list[int]) -> VehicleStates:
                          vclass=states.vclass[idx], type_id=states.type_id[idx], names=[names[i] for i in rows])
 
 
-PROOF_RADIUS_M = 30.0  # [m] a logged agent never this close to an escape's path cannot touch the target
-
-
-def _far_agents(scene: Scene, path: np.ndarray, target_id: str) -> set[str]:
-    """Ids of the logged agents none of whose valid positions comes within :data:`PROOF_RADIUS_M`
-    of a point of ``path`` (N, 2) [m] (time aside: conservative). The largest vehicles are under
-    25 m long, so two boxes in contact have centres under 15 m apart, and the path's points are at
-    most a few metres apart."""
-    tr = scene.tracks
-    lo, hi = path.min(axis=0) - PROOF_RADIUS_M, path.max(axis=0) + PROOF_RADIUS_M
-    far: set[str] = set()
-    for a in range(tr.num_agents):
-        aid = str(tr.ids[a])
-        if aid == target_id:
-            continue
-        pts = np.stack([tr.x[a, tr.valid[a]], tr.y[a, tr.valid[a]]], -1)
-        pts = pts[((pts >= lo) & (pts <= hi)).all(axis=1)]  # the box around the path first
-        if len(pts) == 0 or np.min(np.hypot(*(pts[:, None, :] - path[None, :, :]).transpose(2, 0, 1))) > PROOF_RADIUS_M:
-            far.add(aid)
-    return far
+# [m] a logged agent never this close to an escape's path cannot touch the target: the largest
+# vehicles are under 25 m long, so two boxes in contact have centres under 15 m apart, and the path's
+# points are at most a few metres apart
+PROOF_RADIUS_M = 30.0
 

@@ -42,7 +42,7 @@ from coster_sumo.formats.scene_folder import (
     vtype_for,
 )
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.scene import Scene, load_scene
+from coster_sumo.scene import Scene, Tracks, load_scene
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates, empty_states
 
@@ -86,6 +86,27 @@ def _staging_slots(sim: SumoSession, lane_id: str | None) -> np.ndarray | None:
     if len(s) == 0:
         return None
     return a + (s / length)[:, None] * (b - a)
+
+
+def far_agents(tracks: Tracks, path: np.ndarray, radius_m: float, from_step: int = 0) -> set[str]:
+    """Ids of the agents whose valid positions from step ``from_step`` on all lie farther than
+    ``radius_m`` from every point of ``path`` (P, 2) [m] (time aside: conservative). Agents without a
+    valid position there are not listed (a replay never adds them).
+
+    A replay may leave such agents out where nothing closer matters (the proof of an escape, an
+    environment's observation radius): they react to nothing and cannot touch the path."""
+    path = np.asarray(path, np.float64).reshape(-1, 2)
+    far: set[str] = set()
+    for a in range(tracks.num_agents):
+        keep = tracks.valid[a, from_step:]
+        pts = np.stack([tracks.x[a, from_step:][keep], tracks.y[a, from_step:][keep]], -1)  # (n, 2)
+        if len(pts) == 0:
+            continue
+        lo, hi = pts.min(axis=0) - radius_m, pts.max(axis=0) + radius_m
+        near = path[((path >= lo) & (path <= hi)).all(axis=1)]  # the path's points around the agent first
+        if len(near) == 0 or np.min(np.hypot(*(pts[:, None, :] - near[None, :, :]).transpose(2, 0, 1))) > radius_m:
+            far.add(str(tracks.ids[a]))
+    return far
 
 
 class LogReplayer:
