@@ -50,8 +50,9 @@ LANE_END_TOLERANCE_M = 0.35
 # connecting roads leave their incoming lane at its heading and width and reach their outgoing lane
 # at its heading and width (readers check both borders at every lane link, within 1 cm); where
 # netconvert's own internal lanes start or end at an angle to their lanes (up to ~8 deg on the demo
-# networks), a curve without that heading jump runs up to 0.35 m beside them (measured: demo
-# intersection 0.25, arterial 0.35, game square 0.18, grid6 0.28; WOMD samples <= 0.05 m)
+# networks), a curve without that heading jump runs up to 0.36 m beside them (measured: demo
+# intersection 0.35, arterial 0.35, game square 0.21, grid6 0.32, where it also bends so that its
+# lane does not fold (opendrive_bend); WOMD samples <= 0.09 m)
 XODR_JUNCTION_TOLERANCE_M = 0.4
 
 

@@ -326,3 +326,51 @@ def lane_link_gaps(path: Path) -> list[tuple[str, int, str, int, float]]:
 def _offset_point(pose: tuple[np.ndarray, np.ndarray, np.ndarray], t: float) -> np.ndarray:
     x, y, h = (float(v[0]) for v in pose)
     return np.array([x - t * np.sin(h), y + t * np.cos(h)])
+
+
+def folded_borders(path: Path, step: float = 0.01) -> list[tuple[str, int, int, float]]:
+    """Every lane of an OpenDRIVE file whose border folds back on itself: (road, lane section index,
+    lane id, fold ratio), the fold ratio being the largest curvature x lateral offset [-] of either
+    border over the lane's stations (every ``step`` m and each geometry's start), 1 or more where
+    the border stops and runs backwards (its outline crosses itself; readers that build lane
+    polygons reject it). Filler lanes (room between lanes, no lane of the net) are left out, and
+    so are stations where a lane is narrower than :data:`MIN_WIDTH_M` (no lane there).
+
+    The curvature is the reference line's heading differentiated between the stations; a lane's
+    borders lie at the laneOffset minus the widths of the lanes inside it (left lanes mirrored).
+    """
+    root = SafeET.parse(str(path), forbid_dtd=True).getroot()
+    out: list[tuple[str, int, int, float]] = []
+    for road in root.iter("road"):
+        lanes_el, plan_view = road.find("lanes"), road.find("planView")
+        length = _f(road, "length")
+        if lanes_el is None or plan_view is None or length <= 0:
+            continue
+        corners = [_f(g, "s") for g in plan_view.iter("geometry")]
+        s = np.unique(np.clip(np.concatenate([np.arange(0.0, length, step), [length], corners]), 0.0, length))
+        _, _, h = _reference_line(plan_view, s)
+        curvature = np.gradient(np.unwrap(h), s) if len(s) > 1 else np.zeros_like(s)
+        offset = _poly([(_f(o, "s"), _f(o, "a"), _f(o, "b"), _f(o, "c"), _f(o, "d"))
+                        for o in lanes_el.iter("laneOffset")], s)
+        sections = list(lanes_el.iter("laneSection"))
+        for j, sec in enumerate(sections):
+            s_sec = _f(sec, "s")
+            s_end = _f(sections[j + 1], "s") if j + 1 < len(sections) else length
+            m = (s >= s_sec - 1e-9) & (s <= s_end + 1e-9)
+            for side, sign in (("right", -1.0), ("left", 1.0)):
+                side_el = sec.find(side)
+                if side_el is None or not m.any():
+                    continue
+                inner = np.zeros(int(m.sum()))
+                for lane in sorted(side_el.iter("lane"), key=lambda e: abs(int(e.get("id", "0")))):
+                    w = _poly([(s_sec + _f(r, "sOffset"), _f(r, "a"), _f(r, "b"), _f(r, "c"), _f(r, "d"))
+                               for r in lane.iter("width")], s[m])
+                    borders = np.stack([offset[m] + sign * inner, offset[m] + sign * (inner + w)])  # (2, S)
+                    inner = inner + w
+                    here = w >= MIN_WIDTH_M
+                    if lane.find(f"userData[@code='{FILLER_CODE}']") is not None or not here.any():
+                        continue
+                    ratio = float((curvature[m][here] * borders[:, here]).max())
+                    if ratio >= 1.0:
+                        out.append((road.get("id", ""), j, int(lane.get("id", "0")), ratio))
+    return out

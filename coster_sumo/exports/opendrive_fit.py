@@ -423,7 +423,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     counts["renumbered"] = len(renumbered)
     counts["sections"] = sum(len(r.findall("lanes/laneSection")) > 1 for r in root.findall("road"))
     counts["links_to_no_lane_removed"] = renumber(root, renumbered)
-    counts["connecting_joined"] = join_connecting_roads(root, sample)
+    counts["connecting_joined"], counts["connecting_folded"] = join_connecting_roads(root, sample)
     ET.indent(tree)
     tree.write(xodr, encoding="UTF-8", xml_declaration=True)
     return counts

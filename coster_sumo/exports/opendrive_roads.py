@@ -16,9 +16,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from coster_sumo.exports.opendrive_bend import deviation, fold_ratio, smooth_path
 from coster_sumo.exports.opendrive_solve import (
     END_TOLERANCE_M,
     STATION_M,
+    cubic_pieces,
     hermite_pieces,
     hermite_through,
     station_of,
@@ -29,6 +31,12 @@ Sampler = Callable[[ET.Element, np.ndarray], tuple[np.ndarray, np.ndarray, np.nd
 # SUMO shape there (it is at least opendrive_solve.MIN_WIDTH_M wide, even where two logged lanes
 # overlap and share the room), not one that has not begun (width 0)
 MIN_JOIN_WIDTH_M = 0.005
+# [m] a connecting road's curve may leave its SUMO shape by this much to keep its lane from folding
+# (the converted WOMD maps' connecting roads lie within 0.1 m of their logged lanes) ...
+BEND_DEVIATION_M = 0.09
+# [-] ... or by this many times as far as the curve through the shape's points does (netconvert's
+# internal lanes that leave their lanes at an angle: that curve runs up to 0.25 m beside them)
+BEND_KINK_FACTOR = 1.5
 
 
 def fmt(v: float) -> str:
@@ -277,15 +285,16 @@ def lane_at(road: ET.Element, s: float, lane_id: int, sample: Sampler) -> tuple[
     return None
 
 
-def join_connecting_roads(root: ET.Element, sample: Sampler) -> int:
+def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
     """Make every one-lane connecting road start exactly where its incoming lane ends and end where
     its outgoing lane starts: same centre point, heading and width, so both borders of the two lanes
-    meet (readers check each border, within 1 cm). Its reference line becomes a smooth curve
-    (:func:`~coster_sumo.exports.opendrive_solve.hermite_through`) through its own polyline from the
-    one end to the other, its width changes linearly between the two lanes' widths. Returns how
-    many roads were joined."""
+    meet (readers check each border, within 1 cm). Its reference line becomes a smooth curve along
+    its own polyline from the one end to the other that its lane's inner border can follow without
+    folding back (:func:`~coster_sumo.exports.opendrive_bend.smooth_path`), or where none can,
+    the curve through its polyline's points; its width changes linearly between the two lanes'
+    widths. Returns how many roads were joined and how many of them fold all the same."""
     roads = {r.get("id", ""): r for r in root.findall("road")}
-    joined = 0
+    joined = folded = 0
     for road in roads.values():
         if road.get("junction", "-1") == "-1":
             continue
@@ -316,10 +325,21 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> int:
         if end is None or end[1] < MIN_JOIN_WIDTH_M:
             end = (path[-1].copy(), own, float(h[-1]))
         path[0], path[-1] = start[0], end[0]
+        # the smooth curve where it keeps the lane from folding within BEND_DEVIATION_M of the SUMO
+        # shape (or BEND_KINK_FACTOR times as far as the curve through the shape's points, which
+        # leaves netconvert's kinked internal lanes by up to 0.25 m); else that curve, as before
+        # (opendrive_bend: where the contacts leave no room, the smooth one does not take the fold
+        # away either, and shows it to readers at its finer pieces)
+        through = hermite_through(path, start[2], end[2])
+        pieces = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
+        if fold_ratio(pieces, start[1], end[1]) >= 1.0 or \
+                deviation(pieces, path) > max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M):
+            pieces = through
+            folded += fold_ratio(through, start[1], end[1]) >= 1.0
         for g in list(plan):
             plan.remove(g)
         s0 = 0.0
-        for piece in hermite_through(path, start[2], end[2]):
+        for piece in pieces:
             g = ET.SubElement(plan, "geometry", {"s": fmt(s0), "x": fmt(piece["x"]), "y": fmt(piece["y"]),
                                                   "hdg": fmt(piece["hdg"]), "length": fmt(piece["length"])})
             ET.SubElement(g, "paramPoly3", {**{k: fmt(piece[k]) for k in ("aU", "bU", "cU", "dU", "aV", "bV",
@@ -340,4 +360,4 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> int:
                         ET.Element("width", {"sOffset": "0", "a": fmt(start[1]), "b": fmt(slope), "c": "0",
                                              "d": "0"}))
         joined += 1
-    return joined
+    return joined, folded

@@ -290,10 +290,10 @@ def hermite_pieces(points: np.ndarray, step: float = REFERENCE_STEP_M) -> list[d
     pts = shapely.get_coordinates(shapely.line_interpolate_point(line, np.linspace(0.0, length, n + 1)))
     d = np.gradient(pts, axis=0) if len(pts) > 2 else np.repeat(pts[1:] - pts[:1], len(pts), axis=0)
     heading = np.arctan2(d[:, 1], d[:, 0])
-    return _cubic_pieces(pts, heading, samples=32)
+    return cubic_pieces(pts, heading, samples=32)
 
 
-def _cubic_pieces(points: np.ndarray, heading: np.ndarray, samples: int) -> list[dict[str, float]]:
+def cubic_pieces(points: np.ndarray, heading: np.ndarray, samples: int) -> list[dict[str, float]]:
     """One parametric cubic (paramPoly3, normalised parameter) per segment of ``points`` (N, 2) [m],
     leaving point i at ``heading[i]`` and reaching point i+1 at ``heading[i+1]`` [rad]; each piece's
     arc length integrated with the trapezoid rule over ``samples`` steps of its parameter."""
@@ -338,4 +338,4 @@ def hermite_through(points: np.ndarray, start_heading: float, end_heading: float
     if len(p) > 2:
         d = p[2:] - p[:-2]
         heading[1:-1] = np.arctan2(d[:, 1], d[:, 0])
-    return _cubic_pieces(p, heading, samples=64)
+    return cubic_pieces(p, heading, samples=64)

@@ -1,0 +1,203 @@
+"""Connecting roads whose lane's inner border does not fold back where they turn.
+
+A lane border lies at a lateral offset ``t`` (left positive) from a road's reference line; where
+the line turns with curvature ``k`` [1/m] (left positive), the border moves forward at ``1 - k t``
+times the line's speed. Where ``k t`` reaches 1 the border stops, beyond it runs backwards: the
+lane's outline crosses itself (a folded border; readers that build lane polygons, such as
+commonroad-scenario-designer, get an invalid polygon). For a lane centred on its connecting road's
+reference line: where half its width times the curvature (the *fold ratio*) reaches 1.
+
+Two causes, measured on the exports of ``docs/sumo.md §12a``:
+
+- the **fit** (most): the curve through every point of the connecting road's SUMO polyline
+  (:func:`~coster_sumo.exports.opendrive_solve.hermite_through`) leaves its contacts at the linked
+  lanes' headings; where the polyline leaves at another angle (netconvert's internal lanes, a few
+  degrees; logged WOMD lanes, up to 0.4 rad) or its next point lies a centimetre from the contact,
+  one short cubic piece takes the heading back within centimetres (radii down to 0.01 m), and the
+  tangents of unevenly spaced points make cubic pieces overshoot. :func:`smooth_path` draws a curve
+  along the polyline that bends no tighter than the lane can follow wherever that is possible;
+- the **geometry**: where the contacts' positions and headings and the lane's width leave no room
+  (a connecting road of 0.6-2 m that turns by 0.4-1 rad with a lane 3.2-5.5 m wide: SUMO's corner
+  lanes on game/grid6, logged WOMD lanes wider than the diameter of their turn), every curve
+  between the two contacts folds; :func:`fold_ratio` tells which.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+FOLD_RATIO = 0.9  # [-] the fold ratio smooth_path keeps below where it can (1: the border stops)
+PATH_STEP_M = 0.25  # [m] spacing of the points of a connecting road's smoothed centre line
+MIN_POINTS = 12  # ... at least this many steps (a short turn needs room to spread its bending)
+BASE_STIFFNESS = 1e-4  # [m^4] bending weight against 1 for the squared distance to a SUMO vertex
+MAX_STIFFNESS = 1e3  # [m^4] ... its ceiling (the vertices no longer count; the system stays well conditioned)
+STIFFEN = 10.0  # [-] most the bending weight grows (or shrinks) in one round
+STIFFEN_ROUNDS = 30
+STIFFEN_SPREAD = 2  # points on each side of a folding point that share its need
+
+
+def discrete_curvature(p: np.ndarray) -> np.ndarray:
+    """(N,) [1/m] signed curvature (left positive) of a polyline (N, 2) at each point: the turn
+    between its two segments over their mean length (0 at the two ends)."""
+    a, b = p[1:-1] - p[:-2], p[2:] - p[1:-1]
+    turn = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(axis=1))
+    mean = np.maximum(0.5 * (np.hypot(*a.T) + np.hypot(*b.T)), 1e-12)
+    return np.concatenate([[0.0], turn / mean, [0.0]])
+
+
+def smooth_path(points: np.ndarray, start_heading: float, end_heading: float, start_width: float,
+                end_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """A connecting road's centre line along its polyline (N, 2) [m] (first and last point: the
+    contacts with its two lanes), leaving the first point at ``start_heading`` and reaching the last
+    at ``end_heading`` [rad], bending no tighter than its lane's border can follow.
+
+    Points p every :data:`PATH_STEP_M` along the polyline minimise the squared distances from the
+    polyline's inner vertices to the curve plus sum mu_i |second difference_i / step^2|^2 (the
+    squared curvature), the two contacts held and the ends clamped to their headings (the points
+    one step outside each end lie so that the central difference there runs along the heading):
+    with a small mu (:data:`BASE_STIFFNESS`) a smooth curve through the vertices. Where the
+    curvature of the points or of the cubic pieces written between them, times half the lane's width
+    (changing linearly between the two lanes'), exceeds :data:`FOLD_RATIO`, mu grows (by up to
+    :data:`STIFFEN` a round, up to :data:`MAX_STIFFNESS`); where the lane has room it shrinks back:
+    the curve keeps to the SUMO shape except where a lane that wide could not follow it.
+
+    Returns the points (K, 2) [m] and the heading [rad] at each (the two given ones at the ends),
+    for :func:`~coster_sumo.exports.opendrive_solve.cubic_pieces`.
+    """
+    origin = np.asarray(points[0], np.float64)
+    pts = np.asarray(points, np.float64) - origin  # (WOMD coordinates are kilometres: keep digits)
+    sigma = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])  # arc length of each vertex
+    length = float(sigma[-1])
+    n = max(int(np.ceil(length / PATH_STEP_M)), MIN_POINTS)
+    step = max(length / n, 1e-6)
+    s = np.linspace(0.0, length, n + 1)
+    t0 = np.array([np.cos(start_heading), np.sin(start_heading)])
+    t1 = np.array([np.cos(end_heading), np.sin(end_heading)])
+    # e: the points 0..n with a point before and after, placed so that the central difference at
+    # each end runs along its heading (a clamped end): e = basis @ x + const, x the points 1..n-1
+    m = n - 1
+    basis = np.zeros((n + 3, m))
+    basis[2:n + 1] = np.eye(m)
+    basis[0, 0] = basis[n + 2, m - 1] = 1.0
+    const = np.zeros((n + 3, 2))
+    const[1], const[n + 1] = pts[0], pts[-1]
+    const[0], const[n + 2] = -2.0 * step * t0, 2.0 * step * t1
+    e = const.copy()
+    # the curve at each inner vertex: linear between the two grid points around it (V, n + 3)
+    inner = sigma[1:-1]
+    j = np.clip(np.searchsorted(s, inner, side="right") - 1, 0, n - 1) + 1
+    f = (inner - s[j - 1]) / step
+    at = np.zeros((len(inner), n + 3))
+    at[np.arange(len(inner)), j] += 1.0 - f
+    at[np.arange(len(inner)), j + 1] += f
+    # second differences / step^2 at the points 0..n: (n + 1, n + 3)
+    d2 = np.zeros((n + 1, n + 3))
+    rows = np.arange(n + 1)
+    d2[rows, rows], d2[rows, rows + 1], d2[rows, rows + 2] = 1.0, -2.0, 1.0
+    d2 /= step ** 2
+    half = 0.5 * (start_width + (end_width - start_width) * s / max(length, 1e-12))  # (n + 1,) [m]
+    mu = np.full(n + 1, BASE_STIFFNESS)
+    at_x, d2_x = at @ basis, d2 @ basis
+    data_lhs = at_x.T @ at_x
+    data_rhs = at_x.T @ (pts[1:-1] - at @ const)
+    d2_const = d2 @ const
+    heading = np.zeros(n + 1)
+    ratio = np.zeros(n + 1)
+    for _ in range(STIFFEN_ROUNDS):
+        x = np.linalg.solve(data_lhs + d2_x.T @ (mu[:, None] * d2_x), data_rhs - d2_x.T @ (mu[:, None] * d2_const))
+        e = basis @ x + const
+        p = e[1:-1]
+        heading = _headings(p, start_heading, end_heading)
+        # the pieces written, not only the points, must bend no tighter (a cubic between two points
+        # overshoots where the curvature changes fast): each point takes the tighter of its two pieces
+        piece = piece_curvature(p, heading)  # (n,)
+        tight = np.maximum(np.abs(discrete_curvature(e)[1:-1]),
+                           np.maximum(np.append(piece, 0.0), np.insert(piece, 0, 0.0)))
+        ratio = tight * half / FOLD_RATIO  # (n + 1,) above 1: folds
+        if not (ratio > 1.0).any():
+            break
+        # stiffer where the lane would fold, softer where it has room: the bending moves to where
+        # the lane can take it
+        need = np.convolve(ratio, np.ones(2 * STIFFEN_SPREAD + 1), "same") / (2 * STIFFEN_SPREAD + 1)
+        worst = np.maximum(need, ratio)
+        mu = np.clip(mu * np.clip(worst ** 2, 1.0 / STIFFEN, STIFFEN), BASE_STIFFNESS, MAX_STIFFNESS)
+    return e[1:-1] + origin, heading
+
+
+def _headings(p: np.ndarray, start_heading: float, end_heading: float) -> np.ndarray:
+    """(N,) [rad] the heading at each point of a polyline (N, 2) (N >= 3): the tangents of the
+    cubic spline through the points with continuous curvature (uniform parameter, its ends clamped
+    to the given headings with the length of their first and last step), so that the cubic pieces
+    between the points join without a kink in the curvature either."""
+    n = len(p) - 1
+    m0 = np.hypot(*(p[1] - p[0])) * np.array([np.cos(start_heading), np.sin(start_heading)])
+    mn = np.hypot(*(p[-1] - p[-2])) * np.array([np.cos(end_heading), np.sin(end_heading)])
+    # m[i-1] + 4 m[i] + m[i+1] = 3 (p[i+1] - p[i-1]) for the inner points: tridiagonal (n - 1)
+    rhs = 3.0 * (p[2:] - p[:-2])
+    rhs[0] -= m0
+    rhs[-1] -= mn
+    lhs = 4.0 * np.eye(n - 1) + np.eye(n - 1, k=1) + np.eye(n - 1, k=-1)
+    m = np.linalg.solve(lhs, rhs)
+    return np.concatenate([[start_heading], np.arctan2(m[:, 1], m[:, 0]), [end_heading]])
+
+
+def piece_curvature(points: np.ndarray, heading: np.ndarray, samples: int = 16) -> np.ndarray:
+    """(N - 1,) [1/m] the largest |curvature| of each cubic piece that
+    :func:`~coster_sumo.exports.opendrive_solve.cubic_pieces` writes between consecutive points
+    (N, 2) [m] with these headings (N,) [rad], sampled at ``samples`` + 1 parameters."""
+    c, sn = np.cos(heading[:-1]), np.sin(heading[:-1])
+    dx, dy = (points[1:] - points[:-1]).T
+    u1, v1 = c * dx + sn * dy, -sn * dx + c * dy  # each end in its start's frame
+    chord = np.hypot(u1, v1)
+    turn = (heading[1:] - heading[:-1] + np.pi) % (2 * np.pi) - np.pi
+    cu, su = chord * np.cos(turn), chord * np.sin(turn)
+    b_u, c_u, d_u = chord, 3 * u1 - 2 * chord - cu, -2 * u1 + chord + cu
+    c_v, d_v = 3 * v1 - su, -2 * v1 + su
+    q = np.linspace(0.0, 1.0, samples + 1)[:, None]  # (Q, 1)
+    du, dv = b_u + 2 * c_u * q + 3 * d_u * q ** 2, 2 * c_v * q + 3 * d_v * q ** 2
+    ddu, ddv = 2 * c_u + 6 * d_u * q, 2 * c_v + 6 * d_v * q
+    speed = np.maximum(np.hypot(du, dv), 1e-12)
+    return (np.abs(du * ddv - dv * ddu) / speed ** 3).max(axis=0)
+
+
+def fold_ratio(pieces: list[dict[str, float]], start_width: float, end_width: float, samples: int = 16) -> float:
+    """[-] the largest |curvature| x half width over cubic pieces (``cubic_pieces``' dicts) of a lane
+    centred on them whose width changes linearly from ``start_width`` to ``end_width`` [m] (1 or
+    more: its inner border folds)."""
+    if not pieces:
+        return 0.0
+    coef = {k: np.array([pc[k] for pc in pieces]) for k in ("bU", "cU", "dU", "cV", "dV", "length")}
+    q = np.linspace(0.0, 1.0, samples + 1)[:, None]  # (Q, 1)
+    du = coef["bU"] + 2 * coef["cU"] * q + 3 * coef["dU"] * q ** 2
+    dv = 2 * coef["cV"] * q + 3 * coef["dV"] * q ** 2
+    ddu, ddv = 2 * coef["cU"] + 6 * coef["dU"] * q, 2 * coef["cV"] + 6 * coef["dV"] * q
+    k = np.abs(du * ddv - dv * ddu) / np.maximum(np.hypot(du, dv), 1e-12) ** 3  # (Q, pieces)
+    s = np.concatenate([[0.0], np.cumsum(coef["length"])])
+    at = s[:-1] + q * coef["length"]
+    half = 0.5 * (start_width + (end_width - start_width) * at / max(float(s[-1]), 1e-12))
+    return float((k * half).max())
+
+
+def piece_points(pieces: list[dict[str, float]], samples: int = 8) -> np.ndarray:
+    """(len(pieces) x samples + 1, 2) [m] points along cubic pieces (``cubic_pieces``' dicts), each
+    at ``samples`` steps of its parameter, and the last piece's end."""
+    coef = {k: np.array([pc[k] for pc in pieces]) for k in ("x", "y", "hdg", "bU", "cU", "dU", "cV", "dV")}
+    q = np.linspace(0.0, 1.0, samples + 1)[:, None]  # (Q, 1)
+    u = coef["bU"] * q + coef["cU"] * q ** 2 + coef["dU"] * q ** 3
+    v = coef["cV"] * q ** 2 + coef["dV"] * q ** 3
+    c, sn = np.cos(coef["hdg"]), np.sin(coef["hdg"])
+    x, y = coef["x"] + c * u - sn * v, coef["y"] + sn * u + c * v  # (Q, pieces)
+    pts = np.stack([x[:-1].T.reshape(-1), y[:-1].T.reshape(-1)], axis=1)
+    return np.vstack([pts, [[x[-1, -1], y[-1, -1]]]])
+
+
+def deviation(pieces: list[dict[str, float]], polyline: np.ndarray) -> float:
+    """[m] how far cubic pieces and a polyline (N, 2) lie apart: the larger of the farthest point of
+    the pieces from the polyline and the farthest vertex of the polyline from the pieces."""
+    import shapely
+
+    curve = piece_points(pieces)
+    line, drawn = shapely.LineString(polyline), shapely.LineString(curve)
+    return float(max(shapely.distance(line, shapely.points(curve)).max(),
+                     shapely.distance(drawn, shapely.points(polyline)).max()))
+
