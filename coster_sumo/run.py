@@ -1,6 +1,7 @@
 """``coster-sumo run``: the generation core, one injection pass per variant, and the outputs.
 
-1. the nominal scene, the target and the plans come from :mod:`coster_sumo.core`;
+1. the nominal scene and the target come from :mod:`coster_sumo.scenario`, the plans from
+   :mod:`coster_sumo.method.generation`;
 2. every plan is injected with :func:`coster_sumo.sim.inject.inject_variant` (same seed, so the
    traffic is the nominal one until the adversary appears);
 3. everything is written into a hidden staging folder beside OUT and renamed into place at the
@@ -21,33 +22,25 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import write_json
-from coster_sumo.core import (
-    PRIOR_RATE_HZ,
-    PlannedScenario,
-    check_generation,
-    choose_target,
-    derived_seed,
-    nominal_scene,
-    plan_scenario,
-    plan_scenarios,
-    simulation_window,
-)
 from coster_sumo.defects import attach_labels, check_avoidable, check_reaction_time, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError, SumoError, not_found
+from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.method.collision_time import PRIOR_RATE_HZ
+from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
+from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import progress_bar
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
+from coster_sumo.scenario import choose_target, nominal_scene, simulation_window
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
-from coster_sumo.snapshot import SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -246,10 +239,7 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     tried: dict[str, Any] | None = None
     if opts.avoidable == "only":
         def draw(j: int) -> PlannedScenario | None:
-            try:
-                return plan_scenario(scene, target, derived_seed(spec.seed, 100 + j), opts.generation, drivable)
-            except NoSnapshot:
-                return None
+            return further_draw(scene, target, spec.seed, opts.generation, drivable, j)
 
         planned, tried = keep_avoidable(planned, labels, draw, label, opts.generation.variants * opts.snapshots)
         if not any(p.plans for p in planned):
@@ -322,7 +312,7 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Injectio
     t_col in the simulation (their ``info["dropped"]`` says so).
 
     The generation already drops plans that overlap another vehicle's nominal path
-    (:func:`coster_sumo.core.bystander_contact`), but in the simulation the other vehicles react to
+    (:func:`coster_sumo.method.filters.bystander_contact`), but in the simulation the other vehicles react to
     the adversary (they brake or change lanes when it appears): on A10KW a car 5.9 m clear of the
     plan's path in the nominal pass ran into it 0.8 s before t_col. Such an adversary stops there as
     a wreck (:class:`~coster_sumo.sim.inject.AdversaryController`), so the variant is not the

@@ -7,11 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import core
-from coster_sumo.core import ATTEMPTS_PER_TIME, COLLISION_TIMES, SNAPSHOT_SEPARATION_STEPS, plan_scenario
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.errors import NoSnapshot
+from coster_sumo.method import snapshot as placement
+from coster_sumo.method.collision_time import COLLISION_TIMES, SNAPSHOT_SEPARATION_STEPS
+from coster_sumo.method.generation import plan_scenario
+from coster_sumo.method.snapshot import ATTEMPTS_PER_TIME, SNAPSHOT_INITS
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.snapshot import SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.spec import GenerationConfig
 from coster_sumo.synthetic import two_lane_road
 
@@ -71,8 +73,8 @@ def test_draws_whose_rollouts_all_hit_early_move_on_after_attempts_per_time(road
     planned = plan_scenario(scene, target, 0, GEN, drivable)
     times = [t for t, _ in drawn]
     assert len(set(times[:ATTEMPTS_PER_TIME])) == 1 and times[ATTEMPTS_PER_TIME] < times[0]
-    assert [s for _, s in drawn[:ATTEMPTS_PER_TIME]] == [True] * core.STRICT_PER_TIME + [False] * (
-        ATTEMPTS_PER_TIME - core.STRICT_PER_TIME)  # closing-in placements first, then grazing ones
+    assert [s for _, s in drawn[:ATTEMPTS_PER_TIME]] == [True] * placement.STRICT_PER_TIME + [False] * (
+        ATTEMPTS_PER_TIME - placement.STRICT_PER_TIME)  # closing-in placements first, then grazing ones
     assert planned.info["attempt"] == ATTEMPTS_PER_TIME + 1 and planned.snapshot.t_index == times[-1]
 
 

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from coster_sumo.cli import build_parser
-from coster_sumo.core import check_generation, generate_variants, missing_weights, plan_scenario
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
+from coster_sumo.method.collision_time import COLLISION_TIME_RULES, choose_collision_time
+from coster_sumo.method.generation import check_generation, generate_variants, missing_weights, plan_scenario
+from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.rollout.methods import ROLLOUTS
 from coster_sumo.scene import resample
 from coster_sumo.sim.planners import PLANNERS, check_planner
-from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS, choose_collision_time
 from coster_sumo.spec import GenerationConfig
 
 BASELINES = GenerationConfig(init="random", rollout="cv", collision_time="last")
@@ -80,7 +81,7 @@ def test_constant_velocity_draws_one_snapshot_per_variant(synthetic_scene):
 
 
 def test_variants_round_trip_through_json(synthetic_scene, tmp_path: Path):
-    from coster_sumo.core import Variant
+    from coster_sumo.method.generation import Variant
 
     scene = synthetic_scene
     if scene.sdc_index < 0:

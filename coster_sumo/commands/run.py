@@ -11,10 +11,11 @@ from typing import Any
 
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.method.collision_time import COLLISION_TIME_RULES
+from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.rollout.methods import ROLLOUTS
 from coster_sumo.run import RunOptions, failed_variants
 from coster_sumo.run import run as run_scenario
-from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 
