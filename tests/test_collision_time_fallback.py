@@ -31,9 +31,9 @@ def _record_places(monkeypatch, fail_at: set[int] | None = None):
     drawn: list[tuple[int, bool]] = []
     base = SNAPSHOT_INITS["random"]
 
-    def place(*args, strict=True, memo=None, **kw):
-        snap = base.place(*args, strict=strict, memo=memo, **kw)
-        drawn.append((snap.t_index, strict))
+    def place(request):
+        snap = base.place(request)
+        drawn.append((snap.t_index, request.strict))
         if fail_at is not None and snap.t_index in fail_at:
             raise NoSnapshot("test: no placement here", t_index=snap.t_index)
         return snap
@@ -64,9 +64,9 @@ def test_draws_whose_rollouts_all_hit_early_move_on_after_attempts_per_time(road
     calls = {"n": 0}
     cv = ROLLOUTS["cv"]
 
-    def generate(*args, **kw):  # the first ATTEMPTS_PER_TIME rollouts return nothing usable
+    def generate(request):  # the first ATTEMPTS_PER_TIME rollouts return nothing usable
         calls["n"] += 1
-        plans, xy, info = cv.generate(*args, **kw)
+        plans, xy, info = cv.generate(request)
         return (plans if calls["n"] > ATTEMPTS_PER_TIME else []), xy, info
 
     monkeypatch.setitem(ROLLOUTS, "cv", dataclasses.replace(cv, generate=generate))

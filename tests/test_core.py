@@ -36,7 +36,7 @@ def test_cli_choices_are_the_registries(command):
 
 
 def test_a_new_collision_time_rule_is_one_function_and_one_line(monkeypatch):
-    monkeypatch.setitem(COLLISION_TIME_RULES, "first", lambda window, rng, entropy: int(window[0]))
+    monkeypatch.setitem(COLLISION_TIME_RULES, "first", lambda request: int(request.window[0]))
     assert choose_collision_time(np.array([4, 5, 6]), "first", np.random.default_rng(0)) == 4
     check_generation(GenerationConfig(init="random", rollout="cv", collision_time="first"))
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES
-from coster_sumo.method.snapshot import SNAPSHOT_INITS
+from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest
 
 
 def register(cli: Any) -> None:
@@ -65,8 +65,8 @@ def run(args: argparse.Namespace) -> int:
             snap = prior_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed,
                                   models_dir=args.models, regions_out=regions)
         else:
-            snap = SNAPSHOT_INITS[args.init].place(low, target, rng, drivable, args.collision_time, args.seed,
-                                                   args.models)
+            snap = SNAPSHOT_INITS[args.init].place(PlacementRequest(low, target, rng, drivable, args.collision_time,
+                                                                    args.seed, args.models))
     except NoSnapshot as exc:
         raise InputError(f"{args.source}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None

@@ -22,8 +22,9 @@ those taken is tried (:func:`around`); a scene is declared unusable after
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
-from typing import Any
+from collections.abc import Collection
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -60,15 +61,38 @@ def search_window(scene: Scene, target: int, exclude: Collection[int] = ()) -> n
 
 
 
-def _last_step(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
-    return int(window[-1])
+@dataclass(frozen=True)
+class CollisionTimeRequest:
+    """What a collision-time rule chooses from.
+
+    Attributes:
+        window: (W,) int 2 Hz step indices where t_col may fall (:func:`search_window`; never empty).
+        rng: the generation's seeded generator.
+        entropy: (num_steps,) [nats] the velocity entropy around the target (:func:`entropy_curve`,
+            NaN outside the window), or None where no prior was asked.
+    """
+
+    window: np.ndarray
+    rng: np.random.Generator
+    entropy: np.ndarray | None = None
 
 
-def _random_step(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
-    return int(rng.choice(window))
+class CollisionTimeRule(Protocol):
+    """A rule of ``--collision-time``: the 2 Hz step of t_col, one of ``request.window``."""
+
+    def __call__(self, request: CollisionTimeRequest) -> int: ...
 
 
-def _highest_entropy(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
+def _last_step(request: CollisionTimeRequest) -> int:
+    return int(request.window[-1])
+
+
+def _random_step(request: CollisionTimeRequest) -> int:
+    return int(request.rng.choice(request.window))
+
+
+def _highest_entropy(request: CollisionTimeRequest) -> int:
+    window, entropy = request.window, request.entropy
     if entropy is None:
         raise ValueError("collision time 'entropy' needs the entropy curve")
     vals = np.where(np.isfinite(entropy[window]), entropy[window], -np.inf)
@@ -77,9 +101,8 @@ def _highest_entropy(window: np.ndarray, rng: np.random.Generator, entropy: np.n
     return int(window[int(np.argmax(vals))])
 
 
-CollisionTimeRule = Callable[[np.ndarray, np.random.Generator, "np.ndarray | None"], int]
-# Collision-time rules: (window (W,) 2 Hz step indices, rng, entropy (num_steps,) or None) -> step.
-# A new rule is one function and one line here; the CLI's --collision-time choices read this.
+# Collision-time rules: a new rule is one function and one line here; the CLI's --collision-time
+# choices read this.
 COLLISION_TIME_RULES: dict[str, CollisionTimeRule] = {
     "entropy": _highest_entropy,  # COSTER: the step of highest velocity entropy around the target
     "last": _last_step,  # ablation: the last step of the window
@@ -95,7 +118,7 @@ def choose_collision_time(window: np.ndarray, method: str, rng: np.random.Genera
     rule = COLLISION_TIME_RULES.get(method)
     if rule is None:
         raise ValueError(f"unknown collision-time method {method!r}; use one of {', '.join(COLLISION_TIME_RULES)}")
-    return rule(window, rng, entropy)
+    return rule(CollisionTimeRequest(window, rng, entropy))
 
 
 def around(t_index: int) -> range:

@@ -36,10 +36,11 @@ from coster_sumo.method.snapshot import (
     ATTEMPTS_PER_TIME,
     SNAPSHOT_INITS,
     STRICT_PER_TIME,
+    PlacementRequest,
     place_closing_first,
 )
 from coster_sumo.plan import AdversaryPlan
-from coster_sumo.rollout.methods import ROLLOUTS
+from coster_sumo.rollout.methods import ROLLOUTS, RolloutRequest
 from coster_sumo.scene import Scene, resample
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig
@@ -139,9 +140,9 @@ class _Draws:
         for k in range(ATTEMPTS_PER_TIME):
             self.count += 1
             try:
-                snap, strict = place_closing_first(
-                    self.init, self.low, self.target, self.rng, self.drivable, self.gen.collision_time, self.seed,
-                    self.gen.models_dir, self.excluded, strict and k < STRICT_PER_TIME, self.init_memo)
+                snap, strict = place_closing_first(self.init, PlacementRequest(
+                    self.low, self.target, self.rng, self.drivable, self.gen.collision_time, self.seed,
+                    self.gen.models_dir, self.excluded, strict=strict and k < STRICT_PER_TIME, memo=self.init_memo))
             except NoSnapshot as exc:
                 if exc.t_index is None and not self.failed:
                     raise  # no collision time in the scene at all
@@ -161,9 +162,9 @@ class _Draws:
         if self.on_snapshot is not None:
             self.on_snapshot(snap)
         gen = self.gen
-        plans, samples_xy, info = self.rollout.generate(self.low, self.target, snap, self.drivable,
-                                                        samples=gen.samples, variants=gen.variants, seed=self.seed,
-                                                        models_dir=gen.models_dir)
+        plans, samples_xy, info = self.rollout.generate(RolloutRequest(
+            self.low, self.target, snap, self.drivable, samples=gen.samples, variants=gen.variants, seed=self.seed,
+            models_dir=gen.models_dir))
         # a cluster of the rollout that gave no representative is a variant asked for and missing
         dropped: list[dict[str, Any]] = [{"candidate": f"cluster {r['cluster']}", "reason": r["reason"]}
                                          for r in info.get("rejected_clusters", ())]

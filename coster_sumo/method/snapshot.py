@@ -22,10 +22,11 @@ touches the target; same rejection rules, up to ``RANDOM_TRIES`` tries.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Sequence
+import dataclasses
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import shapely
@@ -301,36 +302,60 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
 
 
 @dataclass(frozen=True)
-class SnapshotInit:
-    """A way to place the adversary at t_col.
+class PlacementRequest:
+    """What a snapshot init is asked for: a collision snapshot of ``target`` in ``scene``.
 
     Attributes:
-        place: (scene at 2 Hz, target index, rng, drivable area, collision-time rule, seed, models
-            folder, steps to exclude from t_col, ``strict=`` closing check, see :func:`closing`,
-            ``memo=`` a dict the caller keeps across draws for one scene and target) -> the
-            snapshot; raises :class:`NoSnapshot` when the scene has none (with ``t_index`` when
-            only the chosen collision time has none).
-        weights: files it needs from the models folder (checked before any work).
+        scene: the nominal scene at 2 Hz.
+        target: the target's agent index.
+        rng: the generation's seeded generator (the collision time and the placement draw from it).
+        drivable: the drivable area placements must stay on (None: no check).
+        collision_time: a rule of :data:`~coster_sumo.method.collision_time.COLLISION_TIME_RULES`.
+        seed: recorded in the snapshot.
+        models_dir: the models folder (None: the shipped one).
+        exclude: 2 Hz steps not to take as t_col.
+        strict: only placements that close in on the target (:func:`closing`).
+        memo: kept by the caller across draws for one scene and target (what they compute once).
     """
 
-    place: Callable[..., CollisionSnapshot]
+    scene: Scene
+    target: int
+    rng: np.random.Generator
+    drivable: DrivableArea | None
+    collision_time: str
+    seed: int = 0
+    models_dir: Path | None = None
+    exclude: Collection[int] = ()
+    strict: bool = True
+    memo: dict[str, Any] | None = None
+
+
+class SnapshotPlacer(Protocol):
+    """A way to place the adversary at t_col: the snapshot, or :class:`NoSnapshot` when the scene
+    has none (with ``t_index`` when only the chosen collision time has none)."""
+
+    def __call__(self, request: PlacementRequest) -> CollisionSnapshot: ...
+
+
+@dataclass(frozen=True)
+class SnapshotInit:
+    """A snapshot init of ``--init``: how it places, and the files it needs from the models folder
+    (checked before any work)."""
+
+    place: SnapshotPlacer
     weights: tuple[str, ...] = ()
 
 
-def _prior_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                collision_time: str, seed: int, models_dir: Path | None,
-                exclude: Collection[int] = (), strict: bool = True,
-                memo: dict[str, Any] | None = None) -> CollisionSnapshot:
-    return prior_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed,
-                          models_dir=models_dir, exclude=exclude, strict=strict, memo=memo)
+def _prior_init(request: PlacementRequest) -> CollisionSnapshot:
+    r = request
+    return prior_snapshot(r.scene, r.target, r.rng, r.drivable, collision_time=r.collision_time, seed=r.seed,
+                          models_dir=r.models_dir, exclude=r.exclude, strict=r.strict, memo=r.memo)
 
 
-def _random_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                 collision_time: str, seed: int, models_dir: Path | None,
-                 exclude: Collection[int] = (), strict: bool = True,
-                 memo: dict[str, Any] | None = None) -> CollisionSnapshot:
-    return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed, exclude=exclude,
-                           strict=strict)
+def _random_init(request: PlacementRequest) -> CollisionSnapshot:
+    r = request
+    return random_snapshot(r.scene, r.target, r.rng, r.drivable, collision_time=r.collision_time, seed=r.seed,
+                           exclude=r.exclude, strict=r.strict)
 
 
 # Snapshot inits (``--init``): a new one is one function and one line here.
@@ -344,22 +369,17 @@ ATTEMPTS_PER_TIME = 5  # snapshot + rollout draws at one collision time before t
 STRICT_PER_TIME = 3  # of those, the first take only placements that close in on the target
 
 
-def place_closing_first(init: SnapshotInit, scene: Scene, target: int, rng: np.random.Generator,
-                        drivable: DrivableArea | None, collision_time: str, seed: int, models_dir: Path | None,
-                        exclude: Collection[int], strict: bool, memo: dict[str, Any]
-                        ) -> tuple[CollisionSnapshot, bool]:
-    """A snapshot of ``init`` and whether it closes in on the target (:func:`closing`, ``strict``);
-    a grazing one when ``strict`` and nothing closes in at the collision time drawn.
+def place_closing_first(init: SnapshotInit, request: PlacementRequest) -> tuple[CollisionSnapshot, bool]:
+    """A snapshot of ``init`` and whether it closes in on the target (:func:`closing`,
+    ``request.strict``); a grazing one when strict and nothing closes in at the collision time drawn.
 
     The generation asks for closing-in placements in the first :data:`STRICT_PER_TIME` of its
     :data:`ATTEMPTS_PER_TIME` draws at one collision time, then for grazing ones too
     (:func:`coster_sumo.method.generation.plan_scenario`).
     """
     try:
-        return init.place(scene, target, rng, drivable, collision_time, seed, models_dir, exclude,
-                          strict=strict, memo=memo), strict
+        return init.place(request), request.strict
     except NoSnapshot as exc:
-        if not strict or exc.t_index is None:
+        if not request.strict or exc.t_index is None:
             raise
-    return init.place(scene, target, rng, drivable, collision_time, seed, models_dir, exclude,
-                      strict=False, memo=memo), False
+    return init.place(dataclasses.replace(request, strict=False)), False
