@@ -35,6 +35,7 @@ from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import progress_bar
+from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.scenario import choose_target, nominal_scene, simulation_window
 from coster_sumo.scene import Scene
@@ -83,17 +84,14 @@ class RunOptions:
         return list(dict.fromkeys((self.spec.target, *self.more_targets)))
 
 
-def failed_variants(summary: dict[str, Any]) -> list[dict[str, Any]]:
-    """The variants of a one-target summary whose SUMO pass failed (crash, timeout): adversary, t_col, reason."""
-    return [f for s in summary.get("snapshots", []) for f in s["generation"].get("failed", [])]
-
-
-def run(opts: RunOptions) -> dict[str, Any]:
-    """Run the whole pipeline; returns the summary (also written to OUT/summary.json).
+def run(opts: RunOptions) -> RunResult:
+    r"""Run the whole pipeline; returns its result (summary.json in OUT is its JSON).
 
     With several targets (``more_targets``) they share the nominal pass and its held copies; each
     gets its own folder ``OUT/<target>/`` laid out as a one-target OUT, and ``OUT/summary.json``
-    lists them (a target without a scenario is listed with its reason; the others go on).
+    lists them (a target without a scenario is listed with its reason; the others go on): the
+    result is then a :class:`~coster_sumo.results.RunSummary` of their
+    :class:`~coster_sumo.results.TargetResult`\ s.
     """
     check_generation(opts.generation)
     check_avoidable(opts.avoidable)
@@ -118,8 +116,7 @@ def run(opts: RunOptions) -> dict[str, Any]:
         clean_leftovers(opts.out)
         # again under the lock: another command may have written OUT since the first check
         check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
-        summary = _run_locked(opts, converted, end, targets, named, timings)
-    return summary
+        return _run_locked(opts, converted, end, targets, named, timings)
 
 
 def run_inputs(config: Path) -> list[Path]:
@@ -132,7 +129,7 @@ def run_inputs(config: Path) -> list[Path]:
 
 
 def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: list[str | None],
-                named: list[str], timings: dict[str, float]) -> dict[str, Any]:
+                named: list[str], timings: dict[str, float]) -> RunResult:
     """:func:`run` once its output folder is checked and locked."""
     spec = opts.spec
     several = len(targets) > 1
@@ -155,29 +152,12 @@ def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: l
         t0 = time.perf_counter()
         drivable = DrivableArea.from_road_map(scene.road_map)
         timings["drivable_s"] = time.perf_counter() - t0
+        result: RunResult
         if not several:
-            summary = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
+            one = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
+            result = TargetResult.from_json(plain_json(one), opts.out)
         else:
-            listed: list[dict[str, Any]] = []
-            taken = {"summary.json"}
-            for tid in named:
-                folder = staging / target_folder(tid, taken)
-                folder.mkdir()
-                try:
-                    one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
-                except InputError as exc:  # this target has no scenario; the others go on
-                    shutil.rmtree(folder, ignore_errors=True)
-                    listed.append({"target": tid, "error": str(exc)})
-                    continue
-                listed.append({"target": tid, "folder": folder.name, **{k: one[k] for k in _LISTED},
-                               "failed_variants": len(failed_variants(one))})
-            if not any("folder" in t for t in listed):
-                raise InputError("; ".join(t["error"] for t in listed))
-            summary = {"config": str(spec.config), "targets": listed, "num_targets": len(listed),
-                       **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
-                       "nominal_until_s": float(scene.timestamps[-1]),
-                       "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()}
-            write_json(staging / "summary.json", summary)
+            result = _several_targets(opts, scene, named, drivable, held, planner, staging, timings)
         publish(staging, opts.out, kind="run")
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -185,6 +165,36 @@ def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: l
     finally:
         if held is not None:
             held.close()
+    return result
+
+
+def _several_targets(opts: RunOptions, scene: Scene, named: list[str], drivable: DrivableArea,
+                     held: HeldStates | None, planner: str, staging: Path, timings: dict[str, float]
+                     ) -> RunSummary:
+    """Every target of a run with several into its own folder of ``staging``, and the list of them
+    (``staging/summary.json``)."""
+    entries: list[TargetEntry] = []
+    taken = {"summary.json"}
+    for tid in named:
+        folder = staging / target_folder(tid, taken)
+        folder.mkdir()
+        try:
+            one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
+        except InputError as exc:  # this target has no scenario; the others go on
+            shutil.rmtree(folder, ignore_errors=True)
+            entries.append(TargetEntry(tid, error=str(exc)))
+            continue
+        plain = plain_json(one)
+        result = TargetResult.from_json(plain, opts.out / folder.name)  # where publish puts it
+        entries.append(TargetEntry(tid, folder.name, result=result,
+                                   extra={**{k: plain[k] for k in _LISTED}, "failed_variants": len(result.failed)}))
+    if not any(t.result is not None for t in entries):
+        raise InputError("; ".join(str(t.error) for t in entries))
+    summary = RunSummary(opts.out, str(opts.spec.config), tuple(entries), extra={
+        **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
+        "nominal_until_s": float(scene.timestamps[-1]),
+        "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()})
+    write_json(staging / "summary.json", summary.to_json())
     return summary
 
 
