@@ -25,7 +25,6 @@ from coster_sumo.atomic import write_json
 from coster_sumo.defects import attach_labels, check_avoidable, check_reaction_time, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
-from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
@@ -37,7 +36,7 @@ from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import progress_bar
 from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
-from coster_sumo.scenario import choose_target, nominal_scene, simulation_window
+from coster_sumo.scenario import ScenarioSource, choose_target, nominal_scene
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
@@ -100,8 +99,7 @@ def run(opts: RunOptions) -> RunResult:
         raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
     if not opts.spec.config.is_file():
         raise not_found(opts.spec.config)
-    converted = converted_scene_file(opts.spec.config) is not None
-    end = None if converted else simulation_window(opts.spec)[1]  # a bad window is one line before any work
+    source = ScenarioSource.resolve(opts.spec)  # a bad window is one line before any work
     if opts.planner is not None:
         check_planner(opts.planner)
     spec = opts.spec
@@ -116,7 +114,7 @@ def run(opts: RunOptions) -> RunResult:
         clean_leftovers(opts.out)
         # again under the lock: another command may have written OUT since the first check
         check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
-        return _run_locked(opts, converted, end, targets, named, timings)
+        return _run_locked(opts, source, targets, named, timings)
 
 
 def run_inputs(config: Path) -> list[Path]:
@@ -128,10 +126,11 @@ def run_inputs(config: Path) -> list[Path]:
     return [config, *cfg.net_files, *cfg.route_files, *cfg.additional_files]
 
 
-def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: list[str | None],
-                named: list[str], timings: dict[str, float]) -> RunResult:
+def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | None], named: list[str],
+                timings: dict[str, float]) -> RunResult:
     """:func:`run` once its output folder is checked and locked."""
-    spec = opts.spec
+    spec, converted = opts.spec, source.converted
+    end = source.window[1] if source.window is not None else None
     several = len(targets) > 1
     staging = new_staging(opts.out)
     # an adversary appears up to its horizon before t_col, which may come right after the target departs
@@ -145,7 +144,7 @@ def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: l
         extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
         with _bar(opts, "nominal pass", "sim s") as bar:
             clock = None if end is None else _SimClock(bar, end)
-            scene, converted = nominal_scene(spec, traci=opts.traci, hold=None if converted else held,
+            scene, converted = nominal_scene(source, traci=opts.traci, hold=None if converted else held,
                                              additional=extra, progress=clock.update if clock else None,
                                              more_targets=named[1:])
         timings["nominal_s"] = time.perf_counter() - t0

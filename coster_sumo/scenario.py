@@ -1,6 +1,7 @@
 """The nominal scenario: the traffic a generation works on, and its target.
 
-1. :func:`simulation_window`: the [begin, end] of a SUMO configuration's run;
+1. :class:`ScenarioSource`: the spec resolved once (a converted WOMD scene's log, or a SUMO
+   configuration and the [begin, end] of its run, :func:`simulation_window`);
 2. :func:`nominal_scene`: the nominal traffic at 10 Hz. A converted WOMD scene is its log
    (``scene.npz``, see :mod:`coster_sumo.formats.scene_folder`); any other configuration is
    simulated with libsumo and recorded with the spec's seed (the injection passes use the same);
@@ -12,6 +13,7 @@ The generation itself is :mod:`coster_sumo.method.generation`.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -49,10 +51,42 @@ def simulation_window(spec: ScenarioSpec) -> tuple[float, float]:
     return begin, end
 
 
-def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates | None = None,
+@dataclass(frozen=True)
+class ScenarioSource:
+    """A scenario spec resolved once: what is converted or not, and the window, are not worked out
+    again by every step that needs them.
+
+    Attributes:
+        spec: the scenario spec.
+        log: the converted WOMD scene's log (``scene.npz``), None for any other SUMO configuration.
+        window: [begin, end] [s] of a SUMO configuration's run (:func:`simulation_window`); None for
+            a converted scene (its log is its window).
+    """
+
+    spec: ScenarioSpec
+    log: Path | None
+    window: tuple[float, float] | None
+
+    @property
+    def converted(self) -> bool:
+        """Whether it is a converted WOMD scene (the log is the traffic)."""
+        return self.log is not None
+
+    @classmethod
+    def resolve(cls, spec: ScenarioSpec) -> ScenarioSource:
+        """The source of ``spec``; a missing configuration or a bad window is one :class:`InputError` line."""
+        if not spec.config.exists():
+            raise not_found(spec.config)
+        log = converted_scene_file(spec.config)
+        return cls(spec, log, None if log is not None else simulation_window(spec))
+
+
+def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = False, hold: HeldStates | None = None,
                   additional: Sequence[Path] = (), progress: Callable[[float], None] | None = None,
                   more_targets: Sequence[str] = ()) -> tuple[Scene, bool]:
     """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
+
+    ``scenario``: a spec, or a source resolved from it already.
 
     A SUMO configuration is recorded around the target only (see :data:`SURROUNDINGS_RADIUS_M`),
     the target at every step, the vehicles around it at the models' 2 Hz and interpolated between
@@ -63,15 +97,13 @@ def nominal_scene(spec: ScenarioSpec, *, traci: bool = False, hold: HeldStates |
     recorded like the target (one pass for several targets: the union of their surroundings, up to
     the arrival of the last of them).
     """
-    cfg = spec.config
-    if not cfg.exists():
-        raise not_found(cfg)
-    log = converted_scene_file(cfg)
-    if log is not None:
-        return load_scene(log), True
+    source = scenario if isinstance(scenario, ScenarioSource) else ScenarioSource.resolve(scenario)
+    spec, cfg = source.spec, source.spec.config
+    if source.log is not None:
+        return load_scene(source.log), True
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
 
-    _, end = simulation_window(spec)
+    _, end = source.window or simulation_window(spec)  # a SUMO configuration's source has its window
     target = spec.target or "ego"
     wanted = list(dict.fromkeys((target, *more_targets)))
     demand = config_demand(cfg)  # seconds, where a pass that finds no target takes minutes
