@@ -37,7 +37,7 @@ def main() -> None:
             with tempfile.TemporaryDirectory(prefix="bench-avoid-") as tmp:
                 opts = RunOptions(spec=ScenarioSpec(cfg, seed=seed), out=Path(tmp) / "out",
                                   generation=GenerationConfig(), planner="replay", render=False, quiet=True)
-                s = run(opts)
+                s = run(opts).to_json()
             t = s["timings_s"]
             n = s["num_variants"]
             gen = sum(t.get(k, 0.0) for k in GENERATION)

@@ -2,7 +2,7 @@
 
 What is timed is what ``coster-sumo eval scenarios`` reports as "gen. s/variant": in a task process
 forked from a server that has imported the task modules (the eval driver's fork), the call
-:func:`coster_sumo.core.generate_variants` for COSTER (snapshot init, entropy collision time, CVAE,
+:func:`coster_sumo.method.generation.generate_variants` for COSTER (snapshot init, entropy collision time, CVAE,
 ``--variants`` 5, ``--samples`` 1000) on one scene, divided by the variants it returns. Every cost
 that falls inside that call in a fresh task (imports of torch and scikit-learn, loading weights,
 the prior, the CVAE, clustering) is counted, as in the eval.
@@ -53,7 +53,8 @@ SERVER = r'''
 import json, os, sys, time
 sys.path.insert(0, sys.argv[1])
 import libsumo, pyarrow.parquet  # noqa: F401
-import coster_sumo.batch.evaluate, coster_sumo.core, coster_sumo.drivable, coster_sumo.outputs  # noqa: F401
+import coster_sumo.batch.evaluate, coster_sumo.method.generation, coster_sumo.outputs  # noqa: F401
+import coster_sumo.drivable, coster_sumo.scenario  # noqa: F401
 import coster_sumo.sim.inject  # noqa: F401
 from coster_sumo.batch import executor
 preload = getattr(executor, "GENERATION_TASK_MODULES", ())
@@ -70,7 +71,8 @@ for line in sys.stdin:
         out = {}
         try:
             from pathlib import Path
-            from coster_sumo.core import choose_target, generate_variants
+            from coster_sumo.method.generation import generate_variants
+            from coster_sumo.scenario import choose_target
             from coster_sumo.drivable import DrivableArea
             from coster_sumo.scene import load_scene
             from coster_sumo.spec import GenerationConfig

@@ -14,8 +14,9 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from coster_sumo.core import choose_target, nominal_scene, plan_scenario
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.method.generation import plan_scenario
+from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.sim.inject import InjectionResult, run_injection
 from coster_sumo.sim.planners import make_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec

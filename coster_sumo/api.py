@@ -23,13 +23,13 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.core import PlannedScenario, choose_target, derived_seed, nominal_scene, plan_scenario
 from coster_sumo.defects import check_avoidable, check_reaction_time, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.method.generation import PlannedScenario, further_draw, plan_scenarios
 from coster_sumo.plan import AdversaryPlan
+from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
-from coster_sumo.snapshot import NoSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 __all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
@@ -43,7 +43,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
                      reaction_time: float = 1.0) -> PlannedScenario:
     """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
 
-    Returns the :class:`~coster_sumo.core.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
+    Returns the :class:`~coster_sumo.method.generation.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
     :class:`~coster_sumo.plan.AdversaryPlan` per kept variant, sim times in seconds). Inject one
     with :func:`~coster_sumo.sim.inject.inject_variant` or drive it in your own loop.
 
@@ -66,7 +66,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    planned = plan_scenario(scene, index, seed, gen, drivable)
+    planned = plan_scenarios(scene, index, seed, gen, drivable)[0]  # one snapshot: the first draw
 
     def label(plans: list[AdversaryPlan]) -> list[Any]:
         return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=reaction_time)
@@ -74,10 +74,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     labels = dict(zip((p.vehicle_id for p in planned.plans), label(planned.plans), strict=True))
     if avoidable == "only":
         def draw(j: int) -> PlannedScenario | None:
-            try:
-                return plan_scenario(scene, index, derived_seed(seed, 100 + j), gen, drivable)
-            except NoSnapshot:
-                return None
+            return further_draw(scene, index, seed, gen, drivable, j)
 
         kept, tried = keep_avoidable([planned], labels, draw, label, variants)
         planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable

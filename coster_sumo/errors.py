@@ -21,6 +21,18 @@ class SumoError(CosterError):
     exit_code = 1
 
 
+class NoSnapshot(CosterError):
+    """The scene yields no collision snapshot; the message says why.
+
+    ``t_index``: the 2 Hz step of the collision time that had no acceptable placement, when one
+    was chosen (another collision time may still have one); None when the scene has none at all.
+    """
+
+    def __init__(self, message: str, t_index: int | None = None) -> None:
+        super().__init__(message)
+        self.t_index = t_index
+
+
 def not_found(path: object, kind: str = "file", referenced_by: object = None, why: str | None = None
               ) -> InputError:
     """The one wording of a missing input, for every command: ``PATH: no such file`` (``kind``:

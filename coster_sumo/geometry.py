@@ -39,6 +39,7 @@ ArrayLike = np.ndarray | float
 _EPS = 1e-12
 CONTACT_GAP = 1e-6  # [m] separation left by touch_translation so that placed boxes never overlap
 MAX_BACKOFF = 0.01  # [m] the back-off along the direction never exceeds this
+CONTACT_TOLERANCE_M = 0.05  # [m] boxes closer than this are in contact (the snapshot's own tolerance)
 
 
 # ----------------------------------------------------------------------------- boxes

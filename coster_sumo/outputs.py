@@ -31,10 +31,10 @@ import numpy as np
 
 from coster_sumo import viz
 from coster_sumo.atomic import json_default, write_json
-from coster_sumo.core import PlannedScenario
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.method.generation import PlannedScenario
 from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.rollout.data import STOPPED_MPS

@@ -1,6 +1,7 @@
 """``coster-sumo run``: the generation core, one injection pass per variant, and the outputs.
 
-1. the nominal scene, the target and the plans come from :mod:`coster_sumo.core`;
+1. the nominal scene and the target come from :mod:`coster_sumo.scenario`, the plans from
+   :mod:`coster_sumo.method.generation`;
 2. every plan is injected with :func:`coster_sumo.sim.inject.inject_variant` (same seed, so the
    traffic is the nominal one until the adversary appears);
 3. everything is written into a hidden staging folder beside OUT and renamed into place at the
@@ -21,33 +22,25 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import write_json
-from coster_sumo.core import (
-    PRIOR_RATE_HZ,
-    PlannedScenario,
-    check_generation,
-    choose_target,
-    derived_seed,
-    nominal_scene,
-    plan_scenario,
-    plan_scenarios,
-    simulation_window,
-)
 from coster_sumo.defects import attach_labels, check_avoidable, check_reaction_time, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError, SumoError, not_found
-from coster_sumo.formats.scene_folder import converted_scene_file
+from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.method.collision_time import PRIOR_RATE_HZ
+from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
+from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import progress_bar
+from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
+from coster_sumo.scenario import ScenarioSource, choose_target, nominal_scene
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
-from coster_sumo.snapshot import SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -90,17 +83,14 @@ class RunOptions:
         return list(dict.fromkeys((self.spec.target, *self.more_targets)))
 
 
-def failed_variants(summary: dict[str, Any]) -> list[dict[str, Any]]:
-    """The variants of a one-target summary whose SUMO pass failed (crash, timeout): adversary, t_col, reason."""
-    return [f for s in summary.get("snapshots", []) for f in s["generation"].get("failed", [])]
-
-
-def run(opts: RunOptions) -> dict[str, Any]:
-    """Run the whole pipeline; returns the summary (also written to OUT/summary.json).
+def run(opts: RunOptions) -> RunResult:
+    r"""Run the whole pipeline; returns its result (summary.json in OUT is its JSON).
 
     With several targets (``more_targets``) they share the nominal pass and its held copies; each
     gets its own folder ``OUT/<target>/`` laid out as a one-target OUT, and ``OUT/summary.json``
-    lists them (a target without a scenario is listed with its reason; the others go on).
+    lists them (a target without a scenario is listed with its reason; the others go on): the
+    result is then a :class:`~coster_sumo.results.RunSummary` of their
+    :class:`~coster_sumo.results.TargetResult`\ s.
     """
     check_generation(opts.generation)
     check_avoidable(opts.avoidable)
@@ -109,8 +99,7 @@ def run(opts: RunOptions) -> dict[str, Any]:
         raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
     if not opts.spec.config.is_file():
         raise not_found(opts.spec.config)
-    converted = converted_scene_file(opts.spec.config) is not None
-    end = None if converted else simulation_window(opts.spec)[1]  # a bad window is one line before any work
+    source = ScenarioSource.resolve(opts.spec)  # a bad window is one line before any work
     if opts.planner is not None:
         check_planner(opts.planner)
     spec = opts.spec
@@ -125,8 +114,7 @@ def run(opts: RunOptions) -> dict[str, Any]:
         clean_leftovers(opts.out)
         # again under the lock: another command may have written OUT since the first check
         check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
-        summary = _run_locked(opts, converted, end, targets, named, timings)
-    return summary
+        return _run_locked(opts, source, targets, named, timings)
 
 
 def run_inputs(config: Path) -> list[Path]:
@@ -138,10 +126,11 @@ def run_inputs(config: Path) -> list[Path]:
     return [config, *cfg.net_files, *cfg.route_files, *cfg.additional_files]
 
 
-def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: list[str | None],
-                named: list[str], timings: dict[str, float]) -> dict[str, Any]:
+def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | None], named: list[str],
+                timings: dict[str, float]) -> RunResult:
     """:func:`run` once its output folder is checked and locked."""
-    spec = opts.spec
+    spec, converted = opts.spec, source.converted
+    end = source.window[1] if source.window is not None else None
     several = len(targets) > 1
     staging = new_staging(opts.out)
     # an adversary appears up to its horizon before t_col, which may come right after the target departs
@@ -155,36 +144,19 @@ def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: l
         extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
         with _bar(opts, "nominal pass", "sim s") as bar:
             clock = None if end is None else _SimClock(bar, end)
-            scene, converted = nominal_scene(spec, traci=opts.traci, hold=None if converted else held,
+            scene, converted = nominal_scene(source, traci=opts.traci, hold=None if converted else held,
                                              additional=extra, progress=clock.update if clock else None,
                                              more_targets=named[1:])
         timings["nominal_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         drivable = DrivableArea.from_road_map(scene.road_map)
         timings["drivable_s"] = time.perf_counter() - t0
+        result: RunResult
         if not several:
-            summary = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
+            one = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
+            result = TargetResult.from_json(plain_json(one), opts.out)
         else:
-            listed: list[dict[str, Any]] = []
-            taken = {"summary.json"}
-            for tid in named:
-                folder = staging / target_folder(tid, taken)
-                folder.mkdir()
-                try:
-                    one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
-                except InputError as exc:  # this target has no scenario; the others go on
-                    shutil.rmtree(folder, ignore_errors=True)
-                    listed.append({"target": tid, "error": str(exc)})
-                    continue
-                listed.append({"target": tid, "folder": folder.name, **{k: one[k] for k in _LISTED},
-                               "failed_variants": len(failed_variants(one))})
-            if not any("folder" in t for t in listed):
-                raise InputError("; ".join(t["error"] for t in listed))
-            summary = {"config": str(spec.config), "targets": listed, "num_targets": len(listed),
-                       **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
-                       "nominal_until_s": float(scene.timestamps[-1]),
-                       "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()}
-            write_json(staging / "summary.json", summary)
+            result = _several_targets(opts, scene, named, drivable, held, planner, staging, timings)
         publish(staging, opts.out, kind="run")
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -192,6 +164,36 @@ def _run_locked(opts: RunOptions, converted: bool, end: float | None, targets: l
     finally:
         if held is not None:
             held.close()
+    return result
+
+
+def _several_targets(opts: RunOptions, scene: Scene, named: list[str], drivable: DrivableArea,
+                     held: HeldStates | None, planner: str, staging: Path, timings: dict[str, float]
+                     ) -> RunSummary:
+    """Every target of a run with several into its own folder of ``staging``, and the list of them
+    (``staging/summary.json``)."""
+    entries: list[TargetEntry] = []
+    taken = {"summary.json"}
+    for tid in named:
+        folder = staging / target_folder(tid, taken)
+        folder.mkdir()
+        try:
+            one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
+        except InputError as exc:  # this target has no scenario; the others go on
+            shutil.rmtree(folder, ignore_errors=True)
+            entries.append(TargetEntry(tid, error=str(exc)))
+            continue
+        plain = plain_json(one)
+        result = TargetResult.from_json(plain, opts.out / folder.name)  # where publish puts it
+        entries.append(TargetEntry(tid, folder.name, result=result,
+                                   extra={**{k: plain[k] for k in _LISTED}, "failed_variants": len(result.failed)}))
+    if not any(t.result is not None for t in entries):
+        raise InputError("; ".join(str(t.error) for t in entries))
+    summary = RunSummary(opts.out, str(opts.spec.config), tuple(entries), extra={
+        **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
+        "nominal_until_s": float(scene.timestamps[-1]),
+        "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()})
+    write_json(staging / "summary.json", summary.to_json())
     return summary
 
 
@@ -246,10 +248,7 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     tried: dict[str, Any] | None = None
     if opts.avoidable == "only":
         def draw(j: int) -> PlannedScenario | None:
-            try:
-                return plan_scenario(scene, target, derived_seed(spec.seed, 100 + j), opts.generation, drivable)
-            except NoSnapshot:
-                return None
+            return further_draw(scene, target, spec.seed, opts.generation, drivable, j)
 
         planned, tried = keep_avoidable(planned, labels, draw, label, opts.generation.variants * opts.snapshots)
         if not any(p.plans for p in planned):
@@ -322,7 +321,7 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Injectio
     t_col in the simulation (their ``info["dropped"]`` says so).
 
     The generation already drops plans that overlap another vehicle's nominal path
-    (:func:`coster_sumo.core.bystander_contact`), but in the simulation the other vehicles react to
+    (:func:`coster_sumo.method.filters.bystander_contact`), but in the simulation the other vehicles react to
     the adversary (they brake or change lanes when it appears): on A10KW a car 5.9 m clear of the
     plan's path in the nominal pass ran into it 0.8 s before t_col. Such an adversary stops there as
     a wreck (:class:`~coster_sumo.sim.inject.AdversaryController`), so the variant is not the

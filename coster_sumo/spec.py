@@ -1,6 +1,6 @@
 """What to generate: one scenario spec (which simulation, which target) and one generation config
 (which methods, how many samples and variants). Plain data, shared by ``run``, ``regress``,
-``eval scenarios`` and the Python API; the generation core (:mod:`coster_sumo.core`) takes both.
+``eval scenarios`` and the Python API; the generation core (:mod:`coster_sumo.method.generation`) takes both.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ class ScenarioSpec:
     Attributes:
         config: the ``.sumocfg`` (a converted WOMD scene or any SUMO configuration).
         seed: SUMO's ``--seed``, and with the scene's id the seed of every random choice of the
-            generation (``core.generation_rng``: scenes run with one seed do not draw alike).
+            generation (``method.generation.generation_rng``: scenes run with one seed do not draw alike).
         begin, end: [s] the recorded window (None: the configuration's own).
         target: the target vehicle id (None: the SDC of a converted scene, else ``ego``).
     """
@@ -50,11 +50,11 @@ class ScenarioSpec:
 
 @dataclass(frozen=True)
 class GenerationConfig:
-    """How to generate adversaries (the method choices live in registries, see :mod:`coster_sumo.core`).
+    """How to generate adversaries (the method choices live in registries, see :mod:`coster_sumo.method`).
 
     Attributes:
-        init: snapshot init, a key of :data:`coster_sumo.snapshot.SNAPSHOT_INITS`.
-        collision_time: a key of :data:`coster_sumo.snapshot.COLLISION_TIME_RULES`.
+        init: snapshot init, a key of :data:`coster_sumo.method.snapshot.SNAPSHOT_INITS`.
+        collision_time: a key of :data:`coster_sumo.method.collision_time.COLLISION_TIME_RULES`.
         rollout: a key of :data:`coster_sumo.rollout.methods.ROLLOUTS`.
         samples: trajectories oversampled per snapshot.
         variants: representatives kept (K-means K).

@@ -7,11 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import core
-from coster_sumo.core import ATTEMPTS_PER_TIME, COLLISION_TIMES, SNAPSHOT_SEPARATION_STEPS, plan_scenario
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.errors import NoSnapshot
+from coster_sumo.method import snapshot as placement
+from coster_sumo.method.collision_time import COLLISION_TIMES, SNAPSHOT_SEPARATION_STEPS
+from coster_sumo.method.generation import plan_scenario
+from coster_sumo.method.snapshot import ATTEMPTS_PER_TIME, SNAPSHOT_INITS
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.snapshot import SNAPSHOT_INITS, NoSnapshot
 from coster_sumo.spec import GenerationConfig
 from coster_sumo.synthetic import two_lane_road
 
@@ -29,9 +31,9 @@ def _record_places(monkeypatch, fail_at: set[int] | None = None):
     drawn: list[tuple[int, bool]] = []
     base = SNAPSHOT_INITS["random"]
 
-    def place(*args, strict=True, memo=None, **kw):
-        snap = base.place(*args, strict=strict, memo=memo, **kw)
-        drawn.append((snap.t_index, strict))
+    def place(request):
+        snap = base.place(request)
+        drawn.append((snap.t_index, request.strict))
         if fail_at is not None and snap.t_index in fail_at:
             raise NoSnapshot("test: no placement here", t_index=snap.t_index)
         return snap
@@ -62,17 +64,17 @@ def test_draws_whose_rollouts_all_hit_early_move_on_after_attempts_per_time(road
     calls = {"n": 0}
     cv = ROLLOUTS["cv"]
 
-    def generate(*args, **kw):  # the first ATTEMPTS_PER_TIME rollouts return nothing usable
+    def generate(request):  # the first ATTEMPTS_PER_TIME rollouts return nothing usable
         calls["n"] += 1
-        plans, xy, info = cv.generate(*args, **kw)
+        plans, xy, info = cv.generate(request)
         return (plans if calls["n"] > ATTEMPTS_PER_TIME else []), xy, info
 
     monkeypatch.setitem(ROLLOUTS, "cv", dataclasses.replace(cv, generate=generate))
     planned = plan_scenario(scene, target, 0, GEN, drivable)
     times = [t for t, _ in drawn]
     assert len(set(times[:ATTEMPTS_PER_TIME])) == 1 and times[ATTEMPTS_PER_TIME] < times[0]
-    assert [s for _, s in drawn[:ATTEMPTS_PER_TIME]] == [True] * core.STRICT_PER_TIME + [False] * (
-        ATTEMPTS_PER_TIME - core.STRICT_PER_TIME)  # closing-in placements first, then grazing ones
+    assert [s for _, s in drawn[:ATTEMPTS_PER_TIME]] == [True] * placement.STRICT_PER_TIME + [False] * (
+        ATTEMPTS_PER_TIME - placement.STRICT_PER_TIME)  # closing-in placements first, then grazing ones
     assert planned.info["attempt"] == ATTEMPTS_PER_TIME + 1 and planned.snapshot.t_index == times[-1]
 
 

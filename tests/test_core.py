@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from coster_sumo.cli import build_parser
-from coster_sumo.core import check_generation, generate_variants, missing_weights, plan_scenario
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
+from coster_sumo.method.collision_time import COLLISION_TIME_RULES, choose_collision_time
+from coster_sumo.method.generation import check_generation, generate_variants, missing_weights, plan_scenario
+from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.rollout.methods import ROLLOUTS
 from coster_sumo.scene import resample
 from coster_sumo.sim.planners import PLANNERS, check_planner
-from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS, choose_collision_time
 from coster_sumo.spec import GenerationConfig
 
 BASELINES = GenerationConfig(init="random", rollout="cv", collision_time="last")
@@ -35,7 +36,7 @@ def test_cli_choices_are_the_registries(command):
 
 
 def test_a_new_collision_time_rule_is_one_function_and_one_line(monkeypatch):
-    monkeypatch.setitem(COLLISION_TIME_RULES, "first", lambda window, rng, entropy: int(window[0]))
+    monkeypatch.setitem(COLLISION_TIME_RULES, "first", lambda request: int(request.window[0]))
     assert choose_collision_time(np.array([4, 5, 6]), "first", np.random.default_rng(0)) == 4
     check_generation(GenerationConfig(init="random", rollout="cv", collision_time="first"))
 
@@ -80,7 +81,7 @@ def test_constant_velocity_draws_one_snapshot_per_variant(synthetic_scene):
 
 
 def test_variants_round_trip_through_json(synthetic_scene, tmp_path: Path):
-    from coster_sumo.core import Variant
+    from coster_sumo.method.generation import Variant
 
     scene = synthetic_scene
     if scene.sdc_index < 0:

@@ -1,4 +1,4 @@
-"""Which plans touch the target too early to be kept (core.early_contact), on jittered log times."""
+"""Which plans touch the target too early to be kept (method.filters.early_contact), on jittered log times."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from coster_sumo import synthetic
-from coster_sumo.core import bystander_contact, early_contact
+from coster_sumo.method.filters import bystander_contact, early_contact
 from coster_sumo.plan import AdversaryPlan
 
 K_COL = 60  # t_col's step in the scene

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo.core import choose_target, generate_variants, nominal_scene
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.method.generation import generate_variants
+from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import inject_variants
 from coster_sumo.spec import GenerationConfig, ScenarioSpec

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo.core import choose_target, nominal_scene, plan_scenario
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.method.generation import plan_scenario
+from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.sim.inject import nominal_replay as replay_planner_for
 from coster_sumo.sim.inject import run_injection
 from coster_sumo.sim.planners import make_planner

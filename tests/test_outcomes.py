@@ -14,7 +14,7 @@ import pytest
 
 from coster_sumo import outputs
 from coster_sumo.cli import main
-from coster_sumo.core import PlannedScenario
+from coster_sumo.method.generation import PlannedScenario
 
 pytestmark = pytest.mark.sumo
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from coster_sumo import synthetic
-from coster_sumo.plausible import (
+from coster_sumo.method.plausible import (
     CONGESTED_SPEED_MPS,
     VEHICLE_CLASSES,
     local_speed,
@@ -67,15 +67,15 @@ def test_moving_speed_never_draws_the_stopped_class_nor_outruns_the_traffic():
 
 def test_a_cyclist_target_gets_a_snapshot():
     """The prior's regions follow the target's own pose, whatever its object type (fkk_in's target is a bicycle)."""
+    from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest
     from coster_sumo.scene import ObjectType, resample
-    from coster_sumo.snapshot import SNAPSHOT_INITS
 
     scene = synthetic.two_lane_road()
     kinds = scene.tracks.object_type.copy()
     kinds[0] = ObjectType.CYCLIST
     cyclist = dataclasses.replace(scene, tracks=dataclasses.replace(scene.tracks, object_type=kinds))
-    snaps = [SNAPSHOT_INITS["snapshot"].place(resample(s, 2.0), 0, np.random.default_rng(0), None, "entropy", 0,
-                                              None, ()) for s in (scene, cyclist)]
+    snaps = [SNAPSHOT_INITS["snapshot"].place(PlacementRequest(resample(s, 2.0), 0, np.random.default_rng(0), None,
+                                                               "entropy")) for s in (scene, cyclist)]
     assert all(np.isfinite(s.entropy[s.t_index]) for s in snaps)
 
 

@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import regions as rg
 from coster_sumo import synthetic
+from coster_sumo.prior import regions as rg
 from coster_sumo.scene import ObjectType, SignalState
 
 

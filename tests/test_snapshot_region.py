@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.errors import NoSnapshot
+from coster_sumo.method.snapshot import prior_snapshot
 from coster_sumo.scene import resample
-from coster_sumo.snapshot import NoSnapshot, prior_snapshot
 
 
 def test_the_adversary_never_comes_from_the_targets_own_region(synthetic_scene):

@@ -9,9 +9,10 @@ import pytest
 from conftest import visible_lines
 
 from coster_sumo.cli import main
-from coster_sumo.core import choose_target, nominal_scene, plan_scenario, simulation_window
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
+from coster_sumo.method.generation import plan_scenario
+from coster_sumo.scenario import choose_target, nominal_scene, simulation_window
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 REPO = Path(__file__).resolve().parents[1]

@@ -33,8 +33,8 @@ from coster_sumo.batch.sources import (
     task_folders,
 )
 from coster_sumo.batch.store import rate_with_ci, read_json
-from coster_sumo.core import missing_weights
 from coster_sumo.errors import InputError
+from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
     circular_std_deg,
     collision_position_diversity,
@@ -85,8 +85,8 @@ def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[in
 
 def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: nominal pass of one scene (cached .npz) and its speed/acceleration histograms."""
-    from coster_sumo.core import choose_target
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
+    from coster_sumo.scenario import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scene, _, path = nominal_for(spec, Path(payload["scenes_dir"]))
@@ -115,12 +115,13 @@ def nominal_speeds_by_lane_type(scene: Any) -> dict[str, list[int]]:
 
 def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: one generator on one scene; every variant injected; per-variant records + histograms."""
-    from coster_sumo.core import choose_target, generate_variants, missing_weights
     from coster_sumo.drivable import DrivableArea
+    from coster_sumo.errors import NoSnapshot
+    from coster_sumo.method.generation import generate_variants, missing_weights
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
+    from coster_sumo.scenario import choose_target
     from coster_sumo.scene import LaneType, load_scene
     from coster_sumo.sim.inject import inject_variant
-    from coster_sumo.snapshot import NoSnapshot
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scenes_dir = Path(payload["scenes_dir"])
@@ -408,10 +409,10 @@ def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: d
     variants of one scene share their snapshot) count as one draw repeated as often; a record
     without the key is a draw of its own.
     ``size_in_class``: share of adversaries whose length and width both lie in the range of one
-    vehicle class of the corpus (:data:`~coster_sumo.plausible.VEHICLE_CLASSES`).
+    vehicle class of the corpus (:data:`~coster_sumo.method.plausible.VEHICLE_CLASSES`).
     """
+    from coster_sumo.method.plausible import VEHICLE_CLASSES
     from coster_sumo.metrics import SPEED_BINS, js_divergence
-    from coster_sumo.plausible import VEHICLE_CLASSES
 
     rows = [r for r in records if r.get("adversary_speed") is not None]
     out: dict[str, Any] = {"VDD_tcol": None, "VDD_tcol_floor": None, "size_in_class": None,

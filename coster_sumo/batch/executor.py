@@ -565,7 +565,8 @@ def probe_task(payload: dict[str, Any]) -> dict[str, Any]:
 
 
 # modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
-SUMO_TASK_MODULES = ("libsumo", "coster_sumo.core", "coster_sumo.sim.inject", "coster_sumo.outputs",
+SUMO_TASK_MODULES = ("libsumo", "coster_sumo.scenario", "coster_sumo.method.generation", "coster_sumo.sim.inject",
+                     "coster_sumo.outputs",
                      "coster_sumo.drivable", "pyarrow.parquet")
 # the preload of tasks that generate scenarios: SUMO, torch and the models' code, imported by a fork
 # server (coster_sumo/batch/task_imports.py) so that no task imports them again and this process

@@ -35,13 +35,12 @@ from coster_sumo.batch.sources import (
     task_folders,
 )
 from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
-from coster_sumo.core import Variant, check_generation
 from coster_sumo.defects import check_avoidable, check_reaction_time, defect_rates, escape_dict
-from coster_sumo.errors import InputError
+from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.method.generation import Variant, check_generation
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
-from coster_sumo.snapshot import NoSnapshot
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.weights import WEIGHT_FILES
 
@@ -51,8 +50,9 @@ ESCAPE_PLANNER = "escape"  # the reference planner: the target drives the varian
 
 def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Task: nominal pass + variants of one scene -> ``plans/<scene_key>.json`` (+ the scene's .npz)."""
-    from coster_sumo.core import choose_target, generate_variants
     from coster_sumo.drivable import DrivableArea
+    from coster_sumo.method.generation import generate_variants
+    from coster_sumo.scenario import choose_target
 
     t0 = time.perf_counter()
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
@@ -84,8 +84,8 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
                    drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, Any]]:
     """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.defects`);
     with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws."""
-    from coster_sumo.core import derived_seed, generate_variants
     from coster_sumo.defects import EXTRA_DRAWS, label_plans
+    from coster_sumo.method.generation import derived_seed, generate_variants
 
     reaction = float(payload.get("reaction_time", 1.0))
 

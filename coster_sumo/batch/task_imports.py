@@ -19,11 +19,12 @@ with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.St
 import pyarrow.parquet  # noqa: F401, E402
 import torch  # noqa: F401, E402
 
-import coster_sumo.core  # noqa: F401, E402
 import coster_sumo.drivable  # noqa: F401, E402
+import coster_sumo.method.generation  # noqa: F401, E402
+import coster_sumo.method.snapshot  # noqa: F401, E402
 import coster_sumo.outputs  # noqa: F401, E402
 import coster_sumo.prior.infer  # noqa: F401, E402
 import coster_sumo.rollout.checkpoint  # noqa: F401, E402
 import coster_sumo.rollout.sample  # noqa: F401, E402
+import coster_sumo.scenario  # noqa: F401, E402
 import coster_sumo.sim.inject  # noqa: F401, E402
-import coster_sumo.snapshot  # noqa: F401, E402

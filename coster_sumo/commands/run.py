@@ -11,10 +11,12 @@ from typing import Any
 
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.method.collision_time import COLLISION_TIME_RULES
+from coster_sumo.method.snapshot import SNAPSHOT_INITS
+from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.run import RunOptions, failed_variants
+from coster_sumo.run import RunOptions
 from coster_sumo.run import run as run_scenario
-from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 
@@ -148,23 +150,17 @@ def run(args: argparse.Namespace) -> int:
                       overwrite=getattr(args, "overwrite", False), timeout=_positive_timeout(args),
                       copy_outside=getattr(args, "copy_outside", False),
                       reaction_time=getattr(args, "reaction_time", 1.0), avoidable=getattr(args, "avoidable", "any"))
-    summary = _supervised_run(opts)
-    folders = [args.out] if "targets" not in summary else []
-    if "targets" in summary:  # several targets: one folder each
-        import json
-
-        for t in summary["targets"]:
-            if "folder" not in t:
-                lines.append(f"target {t['target']}: no scenario ({t['error']})")
-                continue
-            folder = args.out / t["folder"]
-            one = json.loads((folder / "summary.json").read_text())
-            lines += target_lines(one)
-            failed += [(str(t["target"]), f) for f in failed_variants(one)]
-            folders.append(folder)
-    else:
-        lines += target_lines(summary)
-        failed = [(str(summary["target"]), f) for f in failed_variants(summary)]
+    result = _supervised_run(opts)
+    entries = result.targets if isinstance(result, RunSummary) else (TargetEntry(result.target, result=result),)
+    results: list[TargetResult] = []
+    for entry in entries:  # several targets: one folder each
+        if entry.result is None:
+            lines.append(f"target {entry.target}: no scenario ({entry.error})")
+            continue
+        results.append(entry.result)
+        lines += target_lines(entry.result.to_json())
+        failed += [(entry.target, f) for f in entry.result.failed]
+    folders = [one.folder for one in results]
     for target, f in failed:  # one line each, on stderr like every failure; the other variants are kept
         print(f"coster-sumo: error: {args.config}: target {target}, adversary {f['candidate']} (t_col "
               f"{f['t_col']:.1f} s): {f['reason']}; its variant is left out, the others are kept",
@@ -172,9 +168,9 @@ def run(args: argparse.Namespace) -> int:
     if export != "sumo":
         from coster_sumo.exports.run_folder import OSC_DIR, export_run
 
-        for folder in folders:
-            export_run(folder, export)
-            lines.append(f"OpenSCENARIO: {folder}/variants/*/{OSC_DIR}/")
+        for one in results:
+            export_run(one, export)
+            lines.append(f"OpenSCENARIO: {one.folder}/variants/*/{OSC_DIR}/")
     if not args.quiet:  # --quiet: no progress bars and no file list, the results still
         renders = "; renders: {f}/overview.png, {f}/variants/*/render.png" if not args.no_render else ""
         lines += [f"wrote {f}/summary.json" + renders.format(f=f) for f in folders]
@@ -185,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0  # 1: the work ran, some variants failed (each named above)
 
 
-def _supervised_run(opts: RunOptions) -> dict[str, Any]:
+def _supervised_run(opts: RunOptions) -> RunResult:
     """:func:`coster_sumo.run.run` in a child process: a SUMO crash is one line, and whatever stops
     the run (a crash, Ctrl-C) leaves nothing beside OUT (the old OUT, if any, stays as it was).
 
@@ -199,15 +195,14 @@ def _supervised_run(opts: RunOptions) -> dict[str, Any]:
     if "torch" in sys.modules:
         return run_scenario(opts)
     try:
-        summary: dict[str, Any] = run_supervised(functools.partial(run_scenario, opts),
-                                                 f"run of {opts.spec.config}")
+        result: RunResult = run_supervised(functools.partial(run_scenario, opts), f"run of {opts.spec.config}")
     except BaseException as exc:
         if not isinstance(exc, InputError):  # an input error stopped it before it wrote anything
             # the child's own children (held copies) die with it: wait for them to let go of the lock
             with contextlib.suppress(CosterError, OSError), OutputLock(opts.out, wait_s=10.0):
                 clean_leftovers(opts.out)
         raise
-    return summary
+    return result
 
 
 def _positive_timeout(args: argparse.Namespace) -> float | None:

@@ -8,7 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.snapshot import COLLISION_TIME_RULES, SNAPSHOT_INITS
+from coster_sumo.method.collision_time import COLLISION_TIME_RULES
+from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest
 
 
 def register(cli: Any) -> None:
@@ -30,7 +31,7 @@ def register(cli: Any) -> None:
 
 
 def _scene(args: argparse.Namespace) -> Any:
-    from coster_sumo.core import nominal_scene
+    from coster_sumo.scenario import nominal_scene
     from coster_sumo.spec import ScenarioSpec
 
     src: Path = args.source
@@ -47,11 +48,11 @@ def _scene(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     from coster_sumo import viz
-    from coster_sumo.core import choose_target
     from coster_sumo.drivable import DrivableArea
-    from coster_sumo.errors import InputError
+    from coster_sumo.errors import InputError, NoSnapshot
+    from coster_sumo.method.snapshot import prior_snapshot
+    from coster_sumo.scenario import choose_target
     from coster_sumo.scene import resample
-    from coster_sumo.snapshot import NoSnapshot, prior_snapshot
 
     scene = _scene(args)
     target = choose_target(scene, args.target, args.source)
@@ -64,8 +65,8 @@ def run(args: argparse.Namespace) -> int:
             snap = prior_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed,
                                   models_dir=args.models, regions_out=regions)
         else:
-            snap = SNAPSHOT_INITS[args.init].place(low, target, rng, drivable, args.collision_time, args.seed,
-                                                   args.models)
+            snap = SNAPSHOT_INITS[args.init].place(PlacementRequest(low, target, rng, drivable, args.collision_time,
+                                                                    args.seed, args.models))
     except NoSnapshot as exc:
         raise InputError(f"{args.source}: no collision snapshot for target "
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None

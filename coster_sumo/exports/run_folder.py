@@ -23,6 +23,7 @@ from coster_sumo.exports.sumo import FCD_FILE, VTYPES_FILE
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, read_trajectories_csv, select_near, write_selection
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import refresh_marker
+from coster_sumo.results import RunResult, RunSummary, TargetResult, read_run
 
 FORMATS = ("sumo", "openscenario", "all")
 OSC_DIR = "openscenario"
@@ -122,11 +123,13 @@ def available_formats() -> str:
     return "all"
 
 
-def export_run(run_out: Path, fmt: str = "all", radius: float | None = None,
+def export_run(run: Path | RunResult, fmt: str = "all", radius: float | None = None,
                progress: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
-    """Export every variant of ``run_out`` in ``fmt`` (sumo | openscenario | all); one dict per variant
+    """Export every variant of a run in ``fmt`` (sumo | openscenario | all); one dict per variant
     (``skipped``: why a variant has no export, where the run could not write its SUMO folder).
-    ``progress(done, total)`` is called after every variant."""
+
+    ``run``: the result :func:`coster_sumo.run.run` returned, or the output folder of an earlier run
+    (its summary.json is read). ``progress(done, total)`` is called after every variant."""
     if fmt not in FORMATS:
         raise InputError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
     if fmt in ("openscenario", "all"):
@@ -134,32 +137,34 @@ def export_run(run_out: Path, fmt: str = "all", radius: float | None = None,
 
         require_extra()
         radius = DEFAULT_RADIUS_M if radius is None else radius
-    run_out = Path(run_out)
-    if not run_out.is_dir():
-        raise not_found(run_out, "folder")
-    summary = _load_json(run_out / "summary.json")
-    results: list[dict[str, Any]] = []
-    if "targets" in summary:  # a run with several targets: one run folder per target
-        results = [{**r, "target": t["target"]} for t in summary["targets"] if "folder" in t
-                   for r in export_run(run_out / str(t["folder"]), fmt, radius, progress)]
-        refresh_marker(run_out)
+    result = run if isinstance(run, TargetResult | RunSummary) else read_run(Path(run))
+    if isinstance(result, RunSummary):  # a run with several targets: one run folder per target
+        results = [{**r, "target": t.target} for t in result.targets if t.folder is not None
+                   for r in export_run(t.result or result.folder / t.folder, fmt, radius, progress)]
+        refresh_marker(result.folder)
         return results
-    if "variants" not in summary:
-        raise InputError(f"{run_out / 'summary.json'}: not the summary of a `coster-sumo run` output")
-    for record in summary["variants"]:
+    return _export_target(result, fmt, float(radius or 0.0), progress)
+
+
+def _export_target(result: TargetResult, fmt: str, radius: float,
+                   progress: Callable[[int, int], None] | None) -> list[dict[str, Any]]:
+    """:func:`export_run` of one target's result."""
+    summary = result.to_json()
+    results: list[dict[str, Any]] = []
+    for variant in result.variants:
         if progress is not None:
-            progress(len(results), len(summary["variants"]))
-        vdir = run_out / "variants" / str(record["variant"])
-        res: dict[str, Any] = {"variant": record["variant"]}
-        if record.get("export_error"):  # the run could not write its SUMO folder, which both formats read
-            results.append({**res, "skipped": record["export_error"]})
+            progress(len(results), len(result.variants))
+        vdir = result.folder / "variants" / str(variant.variant)
+        res: dict[str, Any] = {"variant": variant.variant}
+        if variant.extra.get("export_error"):  # the run could not write its SUMO folder, which both formats read
+            results.append({**res, "skipped": variant.extra["export_error"]})
             continue
         if fmt in ("sumo", "all"):
             res["sumo"] = sumo_export(vdir)
         if fmt in ("openscenario", "all"):
-            res["openscenario"] = openscenario_export(vdir, summary, record, float(radius or 0.0))
+            res["openscenario"] = openscenario_export(vdir, summary, variant.to_json(), radius)
         results.append(res)
     if progress is not None:
-        progress(len(results), len(summary["variants"]))
-    refresh_marker(run_out)  # the files written here are the tool's: a later --overwrite may replace them
+        progress(len(results), len(result.variants))
+    refresh_marker(result.folder)  # the files written here are the tool's: a later --overwrite may replace them
     return results

@@ -1,9 +1,9 @@
 """``coster-sumo scenarios build``: nominal scenes and generated variants into a scenario set.
 
 For every source (a SUMO configuration or a converted WOMD scene) the nominal pass is recorded
-once (:func:`coster_sumo.core.nominal_scene`); its scene is a nominal scenario (the episode starts
+once (:func:`coster_sumo.scenario.nominal_scene`); its scene is a nominal scenario (the episode starts
 at the target's departure). Unless the method is ``nominal``, the generator then plans adversaries
-against the target (:func:`coster_sumo.core.plan_scenarios`), and each kept plan becomes a variant:
+against the target (:func:`coster_sumo.method.generation.plan_scenarios`), and each kept plan becomes a variant:
 the same recorded pass with the adversary's plan sampled at 10 Hz as one more agent, the episode
 starting ``lead_s`` before the adversary appears. Adversarial sets keep the nominal scenes too
 (the paper trains on adversarial scenes mixed with nominal ones).
@@ -153,10 +153,11 @@ def _crop_steps(scene: Scene, t0: float, t1: float) -> Scene:
 def build_set(opts: BuildOptions) -> dict[str, Any]:
     """Build (or resume) the scenario set ``opts.out``; returns the manifest's counts."""
     from coster_sumo.batch.sources import parse_sources
-    from coster_sumo.core import check_generation, choose_target, nominal_scene, plan_scenarios
     from coster_sumo.drivable import DrivableArea
+    from coster_sumo.errors import NoSnapshot
     from coster_sumo.formats.scene_folder import LANE_MAP_FILE, converted_scene_file
-    from coster_sumo.snapshot import NoSnapshot
+    from coster_sumo.method.generation import check_generation, plan_scenarios
+    from coster_sumo.scenario import choose_target, nominal_scene
 
     if opts.method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, not {opts.method!r}")

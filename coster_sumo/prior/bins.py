@@ -5,7 +5,7 @@ Classes (defaults from the docs/method.md, Reference figures):
   class = ix * 40 + iy;
 - heading: 144 bins over [-heading_range, heading_range] of the heading relative to the region
   direction; the range defaults to 45 degrees, the assignment tolerance of
-  :mod:`coster_sumo.regions` (an agent further off is never assigned), i.e. 0.625 degrees a bin;
+  :mod:`coster_sumo.prior.regions` (an agent further off is never assigned), i.e. 0.625 degrees a bin;
 - speed: class 0 = stopped (< 0.5 m/s), classes 1..60 = log-spaced bins from 0.5 to 45 m/s
   (faster speeds fall in the last bin); the stopped class decodes to 0 m/s. 45 m/s (162 km/h)
   covers the corpus' freeways (p95 38.5 m/s on roads over 90 km/h); checkpoints trained with the

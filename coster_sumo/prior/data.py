@@ -27,7 +27,7 @@ from coster_sumo.prior.features import (
     target_classes,
     visible_outside,
 )
-from coster_sumo.regions import (
+from coster_sumo.prior.regions import (
     NEIGHBOURHOOD_RADIUS,
     REGION_SPACING,
     REGION_WIDTH,
@@ -46,7 +46,7 @@ PRIOR_HZ = 2.0  # the prior works on scenes downsampled to 2 Hz
 
 @dataclass(frozen=True)
 class CompactOccupancy:
-    """Sparse :class:`~coster_sumo.regions.Occupancy`.
+    """Sparse :class:`~coster_sumo.prior.regions.Occupancy`.
 
     Attributes:
         row: (T, R) int32 row of ``values`` for the occupied (step, region) pairs, -1 elsewhere.

@@ -20,7 +20,7 @@ Each region token has two parts:
   width / 2); all zeros for hidden regions.
 
 The model predicts presence and attributes of the *hidden* regions only, and the loss counts only
-them. Each agent occupies at most one region (see :mod:`coster_sumo.regions`), so hiding a region
+them. Each agent occupies at most one region (see :mod:`coster_sumo.prior.regions`), so hiding a region
 hides its agent entirely: the prediction of a hidden region can use the map, the signals and the
 agents in *other* (visible) regions through the context gating, never its own answer. Training
 draws the hidden set at random per sample (:func:`random_visibility`): all regions hidden (the pure
@@ -38,7 +38,7 @@ import numpy as np
 
 from coster_sumo.geometry import to_local
 from coster_sumo.prior.bins import AttributeBins
-from coster_sumo.regions import REGION_SPACING, Regions
+from coster_sumo.prior.regions import REGION_SPACING, Regions
 
 MAP_FEATURES = 19
 MAP_FEATURES_V1 = 17  # the map part before the speed limit was added

@@ -37,7 +37,7 @@ from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import ScenePriorData, at_prior_rate, prepare_scene, scene_tokens
 from coster_sumo.prior.features import Tokens
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
-from coster_sumo.regions import Regions
+from coster_sumo.prior.regions import Regions
 from coster_sumo.scene import Scene
 
 CHECKPOINT_FORMAT = "coster-sumo-prior"

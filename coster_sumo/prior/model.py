@@ -28,7 +28,7 @@ from torch import nn
 
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.features import AGENT_FEATURES, MAP_FEATURES
-from coster_sumo.regions import MAX_REGIONS, NEIGHBOURHOOD_RADIUS, REGION_SPACING, REGION_WIDTH
+from coster_sumo.prior.regions import MAX_REGIONS, NEIGHBOURHOOD_RADIUS, REGION_SPACING, REGION_WIDTH
 
 SMOOTHED = ("heading", "length", "width")
 LENGTH = ATTRIBUTES.index("length")

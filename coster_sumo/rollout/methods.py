@@ -7,10 +7,9 @@ pictures (or None) and an info dict. A new rollout is one function and one line 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -26,39 +25,67 @@ RolloutResult = tuple[list[AdversaryPlan], "np.ndarray | None", dict[str, Any]]
 
 
 @dataclass(frozen=True)
-class Rollout:
-    """A rollout method.
+class RolloutRequest:
+    """What a rollout is asked for: adversary plans that end in ``snapshot``.
 
     Attributes:
-        generate: (scene_2hz, target, snapshot, drivable, samples=, variants=, seed=, models_dir=)
-            -> (plans, samples_xy (N, T, 2) or None, info).
+        scene_2hz: the nominal scene at 2 Hz.
+        target: the target's agent index.
+        snapshot: the collision snapshot the plans end in.
+        drivable: the drivable area (None: no check).
+        samples: trajectories to oversample; variants: representatives to keep (K).
+        seed: the draw's seed; models_dir: the models folder (None: the shipped one).
+    """
+
+    scene_2hz: Scene
+    target: int
+    snapshot: CollisionSnapshot
+    drivable: DrivableArea | None
+    samples: int
+    variants: int
+    seed: int
+    models_dir: Path | None = None
+
+
+class RolloutMethod(Protocol):
+    """A rollout: (plans, samples_xy (N, T, 2) [m] or None, info) for one request."""
+
+    def __call__(self, request: RolloutRequest) -> RolloutResult: ...
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """A rollout method of ``--rollout``.
+
+    Attributes:
+        generate: the method itself.
         weights: files it needs from the models folder.
         one_per_snapshot: it yields one trajectory per snapshot, so a batch that wants K variants
             draws K snapshots.
     """
 
-    generate: Callable[..., RolloutResult]
+    generate: RolloutMethod
     weights: tuple[str, ...] = ()
     one_per_snapshot: bool = False
 
 
-def constant_velocity(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot, drivable: DrivableArea | None,
-                      *, samples: int, variants: int, seed: int, models_dir: Path | None) -> RolloutResult:
+def constant_velocity(request: RolloutRequest) -> RolloutResult:
     """Straight back along the snapshot heading at the snapshot speed, up to :data:`HORIZON_STEPS`."""
-    t = scene_2hz.timestamps
+    snapshot = request.snapshot
+    t = request.scene_2hz.timestamps
     h = min(HORIZON_STEPS, snapshot.t_index)
     times = t[snapshot.t_index - h: snapshot.t_index + 1]
     poses = constant_velocity_backward(snapshot.adversary, times - times[-1])  # (h+1, 3)
     return [AdversaryPlan.from_knots(times, poses, snapshot.adversary)], None, {"rollout": "constant_velocity"}
 
 
-def cvae(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot, drivable: DrivableArea | None,
-         *, samples: int, variants: int, seed: int, models_dir: Path | None) -> RolloutResult:
+def cvae(request: RolloutRequest) -> RolloutResult:
     """COSTER: oversample the time-reversed CVAE, K-means, refine with the motion vocabulary."""
     from coster_sumo.rollout.sample import plan_variants
 
-    return plan_variants(scene_2hz, target, snapshot, drivable, n=samples, k=variants, seed=seed,
-                         models_dir=models_dir)
+    r = request
+    return plan_variants(r.scene_2hz, r.target, r.snapshot, r.drivable, n=r.samples, k=r.variants, seed=r.seed,
+                         models_dir=r.models_dir)
 
 
 ROLLOUTS: dict[str, Rollout] = {

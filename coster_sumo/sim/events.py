@@ -22,11 +22,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.geometry import box_signed_distance, make_boxes, sat_overlap_depth
+from coster_sumo.geometry import CONTACT_TOLERANCE_M, box_signed_distance, make_boxes, sat_overlap_depth
 from coster_sumo.metrics import impact_angle_deg
 from coster_sumo.sim.session import VehicleStates
-
-CONTACT_TOLERANCE_M = 0.05  # [m] boxes closer than this are in contact (the snapshot's own tolerance)
 
 
 def _velocity(states: VehicleStates, i: int) -> np.ndarray:

@@ -175,6 +175,36 @@ def _ttc(states: VehicleStates, a: int, b: int) -> float:
     return (-bb - math.sqrt(disc)) / (2 * aa)
 
 
+@dataclass(frozen=True)
+class PassSettings:
+    """How one injection pass runs and what it checks.
+
+    Attributes:
+        end: [s] the simulation time the pass ends at (at the latest).
+        begin: [s] the simulation time it begins at (None: the configuration's).
+        drivable: the drivable area for the off-road checks (None: none).
+        actors: what commands vehicles before every step besides the planner and the adversary
+            (the log replayer of a converted scene).
+        detect_events: check events; without, and with ``freeze_at`` [s] (the first contact of a
+            pass with detection), the adversary still becomes a wreck then, so the pass plays out
+            the same (the overhead benchmark compares the two).
+        surroundings_m: [m] record and check only the vehicles this close to the target (and the
+            adversary wherever it is), and stop once the target has arrived; None: everything.
+        post_contact_s: [s] stop this long after the adversary's first contact with the target, or
+            after the later of its first contact with another vehicle (it stays there, a wreck) and
+            t_col; None: run to ``end``.
+    """
+
+    end: float
+    begin: float | None = None
+    drivable: DrivableArea | None = None
+    actors: tuple[StepActor, ...] = ()
+    detect_events: bool = True
+    freeze_at: float | None = None
+    surroundings_m: float | None = None
+    post_contact_s: float | None = None
+
+
 def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
                   seed: int | None, end: float, begin: float | None = None,
                   drivable: DrivableArea | None = None, actors: tuple[StepActor, ...] = (),
@@ -183,25 +213,28 @@ def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None
                   surroundings_m: float | None = None, post_contact_s: float | None = None) -> InjectionResult:
     """Run one pass of ``config`` from a fresh start with the adversary ``plan`` injected.
 
-    ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner).
-    ``detect_events=False`` skips event detection; with ``freeze_at`` [s] (the first contact of a
-    pass with detection) the adversary still becomes a wreck then, so the pass plays out the same
-    (the overhead benchmark compares the two).
-
-    ``surroundings_m`` [m]: record and check only the vehicles this close to the target (and the
-    adversary wherever it is), and stop once the target has arrived; None records everything.
-    ``post_contact_s`` [s]: stop this long after the adversary's first contact with the target, or
-    after the later of its first contact with another vehicle (it stays there, a wreck) and t_col.
+    ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner). The
+    other keywords after ``seed`` but ``traci``, ``workdir`` and ``session_kwargs`` are the
+    :class:`PassSettings`.
     """
+    settings = PassSettings(end=end, begin=begin, drivable=drivable, actors=actors, detect_events=detect_events,
+                            freeze_at=freeze_at, surroundings_m=surroundings_m, post_contact_s=post_contact_s)
+    return run_pass(config, target_id, plan, planner, settings, seed=seed, traci=traci, workdir=workdir,
+                    session_kwargs=session_kwargs)
+
+
+def run_pass(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner,
+             settings: PassSettings, *, seed: int | None, traci: bool = False, workdir: Path | None = None,
+             session_kwargs: dict[str, Any] | None = None) -> InjectionResult:
+    """:func:`run_injection` with its settings as one object: a fresh session of ``config``
+    (``seed``, libsumo or ``traci``, the planner's files written into ``workdir``) and one pass."""
     workdir = Path(workdir) if workdir is not None else Path(".")
     kwargs = dict(session_kwargs or {})
     additional = planner.additional_files(workdir)
     if additional:
         kwargs["additional"] = [*kwargs.get("additional", []), *additional]
-    with SumoSession(config, seed=seed, begin=begin, end=end, traci=traci, **kwargs) as session:
-        return continue_injection(session, target_id, plan, planner, end=end, begin=begin, drivable=drivable,
-                                  actors=actors, detect_events=detect_events, freeze_at=freeze_at,
-                                  surroundings_m=surroundings_m, post_contact_s=post_contact_s)
+    with SumoSession(config, seed=seed, begin=settings.begin, end=settings.end, traci=traci, **kwargs) as session:
+        return InjectionPass(session, target_id, plan, planner, settings).run()
 
 
 def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
@@ -214,80 +247,115 @@ def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan
     The planner's additional files must already be loaded (a forked copy of a session started with
     them, see :mod:`coster_sumo.sim.hold`). Events are checked, and the pass recorded, from now on.
     """
-    adversary = (AdversaryController(plan, step_length=session.step_length, freeze_at=freeze_at)
-                 if plan is not None else None)
-    adv_id = plan.vehicle_id if plan is not None else "__none__"
-    # what nothing reacts to during the pass is checked in batches of 20 s (see EventDetector)
-    detector = EventDetector(target_id, adv_id, drivable, batch=200)
-    flags: dict[str, Any] = {"arrived": False, "min_ttc": float("inf"), "event_s": 0.0, "contact": False,
-                             "contact_time": None, "stop_after": None}
-    t0 = _time.perf_counter()
-    planner.setup(session, target_id)
-    takeover = plan.t_start if plan is not None else -math.inf  # [s] the planner drives the target from here
+    settings = PassSettings(end=end, begin=begin, drivable=drivable, actors=actors, detect_events=detect_events,
+                            freeze_at=freeze_at, surroundings_m=surroundings_m, post_contact_s=post_contact_s)
+    return InjectionPass(session, target_id, plan, planner, settings).run()
 
-    def before(sess: SumoSession) -> None:
+
+class InjectionPass:
+    """One injection pass on a running session, from its current time on; its fields are its state.
+
+    Every step: :meth:`before_step` (the actors, the planner once the adversary's plan starts, the
+    adversary), SUMO steps, :meth:`after_step` (arrival, events, the wreck, the time to collision).
+    """
+
+    def __init__(self, session: SumoSession, target_id: str, plan: AdversaryPlan | None, planner: Planner,
+                 settings: PassSettings) -> None:
+        self.session, self.target_id, self.plan, self.planner, self.settings = (
+            session, target_id, plan, planner, settings)
+        self.adversary = (AdversaryController(plan, step_length=session.step_length, freeze_at=settings.freeze_at)
+                          if plan is not None else None)
+        self.adv_id = plan.vehicle_id if plan is not None else "__none__"
+        # what nothing reacts to during the pass is checked in batches of 20 s (see EventDetector)
+        self.detector = EventDetector(target_id, self.adv_id, settings.drivable, batch=200)
+        self.takeover = plan.t_start if plan is not None else -math.inf  # [s] the planner drives the target from here
+        self.arrived = False  # the target reached the end of its route
+        self.min_ttc = math.inf  # [s] before the adversary's contact with the target
+        self.event_s = 0.0  # [s] wall clock spent on events
+        self.contact = False  # the adversary touched the target
+        self.stop_after: float | None = None  # [s] the pass ends post_contact_s after this
+
+    def run(self) -> InjectionResult:
+        """Step to the end (or the stop after a contact), recording; the outcome."""
+        t0 = _time.perf_counter()
+        self.planner.setup(self.session, self.target_id)
+        s = self.settings
+        focus = None if s.surroundings_m is None else Focus(self.target_id, s.surroundings_m, extra_ids=(self.adv_id,))
+        scene = record(self.session, begin=s.begin, end=s.end, before_step=self.before_step,
+                       after_step=self.after_step, focus=focus)
+        t_ev = _time.perf_counter()
+        self.detector.flush()
+        self.event_s += _time.perf_counter() - t_ev
+        return self.result(scene, _time.perf_counter() - t0)
+
+    def before_step(self, sess: SumoSession) -> None:
         t_next = round(sess.time + sess.step_length, 9)
-        for actor in actors:
+        for actor in self.settings.actors:
             actor.before_step(sess, t_next)
-        if t_next >= takeover - TIME_EPS:  # until the adversary appears the target drives as in the nominal pass
-            planner.before_step(sess, target_id, t_next, target_id in sess.vehicle_ids())
-        if adversary is not None:
-            adversary.before_step(sess, t_next)
+        if t_next >= self.takeover - TIME_EPS:  # until the adversary appears the target drives as in the nominal pass
+            self.planner.before_step(sess, self.target_id, t_next, self.target_id in sess.vehicle_ids())
+        if self.adversary is not None:
+            self.adversary.before_step(sess, t_next)
 
-    def after(sess: SumoSession, states: VehicleStates) -> bool:
-        if target_id in sess.arrived_ids():
-            flags["arrived"] = True
-        if adversary is not None and adversary.added and adv_id in sess.arrived_ids():
+    def after_step(self, sess: SumoSession, states: VehicleStates) -> bool:
+        """True: the pass is over (``post_contact_s`` after the contact)."""
+        if self.target_id in sess.arrived_ids():
+            self.arrived = True
+        adversary = self.adversary
+        if adversary is not None and adversary.added and self.adv_id in sess.arrived_ids():
             adversary.gone = True  # SUMO removed it (should not happen while we drive it)
-        if not detect_events:
+        if not self.settings.detect_events:
             return False
         t_ev = _time.perf_counter()
-        new = detector.check(sess.time, states, sess.collisions())
+        new = self.detector.check(sess.time, states, sess.collisions())
         if adversary is not None:
-            if post_contact_s is not None and flags["stop_after"] is not None and \
-                    sess.time > flags["stop_after"] + post_contact_s + TIME_EPS:
+            post = self.settings.post_contact_s
+            if post is not None and self.stop_after is not None and sess.time > self.stop_after + post + TIME_EPS:
                 return True
             if new:
-                adversary.on_events(states, new)
-                if adversary.frozen_pose is not None:
-                    detector.settle_adversary()  # a wreck now: nothing reacts to its contacts
-                    if flags["stop_after"] is None:
-                        # it hit something else first: the target may still run into the wreck
-                        # up to its collision time, after that nothing more of the scenario happens
-                        flags["stop_after"] = max(sess.time, adversary.plan.t_col)
-                flags["contact"] = flags["contact"] or any(
-                    e.kind == "collision" and adv_id in e.vehicles and target_id in e.vehicles for e in new)
-                if flags["contact"] and flags["contact_time"] is None:
-                    flags["contact_time"] = sess.time
-                    flags["stop_after"] = sess.time
-            if adversary.added and not flags["contact"]:
-                tr, ar = detector.last_rows
+                self._on_events(adversary, sess.time, states, new)
+            if adversary.added and not self.contact:
+                tr, ar = self.detector.last_rows
                 if tr >= 0 and ar >= 0:
-                    flags["min_ttc"] = min(flags["min_ttc"], _ttc(states, tr, ar))
-        flags["event_s"] += _time.perf_counter() - t_ev
+                    self.min_ttc = min(self.min_ttc, _ttc(states, tr, ar))
+        self.event_s += _time.perf_counter() - t_ev
         return False
 
-    focus = None if surroundings_m is None else Focus(target_id, surroundings_m, extra_ids=(adv_id,))
-    scene = record(session, begin=begin, end=end, before_step=before, after_step=after, focus=focus)
-    t_ev = _time.perf_counter()
-    detector.flush()
-    flags["event_s"] += _time.perf_counter() - t_ev
-    wall = _time.perf_counter() - t0
-    contact = detector.first("collision", adv_id, target_id)
-    target_collided = any(e.kind == "collision" and target_id in e.vehicles for e in detector.events)
-    # the adversary's own trajectory ends at t_col: where the planner avoided it, it drives on at
-    # constant velocity (the module docstring), and leaving the road then is not the trajectory's
-    plan_end = plan.t_col + 0.5 * session.step_length + 1e-6 if plan is not None else math.inf
-    adv_off = any(e.kind == "off_road" and e.vehicles == [adv_id] and e.time <= plan_end for e in detector.events)
-    tgt_off = detector.first("off_road", target_id) is not None
-    in_scene = target_id in set(scene.tracks.ids.tolist())
-    still_running = in_scene and bool(scene.tracks.valid[scene.tracks.index_of(target_id), -1])
-    completed = (bool(flags["arrived"]) or still_running) and not target_collided and not tgt_off
-    return InjectionResult(scene=scene, events=list(detector.events), contact=contact,
-                           adversary_off_road=adv_off, target_off_road=tgt_off,
-                           target_arrived=bool(flags["arrived"]), route_completed=completed,
-                           min_ttc=float(flags["min_ttc"]) if contact is None else 0.0,
-                           wall_time_s=wall, extra={"event_detection_s": float(flags["event_s"])})
+    def _on_events(self, adversary: AdversaryController, now: float, states: VehicleStates,
+                   new: list[Event]) -> None:
+        """The adversary becomes a wreck at its first contact; the contact with the target starts
+        the post-contact horizon."""
+        adversary.on_events(states, new)
+        if adversary.frozen_pose is not None:
+            self.detector.settle_adversary()  # a wreck now: nothing reacts to its contacts
+            if self.stop_after is None:
+                # it hit something else first: the target may still run into the wreck
+                # up to its collision time, after that nothing more of the scenario happens
+                self.stop_after = max(now, adversary.plan.t_col)
+        touched = any(e.kind == "collision" and self.adv_id in e.vehicles and self.target_id in e.vehicles
+                      for e in new)
+        if touched and not self.contact:
+            self.stop_after = now
+        self.contact = self.contact or touched
+
+    def result(self, scene: Scene, wall_s: float) -> InjectionResult:
+        """The outcome of the pass recorded as ``scene``."""
+        detector, target_id, adv_id, plan = self.detector, self.target_id, self.adv_id, self.plan
+        contact = detector.first("collision", adv_id, target_id)
+        target_collided = any(e.kind == "collision" and target_id in e.vehicles for e in detector.events)
+        # the adversary's own trajectory ends at t_col: where the planner avoided it, it drives on at
+        # constant velocity (the module docstring), and leaving the road then is not the trajectory's
+        plan_end = plan.t_col + 0.5 * self.session.step_length + 1e-6 if plan is not None else math.inf
+        adv_off = any(e.kind == "off_road" and e.vehicles == [adv_id] and e.time <= plan_end for e in detector.events)
+        tgt_off = detector.first("off_road", target_id) is not None
+        in_scene = target_id in set(scene.tracks.ids.tolist())
+        still_running = in_scene and bool(scene.tracks.valid[scene.tracks.index_of(target_id), -1])
+        completed = (self.arrived or still_running) and not target_collided and not tgt_off
+        return InjectionResult(scene=scene, events=list(detector.events), contact=contact,
+                               adversary_off_road=adv_off, target_off_road=tgt_off,
+                               target_arrived=self.arrived, route_completed=completed,
+                               min_ttc=float(self.min_ttc) if contact is None else 0.0,
+                               wall_time_s=wall_s, extra={"event_detection_s": float(self.event_s)})
 
 
 # ----------------------------------------------------------------------------- one variant
@@ -341,19 +409,34 @@ def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: Adversar
             driver = LoggedPlanner() if planner_spec == "replay" else make_planner(planner_spec)
     elif driver is None:
         driver = make_planner(planner_spec, nominal_replay(scene, target))
-    end = float(scene.timestamps[-1]) + 1e-9
-    return run_injection(spec.config, target_id, plan, driver, seed=spec.seed, end=end, begin=spec.begin,
-                         drivable=drivable, actors=actors, detect_events=detect_events, freeze_at=freeze_at,
-                         traci=traci, workdir=workdir, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M,
-                         post_contact_s=post_contact_s)
+    settings = PassSettings(end=float(scene.timestamps[-1]) + 1e-9, begin=spec.begin, drivable=drivable,
+                            actors=actors, detect_events=detect_events, freeze_at=freeze_at,
+                            surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=post_contact_s)
+    return run_pass(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=traci, workdir=workdir)
 
 
-def _continue_held(session: SumoSession, payload: dict[str, Any]) -> InjectionResult:
+@dataclass(frozen=True)
+class HeldVariant:
+    """What a forked copy of the nominal pass needs to run one variant (:func:`_continue_held`).
+
+    Attributes:
+        target_id: the target; plan: the adversary's plan; planner: the planner spec.
+        nominal: the replay of the target's nominal trajectory (what ``replay`` and the planners
+            that take one follow).
+        settings: the pass's settings.
+    """
+
+    target_id: str
+    plan: AdversaryPlan
+    planner: str
+    nominal: ReplayPlanner
+    settings: PassSettings
+
+
+def _continue_held(session: SumoSession, job: HeldVariant) -> InjectionResult:
     """A variant's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
-    driver = make_planner(payload["planner"], payload["nominal"])
-    return continue_injection(session, payload["target_id"], payload["plan"], driver, end=payload["end"],
-                              drivable=payload["drivable"], surroundings_m=SURROUNDINGS_RADIUS_M,
-                              post_contact_s=payload["post_contact_s"])
+    driver = make_planner(job.planner, job.nominal)
+    return InjectionPass(session, job.target_id, job.plan, driver, job.settings).run()
 
 
 @dataclass(frozen=True)
@@ -395,10 +478,10 @@ def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[A
     target_id = str(scene.tracks.ids[target])
     nominal = nominal_replay(scene, target)
     end = float(scene.timestamps[-1]) + 1e-9
+    settings = PassSettings(end=end, drivable=drivable, surroundings_m=SURROUNDINGS_RADIUS_M,
+                            post_contact_s=post_contact_s)
     for h_index, members in groups.items():
-        jobs = [(_continue_held, {"target_id": target_id, "plan": plans[i], "planner": planner_spec,
-                                  "nominal": nominal, "end": end, "drivable": drivable,
-                                  "post_contact_s": post_contact_s}) for i in members]
+        jobs = [(_continue_held, HeldVariant(target_id, plans[i], planner_spec, nominal, settings)) for i in members]
         finished = held.run_each(held.holders[h_index], jobs, workers, timeout) if held is not None else []
         for i, (ok, value) in zip(members, finished, strict=True):
             results[i] = value if ok else VariantFailure(str(value))

@@ -1,24 +1,13 @@
-"""Collision time and collision snapshot (docs/method.md steps 3-4), and the random-offset baseline.
+"""Collision snapshot (docs/method.md step 4): placing the adversary at t_col, and the random-offset
+baseline. The collision time itself comes from :mod:`coster_sumo.method.collision_time`.
 
 Everything works on a 2 Hz scene (:func:`coster_sumo.scene.resample`).
-
-**Search window.** The collision step t_col is searched in [MARGIN_START, T - 1 - MARGIN_END]
-(2 Hz steps, both edges excluded): the first ``MARGIN_START`` = 5 steps (2.5 s) are skipped so that
-a backward rollout of useful length fits before the contact, and the last ``MARGIN_END`` = 5 steps
-so that the pass shows what happens after it. Short scenes shrink both margins proportionally. The
-target must be in the scene for the rollout horizon (5 s) before t_col and for ``AFTER_STEPS`` (5 s)
-after it, or up to the scene's end: not in its last seconds before it leaves the network.
-
-**Collision time** (``--collision-time``): ``entropy`` = the step of highest entropy of the mean
-predicted velocity distribution of the regions inside the target's ellipse (needs the prior,
-:mod:`coster_sumo.prior`); ``last`` = the last step of the window; ``random`` = a uniform step of
-the window (seeded).
 
 **Placement** (``--init snapshot``): in the ellipse at t_col, the region with the highest presence
 probability, leaving out the one the target itself fills (the most likely region of all, whose
 heads describe the target's own motion); heading, speed and size sampled from its heads and made
 plausible (a real vehicle class's size, no standstill in moving traffic:
-:mod:`coster_sumo.plausible`); the candidate box translated towards the target at fixed relative
+:mod:`coster_sumo.method.plausible`); the candidate box translated towards the target at fixed relative
 heading until the boxes touch; among the contact placements (from the expected position, and from
 each of the target's four sides) the one with the highest position log-probability is kept.
 Placements that overlap another agent or leave the drivable area are rejected, and so are
@@ -33,16 +22,17 @@ touches the target; same rejection rules, up to ``RANDOM_TRIES`` tries.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Sequence
+import dataclasses
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import shapely
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import CosterError
+from coster_sumo.errors import NoSnapshot
 from coster_sumo.geometry import (
     box_signed_distance,
     boxes_overlap,
@@ -50,95 +40,20 @@ from coster_sumo.geometry import (
     touch_translation,
     translate_boxes,
 )
-from coster_sumo.plausible import local_speeds, moving_speed_class, stop_plausible, vehicle_size
-from coster_sumo.rollout.methods import HORIZON_STEPS
+from coster_sumo.method.collision_time import (
+    choose_collision_time,
+    entropy_curve,
+    in_ellipse,
+    search_window,
+    target_pose,
+)
+from coster_sumo.method.plausible import local_speeds, moving_speed_class, stop_plausible, vehicle_size
 from coster_sumo.scene import Scene
 from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
-MARGIN_START = 5  # [2 Hz steps] skipped at the start of the window (a rollout must fit)
-MARGIN_END = 5  # [2 Hz steps] skipped at the end
-AFTER_STEPS = HORIZON_STEPS  # [2 Hz steps] the target stays in the network this long after t_col
 RANDOM_TRIES = 200
 START_DISTANCE_M = 30.0  # [m] candidates start this far out and are translated towards the target
 ADV_LENGTH_M, ADV_WIDTH_M = 4.5, 1.9  # [m] the baseline's adversary size (a sedan)
-
-
-class NoSnapshot(CosterError):
-    """The scene yields no collision snapshot; the message says why.
-
-    ``t_index``: the 2 Hz step of the collision time that had no acceptable placement, when one
-    was chosen (another collision time may still have one); None when the scene has none at all.
-    """
-
-    def __init__(self, message: str, t_index: int | None = None) -> None:
-        super().__init__(message)
-        self.t_index = t_index
-
-
-def search_window(scene: Scene, target: int, exclude: Collection[int] = ()) -> np.ndarray:
-    """2 Hz step indices where t_col may fall (see the module docstring), without ``exclude``."""
-    n = scene.num_steps
-    m0 = min(MARGIN_START, max(1, n // 4))
-    m1 = min(MARGIN_END, max(0, n // 4))
-    steps = np.arange(m0, n - m1)
-    valid = scene.tracks.valid[target]
-    since = np.concatenate([[0], np.cumsum(~valid)])  # invalid steps before each index
-    # the target must be there for the whole approach before t_col (the rollout's horizon, cut at
-    # the scene's start): an adversary that starts before the target exists can take the place the
-    # target departs from; and for AFTER_STEPS after it (cut at the scene's end): a vehicle about
-    # to leave the network is at the map's edge, where the prior sees half a neighbourhood, and a
-    # contact there shows nothing of what follows (docs/method.md, collision time)
-    ok = since[np.minimum(steps + AFTER_STEPS + 1, n)] - since[np.maximum(steps - HORIZON_STEPS, 0)] == 0
-    if len(exclude):
-        ok &= ~np.isin(steps, np.fromiter(exclude, np.int64))
-    return steps[ok]
-
-
-def _last_step(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
-    return int(window[-1])
-
-
-def _random_step(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
-    return int(rng.choice(window))
-
-
-def _highest_entropy(window: np.ndarray, rng: np.random.Generator, entropy: np.ndarray | None) -> int:
-    if entropy is None:
-        raise ValueError("collision time 'entropy' needs the entropy curve")
-    vals = np.where(np.isfinite(entropy[window]), entropy[window], -np.inf)
-    if not np.isfinite(vals).any():
-        raise NoSnapshot("no region near the target at any step of the window")
-    return int(window[int(np.argmax(vals))])
-
-
-CollisionTimeRule = Callable[[np.ndarray, np.random.Generator, "np.ndarray | None"], int]
-# Collision-time rules: (window (W,) 2 Hz step indices, rng, entropy (num_steps,) or None) -> step.
-# A new rule is one function and one line here; the CLI's --collision-time choices read this.
-COLLISION_TIME_RULES: dict[str, CollisionTimeRule] = {
-    "entropy": _highest_entropy,  # COSTER: the step of highest velocity entropy around the target
-    "last": _last_step,  # ablation: the last step of the window
-    "random": _random_step,  # ablation: a uniformly random step of the window
-}
-
-
-def choose_collision_time(window: np.ndarray, method: str, rng: np.random.Generator,
-                          entropy: np.ndarray | None = None) -> int:
-    """Pick t_col among ``window`` by the rule ``method`` of :data:`COLLISION_TIME_RULES`."""
-    if len(window) == 0:
-        raise NoSnapshot("the target is not valid inside the collision-time search window")
-    rule = COLLISION_TIME_RULES.get(method)
-    if rule is None:
-        raise ValueError(f"unknown collision-time method {method!r}; use one of {', '.join(COLLISION_TIME_RULES)}")
-    return rule(window, rng, entropy)
-
-
-def in_ellipse(points: np.ndarray, target: AgentState) -> np.ndarray:
-    """(...) bool: points (..., 2) inside the target's ellipse (semi-axes 2 L along, 2 W across)."""
-    d = np.asarray(points, float) - np.array([target.x, target.y])
-    c, s = np.cos(target.yaw), np.sin(target.yaw)
-    lon = c * d[..., 0] + s * d[..., 1]
-    lat = -s * d[..., 0] + c * d[..., 1]
-    return (lon / (2.0 * target.length)) ** 2 + (lat / (2.0 * target.width)) ** 2 <= 1.0
 
 
 @dataclass(frozen=True)
@@ -258,22 +173,55 @@ SIDE_START_M = 12.0  # [m] the four-side candidates start this far from the targ
 MAX_REGIONS_TRIED = 24
 
 
-def velocity_entropy(pred: Any, ellipse: np.ndarray) -> np.ndarray:
-    """(T,) entropy [nats] of the mean velocity distribution of the ellipse's regions per step.
+def scene_adaptation(model: Any, data: Any, scene: Scene, target: int) -> Any:
+    """What the traffic around the target says (the prior adapted to the scene's visible traffic,
+    docs/method.md step 2), fitted over the whole search window: one step sees little."""
+    from coster_sumo.prior.data import scene_tokens
+    from coster_sumo.prior.infer import fit_scene_adaptation
 
-    The velocity distribution of a region is the joint of its speed and heading heads (independent
-    heads, so the joint is their outer product); the mean over the K regions in the ellipse is
-    (1/K) sum_k p_speed_k (x) p_heading_k, and its entropy is computed exactly over all
-    speed x heading cells. Steps with no region in the ellipse get NaN.
-    """
-    ps, ph = pred.probs["speed"], pred.probs["heading"]  # (T, K, S), (T, K, H)
-    out = np.full(ellipse.shape[0], np.nan)
-    for t in np.flatnonzero(ellipse.any(axis=1)):  # a few regions per step: one small product each
-        ks = np.flatnonzero(ellipse[t])
-        joint = ps[t, ks].astype(np.float64).T @ ph[t, ks].astype(np.float64) / len(ks)  # (S, H)
-        p = joint[joint > 0]
-        out[t] = -np.sum(p * np.log(p))
-    return out
+    full = search_window(scene, target)
+    full_pose = target_pose(scene, target, full)
+    context = scene_tokens(data, full, full_pose, model.config.bins(), model.config.radius,
+                           model.config.max_regions, visible="context", hide_radius=model.config.hide_radius)
+    return fit_scene_adaptation(model, data, full, full_pose, context)
+
+
+def _scene_prior(model: Any, scene: Scene, target: int, memo: dict[str, Any]) -> Any:
+    """The prior's regions and agents near the target's whole path, kept in ``memo`` with the
+    entropy curve (``memo["entropy"]``) and the adaptation to the traffic around
+    (``memo["adaptation"]``): they depend on nothing a draw changes."""
+    from coster_sumo.prior.data import at_prior_rate, prepare_scene
+
+    tr = scene.tracks
+    if "data" not in memo:
+        # regions near the target's whole path; the velocity heads at every candidate step first,
+        # then every head at t_col only (the 1,600-class position head over a long life is costly)
+        memo["data"] = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
+                                     spacing=model.config.region_spacing, width=model.config.region_width,
+                                     crop=tr.xy_of(target, tr.valid[target]).reshape(-1, 2))
+    data = memo["data"]
+    if len(data.regions.centre) == 0:
+        raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
+    if "entropy" not in memo:
+        memo["entropy"] = entropy_curve(model, data, scene, target)
+        memo["adaptation"] = scene_adaptation(model, data, scene, target)
+    return data
+
+
+def _plausible_sample(pred: Any, k: int, scene: Scene, t_col: int, target: int, rng: np.random.Generator
+                      ) -> tuple[np.ndarray, float, float, float, float]:
+    """A vehicle drawn from region ``k``'s heads at t_col, made plausible (:mod:`coster_sumo.method.plausible`):
+    expected position (2,) [m], heading [rad], length [m], width [m], speed [m/s]."""
+    s = pred.sample(rng, np.array([0]), np.array([k]))
+    heading = float(s["world_heading"][0])
+    length, width, _ = vehicle_size(float(s["length"][0]), float(s["width"][0]))  # a real vehicle's size
+    speed = float(s["speed"][0])
+    lane = int(pred.regions.lane_index[pred.region_index[0, k]])
+    if speed < pred.bins.stopped_speed and not stop_plausible(scene, t_col, target, lane, s["world_xy"][0]):
+        cls = moving_speed_class(pred.probs["speed"][0, k], pred.bins.centres("speed"), 0, rng,
+                                 fastest=float(np.max(local_speeds(scene, t_col, target))))
+        speed = float(pred.bins.speed_in_bin(np.array([cls]), rng)[0])
+    return s["world_xy"][0], heading, length, width, speed
 
 
 def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
@@ -291,8 +239,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     window) are computed once in it (they depend on nothing else).
     """
     from coster_sumo import weights
-    from coster_sumo.prior.data import at_prior_rate, prepare_scene, scene_tokens
-    from coster_sumo.prior.infer import fit_scene_adaptation, load_prior, predict_scene
+    from coster_sumo.prior.infer import load_prior, predict_scene
 
     if model is None:
         model = weights.load_cached(weights.weights_path(weights.PRIOR, models_dir), load_prior)
@@ -300,38 +247,12 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")
     tr = scene.tracks
-
-    def pose(steps: np.ndarray) -> np.ndarray:  # the target's own (it may be a cyclist: data has no centre for it)
-        return np.stack([tr.x[target, steps], tr.y[target, steps], tr.heading[target, steps]], -1)
-
     memo = {} if memo is None else memo
-    if "data" not in memo:
-        # regions near the target's whole path; the velocity heads at every candidate step first,
-        # then every head at t_col only (the 1,600-class position head over a long life is costly)
-        memo["data"] = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
-                                     spacing=model.config.region_spacing, width=model.config.region_width,
-                                     crop=tr.xy_of(target, tr.valid[target]).reshape(-1, 2))
-    data = memo["data"]
-    if len(data.regions.centre) == 0:
-        raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
-    if "entropy" not in memo:  # over the whole window: excluded steps are only not chosen
-        full = search_window(scene, target)
-        full_pose = pose(full)
-        velocity = predict_scene(model, data, target, steps=full, heads=("speed", "heading"), pose=full_pose,
-                                 calibrate=False)  # the entropy reads the raw heads
-        centres = velocity.regions.centre[np.maximum(velocity.region_index, 0)]  # (W, K, 2)
-        ellipse = np.zeros(velocity.mask.shape, bool)
-        for j, t in enumerate(full):
-            ellipse[j] = velocity.mask[j] & in_ellipse(centres[j], AgentState.from_tracks(tr, target, int(t)))
-        memo["entropy"] = np.full(scene.num_steps, np.nan)
-        memo["entropy"][full] = velocity_entropy(velocity, ellipse)
-        # what the traffic around says, fitted over the whole window (one step sees little)
-        context = scene_tokens(data, full, full_pose, model.config.bins(), model.config.radius,
-                               model.config.max_regions, visible="context", hide_radius=model.config.hide_radius)
-        memo["adaptation"] = fit_scene_adaptation(model, data, full, full_pose, context)
+    data = _scene_prior(model, scene, target, memo)
     entropy = memo["entropy"]
     t_col = choose_collision_time(window, collision_time, rng, entropy)
-    pred = predict_scene(model, data, target, steps=np.array([t_col]), pose=pose(np.array([t_col])),
+    at_col = np.array([t_col])
+    pred = predict_scene(model, data, target, steps=at_col, pose=target_pose(scene, target, at_col),
                          adaptation=memo["adaptation"])
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
@@ -351,16 +272,8 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     left = np.array([-fwd[1], fwd[0]])
     centre = np.array([tgt.x, tgt.y])
     for k in order:
-        s = pred.sample(rng, np.array([0]), np.array([k]))
-        heading = float(s["world_heading"][0])
-        length, width, _ = vehicle_size(float(s["length"][0]), float(s["width"][0]))  # a real vehicle's size
-        speed = float(s["speed"][0])
-        lane = int(pred.regions.lane_index[pred.region_index[0, k]])
-        if speed < pred.bins.stopped_speed and not stop_plausible(scene, t_col, target, lane, s["world_xy"][0]):
-            cls = moving_speed_class(pred.probs["speed"][0, k], pred.bins.centres("speed"), 0, rng,
-                                     fastest=float(np.max(local_speeds(scene, t_col, target))))
-            speed = float(pred.bins.speed_in_bin(np.array([cls]), rng)[0])
-        starts = np.stack([s["world_xy"][0], centre + SIDE_START_M * fwd, centre - SIDE_START_M * fwd,
+        expected_xy, heading, length, width, speed = _plausible_sample(pred, k, scene, t_col, target, rng)
+        starts = np.stack([expected_xy, centre + SIDE_START_M * fwd, centre - SIDE_START_M * fwd,
                            centre + SIDE_START_M * left, centre - SIDE_START_M * left])  # (5, 2)
         boxes, sd = contact_placements(tgt, np.full(5, heading), np.full(5, max(length, 1.0)),
                                        np.full(5, max(width, 0.5)), starts)
@@ -389,36 +302,60 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
 
 
 @dataclass(frozen=True)
-class SnapshotInit:
-    """A way to place the adversary at t_col.
+class PlacementRequest:
+    """What a snapshot init is asked for: a collision snapshot of ``target`` in ``scene``.
 
     Attributes:
-        place: (scene at 2 Hz, target index, rng, drivable area, collision-time rule, seed, models
-            folder, steps to exclude from t_col, ``strict=`` closing check, see :func:`closing`,
-            ``memo=`` a dict the caller keeps across draws for one scene and target) -> the
-            snapshot; raises :class:`NoSnapshot` when the scene has none (with ``t_index`` when
-            only the chosen collision time has none).
-        weights: files it needs from the models folder (checked before any work).
+        scene: the nominal scene at 2 Hz.
+        target: the target's agent index.
+        rng: the generation's seeded generator (the collision time and the placement draw from it).
+        drivable: the drivable area placements must stay on (None: no check).
+        collision_time: a rule of :data:`~coster_sumo.method.collision_time.COLLISION_TIME_RULES`.
+        seed: recorded in the snapshot.
+        models_dir: the models folder (None: the shipped one).
+        exclude: 2 Hz steps not to take as t_col.
+        strict: only placements that close in on the target (:func:`closing`).
+        memo: kept by the caller across draws for one scene and target (what they compute once).
     """
 
-    place: Callable[..., CollisionSnapshot]
+    scene: Scene
+    target: int
+    rng: np.random.Generator
+    drivable: DrivableArea | None
+    collision_time: str
+    seed: int = 0
+    models_dir: Path | None = None
+    exclude: Collection[int] = ()
+    strict: bool = True
+    memo: dict[str, Any] | None = None
+
+
+class SnapshotPlacer(Protocol):
+    """A way to place the adversary at t_col: the snapshot, or :class:`NoSnapshot` when the scene
+    has none (with ``t_index`` when only the chosen collision time has none)."""
+
+    def __call__(self, request: PlacementRequest) -> CollisionSnapshot: ...
+
+
+@dataclass(frozen=True)
+class SnapshotInit:
+    """A snapshot init of ``--init``: how it places, and the files it needs from the models folder
+    (checked before any work)."""
+
+    place: SnapshotPlacer
     weights: tuple[str, ...] = ()
 
 
-def _prior_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                collision_time: str, seed: int, models_dir: Path | None,
-                exclude: Collection[int] = (), strict: bool = True,
-                memo: dict[str, Any] | None = None) -> CollisionSnapshot:
-    return prior_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed,
-                          models_dir=models_dir, exclude=exclude, strict=strict, memo=memo)
+def _prior_init(request: PlacementRequest) -> CollisionSnapshot:
+    r = request
+    return prior_snapshot(r.scene, r.target, r.rng, r.drivable, collision_time=r.collision_time, seed=r.seed,
+                          models_dir=r.models_dir, exclude=r.exclude, strict=r.strict, memo=r.memo)
 
 
-def _random_init(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                 collision_time: str, seed: int, models_dir: Path | None,
-                 exclude: Collection[int] = (), strict: bool = True,
-                 memo: dict[str, Any] | None = None) -> CollisionSnapshot:
-    return random_snapshot(scene, target, rng, drivable, collision_time=collision_time, seed=seed, exclude=exclude,
-                           strict=strict)
+def _random_init(request: PlacementRequest) -> CollisionSnapshot:
+    r = request
+    return random_snapshot(r.scene, r.target, r.rng, r.drivable, collision_time=r.collision_time, seed=r.seed,
+                           exclude=r.exclude, strict=r.strict)
 
 
 # Snapshot inits (``--init``): a new one is one function and one line here.
@@ -426,3 +363,23 @@ SNAPSHOT_INITS: dict[str, SnapshotInit] = {
     "snapshot": SnapshotInit(_prior_init, weights=("prior.pt",)),  # COSTER: the traffic prior's placement
     "random": SnapshotInit(_random_init),  # baseline: a random pose offset in contact with the target
 }
+
+
+ATTEMPTS_PER_TIME = 5  # snapshot + rollout draws at one collision time before the next best is tried
+STRICT_PER_TIME = 3  # of those, the first take only placements that close in on the target
+
+
+def place_closing_first(init: SnapshotInit, request: PlacementRequest) -> tuple[CollisionSnapshot, bool]:
+    """A snapshot of ``init`` and whether it closes in on the target (:func:`closing`,
+    ``request.strict``); a grazing one when strict and nothing closes in at the collision time drawn.
+
+    The generation asks for closing-in placements in the first :data:`STRICT_PER_TIME` of its
+    :data:`ATTEMPTS_PER_TIME` draws at one collision time, then for grazing ones too
+    (:func:`coster_sumo.method.generation.plan_scenario`).
+    """
+    try:
+        return init.place(request), request.strict
+    except NoSnapshot as exc:
+        if not request.strict or exc.t_index is None:
+            raise
+    return init.place(dataclasses.replace(request, strict=False)), False

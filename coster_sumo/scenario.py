@@ -1,0 +1,189 @@
+"""The nominal scenario: the traffic a generation works on, and its target.
+
+1. :class:`ScenarioSource`: the spec resolved once (a converted WOMD scene's log, or a SUMO
+   configuration and the [begin, end] of its run, :func:`simulation_window`);
+2. :func:`nominal_scene`: the nominal traffic at 10 Hz. A converted WOMD scene is its log
+   (``scene.npz``, see :mod:`coster_sumo.formats.scene_folder`); any other configuration is
+   simulated with libsumo and recorded with the spec's seed (the injection passes use the same);
+3. :func:`choose_target`: the spec's target, else the SDC of a converted scene, else ``ego``.
+
+The generation itself is :mod:`coster_sumo.method.generation`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.dataset import crop_scene
+from coster_sumo.errors import InputError, not_found
+from coster_sumo.formats.scene_folder import converted_scene_file
+from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
+from coster_sumo.scene import Scene, load_scene
+from coster_sumo.sim.hold import HeldStates
+from coster_sumo.spec import ScenarioSpec
+from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand
+
+MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)
+DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
+
+
+def simulation_window(spec: ScenarioSpec) -> tuple[float, float]:
+    """[begin, end] [s] of a SUMO configuration's run: the spec's, else the configuration's.
+
+    Both are absolute simulation times as SUMO reads them (a configuration may begin at 57600 s);
+    without any end the run lasts :data:`DEFAULT_DURATION_S`. An end not after the begin is one
+    :class:`InputError` line.
+    """
+    cfg = read_sumocfg(spec.config)
+    begin = spec.begin if spec.begin is not None else (cfg.begin or 0.0)
+    end = spec.end if spec.end is not None else cfg.end
+    if end is None:
+        end = begin + DEFAULT_DURATION_S
+    if end <= begin:
+        raise InputError(f"{spec.config}: end {end:g} s is not after begin {begin:g} s (SUMO's end is an absolute "
+                         "time; --duration gives a length from the begin)")
+    return begin, end
+
+
+@dataclass(frozen=True)
+class ScenarioSource:
+    """A scenario spec resolved once: what is converted or not, and the window, are not worked out
+    again by every step that needs them.
+
+    Attributes:
+        spec: the scenario spec.
+        log: the converted WOMD scene's log (``scene.npz``), None for any other SUMO configuration.
+        window: [begin, end] [s] of a SUMO configuration's run (:func:`simulation_window`); None for
+            a converted scene (its log is its window).
+    """
+
+    spec: ScenarioSpec
+    log: Path | None
+    window: tuple[float, float] | None
+
+    @property
+    def converted(self) -> bool:
+        """Whether it is a converted WOMD scene (the log is the traffic)."""
+        return self.log is not None
+
+    @classmethod
+    def resolve(cls, spec: ScenarioSpec) -> ScenarioSource:
+        """The source of ``spec``; a missing configuration or a bad window is one :class:`InputError` line."""
+        if not spec.config.exists():
+            raise not_found(spec.config)
+        log = converted_scene_file(spec.config)
+        return cls(spec, log, None if log is not None else simulation_window(spec))
+
+
+def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = False, hold: HeldStates | None = None,
+                  additional: Sequence[Path] = (), progress: Callable[[float], None] | None = None,
+                  more_targets: Sequence[str] = ()) -> tuple[Scene, bool]:
+    """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
+
+    ``scenario``: a spec, or a source resolved from it already.
+
+    A SUMO configuration is recorded around the target only (see :data:`SURROUNDINGS_RADIUS_M`),
+    the target at every step, the vehicles around it at the models' 2 Hz and interpolated between
+    (:class:`~coster_sumo.sim.record.Focus`: what the models read is exactly what SUMO did);
+    with ``hold`` the pass leaves held copies of itself for the variants (:mod:`coster_sumo.sim.hold`);
+    ``additional`` files are loaded as the variants' passes will load them (a planner's vType);
+    ``progress`` is called with the simulation time [s] after every step; ``more_targets`` are
+    recorded like the target (one pass for several targets: the union of their surroundings, up to
+    the arrival of the last of them).
+    """
+    source = scenario if isinstance(scenario, ScenarioSource) else ScenarioSource.resolve(scenario)
+    spec, cfg = source.spec, source.spec.config
+    if source.log is not None:
+        return load_scene(source.log), True
+    from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
+
+    _, end = source.window or simulation_window(spec)  # a SUMO configuration's source has its window
+    target = spec.target or "ego"
+    wanted = list(dict.fromkeys((target, *more_targets)))
+    demand = config_demand(cfg)  # seconds, where a pass that finds no target takes minutes
+    if demand is not None:
+        classes = {v: demand.vclass(v) for v in wanted}  # None: not in the demand
+        if all(c is None for c in classes.values()):
+            where = "in its demand (route and additional files)"
+            if spec.target is None and not more_targets:
+                raise InputError(f"{cfg}: no vehicle 'ego' {where}; pick a target with --target, e.g. "
+                                 f"{', '.join(demand.examples([]))}, or let --targets N choose")
+            which = (f"target {wanted[0]!r} is" if len(wanted) == 1 else
+                     "none of the targets " + ", ".join(map(repr, wanted)) + " is")
+            raise InputError(f"{cfg}: {which} not {where}; candidates: {', '.join(demand.examples(wanted))}")
+        if all(c in OFF_ROAD_CLASSES for c in classes.values()):  # the prior places road vehicles
+            v, c = next(iter(classes.items()))
+            raise InputError(f"{cfg}: target {v!r} is a {c} vehicle (vClass of its vType); COSTER places road "
+                             "vehicles around a road vehicle: pick one with --target, or --targets N")
+    # recording goes on a little after the target arrives: the collision-time search keeps the last
+    # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
+    tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
+    extra: dict[str, Any] = {"additional": list(additional)} if additional else {}
+
+    def after_step(session: Any, states: Any) -> bool:
+        if progress is not None:
+            progress(session.time)
+        return hold.after_step(session, states) if hold is not None else False
+
+    scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
+                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
+                                      more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S),
+                          after_step=after_step, **extra)
+    ids = scene.tracks.ids.tolist()
+    present = [ids.index(v) for v in wanted if v in ids]
+    if present:  # regions and the drivable area cover its (their) surroundings only
+        # every recorded vehicle stays: SUMO found it within the radius (of the target's front, not
+        # its centre), and dropping a few would copy every track array of the pass
+        return crop_scene(scene, SURROUNDINGS_RADIUS_M, present[0], agent_radius_m=np.inf,
+                          more_targets=present[1:]), False
+    # no target ever ran: the focused pass kept who did (and for how long), for the error
+    pass_window = scene.meta.get("pass_window_s")
+    if pass_window is None:
+        raise InputError(f"{cfg}: the simulation recorded no step in [{spec.begin}, {end}]")
+    window = f"{pass_window[0]:.1f}-{pass_window[1]:.1f} s"
+    raise missing_target(cfg, list(dict.fromkeys((spec.target, *more_targets))), window, scene.meta["ran_s"])
+
+
+def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
+    """Index of the target: ``requested``, else the SDC of a converted scene, else ``ego``.
+
+    Raises :class:`InputError` (naming ``config`` and candidate ids) when there is none, or when
+    the target runs for fewer than two steps of the window.
+    """
+    ids = scene.tracks.ids.tolist()
+    ts = scene.timestamps
+    window = f"{float(ts[0]):.1f}-{float(ts[-1]):.1f} s" if len(ts) else "empty"
+    if requested is None and scene.sdc_index >= 0:
+        index = scene.sdc_index
+    elif (requested or "ego") in ids:
+        index = ids.index(requested or "ego")
+    else:
+        steps = scene.tracks.valid.sum(axis=1).tolist()
+        raise missing_target(config, [requested], window, dict(zip(ids, steps, strict=True)))
+    if scene.tracks.valid[index].sum() < 2:
+        raise InputError(f"{config}: target {ids[index]!r} never departs in the window")
+    return index
+
+
+def missing_target(config: Any, requested: Sequence[str | None], window: str, ran: dict[str, float]) -> InputError:
+    """The one-line error for targets that never run: ``requested`` (None: the default 'ego'), the
+    window, and candidates from ``ran`` (every vehicle that ran, in order of appearance, with how
+    long it ran): ids containing a requested name, else the longest-running ones."""
+    if not ran:
+        return InputError(f"{config}: no vehicle runs in the window ({window}) at all")
+    if requested == [None]:
+        longest = sorted(ran, key=lambda v: -ran[v])[:8]
+        return InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
+                          "--target, e.g. " + ", ".join(longest))
+    names = [r or "ego" for r in requested]
+    near = [v for v in ran if any(n.lower() in v.lower() for n in names)][:8] or list(ran)[:8]
+    which = (f"target {names[0]!r} never runs" if len(names) == 1 else
+             "none of the targets " + ", ".join(map(repr, names)) + " runs")
+    return InputError(f"{config}: {which} in the window ({window}); candidates: {', '.join(near)}")
+
