@@ -21,7 +21,7 @@ pytestmark = [pytest.mark.sumo, pytest.mark.slow, pytest.mark.realdata, requires
 
 def _verdicts(cfg: Path, seed: int, out: Path) -> list[list[dict | None]]:
     s = run(RunOptions(spec=ScenarioSpec(cfg, seed=seed), out=out, generation=GenerationConfig(), planner="replay",
-                       render=False, quiet=True))
+                       render=False, quiet=True)).to_json()
     return [[e and e.get("proof") for e in v["avoidability"]["escapes"].values()] for v in s["variants"]]
 
 
