@@ -29,10 +29,17 @@ RUN = ["run", str(CFG), "--init", "random", "--rollout", "cvae", "--samples", "2
 pytestmark = [pytest.mark.slow, pytest.mark.sumo]
 
 
+def _as_from_a_terminal() -> None:
+    """Ctrl-C's default action in the child, as a shell gives it: a signal the test runner itself
+    ignores would stay ignored in its children (Python then installs no KeyboardInterrupt)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(args: list[str], cwd: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.Popen([sys.executable, "-m", "coster_sumo", "-q", *args], cwd=cwd, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_as_from_a_terminal)
 
 
 def _group(pgid: int) -> list[int]:
@@ -218,7 +225,8 @@ def test_a_hung_variant_dies_with_run(tmp_path, finished, how):
     env = {**os.environ, "PYTHONPATH": str(REPO), "COSTER_TEST_ONCE": env_once}
     proc = subprocess.Popen([sys.executable, "-m", "coster_sumo", "-q", *RUN, "--planner",
                              "tests.misbehaving_planners:HangOnce", "-o", str(out)], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_as_from_a_terminal)
     deadline = time.monotonic() + 10 * seconds
     while not Path(env_once).exists() and time.monotonic() < deadline:  # a variant has started to hang
         time.sleep(0.2)
