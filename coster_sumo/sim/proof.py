@@ -194,7 +194,8 @@ class _JointProof:
         self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
         self.adversaries = [AdversaryController(j.plan, vehicle_id=a) for j, (_, a) in zip(jobs, self.ids, strict=True)]
         self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
-        self.starts = [sim_time_of(j.plan.t_start, 0.1) for j in jobs]
+        step = round(scene.dt, 6)  # SUMO runs a converted scene at its log's step
+        self.starts = [sim_time_of(j.plan.t_start, step) for j in jobs]
         self.ends = [j.plan.t_col + horizon_s + 1e-6 for j in jobs]
         self.copies = {v for pair in self.ids for v in pair}
         self.added: set[int] = set()
