@@ -222,11 +222,13 @@ def test_short_episode_on_a_converted_womd_scene(tmp_path):
 @pytest.mark.slow
 def test_a_trained_policy_is_a_planner_for_run(nominal_set, tmp_path):
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
 
     from coster_sumo.cli import main
 
     env = ScenarioEnv(nominal_set, split="train")
     model = PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    model.set_logger(Logger(folder=None, output_formats=[]))  # SB3's default leaves a folder in /tmp
     model.learn(64)
     path = tmp_path / "policy.zip"
     model.save(path)
