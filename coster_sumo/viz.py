@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.colors import to_rgba  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 
 from coster_sumo.drivable import _corners  # noqa: E402
@@ -26,6 +27,14 @@ from coster_sumo.snapshot_state import AgentState  # noqa: E402
 TARGET_COLOR = "#1f77b4"
 ADVERSARY_COLOR = "#d62728"
 OTHER_COLOR = "#7f7f7f"
+
+
+def lay_out(fig: Figure) -> None:
+    """``fig.tight_layout()`` once, and no layout engine left behind: matplotlib leaves a placeholder
+    engine after ``tight_layout``, and with any engine set ``savefig`` draws the whole figure once more
+    (without output) before the real drawing, a third of a render's time for the same pixels."""
+    fig.tight_layout()
+    fig.set_layout_engine(None)
 
 
 def draw_map(ax: Axes, road_map: RoadMap, window: tuple[float, float, float, float] | None = None) -> None:
@@ -178,7 +187,7 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4, fontsize=8, frameon=False)
     ax.set_title(title, fontsize=10)
     _finish(ax, window)
-    fig.tight_layout()
+    lay_out(fig)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -236,7 +245,7 @@ def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, targ
         ax2.set_xlabel("time [s]")
         ax2.set_ylabel("entropy of mean velocity distribution [nats]")
         ax2.legend()
-    fig.tight_layout()
+    lay_out(fig)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -292,7 +301,7 @@ def training_curves(runs: dict[str, list[dict]], path: str | Path, marks: dict[i
             ax.axvline(epoch - 0.5, color="0.4", lw=0.8, ls="--")  # between the last epoch before and the first after
             ax.annotate(text, (epoch - 0.5, 1.0), xycoords=("data", "axes fraction"), xytext=(-3, -3),
                         textcoords="offset points", ha="right", va="top", fontsize=8, color="0.3")
-    fig.tight_layout()
+    lay_out(fig)
     out = Path(path)
     fig.savefig(out, dpi=100)
     plt.close(fig)
