@@ -53,8 +53,16 @@ SERVER = r'''
 import json, os, sys, time
 sys.path.insert(0, sys.argv[1])
 import libsumo, pyarrow.parquet  # noqa: F401
-import coster_sumo.batch.evaluate, coster_sumo.method.generation, coster_sumo.outputs  # noqa: F401
-import coster_sumo.drivable, coster_sumo.scenario  # noqa: F401
+import coster_sumo.batch.evaluate, coster_sumo.outputs  # noqa: F401
+# where generation lives: coster_sumo.method (issue 43) or coster_sumo.core (before it); asked of the
+# files, since an editable install of the current tree would answer any missing module from there
+NEW = os.path.isdir(os.path.join(sys.argv[1], "coster_sumo", "method"))
+if NEW:
+    from coster_sumo.method.generation import generate_variants
+    from coster_sumo.scenario import choose_target
+else:
+    from coster_sumo.core import choose_target, generate_variants
+import coster_sumo.drivable  # noqa: F401
 import coster_sumo.sim.inject  # noqa: F401
 from coster_sumo.batch import executor
 preload = getattr(executor, "GENERATION_TASK_MODULES", ())
@@ -71,8 +79,6 @@ for line in sys.stdin:
         out = {}
         try:
             from pathlib import Path
-            from coster_sumo.method.generation import generate_variants
-            from coster_sumo.scenario import choose_target
             from coster_sumo.drivable import DrivableArea
             from coster_sumo.scene import load_scene
             from coster_sumo.spec import GenerationConfig
