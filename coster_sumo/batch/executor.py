@@ -9,10 +9,11 @@ it), removed when the task ends however it ends: a task killed by a timeout or a
 scratch files behind; folders of a batch that was itself killed are removed by the next batch.
 A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
 runs start as soon as its variants exist. ``executor="ray"`` runs the same functions on a Ray
-cluster (``ray.init()`` locally when neither an address nor ``RAY_ADDRESS`` is given; one worker
-process per task through ``max_calls=1``), each task again in a process of its own forked by that
-worker, under the timeout, which runs from the task's start on the worker (a task may wait in
-Ray's queue for a free CPU; the clock does not run meanwhile). A task whose Ray worker or node dies
+cluster (``ray.init()`` locally when neither an address nor ``RAY_ADDRESS`` is given), each task
+in a process of its own forked by a Ray worker as the local executor forks from the driver: the
+worker imports the task modules once (or starts the fork server) and serves task after task,
+and the timeout runs from the task's start on the worker (a task may wait in Ray's queue for a
+free CPU; the clock does not run meanwhile). A task whose Ray worker or node dies
 fails with a transient reason (a rerun tries it again). On Ray, workers need no disk shared with
 the driver: a task names the folders of its payload it reads and writes (:attr:`Task.folders`); the
 files it reads travel through Ray's object store (each file put there once), the task runs on a
@@ -259,6 +260,28 @@ def _default_start_method() -> str:
     return "forkserver" if _driver_has_run_threads() and "forkserver" in methods else "fork"
 
 
+def _task_start_method(start_method: str | None, preload: Sequence[str]) -> str:
+    """How task processes start: ``start_method`` if given, else :func:`_default_start_method`, but
+    from a fork server where ``preload`` holds torch (the server imports it; the process that starts
+    the tasks stays free of it and forks cheaply)."""
+    method = start_method or _default_start_method()
+    if method == "fork" and set(preload) & set(GENERATION_TASK_MODULES) and "forkserver" in mp.get_all_start_methods():
+        method = "forkserver"
+    return method
+
+
+def _import_quietly(modules: Sequence[str]) -> None:
+    """Import ``modules`` here, so that forked tasks inherit them; quietly: libsumo prints a version
+    warning about pyarrow on import."""
+    import importlib
+    import io
+
+    for name in modules:
+        with contextlib.suppress(Exception), contextlib.redirect_stdout(io.StringIO()), \
+                contextlib.redirect_stderr(io.StringIO()):
+            importlib.import_module(name)
+
+
 def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
                    progress: Any, start_method: str | None, log_dir: Path | None,
                    preload: Sequence[str] = (), threads: int | None = None) -> None:
@@ -335,15 +358,19 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
 
 
 def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], shipped: dict[str, dict[str, Any]],
-               timeout: float | None) -> tuple[Outcome, dict[str, dict[str, bytes]]]:
+               timeout: float | None, preload: Sequence[str] = ()) -> tuple[Outcome, dict[str, dict[str, bytes]]]:
     """On a Ray worker: the task on private copies of its folders, in a process of its own as on the
     local executor (a crash or a hang is a failed :class:`Outcome`); ``timeout`` runs from the task's
-    start here, not from its submission (a task may wait in Ray's queue for a free CPU). Returns the
-    outcome and, when it succeeded, every file the task wrote or changed in its folders
-    (``{payload key: {name: bytes}}``), for the driver to write."""
+    start here, not from its submission (a task may wait in Ray's queue for a free CPU). The worker
+    serves many tasks: ``preload`` is imported here once (or by a fork server) as :func:`execute`
+    does for local tasks. Returns the outcome and, when it succeeded, every file the task wrote or
+    changed in its folders (``{payload key: {name: bytes}}``), for the driver to write."""
     import ray
 
     cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1.0)
+    method = _task_start_method(None, preload)
+    if method == "fork":
+        _import_quietly(preload)
 
     def run(local: dict[str, Any]) -> Outcome:
         finished: list[Outcome] = []
@@ -353,7 +380,8 @@ def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], shi
             return []
 
         _execute_local(deque([Task("ray-task", fn, local)]), workers=1, timeout=timeout, on_done=keep,
-                       progress=_NoProgress(), start_method=None, log_dir=None, threads=max(1, int(cpus)))
+                       progress=_NoProgress(), start_method=method, log_dir=None, preload=preload,
+                       threads=max(1, int(cpus)))
         return finished[0]
 
     if not shipped:
@@ -418,7 +446,7 @@ class _Shipper:
 
 
 def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
-                 progress: Any, ray_address: str | None) -> None:
+                 progress: Any, ray_address: str | None, preload: Sequence[str] = ()) -> None:
     try:
         import ray
     except ImportError:
@@ -432,7 +460,8 @@ def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, o
             kwargs["num_cpus"] = workers
         ray.init(**kwargs)
         started_here = True
-    remote = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_entry)
+    # no max_calls=1: a worker that forks every task keeps no simulation of its own and is reused
+    remote = ray.remote(num_cpus=1, max_retries=0)(_ray_entry)
     # the Ray worker itself died (the task runs in a child of it, whose crash is an Outcome): its node
     # was lost or its memory ran out, so a rerun tries again
     lost = (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError, ray.exceptions.OutOfMemoryError,
@@ -443,12 +472,12 @@ def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, o
         while pending or running:
             while pending and len(running) < workers:
                 task = pending.popleft()
-                ref = remote.remote(task.fn, task.payload, shipper.ship(task), timeout)
+                ref = remote.remote(task.fn, task.payload, shipper.ship(task), timeout, tuple(preload))
                 running[ref] = (task, time.monotonic())
             ready, _ = ray.wait(list(running), num_returns=1, timeout=1.0)
             for ref in ready:
                 task, submitted = running.pop(ref)
-                waited = time.monotonic() - submitted  # queued + run: the worker's own wall time where known
+                waited = time.monotonic() - submitted  # queued + run, for a failure the worker did not time
                 try:
                     outcome, back = ray.get(ref)
                     if outcome.ok:
@@ -504,7 +533,7 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         preload: modules imported here first, so that forked task processes inherit them instead of
             importing them again (about 1 s per task for the SUMO side of the package);
             :data:`GENERATION_TASK_MODULES` (torch) are imported by a fork server instead, which
-            every task forks from.
+            every task forks from. On Ray, each Ray worker does the same for the tasks it forks.
     """
     if workers < 1:
         raise InputError(f"--workers must be >= 1, not {workers}")
@@ -512,17 +541,9 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         raise InputError(f"--executor must be local or ray, not {executor!r}")
     pending = deque(tasks)
     finished: list[tuple[Task, Outcome]] = []
-    method = start_method or _default_start_method()
-    if method == "fork" and set(preload) & set(GENERATION_TASK_MODULES) and "forkserver" in mp.get_all_start_methods():
-        method = "forkserver"  # the server imports torch; this process stays free of it and forks cheaply
+    method = _task_start_method(start_method, preload)
     if executor == "local" and method == "fork":
-        import importlib
-        import io
-
-        for name in preload:  # quietly: libsumo prints a version warning about pyarrow on import
-            with contextlib.suppress(Exception), contextlib.redirect_stdout(io.StringIO()), \
-                    contextlib.redirect_stderr(io.StringIO()):
-                importlib.import_module(name)
+        _import_quietly(preload)
     progress: Any
     if quiet:
         progress = _NoProgress()
@@ -550,7 +571,7 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
                            start_method=method, log_dir=log_dir, preload=preload)
         else:
             _execute_ray(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
-                         ray_address=ray_address)
+                         ray_address=ray_address, preload=preload)
         progress.total = len(finished)  # done: the estimate may have been high (fewer variants than asked)
         progress.refresh()
     finally:
