@@ -252,9 +252,8 @@ def test_scene_keys_are_stable_and_distinct():
 def test_ray_executor_isolates_crashes_and_hangs():
     pytest.importorskip("ray")
     tasks = [_probe("a"), _probe("crash", "segfault"), _probe("stuck", "hang"), _probe("oops", "error"), _probe("b")]
-    # a task's clock runs from its submission, so a ray worker's start (a process importing the
-    # package) counts against it: on the 2-core machine with two trainings beside the tests it
-    # passed 5 s once
+    # a task's clock runs from its start on its Ray worker (tests/test_ray_cluster.py checks that a
+    # task waiting for a free CPU is not timed out); the hang must still be killed
     out = _outcomes(execute(tasks, workers=2, timeout=20.0, executor="ray"))
     assert out["a"].ok and out["b"].ok
     assert not out["crash"].ok and not out["stuck"].ok and "timed out" in out["stuck"].reason

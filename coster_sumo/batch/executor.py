@@ -9,11 +9,16 @@ it), removed when the task ends however it ends: a task killed by a timeout or a
 scratch files behind; folders of a batch that was itself killed are removed by the next batch.
 A finished task may schedule more tasks (its ``on_done`` result), so a scene's planner
 runs start as soon as its variants exist. ``executor="ray"`` runs the same functions on a Ray
-cluster (``ray.init()`` locally when no address is given; one worker process per task through
-``max_calls=1``). On Ray, workers need no disk shared with the driver: a task names the folders
-of its payload it reads and writes (:attr:`Task.folders`); the files it reads travel through Ray's
-object store (each file put there once), the task runs on a private copy of those folders on the
-worker, and what it writes there comes back with its result and is written into OUT by the driver.
+cluster (``ray.init()`` locally when neither an address nor ``RAY_ADDRESS`` is given), each task
+in a process of its own forked by a Ray worker as the local executor forks from the driver: the
+worker imports the task modules once (or starts the fork server) and serves task after task,
+and the timeout runs from the task's start on the worker (a task may wait in Ray's queue for a
+free CPU; the clock does not run meanwhile). A task whose Ray worker or node dies
+fails with a transient reason (a rerun tries it again). On Ray, workers need no disk shared with
+the driver: a task names the folders of its payload it reads and writes (:attr:`Task.folders`); the
+files it reads travel through Ray's object store (each file put there once), the task runs on a
+private copy of those folders on the worker, and what it writes there comes back with its result
+and is written into OUT by the driver.
 """
 
 from __future__ import annotations
@@ -77,9 +82,10 @@ class Outcome:
 OnDone = Callable[[Task, Outcome], Iterable[Task]]
 
 # failures that say nothing about the input, so a plain rerun tries again: the clock, the machine's
-# memory (the kernel's OOM killer sends SIGKILL) or its disk (ENOSPC, EDQUOT)
-_TRANSIENT_MARKS = ("timed out", "(SIGKILL)", "No space left on device", "Disk quota exceeded", "MemoryError",
-                    "Cannot allocate memory", "[Errno 28]", "[Errno 122]", "[Errno 12]")
+# memory (the kernel's OOM killer sends SIGKILL) or its disk (ENOSPC, EDQUOT), a lost Ray node
+LOST_ON_CLUSTER = "lost on the Ray cluster"  # a task whose worker process or node died under it
+_TRANSIENT_MARKS = (LOST_ON_CLUSTER, "timed out", "(SIGKILL)", "No space left on device", "Disk quota exceeded",
+                    "MemoryError", "Cannot allocate memory", "[Errno 28]", "[Errno 122]", "[Errno 12]")
 
 
 def is_transient(reason: str) -> bool:
@@ -254,15 +260,38 @@ def _default_start_method() -> str:
     return "forkserver" if _driver_has_run_threads() and "forkserver" in methods else "fork"
 
 
+def _task_start_method(start_method: str | None, preload: Sequence[str]) -> str:
+    """How task processes start: ``start_method`` if given, else :func:`_default_start_method`, but
+    from a fork server where ``preload`` holds torch (the server imports it; the process that starts
+    the tasks stays free of it and forks cheaply)."""
+    method = start_method or _default_start_method()
+    if method == "fork" and set(preload) & set(GENERATION_TASK_MODULES) and "forkserver" in mp.get_all_start_methods():
+        method = "forkserver"
+    return method
+
+
+def _import_quietly(modules: Sequence[str]) -> None:
+    """Import ``modules`` here, so that forked tasks inherit them; quietly: libsumo prints a version
+    warning about pyarrow on import."""
+    import importlib
+    import io
+
+    for name in modules:
+        with contextlib.suppress(Exception), contextlib.redirect_stdout(io.StringIO()), \
+                contextlib.redirect_stderr(io.StringIO()):
+            importlib.import_module(name)
+
+
 def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
                    progress: Any, start_method: str | None, log_dir: Path | None,
-                   preload: Sequence[str] = ()) -> None:
+                   preload: Sequence[str] = (), threads: int | None = None) -> None:
     method = start_method or _default_start_method()
     ctx: Any = mp.get_context(method)
     if method == "forkserver":  # the server imports these once; every task forks from it
         ctx.set_forkserver_preload(sorted({*preload, *(t.fn.__module__ for t in pending)}))
     running: list[_Running] = []
-    threads = max(1, (os.cpu_count() or 1) // max(1, workers))  # the cores shared among the workers
+    if threads is None:
+        threads = max(1, (os.cpu_count() or 1) // max(1, workers))  # the cores shared among the workers
     _remove_orphaned_scratch()
 
     def finish(r: _Running, outcome: Outcome) -> None:
@@ -328,14 +357,35 @@ def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None,
             shutil.rmtree(r.scratch, ignore_errors=True)
 
 
-def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any],
-               shipped: dict[str, dict[str, Any]]) -> tuple[Any, dict[str, dict[str, bytes]]]:
-    """On a Ray worker: the task on private copies of its folders; returns its value and every file
-    it wrote or changed in them (``{payload key: {name: bytes}}``), for the driver to write."""
-    if not shipped:
-        return fn(payload), {}
+def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], shipped: dict[str, dict[str, Any]],
+               timeout: float | None, preload: Sequence[str] = ()) -> tuple[Outcome, dict[str, dict[str, bytes]]]:
+    """On a Ray worker: the task on private copies of its folders, in a process of its own as on the
+    local executor (a crash or a hang is a failed :class:`Outcome`); ``timeout`` runs from the task's
+    start here, not from its submission (a task may wait in Ray's queue for a free CPU). The worker
+    serves many tasks: ``preload`` is imported here once (or by a fork server) as :func:`execute`
+    does for local tasks. Returns the outcome and, when it succeeded, every file the task wrote or
+    changed in its folders (``{payload key: {name: bytes}}``), for the driver to write."""
     import ray
 
+    cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1.0)
+    method = _task_start_method(None, preload)
+    if method == "fork":
+        _import_quietly(preload)
+
+    def run(local: dict[str, Any]) -> Outcome:
+        finished: list[Outcome] = []
+
+        def keep(_task: Task, outcome: Outcome) -> list[Task]:
+            finished.append(outcome)
+            return []
+
+        _execute_local(deque([Task("ray-task", fn, local)]), workers=1, timeout=timeout, on_done=keep,
+                       progress=_NoProgress(), start_method=method, log_dir=None, preload=preload,
+                       threads=max(1, int(cpus)))
+        return finished[0]
+
+    if not shipped:
+        return run(payload), {}
     with tempfile.TemporaryDirectory(prefix="coster-ray-") as tmp:
         local = dict(payload)
         before: dict[str, dict[str, int]] = {}
@@ -348,14 +398,14 @@ def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any],
             local[key] = str(folder)
             before[key] = {p.relative_to(folder).as_posix(): p.stat().st_mtime_ns for p in folder.rglob("*")
                            if p.is_file()}
-        value = fn(local)
+        outcome = run(local)
         back: dict[str, dict[str, bytes]] = {}
-        for key in shipped:
+        for key in shipped if outcome.ok else ():
             folder = Path(local[key])
             back[key] = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
                          if p.is_file() and not p.name.startswith(".")
                          and before[key].get(p.relative_to(folder).as_posix()) != p.stat().st_mtime_ns}
-    return value, back
+    return outcome, back
 
 
 class _Shipper:
@@ -396,7 +446,7 @@ class _Shipper:
 
 
 def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
-                 progress: Any, ray_address: str | None) -> None:
+                 progress: Any, ray_address: str | None, preload: Sequence[str] = ()) -> None:
     try:
         import ray
     except ImportError:
@@ -406,46 +456,42 @@ def _execute_ray(pending: deque[Task], *, workers: int, timeout: float | None, o
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
         if ray_address:
             kwargs["address"] = ray_address
-        else:
+        elif not os.environ.get("RAY_ADDRESS"):  # else ray.init connects to the cluster it names
             kwargs["num_cpus"] = workers
         ray.init(**kwargs)
         started_here = True
-    remote = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_entry)
+    # no max_calls=1: a worker that forks every task keeps no simulation of its own and is reused
+    remote = ray.remote(num_cpus=1, max_retries=0)(_ray_entry)
+    # the Ray worker itself died (the task runs in a child of it, whose crash is an Outcome): its node
+    # was lost or its memory ran out, so a rerun tries again
+    lost = (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError, ray.exceptions.OutOfMemoryError,
+            ray.exceptions.ObjectLostError, ray.exceptions.LocalRayletDiedError)
     shipper = _Shipper(ray)
     running: dict[Any, tuple[Task, float]] = {}
     try:
         while pending or running:
             while pending and len(running) < workers:
                 task = pending.popleft()
-                running[remote.remote(task.fn, task.payload, shipper.ship(task))] = (task, time.monotonic())
-            now = time.monotonic()
-            wait_s = 1.0
-            if timeout is not None:
-                wait_s = max(0.01, min([wait_s] + [s + timeout - now for _, s in running.values()]))
-            ready, _ = ray.wait(list(running), num_returns=1, timeout=wait_s)
-            now = time.monotonic()
-            for ref in list(running):
-                task, start = running[ref]
-                outcome: Outcome | None = None
-                if ref in ready:
-                    try:
-                        value, back = ray.get(ref)
+                ref = remote.remote(task.fn, task.payload, shipper.ship(task), timeout, tuple(preload))
+                running[ref] = (task, time.monotonic())
+            ready, _ = ray.wait(list(running), num_returns=1, timeout=1.0)
+            for ref in ready:
+                task, submitted = running.pop(ref)
+                waited = time.monotonic() - submitted  # queued + run, for a failure the worker did not time
+                try:
+                    outcome, back = ray.get(ref)
+                    if outcome.ok:
                         shipper.land(task, back)
-                        outcome = Outcome(True, value=value, wall_time_s=now - start)
-                    except ray.exceptions.RayTaskError as exc:
-                        cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
-                        outcome = Outcome(False, reason=_one_line(getattr(cause, "cause", None) or cause),
-                                          wall_time_s=now - start, detail=str(exc))
-                    except Exception as exc:  # noqa: BLE001 - WorkerCrashedError, ...
-                        outcome = Outcome(False, reason=f"crashed ({_one_line(exc)[:200]})", wall_time_s=now - start)
-                elif timeout is not None and now - start > timeout:
-                    with contextlib.suppress(Exception):
-                        ray.cancel(ref, force=True)
-                    outcome = Outcome(False, reason=f"timed out after {timeout:g} s (killed)", wall_time_s=now - start)
-                if outcome is not None:
-                    del running[ref]
-                    pending.extend(on_done(task, outcome))
-                    progress.update(1)
+                except ray.exceptions.RayTaskError as exc:  # the entry's own failure (its files, ...)
+                    cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
+                    outcome = Outcome(False, reason=_one_line(getattr(cause, "cause", None) or cause),
+                                      wall_time_s=waited, detail=str(exc))
+                except lost as exc:
+                    outcome = Outcome(False, reason=f"{LOST_ON_CLUSTER} ({_one_line(exc)[:200]})", wall_time_s=waited)
+                except Exception as exc:  # noqa: BLE001 - any other failure of Ray is one failed task
+                    outcome = Outcome(False, reason=f"crashed ({_one_line(exc)[:200]})", wall_time_s=waited)
+                pending.extend(on_done(task, outcome))
+                progress.update(1)
     finally:
         for ref in running:
             with contextlib.suppress(Exception):
@@ -487,7 +533,7 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         preload: modules imported here first, so that forked task processes inherit them instead of
             importing them again (about 1 s per task for the SUMO side of the package);
             :data:`GENERATION_TASK_MODULES` (torch) are imported by a fork server instead, which
-            every task forks from.
+            every task forks from. On Ray, each Ray worker does the same for the tasks it forks.
     """
     if workers < 1:
         raise InputError(f"--workers must be >= 1, not {workers}")
@@ -495,17 +541,9 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         raise InputError(f"--executor must be local or ray, not {executor!r}")
     pending = deque(tasks)
     finished: list[tuple[Task, Outcome]] = []
-    method = start_method or _default_start_method()
-    if method == "fork" and set(preload) & set(GENERATION_TASK_MODULES) and "forkserver" in mp.get_all_start_methods():
-        method = "forkserver"  # the server imports torch; this process stays free of it and forks cheaply
+    method = _task_start_method(start_method, preload)
     if executor == "local" and method == "fork":
-        import importlib
-        import io
-
-        for name in preload:  # quietly: libsumo prints a version warning about pyarrow on import
-            with contextlib.suppress(Exception), contextlib.redirect_stdout(io.StringIO()), \
-                    contextlib.redirect_stderr(io.StringIO()):
-                importlib.import_module(name)
+        _import_quietly(preload)
     progress: Any
     if quiet:
         progress = _NoProgress()
@@ -533,7 +571,7 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
                            start_method=method, log_dir=log_dir, preload=preload)
         else:
             _execute_ray(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
-                         ray_address=ray_address)
+                         ray_address=ray_address, preload=preload)
         progress.total = len(finished)  # done: the estimate may have been high (fewer variants than asked)
         progress.refresh()
     finally:
