@@ -23,6 +23,7 @@ from coster_sumo.avoid import DEFAULT_REACTION_S, HORIZON_AFTER_TCOL_S, Avoidabi
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.metrics import rate_with_ci
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
@@ -248,7 +249,6 @@ def defect_rates(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     t_col): that is what an escape is proven for; what happens later (the pass goes on until the
     target arrives) stays in the plain collision rate.
     """
-    from coster_sumo.batch.store import rate_with_ci
 
     labelled = [r for r in rows if r.get("avoidable") is not None]
     av = [r for r in labelled if r["avoidable"]]
@@ -303,7 +303,6 @@ def label_record(lab: Avoidability) -> dict[str, Any]:
 def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Share of avoidable variants (Wilson 95 %) per reaction time, overall and per kind of contact;
     the distribution of the last moment to act; how many kinematic escapes SUMO refuted."""
-    from coster_sumo.batch.store import rate_with_ci
 
     recs = [r for r in records if r.get("avoidable_at")]
     times = sorted({t for r in recs for t in r["avoidable_at"]}, key=float)

@@ -32,7 +32,7 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import rate_with_ci, read_json
+from coster_sumo.batch.store import read_json
 from coster_sumo.errors import InputError
 from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
@@ -40,6 +40,7 @@ from coster_sumo.metrics import (
     collision_position_diversity,
     collision_speed_diversity,
     js_divergence,
+    rate_with_ci,
     scene_bootstrap,
 )
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
