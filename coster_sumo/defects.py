@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_json
-from coster_sumo.avoid import DEFAULT_REACTION_S, HORIZON_AFTER_TCOL_S, Avoidability, Escape, assess
+from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
+from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.metrics import rate_with_ci
 from coster_sumo.plan import AdversaryPlan

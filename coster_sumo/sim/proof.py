@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.avoid import Escape
 from coster_sumo.drivable import DrivableArea
+from coster_sumo.evasion import Escape
 from coster_sumo.formats.scene_folder import agent_sizes, converted_scene_file, vtype_for
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan, sim_time_of
