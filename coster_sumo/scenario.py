@@ -21,10 +21,11 @@ import numpy as np
 
 from coster_sumo.dataset import crop_scene
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
-from coster_sumo.scene import Scene, load_scene
+from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.spec import ScenarioSpec
 from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand

@@ -132,8 +132,8 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.avoid import HORIZON_AFTER_TCOL_S
     from coster_sumo.defects import escape_replay, planner_outcome
     from coster_sumo.drivable import DrivableArea
+    from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.outputs import variant_record
-    from coster_sumo.scene import load_scene
     from coster_sumo.sim.inject import inject_variant
 
     plans_dir = Path(payload["plans_dir"])
