@@ -29,6 +29,7 @@ from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.proof import EscapeJob, prove_escapes
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 
 AVOIDABLE_CHOICES = ("any", "only")
@@ -46,11 +47,12 @@ def check_reaction_time(seconds: float) -> None:
         raise InputError(f"--reaction-time must be between 0 and 5 s, not {seconds:g}")
 
 
-def label_plans(spec: ScenarioSpec, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
+def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
                 drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                 traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
                 timings: dict[str, float] | None = None) -> list[Avoidability]:
-    """The avoidability of every plan, each escape proven (or refuted) in SUMO.
+    """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
+    spec, or its source resolved already).
 
     ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays).
     """
@@ -69,7 +71,7 @@ def label_plans(spec: ScenarioSpec, scene: Scene, target: int, plans: Sequence[A
                 jobs.append(EscapeJob(plan, e))
                 owners.append(e)
     if jobs:
-        verdicts = prove_escapes(spec, scene, target, jobs, drivable=drivable, held=held, workers=workers,
+        verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
                                  traci=traci, horizon_s=HORIZON_AFTER_TCOL_S)
         for e, v in zip(owners, verdicts, strict=True):
             e.proven, e.proof = bool(v["ok"]), v

@@ -36,12 +36,13 @@ from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import progress_bar
 from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
-from coster_sumo.scenario import ScenarioSource, choose_target, nominal_scene
+from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
@@ -153,10 +154,10 @@ def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | No
         timings["drivable_s"] = time.perf_counter() - t0
         result: RunResult
         if not several:
-            one = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
+            one = _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, timings)
             result = TargetResult.from_json(plain_json(one), opts.out)
         else:
-            result = _several_targets(opts, scene, named, drivable, held, planner, staging, timings)
+            result = _several_targets(opts, source, scene, named, drivable, held, planner, staging, timings)
         publish(staging, opts.out, kind="run")
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -167,7 +168,7 @@ def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | No
     return result
 
 
-def _several_targets(opts: RunOptions, scene: Scene, named: list[str], drivable: DrivableArea,
+def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, named: list[str], drivable: DrivableArea,
                      held: HeldStates | None, planner: str, staging: Path, timings: dict[str, float]
                      ) -> RunSummary:
     """Every target of a run with several into its own folder of ``staging``, and the list of them
@@ -178,7 +179,7 @@ def _several_targets(opts: RunOptions, scene: Scene, named: list[str], drivable:
         folder = staging / target_folder(tid, taken)
         folder.mkdir()
         try:
-            one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
+            one = _one_target(opts, source, scene, tid, drivable, held, planner, folder, dict(timings))
         except InputError as exc:  # this target has no scenario; the others go on
             shutil.rmtree(folder, ignore_errors=True)
             entries.append(TargetEntry(tid, error=str(exc)))
@@ -213,7 +214,7 @@ def target_folder(target_id: str, taken: set[str]) -> str:
     return name
 
 
-def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable: DrivableArea,
+def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requested: str | None, drivable: DrivableArea,
                 held: HeldStates | None, planner: str, out: Path, timings: dict[str, float]) -> dict[str, Any]:
     """Generation, the variants and the outputs (into ``out``) of one target of the nominal scene."""
     spec = opts.spec
@@ -240,7 +241,7 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     target_id = str(scene.tracks.ids[target])
 
     def label(plans: list[Any]) -> list[Any]:
-        return label_plans(spec, scene, target, plans, drivable=drivable, held=held, workers=opts.workers,
+        return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=opts.workers,
                            traci=opts.traci, reaction_time_s=opts.reaction_time, timings=timings)
 
     labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
@@ -257,7 +258,7 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with _bar(opts, "variants", "variant", total=len(plans)) as bar:
-        outcomes = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
+        outcomes = inject_variants(source, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
                                    workdir=out, held=held, workers=opts.workers, timeout=opts.timeout,
                                    done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0

@@ -18,7 +18,7 @@ import numpy as np
 
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.evasion import Escape
-from coster_sumo.formats.scene_folder import agent_sizes, converted_scene_file, vtype_for
+from coster_sumo.formats.scene_folder import agent_sizes, vtype_for
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.scene import Scene
@@ -37,6 +37,7 @@ from coster_sumo.sim.planners import ReplayPlanner
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, record
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 
 
@@ -110,7 +111,7 @@ def _prove_held(session: Any, payload: dict[str, Any]) -> dict[str, Any]:
     return verdict(res, payload["target_id"], job)
 
 
-def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob], *,
+def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, jobs: list[EscapeJob], *,
                   drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                   traci: bool = False, horizon_s: float = 3.0, together: bool = True) -> list[dict[str, Any]]:
     """Replay every escape in SUMO; one verdict (:func:`verdict`) per job, in order.
@@ -128,7 +129,8 @@ def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esca
     tr = scene.tracks
     target_id = str(tr.ids[target])
     length = float(np.median(tr.length[target][tr.valid[target]]))
-    converted = converted_scene_file(spec.config) is not None
+    source = ScenarioSource.of(scenario)
+    spec, converted = source.spec, source.converted
     out: list[dict[str, Any] | None] = [None] * len(jobs)
     groups: dict[int, list[int]] = {}
     if held is not None and not converted and not traci:
