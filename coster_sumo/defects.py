@@ -21,7 +21,6 @@ import numpy as np
 from coster_sumo.atomic import write_json
 from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError
 from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.metrics import rate_with_ci
@@ -32,19 +31,7 @@ from coster_sumo.sim.proof import EscapeJob, prove_escapes
 from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 
-AVOIDABLE_CHOICES = ("any", "only")
 ESCAPE_FILE = "escape.csv"
-
-
-def check_avoidable(choice: str) -> None:
-    """``--avoidable``: any (default) or only."""
-    if choice not in AVOIDABLE_CHOICES:
-        raise InputError(f"--avoidable must be one of {', '.join(AVOIDABLE_CHOICES)}, not {choice!r}")
-
-
-def check_reaction_time(seconds: float) -> None:
-    if not 0.0 <= seconds <= 5.0:
-        raise InputError(f"--reaction-time must be between 0 and 5 s, not {seconds:g}")
 
 
 def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,

@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import write_json
-from coster_sumo.defects import attach_labels, check_avoidable, check_reaction_time, keep_avoidable, label_plans
+from coster_sumo.defects import attach_labels, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
-from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.formats.sumocfg import config_files
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
@@ -33,7 +33,7 @@ from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_st
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
-from coster_sumo.progress import progress_bar
+from coster_sumo.progress import SimClock, progress_bar
 from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.scenario import choose_target, nominal_scene
@@ -43,7 +43,7 @@ from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_plan
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 
@@ -110,21 +110,12 @@ def run(opts: RunOptions) -> RunResult:
         raise InputError("with several targets every one needs an id (--target ID, repeated)")
     named = [str(t) for t in targets if t is not None]
     timings: dict[str, float] = {}
-    check_output(opts.out, kind="run", inputs=run_inputs(spec.config), overwrite=opts.overwrite)
+    check_output(opts.out, kind="run", inputs=config_files(spec.config), overwrite=opts.overwrite)
     with OutputLock(opts.out):
         clean_leftovers(opts.out)
         # again under the lock: another command may have written OUT since the first check
         check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
         return _run_locked(opts, source, targets, named, timings)
-
-
-def run_inputs(config: Path) -> list[Path]:
-    """The configuration and the files it names: an output folder must hold none of them."""
-    try:
-        cfg = read_sumocfg(config)
-    except InputError:
-        return [config]
-    return [config, *cfg.net_files, *cfg.route_files, *cfg.additional_files]
 
 
 def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | None], named: list[str],
@@ -143,8 +134,8 @@ def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | No
         # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
         # copies of it must have them
         extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
-        with _bar(opts, "nominal pass", "sim s") as bar:
-            clock = None if end is None else _SimClock(bar, end)
+        with progress_bar("nominal pass", "sim s", quiet=opts.quiet) as bar:
+            clock = None if end is None else SimClock(bar, end)
             scene, converted = nominal_scene(source, traci=opts.traci, hold=None if converted else held,
                                              additional=extra, progress=clock.update if clock else None,
                                              more_targets=named[1:])
@@ -223,7 +214,7 @@ def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requeste
     advance = _advance_held(held)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
-        with _bar(opts, f"generation ({str(scene.tracks.ids[target])})", "draw") as bar:
+        with progress_bar(f"generation ({str(scene.tracks.ids[target])})", "draw", quiet=opts.quiet) as bar:
             def drawn(snap: CollisionSnapshot) -> None:
                 bar.set_postfix_str(f"t_col {snap.time:.1f} s", refresh=False)
                 bar.update(1)
@@ -257,7 +248,7 @@ def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requeste
                              f"was avoidable at a reaction time of {opts.reaction_time:g} s (--avoidable only)")
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
-    with _bar(opts, "variants", "variant", total=len(plans)) as bar:
+    with progress_bar("variants", "variant", total=len(plans), quiet=opts.quiet) as bar:
         outcomes = inject_variants(source, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
                                    workdir=out, held=held, workers=opts.workers, timeout=opts.timeout,
                                    done=bar.update)
@@ -361,24 +352,3 @@ def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None
         held.advance(snap.time - HORIZON_STEPS / PRIOR_RATE_HZ - ADVANCE_MARGIN_S)
 
     return advance
-
-
-def _bar(opts: RunOptions, desc: str, unit: str, total: float | None = None) -> Any:
-    """A progress bar on stderr for one phase of the run (none with ``--quiet``)."""
-    return progress_bar(desc, unit, total=total, quiet=opts.quiet)
-
-
-class _SimClock:
-    """Moves a progress bar along the simulation time, from the first step to ``end`` [s]."""
-
-    def __init__(self, bar: Any, end: float) -> None:
-        self.bar, self.end = bar, end
-        self.begin: float | None = None
-
-    def update(self, t: float) -> None:
-        if self.begin is None:
-            self.begin = t
-            self.bar.total = round(max(self.end - t, 1.0), 1)
-        done = round(t - self.begin, 1)
-        if done - self.bar.n >= 1.0:  # redraw once per simulated second
-            self.bar.update(done - self.bar.n)

@@ -35,14 +35,14 @@ from coster_sumo.batch.sources import (
     task_folders,
 )
 from coster_sumo.batch.store import ResultStore, read_json, result_row
-from coster_sumo.defects import check_avoidable, check_reaction_time, defect_rates, escape_dict
+from coster_sumo.defects import defect_rates, escape_dict
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.generation import Variant, check_generation
 from coster_sumo.metrics import rate_with_ci
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
 from coster_sumo.weights import WEIGHT_FILES
 
 GENERATION_KEYS = ("init", "rollout", "collision_time", "variants", "samples")
