@@ -113,10 +113,9 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
     demand_files = [folder / n for n in (*names.get("route-files", []), *names.get("additional-files", []))
                     if not Path(n).is_absolute()]
     end = float(scene.timestamps[-1]) if scene.num_steps else None
-    if converted:  # the log drives everyone: every vehicle of the pass, all inserted unchecked
-        demand = _Demand(ids=[str(i) for i in scene.tracks.ids], target_by="fcd-replay")
-    else:
-        demand = _fit_demand(config, demand_files, plan.vehicle_id, target_id, planner, end, notes)
+    # a converted scene's log drives everyone: every vehicle of the pass, all inserted unchecked
+    demand = (_Demand(ids=[str(i) for i in scene.tracks.ids], target_by="fcd-replay") if converted
+              else _fit_demand(config, demand_files, plan.vehicle_id, target_id, planner, end, notes))
     lanes = LaneIndex.read(inputs["net-file"][0])
     vehicles = recorded_vehicles(scene, demand.ids, lanes, step, colors={plan.vehicle_id: ADVERSARY_COLOR})
     if plan.vehicle_id not in {v.vehicle_id for v in vehicles}:
@@ -128,31 +127,10 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
     write_vtypes(folder / VTYPES_FILE, vehicles)
     names["additional-files"] = [VTYPES_FILE, *names.get("additional-files", [])]
     output = _filter_staging(folder, lanes, staging)
-    xmin, ymin, xmax, ymax = shapely.total_bounds(lanes.lines[~lanes.internal] if (~lanes.internal).any()
-                                                  else lanes.lines)
-    write_gui_settings(folder / GUI_SETTINGS_FILE, (float(plan.x[-1]), float(plan.y[-1])),
-                       float(max(xmax - xmin, ymax - ymin)))
+    _write_gui_settings(folder, lanes, plan)
     cfg = folder / config.name
-    # the device routes a vehicle along the edges its entries name; staging, parking and logged
-    # agents that leave the lanes make that route disconnected, which SUMO refuses unless told so
-    # (route-file vehicles are unaffected: the pass ran them without the option); the device's
-    # vehicles are never delayed (demand.py: the configuration's own keep their checks)
-    processing = {"ignore-route-errors": "true", "insertion-checks": "none"}
-
-    def write_cfg() -> None:
-        write_export_config(cfg, config, names, begin=_fmt_time(read_sumocfg(config).begin), end=end, step=step,
-                            seed=seed, processing=processing, output=output, fcd_file=FCD_FILE,
-                            gui_settings=GUI_SETTINGS_FILE)
-
-    write_cfg()
-    expanded: list[str] = []
-    if demand.flows:  # the target is a flow member: every flow becomes the vehicles it made (demand.py)
-        expanded = expand_flows(cfg, demand.flows, frozenset({target_id}), folder / EXPANDED_FILE,
-                                checks=demand.checks or "all")
-        for f in demand_files:
-            rewrite_demand(f, drop_flows=True)
-        names["route-files"] = [*names.get("route-files", []), EXPANDED_FILE]
-        write_cfg()
+    expanded = _write_config(cfg, config, names, demand, demand_files, target_id, end=end, step=step, seed=seed,
+                             output=output)
     info: dict[str, Any] = {
         "sumocfg": cfg.name, "fcd_file": FCD_FILE, "vtypes_file": VTYPES_FILE, "gui_settings": GUI_SETTINGS_FILE,
         "fcd_vehicles": len(vehicles), "fcd_entries": n_entries,
@@ -167,6 +145,44 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
         "notes": notes,
     }
     return cfg, info
+
+
+def _write_config(cfg: Path, config: Path, names: dict[str, list[str]], demand: _Demand, demand_files: list[Path],
+                  target_id: str, *, end: float | None, step: float, seed: int | None, output: dict[str, str]
+                  ) -> list[str]:
+    """The export's configuration ``cfg``; where the target is a flow member, every flow becomes the
+    vehicles it made first (:mod:`coster_sumo.exports.demand`). Returns those vehicles."""
+    # the device routes a vehicle along the edges its entries name; staging, parking and logged
+    # agents that leave the lanes make that route disconnected, which SUMO refuses unless told so
+    # (route-file vehicles are unaffected: the pass ran them without the option); the device's
+    # vehicles are never delayed (demand.py: the configuration's own keep their checks)
+    processing = {"ignore-route-errors": "true", "insertion-checks": "none"}
+
+    def write_cfg() -> None:
+        write_export_config(cfg, config, names, begin=_fmt_time(read_sumocfg(config).begin), end=end, step=step,
+                            seed=seed, processing=processing, output=output, fcd_file=FCD_FILE,
+                            gui_settings=GUI_SETTINGS_FILE)
+
+    write_cfg()
+    if not demand.flows:
+        return []
+    # expanding reads the configuration just written (its demand as SUMO loads it)
+    expanded = expand_flows(cfg, demand.flows, frozenset({target_id}), cfg.parent / EXPANDED_FILE,
+                            checks=demand.checks or "all")
+    for f in demand_files:
+        rewrite_demand(f, drop_flows=True)
+    names["route-files"] = [*names.get("route-files", []), EXPANDED_FILE]
+    write_cfg()
+    return expanded
+
+
+def _write_gui_settings(folder: Path, lanes: LaneIndex, plan: AdversaryPlan) -> None:
+    """sumo-gui's view settings: centred on the end of the adversary's plan (the contact), zoomed by the
+    span of the lanes outside junctions."""
+    xmin, ymin, xmax, ymax = shapely.total_bounds(lanes.lines[~lanes.internal] if (~lanes.internal).any()
+                                                  else lanes.lines)
+    write_gui_settings(folder / GUI_SETTINGS_FILE, (float(plan.x[-1]), float(plan.y[-1])),
+                       float(max(xmax - xmin, ymax - ymin)))
 
 
 def _copy_inputs(folder: Path, config: Path, inputs: dict[str, list[Path]], copy_outside: bool
