@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
 from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
@@ -105,8 +104,8 @@ def label_line(lab: dict[str, Any]) -> str:
 
 def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidability],
                   passes: Sequence[tuple[AdversaryPlan, Any]] = ()) -> dict[str, Any]:
-    """Add each variant's label to ``summary`` (and ``out/summary.json``), write its escape plan
-    (``variants/<i>/escape.csv``, 10 Hz), and count avoidable variants; returns the summary.
+    """Add each variant's label to ``summary``, write its escape plan (``variants/<i>/escape.csv``,
+    10 Hz), and count avoidable variants; returns the summary.
 
     ``passes``: (plan, injection result) per variant: each then gets its planner's ``outcome`` line.
     """
@@ -131,7 +130,6 @@ def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidabil
     summary["unavoidable_contacts"] = sum(bool(r["collision"]) and not r["avoidability"]["avoidable"]
                                           for r in summary["variants"])
     summary["avoidable_share"] = summary["avoidable_variants"] / n if n else None
-    write_json(out / "summary.json", summary)
     return summary
 
 

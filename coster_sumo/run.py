@@ -145,8 +145,8 @@ def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | No
         timings["drivable_s"] = time.perf_counter() - t0
         result: RunResult
         if not several:
-            one = _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, timings)
-            result = TargetResult.from_json(plain_json(one), opts.out)
+            result = _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, opts.out,
+                                 timings)
         else:
             result = _several_targets(opts, source, scene, named, drivable, held, planner, staging, timings)
         publish(staging, opts.out, kind="run")
@@ -170,13 +170,14 @@ def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, nam
         folder = staging / target_folder(tid, taken)
         folder.mkdir()
         try:
-            one = _one_target(opts, source, scene, tid, drivable, held, planner, folder, dict(timings))
+            # its result says where publish puts it
+            result = _one_target(opts, source, scene, tid, drivable, held, planner, folder, opts.out / folder.name,
+                                 dict(timings))
         except InputError as exc:  # this target has no scenario; the others go on
             shutil.rmtree(folder, ignore_errors=True)
             entries.append(TargetEntry(tid, error=str(exc)))
             continue
-        plain = plain_json(one)
-        result = TargetResult.from_json(plain, opts.out / folder.name)  # where publish puts it
+        plain = result.to_json()
         entries.append(TargetEntry(tid, folder.name, result=result,
                                    extra={**{k: plain[k] for k in _LISTED}, "failed_variants": len(result.failed)}))
     if not any(t.result is not None for t in entries):
@@ -206,8 +207,10 @@ def target_folder(target_id: str, taken: set[str]) -> str:
 
 
 def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requested: str | None, drivable: DrivableArea,
-                held: HeldStates | None, planner: str, out: Path, timings: dict[str, float]) -> dict[str, Any]:
-    """Generation, the variants and the outputs (into ``out``) of one target of the nominal scene."""
+                held: HeldStates | None, planner: str, out: Path, published: Path, timings: dict[str, float]
+                ) -> TargetResult:
+    """Generation, the variants and the outputs (into ``out``, its ``summary.json`` last) of one target
+    of the nominal scene; its result names ``published``, where ``out`` is renamed to."""
     spec = opts.spec
     target = choose_target(scene, requested, spec.config)
     t0 = time.perf_counter()
@@ -267,7 +270,10 @@ def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requeste
     if tried is not None:
         summary["avoidable_only"] = tried
     kept = [pl for p in planned for pl in p.plans]
-    return attach_labels(out, summary, [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
+    summary = attach_labels(out, summary, [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
+    result = TargetResult.from_json(plain_json(summary), published)
+    write_json(out / "summary.json", result.to_json())
+    return result
 
 
 def _leave_out(planned: list[PlannedScenario], outcomes: Sequence[Any],
