@@ -202,39 +202,9 @@ class _Candidates:
 
     def __init__(self, ctx: _SearchContext, act_k: np.ndarray) -> None:
         self.ctx, self.act_k = ctx, act_k
-        nx, ny, nyaw, nv, man, times = ctx.nx, ctx.ny, ctx.nyaw, ctx.nv, ctx.man, ctx.times
+        nx, ny, nyaw, times = ctx.nx, ctx.ny, ctx.nyaw, ctx.times
         n = len(times)
-        m_count, k_count = len(man), len(act_k)
-        s_nom, d_nom, _ = project_points(np.stack([nx, ny], 1), ctx.path)  # (T,)
-        # nominal acceleration at each moment to act
-        a_nom = np.gradient(nv, DT_S) if n > 1 else np.zeros(n)
-        v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
-        # longitudinal: arc length along the path for every (act, manoeuvre) pair
-        goals = np.array([m.accel for m in man])
-        lon_kind = np.array([m.longitudinal for m in man])
-        tau = np.arange(n) * DT_S  # time since acting, long enough for the earliest act
-        s = np.empty((k_count, m_count, n))
-        v = np.empty((k_count, m_count, n))
-        a_lon = np.empty((k_count, m_count, n))
-        lat_shift = np.array([m.lateral_m for m in man])
-        lat_acc = np.array([m.lateral_accel for m in man])
-        d_prof = lateral_profile(tau, lat_shift, lat_acc)  # (M, n) from the moment of acting
-        d = np.empty((k_count, m_count, n))
-        for j, k in enumerate(act_k):  # once per moment to act; each call is batched over manoeuvres and steps
-            rest = n - k
-            sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (M, rest)
-            nominal = lon_kind == "nominal"
-            sp[nominal] = nv[k:]
-            ac[nominal] = a_nom[k:]
-            ds = np.concatenate([np.zeros((m_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
-            s[j, :, :k] = s_nom[:k]
-            s[j, :, k:] = np.where(nominal[:, None], s_nom[k:], s_nom[k] + ds)
-            v[j, :, :k] = nv[:k]
-            v[j, :, k:] = sp
-            a_lon[j, :, :k] = a_nom[:k]
-            a_lon[j, :, k:] = ac
-            d[j, :, :k] = d_nom[:k]
-            d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
+        s, v, a_lon, d = _profiles(ctx, act_k)
         # poses: along the path plus the sideways shift; the nominal part is the log itself
         xy, hd = point_at_arc_length(ctx.path, s)  # (K, M, n, 2), (K, M, n)
         normal = np.stack([-np.sin(hd), np.cos(hd)], -1)
@@ -315,6 +285,46 @@ class _Candidates:
                       yaw=(yaw[kb, mb] + np.pi) % (2 * np.pi) - np.pi, speed=self.v[kb, mb].copy(),
                       clearance_m=clearance, peak_decel=float(self.peak_decel[kb, mb]),
                       peak_lateral_accel=float(self.peak_lat[kb, mb]), peak_accel=float(self.demand[kb, mb]))
+
+
+def _profiles(ctx: _SearchContext, act_k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every (act, manoeuvre) candidate's arc length along the path [m], speed [m/s], longitudinal
+    acceleration [m/s^2] and sideways shift [m], each (K, M, T): the nominal log before acting, the
+    manoeuvre's profiles from then on."""
+    nx, ny, nv, man, times = ctx.nx, ctx.ny, ctx.nv, ctx.man, ctx.times
+    n = len(times)
+    m_count, k_count = len(man), len(act_k)
+    s_nom, d_nom, _ = project_points(np.stack([nx, ny], 1), ctx.path)  # (T,)
+    # nominal acceleration at each moment to act
+    a_nom = np.gradient(nv, DT_S) if n > 1 else np.zeros(n)
+    v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
+    # longitudinal: arc length along the path for every (act, manoeuvre) pair
+    goals = np.array([m.accel for m in man])
+    lon_kind = np.array([m.longitudinal for m in man])
+    tau = np.arange(n) * DT_S  # time since acting, long enough for the earliest act
+    s = np.empty((k_count, m_count, n))
+    v = np.empty((k_count, m_count, n))
+    a_lon = np.empty((k_count, m_count, n))
+    lat_shift = np.array([m.lateral_m for m in man])
+    lat_acc = np.array([m.lateral_accel for m in man])
+    d_prof = lateral_profile(tau, lat_shift, lat_acc)  # (M, n) from the moment of acting
+    d = np.empty((k_count, m_count, n))
+    for j, k in enumerate(act_k):  # once per moment to act; each call is batched over manoeuvres and steps
+        rest = n - k
+        sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (M, rest)
+        nominal = lon_kind == "nominal"
+        sp[nominal] = nv[k:]
+        ac[nominal] = a_nom[k:]
+        ds = np.concatenate([np.zeros((m_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
+        s[j, :, :k] = s_nom[:k]
+        s[j, :, k:] = np.where(nominal[:, None], s_nom[k:], s_nom[k] + ds)
+        v[j, :, :k] = nv[:k]
+        v[j, :, k:] = sp
+        a_lon[j, :, :k] = a_nom[:k]
+        a_lon[j, :, k:] = ac
+        d[j, :, :k] = d_nom[:k]
+        d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
+    return s, v, a_lon, d
 
 
 class _RoadCheck:

@@ -389,17 +389,16 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
       adversary's plan starts and then hands it over: the planner commands it from then on, and
       SUMO's driver (``sumo``) continues from the logged pose along the road the target is on.
 
-    The pass runs from the spec's begin with its seed to the end of the nominal scene, or until the
-    target has arrived, or ``post_contact_s`` after the adversary's contact with the target (or after
-    t_col, when the adversary hit another vehicle first and stays there). ``driver``: a planner object
-    that replaces the one ``planner`` names (a replay of another trajectory). On a SUMO configuration
-    only the target's surroundings are recorded and checked (the converted scenes are small:
-    everything is).
+    ``scenario``: the spec, or its source resolved already. The pass runs from the spec's begin with
+    its seed to the end of the nominal scene, or until the target has arrived, or ``post_contact_s``
+    after the adversary's contact with the target (or after t_col, when the adversary hit another
+    vehicle first and stays there). ``driver``: a planner object that replaces the one ``planner``
+    names (a replay of another trajectory). On a SUMO configuration only the target's surroundings
+    are recorded and checked (the converted scenes are small: everything is).
     """
     source = ScenarioSource.of(scenario)
-    spec, converted = source.spec, source.converted
+    spec, converted, target_id = source.spec, source.converted, str(scene.tracks.ids[target])
     planner_spec = planner or default_planner(converted)
-    target_id = str(scene.tracks.ids[target])
     actors: tuple[StepActor, ...] = ()
     if converted:
         from coster_sumo.sim.replay import LogReplayer
@@ -468,11 +467,10 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
     not affected. ``done(n)`` is called as n more variants finish (progress).
     """
     source = ScenarioSource.of(scenario)
-    converted = source.converted
-    planner_spec = planner or default_planner(converted)
+    planner_spec = planner or default_planner(source.converted)
     results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
     groups: dict[int, list[int]] = {}
-    if held is not None and not converted and not traci:
+    if held is not None and not source.converted and not traci:
         for i, plan in enumerate(plans):
             h = held.holder_before(plan.t_start - TIME_EPS)
             if h is not None:
