@@ -261,16 +261,9 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                     specs: list[ScenarioSpec], out: Path) -> dict[str, Any]:
     """:func:`regress` once OUT is checked and locked: leftovers of stopped batches removed, then the runs."""
     plans_dir, logs_dir = out / "plans", out / "logs"
-    plans_dir.mkdir(parents=True, exist_ok=True)
-    for folder in (plans_dir, out / "results"):  # half-written files of a batch that was killed
-        for leftover in staged_names(folder, (".tmp.npz", ".tmp.json", ".tmp.parquet")):
-            leftover.unlink(missing_ok=True)
-    store = ResultStore(out / "results")
     gen = generation.to_dict()
     keys = {scene_key(s, gen): s for s in specs}
-    write_json(out / "regress.json", {"options": {k: (str(v) if isinstance(v, Path) else v)
-                                                    for k, v in dataclasses.asdict(opts).items()},
-                                        "scenes": {k: s.label() for k, s in keys.items()}})
+    store = _start_folder(out, opts, keys)
     # failed runs are done, unless the failure was the machine's (timeout, memory, disk) or --retry-failed
     failed_runs = {r["run_key"] for r in store.read()
                    if r["status"] != "ok" and (opts.retry_failed or is_transient(r["reason"] or ""))}
@@ -340,6 +333,20 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         summary["report"] = write_regression_report(out, summary, store.read())
         write_json(out / "summary.json", summary)
     return summary
+
+
+def _start_folder(out: Path, opts: RegressOptions, keys: dict[str, ScenarioSpec]) -> ResultStore:
+    """OUT ready for the runs: ``plans/``, no half-written file of a batch that was killed, and
+    ``regress.json`` (the options and the scenes by key); returns the result store."""
+    (out / "plans").mkdir(parents=True, exist_ok=True)
+    for folder in (out / "plans", out / "results"):
+        for leftover in staged_names(folder, (".tmp.npz", ".tmp.json", ".tmp.parquet")):
+            leftover.unlink(missing_ok=True)
+    store = ResultStore(out / "results")
+    write_json(out / "regress.json", {"options": {k: (str(v) if isinstance(v, Path) else v)
+                                                    for k, v in dataclasses.asdict(opts).items()},
+                                        "scenes": {k: s.label() for k, s in keys.items()}})
+    return store
 
 
 def _append_log(path: Path, outcome: Outcome) -> None:
