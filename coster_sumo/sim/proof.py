@@ -102,13 +102,29 @@ def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: st
             "max_deviation_m": None if deviation is None else round(deviation, 4), "max_deviation_at_s": dev_at}
 
 
-def _prove_held(session: Any, payload: dict[str, Any]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class HeldEscape:
+    """What a forked copy of the nominal pass needs to replay one escape (:func:`_prove_held`).
+
+    Attributes:
+        job: the escape and its adversary's plan; target_id: the target; length_m: [m] its length.
+        drivable: the drivable area (off-road events); end: [s] when the pass ends.
+    """
+
+    job: EscapeJob
+    target_id: str
+    length_m: float
+    drivable: DrivableArea | None
+    end: float
+
+
+def _prove_held(session: Any, held: HeldEscape) -> dict[str, Any]:
     """One escape's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
-    job: EscapeJob = payload["job"]
-    res = continue_injection(session, payload["target_id"], job.plan,
-                             escape_planner(job.escape, payload["length"]), end=payload["end"],
-                             drivable=payload["drivable"], surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=None)
-    return verdict(res, payload["target_id"], job)
+    job = held.job
+    res = continue_injection(session, held.target_id, job.plan, escape_planner(job.escape, held.length_m),
+                             end=held.end, drivable=held.drivable, surroundings_m=SURROUNDINGS_RADIUS_M,
+                             post_contact_s=None)
+    return verdict(res, held.target_id, job)
 
 
 def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, jobs: list[EscapeJob], *,
@@ -140,8 +156,8 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
                 groups.setdefault(held.holders.index(h), []).append(i)
     for h_index, members in groups.items():
         assert held is not None
-        payloads = [(_prove_held, {"job": jobs[i], "target_id": target_id, "length": length, "drivable": drivable,
-                                   "end": jobs[i].plan.t_col + horizon_s + 1e-6}) for i in members]
+        payloads = [(_prove_held, HeldEscape(jobs[i], target_id, length, drivable,
+                                             end=jobs[i].plan.t_col + horizon_s + 1e-6)) for i in members]
         for i, v in zip(members, held.run(held.holders[h_index], payloads, workers), strict=True):
             out[i] = v
     if converted and together and not traci and jobs:
