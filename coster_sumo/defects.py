@@ -60,7 +60,7 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
         verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
                                  traci=traci, horizon_s=HORIZON_AFTER_TCOL_S)
         for e, v in zip(owners, verdicts, strict=True):
-            e.proven, e.proof = bool(v["ok"]), v
+            e.proven, e.proof = v.ok, v.to_json()
     # several reaction times may share one plan: the same object got one verdict
     for lab in labels:
         _share_verdicts(lab)
