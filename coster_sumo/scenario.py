@@ -75,7 +75,6 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
-    extra: dict[str, Any] = {"additional": list(additional)} if additional else {}
 
     def after_step(session: Any, states: Any) -> bool:
         if progress is not None:
@@ -85,7 +84,7 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
                           focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
                                       more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S),
-                          after_step=after_step, **extra)
+                          after_step=after_step, additional=list(additional))
     ids = scene.tracks.ids.tolist()
     present = [ids.index(v) for v in wanted if v in ids]
     if present:  # regions and the drivable area cover its (their) surroundings only
