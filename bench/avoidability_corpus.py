@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.batch.store import rate_with_ci
+from coster_sumo.metrics import rate_with_ci
 
 TIMES = ("0.5", "1", "1.5")
 

@@ -80,7 +80,7 @@ for line in sys.stdin:
         try:
             from pathlib import Path
             from coster_sumo.drivable import DrivableArea
-            from coster_sumo.scene import load_scene
+            from coster_sumo.formats.scene_file import load_scene
             from coster_sumo.spec import GenerationConfig
             scene = load_scene(req["scene"])
             target = choose_target(scene, None, req["scene"])

@@ -15,7 +15,8 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-from coster_sumo.batch.store import ResultStore, rate_with_ci
+from coster_sumo.batch.store import ResultStore
+from coster_sumo.metrics import rate_with_ci
 
 
 def config_of(scene_key: str) -> str:

@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from coster_sumo.dataset import list_scenes
+from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.rollout.data import ROLLOUT_HZ
-from coster_sumo.scene import load_scene, resample, save_scene
+from coster_sumo.scene import resample
 
 REPO = Path(__file__).resolve().parents[1]
 # what the device's image lacks among the CLI's imports (its torch, numpy, scipy, matplotlib and

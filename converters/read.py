@@ -3,7 +3,7 @@
 - ScenarioNet / MetaDrive pickle (starts with the pickle PROTO opcode ``0x80``; loaded with the
   restricted unpickler of :mod:`converters.scenarionet`, so no file can make it run code);
 - gzip-compressed TFRecord of WOMD ``Scenario`` records (gzip magic ``1f 8b``);
-- this project's own ``.npz`` scenes (zip magic ``PK``, see :func:`coster_sumo.scene.save_scene`);
+- this project's own ``.npz`` scenes (zip magic ``PK``, see :func:`coster_sumo.formats.scene_file.save_scene`);
 - anything else is read as a plain TFRecord of WOMD ``Scenario`` records (a record that is a
   TensorFlow ``tf.Example``, e.g. WOMD's "tf_example" release, is named and refused).
 
@@ -17,7 +17,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from coster_sumo.errors import InputError
-from coster_sumo.scene import Scene, load_scene
+from coster_sumo.formats.scene_file import load_scene
+from coster_sumo.scene import Scene
 
 from .scenarionet import PICKLE_MAGIC, iter_pickle_scenes
 from .tfrecord import GZIP_MAGIC

@@ -15,7 +15,7 @@
 - ``<id>.sumocfg``: relative paths, step length 0.1 s, begin 0, end = the scene's end on SUMO's
   clock (the log is shifted by ``sumo_time_offset_s`` = 0.2 s for a WOMD log starting at 0, to
   leave a staging step before it; see :func:`on_sumo_clock` and :mod:`coster_sumo.sim.replay`);
-- ``scene.npz``: the scene (:func:`coster_sumo.scene.save_scene`), WOMD coordinates, timestamps on
+- ``scene.npz``: the scene (:func:`coster_sumo.formats.scene_file.save_scene`), WOMD coordinates, timestamps on
   SUMO's clock;
 - ``lane_map.json``: WOMD lane id -> SUMO lane ids, WOMD link -> SUMO connection, and per traffic
   light the WOMD lane whose logged signal drives each link index;
@@ -45,6 +45,7 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo import sumo_env
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.net_joints import measure_joints
+from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.formats.scene_folder import (
     STAGING_EDGE,
     folder_name,
@@ -54,7 +55,7 @@ from coster_sumo.formats.scene_folder import (
 )
 from coster_sumo.geometry import polyline_arc_length, project_points
 from coster_sumo.outdir import check_output, new_staging, publish, raise_if_disk_full
-from coster_sumo.scene import ObjectType, Scene, save_scene
+from coster_sumo.scene import ObjectType, Scene
 
 from .to_sumo_net import (
     Connection,

@@ -5,6 +5,7 @@ Nothing here imports SUMO or torch: those are imported where they are used, so t
 """
 
 from coster_sumo.errors import CosterError, InputError, SumoError
+from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.scene import (
     Lanes,
     LaneType,
@@ -16,9 +17,7 @@ from coster_sumo.scene import (
     SignalState,
     SignalStates,
     Tracks,
-    load_scene,
     resample,
-    save_scene,
 )
 
 __version__ = "0.1.0"

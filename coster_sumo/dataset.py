@@ -4,7 +4,7 @@ Folder format::
 
     DATASET/
       manifest.json        what was simulated: sources, seeds, demand scales, counts, hours
-      scenes/<name>.npz    one clip each (coster_sumo.scene.save_scene): what training reads
+      scenes/<name>.npz    one clip each (coster_sumo.formats.scene_file.save_scene): what training reads
       heldout/<name>.npz   clips of held-out networks: never listed by list_scenes, so never trained on
       stats/<run>.npz      per-run statistics for the corpus card (coster_sumo.batch.card)
       nets/                networks generated for the dataset (netgenerate), with their demand
@@ -35,17 +35,8 @@ import numpy as np
 
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError, not_found
-from coster_sumo.scene import (
-    Lanes,
-    ObjectType,
-    Polylines,
-    Ragged,
-    RoadMap,
-    Scene,
-    SignalStates,
-    Tracks,
-    load_scene,
-)
+from coster_sumo.formats.scene_file import load_scene
+from coster_sumo.scene import Lanes, ObjectType, Polylines, Ragged, RoadMap, Scene, SignalStates, Tracks
 
 CLIP_HZ = 10.0  # [1/s]
 CLIP_STEPS = 91  # 9.1 s like WOMD

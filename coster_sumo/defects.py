@@ -18,37 +18,27 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
-from coster_sumo.avoid import DEFAULT_REACTION_S, HORIZON_AFTER_TCOL_S, Avoidability, Escape, assess
+from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.errors import InputError
+from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.metrics import rate_with_ci
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.proof import EscapeJob, prove_escapes
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 
-AVOIDABLE_CHOICES = ("any", "only")
 ESCAPE_FILE = "escape.csv"
 
 
-def check_avoidable(choice: str) -> None:
-    """``--avoidable``: any (default) or only."""
-    if choice not in AVOIDABLE_CHOICES:
-        raise InputError(f"--avoidable must be one of {', '.join(AVOIDABLE_CHOICES)}, not {choice!r}")
-
-
-def check_reaction_time(seconds: float) -> None:
-    if not 0.0 <= seconds <= 5.0:
-        raise InputError(f"--reaction-time must be between 0 and 5 s, not {seconds:g}")
-
-
-def label_plans(spec: ScenarioSpec, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
+def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
                 drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                 traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
                 timings: dict[str, float] | None = None) -> list[Avoidability]:
-    """The avoidability of every plan, each escape proven (or refuted) in SUMO.
+    """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
+    spec, or its source resolved already).
 
     ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays).
     """
@@ -67,10 +57,10 @@ def label_plans(spec: ScenarioSpec, scene: Scene, target: int, plans: Sequence[A
                 jobs.append(EscapeJob(plan, e))
                 owners.append(e)
     if jobs:
-        verdicts = prove_escapes(spec, scene, target, jobs, drivable=drivable, held=held, workers=workers,
+        verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
                                  traci=traci, horizon_s=HORIZON_AFTER_TCOL_S)
         for e, v in zip(owners, verdicts, strict=True):
-            e.proven, e.proof = bool(v["ok"]), v
+            e.proven, e.proof = v.ok, v.to_json()
     # several reaction times may share one plan: the same object got one verdict
     for lab in labels:
         _share_verdicts(lab)
@@ -114,8 +104,8 @@ def label_line(lab: dict[str, Any]) -> str:
 
 def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidability],
                   passes: Sequence[tuple[AdversaryPlan, Any]] = ()) -> dict[str, Any]:
-    """Add each variant's label to ``summary`` (and ``out/summary.json``), write its escape plan
-    (``variants/<i>/escape.csv``, 10 Hz), and count avoidable variants; returns the summary.
+    """Add each variant's label to ``summary``, write its escape plan (``variants/<i>/escape.csv``,
+    10 Hz), and count avoidable variants; returns the summary.
 
     ``passes``: (plan, injection result) per variant: each then gets its planner's ``outcome`` line.
     """
@@ -140,7 +130,6 @@ def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidabil
     summary["unavoidable_contacts"] = sum(bool(r["collision"]) and not r["avoidability"]["avoidable"]
                                           for r in summary["variants"])
     summary["avoidable_share"] = summary["avoidable_variants"] / n if n else None
-    write_json(out / "summary.json", summary)
     return summary
 
 
@@ -248,7 +237,6 @@ def defect_rates(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     t_col): that is what an escape is proven for; what happens later (the pass goes on until the
     target arrives) stays in the plain collision rate.
     """
-    from coster_sumo.batch.store import rate_with_ci
 
     labelled = [r for r in rows if r.get("avoidable") is not None]
     av = [r for r in labelled if r["avoidable"]]
@@ -303,7 +291,6 @@ def label_record(lab: Avoidability) -> dict[str, Any]:
 def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Share of avoidable variants (Wilson 95 %) per reaction time, overall and per kind of contact;
     the distribution of the last moment to act; how many kinematic escapes SUMO refuted."""
-    from coster_sumo.batch.store import rate_with_ci
 
     recs = [r for r in records if r.get("avoidable_at")]
     times = sorted({t for r in recs for t in r["avoidable_at"]}, key=float)

@@ -12,7 +12,9 @@ from evaluation scripts, notebooks and tests alike.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -37,6 +39,28 @@ def off_road_rate(off_road: Sequence[bool] | np.ndarray) -> float:
     """ORR: share of adversary trajectories that leave the drivable road."""
     o = np.asarray(off_road, dtype=bool)
     return float(o.mean()) if o.size else float("nan")
+
+
+WILSON_Z = 1.959963984540054  # two-sided 95 %
+
+
+def wilson_interval(successes: int, n: int, z: float = WILSON_Z) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % by default); (nan, nan) when n = 0."""
+    if n <= 0:
+        return float("nan"), float("nan")
+    p = successes / n
+    z2 = z * z
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = z / (1 + z2 / n) * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def rate_with_ci(flags: Sequence[bool]) -> dict[str, Any]:
+    """{"rate", "ci_low", "ci_high", "k", "n"} of boolean outcomes (Wilson 95 %)."""
+    n = len(flags)
+    k = int(sum(bool(f) for f in flags))
+    lo, hi = wilson_interval(k, n)
+    return {"rate": k / n if n else None, "ci_low": lo if n else None, "ci_high": hi if n else None, "k": k, "n": n}
 
 
 # ----------------------------------------------------------------------------- distributions

@@ -235,7 +235,9 @@ def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult,
 def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
                       results: list[InjectionResult], timings: dict[str, float], *, render: bool,
                       options: dict[str, Any], copy_outside: bool = False) -> dict[str, Any]:
-    """Write everything of a run into ``out`` (the caller renames it into place); returns the summary.
+    """Write everything of a run into ``out`` (the caller renames it into place) but ``summary.json``;
+    returns the summary (``summary.json`` is the JSON of the target's result, written by
+    :func:`coster_sumo.run.run` once the avoidability labels are in it).
 
     ``planned``: one entry per collision snapshot (``--snapshots``); ``results``: one per plan, in
     the order of the snapshots' plans. Variants are numbered across snapshots.
@@ -320,5 +322,4 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         # where the README documents it: how --targets N chose (also under options)
         **({"target_choice": options["target_choice"]} if options.get("target_choice") else {}),
     }
-    write_json(out / "summary.json", summary)
     return summary

@@ -30,3 +30,20 @@ def progress_bar(desc: str, unit: str, total: float | None = None, quiet: bool =
 
     tqdm.monitor_interval = 0  # no monitor thread in a process that forks
     return _Bar(total=total, desc=desc, unit=unit, disable=quiet, leave=False, file=sys.stderr, dynamic_ncols=True)
+
+
+class SimClock:
+    """Moves a progress bar along the simulation time, from the first step to ``end`` [s] (the
+    ``progress`` callback of a recorded pass: :meth:`update` takes the simulation time)."""
+
+    def __init__(self, bar: Any, end: float) -> None:
+        self.bar, self.end = bar, end
+        self.begin: float | None = None
+
+    def update(self, t: float) -> None:
+        if self.begin is None:
+            self.begin = t
+            self.bar.total = round(max(self.end - t, 1.0), 1)
+        done = round(t - self.begin, 1)
+        if done - self.bar.n >= 1.0:  # redraw once per simulated second
+            self.bar.update(done - self.bar.n)

@@ -181,8 +181,8 @@ def failure_examples(rows: Sequence[dict[str, Any]], planners: Sequence[str],
 def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, Any]) -> Path | None:
     """The scene at t_col, the target's nominal (dashed) and driven path, the adversary's plan and contact."""
     from coster_sumo import viz
+    from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.plan import AdversaryPlan
-    from coster_sumo.scene import load_scene
 
     plans_dir = out / "plans"
     key = row["scene_key"]

@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import write_json
-from coster_sumo.defects import attach_labels, check_avoidable, check_reaction_time, keep_avoidable, label_plans
+from coster_sumo.defects import attach_labels, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
-from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.formats.sumocfg import config_files
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
@@ -33,16 +33,17 @@ from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_st
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
-from coster_sumo.progress import progress_bar
+from coster_sumo.progress import SimClock, progress_bar
 from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
-from coster_sumo.scenario import ScenarioSource, choose_target, nominal_scene
+from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.source import ScenarioSource
+from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 
@@ -109,21 +110,12 @@ def run(opts: RunOptions) -> RunResult:
         raise InputError("with several targets every one needs an id (--target ID, repeated)")
     named = [str(t) for t in targets if t is not None]
     timings: dict[str, float] = {}
-    check_output(opts.out, kind="run", inputs=run_inputs(spec.config), overwrite=opts.overwrite)
+    check_output(opts.out, kind="run", inputs=config_files(spec.config), overwrite=opts.overwrite)
     with OutputLock(opts.out):
         clean_leftovers(opts.out)
         # again under the lock: another command may have written OUT since the first check
         check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
         return _run_locked(opts, source, targets, named, timings)
-
-
-def run_inputs(config: Path) -> list[Path]:
-    """The configuration and the files it names: an output folder must hold none of them."""
-    try:
-        cfg = read_sumocfg(config)
-    except InputError:
-        return [config]
-    return [config, *cfg.net_files, *cfg.route_files, *cfg.additional_files]
 
 
 def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | None], named: list[str],
@@ -142,8 +134,8 @@ def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | No
         # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
         # copies of it must have them
         extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
-        with _bar(opts, "nominal pass", "sim s") as bar:
-            clock = None if end is None else _SimClock(bar, end)
+        with progress_bar("nominal pass", "sim s", quiet=opts.quiet) as bar:
+            clock = None if end is None else SimClock(bar, end)
             scene, converted = nominal_scene(source, traci=opts.traci, hold=None if converted else held,
                                              additional=extra, progress=clock.update if clock else None,
                                              more_targets=named[1:])
@@ -153,10 +145,10 @@ def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | No
         timings["drivable_s"] = time.perf_counter() - t0
         result: RunResult
         if not several:
-            one = _one_target(opts, scene, spec.target, drivable, held, planner, staging, timings)
-            result = TargetResult.from_json(plain_json(one), opts.out)
+            result = _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, opts.out,
+                                 timings)
         else:
-            result = _several_targets(opts, scene, named, drivable, held, planner, staging, timings)
+            result = _several_targets(opts, source, scene, named, drivable, held, planner, staging, timings)
         publish(staging, opts.out, kind="run")
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -167,7 +159,7 @@ def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | No
     return result
 
 
-def _several_targets(opts: RunOptions, scene: Scene, named: list[str], drivable: DrivableArea,
+def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, named: list[str], drivable: DrivableArea,
                      held: HeldStates | None, planner: str, staging: Path, timings: dict[str, float]
                      ) -> RunSummary:
     """Every target of a run with several into its own folder of ``staging``, and the list of them
@@ -178,13 +170,14 @@ def _several_targets(opts: RunOptions, scene: Scene, named: list[str], drivable:
         folder = staging / target_folder(tid, taken)
         folder.mkdir()
         try:
-            one = _one_target(opts, scene, tid, drivable, held, planner, folder, dict(timings))
+            # its result says where publish puts it
+            result = _one_target(opts, source, scene, tid, drivable, held, planner, folder, opts.out / folder.name,
+                                 dict(timings))
         except InputError as exc:  # this target has no scenario; the others go on
             shutil.rmtree(folder, ignore_errors=True)
             entries.append(TargetEntry(tid, error=str(exc)))
             continue
-        plain = plain_json(one)
-        result = TargetResult.from_json(plain, opts.out / folder.name)  # where publish puts it
+        plain = result.to_json()
         entries.append(TargetEntry(tid, folder.name, result=result,
                                    extra={**{k: plain[k] for k in _LISTED}, "failed_variants": len(result.failed)}))
     if not any(t.result is not None for t in entries):
@@ -213,16 +206,18 @@ def target_folder(target_id: str, taken: set[str]) -> str:
     return name
 
 
-def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable: DrivableArea,
-                held: HeldStates | None, planner: str, out: Path, timings: dict[str, float]) -> dict[str, Any]:
-    """Generation, the variants and the outputs (into ``out``) of one target of the nominal scene."""
+def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requested: str | None, drivable: DrivableArea,
+                held: HeldStates | None, planner: str, out: Path, published: Path, timings: dict[str, float]
+                ) -> TargetResult:
+    """Generation, the variants and the outputs (into ``out``, its ``summary.json`` last) of one target
+    of the nominal scene; its result names ``published``, where ``out`` is renamed to."""
     spec = opts.spec
     target = choose_target(scene, requested, spec.config)
     t0 = time.perf_counter()
     advance = _advance_held(held)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
-        with _bar(opts, f"generation ({str(scene.tracks.ids[target])})", "draw") as bar:
+        with progress_bar(f"generation ({str(scene.tracks.ids[target])})", "draw", quiet=opts.quiet) as bar:
             def drawn(snap: CollisionSnapshot) -> None:
                 bar.set_postfix_str(f"t_col {snap.time:.1f} s", refresh=False)
                 bar.update(1)
@@ -240,7 +235,7 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     target_id = str(scene.tracks.ids[target])
 
     def label(plans: list[Any]) -> list[Any]:
-        return label_plans(spec, scene, target, plans, drivable=drivable, held=held, workers=opts.workers,
+        return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=opts.workers,
                            traci=opts.traci, reaction_time_s=opts.reaction_time, timings=timings)
 
     labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
@@ -256,8 +251,8 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
                              f"was avoidable at a reaction time of {opts.reaction_time:g} s (--avoidable only)")
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
-    with _bar(opts, "variants", "variant", total=len(plans)) as bar:
-        outcomes = inject_variants(spec, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
+    with progress_bar("variants", "variant", total=len(plans), quiet=opts.quiet) as bar:
+        outcomes = inject_variants(source, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
                                    workdir=out, held=held, workers=opts.workers, timeout=opts.timeout,
                                    done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0
@@ -275,7 +270,10 @@ def _one_target(opts: RunOptions, scene: Scene, requested: str | None, drivable:
     if tried is not None:
         summary["avoidable_only"] = tried
     kept = [pl for p in planned for pl in p.plans]
-    return attach_labels(out, summary, [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
+    summary = attach_labels(out, summary, [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
+    result = TargetResult.from_json(plain_json(summary), published)
+    write_json(out / "summary.json", result.to_json())
+    return result
 
 
 def _leave_out(planned: list[PlannedScenario], outcomes: Sequence[Any],
@@ -360,24 +358,3 @@ def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None
         held.advance(snap.time - HORIZON_STEPS / PRIOR_RATE_HZ - ADVANCE_MARGIN_S)
 
     return advance
-
-
-def _bar(opts: RunOptions, desc: str, unit: str, total: float | None = None) -> Any:
-    """A progress bar on stderr for one phase of the run (none with ``--quiet``)."""
-    return progress_bar(desc, unit, total=total, quiet=opts.quiet)
-
-
-class _SimClock:
-    """Moves a progress bar along the simulation time, from the first step to ``end`` [s]."""
-
-    def __init__(self, bar: Any, end: float) -> None:
-        self.bar, self.end = bar, end
-        self.begin: float | None = None
-
-    def update(self, t: float) -> None:
-        if self.begin is None:
-            self.begin = t
-            self.bar.total = round(max(self.end - t, 1.0), 1)
-        done = round(t - self.begin, 1)
-        if done - self.bar.n >= 1.0:  # redraw once per simulated second
-            self.bar.update(done - self.bar.n)

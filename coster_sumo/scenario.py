@@ -1,7 +1,8 @@
 """The nominal scenario: the traffic a generation works on, and its target.
 
-1. :class:`ScenarioSource`: the spec resolved once (a converted WOMD scene's log, or a SUMO
-   configuration and the [begin, end] of its run, :func:`simulation_window`);
+1. :class:`~coster_sumo.source.ScenarioSource` (its own module, so that the simulation's layer can
+   take it too): the spec resolved once (a converted WOMD scene's log, or a SUMO configuration and
+   the [begin, end] of its run);
 2. :func:`nominal_scene`: the nominal traffic at 10 Hz. A converted WOMD scene is its log
    (``scene.npz``, see :mod:`coster_sumo.formats.scene_folder`); any other configuration is
    simulated with libsumo and recorded with the spec's seed (the injection passes use the same);
@@ -13,72 +14,22 @@ The generation itself is :mod:`coster_sumo.method.generation`.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from coster_sumo.dataset import crop_scene
-from coster_sumo.errors import InputError, not_found
-from coster_sumo.formats.scene_folder import converted_scene_file
-from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
-from coster_sumo.scene import Scene, load_scene
+from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
+from coster_sumo.source import ScenarioSource, simulation_window
 from coster_sumo.spec import ScenarioSpec
 from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand
 
 MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)
-DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
-
-
-def simulation_window(spec: ScenarioSpec) -> tuple[float, float]:
-    """[begin, end] [s] of a SUMO configuration's run: the spec's, else the configuration's.
-
-    Both are absolute simulation times as SUMO reads them (a configuration may begin at 57600 s);
-    without any end the run lasts :data:`DEFAULT_DURATION_S`. An end not after the begin is one
-    :class:`InputError` line.
-    """
-    cfg = read_sumocfg(spec.config)
-    begin = spec.begin if spec.begin is not None else (cfg.begin or 0.0)
-    end = spec.end if spec.end is not None else cfg.end
-    if end is None:
-        end = begin + DEFAULT_DURATION_S
-    if end <= begin:
-        raise InputError(f"{spec.config}: end {end:g} s is not after begin {begin:g} s (SUMO's end is an absolute "
-                         "time; --duration gives a length from the begin)")
-    return begin, end
-
-
-@dataclass(frozen=True)
-class ScenarioSource:
-    """A scenario spec resolved once: what is converted or not, and the window, are not worked out
-    again by every step that needs them.
-
-    Attributes:
-        spec: the scenario spec.
-        log: the converted WOMD scene's log (``scene.npz``), None for any other SUMO configuration.
-        window: [begin, end] [s] of a SUMO configuration's run (:func:`simulation_window`); None for
-            a converted scene (its log is its window).
-    """
-
-    spec: ScenarioSpec
-    log: Path | None
-    window: tuple[float, float] | None
-
-    @property
-    def converted(self) -> bool:
-        """Whether it is a converted WOMD scene (the log is the traffic)."""
-        return self.log is not None
-
-    @classmethod
-    def resolve(cls, spec: ScenarioSpec) -> ScenarioSource:
-        """The source of ``spec``; a missing configuration or a bad window is one :class:`InputError` line."""
-        if not spec.config.exists():
-            raise not_found(spec.config)
-        log = converted_scene_file(spec.config)
-        return cls(spec, log, None if log is not None else simulation_window(spec))
 
 
 def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = False, hold: HeldStates | None = None,
@@ -97,7 +48,7 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     recorded like the target (one pass for several targets: the union of their surroundings, up to
     the arrival of the last of them).
     """
-    source = scenario if isinstance(scenario, ScenarioSource) else ScenarioSource.resolve(scenario)
+    source = ScenarioSource.of(scenario)
     spec, cfg = source.spec, source.spec.config
     if source.log is not None:
         return load_scene(source.log), True
@@ -124,7 +75,6 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
-    extra: dict[str, Any] = {"additional": list(additional)} if additional else {}
 
     def after_step(session: Any, states: Any) -> bool:
         if progress is not None:
@@ -134,7 +84,7 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
                           focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
                                       more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S),
-                          after_step=after_step, **extra)
+                          after_step=after_step, additional=list(additional))
     ids = scene.tracks.ids.tolist()
     present = [ids.index(v) for v in wanted if v in ids]
     if present:  # regions and the drivable area cover its (their) surroundings only

@@ -9,6 +9,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.errors import InputError
+
 
 @dataclass(frozen=True)
 class ScenarioSpec:
@@ -79,3 +81,20 @@ class GenerationConfig:
         return cls(init=str(d.get("init", "snapshot")), collision_time=str(d.get("collision_time", "entropy")),
                    rollout=str(d.get("rollout", "cvae")), samples=int(d.get("samples", 1000)),
                    variants=int(d.get("variants", 5)), models_dir=Path(models) if models else None)
+
+
+# ----------------------------------------------------------------------------- labels
+# the options of the avoidability labels (docs/method.md step 8), checked before any work starts
+
+AVOIDABLE_CHOICES = ("any", "only")
+
+
+def check_avoidable(choice: str) -> None:
+    """``--avoidable``: any (default) or only."""
+    if choice not in AVOIDABLE_CHOICES:
+        raise InputError(f"--avoidable must be one of {', '.join(AVOIDABLE_CHOICES)}, not {choice!r}")
+
+
+def check_reaction_time(seconds: float) -> None:
+    if not 0.0 <= seconds <= 5.0:
+        raise InputError(f"--reaction-time must be between 0 and 5 s, not {seconds:g}")

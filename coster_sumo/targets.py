@@ -369,7 +369,8 @@ def choose_targets(config: str | Path, n: int, begin: float | None = None,
         raise InputError(f"--targets must be >= 1, not {n}")
     import numpy as np
 
-    from coster_sumo.scene import ObjectType, load_scene
+    from coster_sumo.formats.scene_file import load_scene
+    from coster_sumo.scene import ObjectType
 
     scene = load_scene(log)
     tr, ts = scene.tracks, scene.timestamps

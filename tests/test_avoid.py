@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coster_sumo import avoid, synthetic
+from coster_sumo import avoid, evasion, synthetic
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan
@@ -41,7 +41,7 @@ def straight_plan(x_col: float, y_col: float, yaw: float, speed: float, horizon_
                          yaw=np.full(len(knots), yaw), final_speed=speed, length=LENGTH, width=WIDTH)
 
 
-def _assess(scene: Scene, plan: AdversaryPlan) -> avoid.Avoidability:
+def _assess(scene: Scene, plan: AdversaryPlan) -> evasion.Avoidability:
     return avoid.assess(scene, 0, plan, DrivableArea.from_road_map(scene.road_map))
 
 
@@ -77,9 +77,9 @@ def test_a_stopped_vehicle_ahead_is_avoidable_by_braking():
     assert res.avoidable and res.avoidable_at(0.5)
     e = res.escape
     assert e is not None and e.manoeuvre.longitudinal == "brake" and e.manoeuvre.lateral_m == 0.0
-    assert e.t_act >= res.t_threat + avoid.DEFAULT_REACTION_S - 1e-6
+    assert e.t_act >= res.t_threat + evasion.DEFAULT_REACTION_S - 1e-6
     assert e.clearance_m >= avoid.MIN_CLEARANCE_M
-    assert e.peak_decel <= avoid.CLASS_LIMITS["passenger"].emergency_decel + 1e-6
+    assert e.peak_decel <= evasion.CLASS_LIMITS["passenger"].emergency_decel + 1e-6
     assert res.last_moment_s is not None and res.last_moment_s > 0.5
     # the escape really keeps clear of the adversary's boxes, step by step
     ax, ay, ayaw, _ = plan.sample(e.times)
@@ -95,7 +95,7 @@ def test_an_adversary_from_behind_is_avoidable_by_a_lane_change_when_the_next_la
     assert res.avoidable
     e = res.escape
     assert e is not None and e.manoeuvre.lateral_m > 0  # to the left: the only other lane
-    assert e.peak_lateral_accel <= avoid.CLASS_LIMITS["passenger"].emergency_decel + 1e-6
+    assert e.peak_lateral_accel <= evasion.CLASS_LIMITS["passenger"].emergency_decel + 1e-6
 
 
 def test_the_same_lane_change_is_blocked_by_a_vehicle_in_the_next_lane():
@@ -122,13 +122,13 @@ def test_braking_into_a_follower_does_not_count_as_an_escape():
     (0.0, (-LENGTH, 0.0), "rear_end_by_adversary"),
 ])
 def test_contact_kinds(yaw, offset, kind):
-    assert avoid.contact_kind(0.0, 0.0, 0.0, LENGTH, WIDTH, 10.0, offset[0], offset[1], yaw, LENGTH, WIDTH,
+    assert evasion.contact_kind(0.0, 0.0, 0.0, LENGTH, WIDTH, 10.0, offset[0], offset[1], yaw, LENGTH, WIDTH,
                               5.0) == kind
 
 
 def test_braking_profiles_are_jerk_limited_and_stop_at_zero():
-    v, a = avoid.speed_profiles(10.0, 0.0, np.array([-9.0, 2.6]), 60, v_cap=12.0)
+    v, a = evasion.speed_profiles(10.0, 0.0, np.array([-9.0, 2.6]), 60, v_cap=12.0)
     moving = v[0, 1:] > 0  # at a standstill the braking simply ends
-    assert np.all(np.abs(np.diff(a[0]))[moving] <= avoid.JERK_MPS3 * avoid.DT_S + 1e-9)
+    assert np.all(np.abs(np.diff(a[0]))[moving] <= evasion.JERK_MPS3 * evasion.DT_S + 1e-9)
     assert v[0].min() == 0.0 and v[0, -1] == 0.0 and a[0].min() >= -9.0 - 1e-9
     assert v[1].max() == pytest.approx(12.0)

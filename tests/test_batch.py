@@ -17,8 +17,9 @@ import pytest
 from coster_sumo.batch.executor import Outcome, Task, execute, probe_task
 from coster_sumo.batch.regress import run_key
 from coster_sumo.batch.sources import parse_sources, scene_key
-from coster_sumo.batch.store import ResultStore, rate_with_ci, wilson_interval
+from coster_sumo.batch.store import ResultStore
 from coster_sumo.errors import InputError
+from coster_sumo.metrics import rate_with_ci, wilson_interval
 from coster_sumo.spec import ScenarioSpec as SceneSpec
 
 REPO = Path(__file__).resolve().parents[1]

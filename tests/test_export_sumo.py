@@ -21,7 +21,7 @@ from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 from coster_sumo import frames, sumo_env
 from coster_sumo.cli import main
 from coster_sumo.exports.demand import demand_ids, rewrite_demand
-from coster_sumo.exports.sumo import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE
+from coster_sumo.exports.fcd import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE
 from coster_sumo.exports.sumo_config import source_options
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.outputs import sim_time_of

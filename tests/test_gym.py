@@ -13,8 +13,9 @@ gymnasium = pytest.importorskip("gymnasium")
 
 import coster_sumo.gym  # noqa: E402,F401  (registers the id)
 from coster_sumo.gym.build import BuildOptions, build_set  # noqa: E402
-from coster_sumo.gym.env import MAX_ACCEL, MAX_DECEL, OBS_SIZE, STEP_S, ScenarioEnv  # noqa: E402
+from coster_sumo.gym.env import ScenarioEnv  # noqa: E402
 from coster_sumo.gym.scenario_set import ScenarioSet  # noqa: E402
+from coster_sumo.sim.driver import MAX_ACCEL, MAX_DECEL, OBS_SIZE, STEP_S  # noqa: E402
 from tests.conftest import NO_WOMD_REASON, REPO, WOMD_PKL, WOMD_PROTO  # noqa: E402
 
 pytestmark = pytest.mark.sumo

@@ -10,6 +10,7 @@ import torch
 from coster_sumo import synthetic
 from coster_sumo.cli import main
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import at_prior_rate, batch_tokens, epoch_samples, prepare_scene, scene_tokens
 from coster_sumo.prior.evaluate import mmd, reliability
@@ -25,7 +26,6 @@ from coster_sumo.prior.infer import (
 )
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
 from coster_sumo.prior.train import TrainConfig, train_prior
-from coster_sumo.scene import save_scene
 from tests.conftest import WOMD_PKL, WOMD_PROTO, requires_womd
 
 SMALL = PriorConfig(hidden=64, head_hidden=64, num_blocks=2)

@@ -13,6 +13,7 @@ import torch
 from coster_sumo import synthetic
 from coster_sumo.cli import main
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout import cache as C
 from coster_sumo.rollout.checkpoint import load_model
@@ -20,7 +21,6 @@ from coster_sumo.rollout.config import RolloutConfig
 from coster_sumo.rollout.data import build_examples, to_tensors
 from coster_sumo.rollout.model import RolloutCVAE, trim_padding
 from coster_sumo.rollout.train import TrainConfig, learning_rate, split_scene_files
-from coster_sumo.scene import load_scene, save_scene
 
 CFG = RolloutConfig(hidden=32, heads=4, latent=4)
 

@@ -9,9 +9,9 @@ import torch
 
 from coster_sumo import devices, synthetic
 from coster_sumo.cli import main
+from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.rollout.checkpoint import load_model
 from coster_sumo.rollout.vocab import MotionVocab
-from coster_sumo.scene import save_scene
 
 TINY = ["--hidden", "16", "--heads", "2", "--latent", "4", "--batch-size", "32", "--examples-per-epoch", "64",
         "--max-val-examples", "16"]

@@ -263,7 +263,7 @@ def test_no_lanes_near_the_target_is_one_line_exit_2_and_no_output(tmp_path, cap
     from coster_sumo.converters.to_sumo import convert_scene
 
     from coster_sumo import synthetic
-    from coster_sumo.scene import load_scene, save_scene
+    from coster_sumo.formats.scene_file import load_scene, save_scene
 
     folder = convert_scene(synthetic.two_lane_road(), tmp_path).folder
     scene = load_scene(folder / "scene.npz")

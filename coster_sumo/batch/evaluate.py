@@ -32,7 +32,7 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import rate_with_ci, read_json
+from coster_sumo.batch.store import read_json
 from coster_sumo.errors import InputError
 from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
@@ -40,6 +40,7 @@ from coster_sumo.metrics import (
     collision_position_diversity,
     collision_speed_diversity,
     js_divergence,
+    rate_with_ci,
     scene_bootstrap,
 )
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
@@ -117,10 +118,11 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: one generator on one scene; every variant injected; per-variant records + histograms."""
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.errors import NoSnapshot
+    from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.method.generation import generate_variants, missing_weights
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
     from coster_sumo.scenario import choose_target
-    from coster_sumo.scene import LaneType, load_scene
+    from coster_sumo.scene import LaneType
     from coster_sumo.sim.inject import inject_variant
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)

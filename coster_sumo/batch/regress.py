@@ -34,14 +34,15 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import ResultStore, rate_with_ci, read_json, result_row
-from coster_sumo.defects import check_avoidable, check_reaction_time, defect_rates, escape_dict
+from coster_sumo.batch.store import ResultStore, read_json, result_row
+from coster_sumo.defects import defect_rates, escape_dict
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.generation import Variant, check_generation
+from coster_sumo.metrics import rate_with_ci
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
 from coster_sumo.weights import WEIGHT_FILES
 
 GENERATION_KEYS = ("init", "rollout", "collision_time", "variants", "samples")
@@ -131,8 +132,8 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.avoid import HORIZON_AFTER_TCOL_S
     from coster_sumo.defects import escape_replay, planner_outcome
     from coster_sumo.drivable import DrivableArea
+    from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.outputs import variant_record
-    from coster_sumo.scene import load_scene
     from coster_sumo.sim.inject import inject_variant
 
     plans_dir = Path(payload["plans_dir"])
@@ -260,16 +261,9 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                     specs: list[ScenarioSpec], out: Path) -> dict[str, Any]:
     """:func:`regress` once OUT is checked and locked: leftovers of stopped batches removed, then the runs."""
     plans_dir, logs_dir = out / "plans", out / "logs"
-    plans_dir.mkdir(parents=True, exist_ok=True)
-    for folder in (plans_dir, out / "results"):  # half-written files of a batch that was killed
-        for leftover in staged_names(folder, (".tmp.npz", ".tmp.json", ".tmp.parquet")):
-            leftover.unlink(missing_ok=True)
-    store = ResultStore(out / "results")
     gen = generation.to_dict()
     keys = {scene_key(s, gen): s for s in specs}
-    write_json(out / "regress.json", {"options": {k: (str(v) if isinstance(v, Path) else v)
-                                                    for k, v in dataclasses.asdict(opts).items()},
-                                        "scenes": {k: s.label() for k, s in keys.items()}})
+    store = _start_folder(out, opts, keys)
     # failed runs are done, unless the failure was the machine's (timeout, memory, disk) or --retry-failed
     failed_runs = {r["run_key"] for r in store.read()
                    if r["status"] != "ok" and (opts.retry_failed or is_transient(r["reason"] or ""))}
@@ -339,6 +333,20 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         summary["report"] = write_regression_report(out, summary, store.read())
         write_json(out / "summary.json", summary)
     return summary
+
+
+def _start_folder(out: Path, opts: RegressOptions, keys: dict[str, ScenarioSpec]) -> ResultStore:
+    """OUT ready for the runs: ``plans/``, no half-written file of a batch that was killed, and
+    ``regress.json`` (the options and the scenes by key); returns the result store."""
+    (out / "plans").mkdir(parents=True, exist_ok=True)
+    for folder in (out / "plans", out / "results"):
+        for leftover in staged_names(folder, (".tmp.npz", ".tmp.json", ".tmp.parquet")):
+            leftover.unlink(missing_ok=True)
+    store = ResultStore(out / "results")
+    write_json(out / "regress.json", {"options": {k: (str(v) if isinstance(v, Path) else v)
+                                                    for k, v in dataclasses.asdict(opts).items()},
+                                        "scenes": {k: s.label() for k, s in keys.items()}})
+    return store
 
 
 def _append_log(path: Path, outcome: Outcome) -> None:

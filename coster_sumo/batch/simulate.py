@@ -226,7 +226,7 @@ def clip_summary(clip: Any) -> tuple[int, float, float, float]:
 
 def simulate_run(task: RunTask) -> dict[str, Any]:
     """Simulate, record in chunks, cut and write clips. Returns counts for the manifest."""
-    from coster_sumo.scene import save_scene
+    from coster_sumo.formats.scene_file import save_scene
     from coster_sumo.sim.record import record
     from coster_sumo.sim.session import SumoSession
 

@@ -194,8 +194,8 @@ def located(spec: ScenarioSpec, payload: dict[str, Any]) -> ScenarioSpec:
 
 def nominal_for(spec: ScenarioSpec, cache_dir: Path) -> tuple[Scene, bool, Path]:
     """The nominal 10 Hz scene of ``spec`` (recorded once, cached as ``cache_dir/<key>.npz``)."""
+    from coster_sumo.formats.scene_file import load_scene, save_scene
     from coster_sumo.scenario import nominal_scene
-    from coster_sumo.scene import load_scene, save_scene
 
     key = scene_key(spec)
     path = cache_dir / f"{key}.npz"

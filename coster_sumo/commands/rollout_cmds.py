@@ -173,9 +173,9 @@ def run_train(args: argparse.Namespace) -> int:
 def run_vocab(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.rollout.train import split_scene_files
     from coster_sumo.rollout.vocab import build_vocab, collect_transitions
-    from coster_sumo.scene import load_scene
 
     if args.size < 1:
         raise InputError("--size must be at least 1")
@@ -205,7 +205,7 @@ def run_vocab(args: argparse.Namespace) -> int:
 def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
     from coster_sumo.converters.read import iter_scenes
     from coster_sumo.dataset import list_scenes, split
-    from coster_sumo.scene import load_scene
+    from coster_sumo.formats.scene_file import load_scene
 
     scenes = []
     for src in args.data:

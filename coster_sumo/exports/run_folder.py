@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.errors import InputError, not_found
-from coster_sumo.exports.sumo import FCD_FILE, VTYPES_FILE
+from coster_sumo.exports.fcd import FCD_FILE, VTYPES_FILE
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, read_trajectories_csv, select_near, write_selection
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import refresh_marker

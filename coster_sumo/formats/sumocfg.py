@@ -216,6 +216,16 @@ def read_sumocfg(path: str | Path) -> SumoConfig:
     return cfg
 
 
+def config_files(config: Path) -> list[Path]:
+    """The configuration and the files it names (only itself where it cannot be read): the inputs
+    an output folder must hold none of."""
+    try:
+        cfg = read_sumocfg(config)
+    except InputError:
+        return [config]
+    return [config, *cfg.net_files, *cfg.route_files, *cfg.additional_files]
+
+
 def headless_copy(path: str | Path, folder: Path) -> Path:
     """A copy of a configuration without its ``<gui_only>`` section, written into ``folder``.
 

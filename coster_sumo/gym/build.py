@@ -26,9 +26,10 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.geometry import make_boxes, sat_overlap_depth
 from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, write_manifest, write_vtypes
-from coster_sumo.scene import ObjectType, Scene, SignalState, Tracks, save_scene
+from coster_sumo.scene import ObjectType, Scene, SignalState, Tracks
 from coster_sumo.spec import GenerationConfig
 
 

@@ -6,7 +6,7 @@ and nothing it has to compute again (docs/gym.md):
 ```
 SET/manifest.json          format, method, seed, the networks and their split, every scenario
 SET/nets/<network>.net.xml the SUMO network of each source (copied: the set moves as one folder)
-SET/scenarios/<id>.npz     one replay scene per scenario (coster_sumo.scene.save_scene)
+SET/scenarios/<id>.npz     one replay scene per scenario (coster_sumo.formats.scene_file.save_scene)
 SET/vtypes.add.xml         the vehicle types the replay adds vehicles with (converted scenes' types)
 ```
 
@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.errors import InputError
-from coster_sumo.scene import Scene, load_scene
+from coster_sumo.formats.scene_file import load_scene
+from coster_sumo.scene import Scene
 
 SET_FORMAT = 1
 MANIFEST = "manifest.json"

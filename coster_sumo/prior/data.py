@@ -16,6 +16,7 @@ import numpy as np
 
 from coster_sumo import dataset as ds
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.prior.bins import AttributeBins
 from coster_sumo.prior.features import (
     AGENT_FEATURES,
@@ -39,7 +40,7 @@ from coster_sumo.prior.regions import (
     region_signals,
     regions_near,
 )
-from coster_sumo.scene import ObjectType, Scene, load_scene, resample
+from coster_sumo.scene import ObjectType, Scene, resample
 
 PRIOR_HZ = 2.0  # the prior works on scenes downsampled to 2 Hz
 

@@ -102,7 +102,8 @@ def default_cache_root(paths: Sequence[Path]) -> Path:
 def encode_scene_file(path: Path, cfg: RolloutConfig, min_steps: int) -> dict[str, np.ndarray] | None:
     """Every example of one scene file, in the stored layout (None: the scene has no example).
     ``index[:, 0]`` is 0; the caller numbers the scenes."""
-    from coster_sumo.scene import load_scene, resample
+    from coster_sumo.formats.scene_file import load_scene
+    from coster_sumo.scene import resample
 
     low = resample(load_scene(path), ROLLOUT_HZ)
     examples = enumerate_examples(low, cfg, min_steps=min_steps)

@@ -53,6 +53,7 @@ from tqdm import tqdm
 from coster_sumo.atomic import write_json
 from coster_sumo.devices import cpu_description, device_name, slow_bf16_warning, training_device
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.prefetch import prefetch
 from coster_sumo.rollout.cache import CachedExamples, cached_examples
 from coster_sumo.rollout.checkpoint import atomic_torch_save, load_checkpoint, read_torch_file, save_checkpoint
@@ -60,7 +61,6 @@ from coster_sumo.rollout.config import FREE_ON_INIT
 from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
 from coster_sumo.rollout.evaluate import cvae_errors
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
-from coster_sumo.scene import load_scene
 
 RESUME_FORMAT = "coster-sumo-rollout-train"
 PRECISIONS = ("fp32", "bf16")

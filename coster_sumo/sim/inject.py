@@ -30,7 +30,6 @@ from typing import Any, Protocol
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.frames import centre_to_front
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.procs import ChildFailed, run_forked
@@ -40,6 +39,7 @@ from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
 from coster_sumo.sim.session import SumoSession, VehicleStates
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 
 ADVERSARY_COLOR = (220, 30, 30, 255)  # RGBA: red in sumo-gui
@@ -372,9 +372,9 @@ def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
                          t.speed[target], t.valid[target], float(np.median(t.length[target][t.valid[target]])))
 
 
-def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: AdversaryPlan, planner: str | None = None,
-                   *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
-                   detect_events: bool = True, freeze_at: float | None = None,
+def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plan: AdversaryPlan,
+                   planner: str | None = None, *, drivable: DrivableArea | None = None, traci: bool = False,
+                   workdir: Path | None = None, detect_events: bool = True, freeze_at: float | None = None,
                    post_contact_s: float | None = POST_CONTACT_S, driver: Planner | None = None) -> InjectionResult:
     """Inject one variant: the one place that decides who drives whom (every command goes through it).
 
@@ -383,22 +383,22 @@ def inject_variant(spec: ScenarioSpec, scene: Scene, target: int, plan: Adversar
     - Any SUMO configuration: the configuration's own traffic runs; ``replay`` moves the target
       along its nominal trajectory (:func:`nominal_replay`), ``sumo[:<model>]`` leaves it to SUMO's
       driver, ``module:Class`` to your planner.
-    - A converted WOMD scene (:func:`coster_sumo.formats.scene_folder.converted_scene_file`): the log
+    - A converted WOMD scene (:attr:`coster_sumo.source.ScenarioSource.converted`): the log
       is the traffic, so the log replayer drives every logged agent. With ``replay`` it drives the
       target too, for the whole pass. With any other planner it drives the target until the
       adversary's plan starts and then hands it over: the planner commands it from then on, and
       SUMO's driver (``sumo``) continues from the logged pose along the road the target is on.
 
-    The pass runs from the spec's begin with its seed to the end of the nominal scene, or until the
-    target has arrived, or ``post_contact_s`` after the adversary's contact with the target (or after
-    t_col, when the adversary hit another vehicle first and stays there). ``driver``: a planner object
-    that replaces the one ``planner`` names (a replay of another trajectory). On a SUMO configuration
-    only the target's surroundings are recorded and checked (the converted scenes are small:
-    everything is).
+    ``scenario``: the spec, or its source resolved already. The pass runs from the spec's begin with
+    its seed to the end of the nominal scene, or until the target has arrived, or ``post_contact_s``
+    after the adversary's contact with the target (or after t_col, when the adversary hit another
+    vehicle first and stays there). ``driver``: a planner object that replaces the one ``planner``
+    names (a replay of another trajectory). On a SUMO configuration only the target's surroundings
+    are recorded and checked (the converted scenes are small: everything is).
     """
-    converted = converted_scene_file(spec.config) is not None
+    source = ScenarioSource.of(scenario)
+    spec, converted, target_id = source.spec, source.converted, str(scene.tracks.ids[target])
     planner_spec = planner or default_planner(converted)
-    target_id = str(scene.tracks.ids[target])
     actors: tuple[StepActor, ...] = ()
     if converted:
         from coster_sumo.sim.replay import LogReplayer
@@ -450,9 +450,9 @@ class VariantFailure:
     reason: str
 
 
-def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[AdversaryPlan], planner: str | None,
-                    *, drivable: DrivableArea | None = None, traci: bool = False, workdir: Path | None = None,
-                    held: HeldStates | None = None, workers: int = 1,
+def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: list[AdversaryPlan],
+                    planner: str | None, *, drivable: DrivableArea | None = None, traci: bool = False,
+                    workdir: Path | None = None, held: HeldStates | None = None, workers: int = 1,
                     post_contact_s: float | None = POST_CONTACT_S, timeout: float | None = None,
                     done: Callable[[int], None] | None = None) -> list[InjectionResult | VariantFailure]:
     """:func:`inject_variant` for every plan, each in a process of its own; from held copies of
@@ -466,11 +466,11 @@ def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[A
     raises, or runs past ``timeout`` [s] comes back as a :class:`VariantFailure`; the others are
     not affected. ``done(n)`` is called as n more variants finish (progress).
     """
-    converted = converted_scene_file(spec.config) is not None
-    planner_spec = planner or default_planner(converted)
+    source = ScenarioSource.of(scenario)
+    planner_spec = planner or default_planner(source.converted)
     results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
     groups: dict[int, list[int]] = {}
-    if held is not None and not converted and not traci:
+    if held is not None and not source.converted and not traci:
         for i, plan in enumerate(plans):
             h = held.holder_before(plan.t_start - TIME_EPS)
             if h is not None:
@@ -489,7 +489,7 @@ def inject_variants(spec: ScenarioSpec, scene: Scene, target: int, plans: list[A
             done(len(members))
     for i, plan in enumerate(plans):
         if results[i] is None:
-            one = functools.partial(inject_variant, spec, scene, target, plan, planner_spec, drivable=drivable,
+            one = functools.partial(inject_variant, source, scene, target, plan, planner_spec, drivable=drivable,
                                     traci=traci, workdir=workdir, post_contact_s=post_contact_s)
             try:
                 results[i] = run_forked(one, timeout=timeout)

@@ -13,7 +13,7 @@ Built-ins:
   replay target, contact happens at t_col by construction.
 - ``sumo``: SUMO's own driver model keeps control of the target, so it may react to the adversary.
 - ``policy:PATH``: a driving policy trained with ``coster-sumo policy train`` (``policy.zip``) drives
-  the target as in the Gymnasium environment (:mod:`coster_sumo.gym.policy`).
+  the target as in the Gymnasium environment (:mod:`coster_sumo.sim.policy`).
 - ``sumo:<model>``: the same with SUMO car-following model ``<model>`` (Krauss, IDM, EIDM, ACC,
   CACC, ...), set through a vType written to an additional file and given to the target when it
   departs (TraCI cannot change a type's car-following model at run time).
@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import numpy as np
 
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.sim.policy import make_policy_planner
 
 if TYPE_CHECKING:
     from coster_sumo.sim.session import SumoSession
@@ -161,10 +162,7 @@ def _sumo(arg: str | None, nominal: ReplayPlanner | None) -> Planner:
 
 
 def _policy(arg: str | None, nominal: ReplayPlanner | None) -> Planner:
-    try:  # needs the rl extra (gymnasium, stable-baselines3); imported only when asked
-        from coster_sumo.gym.policy import make_policy_planner
-    except ImportError as exc:
-        raise InputError(f"planner policy:...: {exc.name} is missing (pip install coster-sumo[rl])") from None
+    # the policy loads stable-baselines3 (the rl extra) at its setup, and says so where it is missing
     return make_policy_planner(arg, nominal)
 
 
@@ -173,7 +171,7 @@ def _policy(arg: str | None, nominal: ReplayPlanner | None) -> Planner:
 PLANNERS: dict[str, Callable[[str | None, ReplayPlanner | None], Planner]] = {
     "replay": _replay,  # the target follows its nominal trajectory (contact at t_col by construction)
     "sumo": _sumo,  # SUMO's driver keeps the target; sumo:<carFollowModel> picks the model
-    "policy": _policy,  # policy:PATH, a policy trained in coster_sumo/Scenario-v0 (coster_sumo.gym.policy)
+    "policy": _policy,  # policy:PATH, a policy trained in coster_sumo/Scenario-v0 (coster_sumo.sim.policy)
 }
 
 

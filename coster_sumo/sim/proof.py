@@ -11,14 +11,15 @@ the target touches nobody (our box check, the ground truth of every pass) and st
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from coster_sumo.avoid import Escape
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.formats.scene_folder import agent_sizes, converted_scene_file, vtype_for
+from coster_sumo.evasion import Escape
+from coster_sumo.formats.scene_folder import agent_sizes, vtype_for
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.scene import Scene
@@ -37,6 +38,7 @@ from coster_sumo.sim.planners import ReplayPlanner
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, record
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 
 
@@ -54,13 +56,35 @@ def escape_planner(escape: Escape, length_m: float) -> ReplayPlanner:
                          np.ones(len(escape.times), bool), length_m)
 
 
-def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Verdict:
+    """What SUMO's replay of one escape showed.
+
+    Attributes:
+        ok: no contact of the target and no off-road after the adversary appeared.
+        reason: one line (``no contact, on road``, ``touched X at T s``, ``left the road at T s``).
+        min_gap_to_adversary_m: [m] the smallest gap of the two boxes (None: never in the pass together).
+        max_deviation_m: [m] how far SUMO's target strayed from the escape; max_deviation_at_s: [s] when.
+    """
+
+    ok: bool
+    reason: str
+    min_gap_to_adversary_m: float | None = None
+    max_deviation_m: float | None = None
+    max_deviation_at_s: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The verdict as an escape's ``proof`` in summary.json."""
+        return dataclasses.asdict(self)
+
+
+def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> Verdict:
     """What the replay shows: contacts of the target, off-road, the smallest gap to the adversary
     and how far SUMO's target strayed from the escape (moveToXY places it exactly)."""
     return _verdict(res.events, res.scene, target_id, job.plan.vehicle_id, job)
 
 
-def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: str, job: EscapeJob) -> dict[str, Any]:
+def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: str, job: EscapeJob) -> Verdict:
     """:func:`verdict` from a pass's events and recording, the target and adversary by their ids there."""
     plan, esc = job.plan, job.escape
     t0 = plan.t_start - TIME_EPS
@@ -97,22 +121,38 @@ def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: st
         reason = f"touched {other} at {first.time:.1f} s"
     else:
         reason = f"left the road at {off[0].time:.1f} s"
-    return {"ok": ok, "reason": reason, "min_gap_to_adversary_m": None if gap is None else round(gap, 3),
-            "max_deviation_m": None if deviation is None else round(deviation, 4), "max_deviation_at_s": dev_at}
+    return Verdict(ok, reason, min_gap_to_adversary_m=None if gap is None else round(gap, 3),
+                   max_deviation_m=None if deviation is None else round(deviation, 4), max_deviation_at_s=dev_at)
 
 
-def _prove_held(session: Any, payload: dict[str, Any]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class HeldEscape:
+    """What a forked copy of the nominal pass needs to replay one escape (:func:`_prove_held`).
+
+    Attributes:
+        job: the escape and its adversary's plan; target_id: the target; length_m: [m] its length.
+        drivable: the drivable area (off-road events); end: [s] when the pass ends.
+    """
+
+    job: EscapeJob
+    target_id: str
+    length_m: float
+    drivable: DrivableArea | None
+    end: float
+
+
+def _prove_held(session: Any, held: HeldEscape) -> Verdict:
     """One escape's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
-    job: EscapeJob = payload["job"]
-    res = continue_injection(session, payload["target_id"], job.plan,
-                             escape_planner(job.escape, payload["length"]), end=payload["end"],
-                             drivable=payload["drivable"], surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=None)
-    return verdict(res, payload["target_id"], job)
+    job = held.job
+    res = continue_injection(session, held.target_id, job.plan, escape_planner(job.escape, held.length_m),
+                             end=held.end, drivable=held.drivable, surroundings_m=SURROUNDINGS_RADIUS_M,
+                             post_contact_s=None)
+    return verdict(res, held.target_id, job)
 
 
-def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob], *,
+def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, jobs: list[EscapeJob], *,
                   drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
-                  traci: bool = False, horizon_s: float = 3.0, together: bool = True) -> list[dict[str, Any]]:
+                  traci: bool = False, horizon_s: float = 3.0, together: bool = True) -> list[Verdict]:
     """Replay every escape in SUMO; one verdict (:func:`verdict`) per job, in order.
 
     From the held copy of the nominal pass before the adversary appears where there is one (as the
@@ -128,8 +168,9 @@ def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esca
     tr = scene.tracks
     target_id = str(tr.ids[target])
     length = float(np.median(tr.length[target][tr.valid[target]]))
-    converted = converted_scene_file(spec.config) is not None
-    out: list[dict[str, Any] | None] = [None] * len(jobs)
+    source = ScenarioSource.of(scenario)
+    spec, converted = source.spec, source.converted
+    out: list[Verdict | None] = [None] * len(jobs)
     groups: dict[int, list[int]] = {}
     if held is not None and not converted and not traci:
         for i, job in enumerate(jobs):
@@ -138,8 +179,8 @@ def prove_escapes(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esca
                 groups.setdefault(held.holders.index(h), []).append(i)
     for h_index, members in groups.items():
         assert held is not None
-        payloads = [(_prove_held, {"job": jobs[i], "target_id": target_id, "length": length, "drivable": drivable,
-                                   "end": jobs[i].plan.t_col + horizon_s + 1e-6}) for i in members]
+        payloads = [(_prove_held, HeldEscape(jobs[i], target_id, length, drivable,
+                                             end=jobs[i].plan.t_col + horizon_s + 1e-6)) for i in members]
         for i, v in zip(members, held.run(held.holders[h_index], payloads, workers), strict=True):
             out[i] = v
     if converted and together and not traci and jobs:
@@ -242,7 +283,7 @@ class _JointProof:
                     self.detectors[k].settle_adversary()
         return False
 
-    def run(self) -> list[dict[str, Any]]:
+    def run(self) -> list[Verdict]:
         end = max(self.ends)
         with SumoSession(self.spec.config, seed=self.spec.seed, begin=self.spec.begin, end=end) as session:
             rec = record(session, begin=self.spec.begin, end=end, before_step=self.before, after_step=self.after)

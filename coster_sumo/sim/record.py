@@ -234,6 +234,124 @@ def fill_between_samples(tracks: Tracks, times: np.ndarray, sampled: np.ndarray)
         valid[block] = True
 
 
+class _FocusedReader:
+    """What a focused recording (:class:`Focus`) reads after each step: the surroundings of the
+    targets while any runs. Its fields are the state of the pass: who runs and who arrived, when
+    the recording started and when it stops, and who ran before it started (for an error)."""
+
+    def __init__(self, session: SumoSession, focus: Focus) -> None:
+        self.focus = focus
+        self.every = (max(1, int(round(1.0 / (focus.surroundings_hz * session.step_length))))
+                      if focus.surroundings_hz else 1)
+        self.eps = 1e-6 * session.step_length
+        self.running = [v for v in focus.targets if v in set(session.vehicle_ids())]  # the focused ones now running
+        self.arrived: set[str] = set()
+        self.started = bool(self.running)  # the recording begins when its (first) vehicle departs
+        self.end_at: float | None = None  # [s] when it stops (after the targets arrived)
+        # [s] when it stops at the latest: max_life_s after the first departure (or now, if one runs already)
+        self.cut_at = session.time + focus.max_life_s if self.started and focus.max_life_s else None
+        self.cut = False
+        self.ran_from: dict[str, float] = {}  # until a focused vehicle departs: who ran, from when to when [s]
+        self.ran_until: dict[str, float] = {}
+
+    def read(self, session: SumoSession, t: float, recorded: int) -> tuple[VehicleStates, bool] | None:
+        """The states of this step (the one just taken, at ``t`` [s]) and whether they are the
+        surroundings' (a sampled step; else the targets' only); None: the recording ends before it.
+        ``recorded``: the steps recorded so far."""
+        focus = self.focus
+        arrived_now = session.arrived_ids()
+        if not self.started:
+            self.ran_from.update((v, t) for v in session.departed_ids() if v not in self.ran_from)
+            self.ran_until.update((v, t) for v in arrived_now)
+        gone = [v for v in self.running if v in arrived_now]
+        if gone:
+            self.arrived.update(gone)
+            self.running = [v for v in self.running if v not in self.arrived]
+            if focus.until_arrival and self.end_at is None and self.arrived.issuperset(focus.targets):
+                self.end_at = t + focus.tail_s
+        if self.end_at is not None and t > self.end_at + self.eps:
+            return None
+        if self.cut_at is not None and t > self.cut_at + self.eps:
+            self.cut = True
+            return None
+        departed = session.departed_ids()
+        self.running += [v for v in focus.targets if v in departed and v not in self.running]
+        if self.running and not self.started and focus.max_life_s is not None:
+            self.cut_at = t + focus.max_life_s
+        self.started = self.started or bool(self.running)
+        full = self.every == 1 or recorded % self.every == 0
+        if not self.running:  # no target is (or any longer) in the network: nothing around them to read
+            return empty_states(), full
+        if full:
+            once = self.every > 1
+            near = session.vehicles_near(self.running[0], focus.radius_m, once=once)
+            for other in self.running[1:]:  # several targets: the union of their surroundings
+                seen = set(near)
+                near += [v for v in session.vehicles_near(other, focus.radius_m, once=once) if v not in seen]
+        else:
+            near = [v for v in self.running if v not in session.hidden]
+        if focus.extra_ids:
+            in_sim, present = set(session.vehicle_ids()), set(near)
+            near += [v for v in focus.extra_ids if v not in present and v in in_sim and v not in session.hidden]
+        return session.vehicle_states(near), full
+
+
+class _Rows:
+    """The recorded steps as they come (agents numbered by first appearance), and their tracks."""
+
+    def __init__(self) -> None:
+        self.agent: dict[str, int] = {}
+        self.kinds: list[int] = []
+        self.vclasses: dict[str, str] = {}
+        self.times: list[float] = []
+        self.rows: list[tuple[np.ndarray, VehicleStates]] = []
+        self.signal_rows: list[np.ndarray] = []
+        self.sampled: list[bool] = []  # per recorded step: were the surroundings read (not just the target)
+
+    def add(self, t: float, st: VehicleStates, full: bool, signals: np.ndarray) -> None:
+        agent = self.agent
+        names = st.id_list()
+        for i in [i for i, vid in enumerate(names) if vid not in agent]:  # first appearances
+            if names[i] not in agent:
+                agent[names[i]] = len(agent)
+                self.kinds.append(int(_OBJECT_TYPE.get(str(st.vclass[i]), ObjectType.VEHICLE)))
+                self.vclasses[names[i]] = str(st.vclass[i])
+        idx = np.fromiter(map(agent.__getitem__, names), np.int64, len(names))
+        self.times.append(t)
+        self.sampled.append(full)
+        self.rows.append((idx, st))
+        self.signal_rows.append(signals)
+
+    def signals(self, table: SignalTable) -> SignalStates:
+        """The signal states of the recorded steps."""
+        state = np.stack(self.signal_rows) if self.signal_rows else np.zeros((0, len(table.lane_index)), np.int8)
+        return SignalStates(lane_index=table.lane_index, state=state, stop_point=table.stop_point)
+
+    def tracks(self) -> Tracks:
+        """(agents, steps) tracks of the recorded steps, filled between samples."""
+        rows = self.rows
+        num_agents, num_steps = len(self.agent), len(self.times)
+        arrays = {f: np.zeros((num_agents, num_steps), np.float64)
+                  for f in ("x", "y", "heading", "vx", "vy", "length", "width")}
+        valid = np.zeros((num_agents, num_steps), bool)
+        if rows:  # one scatter per field over all steps (a city pass has ~10^4 steps)
+            a_all = np.concatenate([idx for idx, _ in rows])
+            s_all = np.repeat(np.arange(len(rows)), [len(idx) for idx, _ in rows])
+            for field in ("x", "y", "length", "width"):
+                arrays[field][a_all, s_all] = np.concatenate([getattr(st, field) for _, st in rows])
+            yaw = np.concatenate([st.yaw for _, st in rows])
+            speed = np.concatenate([st.speed for _, st in rows])
+            arrays["heading"][a_all, s_all] = yaw
+            arrays["vx"][a_all, s_all] = speed * np.cos(yaw)  # as VehicleStates.vx / vy
+            arrays["vy"][a_all, s_all] = speed * np.sin(yaw)
+            valid[a_all, s_all] = True
+        ids = np.array(list(self.agent), dtype=str) if self.agent else np.zeros(0, dtype=str)
+        tracks = Tracks(ids=ids, object_type=np.array(self.kinds, np.int8), valid=valid, **arrays)
+        if not all(self.sampled):
+            fill_between_samples(tracks, np.array(self.times, np.float64), np.array(self.sampled))
+        return tracks
+
+
 def record(session: SumoSession, *, end: float | None = None, begin: float | None = None,
            max_steps: int | None = None, net: SumoNet | None = None, incoming_lanes: bool = True,
            before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
@@ -273,27 +391,9 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     table = SignalTable.build(net, incoming_lanes=incoming_lanes)
     eps = 1e-6 * session.step_length
 
-    agent: dict[str, int] = {}
-    kinds: list[int] = []
-    vclasses: dict[str, str] = {}
-    times: list[float] = []
-    rows: list[tuple[np.ndarray, VehicleStates]] = []
-    signal_rows: list[np.ndarray] = []
-    sampled: list[bool] = []  # per recorded step: were the surroundings read (not just the target)
-    every = 1
-    if focus is not None and focus.surroundings_hz:
-        every = max(1, int(round(1.0 / (focus.surroundings_hz * session.step_length))))
+    rec = _Rows()
+    reader = _FocusedReader(session, focus) if focus is not None else None
     steps = 0
-    targets = focus.targets if focus is not None else ()
-    running = [v for v in targets if v in set(session.vehicle_ids())]  # the focused vehicles now running
-    arrived: set[str] = set()
-    started = bool(running)  # a focused recording begins when its (first) vehicle departs
-    end_at: float | None = None  # [s] when a focused recording stops (after the targets arrived)
-    # [s] when it stops at the latest: max_life_s after the first departure (or now, if one runs already)
-    cut_at = session.time + focus.max_life_s if started and focus is not None and focus.max_life_s else None
-    cut = False
-    ran_from: dict[str, float] = {}  # until a focused vehicle departs: who ran, from when to when [s]
-    ran_until: dict[str, float] = {}
     first_t: float | None = None
     t = session.time
     while True:
@@ -308,109 +408,49 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         t = session.step()
         first_t = t if first_t is None else first_t
         steps += 1
-        full = True  # this step reads everything that is recorded (not only the target)
-        if focus is None:
-            st = session.vehicle_states()
+        if reader is None:
+            st, full = session.vehicle_states(), True
         else:
-            arrived_now = session.arrived_ids()
-            if not started:
-                ran_from.update((v, t) for v in session.departed_ids() if v not in ran_from)
-                ran_until.update((v, t) for v in arrived_now)
-            gone = [v for v in running if v in arrived_now]
-            if gone:
-                arrived.update(gone)
-                running = [v for v in running if v not in arrived]
-                if focus.until_arrival and end_at is None and arrived.issuperset(targets):
-                    end_at = t + focus.tail_s
-            if end_at is not None and t > end_at + eps:
+            read = reader.read(session, t, len(rec.times))
+            if read is None:
                 break
-            if cut_at is not None and t > cut_at + eps:
-                cut = True
-                break
-            departed = session.departed_ids()
-            running += [v for v in targets if v in departed and v not in running]
-            if running and not started and focus.max_life_s is not None:
-                cut_at = t + focus.max_life_s
-            started = started or bool(running)
-            full = every == 1 or len(times) % every == 0
-            if running:
-                if full:
-                    near = session.vehicles_near(running[0], focus.radius_m, once=every > 1)
-                    for other in running[1:]:  # several targets: the union of their surroundings
-                        seen = set(near)
-                        near += [v for v in session.vehicles_near(other, focus.radius_m, once=every > 1)
-                                 if v not in seen]
-                else:
-                    near = [v for v in running if v not in session.hidden]
-                if focus.extra_ids:
-                    in_sim, present = set(session.vehicle_ids()), set(near)
-                    near += [v for v in focus.extra_ids
-                             if v not in present and v in in_sim and v not in session.hidden]
-                st = session.vehicle_states(near)
-            else:  # no target is (or any longer) in the network: nothing around them to read
-                st = empty_states()
+            st, full = read
         stop = bool(after_step(session, st)) if after_step is not None else False
-        if focus is not None and not started:
-            pass  # the focused vehicle has not departed yet: nothing to record
-        elif begin is None or t >= begin - eps:
-            names = st.id_list()
-            for i in [i for i, vid in enumerate(names) if vid not in agent]:  # first appearances
-                if names[i] not in agent:
-                    agent[names[i]] = len(agent)
-                    kinds.append(int(_OBJECT_TYPE.get(str(st.vclass[i]), ObjectType.VEHICLE)))
-                    vclasses[names[i]] = str(st.vclass[i])
-            idx = np.fromiter(map(agent.__getitem__, names), np.int64, len(names))
-            times.append(t)
-            sampled.append(full)
-            rows.append((idx, st))
-            signal_rows.append(table.states(session.tls_states()) if len(table.lane_index) else
-                               np.zeros(0, np.int8))
+        # a focused recording starts when its (first) vehicle departs
+        if (reader is None or reader.started) and (begin is None or t >= begin - eps):
+            rec.add(t, st, full, table.states(session.tls_states()) if len(table.lane_index) else np.zeros(0, np.int8))
         if stop:
             break
 
-    num_agents, num_steps = len(agent), len(times)
-    arrays = {f: np.zeros((num_agents, num_steps), np.float64)
-              for f in ("x", "y", "heading", "vx", "vy", "length", "width")}
-    valid = np.zeros((num_agents, num_steps), bool)
-    if rows:  # one scatter per field over all steps (a city pass has ~10^4 steps)
-        a_all = np.concatenate([idx for idx, _ in rows])
-        s_all = np.repeat(np.arange(len(rows)), [len(idx) for idx, _ in rows])
-        for field in ("x", "y", "length", "width"):
-            arrays[field][a_all, s_all] = np.concatenate([getattr(st, field) for _, st in rows])
-        yaw = np.concatenate([st.yaw for _, st in rows])
-        speed = np.concatenate([st.speed for _, st in rows])
-        arrays["heading"][a_all, s_all] = yaw
-        arrays["vx"][a_all, s_all] = speed * np.cos(yaw)  # as VehicleStates.vx / vy
-        arrays["vy"][a_all, s_all] = speed * np.sin(yaw)
-        valid[a_all, s_all] = True
-    ids = np.array(list(agent), dtype=str) if agent else np.zeros(0, dtype=str)
-    tracks = Tracks(ids=ids, object_type=np.array(kinds, np.int8), valid=valid, **arrays)
-    if not all(sampled):
-        fill_between_samples(tracks, np.array(times, np.float64), np.array(sampled))
-    signals = SignalStates(
-        lane_index=table.lane_index,
-        state=(np.stack(signal_rows) if signal_rows else np.zeros((0, len(table.lane_index)), np.int8)),
-        stop_point=table.stop_point)
+    info = _pass_meta(session, net, net_path, rec, reader, first_t, t)
+    info.update(meta or {})
     source_file = session.config or session.net or net.path
+    sid = scenario_id or f"{Path(str(source_file)).name.split('.')[0]}_seed{session.seed}"
+    sdc = rec.agent.get("ego", -1)
+    return Scene(scenario_id=sid, timestamps=np.array(rec.times, np.float64), tracks=rec.tracks(),
+                 road_map=net.road_map, signals=rec.signals(table), sdc_index=sdc, current_time_index=0,
+                 source="sumo", meta=info).validate()
+
+
+def _pass_meta(session: SumoSession, net: SumoNet, net_path: Path | None, rec: _Rows, reader: _FocusedReader | None,
+               first_t: float | None, t: float) -> dict[str, Any]:
+    """``Scene.meta`` of a recorded pass (the keys :func:`record` documents); ``first_t`` and ``t``:
+    the first and last simulated time [s]."""
+    times = rec.times
     info: dict[str, Any] = {
         "sumocfg": str(session.config) if session.config is not None else None,
         "net": str(net_path or net.path), "seed": session.seed, "backend": session.backend,
         "step_length": session.step_length,
         "begin": times[0] if times else None, "end": times[-1] if times else None,
         "location_offset": [float(v) for v in net.location_offset],
-        "vehicle_classes": vclasses,  # id -> SUMO vClass when first seen (object_type keeps less)
+        "vehicle_classes": rec.vclasses,  # id -> SUMO vClass when first seen (object_type keeps less)
     }
-    if cut and focus is not None:
-        info["cut_after_s"] = focus.max_life_s
-    if focus is not None and not started:
-        info["ran_s"] = {v: round(ran_until.get(v, t) - t0, 3) for v, t0 in ran_from.items()}
+    if reader is not None and reader.cut:
+        info["cut_after_s"] = reader.focus.max_life_s
+    if reader is not None and not reader.started:
+        info["ran_s"] = {v: round(reader.ran_until.get(v, t) - t0, 3) for v, t0 in reader.ran_from.items()}
         info["pass_window_s"] = [first_t, t] if first_t is not None else None
-    info.update(meta or {})
-    sid = scenario_id or f"{Path(str(source_file)).name.split('.')[0]}_seed{session.seed}"
-    sdc = agent.get("ego", -1)
-    return Scene(scenario_id=sid, timestamps=np.array(times, np.float64), tracks=tracks,
-                 road_map=net.road_map, signals=signals, sdc_index=sdc, current_time_index=0,
-                 source="sumo", meta=info).validate()
+    return info
 
 
 def record_config(config: str | Path, *, seed: int | None = None, begin: float | None = None,

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import (
     LANE_MAP_FILE,
     SCENE_FILE,
@@ -42,7 +43,7 @@ from coster_sumo.formats.scene_folder import (
     vtype_for,
 )
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.scene import Scene, Tracks, load_scene
+from coster_sumo.scene import Scene, Tracks
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates, empty_states
 

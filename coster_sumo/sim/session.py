@@ -14,6 +14,9 @@ Frames: every array this class returns or takes is in **our** frame (box centre,
 counter-clockwise from +x, see :mod:`coster_sumo.frames`); SUMO's front-bumper / degrees clockwise
 from north convention stays inside this module.
 
+The commands that change the simulation (add, place, release, remove vehicles; force signals)
+are the session's too, written in :mod:`coster_sumo.sim.control`.
+
 Example: ``with SumoSession("x.sumocfg", seed=1) as sim: sim.step(); sim.vehicle_states()``.
 """
 
@@ -32,18 +35,11 @@ import numpy as np
 from coster_sumo import frames, sumo_env
 from coster_sumo.errors import CosterError, InputError, SumoError
 from coster_sumo.formats.sumocfg import check_xml, read_sumocfg, runnable_config
+from coster_sumo.sim.control import SessionControl, sumo_message
 from coster_sumo.sim.states import VehicleStates, empty_states
 from coster_sumo.sim.sumo_options import (
-    KEEP_ROUTE_EXACT_ANYWHERE,
-    LANE_CHANGE_MODE_NO_AUTONOMOUS,
-    LANE_CHANGE_MODE_SUMO_DEFAULT,
-    MOVE_MATCH_THRESHOLD_M,
     RECOMMENDED_OPTIONS,
-    REMOTE_MAX_SPEED_MPS,
-    REMOTE_SPEED_FACTOR,
     SHORT_TO_LONG,
-    SPEED_MODE_ALL_CHECKS_OFF,
-    SPEED_MODE_SUMO_DEFAULT,
     as_list,
     fmt,
 )
@@ -58,7 +54,7 @@ def _option_key(arg: str) -> str:
     return SHORT_TO_LONG.get(key, key)
 
 
-class SumoSession:
+class SumoSession(SessionControl):
     """One SUMO simulation: start, step, read vehicles and signals, place vehicles.
 
     Args:
@@ -228,7 +224,7 @@ class SumoSession:
             try:
                 api.start(self.command())
             except Exception as exc:  # libsumo.TraCIException: SUMO refused the inputs
-                raise InputError(f"{self.name}: SUMO could not load it: {_one_line(exc)}") from None
+                raise InputError(f"{self.name}: SUMO could not load it: {sumo_message(exc)}") from None
             _LIBSUMO_OWNER = self
         else:
             traci = sumo_env.import_traci()
@@ -242,7 +238,7 @@ class SumoSession:
                 raise
             except Exception as exc:  # FatalTraCIError / OSError
                 raise SumoError(f"{self.name}: SUMO did not start or accept the connection: "
-                                f"{_one_line(exc)}") from None
+                                f"{sumo_message(exc)}") from None
         self._api = api
         self._time = float(api.simulation.getTime())
         self._tls_ids = tuple(api.trafficlight.getIDList())
@@ -288,7 +284,7 @@ class SumoSession:
             api.simulationStep()
         except Exception as exc:
             self.close()
-            raise SumoError(f"{self.name}: SUMO failed during a step: {_one_line(exc)}") from None
+            raise SumoError(f"{self.name}: SUMO failed during a step: {sumo_message(exc)}") from None
         sim = api.simulation
         if self.uses_traci:
             res = sim.getSubscriptionResults()
@@ -456,128 +452,6 @@ class SumoSession:
             ids.insert(0, veh_id)
         return ids
 
-    def add_vehicle(self, veh_id: str, length: float, width: float, vclass: str = "passenger", *,
-                    route_edges: Sequence[str] | None = None, route_id: str | None = None,
-                    base_type: str = "DEFAULT_VEHTYPE", depart: str = "now",
-                    color: tuple[int, int, int, int] | None = None, remote: bool = True) -> None:
-        """Add a vehicle with a private vType ``"<veh_id>@coster"`` of the given size and class.
-
-        Route: ``route_edges`` (a private route is made), else ``route_id``, else ``""``, which lets
-        SUMO put it on a random edge (fine for a vehicle you place with :meth:`move_to_xy`).
-        ``remote=True`` prepares it for :meth:`move_to_xy`: speed mode and lane-change mode 0, and a
-        speed factor / max speed large enough that SUMO does not cap its reported speed. Place a
-        remote vehicle on a lane first: a vehicle first placed far from every lane can crash
-        libsumo on some getters (docs/sumo.md §3).
-        """
-        api = self.api
-        vt = api.vehicletype
-        # a vehicle added again after its removal (an environment's target, episode after episode)
-        # reuses its type and any route it had: SUMO keeps every type and route it was given
-        kind = (veh_id, base_type, remote)
-        type_id = self._types.get(kind)
-        if type_id is None:
-            n = sum(1 for k in self._types if k[0] == veh_id)
-            type_id = f"{veh_id}@coster" + ("" if n == 0 else f"#{n}")
-            vt.copy(base_type, type_id)
-            self._types[kind] = type_id
-        vt.setLength(type_id, float(length))
-        vt.setWidth(type_id, float(width))
-        vt.setVehicleClass(type_id, vclass)
-        if remote:
-            vt.setSpeedFactor(type_id, REMOTE_SPEED_FACTOR)
-            vt.setMaxSpeed(type_id, REMOTE_MAX_SPEED_MPS)
-            vt.setSpeedDeviation(type_id, 0.0)
-        if route_edges is not None:
-            route_id = self._routes.get(tuple(route_edges))
-            if route_id is None:
-                route_id = f"{veh_id}@route" + ("" if not self._routes else f"#{len(self._routes)}")
-                api.route.add(route_id, list(route_edges))
-                self._routes[tuple(route_edges)] = route_id
-        try:
-            api.vehicle.add(veh_id, route_id or "", typeID=type_id, depart=depart)
-        except Exception as exc:
-            raise SumoError(f"{self.name}: cannot add vehicle {veh_id!r}: {_one_line(exc)}") from None
-        if color is not None:
-            api.vehicle.setColor(veh_id, color)
-        self._static[veh_id] = (float(length), float(width), vclass, type_id)
-        if remote:
-            self._make_remote(veh_id)
-        if self.uses_traci:
-            self._subscribe_vehicle(veh_id)
-
-    def set_size(self, veh_id: str, length: float, width: float) -> None:
-        """Change a vehicle's length and width [m] (SUMO gives it a private type)."""
-        veh = self.api.vehicle
-        veh.setLength(veh_id, float(length))
-        veh.setWidth(veh_id, float(width))
-        self._static.pop(veh_id, None)
-
-    def remove_vehicle(self, veh_id: str) -> None:
-        """Remove a vehicle now (no error if it is already gone)."""
-        with contextlib.suppress(Exception):
-            self.api.vehicle.remove(veh_id)
-        self._static.pop(veh_id, None)
-        self._remote.discard(veh_id)
-        self.hidden.discard(veh_id)
-        self._pending_speed.pop(veh_id, None)
-
-    def move_to_xy(self, veh_id: str, cx: float, cy: float, yaw: float, length: float | None = None,
-                   speed: float | None = None) -> None:
-        """Place a vehicle so that its box centre is (cx, cy) [m] heading ``yaw`` [rad, CCW from x].
-
-        Takes effect at the next :meth:`step`, after which SUMO reports exactly this pose. Call it
-        **every** step for a vehicle you drive: one step without it hands the vehicle back to SUMO,
-        which may drive it off along a rewritten route or make it arrive (docs/sumo.md §3).
-        ``length`` defaults to the vehicle's known length. ``speed`` [m/s], when given, becomes the
-        speed SUMO reports after the step (``setPreviousSpeed``); otherwise SUMO reports the
-        displacement over the step, uncapped for vehicles added with ``remote=True`` or moved
-        here before.
-        """
-        api = self.api
-        if veh_id not in self._remote:
-            self._make_remote(veh_id)
-        if length is None:
-            st = self._static.get(veh_id)
-            length = st[0] if st is not None else float(api.vehicle.getLength(veh_id))
-        fx, fy, angle = frames.to_sumo(cx, cy, yaw, length)
-        api.vehicle.moveToXY(veh_id, "", -1, float(fx), float(fy), angle=float(angle),
-                             keepRoute=KEEP_ROUTE_EXACT_ANYWHERE, matchThreshold=MOVE_MATCH_THRESHOLD_M)
-        if speed is not None:
-            self._pending_speed[veh_id] = float(speed)
-
-    def release_vehicle(self, veh_id: str, destinations: Sequence[tuple[float, float, float, float]] = ()) -> None:
-        """Hand a vehicle driven by :meth:`move_to_xy` back to SUMO's driver model.
-
-        Restores SUMO's default speed mode and lane-change mode and an ordinary speed factor, so
-        the driver model, safe gaps and speed limits apply again from the vehicle's current pose.
-        moveToXY left it a route of the one edge it stands on; ``destinations`` (poses further on:
-        centre x, y [m], yaw [rad], length [m], best first) give it a route to the first normal
-        (not internal) edge under one of them that SUMO can route to.
-        """
-        veh = self.api.vehicle
-        veh.setSpeedMode(veh_id, SPEED_MODE_SUMO_DEFAULT)
-        veh.setLaneChangeMode(veh_id, LANE_CHANGE_MODE_SUMO_DEFAULT)
-        veh.setSpeedFactor(veh_id, 1.0)
-        vclass = veh.getVehicleClass(veh_id) if destinations else ""
-        for pose in destinations:
-            fx, fy, _ = frames.to_sumo(*pose)
-            with contextlib.suppress(Exception):  # no edge there, or no route to it: try the next
-                edge, _, _ = self.api.simulation.convertRoad(float(fx), float(fy), False, vclass)
-                if edge and not str(edge).startswith(":"):
-                    veh.changeTarget(veh_id, str(edge))
-                    return
-        self._remote.discard(veh_id)
-        self._pending_speed.pop(veh_id, None)
-
-    def _make_remote(self, veh_id: str) -> None:
-        veh = self.api.vehicle
-        veh.setSpeedMode(veh_id, SPEED_MODE_ALL_CHECKS_OFF)
-        veh.setLaneChangeMode(veh_id, LANE_CHANGE_MODE_NO_AUTONOMOUS)
-        # per-vehicle too, for vehicles not added by us (their vType is shared, leave it alone)
-        veh.setSpeedFactor(veh_id, REMOTE_SPEED_FACTOR)
-        veh.setMaxSpeed(veh_id, REMOTE_MAX_SPEED_MPS)
-        self._remote.add(veh_id)
-
     # ------------------------------------------------------------------------- traffic lights
 
     def tls_ids(self) -> tuple[str, ...]:
@@ -594,10 +468,6 @@ class SumoSession:
     def tls_state(self, tls_id: str) -> str:
         """Red-yellow-green state string, one char per link index (SUMO link state letters)."""
         return str(self.api.trafficlight.getRedYellowGreenState(tls_id))
-
-    def set_tls_state(self, tls_id: str, state: str) -> None:
-        """Force a red-yellow-green state (kept until the program is set again)."""
-        self.api.trafficlight.setRedYellowGreenState(tls_id, state)
 
     def tls_states(self) -> dict[str, str]:
         """State string of every traffic light (TraCI: from subscriptions, no extra round trip)."""
@@ -616,7 +486,3 @@ class SumoSession:
 
     def _subscribe_vehicle(self, veh_id: str) -> None:
         subscribe_vehicle(self._api, self._tc(), veh_id)
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text or type(exc).__name__

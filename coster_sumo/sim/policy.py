@@ -2,7 +2,7 @@
 
 The policy (a stable-baselines3 ``policy.zip`` from ``coster-sumo policy train``) drives the target
 exactly as in ``coster_sumo/Scenario-v0``: the same observation, the same action and kinematics
-(:class:`coster_sumo.gym.env.Driver`). Its route is the target's nominal trajectory. At takeover
+(:class:`coster_sumo.sim.driver.Driver`). Its route is the target's nominal trajectory. At takeover
 (the first :meth:`before_step` with the target present, when the adversary's plan starts) the
 target's pose and speed are read from SUMO and projected onto the route; from then on the planner
 places the target with moveToXY every step and asks the policy for an action every 0.2 s.
@@ -15,19 +15,29 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from coster_sumo.errors import InputError
 from coster_sumo.geometry import project_points
-from coster_sumo.gym.env import STEP_S, Driver, Route
+from coster_sumo.sim.driver import STEP_S, Driver, Route
 
 if TYPE_CHECKING:
-    from coster_sumo.sim.planners import ReplayPlanner
     from coster_sumo.sim.session import SumoSession
 
 CONTROL_PERIOD_S = 0.2  # [s] as Scenario-v0's default
+
+
+class NominalPath(Protocol):
+    """The target's nominal trajectory as the policy reads it (a
+    :class:`coster_sumo.sim.planners.ReplayPlanner` is one): per step of the nominal pass."""
+
+    times: np.ndarray  # (T,) [s]
+    x: np.ndarray  # (T,) [m] box centre
+    y: np.ndarray  # (T,) [m]
+    yaw: np.ndarray  # (T,) [rad]
+    valid: np.ndarray  # (T,) bool
 
 
 class PolicyPlanner(Driver):
@@ -39,7 +49,7 @@ class PolicyPlanner(Driver):
             (``run`` asks a planner for its files before the nominal pass): then it cannot drive.
     """
 
-    def __init__(self, path: str | Path, nominal: ReplayPlanner | None) -> None:
+    def __init__(self, path: str | Path, nominal: NominalPath | None) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise InputError(f"planner policy:{path}: no such policy file")
@@ -99,7 +109,7 @@ class PolicyPlanner(Driver):
         session.move_to_xy(target_id, x, y, yaw, self.length, speed=self.v)
 
 
-def make_policy_planner(arg: str | None, nominal: ReplayPlanner | None) -> PolicyPlanner:
+def make_policy_planner(arg: str | None, nominal: NominalPath | None) -> PolicyPlanner:
     """``policy:PATH`` (the :data:`coster_sumo.sim.planners.PLANNERS` entry)."""
     if not arg:
         raise InputError("planner policy:PATH needs the path of a policy.zip")
