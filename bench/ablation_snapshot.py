@@ -30,10 +30,10 @@ import re
 from pathlib import Path
 
 import numpy as np
+from coster_sumo.converters.read import iter_scenes
 
 from coster_sumo import metrics, weights
 from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
-from coster_sumo.converters.read import iter_scenes
 from coster_sumo.dataset import list_scenes, split
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import NoSnapshot

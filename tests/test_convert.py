@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from coster_sumo import synthetic
-from coster_sumo.cli import main
 from coster_sumo.converters.tfrecord import write_tfrecord
 from coster_sumo.converters.to_sumo import STAGING_EDGE, convert_scene
 from coster_sumo.converters.womd import scene_to_scenario
+
+from coster_sumo import synthetic
+from coster_sumo.cli import main
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import is_converted_scene

@@ -18,14 +18,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from coster_sumo import synthetic
-from coster_sumo.cli import main
 from coster_sumo.converters.read import read_scenes
 from coster_sumo.converters.scenarionet import ALLOWED_GLOBALS, RestrictedUnpickler, load_pickle
 from coster_sumo.converters.tf_example import example_keys
 from coster_sumo.converters.tfrecord import masked_crc32c, write_tfrecord
 from coster_sumo.converters.womd import scene_to_scenario
+
+from coster_sumo import synthetic
+from coster_sumo.cli import main
 from coster_sumo.errors import InputError, one_line
 from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.formats.scene_folder import folder_name

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from coster_sumo.converters.to_sumo import convert_scene
 
 from coster_sumo import frames, synthetic
 from coster_sumo.cli import main
-from coster_sumo.converters.to_sumo import convert_scene
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import tls_state_strings
 from coster_sumo.sim.record import record
