@@ -62,6 +62,10 @@ if NEW:
     from coster_sumo.scenario import choose_target
 else:
     from coster_sumo.core import choose_target, generate_variants
+if os.path.isfile(os.path.join(sys.argv[1], "coster_sumo", "formats", "scene_file.py")):
+    from coster_sumo.formats.scene_file import load_scene
+else:  # before the scene file had a module of its own
+    from coster_sumo.scene import load_scene
 import coster_sumo.drivable  # noqa: F401
 import coster_sumo.sim.inject  # noqa: F401
 from coster_sumo.batch import executor
@@ -80,7 +84,6 @@ for line in sys.stdin:
         try:
             from pathlib import Path
             from coster_sumo.drivable import DrivableArea
-            from coster_sumo.formats.scene_file import load_scene
             from coster_sumo.spec import GenerationConfig
             scene = load_scene(req["scene"])
             target = choose_target(scene, None, req["scene"])
