@@ -44,6 +44,8 @@ MAX_CONNECTOR_DEPTH = 6  # interior lanes chained in one connection
 DEFAULT_SPEED_MPS = 13.89  # [m/s] where WOMD gives no speed limit (50 km/h)
 MIN_WIDTH_M = 1.0  # [m]
 DEFAULT_WIDTH_M = 3.7  # [m]
+TURN_CHORD_M = 1.0  # [m] a lane's turn is measured as its heading change over this much of it
+TURN_WIDTH_RATIO = 0.9  # [-] a lane's half width stays below this share of its tightest turning radius
 
 
 @dataclass(slots=True)
@@ -529,8 +531,28 @@ def _midpoint(points: np.ndarray) -> np.ndarray:
 
 
 def lane_width(road_map: RoadMap, i: int) -> float:
+    """[m] the SUMO width of WOMD lane ``i``: its estimate, no wider than its tightest turn allows
+    (:func:`turn_width_cap`)."""
     w = float(road_map.lanes.width[i])
-    return w if np.isfinite(w) and w >= MIN_WIDTH_M else DEFAULT_WIDTH_M
+    w = w if np.isfinite(w) and w >= MIN_WIDTH_M else DEFAULT_WIDTH_M
+    return max(min(w, turn_width_cap(clean_polyline(road_map.lanes.centerline[i]))), MIN_WIDTH_M)
+
+
+def turn_width_cap(line: np.ndarray) -> float:
+    """[m] the widest lane a centre line (N, 2) can carry: a lane wider than the diameter of its
+    turn has an inner edge that stops and runs backwards. The turn is the largest heading change
+    over :data:`TURN_CHORD_M` of the line; the cap keeps half the width at :data:`TURN_WIDTH_RATIO`
+    of that radius (inf for a line shorter than the chord)."""
+    cum = polyline_arc_length(line) if len(line) >= 2 else np.zeros(1)
+    if cum[-1] < TURN_CHORD_M:
+        return float("inf")
+    s = np.arange(0.0, cum[-1] - TURN_CHORD_M + 1e-9, TURN_CHORD_M / 4)
+    seg = np.diff(line, axis=0)
+    heading = np.arctan2(seg[:, 1], seg[:, 0])
+    k0 = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    k1 = np.clip(np.searchsorted(cum, s + TURN_CHORD_M, side="right") - 1, 0, len(seg) - 1)
+    turn = float(np.abs(np.angle(np.exp(1j * (heading[k1] - heading[k0])))).max())
+    return 2.0 * TURN_WIDTH_RATIO * TURN_CHORD_M / turn if turn > 0 else float("inf")
 
 
 def lane_speed(road_map: RoadMap, i: int) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 from coster_sumo.converters.tfrecord import write_tfrecord
 from coster_sumo.converters.to_sumo import STAGING_EDGE, convert_scene
-from coster_sumo.converters.to_sumo_net import build_plain_net
+from coster_sumo.converters.to_sumo_net import build_plain_net, lane_width, turn_width_cap
 from coster_sumo.converters.womd import scene_to_scenario
 
 from coster_sumo import synthetic
@@ -169,6 +170,19 @@ def test_lanes_of_one_point_are_realised_where_they_sit(tmp_path):
     # SUMO drives from a to c across the point
     got = drive_every_connection(next(result.folder.glob("*.net.xml")), tmp_path, frozenset({STAGING_EDGE}))
     assert got.routes >= 1 and got.arrived == got.routes and got.jumps == []
+
+
+def test_a_lane_is_no_wider_than_its_turn():
+    # a lane wider than the diameter of its turn has an inner edge that runs backwards
+    a = np.linspace(0.0, math.pi / 2, 40)
+    arc = np.column_stack([2.5 * np.sin(a), 2.5 - 2.5 * np.cos(a)])
+    assert turn_width_cap(arc) == pytest.approx(1.8 * 2.5, rel=0.02)
+    assert turn_width_cap(np.array([[0.0, 0.0], [50.0, 0.0]])) == math.inf
+    b = synthetic._MapBuilder()
+    b.lane(arc)
+    road_map = b.build()
+    road_map.lanes.width[0] = 5.5
+    assert lane_width(road_map, 0) == pytest.approx(4.5, rel=0.02)
 
 
 def _empty_map(scene: Scene) -> Scene:
