@@ -415,37 +415,52 @@ def measure_fidelity(plain: PlainNet, scene: Scene, info: NetInfo) -> tuple[dict
             joined = np.concatenate([info.lane_shapes[v] for v in chain if v in info.lane_shapes])
             join_shape.setdefault((c.src, "out"), joined)
             join_shape.setdefault((c.dst, "in"), joined)
+    def realised(i: int) -> tuple[list[np.ndarray], list[str]]:
+        """The SUMO shapes that may realise WOMD lane ``i`` (any one of them) and its SUMO lanes."""
+        if i in plain.connectors:  # several connections may share an interior lane
+            return interior_shapes.get(i, []), interior_sumo.get(i, [])
+        # the lane's pieces in order, with the straight joins that carry their ends between and
+        # around them (set_womd_geometry lends a lane's ends to those joins' internal lanes)
+        parts = []
+        for k, p in enumerate(plain.lane_pieces[i]):
+            if k == 0 and (p, "in") in join_shape:
+                parts.append(join_shape[(p, "in")])
+            parts.append(info.lane_shapes.get(plain.pieces[p].sumo_lane, np.zeros((0, 2))))
+            if (p, "out") in join_shape:
+                parts.append(join_shape[(p, "out")])
+        return [np.concatenate(parts)], [plain.pieces[p].sumo_lane for p in plain.lane_pieces[i]]
+
     per_lane: list[dict] = []
     lane_map: dict[str, list[str]] = {}
     skipped = set(plain.skipped)
+    point_at: dict[int, set[int]] = {}  # stub of one point -> the lanes whose SUMO lane it lies on
     for i in range(len(lanes)):
         lid = str(lanes.ids[i])
-        if i in skipped:
-            per_lane.append({"lane": lid, "matched": False, "mean_m": None, "max_m": None})
-            lane_map[lid] = []
-            continue
         pts = np.asarray(lanes.centerline[i], np.float64)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
-        if i in plain.connectors:
-            cands = interior_shapes.get(i, [])
-            # best realisation of this interior lane (several connections may share it)
-            dists = [_mean_max_distance(pts, s) for s in cands] or [(float("inf"), float("inf"))]
-            mean, mx = min(dists)
-            lane_map[lid] = interior_sumo.get(i, [])
+        dists: list[tuple[float, float]] = []
+        if i in skipped:
+            # a lane with no length (WOMD's map crop leaves lanes of one point) is not a SUMO lane;
+            # it is realised where it sits: at the end of a lane it follows or the start of one it
+            # leads to, so its point must lie on the SUMO lane(s) of those
+            before, after = plain.point_ends.get(i, ([], []))
+            lane_map[lid] = []
+            for j in ([*before, *after] if len(pts) else []):
+                shapes, ids = realised(j)
+                best = (float("inf"), float("inf"))
+                for sh in shapes:
+                    best = min(best, _mean_max_distance(pts, sh))
+                if best[0] < MATCH_DISTANCE_M:
+                    dists.append(best)
+                    if j not in plain.connectors:  # the SUMO lane of that end only
+                        ids = ids[-1:] if j in before else ids[:1]
+                    lane_map[lid].extend(x for x in ids if x not in lane_map[lid])
+                    if not before or not after:  # a stub: no link across it to realise
+                        point_at.setdefault(i, set()).add(j)
         else:
-            ids = [plain.pieces[p].sumo_lane for p in plain.lane_pieces[i]]
-            # the lane's pieces in order, with the straight joins that carry their ends between and
-            # around them (set_womd_geometry lends a lane's ends to those joins' internal lanes)
-            parts = []
-            for k, p in enumerate(plain.lane_pieces[i]):
-                if k == 0 and (p, "in") in join_shape:
-                    parts.append(join_shape[(p, "in")])
-                parts.append(info.lane_shapes.get(plain.pieces[p].sumo_lane, np.zeros((0, 2))))
-                if (p, "out") in join_shape:
-                    parts.append(join_shape[(p, "out")])
-            shape = np.concatenate(parts)
-            mean, mx = _mean_max_distance(pts, shape)
-            lane_map[lid] = ids
+            shapes, lane_map[lid] = realised(i)
+            dists = [_mean_max_distance(pts, s) for s in shapes]
+        mean, mx = min(dists) if dists else (float("inf"), float("inf"))
         per_lane.append({"lane": lid, "matched": bool(mean < MATCH_DISTANCE_M),
                          "mean_m": mean if np.isfinite(mean) else None,
                          "max_m": mx if np.isfinite(mx) else None})
@@ -455,6 +470,8 @@ def measure_fidelity(plain: PlainNet, scene: Scene, info: NetInfo) -> tuple[dict
     maxes = np.array([p["max_m"] for p in per_lane if p["max_m"] is not None])
     all_links = {(int(a), int(b)) for a in range(n) for b in lanes.successors[a] if int(b) != a}
     all_links |= {(int(p), int(b)) for b in range(n) for p in lanes.predecessors[b] if int(p) != b}
+    # a link to or from a stub of one point is realised where the stub sits on the lane it links
+    realised_links |= {(a, b) for a, b in all_links if b in point_at.get(a, ()) or a in point_at.get(b, ())}
     fidelity = {
         "lanes": n,
         "lanes_matched": int(matched),

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coster_sumo.geometry import polyline_arc_length, project_points
-from coster_sumo.scene import LaneType, RoadMap, SignalStates
+from coster_sumo.scene import Lanes, LaneType, RoadMap, SignalStates
 
 MIN_LANE_LENGTH_M = 0.1  # [m] shorter lanes are skipped (zero-length WOMD lanes)
 DUPLICATE_POINT_M = 1e-3  # [m] consecutive points closer than this are one point
@@ -44,6 +44,8 @@ MAX_CONNECTOR_DEPTH = 6  # interior lanes chained in one connection
 DEFAULT_SPEED_MPS = 13.89  # [m/s] where WOMD gives no speed limit (50 km/h)
 MIN_WIDTH_M = 1.0  # [m]
 DEFAULT_WIDTH_M = 3.7  # [m]
+TURN_CHORD_M = 1.0  # [m] a lane's turn is measured as its heading change over this much of it
+TURN_WIDTH_RATIO = 0.9  # [-] a lane's half width stays below this share of its tightest turning radius
 
 
 @dataclass(slots=True)
@@ -105,6 +107,8 @@ class PlainNet:
     connectors: set[int]  # WOMD interior lanes realised as connection shapes
     skipped: list[int]  # WOMD lanes not converted
     links: list[tuple[int, int]]  # every WOMD link between converted lanes
+    # skipped lane -> (converted lanes it follows, converted lanes it leads to): where it sits
+    point_ends: dict[int, tuple[list[int], list[int]]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
 
@@ -232,6 +236,11 @@ def build_plain_net(road_map: RoadMap, signals: SignalStates, interior: frozense
     kept = set(lines)
     pred = [[int(p) for p in lanes.predecessors[i] if int(p) in kept and int(p) != i] for i in range(n)]
     succ = [[int(s) for s in lanes.successors[i] if int(s) in kept and int(s) != i] for i in range(n)]
+    # a skipped lane has no length: the lanes before it link straight to the lanes after it
+    through, point_ends = _contract_skipped(lanes, kept)
+    for p_, s_ in through:
+        if s_ not in succ[p_]:
+            succ[p_].append(s_)
     # WOMD lists most links on both sides; some only on one: make the graph symmetric
     for i in kept:
         for nxt in succ[i]:
@@ -402,6 +411,10 @@ def build_plain_net(road_map: RoadMap, signals: SignalStates, interior: frozense
         if (src, dst) in seen or src in detached:
             return
         seen.add((src, dst))
+        # a link made across skipped lanes realises WOMD's links to and from them
+        lk = [x for pair in lk for x in ([pair] if pair not in through else through[pair])]
+        if sig < 0:
+            sig = next((a for a, _ in lk if a in sig_lanes), -1)
         connections.append(Connection(src, dst, shape, lk, via, sig))
 
     for ids in lane_pieces.values():
@@ -428,7 +441,55 @@ def build_plain_net(road_map: RoadMap, signals: SignalStates, interior: frozense
     return PlainNet(pieces=pieces, lane_pieces=lane_pieces, edges=edges, edge_nodes=edge_nodes,
                     nodes=nodes, tls_nodes=tls_nodes, connections=connections,
                     connectors=connectors,
-                    skipped=skipped, links=links, warnings=warnings)
+                    skipped=skipped, links=links, point_ends=point_ends, warnings=warnings)
+
+
+def _contract_skipped(lanes: Lanes, kept: set[int]) -> tuple[dict[tuple[int, int], list[tuple[int, int]]],
+                                                               dict[int, tuple[list[int], list[int]]]]:
+    """Links across the skipped lanes (those with no length) and where each skipped lane sits.
+
+    Returns ``through``: (kept lane before, kept lane after) -> the WOMD links of the chain of
+    skipped lanes between them; ``point_ends``: skipped lane -> (kept lanes it follows, kept lanes
+    it leads to), reached across other skipped lanes.
+    """
+    n = len(lanes)
+    skipped = [i for i in range(n) if i not in kept]
+    nxt: dict[int, set[int]] = defaultdict(set)
+    for i in range(n):  # WOMD lists most links on both sides, some on one only
+        nxt[i].update(int(s) for s in lanes.successors[i] if int(s) != i)
+        for p in lanes.predecessors[i]:
+            if int(p) != i:
+                nxt[int(p)].add(i)
+    prv: dict[int, set[int]] = defaultdict(set)
+    for i, ss in nxt.items():
+        for s in ss:
+            prv[s].add(i)
+
+    def reach(start: int, step: dict[int, set[int]]) -> dict[int, list[int]]:
+        """Kept lanes reached from a skipped lane across skipped ones -> the skipped lanes passed."""
+        out: dict[int, list[int]] = {}
+        stack = [[start]]
+        while stack:
+            path = stack.pop()
+            for j in sorted(step[path[-1]]):
+                if j in kept:
+                    out.setdefault(j, path)
+                elif j not in path:
+                    stack.append([*path, j])
+        return out
+
+    through: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    point_ends: dict[int, tuple[list[int], list[int]]] = {}
+    for k in skipped:
+        before, after = reach(k, prv), reach(k, nxt)
+        point_ends[k] = (sorted(before), sorted(after))
+        for a, back in before.items():
+            for b, fwd in after.items():
+                chain = [*back[::-1], *fwd[1:]]  # skipped lanes from a to b
+                if a != b and (a, b) not in through:
+                    seq = [a, *chain, b]
+                    through[(a, b)] = list(zip(seq[:-1], seq[1:], strict=True))
+    return through, point_ends
 
 
 def _paths(start: int, succ: list[list[int]], connectors: set[int]) -> list[list[int]]:
@@ -470,8 +531,28 @@ def _midpoint(points: np.ndarray) -> np.ndarray:
 
 
 def lane_width(road_map: RoadMap, i: int) -> float:
+    """[m] the SUMO width of WOMD lane ``i``: its estimate, no wider than its tightest turn allows
+    (:func:`turn_width_cap`)."""
     w = float(road_map.lanes.width[i])
-    return w if np.isfinite(w) and w >= MIN_WIDTH_M else DEFAULT_WIDTH_M
+    w = w if np.isfinite(w) and w >= MIN_WIDTH_M else DEFAULT_WIDTH_M
+    return max(min(w, turn_width_cap(clean_polyline(road_map.lanes.centerline[i]))), MIN_WIDTH_M)
+
+
+def turn_width_cap(line: np.ndarray) -> float:
+    """[m] the widest lane a centre line (N, 2) can carry: a lane wider than the diameter of its
+    turn has an inner edge that stops and runs backwards. The turn is the largest heading change
+    over :data:`TURN_CHORD_M` of the line; the cap keeps half the width at :data:`TURN_WIDTH_RATIO`
+    of that radius (inf for a line shorter than the chord)."""
+    cum = polyline_arc_length(line) if len(line) >= 2 else np.zeros(1)
+    if cum[-1] < TURN_CHORD_M:
+        return float("inf")
+    s = np.arange(0.0, cum[-1] - TURN_CHORD_M + 1e-9, TURN_CHORD_M / 4)
+    seg = np.diff(line, axis=0)
+    heading = np.arctan2(seg[:, 1], seg[:, 0])
+    k0 = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    k1 = np.clip(np.searchsorted(cum, s + TURN_CHORD_M, side="right") - 1, 0, len(seg) - 1)
+    turn = float(np.abs(np.angle(np.exp(1j * (heading[k1] - heading[k0])))).max())
+    return 2.0 * TURN_WIDTH_RATIO * TURN_CHORD_M / turn if turn > 0 else float("inf")
 
 
 def lane_speed(road_map: RoadMap, i: int) -> float:

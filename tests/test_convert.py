@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 from coster_sumo.converters.tfrecord import write_tfrecord
 from coster_sumo.converters.to_sumo import STAGING_EDGE, convert_scene
+from coster_sumo.converters.to_sumo_net import build_plain_net, lane_width, turn_width_cap
 from coster_sumo.converters.womd import scene_to_scenario
 
 from coster_sumo import synthetic
@@ -18,7 +20,7 @@ from coster_sumo.cli import main
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import is_converted_scene
-from coster_sumo.scene import Lanes, ObjectType, Ragged, RoadMap, Scene
+from coster_sumo.scene import Lanes, ObjectType, Ragged, RoadMap, Scene, SignalStates
 from coster_sumo.sim.session import SumoSession
 from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 from tests.drive_connections import drive_every_connection
@@ -137,6 +139,53 @@ def test_bad_lane_geometry_is_skipped_with_a_warning(tmp_path):
     assert result.summary["fidelity"]["lanes_matched"] == len(bad.road_map.lanes) - 2
 
 
+def test_lanes_of_one_point_are_realised_where_they_sit(tmp_path):
+    """WOMD's map crop leaves lanes of one point at another lane's end (6 in the real samples): no
+    SUMO lane can hold them, so a lane before one links straight to the lane after it, and one that
+    ends the map lies on its neighbour's end."""
+    scene = synthetic.two_lane_road()
+    ox, oy = scene.road_map.lanes.centerline[0][0]
+    b = synthetic._MapBuilder()
+    a = b.lane(synthetic._line((ox, oy), (ox + 100, oy)))
+    p = b.lane(np.array([[ox + 100, oy]]))
+    c = b.lane(synthetic._line((ox + 100, oy), (ox + 200, oy)))
+    stub = b.lane(np.array([[ox + 200, oy]]))
+    lost = b.lane(np.array([[ox + 100, oy + 30]]))  # links a lane it does not touch
+    b.link(a, p)
+    b.link(p, c)
+    b.link(c, stub)
+    b.link(a, lost)
+    road_map = b.build()
+    signals = SignalStates(lane_index=np.array([p]), state=np.full((len(scene.timestamps), 1), 6, np.int8),
+                           stop_point=np.array([[ox + 100, oy]]))
+    plain = build_plain_net(road_map, signals)
+    (across,) = [k for k in plain.connections if (k.src, k.dst) == (plain.lane_pieces[a][-1], plain.lane_pieces[c][0])]
+    assert across.links == [(a, p), (p, c)] and across.signal_lane == p  # its signal controls a -> c
+    result = convert_scene(dataclasses.replace(scene, road_map=road_map).validate(), tmp_path)
+    fid = result.summary["fidelity"]
+    ids = road_map.lanes.ids
+    assert fid["unmatched_lanes"] == [ids[lost]] and fid["lanes_matched"] == 4
+    assert (fid["links"], fid["links_realised"]) == (4, 3)  # all but the one to the lost point
+    lane_map = json.loads((result.folder / "lane_map.json").read_text())["lanes"]
+    assert lane_map[ids[p]] == lane_map[ids[a]] + lane_map[ids[c]] and lane_map[ids[stub]] == lane_map[ids[c]]
+    # SUMO drives from a to c across the point
+    got = drive_every_connection(next(result.folder.glob("*.net.xml")), tmp_path, frozenset({STAGING_EDGE}))
+    assert got.routes >= 1 and got.arrived == got.routes and got.jumps == []
+
+
+def test_a_lane_is_no_wider_than_its_turn():
+    # a lane wider than the diameter of its turn has an inner edge that runs backwards
+    a = np.linspace(0.0, math.pi / 2, 40)
+    arc = np.column_stack([2.5 * np.sin(a), 2.5 - 2.5 * np.cos(a)])
+    assert turn_width_cap(arc) == pytest.approx(1.8 * 2.5, rel=0.02)
+    assert turn_width_cap(np.array([[0.0, 0.0], [50.0, 0.0]])) == math.inf
+    b = synthetic._MapBuilder()
+    b.lane(arc)
+    road_map = b.build()
+    road_map.lanes.width[0] = 5.5
+    assert lane_width(road_map, 0) == pytest.approx(4.5, rel=0.02)
+
+
 def _empty_map(scene: Scene) -> Scene:
     empty = Lanes(ids=np.zeros(0, str), centerline=Ragged.empty(0, np.float64, (2,)), width=np.zeros(0),
                   lane_type=np.zeros(0, np.int8), speed_limit=np.zeros(0), is_junction=np.zeros(0, bool),
@@ -229,7 +278,7 @@ def test_real_samples_meet_fidelity_targets(tmp_path, capsys):
     assert summary["converted"] == 4
     for row in summary["scenes"]:
         fid = row["fidelity"]
-        assert fid["lanes_matched_share"] >= 0.95, row["scenario_id"]
+        assert fid["lanes_matched_share"] >= 0.995, row["scenario_id"]
         assert fid["links_realised_share"] >= 0.90, row["scenario_id"]
         assert fid["centreline_mean_m"] < 0.1, row["scenario_id"]
         # every lane end meets the internal lane of each of its connections (issue 46: 41-136 joints

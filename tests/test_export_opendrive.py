@@ -21,7 +21,7 @@ from test_export_openscenario import LANE_END_TOLERANCE_M, XODR_TOLERANCE_M, ass
 from coster_sumo import sumo_env
 from coster_sumo.cli import main
 from coster_sumo.exports import opendrive as odr
-from coster_sumo.exports.opendrive_bend import fold_ratio, smooth_path
+from coster_sumo.exports.opendrive_bend import bend, crossings, fold_ratio, outline, smooth_path, untangle
 from coster_sumo.exports.opendrive_fit import FILLER_CODE
 from coster_sumo.exports.opendrive_solve import (
     centre_error,
@@ -29,6 +29,7 @@ from coster_sumo.exports.opendrive_solve import (
     hermite_pieces,
     hermite_through,
     records,
+    smooth_polyline,
     solve_borders,
 )
 
@@ -107,6 +108,45 @@ def test_a_tight_connecting_road_bends_so_that_its_lane_does_not_fold(kink_rad):
         assert abs(math.remainder(p["hdg"] + math.atan2(dv, du) - q["hdg"], 2 * math.pi)) < 1e-9
 
 
+def test_a_lane_wider_than_its_turn_narrows_where_it_turns():
+    # a 5.5 m lane turning 0.7 pi on a 2 m radius between two straights of 4 m (a logged WOMD lane
+    # turns 131 deg on 1.9 m): every curve near the polyline folds at full width, and narrowed only
+    # by the curvature the inner borders of the stretches before and after the turn still cross
+    a = np.linspace(0.0, 0.7 * math.pi, 25)
+    arc = np.column_stack([2.0 * np.sin(a), 2.0 - 2.0 * np.cos(a)])
+    out = np.array([math.cos(0.7 * math.pi), math.sin(0.7 * math.pi)])
+    path = np.vstack([np.column_stack([np.linspace(-4.0, -0.5, 8), np.zeros(8)]), arc,
+                      arc[-1] + np.outer(np.linspace(0.5, 4.0, 8), out)])
+    start, end = 0.0, 0.7 * math.pi
+    whole = cubic_pieces(*smooth_path(path, start, end, 5.5, 5.5), samples=64)
+    assert fold_ratio(whole, 5.5, 5.5) > 1.0
+    points, heading, half = bend(path, start, end, 5.5, 5.5, narrow=True)
+    pieces = cubic_pieces(points, heading, samples=64)
+    assert fold_ratio(pieces, 5.5, 5.5, half=half) < 1.0
+    assert len(crossings(outline(pieces, half)[0])) > 0  # no fold, but the outline crosses itself
+    fixed = untangle(pieces, half, 5.5, 5.5)
+    assert fixed is not None and len(crossings(outline(pieces, fixed)[0])) == 0
+    assert fixed[0] == fixed[-1] == 2.75 and fixed.min() >= 0.9  # the linked lanes' widths at the contacts
+    s = np.concatenate([[0.0], np.cumsum([pc["length"] for pc in pieces])])
+    assert np.abs(np.diff(fixed) / np.diff(s)).max() <= 1.0 + 1e-9  # a taper of at most 1 m per metre
+    line = shapely.LineString(path)
+    assert max(line.distance(shapely.Point(q)) for q in points) < 0.09  # on the SUMO shape
+
+
+def test_reference_lines_leave_their_ends_in_their_own_direction():
+    # a lane on a 2.5 m radius: the smoothed axis and a road of one cubic piece (1.6 m) end in the
+    # arc's own heading (the axis's first and last 0.5 m: 0.16 rad off; the average over the line
+    # mirrored through its ends turned them by 0.45 rad, the chord a short road's ends by half its turn)
+    a = np.linspace(0.0, math.pi / 2, 60)
+    arc = np.column_stack([2.5 * np.sin(a), 2.5 - 2.5 * np.cos(a)])
+    axis = smooth_polyline(arc)
+    d0, d1 = axis[1] - axis[0], axis[-1] - axis[-2]
+    assert abs(math.atan2(d0[1], d0[0])) < 0.2 and abs(math.atan2(d1[1], d1[0]) - math.pi / 2) < 0.2
+    short = arc[a <= 1.6 / 2.5]
+    (piece,) = hermite_pieces(short)
+    assert abs(piece["hdg"]) < 0.06 and piece["cV"] != 0.0
+
+
 NODES = """<nodes>
   <node id="a" x="1000.0" y="500.0"/><node id="b" x="1100.0" y="500.0"/><node id="c" x="1200.0" y="500.0"/>
 </nodes>
@@ -178,8 +218,8 @@ LINK_TOLERANCE_M = 0.01  # [m] ASAM's checker: linked lanes' borders no further 
 # lanes, 0.6-1.1 m turning 0.4-0.7 rad, 3.2 m wide; logged WOMD lanes wider than the diameter of
 # their turn), and on two WOMD maps normal roads whose logged 5.5 m lane turns on a radius of 2-3 m
 # (docs/sumo.md §12a); every other lane of the exports has none
-FOLDED_LANES = {"arterial": 4, "grid6": 8, "2a1e44d405a6833f": 12, "637f20cafde22ff8": 24,
-                "eb4b91b10ca94ff2": 3, "ee519cf571686d19": 23}
+FOLDED_LANES = {"arterial": 4, "grid6": 8, "2a1e44d405a6833f": 8, "637f20cafde22ff8": 12,
+                "eb4b91b10ca94ff2": 1, "ee519cf571686d19": 16}
 HEADING_TOLERANCE_RAD = 0.01  # heading continuity between the geometry pieces of a connecting road
 
 

@@ -19,7 +19,9 @@ Two causes, measured on the exports of ``docs/sumo.md §12a``:
 - the **geometry**: where the contacts' positions and headings and the lane's width leave no room
   (a connecting road of 0.6-2 m that turns by 0.4-1 rad with a lane 3.2-5.5 m wide: SUMO's corner
   lanes on game/grid6, logged WOMD lanes wider than the diameter of their turn), every curve
-  between the two contacts folds; :func:`fold_ratio` tells which.
+  between the two contacts folds; :func:`fold_ratio` tells which. There the lane may narrow where
+  it turns (:func:`bend` with ``narrow``, :func:`untangle`), keeping the linked lanes' widths at
+  the contacts; only where the contacts leave no room for that either does the lane fold.
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ MAX_STIFFNESS = 1e3  # [m^4] ... its ceiling (the vertices no longer count; the 
 STIFFEN = 10.0  # [-] most the bending weight grows (or shrinks) in one round
 STIFFEN_ROUNDS = 30
 STIFFEN_SPREAD = 2  # points on each side of a folding point that share its need
+TAPER = 1.0  # [-] most a narrowed lane's half width changes per metre along its road
+MIN_HALF_WIDTH_M = 0.9  # [m] no lane is narrowed below twice this
 
 
 def discrete_curvature(p: np.ndarray) -> np.ndarray:
@@ -47,6 +51,29 @@ def discrete_curvature(p: np.ndarray) -> np.ndarray:
 
 def smooth_path(points: np.ndarray, start_heading: float, end_heading: float, start_width: float,
                 end_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`bend` with the lane's width changing linearly (its points and headings)."""
+    p, heading, _ = bend(points, start_heading, end_heading, start_width, end_width)
+    return p, heading
+
+
+def narrowed_half_width(s: np.ndarray, tight: np.ndarray, start_width: float, end_width: float) -> np.ndarray:
+    """(N,) [m] half a lane's width at stations ``s`` (N,) [m] of a curve whose |curvature| there is
+    ``tight`` (N,) [1/m]: the width that changes linearly from ``start_width`` to ``end_width``,
+    narrowed where the curve turns tighter than that lane could follow (to :data:`FOLD_RATIO`
+    over the curvature, not below :data:`MIN_HALF_WIDTH_M`), changing by no more than
+    :data:`TAPER` per metre, and the two given widths kept at the ends (the linked lanes')."""
+    lin = 0.5 * (start_width + (end_width - start_width) * s / max(float(s[-1]), 1e-12))
+    room = np.maximum((1.0 - 1e-9) * FOLD_RATIO / np.maximum(tight, 1e-12), MIN_HALF_WIDTH_M)
+    want = np.minimum(lin, room)
+    # the widest profile below `want` that changes by at most TAPER per metre ...
+    below = (want[None, :] + TAPER * np.abs(s[:, None] - s[None, :])).min(axis=1)
+    # ... and that reaches the linked lanes' widths at both ends
+    ends = np.maximum(lin[0] - TAPER * s, lin[-1] - TAPER * (s[-1] - s))
+    return np.minimum(lin, np.maximum(below, ends))
+
+
+def bend(points: np.ndarray, start_heading: float, end_heading: float, start_width: float,
+         end_width: float, narrow: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A connecting road's centre line along its polyline (N, 2) [m] (first and last point: the
     contacts with its two lanes), leaving the first point at ``start_heading`` and reaching the last
     at ``end_heading`` [rad], bending no tighter than its lane's border can follow.
@@ -61,8 +88,12 @@ def smooth_path(points: np.ndarray, start_heading: float, end_heading: float, st
     :data:`STIFFEN` a round, up to :data:`MAX_STIFFNESS`); where the lane has room it shrinks back:
     the curve keeps to the SUMO shape except where a lane that wide could not follow it.
 
-    Returns the points (K, 2) [m] and the heading [rad] at each (the two given ones at the ends),
-    for :func:`~coster_sumo.exports.opendrive_solve.cubic_pieces`.
+    With ``narrow``, the lane may also narrow where the curve turns (:func:`narrowed_half_width`),
+    and the curve stiffens only where that is not enough (near the two contacts, which keep the
+    linked lanes' widths).
+
+    Returns the points (K, 2) [m], the heading [rad] at each (the two given ones at the ends), for
+    :func:`~coster_sumo.exports.opendrive_solve.cubic_pieces`, and half the lane's width at each [m].
     """
     origin = np.asarray(points[0], np.float64)
     pts = np.asarray(points, np.float64) - origin  # (WOMD coordinates are kilometres: keep digits)
@@ -113,6 +144,8 @@ def smooth_path(points: np.ndarray, start_heading: float, end_heading: float, st
         piece = piece_curvature(p, heading)  # (n,)
         tight = np.maximum(np.abs(discrete_curvature(e)[1:-1]),
                            np.maximum(np.append(piece, 0.0), np.insert(piece, 0, 0.0)))
+        if narrow:
+            half = narrowed_half_width(s, tight, start_width, end_width)
         ratio = tight * half / FOLD_RATIO  # (n + 1,) above 1: folds
         if not (ratio > 1.0).any():
             break
@@ -121,7 +154,78 @@ def smooth_path(points: np.ndarray, start_heading: float, end_heading: float, st
         need = np.convolve(ratio, np.ones(2 * STIFFEN_SPREAD + 1), "same") / (2 * STIFFEN_SPREAD + 1)
         worst = np.maximum(need, ratio)
         mu = np.clip(mu * np.clip(worst ** 2, 1.0 / STIFFEN, STIFFEN), BASE_STIFFNESS, MAX_STIFFNESS)
-    return e[1:-1] + origin, heading
+    return e[1:-1] + origin, heading, half
+
+
+def outline(pieces: list[dict[str, float]], half: np.ndarray, samples: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The closed outline (2 K, 2) [m] of a lane centred on cubic pieces (``cubic_pieces``' dicts)
+    whose half width changes linearly piece by piece between ``half`` (len(pieces) + 1,) [m]: its
+    left border forwards, then its right border backwards; and the station [m] of each point."""
+    coef = {k: np.array([pc[k] for pc in pieces]) for k in ("x", "y", "hdg", "bU", "cU", "dU", "cV", "dV", "length")}
+    q = np.linspace(0.0, 1.0, samples + 1)[:-1, None]  # (Q, 1)
+    u = coef["bU"] * q + coef["cU"] * q ** 2 + coef["dU"] * q ** 3
+    v = coef["cV"] * q ** 2 + coef["dV"] * q ** 3
+    du, dv = coef["bU"] + 2 * coef["cU"] * q + 3 * coef["dU"] * q ** 2, 2 * coef["cV"] * q + 3 * coef["dV"] * q ** 2
+    c, sn = np.cos(coef["hdg"]), np.sin(coef["hdg"])
+    x, y = coef["x"] + c * u - sn * v, coef["y"] + sn * u + c * v  # (Q, pieces)
+    h = coef["hdg"] + np.arctan2(dv, du)
+    w = half[:-1] + q * (half[1:] - half[:-1])
+    st = np.concatenate([[0.0], np.cumsum(coef["length"])])
+    at = st[:-1] + q * coef["length"]
+    last = pieces[-1]
+    end_x, end_y = piece_points([last], 1)[-1]
+    end_h = last["hdg"] + np.arctan2(2 * last["cV"] + 3 * last["dV"], last["bU"] + 2 * last["cU"] + 3 * last["dU"])
+    cx, cy = np.append(x.T.reshape(-1), end_x), np.append(y.T.reshape(-1), end_y)
+    hh, ww = np.append(h.T.reshape(-1), end_h), np.append(w.T.reshape(-1), half[-1])
+    ss = np.append(at.T.reshape(-1), st[-1])
+    nx, ny = -np.sin(hh), np.cos(hh)
+    left = np.column_stack([cx + ww * nx, cy + ww * ny])
+    right = np.column_stack([cx - ww * nx, cy - ww * ny])
+    return np.vstack([left, right[::-1]]), np.concatenate([ss, ss[::-1]])
+
+
+def crossings(ring: np.ndarray) -> np.ndarray:
+    """(C, 2) indices of the first points of each two segments of a closed ring (N, 2) that cross
+    (segments that share a point left out)."""
+    a, b = ring, np.roll(ring, -1, axis=0)
+    n = len(ring)
+    i, j = np.triu_indices(n, 2)
+    keep = ~((i == 0) & (j == n - 1))
+    i, j = i[keep], j[keep]
+
+    def side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
+    d1, d2 = side(a[i], b[i], a[j]), side(a[i], b[i], b[j])
+    d3, d4 = side(a[j], b[j], a[i]), side(a[j], b[j], b[i])
+    cross = (d1 * d2 < 0) & (d3 * d4 < 0)
+    return np.column_stack([i[cross], j[cross]])
+
+
+def untangle(pieces: list[dict[str, float]], half: np.ndarray, start_width: float, end_width: float,
+             rounds: int = 20) -> np.ndarray | None:
+    """Half widths (len(pieces) + 1,) [m] at the pieces' ends, narrowed further (within the same
+    taper, the two ends kept) until the lane's outline (:func:`outline`) crosses itself nowhere:
+    a lane wider than the diameter of a sharp turn crosses its own inner border between the
+    stretches before and after the turn, also where no border folds. None where that cannot be
+    done."""
+    s = np.concatenate([[0.0], np.cumsum([pc["length"] for pc in pieces])])
+    lin = 0.5 * (start_width + (end_width - start_width) * s / max(float(s[-1]), 1e-12))
+    half = half.copy()
+    for _ in range(rounds):
+        ring, at = outline(pieces, half)
+        hit = crossings(ring)
+        if len(hit) == 0:
+            return half
+        lo, hi = float(at[hit].min()), float(at[hit].max())
+        want = np.where((s >= lo - 0.5) & (s <= hi + 0.5), np.maximum(0.8 * half, MIN_HALF_WIDTH_M), half)
+        below = (want[None, :] + TAPER * np.abs(s[:, None] - s[None, :])).min(axis=1)
+        ends = np.maximum(lin[0] - TAPER * s, lin[-1] - TAPER * (s[-1] - s))
+        new = np.minimum(half, np.maximum(below, ends))
+        if np.allclose(new, half):
+            return None
+        half = new
+    return None
 
 
 def _headings(p: np.ndarray, start_heading: float, end_heading: float) -> np.ndarray:
@@ -160,10 +264,12 @@ def piece_curvature(points: np.ndarray, heading: np.ndarray, samples: int = 16) 
     return (np.abs(du * ddv - dv * ddu) / speed ** 3).max(axis=0)
 
 
-def fold_ratio(pieces: list[dict[str, float]], start_width: float, end_width: float, samples: int = 16) -> float:
+def fold_ratio(pieces: list[dict[str, float]], start_width: float, end_width: float, samples: int = 16,
+               half: np.ndarray | None = None) -> float:
     """[-] the largest |curvature| x half width over cubic pieces (``cubic_pieces``' dicts) of a lane
-    centred on them whose width changes linearly from ``start_width`` to ``end_width`` [m] (1 or
-    more: its inner border folds)."""
+    centred on them whose width changes linearly from ``start_width`` to ``end_width`` [m], or
+    linearly piece by piece between the half widths ``half`` (len(pieces) + 1,) [m] at their ends
+    (1 or more: its inner border folds)."""
     if not pieces:
         return 0.0
     coef = {k: np.array([pc[k] for pc in pieces]) for k in ("bU", "cU", "dU", "cV", "dV", "length")}
@@ -174,8 +280,11 @@ def fold_ratio(pieces: list[dict[str, float]], start_width: float, end_width: fl
     k = np.abs(du * ddv - dv * ddu) / np.maximum(np.hypot(du, dv), 1e-12) ** 3  # (Q, pieces)
     s = np.concatenate([[0.0], np.cumsum(coef["length"])])
     at = s[:-1] + q * coef["length"]
-    half = 0.5 * (start_width + (end_width - start_width) * at / max(float(s[-1]), 1e-12))
-    return float((k * half).max())
+    if half is None:
+        w = 0.5 * (start_width + (end_width - start_width) * at / max(float(s[-1]), 1e-12))
+    else:
+        w = half[:-1] + q * (half[1:] - half[:-1])
+    return float((k * w).max())
 
 
 def piece_points(pieces: list[dict[str, float]], samples: int = 8) -> np.ndarray:

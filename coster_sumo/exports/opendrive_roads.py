@@ -16,13 +16,14 @@ from collections.abc import Callable
 
 import numpy as np
 
-from coster_sumo.exports.opendrive_bend import deviation, fold_ratio, smooth_path
+from coster_sumo.exports.opendrive_bend import bend, deviation, fold_ratio, smooth_path, untangle
 from coster_sumo.exports.opendrive_solve import (
     END_TOLERANCE_M,
     STATION_M,
     cubic_pieces,
     hermite_pieces,
     hermite_through,
+    records,
     station_of,
 )
 
@@ -292,7 +293,9 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
     its own polyline from the one end to the other that its lane's inner border can follow without
     folding back (:func:`~coster_sumo.exports.opendrive_bend.smooth_path`), or where none can,
     the curve through its polyline's points; its width changes linearly between the two lanes'
-    widths. Returns how many roads were joined and how many of them fold all the same."""
+    widths, or where only a narrower lane can follow the curve, narrows where it turns
+    (:func:`~coster_sumo.exports.opendrive_bend.bend`, ``untangle``). Returns how many roads were
+    joined and how many of them fold all the same."""
     roads = {r.get("id", ""): r for r in root.findall("road")}
     joined = folded = 0
     for road in roads.values():
@@ -327,15 +330,24 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
         path[0], path[-1] = start[0], end[0]
         # the smooth curve where it keeps the lane from folding within BEND_DEVIATION_M of the SUMO
         # shape (or BEND_KINK_FACTOR times as far as the curve through the shape's points, which
-        # leaves netconvert's kinked internal lanes by up to 0.25 m); else that curve, as before
-        # (opendrive_bend: where the contacts leave no room, the smooth one does not take the fold
-        # away either, and shows it to readers at its finer pieces)
+        # leaves netconvert's kinked internal lanes by up to 0.25 m); else the same with the lane
+        # narrowed where it turns; else the curve through the points, as before (opendrive_bend:
+        # where the contacts leave no room, the smooth one does not take the fold away either, and
+        # shows it to readers at its finer pieces)
         through = hermite_through(path, start[2], end[2])
+        bound = max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M)
         pieces = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
-        if fold_ratio(pieces, start[1], end[1]) >= 1.0 or \
-                deviation(pieces, path) > max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M):
-            pieces = through
-            folded += fold_ratio(through, start[1], end[1]) >= 1.0
+        half = None  # the width changes linearly
+        if fold_ratio(pieces, start[1], end[1]) >= 1.0 or deviation(pieces, path) > bound:
+            # no curve keeps the lane whole: it narrows where it turns (opendrive_bend.bend)
+            p, hd, half = bend(path, start[2], end[2], start[1], end[1], narrow=True)
+            pieces = cubic_pieces(p, hd, samples=64)
+            if fold_ratio(pieces, start[1], end[1], half=half) < 1.0 and deviation(pieces, path) <= bound:
+                half = untangle(pieces, half, start[1], end[1])
+            if half is None or fold_ratio(pieces, start[1], end[1], half=half) >= 1.0 or \
+                    deviation(pieces, path) > bound:
+                pieces, half = through, None
+                folded += fold_ratio(through, start[1], end[1]) >= 1.0
         for g in list(plan):
             plan.remove(g)
         s0 = 0.0
@@ -346,18 +358,23 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
                                                                           "cV", "dV")}, "pRange": "normalized"})
             s0 += piece["length"]
         road.set("length", f"{s0:.8f}")
-        slope = (end[1] - start[1]) / s0 if s0 > 0 else 0.0
+        if half is None:
+            widths = [(0.0, start[1], (end[1] - start[1]) / s0 if s0 > 0 else 0.0)]
+        else:  # linear piece by piece: the width at each piece's ends
+            at = np.concatenate([[0.0], np.cumsum([pc["length"] for pc in pieces])])
+            widths = records(at, 2.0 * half, [(0, len(at) - 1)])
         lanes_el = road.find("lanes")
         if lanes_el is None:
             continue
         for el in lanes_el.findall("laneOffset"):
             lanes_el.remove(el)
-        lanes_el.insert(0, ET.Element("laneOffset", {"s": "0", "a": fmt(start[1] / 2), "b": fmt(slope / 2),
-                                                     "c": "0", "d": "0"}))
         for w in lanes[0].findall("width"):
             lanes[0].remove(w)
-        lanes[0].insert(1 if lanes[0].find("link") is not None else 0,
-                        ET.Element("width", {"sOffset": "0", "a": fmt(start[1]), "b": fmt(slope), "c": "0",
-                                             "d": "0"}))
+        first = 1 if lanes[0].find("link") is not None else 0
+        for k, (sw, a_w, b_w) in enumerate(widths):  # the lane stays centred on the reference line
+            lanes_el.insert(k, ET.Element("laneOffset", {"s": fmt(sw), "a": fmt(a_w / 2), "b": fmt(b_w / 2),
+                                                         "c": "0", "d": "0"}))
+            lanes[0].insert(first + k, ET.Element("width", {"sOffset": fmt(sw), "a": fmt(a_w), "b": fmt(b_w),
+                                                            "c": "0", "d": "0"}))
         joined += 1
     return joined, folded
