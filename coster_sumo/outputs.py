@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import viz
+from coster_sumo import metrics, viz
 from coster_sumo.atomic import json_default, write_json
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
@@ -40,7 +40,7 @@ from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
-from coster_sumo.snapshot_state import AgentState
+from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 from coster_sumo.spec import ScenarioSpec
 
 VARIANT_FILE = "variant.json"
@@ -261,26 +261,11 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         t_col_step = int(np.argmin(np.abs(scene.timestamps - snap.time)))
         mine = []
         for plan in p.plans:
-            res = results[i]
-            vdir = out / "variants" / str(i)
-            vdir.mkdir(parents=True)
-            rec = {**variant_record(i, plan, res, target_id, snap.time, scene), "snapshot": k,
-                   "t_col": round(snap.time, 3)}
+            rec = _write_variant(out, i, k, plan, results[i], spec, planner, scene, target, snap, t_col_step,
+                                 render=render, copy_outside=copy_outside)
             variants.append(rec)
             mine.append(rec)
-            trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
-            write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
-            try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
-                export_variant(vdir / "export", spec.config, plan,
-                               {"target_id": target_id, "planner": planner, "seed": spec.seed,
-                                "begin": spec.begin, "end": float(scene.timestamps[-1])}, res,
-                               copy_outside=copy_outside)
-            except (SumoError, InputError) as exc:
-                shutil.rmtree(vdir / "export", ignore_errors=True)
-                rec["export_error"] = str(exc)
             if render:
-                render_driven(vdir / "render.png", i, plan, res, target_id, snap.time, rec, scene, target,
-                              snap.adversary, t_col_step)
                 renders.append(f"variants/{i}/render.png")
             i += 1
         if render:
@@ -289,17 +274,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
             viz.render_overview(out / name, scene, target, t_col_step, snap.target, reps, p.samples_xy,
                                 snap.entropy or None, p.scene_2hz.timestamps, snap.time)
             renders.insert(k, name)
-        angles = [r["impact_angle"] for r in mine if r["collision"]]
-        a = snap.adversary
-        snapshots.append({"snapshot": k, "t_col": round(snap.time, 3), "t_col_sim": sim_time_of(snap.time, step),
-                          "t_col_index_2hz": snap.t_index, "collision_time_method": snap.collision_time_method,
-                          "init_method": snap.init_method, "signed_distance": round(snap.signed_distance, 3),
-                          "adversary": {"x": round(a.x, 3), "y": round(a.y, 3),
-                                        "heading_deg": round(float(np.degrees(a.yaw)), 2),
-                                        "speed": round(a.speed, 3), "length": round(a.length, 3),
-                                        "width": round(a.width, 3)},
-                          "variants": [r["variant"] for r in mine], "generation": p.info,
-                          "impact_angles_deg": angles})
+        snapshots.append(_snapshot_record(k, p, mine, step))
     n = len(variants)
     snap0 = first.snapshot
     all_angles = [a for s in snapshots for a in s["impact_angles_deg"]]
@@ -312,8 +287,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         "nominal_until_s": float(scene.timestamps[-1]),
         **({"nominal_cut_after_s": scene.meta["cut_after_s"]} if scene.meta.get("cut_after_s") else {}),
         "num_snapshots": len(snapshots), "num_variants": n,
-        "collision_rate": sum(v["collision"] for v in variants) / n if n else None,
-        "off_road_rate": sum(v["adversary_off_road"] for v in variants) / n if n else None,
+        "collision_rate": metrics.collision_rate([v["collision"] for v in variants]) if n else None,
+        "off_road_rate": metrics.off_road_rate([v["adversary_off_road"] for v in variants]) if n else None,
         "impact_angle_spread_deg": circular_range_deg(all_angles) if all_angles else None,
         "target_motion": target_motion(scene, target),
         "variants": variants, "snapshots": snapshots, "generation": first.info,
@@ -323,3 +298,40 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         **({"target_choice": options["target_choice"]} if options.get("target_choice") else {}),
     }
     return summary
+
+
+def _write_variant(out: Path, i: int, k: int, plan: AdversaryPlan, res: InjectionResult, spec: ScenarioSpec,
+                   planner: str, scene: Scene, target: int, snap: CollisionSnapshot, t_col_step: int, *,
+                   render: bool, copy_outside: bool) -> dict[str, Any]:
+    """Variant ``i`` (of snapshot ``k``) into ``out/variants/i``: trajectories, the plain-SUMO export,
+    the render; returns its record for summary.json."""
+    target_id = str(scene.tracks.ids[target])
+    vdir = out / "variants" / str(i)
+    vdir.mkdir(parents=True)
+    rec = {**variant_record(i, plan, res, target_id, snap.time, scene), "snapshot": k, "t_col": round(snap.time, 3)}
+    trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
+    write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
+    try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
+        export_variant(vdir / "export", spec.config, plan,
+                       {"target_id": target_id, "planner": planner, "seed": spec.seed,
+                        "begin": spec.begin, "end": float(scene.timestamps[-1])}, res,
+                       copy_outside=copy_outside)
+    except (SumoError, InputError) as exc:
+        shutil.rmtree(vdir / "export", ignore_errors=True)
+        rec["export_error"] = str(exc)
+    if render:
+        render_driven(vdir / "render.png", i, plan, res, target_id, snap.time, rec, scene, target,
+                      snap.adversary, t_col_step)
+    return rec
+
+
+def _snapshot_record(k: int, p: PlannedScenario, mine: list[dict[str, Any]], step: float) -> dict[str, Any]:
+    """Snapshot ``k``'s entry of summary.json (``mine``: the records of its variants)."""
+    snap, a = p.snapshot, p.snapshot.adversary
+    return {"snapshot": k, "t_col": round(snap.time, 3), "t_col_sim": sim_time_of(snap.time, step),
+            "t_col_index_2hz": snap.t_index, "collision_time_method": snap.collision_time_method,
+            "init_method": snap.init_method, "signed_distance": round(snap.signed_distance, 3),
+            "adversary": {"x": round(a.x, 3), "y": round(a.y, 3), "heading_deg": round(float(np.degrees(a.yaw)), 2),
+                          "speed": round(a.speed, 3), "length": round(a.length, 3), "width": round(a.width, 3)},
+            "variants": [r["variant"] for r in mine], "generation": p.info,
+            "impact_angles_deg": [r["impact_angle"] for r in mine if r["collision"]]}
