@@ -214,11 +214,11 @@ def test_demo_and_sumo_game_nets(name):
 
 LINK_TOLERANCE_M = 0.01  # [m] ASAM's checker: linked lanes' borders no further apart
 # lanes whose border folds back (opendrive.folded_borders; measured, a bound, not a goal): connecting
-# roads where no curve between the two contacts keeps the lane from folding (game/grid6's corner
-# lanes, 0.6-1.1 m turning 0.4-0.7 rad, 3.2 m wide; logged WOMD lanes wider than the diameter of
-# their turn), and on two WOMD maps normal roads whose logged 5.5 m lane turns on a radius of 2-3 m
-# (docs/sumo.md §12a); every other lane of the exports has none
-FOLDED_LANES = {"arterial": 4, "grid6": 8, "2a1e44d405a6833f": 8, "637f20cafde22ff8": 12,
+# roads where no curve between the two contacts keeps the lane from folding (logged WOMD lanes wider
+# than the diameter of their turn), and on two WOMD maps normal roads whose logged 5.5 m lane turns on
+# a radius of 2-3 m (docs/sumo.md §12a); every other lane of the exports has none (game/grid6's corner
+# lanes, 0.6-1.1 m turning 0.4-0.7 rad, 3.2 m wide, had 8 until their roads were cut back for room)
+FOLDED_LANES = {"arterial": 4, "2a1e44d405a6833f": 8, "637f20cafde22ff8": 12,
                 "eb4b91b10ca94ff2": 1, "ee519cf571686d19": 16}
 HEADING_TOLERANCE_RAD = 0.01  # heading continuity between the geometry pieces of a connecting road
 

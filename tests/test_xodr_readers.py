@@ -30,10 +30,6 @@ DEMO = ("intersection", "arterial", "merge")
 GAME = ("square", "grid6")
 # applies to OpenDRIVE up to 1.7 only: the checker skips it on a 1.8 file (its 22 other checks run)
 VERSION_SKIPPED = {"check_asam_xodr_junctions_connection_one_connection_element"}
-# commonroad lanelets still invalid (measured; a bound, not a goal): game/grid6's corner lanes, 1.1 m
-# connecting roads that turn 0.67 rad with a 3.2 m lane, whose inner border folds back on itself
-# (docs/sumo.md §12a)
-TIGHT_TURNS = {"grid6": 2}
 
 
 def _python(extra: str) -> Path | None:
@@ -88,7 +84,7 @@ def test_commonroad_converts_every_file(exports):
         assert "error" not in row, (name, row)
         print(f"{name}: {row['lanelets']} lanelets, {len(row['invalid'])} invalid", file=sys.stderr)
         assert row["lanelets"] > 0
-        assert len(row["invalid"]) <= TIGHT_TURNS.get(name, 0), (name, row["invalid"])
+        assert row["invalid"] == [], (name, row["invalid"])
 
 
 def test_pyxodr_reads_every_road(exports):

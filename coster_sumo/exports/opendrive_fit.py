@@ -24,7 +24,9 @@ lane section; a road that does not match the net is left as it is and counted):
 - a **normal road** first spans only the stretch where every lane a connection enters or leaves
   exists, its lanes cut at its ends and the pieces handed to the connecting roads
   (:mod:`~coster_sumo.exports.opendrive_ends`), so that no link meets a lane of width 0; those
-  are fitted first;
+  are fitted first; a road whose lanes end together (netconvert's) moves its ends in where a
+  connection there is too short for its lane to turn without folding
+  (:meth:`NetLanes.tight_cutbacks`; game/grid6's corners);
 - a U-turn between two lanes side by side is left out (:meth:`NetLanes.uturn_is_pinched`).
 
 The centres are then exact wherever the SUMO lanes of one edge lie side by side in order. Where two
@@ -43,6 +45,7 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
+from coster_sumo.exports.opendrive_bend import FOLD_RATIO
 from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
 from coster_sumo.exports.opendrive_ends import length as piece_length
 from coster_sumo.exports.opendrive_readers import link_lane
@@ -79,6 +82,14 @@ SECTION_LINK_M = 0.005  # [m] a lane continues into the next section (linked) wh
 SPAN_TRIES = 4  # placements of a road's ends until its linked lanes reach both (opendrive_ends)
 PINCH_M = 0.05  # [m] a U-turn's two lanes whose left borders are this close share them (NetLanes)
 SHORT_M = 0.05  # [m] an internal lane this short pointing backwards is rounding: written along its incoming lane
+# [-] a connection gets this many times the shortest arc its lane can turn on (NetLanes.tight_cutbacks):
+# 2 for a curvature rising linearly to the limit and back; the curves of opendrive_bend, held within
+# 0.09 m of the SUMO points and to the contacts' headings, need more (measured on game/grid6's
+# corners: with 2 none kept the lane from folding, even narrowed; with 2.5 and 3 the lane narrows to
+# 1.8 m where it turns and folds nowhere; 3 leaves a margin)
+TURN_ROOM = 3.0
+MAX_CUTBACK_M = 2.0  # [m] most a lane's end moves into it to give a tight connection room
+STRAIGHT_TOL_M = 0.01  # [m] a lane's end runs straight while it stays this close to its end segment's line
 
 
 
@@ -163,6 +174,43 @@ class NetLanes:
             lane = self.via.get((edge, int(idx), key[2], key[3]))
         return out
 
+    def tight_cutbacks(self) -> dict[str, tuple[float, float]]:
+        """[m] per normal lane, how far its start and its end move into it so that the connections
+        entering and leaving it there get room to turn (docs/sumo.md §12a). A connection that turns
+        by ``a`` [rad] between its two lanes with a lane ``w`` wide turns on an arc of at least
+        ``a (w / 2) / FOLD_RATIO`` where its inner border keeps from folding; it gets
+        :data:`TURN_ROOM` times that: what its internal lanes lack is taken half from the end of
+        the lane it leaves and half from the start of the lane it enters, only as far as that lane
+        runs straight there and up to :data:`MAX_CUTBACK_M`. (game/grid6's corner connections:
+        1.1 m turning 0.67 rad with a 3.2 m lane.) U-turns and turns over 90 degrees are left
+        alone."""
+        out: dict[str, tuple[float, float]] = {}
+        for key in self.via:
+            frm, i, to, j = key
+            if frm.startswith(":") or key in self.pinched_uturns:
+                continue
+            lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
+            if not (0 <= i < len(lanes_from) and 0 <= j < len(lanes_to)):
+                continue
+            a, b = self.shape.get(lanes_from[i]), self.shape.get(lanes_to[j])
+            internal = self.internal_lanes(key)
+            parts = [self.shape[lane] for lane in internal]
+            if a is None or b is None or len(a) < 2 or len(b) < 2 or not parts:
+                continue
+            length = sum(piece_length(part) for part in parts)
+            turn = abs(_wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2])))
+            half = 0.5 * self.width.get(internal[0], DEFAULT_LANE_WIDTH_M)
+            lack = TURN_ROOM * turn * half / FOLD_RATIO - length
+            if turn > np.pi / 2 or lack <= 0.0:  # (a U-turn's room is the lanes beside it)
+                continue
+            # only as far as the lane runs straight from its end: the cut piece stays on its line
+            back = min(0.5 * lack, MAX_CUTBACK_M, _straight(a[::-1]), _straight(b))
+            start, end = out.get(lanes_from[i], (0.0, 0.0))
+            out[lanes_from[i]] = (start, max(end, back))
+            start, end = out.get(lanes_to[j], (0.0, 0.0))
+            out[lanes_to[j]] = (max(start, back), end)
+        return out
+
     def connection_shape(self, frm: str, from_lane: int, to: str, to_lane: int) -> np.ndarray | None:
         """The internal lane shape(s) of one connection, joined, after the tail of the lane it leaves
         and before the head of the lane it enters (None: no such connection)."""
@@ -183,6 +231,25 @@ class NetLanes:
         keep = np.ones(len(pts), bool)
         keep[1:] = np.hypot(*np.diff(pts, axis=0).T) > 1e-6  # joined parts repeat their shared point
         return pts[keep]
+
+
+def _heading(v: np.ndarray) -> float:
+    return float(np.arctan2(v[1], v[0]))
+
+
+def _wrap(a: float) -> float:
+    return float((a + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _straight(shape: np.ndarray) -> float:
+    """[m] how far a polyline (K, 2) runs on the line of its first segment (within
+    :data:`STRAIGHT_TOL_M`) from its first point."""
+    d = shape[1] - shape[0]
+    d = d / max(float(np.hypot(*d)), 1e-12)
+    off = np.abs((shape - shape[0]) @ np.array([-d[1], d[0]]))
+    bad = np.flatnonzero(off > STRAIGHT_TOL_M)
+    end = int(bad[0]) - 1 if len(bad) else len(shape) - 1
+    return float((shape[end] - shape[0]) @ d)
 
 
 def _left_border(point: np.ndarray, direction: np.ndarray, width: float) -> np.ndarray:
@@ -364,6 +431,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     roads fitted and left as they were, normal and connecting.
     """
     net = NetLanes.read(net_file)
+    cutbacks = net.tight_cutbacks()
     tree = SafeET.parse(str(xodr), forbid_dtd=True)
     root = tree.getroot()
     counts = {"roads_fitted": 0, "roads_kept": 0, "connecting_fitted": 0, "connecting_kept": 0, "connecting_split": 0,
@@ -403,6 +471,12 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
             inset = (0.0, 0.0)
             for _ in range(SPAN_TRIES):
                 span, moved = road_span(axis, targets, enters, leaves, inset)
+                if not moved and inset == (0.0, 0.0):  # lanes that end together: room for tight turns
+                    inset = (max((cutbacks.get(lane, (0.0, 0.0))[0] for lane in lane_ids), default=0.0),
+                             max((cutbacks.get(lane, (0.0, 0.0))[1] for lane in lane_ids), default=0.0))
+                    if max(inset) > CUT_EPS_M:
+                        span, moved = road_span(axis, targets, enters, leaves, inset)
+                        counts["roads_cut_back"] = counts.get("roads_cut_back", 0) + moved
                 set_smooth_plan_view(road, span if moved else axis, sample)
                 if not moved:
                     break
