@@ -232,6 +232,30 @@ def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, 
     return path
 
 
+def _render_examples(out: Path, examples: dict[str, list[dict[str, Any]]]
+                     ) -> dict[str, list[tuple[dict[str, Any], str]]]:
+    """Each planner's failure examples drawn into ``out/examples/``: per planner, (row, picture path
+    relative to ``out``, or "(render failed: ...)")."""
+    cache: dict[str, Any] = {}
+    ex_files: dict[str, list[tuple[dict[str, Any], str]]] = {}
+    for p, chosen in examples.items():
+        for r in chosen:
+            rel = f"examples/{r['run_key']}.png"
+            try:
+                render_example(out / rel, out, r, cache)
+            except Exception as exc:  # noqa: BLE001 - a missing render never fails the report
+                rel = f"(render failed: {exc})"
+            ex_files.setdefault(p, []).append((r, rel))
+    return ex_files
+
+
+def _example_caption(r: dict[str, Any]) -> str:
+    """What went wrong in a failure example's run, in words."""
+    return (("collision" if r["collision"] else "off-road" if r["target_off_road"] else "route not completed")
+            + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else "")
+            + (f"; {r['outcome']}" if r.get("outcome") else ""))
+
+
 def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[dict[str, Any]]) -> list[str]:
     """report.md, report.html, plots/ and examples/ in ``out``; returns the written paths (relative)."""
     out = Path(out)
@@ -245,19 +269,8 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
     ok_rows = [r for r in rows if r["status"] == "ok"]
     plot_contacts(out / "plots" / "impact_angles.png", out / "plots" / "relative_speeds.png", ok_rows, planners)
     written += ["plots/rates.png", "plots/impact_angles.png", "plots/relative_speeds.png"]
-    examples = failure_examples(ok_rows, planners)
-    cache: dict[str, Any] = {}
-    ex_files: dict[str, list[tuple[dict[str, Any], str]]] = {}
-    for p, chosen in examples.items():
-        for r in chosen:
-            rel = f"examples/{r['run_key']}.png"
-            try:
-                render_example(out / rel, out, r, cache)
-            except Exception as exc:  # noqa: BLE001 - a missing render never fails the report
-                rel = f"(render failed: {exc})"
-            ex_files.setdefault(p, []).append((r, rel))
-            if rel.startswith("examples/"):
-                written.append(rel)
+    ex_files = _render_examples(out, failure_examples(ok_rows, planners))
+    written += [rel for chosen in ex_files.values() for _, rel in chosen if rel.startswith("examples/")]
     head, table = regression_table(summary)
     d_head, d_table = defect_table(summary)
     failures = summary["runs"]["failures"]
@@ -272,12 +285,7 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[d
                    "touched the target; mean rel. speed: at contact. Brackets: Wilson 95% interval. Failed runs "
                    "are not in the rates.")
     no_failure = "No collision, off-road or incomplete route."
-
-    def caption(r: dict[str, Any]) -> str:
-        return (("collision" if r["collision"] else "off-road" if r["target_off_road"] else "route not completed")
-                + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else "")
-                + (f"; {r['outcome']}" if r.get("outcome") else ""))
-
+    caption = _example_caption
     md = ["# Planner regression", "", *defect_section_md(summary, d_head, d_table), intro, "", definitions, "",
           _md_table(head, table), "", "![rates](plots/rates.png)", "",
           "## Contacts", "", "![impact angles](plots/impact_angles.png) ![relative speeds](plots/relative_speeds.png)",

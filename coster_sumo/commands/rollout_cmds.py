@@ -21,6 +21,13 @@ DEFAULT_VOCAB = "models/vocab.npz"
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
+    _register_train(cli)
+    _register_vocab(cli)
+    _register_eval(cli)
+
+
+def _register_train(cli) -> None:  # type: ignore[no-untyped-def]
+    """``coster-sumo train rollout``."""
     train = cli.group("train", help="train a model").add_parser(
         "rollout", help="train the time-reversed CVAE rollout on a dataset of scenes",
         description="Train the rollout CVAE on DATASET/scenes/*.npz (2 Hz, held-out split by file name). "
@@ -81,6 +88,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--restart", action="store_true", help="ignore an existing training state")
     train.set_defaults(func=run_train)
 
+
+def _register_vocab(cli) -> None:  # type: ignore[no-untyped-def]
+    """``coster-sumo train vocab``."""
     vocab = cli.group("train", help="train a model").add_parser(
         "vocab", help="build the motion vocabulary (k-disks over 0.5 s transitions)",
         description="Collect every 2 Hz transition (dx, dy, dyaw) of the vehicles of DATASET (training split) "
@@ -96,6 +106,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     vocab.add_argument("--val-fraction", type=float, default=0.1)
     vocab.set_defaults(func=run_vocab)
 
+
+def _register_eval(cli) -> None:  # type: ignore[no-untyped-def]
+    """``coster-sumo eval rollout``."""
     ev = cli.group("eval", help="evaluate a model").add_parser(
         "rollout", help="minADE/minFDE of the CVAE (with and w/o DSA) vs constant velocity / constant lane",
         description="Reconstruct the 5 s past of every vehicle with a full 5 s past, at every 2 Hz step (or the "
