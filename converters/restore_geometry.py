@@ -16,7 +16,8 @@ import numpy as np
 from coster_sumo.geometry import polyline_arc_length
 
 from .netconvert import NetInfo, _parse_xml
-from .to_sumo_net import Connection, PlainNet, clean_polyline, cut_polyline
+from .polyline import clean_polyline, cut_polyline
+from .to_sumo_net import Connection, PlainNet
 
 
 def _shape_attr(points: np.ndarray) -> str:
