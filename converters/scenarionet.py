@@ -9,8 +9,8 @@ the file and the refused global (docs/womd.md, "Hostile inputs"). Everything rea
 (:func:`description_to_scene`): a damaged file is refused with one line naming the element.
 
 The pickle is a plain dict of numpy arrays: ``id, version, length, tracks, dynamic_map_states,
-map_features, metadata``. Mapping (the same rules as :mod:`converters.womd`, whose lane builder is
-shared: lane widths and junction flags are estimated the same way):
+map_features, metadata``. Mapping (the same rules as :mod:`converters.womd`; the lane builder of
+:mod:`converters.womd_map` is shared: lane widths and junction flags are estimated the same way):
 
 - tracks: ids as strings (dict order); ``type`` VEHICLE/PEDESTRIAN/CYCLIST/OTHER/UNSET ->
   :class:`ObjectType` (anything else -> OTHER); ``state.position`` (T, 3) -> x, y; heading,
@@ -42,7 +42,7 @@ import numpy as np
 from coster_sumo.errors import InputError
 from coster_sumo.scene import LaneType, ObjectType, Ragged, RoadMap, Scene, SignalState, SignalStates, Tracks
 
-from .womd import FEATURE_TYPES, RawLane, build_lanes, check_raw_map, polylines
+from .womd_map import FEATURE_TYPES, RawLane, build_lanes, check_raw_map, polylines
 
 PICKLE_MAGIC = b"\x80"  # pickle protocol >= 2 starts with the PROTO opcode
 MAX_RECONSTRUCT_ITEMS = 1 << 20  # numpy's rebuild helper starts from an empty array; allow small ones
