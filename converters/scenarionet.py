@@ -34,6 +34,7 @@ import io
 import pickle
 import pickletools
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -334,27 +335,48 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
     if not isinstance(md, dict):
         raise InputError(f"metadata is a {type(md).__name__}, not a dict")
     num_steps, timestamps = _num_steps(sd, md)
-    counts = dict.fromkeys(FEATURE_TYPES, 0)
-    raw_lanes: list[RawLane] = []
-    line_polys: dict[int, np.ndarray] = {}
-    edge_polys: dict[int, np.ndarray] = {}
-    road_lines: list[tuple[int, np.ndarray]] = []
-    road_edges: list[tuple[int, np.ndarray]] = []
-    crosswalks: list[tuple[int, np.ndarray]] = []
-    stop_signs: list[tuple[np.ndarray, list[int]]] = []
-    others: list[tuple[str, int, np.ndarray]] = []  # (kind, feature id, points) for the finiteness check
+    parts = _read_map_features(sd)
+    signal_raw = _read_signal_states(sd, num_steps)
+    lanes, lane_index = build_lanes(parts.lanes, parts.line_polys, parts.edge_polys)
+    signals = _signals(signal_raw, lane_index, num_steps)
+    road_map = RoadMap(
+        lanes=lanes, road_lines=polylines(parts.road_lines), road_edges=polylines(parts.road_edges),
+        crosswalks=polylines(parts.crosswalks),
+        stop_sign_xy=np.asarray([p for p, _ in parts.stop_signs], np.float64).reshape(-1, 2),
+        stop_sign_lanes=Ragged.from_list(
+            [np.asarray([lane_index[f] for f in ids if f in lane_index], np.int64) for _, ids in parts.stop_signs],
+            np.int64))
+    tracks = _tracks(sd["tracks"], num_steps)
+    sdc, current, meta = _metadata(sd, md, tracks, parts.counts, source_name)
+    scene = Scene(scenario_id=str(md.get("scenario_id") or sd.get("id", "")), timestamps=timestamps,
+                  tracks=tracks, road_map=road_map, signals=signals, sdc_index=sdc,
+                  current_time_index=current, source="scenarionet", meta=meta)
+    return scene.validate()
+
+
+@dataclass(slots=True)
+class _MapParts:
+    """The map features of a description, read and checked, before lanes get their indices."""
+
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(FEATURE_TYPES, 0))
+    lanes: list[RawLane] = field(default_factory=list)
+    line_polys: dict[int, np.ndarray] = field(default_factory=dict)  # road line id -> points (lane widths)
+    edge_polys: dict[int, np.ndarray] = field(default_factory=dict)  # road edge id -> points (lane widths)
+    road_lines: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    road_edges: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    crosswalks: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    stop_signs: list[tuple[np.ndarray, list[int]]] = field(default_factory=list)
+    # (kind, feature id, points) for the finiteness check
+    others: list[tuple[str, int, np.ndarray]] = field(default_factory=list)
+
+
+def _read_map_features(sd: dict) -> _MapParts:
+    """``map_features``: lanes, road lines and edges, crosswalks and stop signs, checked
+    (:func:`~converters.womd_map.check_raw_map`); an error names the feature."""
+    parts = _MapParts()
     features = sd["map_features"]
     if not isinstance(features, dict):
         raise InputError(f"map_features is a {type(features).__name__}, not a dict")
-
-    def nbs(items: list) -> list[tuple[int, int, int, int, int]]:
-        return [(_int(n["feature_id"]), _int(n["self_start_index"]), _int(n["self_end_index"]),
-                 _int(n["neighbor_start_index"]), _int(n["neighbor_end_index"])) for n in items]
-
-    def bounds(items: list) -> list[tuple[int, int, int]]:
-        return [(_int(b["lane_start_index"]), _int(b["lane_end_index"]),
-                 _int(b["boundary_feature_id"])) for b in items]
-
     for key, feat in features.items():
         where = f"map feature {_printable(str(key))}"
         try:
@@ -362,44 +384,63 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
             kind = _feature_kind(type_name)
             if kind is None:
                 continue
-            counts[kind] += 1
-            fid = _int(key)
-            if kind == "lane":
-                raw_lanes.append(RawLane(
-                    fid=fid, polyline=_xy(feat["polyline"]), z=_z(feat["polyline"]),
-                    lane_type=int(_LANE_TYPES.get(type_name, LaneType.UNDEFINED)),
-                    speed_limit_mph=float(feat.get("speed_limit_mph") or 0.0),
-                    entry=[_int(x) for x in feat.get("entry_lanes", [])],
-                    exit=[_int(x) for x in feat.get("exit_lanes", [])],
-                    left=nbs(feat.get("left_neighbor", [])), right=nbs(feat.get("right_neighbor", [])),
-                    left_bounds=bounds(feat.get("left_boundaries", [])),
-                    right_bounds=bounds(feat.get("right_boundaries", []))))
-            elif kind == "road_line":
-                pts = _xy(feat["polyline"])
-                line_polys[fid] = pts
-                road_lines.append((_ROAD_LINE_TYPES.get(type_name, 0), pts))
-                others.append(("road line", fid, pts))
-            elif kind == "road_edge":
-                pts = _xy(feat["polyline"])
-                edge_polys[fid] = pts
-                road_edges.append((_ROAD_EDGE_TYPES.get(type_name, 0), pts))
-                others.append(("road edge", fid, pts))
-            elif kind == "crosswalk":
-                pts = _xy(feat["polygon"])
-                crosswalks.append((0, pts))
-                others.append(("crosswalk", fid, pts))
-            elif kind == "stop_sign":
-                pos = _xy(feat["position"])
-                if len(pos) == 0:
-                    raise InputError("stop sign without a position")
-                stop_signs.append((pos[0], [_int(x) for x in feat.get("lane", [])]))
-                others.append(("stop sign", fid, pos[:1]))
+            parts.counts[kind] += 1
+            _read_feature(parts, kind, type_name, _int(key), feat)
         except InputError as exc:
             raise InputError(f"{where}: {exc}") from None
         except _ELEMENT_ERRORS as exc:
             raise InputError(f"{where}: {_why(exc)}") from None
-    check_raw_map(raw_lanes, others)
+    check_raw_map(parts.lanes, parts.others)
+    return parts
 
+
+def _neighbours(items: list) -> list[tuple[int, int, int, int, int]]:
+    return [(_int(n["feature_id"]), _int(n["self_start_index"]), _int(n["self_end_index"]),
+             _int(n["neighbor_start_index"]), _int(n["neighbor_end_index"])) for n in items]
+
+
+def _boundaries(items: list) -> list[tuple[int, int, int]]:
+    return [(_int(b["lane_start_index"]), _int(b["lane_end_index"]),
+             _int(b["boundary_feature_id"])) for b in items]
+
+
+def _read_feature(parts: _MapParts, kind: str, type_name: str, fid: int, feat: Any) -> None:
+    """One map feature of a known ``kind`` added to ``parts``."""
+    if kind == "lane":
+        parts.lanes.append(RawLane(
+            fid=fid, polyline=_xy(feat["polyline"]), z=_z(feat["polyline"]),
+            lane_type=int(_LANE_TYPES.get(type_name, LaneType.UNDEFINED)),
+            speed_limit_mph=float(feat.get("speed_limit_mph") or 0.0),
+            entry=[_int(x) for x in feat.get("entry_lanes", [])],
+            exit=[_int(x) for x in feat.get("exit_lanes", [])],
+            left=_neighbours(feat.get("left_neighbor", [])), right=_neighbours(feat.get("right_neighbor", [])),
+            left_bounds=_boundaries(feat.get("left_boundaries", [])),
+            right_bounds=_boundaries(feat.get("right_boundaries", []))))
+    elif kind == "road_line":
+        pts = _xy(feat["polyline"])
+        parts.line_polys[fid] = pts
+        parts.road_lines.append((_ROAD_LINE_TYPES.get(type_name, 0), pts))
+        parts.others.append(("road line", fid, pts))
+    elif kind == "road_edge":
+        pts = _xy(feat["polyline"])
+        parts.edge_polys[fid] = pts
+        parts.road_edges.append((_ROAD_EDGE_TYPES.get(type_name, 0), pts))
+        parts.others.append(("road edge", fid, pts))
+    elif kind == "crosswalk":
+        pts = _xy(feat["polygon"])
+        parts.crosswalks.append((0, pts))
+        parts.others.append(("crosswalk", fid, pts))
+    elif kind == "stop_sign":
+        pos = _xy(feat["position"])
+        if len(pos) == 0:
+            raise InputError("stop sign without a position")
+        parts.stop_signs.append((pos[0], [_int(x) for x in feat.get("lane", [])]))
+        parts.others.append(("stop sign", fid, pos[:1]))
+
+
+def _read_signal_states(sd: dict, num_steps: int) -> list[tuple[int, list, np.ndarray | None]]:
+    """``dynamic_map_states``: (lane feature id, per-step state names, stop point or None) of each
+    lane with a logged state, checked; an error names the state's key."""
     dms = sd.get("dynamic_map_states", {}) or {}
     if not isinstance(dms, dict):
         raise InputError(f"dynamic_map_states is a {type(dms).__name__}, not a dict")
@@ -420,7 +461,12 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
             raise InputError(f"{where}: {exc}") from None
         except _ELEMENT_ERRORS as exc:
             raise InputError(f"{where}: {_why(exc)}") from None
-    lanes, lane_index = build_lanes(raw_lanes, line_polys, edge_polys)
+    return signal_raw
+
+
+def _signals(signal_raw: list[tuple[int, list, np.ndarray | None]], lane_index: dict[int, int],
+             num_steps: int) -> SignalStates:
+    """:class:`SignalStates` of the logged states whose lane is in the map."""
     signal_raw = [s for s in signal_raw if s[0] in lane_index]
     state = np.zeros((num_steps, len(signal_raw)), np.int8)
     stop_points = np.zeros((len(signal_raw), 2))
@@ -429,17 +475,13 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
             state[t, c] = _signal_state(name)
         if sp is not None:
             stop_points[c] = sp
-    signals = SignalStates(lane_index=np.asarray([lane_index[lid] for lid, _, _ in signal_raw], np.int64),
-                           state=state, stop_point=stop_points)
+    return SignalStates(lane_index=np.asarray([lane_index[lid] for lid, _, _ in signal_raw], np.int64),
+                        state=state, stop_point=stop_points)
 
-    road_map = RoadMap(
-        lanes=lanes, road_lines=polylines(road_lines), road_edges=polylines(road_edges),
-        crosswalks=polylines(crosswalks),
-        stop_sign_xy=np.asarray([p for p, _ in stop_signs], np.float64).reshape(-1, 2),
-        stop_sign_lanes=Ragged.from_list(
-            [np.asarray([lane_index[f] for f in ids if f in lane_index], np.int64) for _, ids in stop_signs],
-            np.int64))
-    tracks = _tracks(sd["tracks"], num_steps)
+
+def _metadata(sd: dict, md: dict, tracks: Tracks, counts: dict[str, int], source_name: str
+              ) -> tuple[int, int, dict]:
+    """The SDC's track index, the current time index and ``scene.meta``."""
     try:
         sdc_id = md.get("sdc_id")
         sdc = tracks.index_of(str(sdc_id)) if sdc_id is not None and str(sdc_id) in set(tracks.ids) else -1
@@ -452,10 +494,7 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
         current = int(md.get("current_time_index", 0) or 0)
     except _ELEMENT_ERRORS as exc:
         raise InputError(f"metadata: {_why(exc)}") from None
-    scene = Scene(scenario_id=str(md.get("scenario_id") or sd.get("id", "")), timestamps=timestamps,
-                  tracks=tracks, road_map=road_map, signals=signals, sdc_index=sdc,
-                  current_time_index=current, source="scenarionet", meta=meta)
-    return scene.validate()
+    return sdc, current, meta
 
 
 def load_pickle_scene(path: str | Path) -> Scene:
