@@ -1,12 +1,9 @@
 """ScenarioNet / MetaDrive "scenario description" pickles -> :class:`~coster_sumo.scene.Scene`.
 
-**Security**: a pickle names the Python callables that rebuild its objects, so a plain
-``pickle.load`` runs whatever a crafted file asks for. This module never does: it loads through
-:class:`RestrictedUnpickler`, which resolves only the globals a scenario description is made of
-(builtin containers and scalars, ``collections.defaultdict`` / ``OrderedDict``, numpy arrays, dtypes
-and scalars with numpy's own rebuild helpers). Any other global ends the read with one line naming
-the file and the refused global (docs/womd.md, "Hostile inputs"). Everything read is then checked
-(:func:`description_to_scene`): a damaged file is refused with one line naming the element.
+**Security**: the pickle is loaded with the restricted unpickler of
+:mod:`converters.scenarionet_pickle`, so no file can make the loader run code. Everything read is
+then checked (:func:`description_to_scene`): a damaged file is refused with one line naming the
+element.
 
 The pickle is a plain dict of numpy arrays: ``id, version, length, tracks, dynamic_map_states,
 map_features, metadata``. Mapping (the same rules as :mod:`converters.womd`; the lane builder of
@@ -27,13 +24,7 @@ map_features, metadata``. Mapping (the same rules as :mod:`converters.womd`; the
 
 from __future__ import annotations
 
-import _compat_pickle
-import collections
-import importlib
-import io
-import pickle
-import pickletools
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,156 +34,10 @@ import numpy as np
 from coster_sumo.errors import InputError
 from coster_sumo.scene import LaneType, ObjectType, Ragged, RoadMap, Scene, SignalState, SignalStates, Tracks
 
+from .scenarionet_pickle import ALLOWED_GLOBALS as ALLOWED_GLOBALS  # where the tests look for them
+from .scenarionet_pickle import RestrictedUnpickler as RestrictedUnpickler
+from .scenarionet_pickle import load_pickle, printable
 from .womd_map import FEATURE_TYPES, RawLane, build_lanes, check_raw_map, polylines
-
-PICKLE_MAGIC = b"\x80"  # pickle protocol >= 2 starts with the PROTO opcode
-MAX_RECONSTRUCT_ITEMS = 1 << 20  # numpy's rebuild helper starts from an empty array; allow small ones
-
-
-# ----------------------------------------------------------------------------- restricted unpickling
-
-class RefusedGlobal(pickle.UnpicklingError):
-    """A pickle asked for a global outside :data:`ALLOWED_GLOBALS`."""
-
-    def __init__(self, module: str, name: str) -> None:
-        super().__init__(f"{module}.{name}")
-        self.module, self.name = module, name
-
-
-def _numpy_attr(modules: tuple[str, ...], name: str) -> Callable[..., Any] | None:
-    for mod in modules:
-        try:
-            return getattr(importlib.import_module(mod), name)  # type: ignore[no-any-return]
-        except (ImportError, AttributeError):
-            continue
-    return None
-
-
-def _latin1_encode(text: Any, encoding: str = "utf-8", errors: str = "strict") -> bytes:
-    """What protocol-2 pickles use to rebuild ``bytes``; only the latin-1 spelling is accepted."""
-    if not isinstance(text, str) or encoding.replace("_", "-").lower() not in ("latin1", "latin-1"):
-        raise pickle.UnpicklingError(f"_codecs.encode with encoding {encoding!r}")
-    return text.encode("latin-1", errors if errors == "strict" else "strict")
-
-
-class _NdarrayName:
-    """What the name ``numpy.ndarray`` resolves to: only numpy's rebuild helper may use it.
-
-    A pickle could otherwise call ``ndarray((10**10,))`` directly and reserve any amount of memory.
-    """
-
-    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
-        raise pickle.UnpicklingError("numpy.ndarray called directly")
-
-
-def _safe_builtin(t: type) -> Any:
-    """``t`` for the unpickler: its constructor, refusing the calls that could exhaust memory or
-    look up a codec (``bytes(10**10)``, ``str(b, encoding)``)."""
-    def build(*args: Any) -> Any:
-        if t in (bytes, str) and (len(args) > 1 or any(isinstance(a, int) for a in args)):
-            raise pickle.UnpicklingError(f"{t.__name__} called with {len(args)} arguments")
-        return t(*args)
-
-    build.__name__ = build.__qualname__ = t.__name__
-    return build
-
-
-def _allowed_globals() -> dict[tuple[str, str], Any]:
-    """(module, name) -> the object handed to the unpickler. Nothing else resolves."""
-    multiarray = ("numpy._core.multiarray", "numpy.core.multiarray")
-    numeric = ("numpy._core.numeric", "numpy.core.numeric")
-    reconstruct = _numpy_attr(multiarray, "_reconstruct")
-    scalar = _numpy_attr(multiarray, "scalar")
-    frombuffer = _numpy_attr(numeric, "_frombuffer")
-
-    def safe_reconstruct(subtype: Any, shape: Any, dtype: Any) -> Any:
-        # numpy pickles an array as _reconstruct(ndarray, (0,), b"b") followed by its state
-        if subtype is not _NdarrayName or int(np.prod(np.asarray(shape, np.int64))) > MAX_RECONSTRUCT_ITEMS:
-            raise pickle.UnpicklingError("numpy _reconstruct with unexpected arguments")
-        assert reconstruct is not None
-        return reconstruct(np.ndarray, shape, dtype)
-
-    out: dict[tuple[str, str], Any] = {
-        ("builtins", t.__name__): _safe_builtin(t)
-        for t in (bool, int, float, complex, str, bytes, list, tuple, dict, set, frozenset)}
-    out[("collections", "OrderedDict")] = collections.OrderedDict
-    out[("collections", "defaultdict")] = collections.defaultdict
-    out[("_codecs", "encode")] = _latin1_encode
-    out[("numpy", "ndarray")] = _NdarrayName
-    out[("numpy", "dtype")] = np.dtype
-    for mod in (*multiarray, *numeric):
-        if reconstruct is not None and mod in multiarray:
-            out[(mod, "_reconstruct")] = safe_reconstruct
-        if scalar is not None and mod in multiarray:
-            out[(mod, "scalar")] = scalar
-        if frombuffer is not None and mod in numeric:
-            out[(mod, "_frombuffer")] = frombuffer
-    return out
-
-
-ALLOWED_GLOBALS: dict[tuple[str, str], Any] = _allowed_globals()
-
-
-class RestrictedUnpickler(pickle.Unpickler):
-    """``pickle.Unpickler`` that resolves only :data:`ALLOWED_GLOBALS` (no other code can run)."""
-
-    def find_class(self, module: str, name: str) -> Any:
-        # protocol 2 pickles spell Python 2 names (__builtin__.set); map them as pickle itself does.
-        # The mapped name is then checked like any other.
-        if (module, name) in _compat_pickle.NAME_MAPPING:
-            module, name = _compat_pickle.NAME_MAPPING[(module, name)]
-        else:
-            module = _compat_pickle.IMPORT_MAPPING.get(module, module)
-        try:
-            return ALLOWED_GLOBALS[(module, name)]
-        except KeyError:
-            raise RefusedGlobal(module, name) from None
-
-    def persistent_load(self, pid: Any) -> Any:
-        raise pickle.UnpicklingError("persistent ids are not supported")
-
-
-def _printable(text: str, limit: int = 80) -> str:
-    """``text`` shortened, with control characters escaped (one line for any input)."""
-    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[:limit])
-    return out + ("..." if len(text) > limit else "")
-
-
-_MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
-
-
-def check_opcodes(data: bytes) -> None:
-    """Walk the opcode stream once before loading: a malformed stream, or a memo index beyond the
-    opcodes read so far (the C unpickler sizes its memo table to the largest index: a 5-byte
-    ``LONG_BINPUT 0x7fffffff`` would make it allocate 16 GB), is an UnpicklingError."""
-    for count, (op, arg, _) in enumerate(pickletools.genops(data)):
-        if op.name in _MEMO_PUTS and int(str(arg)) > count:
-            raise pickle.UnpicklingError(f"memo index {arg} at opcode {count}")
-
-
-def load_pickle(path: str | Path) -> Any:
-    """The object in a pickle, loaded with :class:`RestrictedUnpickler`; one-line InputError otherwise."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()  # from memory: a damaged length field cannot make a huge read buffer
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
-    try:
-        check_opcodes(data)
-        return RestrictedUnpickler(io.BytesIO(data)).load()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
-    except RefusedGlobal as exc:
-        raise InputError(f"{path}: refused: the pickle asks for the global "
-                         f"{_printable(exc.module)}.{_printable(exc.name)}, which is not part of a ScenarioNet "
-                         "scenario (only containers, numbers, strings and numpy arrays are loaded)") from None
-    except RecursionError:
-        raise InputError(f"{path}: not a ScenarioNet pickle (nested too deeply)") from None
-    except MemoryError:
-        raise InputError(f"{path}: not a ScenarioNet pickle (asks for more memory than there is)") from None
-    except Exception as exc:  # UnpicklingError, EOFError, ValueError, ... of a damaged file
-        msg = _printable(" ".join(str(exc).split()), 160)
-        raise InputError(f"{path}: not a ScenarioNet pickle ({type(exc).__name__}: {msg})") from None
 
 _LANE_TYPES = {"LANE_SURFACE_STREET": LaneType.SURFACE_STREET, "LANE_FREEWAY": LaneType.FREEWAY,
                "LANE_BIKE_LANE": LaneType.BIKE_LANE, "LANE_UNKNOWN": LaneType.UNDEFINED}
@@ -239,8 +84,8 @@ def _signal_state(name: Any) -> int:
 def _why(exc: BaseException) -> str:
     """One line for an exception raised while reading a damaged element."""
     if isinstance(exc, KeyError):
-        return f"missing key {_printable(repr(exc.args[0]) if exc.args else '?')}"
-    return f"{type(exc).__name__}: {_printable(' '.join(str(exc).split()), 160)}"
+        return f"missing key {printable(repr(exc.args[0]) if exc.args else '?')}"
+    return f"{type(exc).__name__}: {printable(' '.join(str(exc).split()), 160)}"
 
 
 _ELEMENT_ERRORS = (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError)
@@ -286,7 +131,7 @@ def _tracks(raw: Any, num_steps: int) -> Tracks:
     valid = np.zeros(shape, bool)
     types = np.zeros(n, np.int8)
     for i, (key, tr) in enumerate(raw.items()):
-        where = f"track {_printable(str(key))}"
+        where = f"track {printable(str(key))}"
         try:
             otype, ok, pos, vel, sizes = _track_arrays(tr, num_steps)
         except InputError as exc:
@@ -378,7 +223,7 @@ def _read_map_features(sd: dict) -> _MapParts:
     if not isinstance(features, dict):
         raise InputError(f"map_features is a {type(features).__name__}, not a dict")
     for key, feat in features.items():
-        where = f"map feature {_printable(str(key))}"
+        where = f"map feature {printable(str(key))}"
         try:
             type_name = str(feat.get("type", ""))
             kind = _feature_kind(type_name)
@@ -446,7 +291,7 @@ def _read_signal_states(sd: dict, num_steps: int) -> list[tuple[int, list, np.nd
         raise InputError(f"dynamic_map_states is a {type(dms).__name__}, not a dict")
     signal_raw = []
     for key, item in dms.items():
-        where = f"dynamic map state {_printable(str(key))}"
+        where = f"dynamic map state {printable(str(key))}"
         try:
             states = list((item.get("state") or {}).get("object_state") or [])
             if any(st is not None for st in states):
