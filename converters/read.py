@@ -1,7 +1,7 @@
 """One entry point for scene files, dispatching on content (not on the file name).
 
 - ScenarioNet / MetaDrive pickle (starts with the pickle PROTO opcode ``0x80``; loaded with the
-  restricted unpickler of :mod:`converters.scenarionet`, so no file can make it run code);
+  restricted unpickler of :mod:`converters.scenarionet_pickle`, so no file can make it run code);
 - gzip-compressed TFRecord of WOMD ``Scenario`` records (gzip magic ``1f 8b``);
 - this project's own ``.npz`` scenes (zip magic ``PK``, see :func:`coster_sumo.formats.scene_file.save_scene`);
 - anything else is read as a plain TFRecord of WOMD ``Scenario`` records (a record that is a
@@ -20,7 +20,8 @@ from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.scene import Scene
 
-from .scenarionet import PICKLE_MAGIC, iter_pickle_scenes
+from .scenarionet import iter_pickle_scenes
+from .scenarionet_pickle import PICKLE_MAGIC
 from .tfrecord import GZIP_MAGIC
 from .womd import iter_tfrecord_scenes
 

@@ -1,16 +1,13 @@
 """ScenarioNet / MetaDrive "scenario description" pickles -> :class:`~coster_sumo.scene.Scene`.
 
-**Security**: a pickle names the Python callables that rebuild its objects, so a plain
-``pickle.load`` runs whatever a crafted file asks for. This module never does: it loads through
-:class:`RestrictedUnpickler`, which resolves only the globals a scenario description is made of
-(builtin containers and scalars, ``collections.defaultdict`` / ``OrderedDict``, numpy arrays, dtypes
-and scalars with numpy's own rebuild helpers). Any other global ends the read with one line naming
-the file and the refused global (docs/womd.md, "Hostile inputs"). Everything read is then checked
-(:func:`description_to_scene`): a damaged file is refused with one line naming the element.
+**Security**: the pickle is loaded with the restricted unpickler of
+:mod:`converters.scenarionet_pickle`, so no file can make the loader run code. Everything read is
+then checked (:func:`description_to_scene`): a damaged file is refused with one line naming the
+element.
 
 The pickle is a plain dict of numpy arrays: ``id, version, length, tracks, dynamic_map_states,
-map_features, metadata``. Mapping (the same rules as :mod:`converters.womd`, whose lane builder is
-shared: lane widths and junction flags are estimated the same way):
+map_features, metadata``. Mapping (the same rules as :mod:`converters.womd`; the lane builder of
+:mod:`converters.womd_map` is shared: lane widths and junction flags are estimated the same way):
 
 - tracks: ids as strings (dict order); ``type`` VEHICLE/PEDESTRIAN/CYCLIST/OTHER/UNSET ->
   :class:`ObjectType` (anything else -> OTHER); ``state.position`` (T, 3) -> x, y; heading,
@@ -27,13 +24,8 @@ shared: lane widths and junction flags are estimated the same way):
 
 from __future__ import annotations
 
-import _compat_pickle
-import collections
-import importlib
-import io
-import pickle
-import pickletools
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,156 +34,10 @@ import numpy as np
 from coster_sumo.errors import InputError
 from coster_sumo.scene import LaneType, ObjectType, Ragged, RoadMap, Scene, SignalState, SignalStates, Tracks
 
-from .womd import FEATURE_TYPES, RawLane, build_lanes, check_raw_map, polylines
-
-PICKLE_MAGIC = b"\x80"  # pickle protocol >= 2 starts with the PROTO opcode
-MAX_RECONSTRUCT_ITEMS = 1 << 20  # numpy's rebuild helper starts from an empty array; allow small ones
-
-
-# ----------------------------------------------------------------------------- restricted unpickling
-
-class RefusedGlobal(pickle.UnpicklingError):
-    """A pickle asked for a global outside :data:`ALLOWED_GLOBALS`."""
-
-    def __init__(self, module: str, name: str) -> None:
-        super().__init__(f"{module}.{name}")
-        self.module, self.name = module, name
-
-
-def _numpy_attr(modules: tuple[str, ...], name: str) -> Callable[..., Any] | None:
-    for mod in modules:
-        try:
-            return getattr(importlib.import_module(mod), name)  # type: ignore[no-any-return]
-        except (ImportError, AttributeError):
-            continue
-    return None
-
-
-def _latin1_encode(text: Any, encoding: str = "utf-8", errors: str = "strict") -> bytes:
-    """What protocol-2 pickles use to rebuild ``bytes``; only the latin-1 spelling is accepted."""
-    if not isinstance(text, str) or encoding.replace("_", "-").lower() not in ("latin1", "latin-1"):
-        raise pickle.UnpicklingError(f"_codecs.encode with encoding {encoding!r}")
-    return text.encode("latin-1", errors if errors == "strict" else "strict")
-
-
-class _NdarrayName:
-    """What the name ``numpy.ndarray`` resolves to: only numpy's rebuild helper may use it.
-
-    A pickle could otherwise call ``ndarray((10**10,))`` directly and reserve any amount of memory.
-    """
-
-    def __new__(cls, *args: Any, **kwargs: Any) -> Any:
-        raise pickle.UnpicklingError("numpy.ndarray called directly")
-
-
-def _safe_builtin(t: type) -> Any:
-    """``t`` for the unpickler: its constructor, refusing the calls that could exhaust memory or
-    look up a codec (``bytes(10**10)``, ``str(b, encoding)``)."""
-    def build(*args: Any) -> Any:
-        if t in (bytes, str) and (len(args) > 1 or any(isinstance(a, int) for a in args)):
-            raise pickle.UnpicklingError(f"{t.__name__} called with {len(args)} arguments")
-        return t(*args)
-
-    build.__name__ = build.__qualname__ = t.__name__
-    return build
-
-
-def _allowed_globals() -> dict[tuple[str, str], Any]:
-    """(module, name) -> the object handed to the unpickler. Nothing else resolves."""
-    multiarray = ("numpy._core.multiarray", "numpy.core.multiarray")
-    numeric = ("numpy._core.numeric", "numpy.core.numeric")
-    reconstruct = _numpy_attr(multiarray, "_reconstruct")
-    scalar = _numpy_attr(multiarray, "scalar")
-    frombuffer = _numpy_attr(numeric, "_frombuffer")
-
-    def safe_reconstruct(subtype: Any, shape: Any, dtype: Any) -> Any:
-        # numpy pickles an array as _reconstruct(ndarray, (0,), b"b") followed by its state
-        if subtype is not _NdarrayName or int(np.prod(np.asarray(shape, np.int64))) > MAX_RECONSTRUCT_ITEMS:
-            raise pickle.UnpicklingError("numpy _reconstruct with unexpected arguments")
-        assert reconstruct is not None
-        return reconstruct(np.ndarray, shape, dtype)
-
-    out: dict[tuple[str, str], Any] = {
-        ("builtins", t.__name__): _safe_builtin(t)
-        for t in (bool, int, float, complex, str, bytes, list, tuple, dict, set, frozenset)}
-    out[("collections", "OrderedDict")] = collections.OrderedDict
-    out[("collections", "defaultdict")] = collections.defaultdict
-    out[("_codecs", "encode")] = _latin1_encode
-    out[("numpy", "ndarray")] = _NdarrayName
-    out[("numpy", "dtype")] = np.dtype
-    for mod in (*multiarray, *numeric):
-        if reconstruct is not None and mod in multiarray:
-            out[(mod, "_reconstruct")] = safe_reconstruct
-        if scalar is not None and mod in multiarray:
-            out[(mod, "scalar")] = scalar
-        if frombuffer is not None and mod in numeric:
-            out[(mod, "_frombuffer")] = frombuffer
-    return out
-
-
-ALLOWED_GLOBALS: dict[tuple[str, str], Any] = _allowed_globals()
-
-
-class RestrictedUnpickler(pickle.Unpickler):
-    """``pickle.Unpickler`` that resolves only :data:`ALLOWED_GLOBALS` (no other code can run)."""
-
-    def find_class(self, module: str, name: str) -> Any:
-        # protocol 2 pickles spell Python 2 names (__builtin__.set); map them as pickle itself does.
-        # The mapped name is then checked like any other.
-        if (module, name) in _compat_pickle.NAME_MAPPING:
-            module, name = _compat_pickle.NAME_MAPPING[(module, name)]
-        else:
-            module = _compat_pickle.IMPORT_MAPPING.get(module, module)
-        try:
-            return ALLOWED_GLOBALS[(module, name)]
-        except KeyError:
-            raise RefusedGlobal(module, name) from None
-
-    def persistent_load(self, pid: Any) -> Any:
-        raise pickle.UnpicklingError("persistent ids are not supported")
-
-
-def _printable(text: str, limit: int = 80) -> str:
-    """``text`` shortened, with control characters escaped (one line for any input)."""
-    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[:limit])
-    return out + ("..." if len(text) > limit else "")
-
-
-_MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
-
-
-def check_opcodes(data: bytes) -> None:
-    """Walk the opcode stream once before loading: a malformed stream, or a memo index beyond the
-    opcodes read so far (the C unpickler sizes its memo table to the largest index: a 5-byte
-    ``LONG_BINPUT 0x7fffffff`` would make it allocate 16 GB), is an UnpicklingError."""
-    for count, (op, arg, _) in enumerate(pickletools.genops(data)):
-        if op.name in _MEMO_PUTS and int(str(arg)) > count:
-            raise pickle.UnpicklingError(f"memo index {arg} at opcode {count}")
-
-
-def load_pickle(path: str | Path) -> Any:
-    """The object in a pickle, loaded with :class:`RestrictedUnpickler`; one-line InputError otherwise."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()  # from memory: a damaged length field cannot make a huge read buffer
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
-    try:
-        check_opcodes(data)
-        return RestrictedUnpickler(io.BytesIO(data)).load()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open ({exc.strerror or exc})") from None
-    except RefusedGlobal as exc:
-        raise InputError(f"{path}: refused: the pickle asks for the global "
-                         f"{_printable(exc.module)}.{_printable(exc.name)}, which is not part of a ScenarioNet "
-                         "scenario (only containers, numbers, strings and numpy arrays are loaded)") from None
-    except RecursionError:
-        raise InputError(f"{path}: not a ScenarioNet pickle (nested too deeply)") from None
-    except MemoryError:
-        raise InputError(f"{path}: not a ScenarioNet pickle (asks for more memory than there is)") from None
-    except Exception as exc:  # UnpicklingError, EOFError, ValueError, ... of a damaged file
-        msg = _printable(" ".join(str(exc).split()), 160)
-        raise InputError(f"{path}: not a ScenarioNet pickle ({type(exc).__name__}: {msg})") from None
+from .scenarionet_pickle import ALLOWED_GLOBALS as ALLOWED_GLOBALS  # where the tests look for them
+from .scenarionet_pickle import RestrictedUnpickler as RestrictedUnpickler
+from .scenarionet_pickle import load_pickle, printable
+from .womd_map import FEATURE_TYPES, RawLane, build_lanes, check_raw_map, polylines
 
 _LANE_TYPES = {"LANE_SURFACE_STREET": LaneType.SURFACE_STREET, "LANE_FREEWAY": LaneType.FREEWAY,
                "LANE_BIKE_LANE": LaneType.BIKE_LANE, "LANE_UNKNOWN": LaneType.UNDEFINED}
@@ -238,8 +84,8 @@ def _signal_state(name: Any) -> int:
 def _why(exc: BaseException) -> str:
     """One line for an exception raised while reading a damaged element."""
     if isinstance(exc, KeyError):
-        return f"missing key {_printable(repr(exc.args[0]) if exc.args else '?')}"
-    return f"{type(exc).__name__}: {_printable(' '.join(str(exc).split()), 160)}"
+        return f"missing key {printable(repr(exc.args[0]) if exc.args else '?')}"
+    return f"{type(exc).__name__}: {printable(' '.join(str(exc).split()), 160)}"
 
 
 _ELEMENT_ERRORS = (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError)
@@ -285,7 +131,7 @@ def _tracks(raw: Any, num_steps: int) -> Tracks:
     valid = np.zeros(shape, bool)
     types = np.zeros(n, np.int8)
     for i, (key, tr) in enumerate(raw.items()):
-        where = f"track {_printable(str(key))}"
+        where = f"track {printable(str(key))}"
         try:
             otype, ok, pos, vel, sizes = _track_arrays(tr, num_steps)
         except InputError as exc:
@@ -334,78 +180,118 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
     if not isinstance(md, dict):
         raise InputError(f"metadata is a {type(md).__name__}, not a dict")
     num_steps, timestamps = _num_steps(sd, md)
-    counts = dict.fromkeys(FEATURE_TYPES, 0)
-    raw_lanes: list[RawLane] = []
-    line_polys: dict[int, np.ndarray] = {}
-    edge_polys: dict[int, np.ndarray] = {}
-    road_lines: list[tuple[int, np.ndarray]] = []
-    road_edges: list[tuple[int, np.ndarray]] = []
-    crosswalks: list[tuple[int, np.ndarray]] = []
-    stop_signs: list[tuple[np.ndarray, list[int]]] = []
-    others: list[tuple[str, int, np.ndarray]] = []  # (kind, feature id, points) for the finiteness check
+    parts = _read_map_features(sd)
+    signal_raw = _read_signal_states(sd, num_steps)
+    lanes, lane_index = build_lanes(parts.lanes, parts.line_polys, parts.edge_polys)
+    signals = _signals(signal_raw, lane_index, num_steps)
+    road_map = RoadMap(
+        lanes=lanes, road_lines=polylines(parts.road_lines), road_edges=polylines(parts.road_edges),
+        crosswalks=polylines(parts.crosswalks),
+        stop_sign_xy=np.asarray([p for p, _ in parts.stop_signs], np.float64).reshape(-1, 2),
+        stop_sign_lanes=Ragged.from_list(
+            [np.asarray([lane_index[f] for f in ids if f in lane_index], np.int64) for _, ids in parts.stop_signs],
+            np.int64))
+    tracks = _tracks(sd["tracks"], num_steps)
+    sdc, current, meta = _metadata(sd, md, tracks, parts.counts, source_name)
+    scene = Scene(scenario_id=str(md.get("scenario_id") or sd.get("id", "")), timestamps=timestamps,
+                  tracks=tracks, road_map=road_map, signals=signals, sdc_index=sdc,
+                  current_time_index=current, source="scenarionet", meta=meta)
+    return scene.validate()
+
+
+@dataclass(slots=True)
+class _MapParts:
+    """The map features of a description, read and checked, before lanes get their indices."""
+
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(FEATURE_TYPES, 0))
+    lanes: list[RawLane] = field(default_factory=list)
+    line_polys: dict[int, np.ndarray] = field(default_factory=dict)  # road line id -> points (lane widths)
+    edge_polys: dict[int, np.ndarray] = field(default_factory=dict)  # road edge id -> points (lane widths)
+    road_lines: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    road_edges: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    crosswalks: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    stop_signs: list[tuple[np.ndarray, list[int]]] = field(default_factory=list)
+    # (kind, feature id, points) for the finiteness check
+    others: list[tuple[str, int, np.ndarray]] = field(default_factory=list)
+
+
+def _read_map_features(sd: dict) -> _MapParts:
+    """``map_features``: lanes, road lines and edges, crosswalks and stop signs, checked
+    (:func:`~converters.womd_map.check_raw_map`); an error names the feature."""
+    parts = _MapParts()
     features = sd["map_features"]
     if not isinstance(features, dict):
         raise InputError(f"map_features is a {type(features).__name__}, not a dict")
-
-    def nbs(items: list) -> list[tuple[int, int, int, int, int]]:
-        return [(_int(n["feature_id"]), _int(n["self_start_index"]), _int(n["self_end_index"]),
-                 _int(n["neighbor_start_index"]), _int(n["neighbor_end_index"])) for n in items]
-
-    def bounds(items: list) -> list[tuple[int, int, int]]:
-        return [(_int(b["lane_start_index"]), _int(b["lane_end_index"]),
-                 _int(b["boundary_feature_id"])) for b in items]
-
     for key, feat in features.items():
-        where = f"map feature {_printable(str(key))}"
+        where = f"map feature {printable(str(key))}"
         try:
             type_name = str(feat.get("type", ""))
             kind = _feature_kind(type_name)
             if kind is None:
                 continue
-            counts[kind] += 1
-            fid = _int(key)
-            if kind == "lane":
-                raw_lanes.append(RawLane(
-                    fid=fid, polyline=_xy(feat["polyline"]), z=_z(feat["polyline"]),
-                    lane_type=int(_LANE_TYPES.get(type_name, LaneType.UNDEFINED)),
-                    speed_limit_mph=float(feat.get("speed_limit_mph") or 0.0),
-                    entry=[_int(x) for x in feat.get("entry_lanes", [])],
-                    exit=[_int(x) for x in feat.get("exit_lanes", [])],
-                    left=nbs(feat.get("left_neighbor", [])), right=nbs(feat.get("right_neighbor", [])),
-                    left_bounds=bounds(feat.get("left_boundaries", [])),
-                    right_bounds=bounds(feat.get("right_boundaries", []))))
-            elif kind == "road_line":
-                pts = _xy(feat["polyline"])
-                line_polys[fid] = pts
-                road_lines.append((_ROAD_LINE_TYPES.get(type_name, 0), pts))
-                others.append(("road line", fid, pts))
-            elif kind == "road_edge":
-                pts = _xy(feat["polyline"])
-                edge_polys[fid] = pts
-                road_edges.append((_ROAD_EDGE_TYPES.get(type_name, 0), pts))
-                others.append(("road edge", fid, pts))
-            elif kind == "crosswalk":
-                pts = _xy(feat["polygon"])
-                crosswalks.append((0, pts))
-                others.append(("crosswalk", fid, pts))
-            elif kind == "stop_sign":
-                pos = _xy(feat["position"])
-                if len(pos) == 0:
-                    raise InputError("stop sign without a position")
-                stop_signs.append((pos[0], [_int(x) for x in feat.get("lane", [])]))
-                others.append(("stop sign", fid, pos[:1]))
+            parts.counts[kind] += 1
+            _read_feature(parts, kind, type_name, _int(key), feat)
         except InputError as exc:
             raise InputError(f"{where}: {exc}") from None
         except _ELEMENT_ERRORS as exc:
             raise InputError(f"{where}: {_why(exc)}") from None
-    check_raw_map(raw_lanes, others)
+    check_raw_map(parts.lanes, parts.others)
+    return parts
 
+
+def _neighbours(items: list) -> list[tuple[int, int, int, int, int]]:
+    return [(_int(n["feature_id"]), _int(n["self_start_index"]), _int(n["self_end_index"]),
+             _int(n["neighbor_start_index"]), _int(n["neighbor_end_index"])) for n in items]
+
+
+def _boundaries(items: list) -> list[tuple[int, int, int]]:
+    return [(_int(b["lane_start_index"]), _int(b["lane_end_index"]),
+             _int(b["boundary_feature_id"])) for b in items]
+
+
+def _read_feature(parts: _MapParts, kind: str, type_name: str, fid: int, feat: Any) -> None:
+    """One map feature of a known ``kind`` added to ``parts``."""
+    if kind == "lane":
+        parts.lanes.append(RawLane(
+            fid=fid, polyline=_xy(feat["polyline"]), z=_z(feat["polyline"]),
+            lane_type=int(_LANE_TYPES.get(type_name, LaneType.UNDEFINED)),
+            speed_limit_mph=float(feat.get("speed_limit_mph") or 0.0),
+            entry=[_int(x) for x in feat.get("entry_lanes", [])],
+            exit=[_int(x) for x in feat.get("exit_lanes", [])],
+            left=_neighbours(feat.get("left_neighbor", [])), right=_neighbours(feat.get("right_neighbor", [])),
+            left_bounds=_boundaries(feat.get("left_boundaries", [])),
+            right_bounds=_boundaries(feat.get("right_boundaries", []))))
+    elif kind == "road_line":
+        pts = _xy(feat["polyline"])
+        parts.line_polys[fid] = pts
+        parts.road_lines.append((_ROAD_LINE_TYPES.get(type_name, 0), pts))
+        parts.others.append(("road line", fid, pts))
+    elif kind == "road_edge":
+        pts = _xy(feat["polyline"])
+        parts.edge_polys[fid] = pts
+        parts.road_edges.append((_ROAD_EDGE_TYPES.get(type_name, 0), pts))
+        parts.others.append(("road edge", fid, pts))
+    elif kind == "crosswalk":
+        pts = _xy(feat["polygon"])
+        parts.crosswalks.append((0, pts))
+        parts.others.append(("crosswalk", fid, pts))
+    elif kind == "stop_sign":
+        pos = _xy(feat["position"])
+        if len(pos) == 0:
+            raise InputError("stop sign without a position")
+        parts.stop_signs.append((pos[0], [_int(x) for x in feat.get("lane", [])]))
+        parts.others.append(("stop sign", fid, pos[:1]))
+
+
+def _read_signal_states(sd: dict, num_steps: int) -> list[tuple[int, list, np.ndarray | None]]:
+    """``dynamic_map_states``: (lane feature id, per-step state names, stop point or None) of each
+    lane with a logged state, checked; an error names the state's key."""
     dms = sd.get("dynamic_map_states", {}) or {}
     if not isinstance(dms, dict):
         raise InputError(f"dynamic_map_states is a {type(dms).__name__}, not a dict")
     signal_raw = []
     for key, item in dms.items():
-        where = f"dynamic map state {_printable(str(key))}"
+        where = f"dynamic map state {printable(str(key))}"
         try:
             states = list((item.get("state") or {}).get("object_state") or [])
             if any(st is not None for st in states):
@@ -420,7 +306,12 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
             raise InputError(f"{where}: {exc}") from None
         except _ELEMENT_ERRORS as exc:
             raise InputError(f"{where}: {_why(exc)}") from None
-    lanes, lane_index = build_lanes(raw_lanes, line_polys, edge_polys)
+    return signal_raw
+
+
+def _signals(signal_raw: list[tuple[int, list, np.ndarray | None]], lane_index: dict[int, int],
+             num_steps: int) -> SignalStates:
+    """:class:`SignalStates` of the logged states whose lane is in the map."""
     signal_raw = [s for s in signal_raw if s[0] in lane_index]
     state = np.zeros((num_steps, len(signal_raw)), np.int8)
     stop_points = np.zeros((len(signal_raw), 2))
@@ -429,17 +320,13 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
             state[t, c] = _signal_state(name)
         if sp is not None:
             stop_points[c] = sp
-    signals = SignalStates(lane_index=np.asarray([lane_index[lid] for lid, _, _ in signal_raw], np.int64),
-                           state=state, stop_point=stop_points)
+    return SignalStates(lane_index=np.asarray([lane_index[lid] for lid, _, _ in signal_raw], np.int64),
+                        state=state, stop_point=stop_points)
 
-    road_map = RoadMap(
-        lanes=lanes, road_lines=polylines(road_lines), road_edges=polylines(road_edges),
-        crosswalks=polylines(crosswalks),
-        stop_sign_xy=np.asarray([p for p, _ in stop_signs], np.float64).reshape(-1, 2),
-        stop_sign_lanes=Ragged.from_list(
-            [np.asarray([lane_index[f] for f in ids if f in lane_index], np.int64) for _, ids in stop_signs],
-            np.int64))
-    tracks = _tracks(sd["tracks"], num_steps)
+
+def _metadata(sd: dict, md: dict, tracks: Tracks, counts: dict[str, int], source_name: str
+              ) -> tuple[int, int, dict]:
+    """The SDC's track index, the current time index and ``scene.meta``."""
     try:
         sdc_id = md.get("sdc_id")
         sdc = tracks.index_of(str(sdc_id)) if sdc_id is not None and str(sdc_id) in set(tracks.ids) else -1
@@ -452,10 +339,7 @@ def description_to_scene(sd: dict, source_name: str = "") -> Scene:
         current = int(md.get("current_time_index", 0) or 0)
     except _ELEMENT_ERRORS as exc:
         raise InputError(f"metadata: {_why(exc)}") from None
-    scene = Scene(scenario_id=str(md.get("scenario_id") or sd.get("id", "")), timestamps=timestamps,
-                  tracks=tracks, road_map=road_map, signals=signals, sdc_index=sdc,
-                  current_time_index=current, source="scenarionet", meta=meta)
-    return scene.validate()
+    return sdc, current, meta
 
 
 def load_pickle_scene(path: str | Path) -> Scene:

@@ -265,7 +265,7 @@ def test_export_of_a_run_with_several_targets(tmp_path, capsys):
 
 
 def test_a_net_truncated_by_a_full_disk_blames_the_disk(tmp_path, monkeypatch):
-    from coster_sumo.converters.to_sumo import _parse_xml
+    from coster_sumo.converters.netconvert import _parse_xml
 
     net = tmp_path / "x.net.xml"
     net.write_text("<net><edge id='a'")  # what netconvert leaves on a full disk, reporting success
