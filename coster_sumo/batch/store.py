@@ -1,6 +1,7 @@
 """Results of a batch: one Parquet part file per run (written atomically).
 
-The rates with their intervals are :func:`coster_sumo.metrics.rate_with_ci`.
+The figures of a batch come from the rows through :func:`row_outcome` and the registry of
+:mod:`coster_sumo.metrics`.
 """
 
 from __future__ import annotations
@@ -8,10 +9,12 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import atomic_path
+from coster_sumo.metrics import RunOutcome
 
 RESULT_FIELDS: dict[str, str] = {
     # name: pyarrow type name; see the README "regress" section for meanings and units
@@ -32,6 +35,15 @@ def result_row(payload: dict[str, Any], **values: Any) -> dict[str, Any]:
                 "seed": payload.get("seed"), "variant": int(payload["variant"]), "planner": payload["planner"]})
     row.update(values)
     return row
+
+
+def row_outcome(row: Mapping[str, Any]) -> RunOutcome:
+    """A finished run's row as the metrics read it (:class:`~coster_sumo.metrics.RunOutcome`)."""
+    return RunOutcome(scene=str(row["scene_key"]), adversary_contact=bool(row["adversary_contact"]),
+                   target_collision=bool(row["collision"]), adversary_off_road=bool(row["adversary_off_road"]),
+                   target_off_road=bool(row["target_off_road"]), route_completed=bool(row["route_completed"]),
+                   relative_speed=row["relative_speed"], impact_angle=row["impact_angle"], min_ttc=row["min_ttc"],
+                   avoidable=row["avoidable"], contact_in_horizon=row["contact_in_horizon"])
 
 
 def result_schema() -> Any:
