@@ -298,12 +298,16 @@ def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     def shares(part: Sequence[dict[str, Any]]) -> dict[str, Any]:
         return {t: rate_with_ci([bool(r["avoidable_at"].get(t)) for r in part]) for t in times}
 
+    def collision_rate_of(avoidable: bool) -> dict[str, Any]:
+        """The registry's CR (the adversary touches the target) of the variants with this label."""
+        part = tuple(RunOutcome(adversary_contact=bool(r.get("collision"))) for r in recs
+                     if bool(r["avoidable"]) is avoidable)
+        return compute("CR", MetricSample(part)).rate_json()
+
     last = np.array([r["last_moment_s"] for r in recs if r.get("last_moment_s") is not None], float)
     found = {t: sum(bool(r["escape_found_at"].get(t)) for r in recs) for t in times}
     return {"variants": len(recs), "avoidable_share": shares(recs),
-            "CR_by_label": {"avoidable": rate_with_ci([bool(r.get("collision")) for r in recs if r["avoidable"]]),
-                            "unavoidable": rate_with_ci([bool(r.get("collision")) for r in recs
-                                                         if not r["avoidable"]])},
+            "CR_by_label": {"avoidable": collision_rate_of(True), "unavoidable": collision_rate_of(False)},
             "by_contact_kind": {k: {"variants": sum(r["contact_kind"] == k for r in recs),
                                     "avoidable_share": shares([r for r in recs if r["contact_kind"] == k])}
                                 for k in sorted({r["contact_kind"] for r in recs})},

@@ -6,8 +6,9 @@ over -10..10 m/s^2 in 200 bins; MMD with one Gaussian kernel whose bandwidth is 
 squared distance of the pooled samples, biased estimate; impact angle = atan2 of the adversary's
 position in the target frame; relative speed = |v_target - v_adv| (vector difference).
 
-Every function takes plain numpy arrays (or sequences of per-scenario records) so that it is usable
-from evaluation scripts, notebooks and tests alike.
+Every function takes plain numpy arrays, usable from scripts, notebooks and tests alike. The figures
+the commands report come from :data:`REGISTRY`: each :class:`Metric` computes one
+:class:`MetricValue` of one :class:`MetricSample` (a :class:`RunOutcome` per variant driven, and more).
 """
 
 from __future__ import annotations
@@ -369,8 +370,7 @@ class Metric:
 def rate_value(flags: Sequence[bool], share: Callable[[Sequence[bool]], float] | None = None) -> MetricValue:
     """The share of true ``flags`` (k / n, or what ``share`` computes of them) with its Wilson 95 %
     interval, k and n; value and interval None without flags."""
-    n = len(flags)
-    k = int(sum(bool(f) for f in flags))
+    n, k = len(flags), int(sum(bool(f) for f in flags))
     if not n:
         return MetricValue(None, None, None, k, n)
     lo, hi = wilson_interval(k, n)
@@ -386,30 +386,23 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _floats(values: Sequence[float | None]) -> np.ndarray:
-    return np.array([np.nan if v is None else v for v in values], np.float64)
-
-
 def _sur(s: MetricSample) -> MetricValue:
     hit = {o.scene for o in s.contacts}
-    flags = [k in hit for k in s.scenes]
-    return rate_value(flags, lambda f: success_rate(len(f), sum(f)))
+    return rate_value([k in hit for k in s.scenes], lambda f: success_rate(len(f), sum(f)))
 
 
 def _divergence(nominal: np.ndarray | None, generated: np.ndarray | None) -> MetricValue:
-    if nominal is None or generated is None:
-        return MetricValue(None)
-    return MetricValue(_finite(js_divergence(nominal, generated)))
+    return MetricValue(None if nominal is None or generated is None else _finite(js_divergence(nominal, generated)))
 
 
 def _diversity(stat: Callable[[np.ndarray], float], of: Callable[[RunOutcome], float | None]
                ) -> Callable[[MetricSample], MetricValue]:
     """A diversity of the contacts' values ``of(outcome)`` with its interval from resampling scenes."""
     def compute(s: MetricSample) -> MetricValue:
-        pooled = [of(o) for o in s.contacts]
-        per_scene = [_floats([of(o) for o in s.contacts if o.scene == k]) for k in s.scenes]
+        pooled = [of(o) for o in s.contacts]  # a missing value (None) is NaN, as in the plain functions
+        per_scene = [np.asarray([of(o) for o in s.contacts if o.scene == k], np.float64) for k in s.scenes]
         _, lo, hi = scene_bootstrap(stat, per_scene)
-        return MetricValue(_finite(stat(_floats(pooled))) if pooled else None, lo, hi)
+        return MetricValue(_finite(stat(np.asarray(pooled, np.float64))) if pooled else None, lo, hi)
     return compute
 
 
@@ -417,28 +410,17 @@ def _hit_in_horizon(o: RunOutcome) -> bool:
     return bool(o.contact_in_horizon if o.contact_in_horizon is not None else o.target_collision)
 
 
-def _median_min_ttc(s: MetricSample) -> MetricValue:
-    ttc = [o.min_ttc for o in s.outcomes if o.min_ttc is not None and not o.adversary_contact]
-    return MetricValue(float(np.median(ttc)) if ttc else None)
-
-
-def _mean_relative_speed(s: MetricSample) -> MetricValue:
-    rel = [o.relative_speed for o in s.outcomes if o.relative_speed is not None]
-    return MetricValue(float(np.mean(rel)) if rel else None)
-
-
-def _impact_angle_spread(s: MetricSample) -> MetricValue:
-    angles = [o.impact_angle for o in s.contacts]
-    return MetricValue(circular_range_deg(_floats(angles)) if angles else None)
+def _of(stat: Callable[[np.ndarray], float], values: Sequence[float | None]) -> MetricValue:
+    """``stat`` of ``values`` (None: NaN); None without values."""
+    return MetricValue(float(stat(np.asarray(values, np.float64))) if len(values) else None)
 
 
 FLOOR_DRAWS = 200  # draws from the nominal traffic behind ``VDD_tcol_floor``
 
 
 def _lane_types(s: MetricSample) -> list[tuple[int, np.ndarray, list[tuple[int, RunOutcome]]]]:
-    """Per lane type under the adversaries at t_col (in order of first appearance) that the nominal
-    traffic drove on: its adversaries' count, the nominal speed histogram, its (index, outcome)s
-    among the outcomes with a recorded adversary."""
+    """Per lane type under the adversaries at t_col (first seen first) with nominal traffic: how many, the
+    nominal speed histogram, the (index, outcome)s among the outcomes with a recorded adversary."""
     rows = [o for o in s.outcomes if o.adversary_speed is not None]
     counts = Counter(o.adversary_lane_type for o in rows)
     out = []
@@ -449,31 +431,25 @@ def _lane_types(s: MetricSample) -> list[tuple[int, np.ndarray, list[tuple[int, 
     return out
 
 
-def _vdd_tcol(s: MetricSample) -> MetricValue:
+def _vdd_tcol(s: MetricSample, floor: bool = False) -> MetricValue:
     """Per lane type, the JSD of the adversaries' speeds at t_col and the nominal speeds on that type,
-    averaged weighted by the adversaries on each (docs/method.md, Step 7)."""
-    kinds = _lane_types(s)
-    weight = sum(n for n, _, _ in kinds)
-    div = sum(n * float(js_divergence(nominal, np.histogram(np.clip([o.adversary_speed for _, o in on_kind], 0, 50),
-                                                                    bins=SPEED_BINS)[0]))
-              for n, nominal, on_kind in kinds)
-    return MetricValue(div / weight if weight else None)
-
-
-def _vdd_tcol_floor(s: MetricSample) -> MetricValue:
-    """:func:`_vdd_tcol` of speeds drawn from the nominal traffic itself, as many draws as distinct
-    snapshots on each lane type (a snapshot shared by k variants counts k times), mean of
-    :data:`FLOOR_DRAWS` seeded draws: the lowest VDD at t_col the sample size allows."""
+    averaged weighted by the adversaries on each (docs/method.md, Step 7). ``floor``: the same for
+    speeds drawn from the nominal traffic itself, as many draws as distinct snapshots on the type (a
+    snapshot shared by k variants counts k times), mean of :data:`FLOOR_DRAWS` seeded draws."""
     kinds = _lane_types(s)
     weight = sum(n for n, _, _ in kinds)
     rng = np.random.default_rng(0)
-    floor = 0.0
+    total = 0.0
     for n, nominal, on_kind in kinds:
+        if not floor:
+            hist = np.histogram(np.clip([o.adversary_speed for _, o in on_kind], 0, 50), bins=SPEED_BINS)[0]
+            total += n * float(js_divergence(nominal, hist))
+            continue
         repeats = np.array(list(Counter(o.snapshot or f"#{i}" for i, o in on_kind).values()))
         drawn = rng.choice(len(nominal), size=(FLOOR_DRAWS, len(repeats)), p=nominal / nominal.sum())
-        floor += n * float(np.mean([js_divergence(nominal, np.bincount(d, weights=repeats, minlength=len(nominal)))
+        total += n * float(np.mean([js_divergence(nominal, np.bincount(d, weights=repeats, minlength=len(nominal)))
                                     for d in drawn]))
-    return MetricValue(floor / weight if weight else None)
+    return MetricValue(total / weight if weight else None)
 
 
 REGISTRY: dict[str, Metric] = {m.name: m for m in (
@@ -488,10 +464,9 @@ REGISTRY: dict[str, Metric] = {m.name: m for m in (
            lambda s: rate_value([o.target_off_road for o in s.outcomes], off_road_rate)),
     Metric("RCR", "fraction", "runs in which the target completes its route",
            lambda s: rate_value([o.route_completed for o in s.outcomes], route_completion_rate)),
-    Metric("defect_rate", "fraction", "runs on avoidable variants in which the target is hit within the "
-           "label's horizon", lambda s: rate_value([_hit_in_horizon(o) for o in s.outcomes if o.avoidable])),
-    Metric("unavoidable_contact_rate", "fraction", "runs on unavoidable variants in which the target is hit "
-           "within the label's horizon",
+    Metric("defect_rate", "fraction", "runs on avoidable variants whose target is hit within the label's horizon",
+           lambda s: rate_value([_hit_in_horizon(o) for o in s.outcomes if o.avoidable])),
+    Metric("unavoidable_contact_rate", "fraction", "the same on unavoidable variants",
            lambda s: rate_value([_hit_in_horizon(o) for o in s.outcomes if o.avoidable is False])),
     Metric("VDD", "nats", "Jensen-Shannon divergence of the nominal and generated speed histograms",
            lambda s: _divergence(s.nominal_speed_hist, s.generated_speed_hist)),
@@ -504,13 +479,16 @@ REGISTRY: dict[str, Metric] = {m.name: m for m in (
     Metric("CPD_circular", "deg", "circular standard deviation of the impact angle in the target's frame",
            _diversity(circular_std_deg, lambda o: o.impact_angle)),
     Metric("impact_angle_spread", "deg", "the smallest arc that holds every impact angle",
-           _impact_angle_spread),
-    Metric("median_min_ttc", "s", "median smallest time to collision of the runs without the adversary's "
-           "contact", _median_min_ttc),
-    Metric("mean_relative_speed", "m/s", "mean relative speed at the adversary's contact", _mean_relative_speed),
+           lambda s: _of(circular_range_deg, [o.impact_angle for o in s.contacts])),
+    Metric("median_min_ttc", "s", "median smallest time to collision of the runs without the adversary's contact",
+           lambda s: _of(np.median, [o.min_ttc for o in s.outcomes if o.min_ttc is not None
+                                     and not o.adversary_contact])),
+    Metric("mean_relative_speed", "m/s", "mean relative speed at the adversary's contact",
+           lambda s: _of(np.mean, [o.relative_speed for o in s.outcomes if o.relative_speed is not None])),
     Metric("VDD_tcol", "nats", "per lane type, JSD of the adversaries' speeds at t_col and the nominal speeds",
            _vdd_tcol),
-    Metric("VDD_tcol_floor", "nats", "VDD_tcol of speeds drawn from the nominal traffic itself", _vdd_tcol_floor),
+    Metric("VDD_tcol_floor", "nats", "VDD_tcol of speeds drawn from the nominal traffic itself (its floor)",
+           lambda s: _vdd_tcol(s, floor=True)),
     Metric("size_in_class", "fraction", "adversaries whose length and width fit one vehicle class of the corpus",
            lambda s: rate_value([o.adversary_size_in_class for o in s.outcomes if o.adversary_speed is not None])),
 )}
