@@ -17,7 +17,6 @@ import math
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -377,7 +376,7 @@ def rate_value(flags: Sequence[bool], share: Callable[[Sequence[bool]], float] |
     return MetricValue(share(flags) if share else k / n, lo, hi, k, n)
 
 
-def rate_with_ci(flags: Sequence[bool]) -> dict[str, Any]:
+def rate_with_ci(flags: Sequence[bool]) -> dict[str, float | int | None]:
     """{"rate", "ci_low", "ci_high", "k", "n"} of boolean outcomes (Wilson 95 %)."""
     return rate_value(flags).rate_json()
 

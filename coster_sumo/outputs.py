@@ -37,6 +37,7 @@ from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectori
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.method.generation import PlannedScenario
 from coster_sumo.plan import AdversaryPlan, sim_time_of
+from coster_sumo.results import VariantOutcome
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
@@ -301,17 +302,9 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
 RUN_METRICS = {"collision_rate": "CR", "off_road_rate": "ORR", "impact_angle_spread_deg": "impact_angle_spread"}
 
 
-def variant_outcome(rec: Mapping[str, Any]) -> metrics.RunOutcome:
-    """A variant's record (:func:`variant_record`) as the metrics read it."""
-    return metrics.RunOutcome(
-        adversary_contact=bool(rec["collision"]), adversary_off_road=bool(rec["adversary_off_road"]),
-        target_off_road=bool(rec["target_off_road"]), route_completed=bool(rec["route_completed"]),
-        relative_speed=rec["relative_speed"], impact_angle=rec["impact_angle"], min_ttc=rec["min_ttc"])
-
-
 def run_metrics(variants: Sequence[Mapping[str, Any]]) -> dict[str, float | None]:
     """:data:`RUN_METRICS` of a run's variant records, from the registry (None without variants)."""
-    sample = metrics.MetricSample(tuple(variant_outcome(v) for v in variants))
+    sample = metrics.MetricSample(tuple(VariantOutcome.from_json(v).run_outcome() for v in variants))
     return {key: metrics.compute(name, sample).value for key, name in RUN_METRICS.items()}
 
 

@@ -15,6 +15,7 @@ from coster_sumo.batch.regress import summarize_regression
 from coster_sumo.batch.store import ResultStore, result_row
 from coster_sumo.metrics import Metric, MetricSample, MetricValue, RunOutcome
 from coster_sumo.outputs import run_metrics
+from coster_sumo.results import VariantOutcome
 from coster_sumo.spec import ScenarioSpec
 
 
@@ -60,10 +61,8 @@ def test_diversity_interval_resamples_scenes():
 
 
 def test_run_summary_takes_its_rates_from_the_registry(monkeypatch):
-    variants = [{"collision": True, "adversary_off_road": False, "target_off_road": False, "route_completed": True,
-                 "relative_speed": 3.0, "impact_angle": 20.0, "min_ttc": None},
-                {"collision": False, "adversary_off_road": True, "target_off_road": False, "route_completed": True,
-                 "relative_speed": None, "impact_angle": None, "min_ttc": 1.5}]
+    variants = [VariantOutcome(0, collision=True, relative_speed=3.0, impact_angle=20.0).to_json(),
+                VariantOutcome(1, adversary_off_road=True, min_ttc=1.5).to_json()]
     assert run_metrics(variants) == {"collision_rate": 0.5, "off_road_rate": 0.5, "impact_angle_spread_deg": 0.0}
     monkeypatch.setitem(metrics.REGISTRY, "CR", _fixed("CR", 0.25))
     assert run_metrics(variants)["collision_rate"] == 0.25

@@ -14,7 +14,7 @@ import dataclasses
 import json
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +34,7 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import ResultStore, read_json, result_row, row_outcome
+from coster_sumo.batch.store import ResultRow, ResultStore, read_json, result_row, row_outcome
 from coster_sumo.defects import PLANNER_RATES, defect_rates, escape_dict
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -127,7 +127,7 @@ def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
     return [[round(float(t.x[a, s]), 2), round(float(t.y[a, s]), 2)] for s in steps]
 
 
-def run_task(payload: dict[str, Any]) -> dict[str, Any]:
+def run_task(payload: dict[str, Any]) -> ResultRow:
     """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
     from coster_sumo.avoid import HORIZON_AFTER_TCOL_S
     from coster_sumo.defects import escape_replay, planner_outcome
@@ -305,6 +305,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                                                      "spec": task.payload["spec"], "generation": gen})
             _append_log(logs_dir / f"{task.key}.log", outcome)
             return []
+        row: Mapping[str, Any]
         if outcome.ok:
             row = {**outcome.value, "wall_time_s": round(outcome.wall_time_s, 3)}
         else:
