@@ -295,7 +295,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
     intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
     the same scenes (:func:`paired_diversity`)."""
     raw_v = raw_a = None
-    per_scene: dict[str, dict[str, tuple[list[float], list[float]]]] = {}  # method -> scene -> contacts
+    per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]] = {}  # method -> scene -> contacts
     by_type: dict[str, np.ndarray] = {}  # lane type -> nominal speed histogram of every scene
     good_scenes = []
     failed_scenes = []
@@ -350,8 +350,8 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
             "adversaries_by_lane_type": adversaries_by_lane_type(sample),
             **{f"{name}_ci": [values[name].ci_low, values[name].ci_high] for name in DIVERSITY},
         }
-        per_scene[m.name] = {p["scene_key"]: ([r["relative_speed"] for r in p["records"] if r["collision"]],
-                                              [r["impact_angle"] for r in p["records"] if r["collision"]])
+        per_scene[m.name] = {p["scene_key"]: ([o.relative_speed for o in sample.contacts if o.scene == p["scene_key"]],
+                                              [o.impact_angle for o in sample.contacts if o.scene == p["scene_key"]])
                              for p in ok}
     return {"table": table, "failed_scenes": failed_scenes, "paired": paired_diversity(per_scene)}
 
@@ -367,7 +367,7 @@ DIVERSITY: dict[str, tuple[Callable[[np.ndarray], float], int]] = {
 REFERENCE_METHOD = "COSTER"
 
 
-def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float], list[float]]]]) -> dict[str, Any]:
+def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]]) -> dict[str, Any]:
     """CSD and CPD of :data:`REFERENCE_METHOD` minus those of every other method, on the scenes both
     generated for, with 95 % intervals from resampling those scenes (:func:`scene_bootstrap`): is
     an ordering a property of the methods or of the scenes drawn? Empty without the reference."""
