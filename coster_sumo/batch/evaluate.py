@@ -400,10 +400,10 @@ def record_outcome(r: Mapping[str, Any], scene: str = "") -> RunOutcome:
         l0 - eps <= r["adversary_length"] <= l1 + eps and w0 - eps <= r["adversary_width"] <= w1 + eps
         for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values())
     return RunOutcome(scene=scene, adversary_contact=bool(r.get("collision")),
-                   adversary_off_road=bool(r.get("adversary_off_road")), relative_speed=r.get("relative_speed"),
-                   impact_angle=r.get("impact_angle"), avoidable=r.get("avoidable"), adversary_speed=speed,
-                   adversary_lane_type=r.get("adversary_lane_type"), adversary_size_in_class=in_class,
-                   snapshot=str(r["snapshot"]) if "snapshot" in r else None)
+                      adversary_off_road=bool(r.get("adversary_off_road")), relative_speed=r.get("relative_speed"),
+                      impact_angle=r.get("impact_angle"), avoidable=r.get("avoidable"), adversary_speed=speed,
+                      adversary_lane_type=r.get("adversary_lane_type"), adversary_size_in_class=in_class,
+                      snapshot=str(r["snapshot"]) if "snapshot" in r else None)
 
 
 def adversaries_by_lane_type(sample: MetricSample) -> dict[str, int]:
