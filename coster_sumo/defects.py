@@ -22,7 +22,7 @@ from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.geometry import box_signed_distance, make_boxes
-from coster_sumo.metrics import rate_with_ci
+from coster_sumo.metrics import MetricSample, RunOutcome, compute, rate_with_ci
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
@@ -229,29 +229,29 @@ def escape_replay(d: dict[str, Any], length_m: float) -> Any:
                          np.asarray(d["speed"], float), np.ones(len(times), bool), length_m)
 
 
-def defect_rates(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+# a planner's rates in a regression: key of summary.json -> the metric of coster_sumo.metrics.REGISTRY
+# (the target is under test: CR and ORR are the target's)
+PLANNER_RATES = {"RCR": "RCR", "CR": "CR_target", "ORR": "ORR_target"}
+
+
+def defect_rates(outcomes: Sequence[RunOutcome]) -> dict[str, Any]:
     """The defect rate (a contact of the target in an avoidable variant) beside the unavoidable-contact
-    rate, and every rate split by the label, of one planner's finished rows (``avoidable`` set).
+    rate, and :data:`PLANNER_RATES` split by the label, of one planner's finished runs, all from the
+    metrics' registry.
 
     A contact counts up to the label's horizon (:data:`~coster_sumo.avoid.HORIZON_AFTER_TCOL_S` after
     t_col): that is what an escape is proven for; what happens later (the pass goes on until the
     target arrives) stays in the plain collision rate.
     """
-
-    labelled = [r for r in rows if r.get("avoidable") is not None]
-    av = [r for r in labelled if r["avoidable"]]
-    un = [r for r in labelled if not r["avoidable"]]
-
-    def hit(r: dict[str, Any]) -> bool:
-        return bool(r["contact_in_horizon"] if r.get("contact_in_horizon") is not None else r["collision"])
-
-    return {"defect_rate": rate_with_ci([hit(r) for r in av]),
-            "unavoidable_contact_rate": rate_with_ci([hit(r) for r in un]),
-            "avoidable_runs": len(av), "unavoidable_runs": len(un), "unlabelled_runs": len(rows) - len(labelled),
-            "by_label": {name: {"CR": rate_with_ci([r["collision"] for r in part]),
-                                "RCR": rate_with_ci([r["route_completed"] for r in part]),
-                                "ORR": rate_with_ci([r["target_off_road"] for r in part])}
-                         for name, part in (("avoidable", av), ("unavoidable", un))}}
+    every = MetricSample(tuple(outcomes))
+    parts = {"avoidable": MetricSample(tuple(o for o in outcomes if o.avoidable is True)),
+             "unavoidable": MetricSample(tuple(o for o in outcomes if o.avoidable is False))}
+    av, un = len(parts["avoidable"].outcomes), len(parts["unavoidable"].outcomes)
+    return {"defect_rate": compute("defect_rate", every).rate_json(),
+            "unavoidable_contact_rate": compute("unavoidable_contact_rate", every).rate_json(),
+            "avoidable_runs": av, "unavoidable_runs": un, "unlabelled_runs": len(outcomes) - av - un,
+            "by_label": {name: {key: compute(PLANNER_RATES[key], part).rate_json() for key in ("CR", "RCR", "ORR")}
+                         for name, part in parts.items()}}
 
 
 def _pct(entry: dict[str, Any]) -> str:
@@ -298,12 +298,16 @@ def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     def shares(part: Sequence[dict[str, Any]]) -> dict[str, Any]:
         return {t: rate_with_ci([bool(r["avoidable_at"].get(t)) for r in part]) for t in times}
 
+    def collision_rate_of(avoidable: bool) -> dict[str, Any]:
+        """The registry's CR (the adversary touches the target) of the variants with this label."""
+        part = tuple(RunOutcome(adversary_contact=bool(r.get("collision"))) for r in recs
+                     if bool(r["avoidable"]) is avoidable)
+        return compute("CR", MetricSample(part)).rate_json()
+
     last = np.array([r["last_moment_s"] for r in recs if r.get("last_moment_s") is not None], float)
     found = {t: sum(bool(r["escape_found_at"].get(t)) for r in recs) for t in times}
     return {"variants": len(recs), "avoidable_share": shares(recs),
-            "CR_by_label": {"avoidable": rate_with_ci([bool(r.get("collision")) for r in recs if r["avoidable"]]),
-                            "unavoidable": rate_with_ci([bool(r.get("collision")) for r in recs
-                                                         if not r["avoidable"]])},
+            "CR_by_label": {"avoidable": collision_rate_of(True), "unavoidable": collision_rate_of(False)},
             "by_contact_kind": {k: {"variants": sum(r["contact_kind"] == k for r in recs),
                                     "avoidable_share": shares([r for r in recs if r["contact_kind"] == k])}
                                 for k in sorted({r["contact_kind"] for r in recs})},

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import shutil
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -35,8 +36,8 @@ from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.method.generation import PlannedScenario
-from coster_sumo.metrics import circular_range_deg
 from coster_sumo.plan import AdversaryPlan, sim_time_of
+from coster_sumo.results import VariantOutcome
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
@@ -277,7 +278,6 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         snapshots.append(_snapshot_record(k, p, mine, step))
     n = len(variants)
     snap0 = first.snapshot
-    all_angles = [a for s in snapshots for a in s["impact_angles_deg"]]
     summary = {
         "config": str(spec.config), "scenario_id": scene.scenario_id, "target": target_id,
         "planner": planner, "seed": spec.seed, "t_col": round(snap0.time, 3),
@@ -287,9 +287,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         "nominal_until_s": float(scene.timestamps[-1]),
         **({"nominal_cut_after_s": scene.meta["cut_after_s"]} if scene.meta.get("cut_after_s") else {}),
         "num_snapshots": len(snapshots), "num_variants": n,
-        "collision_rate": metrics.collision_rate([v["collision"] for v in variants]) if n else None,
-        "off_road_rate": metrics.off_road_rate([v["adversary_off_road"] for v in variants]) if n else None,
-        "impact_angle_spread_deg": circular_range_deg(all_angles) if all_angles else None,
+        **run_metrics(variants),
         "target_motion": target_motion(scene, target),
         "variants": variants, "snapshots": snapshots, "generation": first.info,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
@@ -298,6 +296,16 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         **({"target_choice": options["target_choice"]} if options.get("target_choice") else {}),
     }
     return summary
+
+
+# summary.json's figures over a run's variants: key -> the metric of coster_sumo.metrics.REGISTRY
+RUN_METRICS = {"collision_rate": "CR", "off_road_rate": "ORR", "impact_angle_spread_deg": "impact_angle_spread"}
+
+
+def run_metrics(variants: Sequence[Mapping[str, Any]]) -> dict[str, float | None]:
+    """:data:`RUN_METRICS` of a run's variant records, from the registry (None without variants)."""
+    sample = metrics.MetricSample(tuple(VariantOutcome.from_json(v).run_outcome() for v in variants))
+    return {key: metrics.compute(name, sample).value for key, name in RUN_METRICS.items()}
 
 
 def _write_variant(out: Path, i: int, k: int, plan: AdversaryPlan, res: InjectionResult, spec: ScenarioSpec,

@@ -14,7 +14,7 @@ from __future__ import annotations
 import html
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -127,7 +127,7 @@ def plot_rates(path: Path, summary: dict[str, Any]) -> Path:
     return path
 
 
-def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[dict[str, Any]],
+def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[Mapping[str, Any]],
                   planners: Sequence[str]) -> tuple[Path, Path]:
     """Impact-angle histogram (polar) and relative-speed histogram of first contacts, per planner."""
     plt = _plt()
@@ -163,22 +163,22 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[dict[str,
     return angles_path, speeds_path
 
 
-def failure_examples(rows: Sequence[dict[str, Any]], planners: Sequence[str],
-                     per_planner: int = EXAMPLES_PER_PLANNER) -> dict[str, list[dict[str, Any]]]:
+def failure_examples(rows: Sequence[Mapping[str, Any]], planners: Sequence[str],
+                     per_planner: int = EXAMPLES_PER_PLANNER) -> dict[str, list[Mapping[str, Any]]]:
     """Per planner, up to ``per_planner`` finished runs that failed the test: collision first, then
     off-road, then route not completed (stable order by run key)."""
-    out: dict[str, list[dict[str, Any]]] = {}
+    out: dict[str, list[Mapping[str, Any]]] = {}
     for p in planners:
         mine = sorted((r for r in rows if r["planner"] == p and r["status"] == "ok"), key=lambda r: r["run_key"])
 
-        def rank(r: dict[str, Any]) -> int:
+        def rank(r: Mapping[str, Any]) -> int:
             return 0 if r["collision"] else 1 if r["target_off_road"] else 2 if not r["route_completed"] else 3
 
         out[p] = [r for r in sorted(mine, key=rank) if rank(r) < 3][:per_planner]
     return out
 
 
-def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, Any]) -> Path | None:
+def render_example(path: Path, out: Path, row: Mapping[str, Any], cache: dict[str, Any]) -> Path | None:
     """The scene at t_col, the target's nominal (dashed) and driven path, the adversary's plan and contact."""
     from coster_sumo import viz
     from coster_sumo.formats.scene_file import load_scene
@@ -232,12 +232,12 @@ def render_example(path: Path, out: Path, row: dict[str, Any], cache: dict[str, 
     return path
 
 
-def _render_examples(out: Path, examples: dict[str, list[dict[str, Any]]]
-                     ) -> dict[str, list[tuple[dict[str, Any], str]]]:
+def _render_examples(out: Path, examples: Mapping[str, Sequence[Mapping[str, Any]]]
+                     ) -> dict[str, list[tuple[Mapping[str, Any], str]]]:
     """Each planner's failure examples drawn into ``out/examples/``: per planner, (row, picture path
     relative to ``out``, or "(render failed: ...)")."""
     cache: dict[str, Any] = {}
-    ex_files: dict[str, list[tuple[dict[str, Any], str]]] = {}
+    ex_files: dict[str, list[tuple[Mapping[str, Any], str]]] = {}
     for p, chosen in examples.items():
         for r in chosen:
             rel = f"examples/{r['run_key']}.png"
@@ -249,14 +249,14 @@ def _render_examples(out: Path, examples: dict[str, list[dict[str, Any]]]
     return ex_files
 
 
-def _example_caption(r: dict[str, Any]) -> str:
+def _example_caption(r: Mapping[str, Any]) -> str:
     """What went wrong in a failure example's run, in words."""
     return (("collision" if r["collision"] else "off-road" if r["target_off_road"] else "route not completed")
             + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else "")
             + (f"; {r['outcome']}" if r.get("outcome") else ""))
 
 
-def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[dict[str, Any]]) -> list[str]:
+def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[Mapping[str, Any]]) -> list[str]:
     """report.md, report.html, plots/ and examples/ in ``out``; returns the written paths (relative)."""
     out = Path(out)
     planners = list(summary["planners"])

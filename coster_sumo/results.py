@@ -16,6 +16,7 @@ from typing import Any
 
 from coster_sumo.atomic import json_default
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.metrics import RunOutcome
 
 
 def plain_json(obj: Any) -> Any:
@@ -86,6 +87,12 @@ class VariantOutcome:
         known, extra = _split(cls, d)
         known["other_collisions_list"] = tuple(known.get("other_collisions_list", ()))
         return cls(**known, extra=extra)
+
+    def run_outcome(self) -> RunOutcome:
+        """The variant as the metrics read it (:data:`coster_sumo.metrics.REGISTRY`)."""
+        return RunOutcome(adversary_contact=self.collision, adversary_off_road=self.adversary_off_road,
+                          target_off_road=self.target_off_road, route_completed=self.route_completed,
+                          relative_speed=self.relative_speed, impact_angle=self.impact_angle, min_ttc=self.min_ttc)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import pytest
 from coster_sumo.batch.executor import Outcome, Task, execute, probe_task
 from coster_sumo.batch.regress import run_key
 from coster_sumo.batch.sources import parse_sources, scene_key
-from coster_sumo.batch.store import ResultStore
+from coster_sumo.batch.store import RESULT_FIELDS, ResultRow, ResultStore, result_row
 from coster_sumo.errors import InputError
 from coster_sumo.metrics import rate_with_ci, wilson_interval
 from coster_sumo.spec import ScenarioSpec as SceneSpec
@@ -190,11 +190,19 @@ def test_result_store_writes_atomically_and_reads_as_a_dataset(tmp_path):
     assert len(store.read()) == 3
 
 
+def test_a_result_row_has_the_stored_fields_in_their_order():
+    from typing import get_type_hints
+
+    assert list(get_type_hints(ResultRow)) == list(RESULT_FIELDS)
+    row = result_row({"run_key": "k", "scene_key": "s", "variant": "2", "planner": "replay"}, status="ok")
+    assert list(row) == list(RESULT_FIELDS) and row["variant"] == 2 and row["collision"] is None
+
+
 RESUMABLE_BATCH = textwrap.dedent("""
     import sys
     from pathlib import Path
     from coster_sumo.batch.executor import Task, execute, probe_task
-    from coster_sumo.batch.store import ResultStore
+    from coster_sumo.batch.store import RESULT_FIELDS, ResultRow, ResultStore, result_row
     store = ResultStore(Path(sys.argv[1]))
     done = store.keys()
     tasks = [Task(f"run{i:02d}", probe_task, {"name": i, "sleep": 1.0}) for i in range(12) if f"run{i:02d}" not in done]

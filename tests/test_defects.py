@@ -11,14 +11,15 @@ import pytest
 from coster_sumo.batch.store import ResultStore
 from coster_sumo.cli import main
 from coster_sumo.defects import defect_rates, label_line
+from coster_sumo.metrics import RunOutcome
 
 REPO = Path(__file__).resolve().parents[1]
 NETWORKS = [REPO / "networks" / n / f"{n}.sumocfg" for n in ("intersection", "merge")]
 
 
-def _row(avoidable: bool | None, collision: bool, in_horizon: bool | None = None) -> dict:
-    return {"avoidable": avoidable, "collision": collision, "contact_in_horizon": in_horizon,
-            "route_completed": not collision, "target_off_road": False}
+def _row(avoidable: bool | None, collision: bool, in_horizon: bool | None = None) -> RunOutcome:
+    return RunOutcome(avoidable=avoidable, target_collision=collision, contact_in_horizon=in_horizon,
+                      route_completed=not collision)
 
 
 def test_defect_rate_counts_contacts_in_avoidable_variants_only():
@@ -29,6 +30,7 @@ def test_defect_rate_counts_contacts_in_avoidable_variants_only():
     assert (d["unavoidable_contact_rate"]["k"], d["unavoidable_contact_rate"]["n"]) == (2, 2)
     assert d["unlabelled_runs"] == 1
     assert 0.0 <= d["defect_rate"]["ci_low"] < 1 / 3 < d["defect_rate"]["ci_high"] <= 1.0
+    assert d["by_label"]["unavoidable"]["CR"]["k"] == 2 and d["by_label"]["avoidable"]["RCR"]["k"] == 1
 
 
 def test_label_line_says_why():

@@ -8,11 +8,10 @@ scene sources as ``regress``); each variant is injected with the one injection p
 from __future__ import annotations
 
 import dataclasses
-import math
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,11 +35,12 @@ from coster_sumo.batch.store import read_json
 from coster_sumo.errors import InputError
 from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
+    MetricSample,
+    RunOutcome,
     circular_std_deg,
     collision_position_diversity,
     collision_speed_diversity,
-    js_divergence,
-    rate_with_ci,
+    compute,
     scene_bootstrap,
 )
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
@@ -295,7 +295,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
     intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
     the same scenes (:func:`paired_diversity`)."""
     raw_v = raw_a = None
-    per_scene: dict[str, dict[str, tuple[list[float], list[float]]]] = {}  # method -> scene -> contacts
+    per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]] = {}  # method -> scene -> contacts
     by_type: dict[str, np.ndarray] = {}  # lane type -> nominal speed histogram of every scene
     good_scenes = []
     failed_scenes = []
@@ -322,58 +322,52 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if parts and len(skip) == len(parts):
             table[m.name] = {**entry, "status": "skipped", "reason": skip[0]["reason"]}
             continue
+        ok = [p for p in parts if p.get("status") == "ok"]
         # a scene's variants share a snapshot: name it, so the VDD at t_col floor counts it once
-        records = [{**r, "snapshot": f"{p['scene_key']}@{r.get('t_col')}"} for p in parts if p.get("status") == "ok"
-                   for r in p["records"]]
-        n_scenes = len(good_scenes)
-        successes = sum(True for p in parts if p.get("status") == "ok" and any(r["collision"] for r in p["records"]))
-        gen_v = np.sum([p["speed_hist"] for p in parts if p.get("status") == "ok"], axis=0) if records else None
-        gen_a = np.sum([p["accel_hist"] for p in parts if p.get("status") == "ok"], axis=0) if records else None
-        rel = [r["relative_speed"] for r in records if r["collision"]]
-        ang = [r["impact_angle"] for r in records if r["collision"]]
-        gen_time = [p["generation_s"] / max(1, len(p["records"])) for p in parts
-                    if p.get("status") == "ok" and p["records"]]
-        cr = rate_with_ci([r["collision"] for r in records])
-        orr = rate_with_ci([r["adversary_off_road"] for r in records])
-        sur = rate_with_ci([True] * successes + [False] * (n_scenes - successes))
-
-        def f(x: float | None) -> float | None:
-            return None if x is None or not math.isfinite(x) else float(x)
-
+        keyed = [(p["scene_key"], {**r, "snapshot": f"{p['scene_key']}@{r.get('t_col')}"})
+                 for p in ok for r in p["records"]]
+        records = [r for _, r in keyed]
+        sample = MetricSample(
+            tuple(record_outcome(r, key) for key, r in keyed),
+            scenes=tuple(good_scenes), nominal_speed_hist=raw_v, nominal_accel_hist=raw_a,
+            generated_speed_hist=np.sum([p["speed_hist"] for p in ok], axis=0) if records else None,
+            generated_accel_hist=np.sum([p["accel_hist"] for p in ok], axis=0) if records else None,
+            nominal_speed_hist_by_lane_type=by_type)
+        values = {name: compute(name, sample) for name in GENERATOR_METRICS}
+        gen_time = [p["generation_s"] / max(1, len(p["records"])) for p in ok if p["records"]]
         table[m.name] = {
-            **entry, "status": "ok", "scenes": n_scenes, "variants": len(records),
+            **entry, "status": "ok", "scenes": len(good_scenes), "variants": len(records),
             "failed_tasks": [{"scene_key": p["scene_key"], "reason": p.get("reason")} for p in parts
                              if p.get("status") == "failed"],
-            "SUR": sur["rate"], "CR": cr["rate"], "ORR": orr["rate"],
-            "SUR_ci": [sur["ci_low"], sur["ci_high"]], "CR_ci": [cr["ci_low"], cr["ci_high"]],
-            "ORR_ci": [orr["ci_low"], orr["ci_high"]],
-            "VDD": f(js_divergence(raw_v, gen_v)) if gen_v is not None and raw_v is not None else None,
-            "ADD": f(js_divergence(raw_a, gen_a)) if gen_a is not None and raw_a is not None else None,
-            "CSD": f(collision_speed_diversity(rel)) if rel else None,
-            "CPD": f(collision_position_diversity(ang)) if ang else None,
-            "CPD_circular": f(circular_std_deg(ang)) if ang else None,
+            **{name: values[name].value for name in ("SUR", "CR", "ORR")},
+            **{f"{name}_ci": [values[name].ci_low, values[name].ci_high] for name in ("SUR", "CR", "ORR")},
+            **{name: values[name].value for name in ("VDD", "ADD", *DIVERSITY)},
             "generation_s_per_variant": float(np.mean(gen_time)) if gen_time else None,
             "avoidability": avoidability_summary(records),
-            "relative_speeds": rel, "impact_angles": ang,
-            **snapshot_state_metrics(records, by_type),
+            "relative_speeds": [o.relative_speed for o in sample.contacts],
+            "impact_angles": [o.impact_angle for o in sample.contacts],
+            **{name: values[name].value for name in ("VDD_tcol", "VDD_tcol_floor", "size_in_class")},
+            "adversaries_by_lane_type": adversaries_by_lane_type(sample),
+            **{f"{name}_ci": [values[name].ci_low, values[name].ci_high] for name in DIVERSITY},
         }
-        per_scene[m.name] = {p["scene_key"]: ([r["relative_speed"] for r in p["records"] if r["collision"]],
-                                              [r["impact_angle"] for r in p["records"] if r["collision"]])
-                             for p in parts if p.get("status") == "ok"}
-        for col, (fn, which) in DIVERSITY.items():
-            values = [np.asarray(per_scene[m.name].get(k, ([], []))[which], float) for k in good_scenes]
-            table[m.name][f"{col}_ci"] = list(scene_bootstrap(fn, values)[1:])
+        per_scene[m.name] = {p["scene_key"]: ([o.relative_speed for o in sample.contacts if o.scene == p["scene_key"]],
+                                              [o.impact_angle for o in sample.contacts if o.scene == p["scene_key"]])
+                             for p in ok}
     return {"table": table, "failed_scenes": failed_scenes, "paired": paired_diversity(per_scene)}
 
 
+# eval scenarios' figures per method: the metrics of coster_sumo.metrics.REGISTRY by name
+GENERATOR_METRICS = ("SUR", "CR", "ORR", "VDD", "ADD", "CSD", "CPD", "CPD_circular", "VDD_tcol", "VDD_tcol_floor",
+                     "size_in_class")
 # the diversity metrics and what they read of a scene's contacts: 0 relative speeds, 1 impact angles
+# (for the paired differences, which compare two methods on the same scenes)
 DIVERSITY: dict[str, tuple[Callable[[np.ndarray], float], int]] = {
     "CSD": (collision_speed_diversity, 0), "CPD": (collision_position_diversity, 1),
     "CPD_circular": (circular_std_deg, 1)}
 REFERENCE_METHOD = "COSTER"
 
 
-def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float], list[float]]]]) -> dict[str, Any]:
+def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]]) -> dict[str, Any]:
     """CSD and CPD of :data:`REFERENCE_METHOD` minus those of every other method, on the scenes both
     generated for, with 95 % intervals from resampling those scenes (:func:`scene_bootstrap`): is
     an ordering a property of the methods or of the scenes drawn? Empty without the reference."""
@@ -394,58 +388,50 @@ def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float], list[floa
     return out
 
 
-FLOOR_DRAWS = 200  # draws from the nominal traffic behind ``VDD_tcol_floor``
+def record_outcome(r: Mapping[str, Any], scene: str = "") -> RunOutcome:
+    """A variant's record of :func:`method_task` (``snapshot`` added by the aggregation) as the
+    metrics read it; the adversary's size is checked against the corpus's vehicle classes
+    (:data:`~coster_sumo.method.plausible.VEHICLE_CLASSES`) here."""
+    from coster_sumo.method.plausible import VEHICLE_CLASSES
+
+    eps = 1e-6
+    speed = r.get("adversary_speed")
+    in_class = speed is not None and any(
+        l0 - eps <= r["adversary_length"] <= l1 + eps and w0 - eps <= r["adversary_width"] <= w1 + eps
+        for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values())
+    return RunOutcome(scene=scene, adversary_contact=bool(r.get("collision")),
+                      adversary_off_road=bool(r.get("adversary_off_road")), relative_speed=r.get("relative_speed"),
+                      impact_angle=r.get("impact_angle"), avoidable=r.get("avoidable"), adversary_speed=speed,
+                      adversary_lane_type=r.get("adversary_lane_type"), adversary_size_in_class=in_class,
+                      snapshot=str(r["snapshot"]) if "snapshot" in r else None)
 
 
-def snapshot_state_metrics(records: Sequence[dict[str, Any]], nominal_by_type: dict[str, np.ndarray]
+def adversaries_by_lane_type(sample: MetricSample) -> dict[str, int]:
+    """How many adversaries (with a recorded state at t_col) stood on each lane type."""
+    return dict(Counter(str(o.adversary_lane_type) for o in sample.outcomes if o.adversary_speed is not None))
+
+
+def snapshot_state_metrics(records: Sequence[Mapping[str, Any]], nominal_by_type: Mapping[str, np.ndarray]
                            ) -> dict[str, Any]:
-    """The adversaries' states at t_col against the nominal traffic (None where not recorded).
+    """The adversaries' states at t_col against the nominal traffic (None where not recorded), from
+    the registry of :mod:`coster_sumo.metrics` (docs/method.md, Step 7).
 
     ``VDD_tcol``: per lane type, the Jensen-Shannon divergence between the histograms of the
     adversaries' speeds at t_col on that type and the nominal speeds on it (an adversary on a
     freeway lane is compared with freeway traffic), averaged weighted by the adversaries on each.
     ``VDD_tcol_floor``: the same divergence for a generator that draws its speeds from the nominal
-    traffic itself, with as many adversaries on each lane type (mean of :data:`FLOOR_DRAWS` seeded
-    draws): a histogram of a few dozen values over 100 bins is never near a smooth one, so this is
-    the lowest ``VDD_tcol`` the sample size allows. Records with the same ``snapshot`` key (the
-    variants of one scene share their snapshot) count as one draw repeated as often; a record
-    without the key is a draw of its own.
+    traffic itself, with as many adversaries on each lane type (mean of
+    :data:`~coster_sumo.metrics.FLOOR_DRAWS` seeded draws): a histogram of a few dozen values over
+    100 bins is never near a smooth one, so this is the lowest ``VDD_tcol`` the sample size allows.
+    Records with the same ``snapshot`` key (the variants of one scene share their snapshot) count as
+    one draw repeated as often; a record without the key is a draw of its own.
     ``size_in_class``: share of adversaries whose length and width both lie in the range of one
-    vehicle class of the corpus (:data:`~coster_sumo.method.plausible.VEHICLE_CLASSES`).
+    vehicle class of the corpus.
     """
-    from coster_sumo.method.plausible import VEHICLE_CLASSES
-    from coster_sumo.metrics import SPEED_BINS, js_divergence
-
-    rows = [r for r in records if r.get("adversary_speed") is not None]
-    out: dict[str, Any] = {"VDD_tcol": None, "VDD_tcol_floor": None, "size_in_class": None,
-                           "adversaries_by_lane_type": {}}
-    if not rows:
-        return out
-    counts: dict[str, int] = {}
-    for r in rows:
-        counts[r["adversary_lane_type"]] = counts.get(r["adversary_lane_type"], 0) + 1
-    out["adversaries_by_lane_type"] = counts
-    divergence, floor, weight = 0.0, 0.0, 0
-    rng = np.random.default_rng(0)
-    for kind, n in counts.items():
-        nominal = np.asarray(nominal_by_type.get(kind, ()), np.float64)
-        if nominal.sum() > 0:
-            on_kind = [(i, r) for i, r in enumerate(rows) if r["adversary_lane_type"] == kind]
-            speeds = np.clip([r["adversary_speed"] for _, r in on_kind], 0, 50)
-            divergence += n * float(js_divergence(nominal, np.histogram(speeds, bins=SPEED_BINS)[0]))
-            repeats = np.array(list(Counter(str(r.get("snapshot", f"#{i}")) for i, r in on_kind).values()))
-            drawn = rng.choice(len(nominal), size=(FLOOR_DRAWS, len(repeats)), p=nominal / nominal.sum())
-            floor += n * float(np.mean([js_divergence(nominal, np.bincount(d, weights=repeats, minlength=len(nominal)))
-                                        for d in drawn]))
-            weight += n
-    if weight:
-        out["VDD_tcol"] = divergence / weight
-        out["VDD_tcol_floor"] = floor / weight
-    eps = 1e-6
-    inside = [any(l0 - eps <= r["adversary_length"] <= l1 + eps and w0 - eps <= r["adversary_width"] <= w1 + eps
-                  for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values()) for r in rows]
-    out["size_in_class"] = float(np.mean(inside))
-    return out
+    sample = MetricSample(tuple(record_outcome(r) for r in records),
+                          nominal_speed_hist_by_lane_type=dict(nominal_by_type))
+    return {**{name: compute(name, sample).value for name in ("VDD_tcol", "VDD_tcol_floor", "size_in_class")},
+            "adversaries_by_lane_type": adversaries_by_lane_type(sample)}
 
 
 def avoidability_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import dataclasses
 import json
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,12 +34,12 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import ResultStore, read_json, result_row
-from coster_sumo.defects import defect_rates, escape_dict
+from coster_sumo.batch.store import ResultRow, ResultStore, read_json, result_row, row_outcome
+from coster_sumo.defects import PLANNER_RATES, defect_rates, escape_dict
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.generation import Variant, check_generation
-from coster_sumo.metrics import rate_with_ci
+from coster_sumo.metrics import MetricSample, compute
 from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
@@ -127,7 +127,7 @@ def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
     return [[round(float(t.x[a, s]), 2), round(float(t.y[a, s]), 2)] for s in steps]
 
 
-def run_task(payload: dict[str, Any]) -> dict[str, Any]:
+def run_task(payload: dict[str, Any]) -> ResultRow:
     """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
     from coster_sumo.avoid import HORIZON_AFTER_TCOL_S
     from coster_sumo.defects import escape_replay, planner_outcome
@@ -305,6 +305,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                                                      "spec": task.payload["spec"], "generation": gen})
             _append_log(logs_dir / f"{task.key}.log", outcome)
             return []
+        row: Mapping[str, Any]
         if outcome.ok:
             row = {**outcome.value, "wall_time_s": round(outcome.wall_time_s, 3)}
         else:
@@ -358,6 +359,11 @@ def _append_log(path: Path, outcome: Outcome) -> None:
             fh.write("\n--- batch: task failed ---\n" + outcome.detail)
 
 
+# a planner's figures in summary.json: key -> the metric of coster_sumo.metrics.REGISTRY
+REGRESS_RATES = {**PLANNER_RATES, "adversary_contact_rate": "CR"}
+REGRESS_FIGURES = {"median_min_ttc_s": "median_min_ttc", "mean_relative_speed_mps": "mean_relative_speed"}
+
+
 def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Sequence[str]) -> dict[str, Any]:
     """summary.json content of a regression over ``keys`` x ``planners`` (rows already in OUT/results)."""
     plans_dir = out / "plans"
@@ -374,17 +380,12 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
     per_planner: dict[str, Any] = {}
     for p in planners:
         mine = [r for r in rows if r["planner"] == p]
-        ok = [r for r in mine if r["status"] == "ok"]
-        ttc = [r["min_ttc"] for r in ok if r["min_ttc"] is not None and not r["adversary_contact"]]
-        rel = [r["relative_speed"] for r in ok if r["relative_speed"] is not None]
+        ok = [row_outcome(r) for r in mine if r["status"] == "ok"]
+        sample = MetricSample(tuple(ok))
         per_planner[p] = {
             "runs": len(mine), "failed": len(mine) - len(ok),
-            "RCR": rate_with_ci([r["route_completed"] for r in ok]),
-            "CR": rate_with_ci([r["collision"] for r in ok]),
-            "ORR": rate_with_ci([r["target_off_road"] for r in ok]),
-            "adversary_contact_rate": rate_with_ci([r["adversary_contact"] for r in ok]),
-            "median_min_ttc_s": float(np.median(ttc)) if ttc else None,
-            "mean_relative_speed_mps": float(np.mean(rel)) if rel else None,
+            **{key: compute(name, sample).rate_json() for key, name in REGRESS_RATES.items()},
+            **{key: compute(name, sample).value for key, name in REGRESS_FIGURES.items()},
             "defects": defect_rates(ok),
         }
     failures = [{"run_key": r["run_key"], "reason": r["reason"]} for r in rows if r["status"] != "ok"]

@@ -1,6 +1,7 @@
 """Results of a batch: one Parquet part file per run (written atomically).
 
-The rates with their intervals are :func:`coster_sumo.metrics.rate_with_ci`.
+The figures of a batch come from the rows through :func:`row_outcome` and the registry of
+:mod:`coster_sumo.metrics`.
 """
 
 from __future__ import annotations
@@ -8,10 +9,12 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, cast
 
 from coster_sumo.atomic import atomic_path
+from coster_sumo.metrics import RunOutcome
 
 RESULT_FIELDS: dict[str, str] = {
     # name: pyarrow type name; see the README "regress" section for meanings and units
@@ -26,12 +29,60 @@ RESULT_FIELDS: dict[str, str] = {
 }
 
 
-def result_row(payload: dict[str, Any], **values: Any) -> dict[str, Any]:
+class ResultRow(TypedDict):
+    """One run of a batch (one planner on one variant of one scene): a row of ``OUT/results/``, with
+    the fields of :data:`RESULT_FIELDS` in their order (None: not recorded, e.g. a failed run's
+    outcome). Units: s, m/s, deg; ``target_path`` is JSON ([[x, y], ...] in m)."""
+
+    run_key: str
+    scene_key: str
+    config: str | None
+    seed: int | None
+    variant: int
+    planner: str
+    status: str
+    reason: str | None
+    collision: bool | None
+    adversary_contact: bool | None
+    target_other_collision: bool | None
+    target_off_road: bool | None
+    adversary_off_road: bool | None
+    route_completed: bool | None
+    target_arrived: bool | None
+    min_ttc: float | None
+    contact_time: float | None
+    contact_offset_s: float | None
+    relative_speed: float | None
+    impact_angle: float | None
+    sumo_reported_contact: bool | None
+    t_col: float | None
+    sim_wall_time_s: float | None
+    wall_time_s: float | None
+    target_path: str | None
+    finished_at: str | None
+    avoidable: bool | None
+    contact_kind: str | None
+    outcome: str | None
+    contact_in_horizon: bool | None
+
+
+def result_row(payload: Mapping[str, Any], **values: Any) -> ResultRow:
+    """The row of the run ``payload`` names (its keys, scene, variant, planner) with ``values``;
+    every other field None."""
     row: dict[str, Any] = dict.fromkeys(RESULT_FIELDS)
     row.update({"run_key": payload["run_key"], "scene_key": payload["scene_key"], "config": payload.get("config"),
                 "seed": payload.get("seed"), "variant": int(payload["variant"]), "planner": payload["planner"]})
     row.update(values)
-    return row
+    return cast(ResultRow, row)
+
+
+def row_outcome(row: ResultRow) -> RunOutcome:
+    """A finished run's row as the metrics read it (:class:`~coster_sumo.metrics.RunOutcome`)."""
+    return RunOutcome(scene=row["scene_key"], adversary_contact=bool(row["adversary_contact"]),
+                      target_collision=bool(row["collision"]), adversary_off_road=bool(row["adversary_off_road"]),
+                      target_off_road=bool(row["target_off_road"]), route_completed=bool(row["route_completed"]),
+                      relative_speed=row["relative_speed"], impact_angle=row["impact_angle"], min_ttc=row["min_ttc"],
+                      avoidable=row["avoidable"], contact_in_horizon=row["contact_in_horizon"])
 
 
 def result_schema() -> Any:
@@ -54,17 +105,17 @@ class ResultStore:
     def path(self, run_key: str) -> Path:
         return self.folder / f"{run_key}.parquet"
 
-    def write(self, row: dict[str, Any]) -> Path:
+    def write(self, row: Mapping[str, Any]) -> Path:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        row = {**dict.fromkeys(RESULT_FIELDS), **row,
-               "finished_at": row.get("finished_at") or time.strftime("%Y-%m-%dT%H:%M:%S")}
+        full: dict[str, Any] = {**dict.fromkeys(RESULT_FIELDS), **row,
+                                "finished_at": row.get("finished_at") or time.strftime("%Y-%m-%dT%H:%M:%S")}
         for k in ("min_ttc", "contact_time", "contact_offset_s", "relative_speed", "impact_angle"):
-            if isinstance(row[k], float) and not math.isfinite(row[k]):
-                row[k] = None
-        table = pa.Table.from_pylist([row], schema=result_schema())
-        final = self.path(row["run_key"])
+            if isinstance(full[k], float) and not math.isfinite(full[k]):
+                full[k] = None
+        table = pa.Table.from_pylist([full], schema=result_schema())
+        final = self.path(full["run_key"])
         with atomic_path(final) as tmp:  # hidden while written: readers skip names starting with "."
             pq.write_table(table, tmp)
         return final
@@ -72,12 +123,13 @@ class ResultStore:
     def keys(self) -> set[str]:
         return {p.stem for p in self.folder.glob("*.parquet") if not p.name.startswith(".")}
 
-    def read(self) -> list[dict[str, Any]]:
+    def read(self) -> list[ResultRow]:
         import pyarrow.dataset as ds
 
         if not self.keys():
             return []
-        return ds.dataset(self.folder, format="parquet", schema=result_schema()).to_table().to_pylist()
+        rows = ds.dataset(self.folder, format="parquet", schema=result_schema()).to_table().to_pylist()
+        return cast(list[ResultRow], rows)
 
 
 def read_json(path: Path) -> dict[str, Any] | None:
