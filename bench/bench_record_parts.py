@@ -9,9 +9,7 @@ child process:
 - ``libsumo``: libsumo started with the same options, ``simulationStep()`` in a bare loop;
 - ``record``: the nominal pass of ``coster-sumo run`` (:func:`coster_sumo.scenario.nominal_scene`:
   the target every step, its surroundings at 2 Hz, the signals, the arrays), no held copies;
-- ``record+hold``: the same with the held copies a run makes (:class:`coster_sumo.sim.hold.HeldStates`);
-- ``record+hold, rolling``: the same with the rolling holders made from the first step, as before
-  the pass knew the target's departure from the demand (``HeldStates.expect_departure`` off).
+- ``record+hold``: the same with the held copies a run makes (:class:`coster_sumo.sim.hold.HeldStates`).
 
 Each child's wall and CPU time (user + system, of it and the processes it forked) are printed, then
 the median of each part and its ratio to the ``sumo`` binary. Times include starting the simulation
@@ -56,13 +54,11 @@ spec = ScenarioSpec(cfg, seed=0, end=end, target=target)
 if mode == "record":
     nominal_scene(spec)
 else:
-    if mode == "rolling":
-        HeldStates.expect_departure = lambda self, earliest_s: None
     with HeldStates(target, lead_s=HORIZON_STEPS / PRIOR_RATE_HZ) as held:
         nominal_scene(spec, hold=held)
 """
 
-PARTS = ("sumo", "libsumo", "record", "record+hold", "record+hold, rolling")
+PARTS = ("sumo", "libsumo", "record", "record+hold")
 
 
 def timed(cmd: list[str]) -> tuple[float, float]:
@@ -84,7 +80,6 @@ def commands(cfg: Path, target: str, end: float) -> dict[str, list[str]]:
         "libsumo": [py, "-c", _BARE, str(cfg), f"{end:g}", *_OPTIONS],
         "record": [py, "-c", _RECORD, str(cfg), target, f"{end:g}", "record"],
         "record+hold": [py, "-c", _RECORD, str(cfg), target, f"{end:g}", "hold"],
-        "record+hold, rolling": [py, "-c", _RECORD, str(cfg), target, f"{end:g}", "rolling"],
     }
 
 
@@ -102,13 +97,13 @@ def main() -> None:
         for part in args.parts:
             wall, cpu = timed(cmds[part])
             times[part].append((wall, cpu))
-            print(f"round {r + 1} {part:22s} wall {wall:7.1f} s  cpu {cpu:7.1f} s", flush=True)
+            print(f"round {r + 1} {part:12s} wall {wall:7.1f} s  cpu {cpu:7.1f} s", flush=True)
     ref = times.get("sumo")
     print(f"\nmedians over {args.repeats} rounds, {args.config.name} to {args.end:g} s"
           + (" (ratio: to the sumo binary)" if ref else ""))
     for part, ts in times.items():
         wall, cpu = statistics.median(w for w, _ in ts), statistics.median(c for _, c in ts)
-        line = f"{part:22s} wall {wall:7.1f} s  cpu {cpu:7.1f} s"
+        line = f"{part:12s} wall {wall:7.1f} s  cpu {cpu:7.1f} s"
         if ref:
             line += (f"   ratio wall {wall / statistics.median(w for w, _ in ref):.2f}"
                      f"  cpu {cpu / statistics.median(c for _, c in ref):.2f}")

@@ -190,7 +190,6 @@ class DemandIds:
     vehicles: tuple[str, ...]
     flows: tuple[str, ...]
     classes: dict[str, str] = field(default_factory=dict)  # vehicle or flow id -> its vType's vClass
-    departs: dict[str, float] = field(default_factory=dict)  # vehicle or flow id -> its (first) departure [s]
 
     def vclass(self, vehicle_id: str) -> str | None:
         """The vehicle class of ``vehicle_id`` (a flow member's is its flow's); None if not in the demand."""
@@ -200,13 +199,6 @@ class DemandIds:
     @cached_property
     def _sets(self) -> tuple[frozenset[str], frozenset[str]]:
         return frozenset(self.vehicles), frozenset(self.flows)
-
-    def earliest_depart(self, vehicle_id: str) -> float | None:
-        """[s] the earliest time ``vehicle_id`` can enter the network (SUMO inserts a vehicle at its
-        ``depart`` or later, a flow's vehicles from the flow's ``begin``); None: not known beforehand
-        (not in the demand, or a departure that is not a time, such as ``triggered``)."""
-        src = self._source(vehicle_id)
-        return None if src is None else self.departs.get(src)
 
     def _source(self, vehicle_id: str) -> str | None:
         """The vehicle or flow id that inserts ``vehicle_id``, None if none."""
@@ -240,7 +232,6 @@ def config_demand(config: str | Path) -> DemandIds | None:
     vehicles: list[str] = []
     flows: list[str] = []
     types: dict[str, str] = {}  # vehicle or flow id -> its type id
-    departs: dict[str, float] = {}  # vehicle or flow id -> its (first) departure [s]
     vtypes: dict[str, str] = {}  # type id -> vClass
     for path in [*cfg.route_files, *cfg.additional_files]:
         try:
@@ -252,9 +243,6 @@ def config_demand(config: str | Path) -> DemandIds | None:
                         return None
                     if vid and tag in ("vehicle", "trip", "flow"):
                         (flows if tag == "flow" else vehicles).append(vid)
-                        dep = _depart(el.get("begin", "0") if tag == "flow" else el.get("depart"), f"{path}: {vid}")
-                        if dep is not None:
-                            departs[vid] = dep
                         if el.get("type"):
                             types[vid] = str(el.get("type"))
                     elif vid and tag == "vType":
@@ -263,7 +251,7 @@ def config_demand(config: str | Path) -> DemandIds | None:
         except Exception:  # noqa: BLE001 - any reading problem: leave the answer to the simulation
             return None
     classes = {v: vtypes.get(t, "passenger") for v, t in types.items()}
-    return DemandIds(tuple(vehicles), tuple(flows), classes, departs)
+    return DemandIds(tuple(vehicles), tuple(flows), classes)
 
 
 def _in_window(depart: float, duration: float, begin: float, end: float) -> float:

@@ -147,28 +147,6 @@ def test_rolling_holders_before_the_target_departs(monkeypatch):
     assert len(stopped) == len(made) - len(held.holders)
 
 
-@pytest.mark.parametrize("departs", [57.05, 83.35])  # on time, and inserted 26.3 s late (a backlog)
-def test_a_known_departure_skips_the_early_rolling_holders(monkeypatch, departs):
-    """With the demand's departure (57.05 s) known, the pass forks only the last rolling holders,
-    and keeps the very holders it keeps without it."""
-    from coster_sumo.sim import hold
-
-    kept = []
-    for known in (None, 57.05):
-        made, _ = _fake_holds(monkeypatch)
-        held, sim = hold.HeldStates("ego", max_holders=3, spacing_s=1.0, lead_s=5.0), _FakeSession(departs=departs)
-        held.expect_departure(known)
-        for k in range(1, 1500):
-            sim.time = round(0.1 * k, 9)
-            held.after_step(sim)
-        kept.append(([h.time for h in held.holders], len([t for t in made if t < departs])))
-    (without, forks_without), (with_known, forks_with) = kept
-    assert with_known == without
-    grid = [0.1 + 5.0 * k for k in range(100)]  # rolling every 5 s from the first step
-    assert forks_without == sum(g < departs for g in grid)
-    assert forks_with == sum(57.05 - 10.0 <= g < departs for g in grid)  # 2 on time, 7 late
-
-
 def test_variants_from_a_holder_made_before_the_target_departs(tmp_path):
     """A rolling holder from before the target's departure continues as a run from ``begin``."""
     spec = ScenarioSpec(REPO / "networks" / "intersection" / "intersection.sumocfg", seed=4)

@@ -102,9 +102,6 @@ def test_config_demand_knows_what_the_files_can_insert(tmp_path: Path) -> None:
     for vid in ("ego", "periodic", "periodic.x", "trip.0", "ns"):  # a route's id is no vehicle's
         assert demand.vclass(vid) is None, vid
     assert demand.examples(["NESTED"]) == ["nested_route"]
-    # the soonest each can enter: its depart, a flow's begin; unknown for a triggered one or an unknown id
-    assert [demand.earliest_depart(v) for v in ("named_route", "trip", "periodic.3", "waits", "ego")] == [
-        20.0, 30.0, 0.0, None, None]
     assert demand.examples([], n=3) == ["named_route", "nested_route", "before_begin"]
     # a calibrator inserts vehicles the files do not name; a missing file is the simulation's to report
     (tmp_path / "calib.add.xml").write_text('<additional><calibrator id="c" lane="N2C_0" pos="5"/></additional>')

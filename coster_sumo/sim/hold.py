@@ -12,8 +12,6 @@ that an adversary that appears up to ``lead_s`` before the target does (a collis
 the target's departure: the adversary drives its whole horizon before it) still has a holder
 before it. Without them such variants simulate from ``begin``: on the wheel's A10KW motorway the
 target departs at 400 s and t_col came 4 s later, and every variant simulated 400 s of traffic.
-Where the demand tells when the target departs at the soonest (:meth:`HeldStates.expect_departure`),
-only the rolling holders of the last ``2 x lead_s`` before it are made, at the same times.
 
 Holders are thinned as the pass goes on (every other one is dropped and the spacing doubles when
 there are too many), so their number and memory stay bounded. Once a collision time is known,
@@ -93,16 +91,6 @@ class HeldStates:
         self._next_s: float | None = None
         self._next_lead_s: float | None = None
         self._departed = False
-        # [s] no rolling holder before this time (the targets cannot have departed yet): None, roll from the start
-        self.lead_from_s: float | None = None
-
-    def expect_departure(self, earliest_s: float | None) -> None:
-        """The targets depart at ``earliest_s`` [s] at the soonest (the demand's ``depart``; None:
-        not known). The rolling holders before it are then skipped but for the last ones
-        (:data:`LEAD_HOLDERS`), which are made at the same times as without it: on the wheel's A10KW
-        the target departs at 400 s, and the 78 forks before it cost the pass several seconds of CPU
-        (bench/bench_record_parts.py)."""
-        self.lead_from_s = None if earliest_s is None else earliest_s - LEAD_HOLDERS * self.lead_s
 
     def __enter__(self) -> HeldStates:
         return self
@@ -143,9 +131,6 @@ class HeldStates:
     def _hold_lead(self, session: SumoSession) -> None:
         """Before the target departs: a rolling holder every ``lead_s``, the two newest kept."""
         if self.lead_s <= 0 or (self._next_lead_s is not None and session.time < self._next_lead_s - 1e-9):
-            return
-        if self.lead_from_s is not None and session.time < self.lead_from_s - 1e-9:
-            self._next_lead_s = session.time + self.lead_s  # the holders' times stay on the same grid
             return
         self._hold(session)
         self.holders[-1].lead = True
