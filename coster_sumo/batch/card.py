@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -124,51 +125,73 @@ def card_data(dataset: Path) -> dict[str, Any]:
     return {"manifest": manifest, "runs": runs, "stats": stats, "rows": rows}
 
 
-def write_card(dataset: Path, output: Path | None = None) -> Path:
-    """Write ``card.md`` and ``card/*.png`` (into ``output``, default the dataset folder)."""
-    dataset = Path(dataset)
-    if not (dataset / ds.MANIFEST).exists():
-        raise InputError(f"{dataset}: no {ds.MANIFEST} (not a corpus folder)")
-    out = Path(output) if output is not None else dataset
-    figs = out / CARD_DIR
-    figs.mkdir(parents=True, exist_ok=True)
-    data = card_data(dataset)
-    manifest, runs, stats, rows = data["manifest"], data["runs"], data["stats"], data["rows"]
-    run_of = {r["run_id"]: r for r in runs}
-    net_rows = {row["name"]: row for row in rows}
+@dataclass(frozen=True)
+class _Pool:
+    """The per-run stats of a corpus, pooled over its runs (``where``: only the runs it accepts)."""
 
-    def pool(key: str, where: Any = None) -> np.ndarray:
-        return _cat([s[key] for rid, s in stats.items() if where is None or where(run_of[rid])])
+    stats: dict[str, dict[str, np.ndarray]]
+    run_of: dict[str, dict[str, Any]]
 
-    speed, limit_kmh = pool("speed"), pool("limit") * 3.6
-    vclass, length, width = pool("vclass"), pool("length"), pool("width")
-    is_fw = np.concatenate([np.full(len(s["speed"]), net_rows.get(run_of[rid].get("network", ""), {}).get(
-        "freeway", False)) for rid, s in stats.items()]) if stats else np.zeros(0, bool)
-    lat_sub = pool("lat_speed", lambda r: r.get("sublane"))
-    lat_other = pool("lat_speed", lambda r: not r.get("sublane"))
-    clip_med, clip_lim = pool("clip_median_speed"), pool("clip_speed_limit")
-    congested = int(np.sum(clip_med < CONGESTED_MPS))
-    free = int(np.sum(clip_med >= FREE_FLOW_SHARE * clip_lim))
-    classes = sorted(set(vclass.tolist()))
+    def __call__(self, key: str, where: Any = None) -> np.ndarray:
+        return _cat([s[key] for rid, s in self.stats.items() if where is None or where(self.run_of[rid])])
 
+
+@dataclass(frozen=True)
+class _Samples:
+    """The pooled samples the card's totals, tables and histograms share (one per vehicle and
+    simulated second, or one per clip for ``clip_*``)."""
+
+    speed: np.ndarray
+    limit_kmh: np.ndarray
+    vclass: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    is_freeway: np.ndarray  # bool, per speed sample: on a freeway network
+    lat_sublane: np.ndarray
+    lat_other: np.ndarray
+    clip_median: np.ndarray
+    clip_limit: np.ndarray
+    classes: list[str]
+
+    @classmethod
+    def of(cls, pool: _Pool, rows: list[dict[str, Any]]) -> _Samples:
+        net_rows = {row["name"]: row for row in rows}
+        stats, run_of = pool.stats, pool.run_of
+        vclass = pool("vclass")
+        is_fw = np.concatenate([np.full(len(s["speed"]), net_rows.get(run_of[rid].get("network", ""), {}).get(
+            "freeway", False)) for rid, s in stats.items()]) if stats else np.zeros(0, bool)
+        return cls(speed=pool("speed"), limit_kmh=pool("limit") * 3.6, vclass=vclass, length=pool("length"),
+                   width=pool("width"), is_freeway=is_fw,
+                   lat_sublane=pool("lat_speed", lambda r: r.get("sublane")),
+                   lat_other=pool("lat_speed", lambda r: not r.get("sublane")),
+                   clip_median=pool("clip_median_speed"), clip_limit=pool("clip_speed_limit"),
+                   classes=sorted(set(vclass.tolist())))
+
+
+def _draw_histograms(figs: Path, s: _Samples, pool: _Pool) -> None:
+    speed, is_fw = s.speed, s.is_freeway
     _hist(figs / "speed_by_road_class.png", "speed by road class (lane speed limit)", "speed [m/s]",
-          {label: speed[(limit_kmh > lo) & (limit_kmh <= hi)] for lo, hi, label in ROAD_CLASSES},
+          {label: speed[(s.limit_kmh > lo) & (s.limit_kmh <= hi)] for lo, hi, label in ROAD_CLASSES},
           np.arange(0, 45, 1.0))
     _hist(figs / "speed_freeway.png", "speed: freeway networks vs the rest", "speed [m/s]",
           {"freeway networks": speed[is_fw], "other networks": speed[~is_fw]}, np.arange(0, 45, 1.0))
     _hist(figs / "acceleration.png", "longitudinal acceleration", "acceleration [m/s²]",
           {"all": pool("accel")}, np.arange(-9, 5, 0.25), log=True)
     _hist(figs / "lateral_speed.png", "lateral speed (SUMO's, on the lane)", "lateral speed [m/s]",
-          {"sublane runs": lat_sub, "other runs": lat_other}, np.arange(-3, 3.05, 0.1), log=True)
+          {"sublane runs": s.lat_sublane, "other runs": s.lat_other}, np.arange(-3, 3.05, 0.1), log=True)
     _hist(figs / "length_by_class.png", "vehicle length by class", "length [m]",
-          {c: length[vclass == c] for c in classes}, np.arange(0, 20, 0.25))
+          {c: s.length[s.vclass == c] for c in s.classes}, np.arange(0, 20, 0.25))
     _hist(figs / "width_by_class.png", "vehicle width by class", "width [m]",
-          {c: width[vclass == c] for c in classes}, np.arange(0.4, 3.0, 0.05))
+          {c: s.width[s.vclass == c] for c in s.classes}, np.arange(0.4, 3.0, 0.05))
     _hist(figs / "agents_per_clip.png", "agents per clip", "agents", {"clips": pool("clip_agents")},
           np.arange(0, 200, 4))
     _hist(figs / "clip_median_speed.png", "clip median speed of moving vehicles", "speed [m/s]",
-          {"clips": clip_med}, np.arange(0, 40, 1.0))
+          {"clips": s.clip_median}, np.arange(0, 40, 1.0))
 
+
+def _totals_lines(dataset: Path, manifest: dict[str, Any], runs: list[dict[str, Any]], rows: list[dict[str, Any]],
+                  s: _Samples) -> list[str]:
+    """The card's heading and its "Totals" section."""
     hours = manifest["simulated_hours"]
     wall = sum(float(r.get("wall_s", 0.0)) for r in runs)
     timed = [r for r in runs if "cpu_s" in r]
@@ -176,7 +199,10 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
     cpu_rate = sum(float(r["duration_s"]) for r in timed) / 3600.0 / cpu_h if cpu_h > 0 else float("nan")
     train_clips = len(ds.list_scenes(dataset)) if ds.scenes_dir(dataset).is_dir() else 0
     heldout_clips = len(ds.list_heldout(dataset))
-    lines = [
+    speed, is_fw, lat_sub, lat_other = s.speed, s.is_freeway, s.lat_sublane, s.lat_other
+    congested = int(np.sum(s.clip_median < CONGESTED_MPS))
+    free = int(np.sum(s.clip_median >= FREE_FLOW_SHARE * s.clip_limit))
+    return [
         "# Corpus card", "",
         f"Generated by `coster-sumo corpus card` from `{ds.MANIFEST}` and `{STATS_DIR}/` "
         "(definitions: docs/corpus.md).", "",
@@ -191,37 +217,48 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
         f"{hours / max(wall / 3600, 1e-9):.1f} simulated h per process-hour (wall time depends on the machine's "
         f"load); CPU time of the {len(timed)} runs that measured it: {cpu_h:.2f} h, {cpu_rate:.1f} simulated h "
         "per CPU-hour",
-        f"- vehicle classes ({len(classes)}): {', '.join(classes)}",
+        f"- vehicle classes ({len(s.classes)}): {', '.join(s.classes)}",
         f"- freeway networks: {np.mean(speed[is_fw] > 30) if is_fw.any() else 0:.1%} of samples above 30 m/s "
         f"(max {speed[is_fw].max() if is_fw.any() else 0:.1f} m/s)",
         f"- lateral speed beyond 0.5 m/s: {np.mean(np.abs(lat_sub) > 0.5) if len(lat_sub) else 0:.2%} of samples in "
         f"sublane runs, {np.mean(np.abs(lat_other) > 0.5) if len(lat_other) else 0:.2%} in the others",
         f"- clips: {congested} congested (median moving speed < {CONGESTED_MPS:g} m/s), {free} free flow "
-        f"(>= {FREE_FLOW_SHARE:.0%} of the speed limit), of {len(clip_med)}",
-        "",
+        f"(>= {FREE_FLOW_SHARE:.0%} of the speed limit), of {len(s.clip_median)}",
+        ""]
+
+
+def _class_and_speed_lines(s: _Samples) -> list[str]:
+    """The "Vehicle classes" and "Speeds by road class" tables."""
+    lines = [
         "## Vehicle classes", "",
         "Lengths and widths seen (SUMO's values), against those the corpus vTypes declare (networks with "
         "their own demand bring their own types).", "",
         "| class | samples | lengths seen [m] (share) | declared lengths [m] | widths seen [m] |",
         "|---|---|---|---|---|"]
     declared = _declared_sizes()
-    for c in classes:
-        m = vclass == c
-        values, counts = np.unique(np.round(length[m], 2), return_counts=True)
+    for c in s.classes:
+        m = s.vclass == c
+        values, counts = np.unique(np.round(s.length[m], 2), return_counts=True)
         top = np.argsort(-counts)[:8]
         ls = ", ".join(f"{values[i]:g} ({counts[i] / m.sum():.0%})" for i in sorted(top))
-        ws = ", ".join(f"{v:g}" for v in np.unique(np.round(width[m], 2))[:8])
+        ws = ", ".join(f"{v:g}" for v in np.unique(np.round(s.width[m], 2))[:8])
         lines.append(f"| {c} | {int(m.sum())} | {ls} | {', '.join(f'{v:g}' for v in declared.get(c, [])) or '-'} "
                      f"| {ws} |")
     lines += ["", "## Speeds by road class (lane speed limit)", "",
               "| road class | samples | stopped (< 0.5 m/s) | p5 | p50 | p95 [m/s] |", "|---|---|---|---|---|---|"]
     for lo, hi, label in ROAD_CLASSES:
-        s = speed[(limit_kmh > lo) & (limit_kmh <= hi)]
-        stopped = f"{np.mean(s < 0.5):.0%}" if len(s) else "-"
-        lines.append(f"| {label} | {len(s)} | {stopped} | {_q(s, 0.05)} | {_q(s, 0.5)} | {_q(s, 0.95)} |")
-    lines += ["", "## Demand levels", "",
-              "| level | runs | clips | congested | free flow | clip median moving speed p10 / p50 / p90 [m/s] |",
-              "|---|---|---|---|---|---|"]
+        sp = s.speed[(s.limit_kmh > lo) & (s.limit_kmh <= hi)]
+        stopped = f"{np.mean(sp < 0.5):.0%}" if len(sp) else "-"
+        lines.append(f"| {label} | {len(sp)} | {stopped} | {_q(sp, 0.05)} | {_q(sp, 0.5)} | {_q(sp, 0.95)} |")
+    return lines
+
+
+def _level_and_network_lines(manifest: dict[str, Any], runs: list[dict[str, Any]], rows: list[dict[str, Any]],
+                             pool: _Pool) -> list[str]:
+    """The "Demand levels" table, the acceleration line and the "Networks" table."""
+    lines = ["", "## Demand levels", "",
+             "| level | runs | clips | congested | free flow | clip median moving speed p10 / p50 / p90 [m/s] |",
+             "|---|---|---|---|---|---|"]
     for level in sorted({r.get("level", "-") for r in runs}):
         med = pool("clip_median_speed", lambda r, lv=level: r.get("level", "-") == lv)
         lim = pool("clip_speed_limit", lambda r, lv=level: r.get("level", "-") == lv)
@@ -244,6 +281,25 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
     excluded = manifest.get("corpus", {}).get("wheel_excluded", {})
     if excluded:
         lines += ["", "Wheel networks left out: " + "; ".join(f"{k} ({v})" for k, v in excluded.items()) + "."]
+    return lines
+
+
+def write_card(dataset: Path, output: Path | None = None) -> Path:
+    """Write ``card.md`` and ``card/*.png`` (into ``output``, default the dataset folder)."""
+    dataset = Path(dataset)
+    if not (dataset / ds.MANIFEST).exists():
+        raise InputError(f"{dataset}: no {ds.MANIFEST} (not a corpus folder)")
+    out = Path(output) if output is not None else dataset
+    figs = out / CARD_DIR
+    figs.mkdir(parents=True, exist_ok=True)
+    data = card_data(dataset)
+    manifest, runs, rows = data["manifest"], data["runs"], data["rows"]
+    pool = _Pool(data["stats"], {r["run_id"]: r for r in runs})
+    samples = _Samples.of(pool, rows)
+    _draw_histograms(figs, samples, pool)
+    lines = _totals_lines(dataset, manifest, runs, rows, samples)
+    lines += _class_and_speed_lines(samples)
+    lines += _level_and_network_lines(manifest, runs, rows, pool)
     lines += ["", "## Histograms", ""]
     lines += [f"![{p.stem}]({CARD_DIR}/{p.name})" for p in sorted(figs.glob("*.png"))]
     return write_text(out / CARD, "\n".join(lines) + "\n")

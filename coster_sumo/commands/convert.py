@@ -16,7 +16,9 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import CosterError, not_found, one_line
@@ -75,100 +77,126 @@ def run(args: argparse.Namespace) -> int:
         return _convert_locked(args, out, debug, quiet)
 
 
-def _convert_locked(args: argparse.Namespace, out: Path, debug: bool, quiet: bool) -> int:
-    """:func:`run` once OUTDIR is checked and locked."""
-    from tqdm import tqdm
+@dataclass
+class _Batch:
+    """One ``convert`` call's progress: the folder names handed out (``renamed``: name -> scenario id
+    where they differ), the scenes written and the failures, each failure also printed as one line."""
 
-    from coster_sumo.converters.read import iter_scenes
-    from coster_sumo.converters.to_sumo import convert_scene
-    from coster_sumo.formats.scene_folder import MAX_FOLDER_NAME, folder_name
+    out: Path
+    debug: bool
+    quiet: bool
+    overwrite: bool
+    bar: Any  # a tqdm bar over the scenes written
+    used: set[str] = field(default_factory=set)
+    renamed: dict[str, str] = field(default_factory=dict)
+    scenes: list[dict] = field(default_factory=list)
+    failures: list[dict] = field(default_factory=list)
+    read_any: bool = False
 
-    created = not out.exists()
-    t0 = time.perf_counter()
-    used: set[str] = set()
-    renamed: dict[str, str] = {}
-    scenes: list[dict] = []
-    failures: list[dict] = []
-    read_any = False
-    bar = tqdm(desc="convert", unit="scene", disable=quiet, file=sys.stderr, dynamic_ncols=True)
+    def fail(self, where: str, message: str, path: Path) -> None:
+        from tqdm import tqdm
 
-    def fail(where: str, message: str, path: Path) -> None:
         # readers name the file themselves; say it once, followed by the record
         if not message.startswith(where) and message.startswith(f"{path}: "):
             message = message[len(f"{path}: "):]
         line = one_line(message if message.startswith(where) else f"{where}: {message}")
-        failures.append({"where": one_line(where), "error": line})
+        self.failures.append({"where": one_line(where), "error": line})
         tqdm.write(f"coster-sumo: error: {line}", file=sys.stderr)
 
-    def name_for(sid: str) -> str:
+    def name_for(self, sid: str) -> str:
+        from coster_sumo.formats.scene_folder import MAX_FOLDER_NAME, folder_name
+
         base = folder_name(sid)
         name, k = base, 1
-        while name in used:  # a name taken earlier in this run: -2, -3, ... (still a safe name)
+        while name in self.used:  # a name taken earlier in this run: -2, -3, ... (still a safe name)
             k += 1
             name = f"{base[:MAX_FOLDER_NAME - len(str(k)) - 1]}-{k}"
-        used.add(name)
+        self.used.add(name)
         if name != sid:
-            renamed[name] = sid
+            self.renamed[name] = sid
         return name
 
-    def release(name: str) -> None:  # the scene failed: its name is free again
-        used.discard(name)
-        renamed.pop(name, None)
+    def release(self, name: str) -> None:  # the scene failed: its name is free again
+        self.used.discard(name)
+        self.renamed.pop(name, None)
 
-    for path in args.inputs:
+    def convert_file(self, path: Path) -> None:
+        """Every record of ``path``; a reader error ends the file (said as one line), not the batch."""
+        from coster_sumo.converters.read import iter_scenes
+
         record = 0
-        if not path.exists():
-            failures.append({"where": one_line(str(path)), "error": one_line(str(not_found(path)))})
-            tqdm.write(f"coster-sumo: error: {failures[-1]['error']}", file=sys.stderr)
-            continue
         try:
             for scene in iter_scenes(path):
-                read_any = True
-                sid = str(scene.scenario_id)
-                where = f"{path}: record {record} ({one_line(sid[:60])}{'...' if len(sid) > 60 else ''})"
-                record += 1
-                name = name_for(sid)
-                try:
-                    out.mkdir(parents=True, exist_ok=True)
-                    result = convert_scene(scene, out, name=name, overwrite=bool(getattr(args, "overwrite", False)))
-                except CosterError as exc:
-                    if debug:
-                        raise
-                    release(name)
-                    fail(where, str(exc), path)
-                    continue
-                except Exception as exc:  # one bad scene must not stop the batch
-                    if debug:
-                        raise
-                    release(name)
-                    fail(where, f"{type(exc).__name__}: {' '.join(str(exc).split())}", path)
-                    continue
-                scenes.append({"input": str(path), "record": record - 1, "folder": str(result.folder),
-                               **{k: result.summary[k] for k in ("scenario_id", "fidelity", "conversion_s")},
-                               "warnings": len(result.summary["warnings"])})
-                if not quiet:
-                    tqdm.write(fidelity_line(result.summary))
-                bar.update(1)
+                self.read_any = True
+                record += 1  # counted first: an error after this record names the next one
+                self.convert_record(scene, path, record - 1)
         except CosterError as exc:
-            if debug:
+            if self.debug:
                 raise
-            fail(f"{path}: record {record}", str(exc), path)
+            self.fail(f"{path}: record {record}", str(exc), path)
         except Exception as exc:  # a reader bug on one file must not stop the others
-            if debug:
+            if self.debug:
                 raise
-            fail(f"{path}: record {record}", f"{type(exc).__name__}: {' '.join(str(exc).split())}", path)
+            self.fail(f"{path}: record {record}", f"{type(exc).__name__}: {' '.join(str(exc).split())}", path)
+
+    def convert_record(self, scene: Any, path: Path, record: int) -> None:
+        """Convert one scene read from ``path``; a failure is one line and frees its folder name."""
+        from tqdm import tqdm
+
+        from coster_sumo.converters.to_sumo import convert_scene
+
+        sid = str(scene.scenario_id)
+        where = f"{path}: record {record} ({one_line(sid[:60])}{'...' if len(sid) > 60 else ''})"
+        name = self.name_for(sid)
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            result = convert_scene(scene, self.out, name=name, overwrite=self.overwrite)
+        except CosterError as exc:
+            if self.debug:
+                raise
+            self.release(name)
+            self.fail(where, str(exc), path)
+            return
+        except Exception as exc:  # one bad scene must not stop the batch
+            if self.debug:
+                raise
+            self.release(name)
+            self.fail(where, f"{type(exc).__name__}: {' '.join(str(exc).split())}", path)
+            return
+        self.scenes.append({"input": str(path), "record": record, "folder": str(result.folder),
+                            **{k: result.summary[k] for k in ("scenario_id", "fidelity", "conversion_s")},
+                            "warnings": len(result.summary["warnings"])})
+        if not self.quiet:
+            tqdm.write(fidelity_line(result.summary))
+        self.bar.update(1)
+
+
+def _convert_locked(args: argparse.Namespace, out: Path, debug: bool, quiet: bool) -> int:
+    """:func:`run` once OUTDIR is checked and locked."""
+    from tqdm import tqdm
+
+    created = not out.exists()
+    t0 = time.perf_counter()
+    bar = tqdm(desc="convert", unit="scene", disable=quiet, file=sys.stderr, dynamic_ncols=True)
+    batch = _Batch(out, debug, quiet, bool(getattr(args, "overwrite", False)), bar)
+    for path in args.inputs:
+        if not path.exists():
+            batch.failures.append({"where": one_line(str(path)), "error": one_line(str(not_found(path)))})
+            tqdm.write(f"coster-sumo: error: {batch.failures[-1]['error']}", file=sys.stderr)
+            continue
+        batch.convert_file(path)
     bar.close()
-    if not scenes and not read_any:  # nothing could be read: write nothing
+    if not batch.scenes and not batch.read_any:  # nothing could be read: write nothing
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()
-        print(f"converted 0 scene(s), {len(failures)} failed; nothing written")  # --quiet too: the result
+        print(f"converted 0 scene(s), {len(batch.failures)} failed; nothing written")  # --quiet too: the result
         return 2
     out.mkdir(parents=True, exist_ok=True)
-    summary = {"outdir": str(out), "inputs": [str(p) for p in args.inputs], "converted": len(scenes),
-               "failed": len(failures), "scenes": scenes, "failures": failures, "renamed": renamed,
-               "wall_s": round(time.perf_counter() - t0, 3)}
+    summary = {"outdir": str(out), "inputs": [str(p) for p in args.inputs], "converted": len(batch.scenes),
+               "failed": len(batch.failures), "scenes": batch.scenes, "failures": batch.failures,
+               "renamed": batch.renamed, "wall_s": round(time.perf_counter() - t0, 3)}
     write_json(out / "summary.json", summary)
     if not (out / MARKER).exists():
         write_marker(out, "convert")
-    print(f"converted {len(scenes)} scene(s) into {out}, {len(failures)} failed")  # --quiet too: the result
-    return 1 if failures else 0
+    print(f"converted {len(batch.scenes)} scene(s) into {out}, {len(batch.failures)} failed")  # --quiet too
+    return 1 if batch.failures else 0

@@ -29,7 +29,8 @@ from defusedxml import ElementTree as SafeET
 
 from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
-from coster_sumo.exports.opendrive_fit import FILLER_CODE, NetLanes, fit_lanes
+from coster_sumo.exports.opendrive_fit import FILLER_CODE, fit_lanes
+from coster_sumo.exports.opendrive_net import NetLanes
 from coster_sumo.exports.opendrive_readers import MIN_ROAD_M, make_readable
 from coster_sumo.formats.scene_folder import STAGING_EDGE
 

@@ -72,6 +72,41 @@ def narrowed_half_width(s: np.ndarray, tight: np.ndarray, start_width: float, en
     return np.minimum(lin, np.maximum(below, ends))
 
 
+def _clamped_system(pts: np.ndarray, sigma: np.ndarray, s: np.ndarray, step: float, start_heading: float,
+                    end_heading: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The linear pieces of :func:`bend`'s least squares over the points 0..n at stations ``s``
+    (n + 1,) [m], ``step`` apart, along a polyline ``pts`` (V + 2, 2) [m] whose vertices lie at arc
+    lengths ``sigma``: ``basis`` (n + 3, n - 1) and ``const`` (n + 3, 2), so that ``basis @ x + const``
+    are the points with one before and one after (clamped ends) for x the free points 1..n-1;
+    ``at`` (V, n + 3), the curve at each inner vertex; ``d2`` (n + 1, n + 3), second differences / step^2.
+    """
+    n = len(s) - 1
+    t0 = np.array([np.cos(start_heading), np.sin(start_heading)])
+    t1 = np.array([np.cos(end_heading), np.sin(end_heading)])
+    # e: the points 0..n with a point before and after, placed so that the central difference at
+    # each end runs along its heading (a clamped end): e = basis @ x + const, x the points 1..n-1
+    m = n - 1
+    basis = np.zeros((n + 3, m))
+    basis[2:n + 1] = np.eye(m)
+    basis[0, 0] = basis[n + 2, m - 1] = 1.0
+    const = np.zeros((n + 3, 2))
+    const[1], const[n + 1] = pts[0], pts[-1]
+    const[0], const[n + 2] = -2.0 * step * t0, 2.0 * step * t1
+    # the curve at each inner vertex: linear between the two grid points around it (V, n + 3)
+    inner = sigma[1:-1]
+    j = np.clip(np.searchsorted(s, inner, side="right") - 1, 0, n - 1) + 1
+    f = (inner - s[j - 1]) / step
+    at = np.zeros((len(inner), n + 3))
+    at[np.arange(len(inner)), j] += 1.0 - f
+    at[np.arange(len(inner)), j + 1] += f
+    # second differences / step^2 at the points 0..n: (n + 1, n + 3)
+    d2 = np.zeros((n + 1, n + 3))
+    rows = np.arange(n + 1)
+    d2[rows, rows], d2[rows, rows + 1], d2[rows, rows + 2] = 1.0, -2.0, 1.0
+    d2 /= step ** 2
+    return basis, const, at, d2
+
+
 def bend(points: np.ndarray, start_heading: float, end_heading: float, start_width: float,
          end_width: float, narrow: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A connecting road's centre line along its polyline (N, 2) [m] (first and last point: the
@@ -102,30 +137,8 @@ def bend(points: np.ndarray, start_heading: float, end_heading: float, start_wid
     n = max(int(np.ceil(length / PATH_STEP_M)), MIN_POINTS)
     step = max(length / n, 1e-6)
     s = np.linspace(0.0, length, n + 1)
-    t0 = np.array([np.cos(start_heading), np.sin(start_heading)])
-    t1 = np.array([np.cos(end_heading), np.sin(end_heading)])
-    # e: the points 0..n with a point before and after, placed so that the central difference at
-    # each end runs along its heading (a clamped end): e = basis @ x + const, x the points 1..n-1
-    m = n - 1
-    basis = np.zeros((n + 3, m))
-    basis[2:n + 1] = np.eye(m)
-    basis[0, 0] = basis[n + 2, m - 1] = 1.0
-    const = np.zeros((n + 3, 2))
-    const[1], const[n + 1] = pts[0], pts[-1]
-    const[0], const[n + 2] = -2.0 * step * t0, 2.0 * step * t1
+    basis, const, at, d2 = _clamped_system(pts, sigma, s, step, start_heading, end_heading)
     e = const.copy()
-    # the curve at each inner vertex: linear between the two grid points around it (V, n + 3)
-    inner = sigma[1:-1]
-    j = np.clip(np.searchsorted(s, inner, side="right") - 1, 0, n - 1) + 1
-    f = (inner - s[j - 1]) / step
-    at = np.zeros((len(inner), n + 3))
-    at[np.arange(len(inner)), j] += 1.0 - f
-    at[np.arange(len(inner)), j + 1] += f
-    # second differences / step^2 at the points 0..n: (n + 1, n + 3)
-    d2 = np.zeros((n + 1, n + 3))
-    rows = np.arange(n + 1)
-    d2[rows, rows], d2[rows, rows + 1], d2[rows, rows + 2] = 1.0, -2.0, 1.0
-    d2 /= step ** 2
     half = 0.5 * (start_width + (end_width - start_width) * s / max(length, 1e-12))  # (n + 1,) [m]
     mu = np.full(n + 1, BASE_STIFFNESS)
     at_x, d2_x = at @ basis, d2 @ basis

@@ -64,7 +64,7 @@ def road_span(axis: np.ndarray, shapes: list[np.ndarray], enters: list[bool], le
     lo = float(first[entering].max()) + inset[0] if entering.any() else lo_all
     hi = float(last[leaving].min()) - inset[1] if leaving.any() else hi_all
     # (lanes that all start and end together, as netconvert's, keep their road as it was unless an
-    # inset moves its ends: opendrive_fit.NetLanes.tight_cutbacks)
+    # inset moves its ends: opendrive_net.NetLanes.tight_cutbacks)
     moved = lo > lo_all + CUT_EPS_M or hi < hi_all - CUT_EPS_M
     if not moved or hi - lo < MIN_TRIMMED_M:
         lo, hi, moved = lo_all, hi_all, False

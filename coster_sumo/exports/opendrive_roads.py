@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -286,6 +287,114 @@ def lane_at(road: ET.Element, s: float, lane_id: int, sample: Sampler) -> tuple[
     return None
 
 
+@dataclass(frozen=True)
+class _Connecting:
+    """A one-lane connecting road to join: its plan view and lane, its polyline (N, 2) [m] with the
+    contacts as first and last point, and each contact as (point (2,) [m], width [m], heading [rad])."""
+
+    road: ET.Element
+    plan: ET.Element
+    lane: ET.Element
+    path: np.ndarray
+    start: tuple[np.ndarray, float, float]
+    end: tuple[np.ndarray, float, float]
+
+
+def _connecting(road: ET.Element, roads: dict[str, ET.Element], sample: Sampler) -> _Connecting | None:
+    """``road`` with its contacts where it is a one-lane connecting road linked at both ends (None:
+    not one to join)."""
+    if road.get("junction", "-1") == "-1":
+        return None
+    lanes = road.findall("lanes/laneSection/right/lane")
+    pred, succ = road.find("link/predecessor"), road.find("link/successor")
+    if len(lanes) != 1 or pred is None or succ is None or pred.get("contactPoint") != "end" \
+            or succ.get("contactPoint") != "start":
+        return None
+    lp, ls = lanes[0].find("link/predecessor"), lanes[0].find("link/successor")
+    a, b = roads.get(pred.get("elementId", "")), roads.get(succ.get("elementId", ""))
+    if lp is None or ls is None or a is None or b is None:
+        return None
+    plan = road.find("planView")
+    if plan is None:
+        return None
+    length = float(road.get("length", "0"))
+    s = np.unique(np.concatenate([[float(g.get("s", "0")) for g in plan.findall("geometry")], [length]]))
+    x, y, h = sample(plan, s)
+    path = np.column_stack([x, y])
+    own = _records_at(lanes[0].findall("width"), "sOffset", 0.0)
+    start = lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")), sample)
+    end = lane_at(b, 0.0, int(ls.get("id", "0")), sample)
+    # a lane that has not begun yet at the contact (width 0: a logged lane that starts later
+    # than its edge's others where the road's end could not move) is no place to join: that
+    # end stays on the SUMO lane
+    if start is None or start[1] < MIN_JOIN_WIDTH_M:
+        start = (path[0].copy(), own, float(h[0]))
+    if end is None or end[1] < MIN_JOIN_WIDTH_M:
+        end = (path[-1].copy(), own, float(h[-1]))
+    path[0], path[-1] = start[0], end[0]
+    return _Connecting(road, plan, lanes[0], path, start, end)
+
+
+def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray | None, bool]:
+    """The cubic pieces of the joined road, half its lane's width at their ends (None: the width
+    changes linearly) and whether its lane folds all the same."""
+    path, start, end = c.path, c.start, c.end
+    # the smooth curve where it keeps the lane from folding within BEND_DEVIATION_M of the SUMO
+    # shape (or BEND_KINK_FACTOR times as far as the curve through the shape's points, which
+    # leaves netconvert's kinked internal lanes by up to 0.25 m); else the same with the lane
+    # narrowed where it turns; else the curve through the points, as before (opendrive_bend:
+    # where the contacts leave no room, the smooth one does not take the fold away either, and
+    # shows it to readers at its finer pieces)
+    through = hermite_through(path, start[2], end[2])
+    bound = max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M)
+    pieces = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
+    half = None  # the width changes linearly
+    if fold_ratio(pieces, start[1], end[1]) >= 1.0 or deviation(pieces, path) > bound:
+        # no curve keeps the lane whole: it narrows where it turns (opendrive_bend.bend)
+        p, hd, half = bend(path, start[2], end[2], start[1], end[1], narrow=True)
+        pieces = cubic_pieces(p, hd, samples=64)
+        if fold_ratio(pieces, start[1], end[1], half=half) < 1.0 and deviation(pieces, path) <= bound:
+            half = untangle(pieces, half, start[1], end[1])
+        if half is None or fold_ratio(pieces, start[1], end[1], half=half) >= 1.0 or \
+                deviation(pieces, path) > bound:
+            return through, None, fold_ratio(through, start[1], end[1]) >= 1.0
+    return pieces, half, False
+
+
+def _write_joined(c: _Connecting, pieces: list[dict[str, float]], half: np.ndarray | None) -> bool:
+    """Write the pieces as the road's plan view and its lane's width (centred on the reference
+    line) from the one contact's to the other's; False where the road has no lanes element."""
+    for g in list(c.plan):
+        c.plan.remove(g)
+    s0 = 0.0
+    for piece in pieces:
+        g = ET.SubElement(c.plan, "geometry", {"s": fmt(s0), "x": fmt(piece["x"]), "y": fmt(piece["y"]),
+                                                "hdg": fmt(piece["hdg"]), "length": fmt(piece["length"])})
+        ET.SubElement(g, "paramPoly3", {**{k: fmt(piece[k]) for k in ("aU", "bU", "cU", "dU", "aV", "bV",
+                                                                      "cV", "dV")}, "pRange": "normalized"})
+        s0 += piece["length"]
+    c.road.set("length", f"{s0:.8f}")
+    if half is None:
+        widths = [(0.0, c.start[1], (c.end[1] - c.start[1]) / s0 if s0 > 0 else 0.0)]
+    else:  # linear piece by piece: the width at each piece's ends
+        at = np.concatenate([[0.0], np.cumsum([pc["length"] for pc in pieces])])
+        widths = records(at, 2.0 * half, [(0, len(at) - 1)])
+    lanes_el = c.road.find("lanes")
+    if lanes_el is None:
+        return False
+    for el in lanes_el.findall("laneOffset"):
+        lanes_el.remove(el)
+    for w in c.lane.findall("width"):
+        c.lane.remove(w)
+    first = 1 if c.lane.find("link") is not None else 0
+    for k, (sw, a_w, b_w) in enumerate(widths):  # the lane stays centred on the reference line
+        lanes_el.insert(k, ET.Element("laneOffset", {"s": fmt(sw), "a": fmt(a_w / 2), "b": fmt(b_w / 2),
+                                                     "c": "0", "d": "0"}))
+        c.lane.insert(first + k, ET.Element("width", {"sOffset": fmt(sw), "a": fmt(a_w), "b": fmt(b_w),
+                                                      "c": "0", "d": "0"}))
+    return True
+
+
 def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
     """Make every one-lane connecting road start exactly where its incoming lane ends and end where
     its outgoing lane starts: same centre point, heading and width, so both borders of the two lanes
@@ -299,82 +408,10 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
     roads = {r.get("id", ""): r for r in root.findall("road")}
     joined = folded = 0
     for road in roads.values():
-        if road.get("junction", "-1") == "-1":
+        c = _connecting(road, roads, sample)
+        if c is None:
             continue
-        lanes = road.findall("lanes/laneSection/right/lane")
-        pred, succ = road.find("link/predecessor"), road.find("link/successor")
-        if len(lanes) != 1 or pred is None or succ is None or pred.get("contactPoint") != "end" \
-                or succ.get("contactPoint") != "start":
-            continue
-        lp, ls = lanes[0].find("link/predecessor"), lanes[0].find("link/successor")
-        a, b = roads.get(pred.get("elementId", "")), roads.get(succ.get("elementId", ""))
-        if lp is None or ls is None or a is None or b is None:
-            continue
-        plan = road.find("planView")
-        if plan is None:
-            continue
-        length = float(road.get("length", "0"))
-        s = np.unique(np.concatenate([[float(g.get("s", "0")) for g in plan.findall("geometry")], [length]]))
-        x, y, h = sample(plan, s)
-        path = np.column_stack([x, y])
-        own = _records_at(lanes[0].findall("width"), "sOffset", 0.0)
-        start = lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")), sample)
-        end = lane_at(b, 0.0, int(ls.get("id", "0")), sample)
-        # a lane that has not begun yet at the contact (width 0: a logged lane that starts later
-        # than its edge's others where the road's end could not move) is no place to join: that
-        # end stays on the SUMO lane
-        if start is None or start[1] < MIN_JOIN_WIDTH_M:
-            start = (path[0].copy(), own, float(h[0]))
-        if end is None or end[1] < MIN_JOIN_WIDTH_M:
-            end = (path[-1].copy(), own, float(h[-1]))
-        path[0], path[-1] = start[0], end[0]
-        # the smooth curve where it keeps the lane from folding within BEND_DEVIATION_M of the SUMO
-        # shape (or BEND_KINK_FACTOR times as far as the curve through the shape's points, which
-        # leaves netconvert's kinked internal lanes by up to 0.25 m); else the same with the lane
-        # narrowed where it turns; else the curve through the points, as before (opendrive_bend:
-        # where the contacts leave no room, the smooth one does not take the fold away either, and
-        # shows it to readers at its finer pieces)
-        through = hermite_through(path, start[2], end[2])
-        bound = max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M)
-        pieces = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
-        half = None  # the width changes linearly
-        if fold_ratio(pieces, start[1], end[1]) >= 1.0 or deviation(pieces, path) > bound:
-            # no curve keeps the lane whole: it narrows where it turns (opendrive_bend.bend)
-            p, hd, half = bend(path, start[2], end[2], start[1], end[1], narrow=True)
-            pieces = cubic_pieces(p, hd, samples=64)
-            if fold_ratio(pieces, start[1], end[1], half=half) < 1.0 and deviation(pieces, path) <= bound:
-                half = untangle(pieces, half, start[1], end[1])
-            if half is None or fold_ratio(pieces, start[1], end[1], half=half) >= 1.0 or \
-                    deviation(pieces, path) > bound:
-                pieces, half = through, None
-                folded += fold_ratio(through, start[1], end[1]) >= 1.0
-        for g in list(plan):
-            plan.remove(g)
-        s0 = 0.0
-        for piece in pieces:
-            g = ET.SubElement(plan, "geometry", {"s": fmt(s0), "x": fmt(piece["x"]), "y": fmt(piece["y"]),
-                                                  "hdg": fmt(piece["hdg"]), "length": fmt(piece["length"])})
-            ET.SubElement(g, "paramPoly3", {**{k: fmt(piece[k]) for k in ("aU", "bU", "cU", "dU", "aV", "bV",
-                                                                          "cV", "dV")}, "pRange": "normalized"})
-            s0 += piece["length"]
-        road.set("length", f"{s0:.8f}")
-        if half is None:
-            widths = [(0.0, start[1], (end[1] - start[1]) / s0 if s0 > 0 else 0.0)]
-        else:  # linear piece by piece: the width at each piece's ends
-            at = np.concatenate([[0.0], np.cumsum([pc["length"] for pc in pieces])])
-            widths = records(at, 2.0 * half, [(0, len(at) - 1)])
-        lanes_el = road.find("lanes")
-        if lanes_el is None:
-            continue
-        for el in lanes_el.findall("laneOffset"):
-            lanes_el.remove(el)
-        for w in lanes[0].findall("width"):
-            lanes[0].remove(w)
-        first = 1 if lanes[0].find("link") is not None else 0
-        for k, (sw, a_w, b_w) in enumerate(widths):  # the lane stays centred on the reference line
-            lanes_el.insert(k, ET.Element("laneOffset", {"s": fmt(sw), "a": fmt(a_w / 2), "b": fmt(b_w / 2),
-                                                         "c": "0", "d": "0"}))
-            lanes[0].insert(first + k, ET.Element("width", {"sOffset": fmt(sw), "a": fmt(a_w), "b": fmt(b_w),
-                                                            "c": "0", "d": "0"}))
-        joined += 1
+        pieces, half, folds = _joining_curve(c)
+        folded += folds
+        joined += _write_joined(c, pieces, half)
     return joined, folded

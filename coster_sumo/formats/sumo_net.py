@@ -168,11 +168,8 @@ def _crossing_polygon(shape: np.ndarray, width: float) -> np.ndarray:
     return np.concatenate([right, left[::-1]])
 
 
-def sumo_net_to_road_map(net: Any, *, include_non_road: bool = False) -> tuple[RoadMap, list[Any]]:
-    """Convert a sumolib net (read with internal lanes) to a :class:`RoadMap`.
-
-    Returns the map and the sumolib lane objects in map order (lane ``i`` <-> ``lanes[i]``).
-    """
+def _map_lanes(net: Any, include_non_road: bool) -> tuple[list[Any], list[np.ndarray]]:
+    """The sumolib lanes the map holds, in map order, and the crosswalk polygons."""
     lanes: list[Any] = []
     crosswalks: list[np.ndarray] = []
     for edge in net.getEdges(withInternal=True):
@@ -187,11 +184,13 @@ def sumo_net_to_road_map(net: Any, *, include_non_road: bool = False) -> tuple[R
         for lane in edge.getLanes():
             if include_non_road or _is_road_lane(lane.getPermissions()):
                 lanes.append(lane)
-    index = {lane.getID(): i for i, lane in enumerate(lanes)}
-    n = len(lanes)
+    return lanes, crosswalks
 
-    succ: list[list[int]] = [[] for _ in range(n)]
-    pred: list[list[int]] = [[] for _ in range(n)]
+
+def _links(lanes: list[Any], index: dict[str, int]) -> tuple[list[list[int]], list[list[int]]]:
+    """Successors and predecessors of every lane (through the internal lane of a connection)."""
+    succ: list[list[int]] = [[] for _ in lanes]
+    pred: list[list[int]] = [[] for _ in lanes]
     for i, lane in enumerate(lanes):
         for conn in lane.getOutgoing():
             target = conn.getViaLaneID() or conn.getToLane().getID()
@@ -199,9 +198,13 @@ def sumo_net_to_road_map(net: Any, *, include_non_road: bool = False) -> tuple[R
             if j is not None and j not in succ[i]:
                 succ[i].append(j)
                 pred[j].append(i)
+    return succ, pred
 
-    lane_type = np.zeros(n, np.int8)
-    is_junction = np.zeros(n, bool)
+
+def _lane_types(lanes: list[Any], pred: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
+    """The type of every lane (int8) and whether it is a junction's internal lane (bool)."""
+    lane_type = np.zeros(len(lanes), np.int8)
+    is_junction = np.zeros(len(lanes), bool)
     for i, lane in enumerate(lanes):
         edge = lane.getEdge()
         is_junction[i] = edge.getFunction() == "internal"
@@ -220,10 +223,13 @@ def sumo_net_to_road_map(net: Any, *, include_non_road: bool = False) -> tuple[R
                 types[i] = new
         if not changed:
             break
-    lane_type = np.array(types, np.int8)
+    return np.array(types, np.int8), is_junction
 
-    left: list[list[int]] = [[] for _ in range(n)]
-    right: list[list[int]] = [[] for _ in range(n)]
+
+def _neighbours(lanes: list[Any], index: dict[str, int]) -> tuple[list[list[int]], list[list[int]]]:
+    """The lane left and the lane right of every lane on its edge (where the map holds them)."""
+    left: list[list[int]] = [[] for _ in lanes]
+    right: list[list[int]] = [[] for _ in lanes]
     for i, lane in enumerate(lanes):
         edge_lanes = lane.getEdge().getLanes()
         k = lane.getIndex()
@@ -231,7 +237,19 @@ def sumo_net_to_road_map(net: Any, *, include_non_road: bool = False) -> tuple[R
             left[i].append(index[edge_lanes[k + 1].getID()])
         if k >= 1 and edge_lanes[k - 1].getID() in index:
             right[i].append(index[edge_lanes[k - 1].getID()])
+    return left, right
 
+
+def sumo_net_to_road_map(net: Any, *, include_non_road: bool = False) -> tuple[RoadMap, list[Any]]:
+    """Convert a sumolib net (read with internal lanes) to a :class:`RoadMap`.
+
+    Returns the map and the sumolib lane objects in map order (lane ``i`` <-> ``lanes[i]``).
+    """
+    lanes, crosswalks = _map_lanes(net, include_non_road)
+    index = {lane.getID(): i for i, lane in enumerate(lanes)}
+    succ, pred = _links(lanes, index)
+    lane_type, is_junction = _lane_types(lanes, pred)
+    left, right = _neighbours(lanes, index)
     shapes = [np.asarray(lane.getShape(), np.float64).reshape(-1, 2) for lane in lanes]
     lanes_out = Lanes(
         ids=np.array([lane.getID() for lane in lanes], dtype=str),

@@ -30,7 +30,7 @@ from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.geometry import make_boxes, sat_overlap_depth
 from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, write_manifest, write_vtypes
 from coster_sumo.scene import ObjectType, Scene, SignalState, Tracks
-from coster_sumo.spec import GenerationConfig
+from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 
 @dataclass(frozen=True)
@@ -151,13 +151,116 @@ def _crop_steps(scene: Scene, t0: float, t1: float) -> Scene:
                                sdc_index=-1)
 
 
+@dataclass
+class _SetProgress:
+    """What the manifest of a set being built holds so far (rewritten after every source)."""
+
+    entries: list[ScenarioEntry] = field(default_factory=list)
+    networks: dict[str, dict[str, Any]] = field(default_factory=dict)
+    done_sources: set[str] = field(default_factory=set)
+    failed: list[dict[str, str]] = field(default_factory=list)
+
+    @classmethod
+    def of(cls, out: Path, method: str) -> _SetProgress:
+        """The progress of the set at ``out`` (empty: a new set); a set of another method is an error."""
+        if not (out / MANIFEST).exists():
+            return cls()
+        old = json.loads((out / MANIFEST).read_text())
+        if old.get("method") != method:
+            raise InputError(f"{out}: holds a {old.get('method')!r} set, not {method!r}")
+        return cls(entries=[ScenarioEntry.from_dict(d) for d in old.get("scenarios", [])],
+                   networks=dict(old.get("networks", {})),
+                   done_sources=set(old.get("options", {}).get("done_sources", [])),
+                   failed=list(old.get("options", {}).get("failed", [])))
+
+    def write(self, opts: BuildOptions) -> None:  # the manifest, with the progress in its options
+        write_manifest(opts.out, opts.method, opts.seed, self.entries, self.networks,
+                       {**opts.to_json(), "done_sources": sorted(self.done_sources), "failed": self.failed})
+
+
+@dataclass(frozen=True)
+class _Source:
+    """One source's recorded nominal pass and target, shared by all its scenarios: ``base`` names their
+    files, ``common`` holds their manifest fields, ``t_dep`` / ``t_last`` [s] when the target is valid."""
+
+    spec: ScenarioSpec
+    scene: Scene
+    target: int
+    base: str
+    common: dict[str, Any]
+    t_dep: float
+    t_last: float
+
+
+def _register_source(opts: BuildOptions, spec: ScenarioSpec, progress: _SetProgress) -> dict[str, Any]:
+    """Enter the source's network in the set (its net file copied once); the manifest fields that
+    every scenario of the source shares (the target still None)."""
+    from coster_sumo.formats.scene_folder import LANE_MAP_FILE, converted_scene_file
+
+    label = spec.label()
+    net_name = network_name(spec.config)
+    split = "test" if net_name in opts.heldout else "train"
+    progress.networks.setdefault(net_name, {"split": split, "sources": []})
+    progress.networks[net_name]["sources"].append(label)
+    net_rel = f"nets/{net_name}.net.xml"
+    if not (opts.out / net_rel).exists():
+        shutil.copyfile(_net_file(spec.config), opts.out / net_rel)
+    staging, tls = None, {}
+    if converted_scene_file(spec.config) is not None:
+        lane_map = json.loads((spec.config.parent / LANE_MAP_FILE).read_text())
+        staging, tls = lane_map.get("staging_lane"), lane_map.get("tls", {})
+    return {"network": net_name, "split": split, "source": label, "target": None, "net": net_rel,
+            "staging_lane": staging, "tls": tls}
+
+
+def _nominal_entry(opts: BuildOptions, src: _Source) -> ScenarioEntry:
+    """Write the nominal scenario (from the target's departure, at most ``horizon_s`` long)."""
+    t_end = min(src.t_last, src.t_dep + opts.horizon_s)
+    save_scene(_crop_steps(src.scene, src.t_dep - 0.1, t_end), opts.out / "scenarios" / f"{src.base}_nominal.npz")
+    return ScenarioEntry(id=f"{src.base}_nominal", kind="nominal", method="nominal", t_start=src.t_dep, t_end=t_end,
+                         extra={"criticality": criticality(src.scene, src.target)}, **src.common)
+
+
+def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig, src: _Source,
+                       failed: list[dict[str, str]]) -> list[ScenarioEntry]:
+    """The generator's variants of the source (none, and a line in ``failed``, without a snapshot): each
+    the nominal pass with the adversary's plan as one more agent."""
+    from coster_sumo.defects import label_plans
+    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.errors import NoSnapshot
+    from coster_sumo.method.generation import plan_scenarios
+
+    drivable = DrivableArea.from_road_map(src.scene.road_map)
+    try:
+        planned = plan_scenarios(src.scene, src.target, src.spec.seed, gen, drivable, opts.snapshots)
+    except NoSnapshot as exc:
+        planned = []
+        failed.append({"source": src.spec.label(), "reason": f"no snapshot: {exc}"})
+    new, ts = [], src.scene.timestamps
+    for k, p in enumerate(planned):
+        plans = p.plans[:1] if method.one_per_snapshot else p.plans
+        # whether the target could have avoided each contact (docs/method.md), for info["avoidable"]
+        labels = label_plans(src.spec, src.scene, src.target, plans, drivable=drivable) if plans else []
+        for j, (plan, lab) in enumerate(zip(plans, labels, strict=True)):
+            t_start = max(src.t_dep, plan.t_start - opts.lead_s)
+            t_stop = min(src.t_last, plan.t_col + POST_COLLISION_S)
+            xs, ys, yaws, speeds = plan.sample(ts, lead=0.05)
+            valid = (ts >= plan.t_start - 0.05) & (ts <= t_stop + 1e-6)
+            with_adv = _append_agent(src.scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
+                                     float(plan.length), float(plan.width))
+            sid = f"{src.base}_{opts.method}_k{k}_v{j}"
+            save_scene(_crop_steps(with_adv, t_start - 0.1, t_stop), opts.out / "scenarios" / f"{sid}.npz")
+            new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start, t_end=t_stop,
+                                     t_col=float(plan.t_col), adversary=plan.vehicle_id, avoidable=lab.avoidable,
+                                     extra={"snapshot": k, "variant": j, "contact": lab.contact_kind,
+                                            "last_moment_s": lab.last_moment_s}, **src.common))
+    return new
+
+
 def build_set(opts: BuildOptions) -> dict[str, Any]:
     """Build (or resume) the scenario set ``opts.out``; returns the manifest's counts."""
     from coster_sumo.batch.sources import parse_sources
-    from coster_sumo.drivable import DrivableArea
-    from coster_sumo.errors import NoSnapshot
-    from coster_sumo.formats.scene_folder import LANE_MAP_FILE, converted_scene_file
-    from coster_sumo.method.generation import check_generation, plan_scenarios
+    from coster_sumo.method.generation import check_generation
     from coster_sumo.scenario import choose_target, nominal_scene
 
     if opts.method not in METHODS:
@@ -173,99 +276,39 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
     (out / "scenarios").mkdir(parents=True, exist_ok=True)
     (out / "nets").mkdir(exist_ok=True)
     write_vtypes(out)
-    entries: list[ScenarioEntry] = []
-    networks: dict[str, dict[str, Any]] = {}
-    done_sources: set[str] = set()
-    failed: list[dict[str, str]] = []
-    if (out / MANIFEST).exists():  # resume
-        old = json.loads((out / MANIFEST).read_text())
-        if old.get("method") != opts.method:
-            raise InputError(f"{out}: holds a {old.get('method')!r} set, not {opts.method!r}")
-        entries = [ScenarioEntry.from_dict(d) for d in old.get("scenarios", [])]
-        networks = dict(old.get("networks", {}))
-        done_sources = set(old.get("options", {}).get("done_sources", []))
-        failed = list(old.get("options", {}).get("failed", []))
-
-    def say(text: str) -> None:
-        if opts.progress is not None:
-            opts.progress(text)
-
+    progress = _SetProgress.of(out, opts.method)
+    say: Callable[[str], None] = opts.progress or (lambda text: None)
     for spec in specs:
         label = spec.label()
-        if label in done_sources:
+        if label in progress.done_sources:
             continue
-        net_name = network_name(spec.config)
-        split = "test" if net_name in opts.heldout else "train"
-        networks.setdefault(net_name, {"split": split, "sources": []})
-        networks[net_name]["sources"].append(label)
-        net_rel = f"nets/{net_name}.net.xml"
-        if not (out / net_rel).exists():
-            shutil.copyfile(_net_file(spec.config), out / net_rel)
-        converted = converted_scene_file(spec.config) is not None
-        staging, tls = None, {}
-        if converted:
-            lane_map = json.loads((spec.config.parent / LANE_MAP_FILE).read_text())
-            staging, tls = lane_map.get("staging_lane"), lane_map.get("tls", {})
+        common = _register_source(opts, spec, progress)
         try:
             scene, _ = nominal_scene(spec)
             target = choose_target(scene, spec.target, spec.config)
         except InputError as exc:
-            failed.append({"source": label, "reason": str(exc)})
-            done_sources.add(label)
+            progress.failed.append({"source": label, "reason": str(exc)})
+            progress.done_sources.add(label)
             say(f"{label}: skipped ({exc})")
             continue
-        tr = scene.tracks
-        target_id = str(tr.ids[target])
-        ts = scene.timestamps
-        valid_t = ts[tr.valid[target]]
-        base = f"{net_name}_s{spec.seed}_{target_id}".replace("/", "_").replace("#", "_")
-        common: dict[str, Any] = {"network": net_name, "split": split, "source": label, "target": target_id,
-                                  "net": net_rel, "staging_lane": staging, "tls": tls}
-        t_dep, t_last = float(valid_t[0]), float(valid_t[-1])
-        t_end = min(t_last, t_dep + opts.horizon_s)
-        nominal = _crop_steps(scene, t_dep - 0.1, t_end)
-        save_scene(nominal, out / "scenarios" / f"{base}_nominal.npz")
-        new = [ScenarioEntry(id=f"{base}_nominal", kind="nominal", method="nominal", t_start=t_dep, t_end=t_end,
-                             extra={"criticality": criticality(scene, target)}, **common)]
+        target_id = str(scene.tracks.ids[target])
+        valid_t = scene.timestamps[scene.tracks.valid[target]]
+        base = f"{common['network']}_s{spec.seed}_{target_id}".replace("/", "_").replace("#", "_")
+        src = _Source(spec, scene, target, base, {**common, "target": target_id}, float(valid_t[0]),
+                      float(valid_t[-1]))
+        new = [_nominal_entry(opts, src)]
         if opts.method == "hard":
-            new.extend(_hard_variants(out, scene, target, base, common, t_dep, t_last, opts.horizon_s))
+            new.extend(_hard_variants(out, scene, target, src.base, src.common, src.t_dep, src.t_last,
+                                      opts.horizon_s))
         if gen is not None:
-            drivable = DrivableArea.from_road_map(scene.road_map)
-            try:
-                planned = plan_scenarios(scene, target, spec.seed, gen, drivable, opts.snapshots)
-            except NoSnapshot as exc:
-                planned = []
-                failed.append({"source": label, "reason": f"no snapshot: {exc}"})
-            from coster_sumo.defects import label_plans
-
-            for k, p in enumerate(planned):
-                plans = p.plans[:1] if method.one_per_snapshot else p.plans
-                # whether the target could have avoided each contact (docs/method.md), for info["avoidable"]
-                labels = label_plans(spec, scene, target, plans, drivable=drivable) if plans else []
-                for j, (plan, lab) in enumerate(zip(plans, labels, strict=True)):
-                    t_start = max(t_dep, plan.t_start - opts.lead_s)
-                    t_stop = min(t_last, plan.t_col + POST_COLLISION_S)
-                    times = ts
-                    xs, ys, yaws, speeds = plan.sample(times, lead=0.05)
-                    valid = (times >= plan.t_start - 0.05) & (times <= t_stop + 1e-6)
-                    with_adv = _append_agent(scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
-                                             float(plan.length), float(plan.width))
-                    sid = f"{base}_{opts.method}_k{k}_v{j}"
-                    save_scene(_crop_steps(with_adv, t_start - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
-                    new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start,
-                                             t_end=t_stop, t_col=float(plan.t_col), adversary=plan.vehicle_id,
-                                             avoidable=lab.avoidable,
-                                             extra={"snapshot": k, "variant": j, "contact": lab.contact_kind,
-                                                    "last_moment_s": lab.last_moment_s}, **common))
-        entries.extend(new)
-        done_sources.add(label)
-        write_manifest(out, opts.method, opts.seed, entries, networks,
-                       {**opts.to_json(), "done_sources": sorted(done_sources), "failed": failed})
+            new.extend(_generated_entries(opts, method, gen, src, progress.failed))
+        progress.entries.extend(new)
+        progress.done_sources.add(label)
+        progress.write(opts)
         say(f"{label}: {len(new)} scenario(s) ({sum(e.kind == 'variant' for e in new)} variants)")
-    write_manifest(out, opts.method, opts.seed, entries, networks,
-                   {**opts.to_json(), "done_sources": sorted(done_sources), "failed": failed})
-    return {"scenarios": len(entries), "variants": sum(e.kind == "variant" for e in entries),
-            "networks": {n: v["split"] for n, v in networks.items()}, "failed": failed}
+    progress.write(opts)
+    return {"scenarios": len(progress.entries), "variants": sum(e.kind == "variant" for e in progress.entries),
+            "networks": {n: v["split"] for n, v in progress.networks.items()}, "failed": progress.failed}
 
 
 def criticality(scene: Scene, target: int) -> dict[str, float]:

@@ -51,6 +51,7 @@ baselines.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -213,6 +214,166 @@ def fit_baselines(model: TrafficPrior, train: Sequence[ScenePriorData], seed: in
     return [MeanValueBaseline().fit(b, p, v), GMMBaseline(cfg.bins(), seed=seed).fit(b, p, v)]
 
 
+_Scores = dict[str, dict[str, list[float]]]  # method -> attribute -> per-scene MMDs
+
+
+def _per_method(methods: Sequence[str]) -> _Scores:
+    return {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
+
+
+@dataclass
+class _Tallies:
+    """The per-scene numbers :func:`evaluate_prior` collects, scene by scene: MMDs, agent counts
+    and presence predictions with what was there; ``*_others``: the same without the centre
+    agent's own region."""
+
+    per_scene: _Scores
+    per_scene_disc: _Scores
+    per_scene_others: _Scores
+    per_scene_disc_others: _Scores
+    counts: dict[str, list[int]]
+    counts_others: dict[str, list[int]]
+    hidden: dict[str, list[float]]
+    hidden_others: dict[str, list[float]]
+    offsets: list[float]
+    cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]]
+
+    @classmethod
+    def empty(cls, methods: list[str]) -> _Tallies:
+        counts: dict[str, list[int]] = {m: [] for m in ["ground_truth", *methods]}
+        return cls(
+            per_scene=_per_method(methods), per_scene_disc=_per_method([*methods, "prior_raw"]),
+            per_scene_others=_per_method(methods), per_scene_disc_others=_per_method([*methods, "prior_raw"]),
+            counts=counts, counts_others={m: [] for m in counts},
+            hidden={"ground_truth": [], "prior_context": [], "prior_context_expected": [],
+                    "prior_context_raw_expected": []},
+            hidden_others={"ground_truth": [], "prior_context_expected": [], "prior_context_raw_expected": []},
+            offsets=[],
+            cal={k: ([], []) for k in ("prior_map", "prior_context", "prior_context_raw", "bucket_rate")})
+
+
+@dataclass(frozen=True)
+class _Evaluation:
+    """What scoring every scene reads: the model with its bins and width table, the baselines,
+    the estimator and the two random streams (``hidden_rng`` draws the hidden disc, so that the
+    other draws stay as they were before it existed)."""
+
+    model: TrafficPrior
+    bins: AttributeBins
+    table: np.ndarray | None
+    baselines: Sequence[MeanValueBaseline | GMMBaseline]
+    unbiased: bool
+    rng: np.random.Generator
+    hidden_rng: np.random.Generator
+
+
+@dataclass(frozen=True)
+class _Centres:
+    """The evaluated steps of one scene: ``steps`` (n,), centre agent (n,) and pose (n, 3)."""
+
+    data: ScenePriorData
+    steps: np.ndarray
+    centre_agent: np.ndarray
+    poses: np.ndarray
+
+
+def _score_map_mode(ev: _Evaluation, c: _Centres, t: _Tallies) -> None:
+    """Every region hidden: the model's and the baselines' draws against the ground truth."""
+    cfg = ev.model.config
+    tok = scene_tokens(c.data, c.steps, c.poses, ev.bins, cfg.radius, cfg.max_regions, visible="map")
+    mask = tok.mask
+    flat_mask = mask.ravel()
+    gt_sel = np.flatnonzero((tok.present & mask).ravel())
+    t.counts["ground_truth"].append(len(gt_sel))
+    others = _not_centre(c.data, tok, c.steps, c.centre_agent)
+    t.counts_others["ground_truth"].append(int(others[gt_sel].sum()))
+    presence, probs = predict_tokens(ev.model, tok)
+    t.cal["prior_map"][0].append(presence[mask])
+    t.cal["prior_map"][1].append(tok.present[mask])
+    generated: dict[str, tuple[np.ndarray, np.ndarray]] = {
+        "prior": _sample_model(presence, probs, mask, ev.bins, ev.rng, ev.table)}
+    buckets = token_buckets(tok.map_features).ravel()
+    for b in ev.baselines:
+        p = b.presence(buckets)
+        sel = np.flatnonzero((ev.rng.random(len(p)) < p) & flat_mask)
+        generated[b.name] = (sel, b.sample_values(buckets[sel], ev.rng))
+    if ev.baselines:
+        t.cal["bucket_rate"][0].append(ev.baselines[0].presence(buckets[flat_mask]))
+        t.cal["bucket_rate"][1].append(tok.present.ravel()[flat_mask])
+    for name, (sel, _) in generated.items():
+        t.counts[name].append(len(sel))
+        t.counts_others[name].append(int(others[sel].sum()))
+    _score_draws(tok, gt_sel, generated, t.per_scene, cfg.radius, cfg.region_width, None, ev.unbiased)
+    _score_draws(tok, gt_sel, generated, t.per_scene_others, cfg.radius, cfg.region_width, others, ev.unbiased)
+
+
+def _score_hidden_disc(ev: _Evaluation, c: _Centres, t: _Tallies) -> None:
+    """The traffic beyond the hide radius given: the prior (raw and adapted to the scene) sees it,
+    the baselines only their map buckets; draws in the hidden disc against what was there."""
+    cfg = ev.model.config
+    ctx = scene_tokens(c.data, c.steps, c.poses, ev.bins, cfg.radius, cfg.max_regions, visible="context",
+                       hide_radius=cfg.hide_radius)
+    p_raw, probs_raw = predict_tokens(ev.model, ctx)
+    q = ctx.query & ctx.mask
+    adaptation = fit_scene_adaptation(ev.model, c.data, c.steps, c.poses, ctx)
+    t.offsets.append(adaptation.offset)
+    p_ctx, probs_ctx = adaptation.apply(ev.model, p_raw, probs_raw, q)
+    t.cal["prior_context_raw"][0].append(p_raw[q])
+    t.cal["prior_context_raw"][1].append(ctx.present[q])
+    t.cal["prior_context"][0].append(p_ctx[q])
+    t.cal["prior_context"][1].append(ctx.present[q])
+    disc: dict[str, tuple[np.ndarray, np.ndarray]] = {
+        "prior": _sample_model(np.where(q, p_ctx, 0.0), probs_ctx, q, ev.bins, ev.hidden_rng, ev.table)}
+    q_flat, ctx_buckets = q.ravel(), token_buckets(ctx.map_features).ravel()
+    for b in ev.baselines:
+        p = b.presence(ctx_buckets)
+        sel = np.flatnonzero((ev.hidden_rng.random(len(p)) < p) & q_flat)
+        disc[b.name] = (sel, b.sample_values(ctx_buckets[sel], ev.hidden_rng))
+    disc["prior_raw"] = _sample_model(np.where(q, p_raw, 0.0), probs_raw, q, ev.bins, ev.hidden_rng, ev.table)
+    truth_sel = np.flatnonzero((ctx.present & q).ravel())
+    t.hidden["ground_truth"].append(len(truth_sel))
+    t.hidden["prior_context"].append(len(disc["prior"][0]))
+    t.hidden["prior_context_expected"].append(float(p_ctx[q].sum()))  # the mean of that draw
+    t.hidden["prior_context_raw_expected"].append(float(p_raw[q].sum()))
+    _score_draws(ctx, truth_sel, disc, t.per_scene_disc, cfg.radius, cfg.region_width, None, ev.unbiased)
+    # the same without the centre agent's own region (about half of what the disc holds)
+    others_ctx = _not_centre(c.data, ctx, c.steps, c.centre_agent)
+    q_others = q & others_ctx.reshape(q.shape)
+    t.hidden_others["ground_truth"].append(int(others_ctx[truth_sel].sum()))
+    t.hidden_others["prior_context_expected"].append(float(p_ctx[q_others].sum()))
+    t.hidden_others["prior_context_raw_expected"].append(float(p_raw[q_others].sum()))
+    _score_draws(ctx, truth_sel, disc, t.per_scene_disc_others, cfg.radius, cfg.region_width, others_ctx,
+                 ev.unbiased)
+
+
+def _summary(per_method: _Scores) -> dict[str, dict]:
+    return {name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()},
+                   "scenes": len(per["position"])} for name, per in per_method.items()}
+
+
+def _mean_counts(counts: dict[str, list[int]] | dict[str, list[float]]) -> dict[str, float]:
+    return {name: float(np.mean(c)) if c else 0.0 for name, c in counts.items()}
+
+
+def _results(t: _Tallies, mmd_estimator: str) -> dict:
+    """The evaluation's numbers from the per-scene tallies (but for the held-out losses)."""
+    result: dict = {"num_scenes": len(t.counts["ground_truth"]), "mmd_estimator": mmd_estimator,
+                    "mmd": _summary(t.per_scene), "agents_per_scene": _mean_counts(t.counts), "presence": {}}
+    result["agents_in_hidden_disc"] = _mean_counts(t.hidden)
+    if t.offsets:
+        o = np.asarray(t.offsets)
+        result["density_offset"] = {"mean": float(o.mean()), "min": float(o.min()), "max": float(o.max()),
+                                    "at_limit": int(np.sum(np.abs(o) >= DENSITY_OFFSET_LIMIT - 1e-9))}
+    result["mmd_hidden_disc"] = _summary(t.per_scene_disc)
+    result["without_centre_agent"] = {
+        "mmd": _summary(t.per_scene_others), "mmd_hidden_disc": _summary(t.per_scene_disc_others),
+        "agents_per_scene": _mean_counts(t.counts_others), "agents_in_hidden_disc": _mean_counts(t.hidden_others)}
+    for name, (ps, ys) in t.cal.items():
+        if ps:
+            result["presence"][name] = reliability(np.concatenate(ps), np.concatenate(ys))
+    return result
+
+
 def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
                    baselines: Sequence[MeanValueBaseline | GMMBaseline] = (), seed: int = 0,
                    progress: bool = False, mmd_estimator: str = "biased") -> dict:
@@ -220,29 +381,11 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     ``mmd_estimator``: "biased" or "unbiased" (module docstring)."""
     if mmd_estimator not in ("biased", "unbiased"):
         raise ValueError(f"mmd_estimator must be 'biased' or 'unbiased', got {mmd_estimator!r}")
-    unbiased = mmd_estimator == "unbiased"
     cfg = model.config
-    bins = cfg.bins()
-    table = width_table(model)
-    rng = np.random.default_rng([seed, 7])
-    methods = ["prior", *[b.name for b in baselines]]
-    per_scene: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in methods}
-    counts: dict[str, list[int]] = {m: [] for m in ["ground_truth", *methods]}
-    hidden: dict[str, list[float]] = {"ground_truth": [], "prior_context": [], "prior_context_expected": [],
-                                      "prior_context_raw_expected": []}
-    offsets: list[float] = []
-    hidden_rng = np.random.default_rng([seed, 11])  # its own stream: the other draws stay as they were
-    per_scene_disc: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES}
-                                                         for m in [*methods, "prior_raw"]}
-    # the same scores without the centre agent's own region, which the model predicts at the centre
-    per_scene_others: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES} for m in per_scene}
-    per_scene_disc_others: dict[str, dict[str, list[float]]] = {m: {a: [] for a in MMD_ATTRIBUTES}
-                                                                for m in per_scene_disc}
-    counts_others: dict[str, list[int]] = {m: [] for m in counts}
-    hidden_others: dict[str, list[float]] = {"ground_truth": [], "prior_context_expected": [],
-                                             "prior_context_raw_expected": []}
-    cal: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
-        k: ([], []) for k in ("prior_map", "prior_context", "prior_context_raw", "bucket_rate")}
+    ev = _Evaluation(model, cfg.bins(), width_table(model), baselines, mmd_estimator == "unbiased",
+                     rng=np.random.default_rng([seed, 7]),
+                     hidden_rng=np.random.default_rng([seed, 11]))  # its own stream: the others stay as they were
+    tallies = _Tallies.empty(["prior", *[b.name for b in baselines]])
     it: Sequence[ScenePriorData] = scenes
     if progress:
         from tqdm import tqdm
@@ -251,90 +394,12 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     for data in it:
         if len(data.centres) == 0:
             continue
-        rows = centre_rows(data, rng)
-        steps, centre_agent = data.centres[rows, 0].astype(np.int64), data.centres[rows, 1]
-        poses = data.centre_pose[rows].astype(np.float64).reshape(-1, 3)
-        tok = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="map")
-        mask = tok.mask
-        flat_mask = mask.ravel()
-        gt_sel = np.flatnonzero((tok.present & mask).ravel())
-        counts["ground_truth"].append(len(gt_sel))
-        others = _not_centre(data, tok, steps, centre_agent)
-        counts_others["ground_truth"].append(int(others[gt_sel].sum()))
-        presence, probs = predict_tokens(model, tok)
-        cal["prior_map"][0].append(presence[mask])
-        cal["prior_map"][1].append(tok.present[mask])
-        generated: dict[str, tuple[np.ndarray, np.ndarray]] = {
-            "prior": _sample_model(presence, probs, mask, bins, rng, table)}
-        buckets = token_buckets(tok.map_features).ravel()
-        for b in baselines:
-            p = b.presence(buckets)
-            sel = np.flatnonzero((rng.random(len(p)) < p) & flat_mask)
-            generated[b.name] = (sel, b.sample_values(buckets[sel], rng))
-        if baselines:
-            cal["bucket_rate"][0].append(baselines[0].presence(buckets[flat_mask]))
-            cal["bucket_rate"][1].append(tok.present.ravel()[flat_mask])
-        for name, (sel, _) in generated.items():
-            counts[name].append(len(sel))
-            counts_others[name].append(int(others[sel].sum()))
-        _score_draws(tok, gt_sel, generated, per_scene, cfg.radius, cfg.region_width, None, unbiased)
-        _score_draws(tok, gt_sel, generated, per_scene_others, cfg.radius, cfg.region_width, others, unbiased)
-        ctx = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="context",
-                           hide_radius=cfg.hide_radius)
-        p_raw, probs_raw = predict_tokens(model, ctx)
-        q = ctx.query & ctx.mask
-        adaptation = fit_scene_adaptation(model, data, steps, poses, ctx)
-        offsets.append(adaptation.offset)
-        p_ctx, probs_ctx = adaptation.apply(model, p_raw, probs_raw, q)
-        cal["prior_context_raw"][0].append(p_raw[q])
-        cal["prior_context_raw"][1].append(ctx.present[q])
-        cal["prior_context"][0].append(p_ctx[q])
-        cal["prior_context"][1].append(ctx.present[q])
-        # the hidden disc: the prior sees the traffic around it, the baselines only their map buckets
-        disc: dict[str, tuple[np.ndarray, np.ndarray]] = {
-            "prior": _sample_model(np.where(q, p_ctx, 0.0), probs_ctx, q, bins, hidden_rng, table)}
-        q_flat, ctx_buckets = q.ravel(), token_buckets(ctx.map_features).ravel()
-        for b in baselines:
-            p = b.presence(ctx_buckets)
-            sel = np.flatnonzero((hidden_rng.random(len(p)) < p) & q_flat)
-            disc[b.name] = (sel, b.sample_values(ctx_buckets[sel], hidden_rng))
-        disc["prior_raw"] = _sample_model(np.where(q, p_raw, 0.0), probs_raw, q, bins, hidden_rng, table)
-        truth_sel = np.flatnonzero((ctx.present & q).ravel())
-        hidden["ground_truth"].append(len(truth_sel))
-        hidden["prior_context"].append(len(disc["prior"][0]))
-        hidden["prior_context_expected"].append(float(p_ctx[q].sum()))  # the mean of that draw
-        hidden["prior_context_raw_expected"].append(float(p_raw[q].sum()))
-        _score_draws(ctx, truth_sel, disc, per_scene_disc, cfg.radius, cfg.region_width, None, unbiased)
-        # the same without the centre agent's own region (about half of what the disc holds)
-        others_ctx = _not_centre(data, ctx, steps, centre_agent)
-        q_others = q & others_ctx.reshape(q.shape)
-        hidden_others["ground_truth"].append(int(others_ctx[truth_sel].sum()))
-        hidden_others["prior_context_expected"].append(float(p_ctx[q_others].sum()))
-        hidden_others["prior_context_raw_expected"].append(float(p_raw[q_others].sum()))
-        _score_draws(ctx, truth_sel, disc, per_scene_disc_others, cfg.radius, cfg.region_width, others_ctx,
-                     unbiased)
-
-    def summary(per_method: dict[str, dict[str, list[float]]]) -> dict[str, dict]:
-        return {name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()},
-                       "scenes": len(per["position"])} for name, per in per_method.items()}
-
-    result: dict = {"num_scenes": len(counts["ground_truth"]), "mmd_estimator": mmd_estimator,
-                    "mmd": summary(per_scene), "agents_per_scene": {}, "presence": {}}
-    for name, c in counts.items():
-        result["agents_per_scene"][name] = float(np.mean(c)) if c else 0.0
-    result["agents_in_hidden_disc"] = {name: float(np.mean(c)) if c else 0.0 for name, c in hidden.items()}
-    if offsets:
-        o = np.asarray(offsets)
-        result["density_offset"] = {"mean": float(o.mean()), "min": float(o.min()), "max": float(o.max()),
-                                    "at_limit": int(np.sum(np.abs(o) >= DENSITY_OFFSET_LIMIT - 1e-9))}
-    result["mmd_hidden_disc"] = summary(per_scene_disc)
-    result["without_centre_agent"] = {
-        "mmd": summary(per_scene_others), "mmd_hidden_disc": summary(per_scene_disc_others),
-        "agents_per_scene": {name: float(np.mean(c)) if c else 0.0 for name, c in counts_others.items()},
-        "agents_in_hidden_disc": {name: float(np.mean(c)) if c else 0.0 for name, c in hidden_others.items()}}
-    for name, (ps, ys) in cal.items():
-        if ps:
-            result["presence"][name] = reliability(np.concatenate(ps), np.concatenate(ys))
+        rows = centre_rows(data, ev.rng)
+        centres = _Centres(data, data.centres[rows, 0].astype(np.int64), data.centres[rows, 1],
+                           data.centre_pose[rows].astype(np.float64).reshape(-1, 3))
+        _score_map_mode(ev, centres, tallies)
+        _score_hidden_disc(ev, centres, tallies)
+    result = _results(tallies, mmd_estimator)
     samples = epoch_samples(scenes, np.random.default_rng([seed, 10**6 + 1]), 1)
     if len(samples):
         result["heldout_loss"] = {

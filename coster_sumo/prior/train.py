@@ -19,7 +19,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +87,107 @@ def _lr_at(step: int, total: int, cfg: TrainConfig) -> float:
     return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(frac, 1.0)))
 
 
+@dataclass
+class _Progress:
+    """What a run carries from epoch to epoch (and a training state holds): the epochs done, the
+    best held-out score so far with its weights, and one record per epoch."""
+
+    epoch: int = 0
+    best: float = math.inf
+    best_state: dict | None = None
+    history: list[dict] = field(default_factory=list)
+
+
+def _resumed(state_path: Path, mcfg: PriorConfig, tcfg: TrainConfig, model: TrafficPrior,
+             opt: torch.optim.Optimizer, log: Callable[[str], None] | None) -> _Progress:
+    """The progress of the training state at ``state_path``, loaded into ``model`` and ``opt``; a
+    fresh start when it was written with other settings (said in the log)."""
+    state = torch.load(state_path, map_location="cpu", weights_only=True)
+    # the thread count only reorders floating-point sums: a run may resume on another one
+    saved_tc = {**dict(state.get("train_config") or {}), "threads": tcfg.threads}
+    differ = [k for k, v in asdict(tcfg).items() if saved_tc.get(k) != v]
+    if state.get("config") != mcfg.to_dict():
+        differ.insert(0, "model settings")
+    if differ:
+        if log:
+            log(f"ignoring {state_path}: it was written with another configuration ({', '.join(differ)})")
+        return _Progress()
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(state["optimizer"])
+    done = _Progress(int(state["epoch"]), float(state["best"]), state.get("best_model"),
+                     json.loads(state["history"]))
+    if log:
+        log(f"resuming from {state_path} after epoch {done.epoch}")
+    return done
+
+
+def _train_epoch(model: TrafficPrior, opt: torch.optim.Optimizer, train: Sequence[ScenePriorData],
+                 tcfg: TrainConfig, dev: torch.device, epoch: int, steps_per_epoch: int, total_steps: int,
+                 progress: bool) -> float:
+    """One epoch (0-based) over fresh samples of ``train``: the mean training loss per batch."""
+    cfg = model.config
+    rng = np.random.default_rng([tcfg.seed, epoch])
+    samples = epoch_samples(train, rng, tcfg.centres_per_step)
+    batches = range(0, len(samples), tcfg.batch_size)
+    it = batches
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(batches, desc=f"epoch {epoch + 1}/{tcfg.epochs}", unit="batch", leave=False)
+        it = bar
+    model.train()
+    run_loss, n = 0.0, 0
+    for bi, i in enumerate(it):
+        step = epoch * steps_per_epoch + bi
+        for group in opt.param_groups:
+            group["lr"] = _lr_at(step, total_steps, tcfg)
+        tok = batch_tokens(train, samples[i:i + tcfg.batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
+                           visible="random", rng=rng, hide_radius=cfg.hide_radius)
+        _, loss = model(*_torch_batch(tok, dev))
+        assert loss is not None
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
+        opt.step()
+        run_loss += float(loss.detach())
+        n += 1
+        if bar is not None:
+            bar.set_postfix(loss=f"{run_loss / n:.3f}")
+    if bar is not None:
+        bar.close()
+    return run_loss / max(n, 1)
+
+
+def _save_state(state_path: Path, mcfg: PriorConfig, tcfg: TrainConfig, model: TrafficPrior,
+                opt: torch.optim.Optimizer, done: _Progress) -> None:
+    """The training state after ``done.epoch`` epochs, written atomically."""
+    state_path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(state_path) as tmp:
+        torch.save({"config": mcfg.to_dict(), "train_config": asdict(tcfg), "model": model.state_dict(),
+                    "optimizer": opt.state_dict(), "epoch": done.epoch, "best": done.best,
+                    "best_model": done.best_state, "history": json.dumps(done.history)}, tmp)
+
+
+def _write_best(model: TrafficPrior, output: Path, done: _Progress, train: Sequence[ScenePriorData],
+                val: Sequence[ScenePriorData], tcfg: TrainConfig, dev: torch.device, meta: dict | None) -> dict:
+    """Load the best weights into ``model`` (on the CPU), write them to ``output`` and the metrics
+    beside it; returns the metrics."""
+    model.cpu()  # the checkpoint is the CPU's
+    if done.best_state is not None:
+        model.load_state_dict(done.best_state)
+    best_epoch = next((h["epoch"] for h in reversed(done.history) if h.get("best")), None)
+    metrics = {"best_epoch": best_epoch, "best_score": done.best, "history": done.history,
+               "num_train_scenes": len(train), "num_val_scenes": len(val),
+               "train_config": asdict(tcfg), "model_config": model.config.to_dict(),
+               "num_parameters": sum(p.numel() for p in model.parameters()), "device": device_name(dev),
+               "cpu": cpu_description(), **(meta or {})}
+    save_prior(model, output, metrics={k: v for k, v in metrics.items() if k != "history"},
+               meta=meta or {})
+    write_json(output.with_suffix(".json"), metrics)
+    return metrics
+
+
 def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], output: str | Path,
                 model_config: PriorConfig | None = None, train_config: TrainConfig | None = None,
                 state_path: str | Path | None = None, resume: bool = True, progress: bool = True,
@@ -108,25 +209,9 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
     torch.manual_seed(tcfg.seed)
     model = TrafficPrior(mcfg).to(dev)  # before the optimiser, whose state then lives where the weights do
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
-    history: list[dict] = []
-    start_epoch, best, best_state = 0, math.inf, None
+    done = _Progress()
     if resume and state_path.is_file():
-        state = torch.load(state_path, map_location="cpu", weights_only=True)
-        # the thread count only reorders floating-point sums: a run may resume on another one
-        saved_tc = {**dict(state.get("train_config") or {}), "threads": tcfg.threads}
-        differ = [k for k, v in asdict(tcfg).items() if saved_tc.get(k) != v]
-        if state.get("config") != mcfg.to_dict():
-            differ.insert(0, "model settings")
-        if not differ:
-            model.load_state_dict(state["model"])
-            opt.load_state_dict(state["optimizer"])
-            start_epoch, best = int(state["epoch"]), float(state["best"])
-            best_state = state.get("best_model")
-            history = json.loads(state["history"])
-            if log:
-                log(f"resuming from {state_path} after epoch {start_epoch}")
-        elif log:
-            log(f"ignoring {state_path}: it was written with another configuration ({', '.join(differ)})")
+        done = _resumed(state_path, mcfg, tcfg, model, opt, log)
     # every epoch has the same number of samples (centres_per_step per scene step with a centre)
     num_samples = len(epoch_samples(train, np.random.default_rng(0), tcfg.centres_per_step))
     steps_per_epoch = max(1, math.ceil(num_samples / tcfg.batch_size))
@@ -134,70 +219,24 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
     val_samples = epoch_samples(val, np.random.default_rng([tcfg.seed, 10**6 + 1]), 1) if val else None
     if val_samples is not None:
         val_samples = val_samples[: tcfg.val_batches_max * tcfg.batch_size]
-    cfg = mcfg
-    for epoch in range(start_epoch, tcfg.epochs):
+    for epoch in range(done.epoch, tcfg.epochs):
         t0 = time.perf_counter()
-        rng = np.random.default_rng([tcfg.seed, epoch])
-        samples = epoch_samples(train, rng, tcfg.centres_per_step)
-        batches = range(0, len(samples), tcfg.batch_size)
-        it = batches
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(batches, desc=f"epoch {epoch + 1}/{tcfg.epochs}", unit="batch", leave=False)
-            it = bar
-        model.train()
-        run_loss, n = 0.0, 0
-        for bi, i in enumerate(it):
-            step = epoch * steps_per_epoch + bi
-            for group in opt.param_groups:
-                group["lr"] = _lr_at(step, total_steps, tcfg)
-            tok = batch_tokens(train, samples[i:i + tcfg.batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
-                               visible="random", rng=rng, hide_radius=cfg.hide_radius)
-            _, loss = model(*_torch_batch(tok, dev))
-            assert loss is not None
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
-            opt.step()
-            run_loss += float(loss.detach())
-            n += 1
-            if bar is not None:
-                bar.set_postfix(loss=f"{run_loss / n:.3f}")
-        if bar is not None:
-            bar.close()
-        record: dict = {"epoch": epoch + 1, "train_loss": run_loss / max(n, 1),
-                        "seconds": time.perf_counter() - t0}
+        train_loss = _train_epoch(model, opt, train, tcfg, dev, epoch, steps_per_epoch, total_steps, progress)
+        record: dict = {"epoch": epoch + 1, "train_loss": train_loss, "seconds": time.perf_counter() - t0}
         if val_samples is not None and len(val_samples):
             record["val"] = evaluate_loss(model, val, val_samples, tcfg.batch_size, tcfg.seed)
             score = record["val"]["loss"]
         else:
             score = record["train_loss"]
-        if score < best:
-            best = score
-            best_state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+        if score < done.best:
+            done.best = score
+            done.best_state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
             record["best"] = True
-        history.append(record)
-        state_path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(state_path) as tmp:
-            torch.save({"config": mcfg.to_dict(), "train_config": asdict(tcfg), "model": model.state_dict(),
-                        "optimizer": opt.state_dict(), "epoch": epoch + 1, "best": best, "best_model": best_state,
-                        "history": json.dumps(history)}, tmp)
+        done.history.append(record)
+        done.epoch = epoch + 1
+        _save_state(state_path, mcfg, tcfg, model, opt, done)
         if log:
             val_txt = f" val {record['val']['loss']:.4f}" if "val" in record else ""
             log(f"epoch {epoch + 1}/{tcfg.epochs}: train {record['train_loss']:.4f}{val_txt} "
                 f"({record['seconds']:.1f} s)")
-    model.cpu()  # the checkpoint is the CPU's
-    if best_state is not None:
-        model.load_state_dict(best_state)
-    best_epoch = next((h["epoch"] for h in reversed(history) if h.get("best")), None)
-    metrics = {"best_epoch": best_epoch, "best_score": best, "history": history,
-               "num_train_scenes": len(train), "num_val_scenes": len(val),
-               "train_config": asdict(tcfg), "model_config": mcfg.to_dict(),
-               "num_parameters": sum(p.numel() for p in model.parameters()), "device": device_name(dev),
-               "cpu": cpu_description(), **(meta or {})}
-    save_prior(model, output, metrics={k: v for k, v in metrics.items() if k != "history"},
-               meta=meta or {})
-    write_json(output.with_suffix(".json"), metrics)
-    return metrics
+    return _write_best(model, output, done, train, val, tcfg, dev, meta)

@@ -317,6 +317,63 @@ def _hits_others(others: OtherAgents, poses: np.ndarray, length: float, width: f
     return hit
 
 
+@dataclass(frozen=True)
+class _Checks:
+    """How candidate trajectories (R, T, 3) are refined and checked before t_col: the vocabulary, the
+    drivable area and the other agents up to the step before t_col (None: no such check; always
+    None for T < 2), the adversary's size [m] and the times stored in the results."""
+
+    vocab: MotionVocab | None
+    drivable: DrivableArea | OffRoadFn | None
+    others: OtherAgents | None
+    length: float
+    width: float
+    times: np.ndarray
+
+    def usable_as_drawn(self, trajs: np.ndarray) -> np.ndarray:
+        """(N,) bool: samples that, as drawn, stay on the road and clear of the others before t_col."""
+        usable = np.ones(len(trajs), bool)
+        if self.others is not None:
+            usable &= ~_hits_others(self.others, trajs[:, :-1], self.length, self.width)
+        if self.drivable is not None and usable.any():
+            usable[usable] = ~_off_road(self.drivable, trajs[usable, :-1], self.length, self.width)
+        return usable
+
+    def representative(self, trajs: np.ndarray, members: np.ndarray, tries: np.ndarray, ci: int
+                       ) -> tuple[Trajectory | None, int, int]:
+        """The first of ``tries`` (members in order of distance to the centroid) that is acceptable once
+        refined, and how many of those tried hit another agent and how many left the road."""
+        hit_count = off_count = 0
+        t = trajs.shape[1]
+        for start in range(0, len(tries), 32):  # refine and check a few members at a time
+            chunk = tries[start:start + 32]
+            raw = trajs[chunk]
+            if self.vocab is not None and t >= 2:
+                poses, err = project_backward(raw, self.vocab, self.length, self.width)
+            else:
+                poses, err = raw.copy(), np.zeros(len(chunk))
+            bad = np.zeros(len(chunk), bool)
+            before = poses[:, :-1]  # contact at t_col is the point; only earlier poses are checked
+            if self.others is not None:
+                bad |= _hits_others(self.others, before, self.length, self.width)
+                hit_count += int(bad.sum())
+            if self.drivable is not None:
+                todo = ~bad
+                if todo.any():
+                    off = np.zeros(len(chunk), bool)
+                    off[todo] = _off_road(self.drivable, before[todo], self.length, self.width)
+                    off_count += int(off.sum())
+                    bad |= off
+            ok = np.flatnonzero(~bad)
+            if len(ok):
+                j = int(ok[0])
+                return (Trajectory(times=self.times.copy(), poses=poses[j], raw=raw[j].copy(), cluster=ci,
+                                   cluster_size=len(members), rank=start + j, sample_index=int(chunk[j]),
+                                   refine_error_m=float(err[j]), refined=self.vocab is not None),
+                        hit_count, off_count)
+        return None, hit_count, off_count
+
+
 def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: int = 0,
                            vocab: MotionVocab | None = None, drivable: DrivableArea | OffRoadFn | None = None,
                            others: OtherAgents | None = None, *, size: tuple[float, float],
@@ -355,15 +412,13 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
     length, width = (float(v) for v in size)
     if times is None:
         times = (np.arange(t) - (t - 1)) * 0.5
-    times = np.asarray(times, np.float64)
     if others is not None and others.boxes.shape[1] != t:
         raise InputError(f"others have {others.boxes.shape[1]} steps but trajectories have {t}")
-    usable = np.ones(n, bool)  # as drawn: nothing before t_col off the road or into another agent
-    if t >= 2 and others is not None:
-        usable &= ~_hits_others(OtherAgents(others.boxes[:, :-1], others.valid[:, :-1], others.ids),
-                                trajs[:, :-1], length, width)
-    if t >= 2 and drivable is not None and usable.any():
-        usable[usable] = ~_off_road(drivable, trajs[usable, :-1], length, width)
+    checks = _Checks(vocab, drivable if t >= 2 else None,
+                     OtherAgents(others.boxes[:, :-1], others.valid[:, :-1], others.ids)
+                     if others is not None and t >= 2 else None,
+                     length, width, np.asarray(times, np.float64))
+    usable = checks.usable_as_drawn(trajs)
     # the clusters are made of usable samples (a cluster of samples that all leave the road gives
     # no variant: the demo got 3 of 5); with fewer usable samples than clusters, of all of them, as
     # the vocabulary's refinement moves poses by decimetres and can make a sample usable
@@ -372,38 +427,12 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
     for ci, in_pool in enumerate(cluster_trajectories(trajs[pool], k, seed)):
         members = pool[in_pool]
         tries = members if max_tries is None else members[:max_tries]
-        hit_count = off_count = 0
-        for start in range(0, len(tries), 32):  # refine and check a few members at a time
-            chunk = tries[start:start + 32]
-            raw = trajs[chunk]
-            if vocab is not None and t >= 2:
-                poses, err = project_backward(raw, vocab, length, width)
-            else:
-                poses, err = raw.copy(), np.zeros(len(chunk))
-            bad = np.zeros(len(chunk), bool)
-            before = poses[:, :-1]  # contact at t_col is the point; only earlier poses are checked
-            if others is not None and t >= 2:
-                bad |= _hits_others(OtherAgents(others.boxes[:, :-1], others.valid[:, :-1], others.ids),
-                                    before, length, width)
-                hit_count += int(bad.sum())
-            if drivable is not None and t >= 2:
-                todo = ~bad
-                if todo.any():
-                    off = np.zeros(len(chunk), bool)
-                    off[todo] = _off_road(drivable, before[todo], length, width)
-                    off_count += int(off.sum())
-                    bad |= off
-            ok = np.flatnonzero(~bad)
-            if len(ok):
-                j = int(ok[0])
-                out.append(Trajectory(times=times.copy(), poses=poses[j], raw=raw[j].copy(), cluster=ci,
-                                      cluster_size=len(members), rank=start + j, sample_index=int(chunk[j]),
-                                      refine_error_m=float(err[j]), refined=vocab is not None))
-                break
-        else:
-            if rejected is not None:
-                rejected.append({"cluster": ci, "members": len(members),
-                                 "reason": _cluster_reason(len(tries), hit_count, off_count)})
+        rep, hit_count, off_count = checks.representative(trajs, members, tries, ci)
+        if rep is not None:
+            out.append(rep)
+        elif rejected is not None:
+            rejected.append({"cluster": ci, "members": len(members),
+                             "reason": _cluster_reason(len(tries), hit_count, off_count)})
     return out
 
 

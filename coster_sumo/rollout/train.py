@@ -241,6 +241,164 @@ def _metrics_path(out: Path) -> Path:
     return out.with_suffix(".json")
 
 
+@dataclass(frozen=True)
+class _Run:
+    """What every epoch of one :func:`train_rollout` call reads: the settings, where the model trains,
+    the example sets and the held-out rows it scores (``val_rows`` for the ELBO, ``ade_rows``, full
+    horizon only, for minADE / minFDE)."""
+
+    data: str  # the dataset folder, resolved
+    out: Path
+    cfg: RolloutConfig
+    tcfg: TrainConfig
+    dev: torch.device
+    train_paths: list[Path]
+    val_paths: list[Path]
+    train_set: Examples
+    val_set: Examples
+    val_rows: np.ndarray
+    ade_rows: np.ndarray
+    init: str | Path | None
+    command: str | None
+    cpu: str
+    t_start: float
+    quiet: bool
+
+
+def _start_weights(init: str | Path, cfg: RolloutConfig, tcfg: TrainConfig
+                   ) -> tuple[dict[str, torch.Tensor], TrainConfig]:
+    """The weights of checkpoint ``init`` and ``tcfg`` with its sha256; a checkpoint of other model
+    settings (but for :data:`FREE_ON_INIT`) is refused before any data is read."""
+    start, _ = load_checkpoint(init)
+    want, have = cfg.to_dict(), start.cfg.to_dict()
+    diff = sorted(k for k, v in want.items() if have.get(k) != v and k not in FREE_ON_INIT)
+    if diff:
+        raise InputError(f"{init}: its model settings differ from this run's ({', '.join(diff)}); "
+                         "give the same --hidden/--heads/--latent/--no-dsa/... as it was trained with")
+    with open(init, "rb") as f:
+        return start.state_dict(), dataclasses.replace(tcfg, init=hashlib.file_digest(f, "sha256").hexdigest())
+
+
+def _example_sets(train_paths: list[Path], val_paths: list[Path], cfg: RolloutConfig, tcfg: TrainConfig,
+                  cache: bool, cache_dir: str | Path | None, quiet: bool) -> tuple[Examples, Examples]:
+    """The training and held-out examples, from the feature cache or built in memory."""
+    if not cache:
+        return (load_examples(train_paths, cfg, tcfg.min_steps, quiet, "training scenes"),
+                load_examples(val_paths, cfg, tcfg.min_steps, quiet, "held-out scenes"))
+    train_set = load_cached_examples(train_paths, cfg, tcfg.min_steps, cache_dir, quiet, "training scenes")
+    val_set = (load_cached_examples(val_paths, cfg, tcfg.min_steps, cache_dir, quiet, "held-out scenes")
+               if val_paths else load_examples(val_paths, cfg, tcfg.min_steps))  # none held out: empty
+    return train_set, val_set
+
+
+def _scored_rows(val_set: Examples, cfg: RolloutConfig, tcfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The held-out rows scored every epoch: a seeded subset for the ELBO and one of the examples
+    with the full horizon for minADE / minFDE."""
+    g = torch.Generator().manual_seed(tcfg.seed + 7919)
+    val_rows = torch.randperm(len(val_set), generator=g).numpy()[: tcfg.max_val_examples]
+    full = np.flatnonzero(val_set.index[:, 3] == cfg.max_horizon) if len(val_set) else np.zeros(0, np.int64)
+    ade_rows = full[torch.randperm(len(full), generator=g).numpy()[: tcfg.max_val_examples]]
+    return val_rows, ade_rows
+
+
+def _resume(rpath: Path, run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer) -> tuple[list[dict[str, Any]], int]:
+    """Load the training state ``rpath`` into ``model`` and ``opt``: its history and the epochs done.
+    A state of other data or settings is an error that names them."""
+    state = read_torch_file(rpath)
+    if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
+        raise InputError(f"{rpath}: not a rollout training state")
+    conflicts = resume_conflicts(dict(state.get("train_config", {})), run.tcfg, int(state.get("epoch", 0)))
+    if state.get("config") != run.cfg.to_dict():
+        conflicts.insert(0, "the model settings")
+    if state.get("data") != run.data:
+        conflicts.insert(0, f"data {state.get('data')} -> {run.data}")
+    if conflicts:
+        raise InputError(f"{rpath}: the run to resume used other data or settings ({'; '.join(conflicts)}); "
+                         "start afresh with --restart (or write to another -o)")
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(state["optimizer"])
+    return list(state.get("history", [])), int(state["epoch"])
+
+
+def _train_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, epoch: int, steps_per_epoch: int
+                 ) -> dict[str, float]:
+    """One pass over the epoch's training rows: the mean loss, reconstruction and KL per example."""
+    tcfg, cfg, dev = run.tcfg, run.cfg, run.dev
+    model.train()
+    torch.manual_seed(tcfg.seed * 1_000_003 + epoch)
+    rows = _epoch_rows(len(run.train_set), tcfg, epoch)
+    batches = range(0, len(rows), tcfg.batch_size)
+    sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
+    seen = 0
+    # the next batch is assembled by a background thread while this one trains
+    ahead = prefetch(lambda part: _tensors(run.train_set.batch(part, cfg), dev),
+                     [rows[start:start + tcfg.batch_size] for start in batches])
+    bar = tqdm(ahead, total=len(batches), desc=f"epoch {epoch + 1}/{tcfg.epochs}", disable=run.quiet, leave=False)
+    for bi, (ctx, traj, mask) in enumerate(bar):
+        for group in opt.param_groups:
+            group["lr"] = learning_rate(epoch * steps_per_epoch + bi, tcfg, epoch)
+        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=tcfg.precision == "bf16"):
+            res = model(ctx, traj, mask)
+        assert res.loss is not None and res.recon is not None and res.kl is not None
+        opt.zero_grad(set_to_none=True)
+        res.loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
+        opt.step()
+        k = len(traj)
+        sums["loss"] += float(res.loss.detach()) * k
+        sums["recon"] += float(res.recon) * k
+        sums["kl"] += float(res.kl) * k
+        seen += k
+        bar.set_postfix(loss=f"{sums['loss'] / seen:.3f}", kl=f"{sums['kl'] / seen:.3f}")
+    return {f"train_{k}": v / max(seen, 1) for k, v in sums.items()}
+
+
+def _held_out_scores(run: _Run, model: RolloutCVAE, epoch: int) -> dict[str, float]:
+    """The held-out ELBO terms and minADE / minFDE after ``epoch`` (0-based)."""
+    tcfg = run.tcfg
+    scores: dict[str, float] = {}
+    if len(run.val_rows):
+        scores.update(validation_loss(model, run.val_set, run.val_rows, tcfg.batch_size, tcfg.seed + epoch))
+    if len(run.ade_rows):
+        errs = cvae_errors(model, run.val_set, run.ade_rows, tcfg.eval_samples, seed=tcfg.seed,
+                           batch_size=tcfg.batch_size)
+        kept = {k: v for k, v in errs.items() if k != "time_per_trajectory_s" and not k.startswith("by_")}
+        scores.update({f"val_{k}": v for k, v in kept.items()})
+    return scores
+
+
+def _save_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, history: list[dict[str, Any]]) -> None:
+    """The checkpoint and the training state after the last epoch of ``history``."""
+    entry = history[-1]
+    epochs = entry["epoch"]
+    meta = {"data": run.data, "epochs": epochs, "seed": run.tcfg.seed,
+            "train_config": dataclasses.asdict(run.tcfg), "last": entry}
+    save_checkpoint(model, run.out, meta=meta)
+    atomic_torch_save({"format": RESUME_FORMAT, "epoch": epochs, "model": model.state_dict(),
+                       "optimizer": opt.state_dict(), "config": run.cfg.to_dict(),
+                       "train_config": dataclasses.asdict(run.tcfg), "data": run.data,
+                       "history": history}, state_path(run.out))
+
+
+def _run_metrics(run: _Run, model: RolloutCVAE, history: list[dict[str, Any]]) -> dict[str, Any]:
+    """The metrics of the run so far (written to ``OUT.json`` after every epoch)."""
+    return {
+        "format": "coster-sumo-rollout-metrics", "data": run.data,
+        "scenes": {"train": len(run.train_paths), "val": len(run.val_paths)},
+        "examples": {"train": len(run.train_set), "val": len(run.val_set), "val_scored": int(len(run.val_rows)),
+                     "val_full_horizon_scored": int(len(run.ade_rows))},
+        "config": run.cfg.to_dict(), "train_config": dataclasses.asdict(run.tcfg),
+        "init": None if run.init is None else str(Path(run.init).resolve()),
+        "parameters": sum(p.numel() for p in model.parameters()),
+        "epochs": history, "final": history[-1],
+        "wall_time_s": time.perf_counter() - run.t_start, "torch": torch.__version__,
+        "threads": torch.get_num_threads(), "machine": platform.machine(), "cpu": run.cpu,
+        "device": device_name(run.dev),
+        "command": run.command if run.command is not None else " ".join(sys.argv),
+        "units": {"ADE/FDE": "m", "loss": "negative ELBO per valid step (nats)", "time_s": "s"},
+    }
+
+
 def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None = None,
                   tcfg: TrainConfig | None = None, *, resume: bool = True, quiet: bool = False,
                   command: str | None = None, cache: bool = True, cache_dir: str | Path | None = None,
@@ -276,25 +434,9 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     t_start = time.perf_counter()
     start_weights = None
     if init is not None:
-        start, _ = load_checkpoint(init)
-        want, have = cfg.to_dict(), start.cfg.to_dict()
-        diff = sorted(k for k, v in want.items() if have.get(k) != v and k not in FREE_ON_INIT)
-        if diff:
-            raise InputError(f"{init}: its model settings differ from this run's ({', '.join(diff)}); "
-                             "give the same --hidden/--heads/--latent/--no-dsa/... as it was trained with")
-        start_weights = start.state_dict()
-        with open(init, "rb") as f:
-            tcfg = dataclasses.replace(tcfg, init=hashlib.file_digest(f, "sha256").hexdigest())
+        start_weights, tcfg = _start_weights(init, cfg, tcfg)
     train_paths, val_paths = split_scene_files(data, tcfg.val_fraction, tcfg.seed)
-    train_set: Examples
-    val_set: Examples
-    if cache:
-        train_set = load_cached_examples(train_paths, cfg, tcfg.min_steps, cache_dir, quiet, "training scenes")
-        val_set = (load_cached_examples(val_paths, cfg, tcfg.min_steps, cache_dir, quiet, "held-out scenes")
-                   if val_paths else load_examples(val_paths, cfg, tcfg.min_steps))  # none held out: empty
-    else:
-        train_set = load_examples(train_paths, cfg, tcfg.min_steps, quiet, "training scenes")
-        val_set = load_examples(val_paths, cfg, tcfg.min_steps, quiet, "held-out scenes")
+    train_set, val_set = _example_sets(train_paths, val_paths, cfg, tcfg, cache, cache_dir, quiet)
     if len(train_set) == 0:
         raise InputError(f"{data}: no training examples (no vehicle with {tcfg.min_steps} valid past steps)")
     torch.manual_seed(tcfg.seed)
@@ -303,90 +445,22 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
         model.load_state_dict(start_weights)
     model.to(dev)  # before the optimiser, whose state then lives where the weights do
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
+    run = _Run(str(Path(data).resolve()), out, cfg, tcfg, dev, train_paths, val_paths, train_set, val_set,
+               *_scored_rows(val_set, cfg, tcfg), init, command, cpu, t_start, quiet)
     history: list[dict[str, Any]] = []
     first_epoch = 0
-    rpath = state_path(out)
-    if resume and rpath.is_file():
-        state = read_torch_file(rpath)
-        if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
-            raise InputError(f"{rpath}: not a rollout training state")
-        conflicts = resume_conflicts(dict(state.get("train_config", {})), tcfg, int(state.get("epoch", 0)))
-        if state.get("config") != cfg.to_dict():
-            conflicts.insert(0, "the model settings")
-        if state.get("data") != str(Path(data).resolve()):
-            conflicts.insert(0, f"data {state.get('data')} -> {Path(data).resolve()}")
-        if conflicts:
-            raise InputError(f"{rpath}: the run to resume used other data or settings ({'; '.join(conflicts)}); "
-                             "start afresh with --restart (or write to another -o)")
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        history = list(state.get("history", []))
-        first_epoch = int(state["epoch"])
-    g = torch.Generator().manual_seed(tcfg.seed + 7919)
-    val_rows = torch.randperm(len(val_set), generator=g).numpy()[: tcfg.max_val_examples]
-    full = np.flatnonzero(val_set.index[:, 3] == cfg.max_horizon) if len(val_set) else np.zeros(0, np.int64)
-    ade_rows = full[torch.randperm(len(full), generator=g).numpy()[: tcfg.max_val_examples]]
+    if resume and state_path(out).is_file():
+        history, first_epoch = _resume(state_path(out), run, model, opt)
     metrics: dict[str, Any] = {}
     steps_per_epoch = math.ceil(len(_epoch_rows(len(train_set), tcfg, 0)) / tcfg.batch_size)
     for epoch in range(first_epoch, tcfg.epochs):
         t_epoch = time.perf_counter()
-        model.train()
-        torch.manual_seed(tcfg.seed * 1_000_003 + epoch)
-        rows = _epoch_rows(len(train_set), tcfg, epoch)
-        batches = range(0, len(rows), tcfg.batch_size)
-        sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
-        seen = 0
-        # the next batch is assembled by a background thread while this one trains
-        ahead = prefetch(lambda part: _tensors(train_set.batch(part, cfg), dev),
-                         [rows[start:start + tcfg.batch_size] for start in batches])
-        bar = tqdm(ahead, total=len(batches), desc=f"epoch {epoch + 1}/{tcfg.epochs}", disable=quiet, leave=False)
-        for bi, (ctx, traj, mask) in enumerate(bar):
-            for group in opt.param_groups:
-                group["lr"] = learning_rate(epoch * steps_per_epoch + bi, tcfg, epoch)
-            with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=tcfg.precision == "bf16"):
-                res = model(ctx, traj, mask)
-            assert res.loss is not None and res.recon is not None and res.kl is not None
-            opt.zero_grad(set_to_none=True)
-            res.loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
-            opt.step()
-            k = len(traj)
-            sums["loss"] += float(res.loss.detach()) * k
-            sums["recon"] += float(res.recon) * k
-            sums["kl"] += float(res.kl) * k
-            seen += k
-            bar.set_postfix(loss=f"{sums['loss'] / seen:.3f}", kl=f"{sums['kl'] / seen:.3f}")
-        entry: dict[str, Any] = {"epoch": epoch + 1, **{f"train_{k}": v / max(seen, 1) for k, v in sums.items()}}
-        if len(val_rows):
-            entry.update(validation_loss(model, val_set, val_rows, tcfg.batch_size, tcfg.seed + epoch))
-        if len(ade_rows):
-            errs = cvae_errors(model, val_set, ade_rows, tcfg.eval_samples, seed=tcfg.seed, batch_size=tcfg.batch_size)
-            kept = {k: v for k, v in errs.items() if k != "time_per_trajectory_s" and not k.startswith("by_")}
-            entry.update({f"val_{k}": v for k, v in kept.items()})
+        entry: dict[str, Any] = {"epoch": epoch + 1, **_train_epoch(run, model, opt, epoch, steps_per_epoch)}
+        entry.update(_held_out_scores(run, model, epoch))
         entry["time_s"] = time.perf_counter() - t_epoch
         history.append(entry)
-        meta = {"data": str(Path(data).resolve()), "epochs": epoch + 1, "seed": tcfg.seed,
-                "train_config": dataclasses.asdict(tcfg), "last": entry}
-        save_checkpoint(model, out, meta=meta)
-        atomic_torch_save({"format": RESUME_FORMAT, "epoch": epoch + 1, "model": model.state_dict(),
-                           "optimizer": opt.state_dict(), "config": cfg.to_dict(),
-                           "train_config": dataclasses.asdict(tcfg), "data": str(Path(data).resolve()),
-                           "history": history}, rpath)
-        metrics = {
-            "format": "coster-sumo-rollout-metrics", "data": str(Path(data).resolve()),
-            "scenes": {"train": len(train_paths), "val": len(val_paths)},
-            "examples": {"train": len(train_set), "val": len(val_set), "val_scored": int(len(val_rows)),
-                         "val_full_horizon_scored": int(len(ade_rows))},
-            "config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg),
-            "init": None if init is None else str(Path(init).resolve()),
-            "parameters": sum(p.numel() for p in model.parameters()),
-            "epochs": history, "final": history[-1],
-            "wall_time_s": time.perf_counter() - t_start, "torch": torch.__version__,
-            "threads": torch.get_num_threads(), "machine": platform.machine(), "cpu": cpu,
-            "device": device_name(dev),
-            "command": command if command is not None else " ".join(sys.argv),
-            "units": {"ADE/FDE": "m", "loss": "negative ELBO per valid step (nats)", "time_s": "s"},
-        }
+        _save_epoch(run, model, opt, history)
+        metrics = _run_metrics(run, model, history)
         write_json(_metrics_path(out), metrics)
         if not quiet:
             shown = {k: round(v, 4) for k, v in entry.items() if isinstance(v, float)}
