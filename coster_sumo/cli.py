@@ -73,6 +73,11 @@ class CommandLine:
         self.commands = self.parser.add_subparsers(dest="command", metavar="COMMAND")
         self._groups: dict[str, argparse._SubParsersAction] = {}
 
+    @staticmethod
+    def run(argv: Sequence[str]) -> int:
+        """Run one whole command line, as ``coster-sumo ARGV...`` would (a server's fork does)."""
+        return main(argv)
+
     def group(self, name: str, help: str) -> argparse._SubParsersAction:
         """Subcommands under ``coster-sumo NAME ...`` (created on first use)."""
         if name not in self._groups:

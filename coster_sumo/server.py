@@ -32,11 +32,13 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 IDLE_EXIT_S = 1800.0  # [s] the server exits after this long without a command
 MAX_HEADER = 1 << 20  # [bytes] a command's header (argv, folder, environment)
+Runner = Callable[[list[str]], int]  # runs one command line, returns its exit code
 SOCKET_ENV = "COSTER_SUMO_SOCKET"  # a socket path of the user's choosing (tests, several servers)
 
 
@@ -121,7 +123,6 @@ def _changed(files: dict[str, int]) -> str | None:
 def preload() -> None:
     """Import what commands need, once: the simulation, the models and generation, the renders."""
     import coster_sumo.batch.task_imports  # noqa: F401 - libsumo, torch, scikit-learn, generation
-    import coster_sumo.cli  # noqa: F401
     import coster_sumo.viz  # noqa: F401 - matplotlib
     from coster_sumo.viz import plt
 
@@ -132,7 +133,8 @@ def preload() -> None:
     plt.close(fig)
 
 
-def _run_command(listener: socket.socket, conn: socket.socket, header: dict[str, Any], fds: list[int]) -> None:
+def _run_command(run: Runner, listener: socket.socket, conn: socket.socket, header: dict[str, Any],
+                 fds: list[int]) -> None:
     """In the forked child: become the command (its folder, environment, terminal) and run it."""
     listener.close()
     runner = os.getpid()
@@ -151,34 +153,40 @@ def _run_command(listener: socket.socket, conn: socket.socket, header: dict[str,
     os.environ.update(header["env"])
     sys.argv = ["coster-sumo", *header["argv"]]
 
-    def client_gone() -> None:  # the client was killed: stop as on Ctrl-C
+    finished = threading.Event()
+
+    def client_gone() -> None:  # the client was killed before the command finished: stop as on Ctrl-C
         with contextlib.suppress(OSError):
             while conn.recv(1):
                 pass
-        os.kill(runner, signal.SIGINT)
+        if not finished.is_set():
+            os.kill(runner, signal.SIGINT)
 
     threading.Thread(target=client_gone, daemon=True).start()
-    from coster_sumo.cli import main
-
     rc = 1
     try:
-        rc = main(header["argv"])
+        rc = run(header["argv"])
     except SystemExit as exc:  # argparse's --help and usage errors
         rc = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     except KeyboardInterrupt:
         rc = 130
     finally:
-        with contextlib.suppress(Exception):
+        # whatever happens here, this process ends here: it must never unwind into the server's loop
+        try:
+            finished.set()
             sys.stdout.flush()
             sys.stderr.flush()
-        if os.getpid() == runner:  # not a process the command forked that ended by unwinding its stack
-            with contextlib.suppress(OSError):
+            if os.getpid() == runner:  # not a process the command forked that ended by unwinding its stack
                 send_message(conn, {"rc": rc})
+        except BaseException:  # noqa: BLE001 - a closed terminal or a late signal changes nothing now
+            pass
         os._exit(rc)
 
 
-def serve(path: Path | None = None, idle_exit_s: float = IDLE_EXIT_S, quiet: bool = False) -> int:
-    """Listen on ``path`` until :data:`IDLE_EXIT_S` without a command, a stop, or a package update."""
+def serve(run: Runner, path: Path | None = None, idle_exit_s: float = IDLE_EXIT_S, quiet: bool = False) -> int:
+    """Listen on ``path`` until :data:`IDLE_EXIT_S` without a command, a stop, or a package update;
+    ``run(argv) -> exit code`` runs one command line (the command line's own entry, which the
+    ``serve`` command hands in: it was imported, with every command, before the server started)."""
     path = path or socket_path()
     private_folder(path)
     if path.exists():
@@ -209,7 +217,7 @@ def serve(path: Path | None = None, idle_exit_s: float = IDLE_EXIT_S, quiet: boo
                     break
                 continue
             last = time.monotonic()
-            stopping = _handle(listener, conn, files, quiet)
+            stopping = _handle(run, listener, conn, files, quiet)
     finally:
         listener.close()
         with contextlib.suppress(OSError):
@@ -217,7 +225,8 @@ def serve(path: Path | None = None, idle_exit_s: float = IDLE_EXIT_S, quiet: boo
     return 0
 
 
-def _handle(listener: socket.socket, conn: socket.socket, files: dict[str, int], quiet: bool = True) -> bool:
+def _handle(run: Runner, listener: socket.socket, conn: socket.socket, files: dict[str, int],
+            quiet: bool = True) -> bool:
     """One connection; True: the server should stop."""
     with conn:
         conn.settimeout(5.0)
@@ -246,7 +255,7 @@ def _handle(listener: socket.socket, conn: socket.socket, files: dict[str, int],
         sys.stderr.flush()
         pid = os.fork()
         if pid == 0:
-            _run_command(listener, conn, header, fds)  # never returns
+            _run_command(run, listener, conn, header, fds)  # never returns
         for fd in fds:
             os.close(fd)
         if not quiet:

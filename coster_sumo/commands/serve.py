@@ -18,14 +18,14 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--stop", action="store_true", help="stop the running server")
     p.add_argument("--idle-exit", type=float, default=server.IDLE_EXIT_S, metavar="S",
                    help="[s] exit after this long without a command (default %(default)g)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=lambda args: run(args, cli.run))
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace, run_command: server.Runner) -> int:
     if args.stop:
         if server.stop():
             print(f"coster-sumo server on {server.socket_path()}: stopped")
             return 0
         print(f"coster-sumo: error: no server answers on {server.socket_path()}", file=sys.stderr)
         return 1
-    return server.serve(idle_exit_s=args.idle_exit, quiet=args.quiet)
+    return server.serve(run_command, idle_exit_s=args.idle_exit, quiet=args.quiet)
