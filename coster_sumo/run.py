@@ -25,11 +25,10 @@ from coster_sumo.atomic import write_json
 from coster_sumo.defects import attach_labels, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
-from coster_sumo.formats.sumocfg import config_files
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
-from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
+from coster_sumo.outdir import staged_output
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
@@ -48,9 +47,14 @@ from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, ch
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 
 
-@dataclass
+@dataclass(frozen=True)
 class RunOptions:
-    """Everything ``coster-sumo run`` takes (see ``coster-sumo run --help``)."""
+    """Everything ``coster-sumo run`` takes (see ``coster-sumo run --help``), checked when it is made.
+
+    A bad option is one :class:`InputError` line (exit code 2) raised here, before any work: the
+    methods and their weights, the labels' options, the counts, the configuration and its window
+    (resolved once into :attr:`source`), the planner, and an id for every one of several targets.
+    """
 
     spec: ScenarioSpec
     out: Path
@@ -69,6 +73,22 @@ class RunOptions:
     copy_outside: bool = False  # exports also copy the files the configuration names outside its folder
     reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
     avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
+    source: ScenarioSource = field(init=False, repr=False, compare=False)  # ``spec`` resolved once
+
+    def __post_init__(self) -> None:
+        check_generation(self.generation)
+        check_avoidable(self.avoidable)
+        check_reaction_time(self.reaction_time)
+        if self.snapshots < 1:
+            raise InputError(f"--snapshots must be >= 1, not {self.snapshots}")
+        if not self.spec.config.is_file():
+            raise not_found(self.spec.config)
+        # a bad window is one line before any work
+        object.__setattr__(self, "source", ScenarioSource.resolve(self.spec))
+        if self.planner is not None:
+            check_planner(self.planner)
+        if len(self.targets) > 1 and None in self.targets:
+            raise InputError("with several targets every one needs an id (--target ID, repeated)")
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
@@ -93,70 +113,37 @@ def run(opts: RunOptions) -> RunResult:
     result is then a :class:`~coster_sumo.results.RunSummary` of their
     :class:`~coster_sumo.results.TargetResult`\ s.
     """
-    check_generation(opts.generation)
-    check_avoidable(opts.avoidable)
-    check_reaction_time(opts.reaction_time)
-    if opts.snapshots < 1:
-        raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
-    if not opts.spec.config.is_file():
-        raise not_found(opts.spec.config)
-    source = ScenarioSource.resolve(opts.spec)  # a bad window is one line before any work
-    if opts.planner is not None:
-        check_planner(opts.planner)
-    spec = opts.spec
-    targets = opts.targets
-    several = len(targets) > 1
-    if several and None in targets:
-        raise InputError("with several targets every one needs an id (--target ID, repeated)")
-    named = [str(t) for t in targets if t is not None]
-    timings: dict[str, float] = {}
-    check_output(opts.out, kind="run", inputs=config_files(spec.config), overwrite=opts.overwrite)
-    with OutputLock(opts.out):
-        clean_leftovers(opts.out)
-        # again under the lock: another command may have written OUT since the first check
-        check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
-        return _run_locked(opts, source, targets, named, timings)
-
-
-def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | None], named: list[str],
-                timings: dict[str, float]) -> RunResult:
-    """:func:`run` once its output folder is checked and locked."""
-    spec, converted = opts.spec, source.converted
+    source, spec = opts.source, opts.spec
+    named = [str(t) for t in opts.targets if t is not None]
     end = source.window[1] if source.window is not None else None
-    several = len(targets) > 1
-    staging = new_staging(opts.out)
-    # an adversary appears up to its horizon before t_col, which may come right after the target departs
-    held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=named[1:])
-            if not (opts.from_begin or opts.traci) else None)
-    try:
-        t0 = time.perf_counter()
-        planner = opts.planner or default_planner(converted)
-        # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
-        # copies of it must have them
-        extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
-        with progress_bar("nominal pass", "sim s", quiet=opts.quiet) as bar:
-            clock = None if end is None else SimClock(bar, end)
-            scene, converted = nominal_scene(source, traci=opts.traci, hold=None if converted else held,
-                                             additional=extra, progress=clock.update if clock else None,
-                                             more_targets=named[1:])
-        timings["nominal_s"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        drivable = DrivableArea.from_road_map(scene.road_map)
-        timings["drivable_s"] = time.perf_counter() - t0
-        result: RunResult
-        if not several:
-            result = _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, opts.out,
-                                 timings)
-        else:
-            result = _several_targets(opts, source, scene, named, drivable, held, planner, staging, timings)
-        publish(staging, opts.out, kind="run")
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    finally:
-        if held is not None:
-            held.close()
-    return result
+    planner = opts.planner or default_planner(source.converted)
+    timings: dict[str, float] = {}
+    with staged_output(opts.out, kind="run", inputs=source.inputs, overwrite=opts.overwrite) as staging:
+        # an adversary appears up to its horizon before t_col, which may come right after the target departs
+        held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=named[1:])
+                if not (opts.from_begin or opts.traci) else None)
+        try:
+            t0 = time.perf_counter()
+            # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
+            # copies of it must have them
+            extra = ([] if source.converted or planner == "replay"
+                     else make_planner(planner).additional_files(staging))
+            with progress_bar("nominal pass", "sim s", quiet=opts.quiet) as bar:
+                clock = None if end is None else SimClock(bar, end)
+                scene, _ = nominal_scene(source, traci=opts.traci, hold=None if source.converted else held,
+                                         additional=extra, progress=clock.update if clock else None,
+                                         more_targets=named[1:])
+            timings["nominal_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            drivable = DrivableArea.from_road_map(scene.road_map)
+            timings["drivable_s"] = time.perf_counter() - t0
+            if len(named) <= 1:
+                return _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, opts.out,
+                                   timings)
+            return _several_targets(opts, source, scene, named, drivable, held, planner, staging, timings)
+        finally:
+            if held is not None:
+                held.close()
 
 
 def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, named: list[str], drivable: DrivableArea,
@@ -212,6 +199,7 @@ def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requeste
     """Generation, the variants and the outputs (into ``out``, its ``summary.json`` last) of one target
     of the nominal scene; its result names ``published``, where ``out`` is renamed to."""
     spec = opts.spec
+    threads = generation_threads(opts.generation, held)
     target = choose_target(scene, requested, spec.config)
     t0 = time.perf_counter()
     advance = _advance_held(held)
@@ -224,7 +212,7 @@ def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requeste
                 if advance is not None:
                     advance(snap)
 
-            with torch_threads(generation_threads(opts.generation, held)):
+            with torch_threads(threads):
                 planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
                                          on_snapshot=drawn)
     except NoSnapshot as exc:

@@ -25,7 +25,7 @@ from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.source import ScenarioSource, simulation_window
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand
 
@@ -54,7 +54,8 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
         return load_scene(source.log), True
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
 
-    _, end = source.window or simulation_window(spec)  # a SUMO configuration's source has its window
+    assert source.window is not None  # a SUMO configuration's source has its window
+    end = source.window[1]
     target = spec.target or "ego"
     wanted = list(dict.fromkeys((target, *more_targets)))
     demand = config_demand(cfg)  # seconds, where a pass that finds no target takes minutes
