@@ -38,7 +38,13 @@ from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
+from coster_sumo.sim.inject import (
+    InjectionResult,
+    InjectionSettings,
+    VariantFailure,
+    default_planner,
+    inject_variants,
+)
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.source import ScenarioSource
@@ -74,6 +80,7 @@ class RunOptions:
     reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
     avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
     source: ScenarioSource = field(init=False, repr=False, compare=False)  # ``spec`` resolved once
+    injection: InjectionSettings = field(init=False, repr=False, compare=False)  # how the variants are injected
 
     def __post_init__(self) -> None:
         check_generation(self.generation)
@@ -87,6 +94,9 @@ class RunOptions:
         object.__setattr__(self, "source", ScenarioSource.resolve(self.spec))
         if self.planner is not None:
             check_planner(self.planner)
+        object.__setattr__(self, "injection", InjectionSettings(
+            self.planner or default_planner(self.source.converted), traci=self.traci, workers=self.workers,
+            timeout=self.timeout))
         if len(self.targets) > 1 and None in self.targets:
             raise InputError("with several targets every one needs an id (--target ID, repeated)")
 
@@ -113,10 +123,9 @@ def run(opts: RunOptions) -> RunResult:
     result is then a :class:`~coster_sumo.results.RunSummary` of their
     :class:`~coster_sumo.results.TargetResult`\ s.
     """
-    source, spec = opts.source, opts.spec
+    source, spec, planner = opts.source, opts.spec, opts.injection.planner
     named = [str(t) for t in opts.targets if t is not None]
     end = source.window[1] if source.window is not None else None
-    planner = opts.planner or default_planner(source.converted)
     timings: dict[str, float] = {}
     with staged_output(opts.out, kind="run", inputs=source.inputs, overwrite=opts.overwrite) as staging:
         # an adversary appears up to its horizon before t_col, which may come right after the target departs
@@ -135,20 +144,28 @@ def run(opts: RunOptions) -> RunResult:
                                          more_targets=named[1:])
             timings["nominal_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            drivable = DrivableArea.from_road_map(scene.road_map)
+            nominal = NominalPass(scene, DrivableArea.from_road_map(scene.road_map), held)
             timings["drivable_s"] = time.perf_counter() - t0
             if len(named) <= 1:
-                return _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, opts.out,
-                                   timings)
-            return _several_targets(opts, source, scene, named, drivable, held, planner, staging, timings)
+                return _one_target(opts, nominal, spec.target, staging, opts.out, timings)
+            return _several_targets(opts, nominal, named, staging, timings)
         finally:
             if held is not None:
                 held.close()
 
 
-def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, named: list[str], drivable: DrivableArea,
-                     held: HeldStates | None, planner: str, staging: Path, timings: dict[str, float]
-                     ) -> RunSummary:
+@dataclass(frozen=True)
+class NominalPass:
+    """What the targets of a run share: the nominal scene, its drivable area, and the held copies of
+    the pass (None: every variant simulates from the begin)."""
+
+    scene: Scene
+    drivable: DrivableArea
+    held: HeldStates | None
+
+
+def _several_targets(opts: RunOptions, nominal: NominalPass, named: list[str], staging: Path,
+                     timings: dict[str, float]) -> RunSummary:
     """Every target of a run with several into its own folder of ``staging``, and the list of them
     (``staging/summary.json``)."""
     entries: list[TargetEntry] = []
@@ -158,8 +175,7 @@ def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, nam
         folder.mkdir()
         try:
             # its result says where publish puts it
-            result = _one_target(opts, source, scene, tid, drivable, held, planner, folder, opts.out / folder.name,
-                                 dict(timings))
+            result = _one_target(opts, nominal, tid, folder, opts.out / folder.name, dict(timings))
         except InputError as exc:  # this target has no scenario; the others go on
             shutil.rmtree(folder, ignore_errors=True)
             entries.append(TargetEntry(tid, error=str(exc)))
@@ -171,7 +187,7 @@ def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, nam
         raise InputError("; ".join(str(t.error) for t in entries))
     summary = RunSummary(opts.out, str(opts.spec.config), tuple(entries), extra={
         **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
-        "nominal_until_s": float(scene.timestamps[-1]),
+        "nominal_until_s": float(nominal.scene.timestamps[-1]),
         "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()})
     write_json(staging / "summary.json", summary.to_json())
     return summary
@@ -193,19 +209,20 @@ def target_folder(target_id: str, taken: set[str]) -> str:
     return name
 
 
-def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requested: str | None, drivable: DrivableArea,
-                held: HeldStates | None, planner: str, out: Path, published: Path, timings: dict[str, float]
-                ) -> TargetResult:
+def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, out: Path, published: Path,
+                timings: dict[str, float]) -> TargetResult:
     """Generation, the variants and the outputs (into ``out``, its ``summary.json`` last) of one target
     of the nominal scene; its result names ``published``, where ``out`` is renamed to."""
-    spec = opts.spec
+    spec, source, how = opts.spec, opts.source, opts.injection
+    scene, drivable, held = nominal.scene, nominal.drivable, nominal.held
     threads = generation_threads(opts.generation, held)
     target = choose_target(scene, requested, spec.config)
+    target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
     advance = _advance_held(held)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
-        with progress_bar(f"generation ({str(scene.tracks.ids[target])})", "draw", quiet=opts.quiet) as bar:
+        with progress_bar(f"generation ({target_id})", "draw", quiet=opts.quiet) as bar:
             def drawn(snap: CollisionSnapshot) -> None:
                 bar.set_postfix_str(f"t_col {snap.time:.1f} s", refresh=False)
                 bar.update(1)
@@ -216,15 +233,13 @@ def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requeste
                 planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
                                          on_snapshot=drawn)
     except NoSnapshot as exc:
-        raise InputError(f"{spec.config}: no collision snapshot for target "
-                         f"{str(scene.tracks.ids[target])!r}: {exc}") from None
+        raise InputError(f"{spec.config}: no collision snapshot for target {target_id!r}: {exc}") from None
     timings["generation_s"] = time.perf_counter() - t0
     # every variant's avoidability, its escapes proven in SUMO (part of generation: docs/method.md step 8)
-    target_id = str(scene.tracks.ids[target])
 
     def label(plans: list[Any]) -> list[Any]:
-        return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=opts.workers,
-                           traci=opts.traci, reaction_time_s=opts.reaction_time, timings=timings)
+        return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
+                           traci=how.traci, reaction_time_s=opts.reaction_time, timings=timings)
 
     labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
                       label([pl for p in planned for pl in p.plans]), strict=True))
@@ -240,20 +255,19 @@ def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requeste
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with progress_bar("variants", "variant", total=len(plans), quiet=opts.quiet) as bar:
-        outcomes = inject_variants(source, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
-                                   workdir=out, held=held, workers=opts.workers, timeout=opts.timeout,
+        outcomes = inject_variants(source, scene, target, plans, how, drivable=drivable, workdir=out, held=held,
                                    done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0
     planned, results = drop_failed_variants(planned, outcomes)
-    planned, results = drop_bystander_wrecks(planned, results, str(scene.tracks.ids[target]))
+    planned, results = drop_bystander_wrecks(planned, results, target_id)
     if not any(p.plans for p in planned):
         failed = [f for p in planned for f in p.info.get("failed", [])]
         if failed and len(failed) == len(plans):
-            raise SumoError(f"{spec.config}: the SUMO pass of every variant of target "
-                            f"{str(scene.tracks.ids[target])!r} failed (first: {failed[0]['reason']})")
-        raise InputError(f"{spec.config}: every adversary of target {str(scene.tracks.ids[target])!r} ran into "
-                         "another vehicle before t_col in the simulation")
-    summary = write_run_outputs(out, spec, planner, planned, results, timings, render=opts.render,
+            raise SumoError(f"{spec.config}: the SUMO pass of every variant of target {target_id!r} failed "
+                            f"(first: {failed[0]['reason']})")
+        raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
+                         "t_col in the simulation")
+    summary = write_run_outputs(out, spec, how.planner, planned, results, timings, render=opts.render,
                                 options=opts.to_json(), copy_outside=opts.copy_outside)
     if tried is not None:
         summary["avoidable_only"] = tried
