@@ -48,7 +48,7 @@ from coster_sumo.sim.inject import (
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
+from coster_sumo.spec import GenerationConfig, LabelOptions, ScenarioSpec
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 
@@ -80,12 +80,12 @@ class RunOptions:
     reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
     avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
     source: ScenarioSource = field(init=False, repr=False, compare=False)  # ``spec`` resolved once
+    labels: LabelOptions = field(init=False, repr=False, compare=False)  # reaction_time and avoidable, checked
     injection: InjectionSettings = field(init=False, repr=False, compare=False)  # how the variants are injected
 
     def __post_init__(self) -> None:
         check_generation(self.generation)
-        check_avoidable(self.avoidable)
-        check_reaction_time(self.reaction_time)
+        object.__setattr__(self, "labels", LabelOptions(self.reaction_time, self.avoidable))
         if self.snapshots < 1:
             raise InputError(f"--snapshots must be >= 1, not {self.snapshots}")
         if not self.spec.config.is_file():
@@ -213,7 +213,8 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                 timings: dict[str, float]) -> TargetResult:
     """Generation, the variants and the outputs (into ``out``, its ``summary.json`` last) of one target
     of the nominal scene; its result names ``published``, where ``out`` is renamed to."""
-    spec, source, how = opts.spec, opts.source, opts.injection
+    spec, source = opts.spec, opts.source
+    how, wanted = opts.injection, opts.labels  # the injection's settings, the labels' options
     scene, drivable, held = nominal.scene, nominal.drivable, nominal.held
     threads = generation_threads(opts.generation, held)
     target = choose_target(scene, requested, spec.config)
@@ -239,19 +240,19 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
 
     def label(plans: list[Any]) -> list[Any]:
         return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
-                           traci=how.traci, reaction_time_s=opts.reaction_time, timings=timings)
+                           traci=how.traci, reaction_time_s=wanted.reaction_time, timings=timings)
 
     labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
                       label([pl for p in planned for pl in p.plans]), strict=True))
     tried: dict[str, Any] | None = None
-    if opts.avoidable == "only":
+    if wanted.avoidable == "only":
         def draw(j: int) -> PlannedScenario | None:
             return further_draw(scene, target, spec.seed, opts.generation, drivable, j)
 
         planned, tried = keep_avoidable(planned, labels, draw, label, opts.generation.variants * opts.snapshots)
         if not any(p.plans for p in planned):
             raise InputError(f"{spec.config}: none of the {tried['tried']} variants for target {target_id!r} "
-                             f"was avoidable at a reaction time of {opts.reaction_time:g} s (--avoidable only)")
+                             f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with progress_bar("variants", "variant", total=len(plans), quiet=opts.quiet) as bar:

@@ -98,3 +98,21 @@ def check_avoidable(choice: str) -> None:
 def check_reaction_time(seconds: float) -> None:
     if not 0.0 <= seconds <= 5.0:
         raise InputError(f"--reaction-time must be between 0 and 5 s, not {seconds:g}")
+
+
+@dataclass(frozen=True)
+class LabelOptions:
+    """What the avoidability labels of a run are stated for, checked when made (one
+    :class:`InputError` line for a bad one).
+
+    Attributes:
+        reaction_time: [s] the reaction time each variant's avoidable / unavoidable label is for.
+        avoidable: any (keep every variant) or only (keep the avoidable ones, drawing more).
+    """
+
+    reaction_time: float = 1.0
+    avoidable: str = "any"
+
+    def __post_init__(self) -> None:
+        check_avoidable(self.avoidable)
+        check_reaction_time(self.reaction_time)
