@@ -40,7 +40,6 @@ from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import (
     InjectionResult,
-    InjectionSettings,
     VariantFailure,
     default_planner,
     inject_variants,
@@ -48,7 +47,7 @@ from coster_sumo.sim.inject import (
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import GenerationConfig, LabelOptions, ScenarioSpec
+from coster_sumo.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 

@@ -11,8 +11,8 @@ from coster_sumo.drivable import DrivableArea
 from coster_sumo.method.generation import generate_variants
 from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.sim.inject import InjectionSettings, inject_variants
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.sim.inject import inject_variants
+from coster_sumo.spec import GenerationConfig, InjectionSettings, ScenarioSpec
 
 REPO = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.sumo

@@ -40,7 +40,7 @@ from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
 from coster_sumo.sim.session import SumoSession, VehicleStates
 from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import ScenarioSpec
+from coster_sumo.spec import InjectionSettings, ScenarioSpec
 
 ADVERSARY_COLOR = (220, 30, 30, 255)  # RGBA: red in sumo-gui
 POST_CONTACT_S = 5.0  # [s] a pass goes on this long after the contact (the wreck, the target's reaction)
@@ -450,31 +450,10 @@ class VariantFailure:
     reason: str
 
 
-@dataclass(frozen=True)
-class InjectionSettings:
-    """How the variants of a run are injected (:func:`inject_variants`), settled once where the
-    run's options are made (:class:`coster_sumo.run.RunOptions`).
-
-    Attributes:
-        planner: the target's planner (see ``coster-sumo run --planner``).
-        traci: a TraCI socket instead of libsumo.
-        workers: variants run at a time from held copies of the nominal pass.
-        timeout: [s] wall clock per variant's pass (None: no limit).
-        post_contact_s: [s] how long a pass goes on after the adversary's contact
-            (:attr:`PassSettings.post_contact_s`).
-    """
-
-    planner: str
-    traci: bool = False
-    workers: int = 1
-    timeout: float | None = None
-    post_contact_s: float | None = POST_CONTACT_S
-
-
 def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: list[AdversaryPlan],
                     how: InjectionSettings, *, drivable: DrivableArea | None = None, workdir: Path | None = None,
-                    held: HeldStates | None = None, done: Callable[[int], None] | None = None
-                    ) -> list[InjectionResult | VariantFailure]:
+                    held: HeldStates | None = None, post_contact_s: float | None = POST_CONTACT_S,
+                    done: Callable[[int], None] | None = None) -> list[InjectionResult | VariantFailure]:
     """:func:`inject_variant` for every plan, each in a process of its own; from held copies of
     the nominal pass where there are.
 
@@ -488,7 +467,7 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
     finish (progress).
     """
     source = ScenarioSource.of(scenario)
-    planner_spec, traci, post_contact_s, timeout = how.planner, how.traci, how.post_contact_s, how.timeout
+    planner_spec, traci, timeout = how.planner, how.traci, how.timeout
     results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
     groups: dict[int, list[int]] = {}
     if held is not None and not source.converted and not traci:
