@@ -30,7 +30,7 @@ from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
-from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
+from coster_sumo.spec import GenerationConfig, LabelOptions, ScenarioSpec
 
 __all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
            "SumoSession", "inject_variant", "plan_adversaries", "run_injection"]
@@ -61,18 +61,17 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     spec = ScenarioSpec(Path(config), seed=seed, begin=begin, end=end, target=target)
     gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
                            variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
-    check_avoidable(avoidable)
-    check_reaction_time(reaction_time)
+    wanted = LabelOptions(reaction_time, avoidable)  # a bad one is one line before any work
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
     planned = plan_scenarios(scene, index, seed, gen, drivable)[0]  # one snapshot: the first draw
 
     def label(plans: list[AdversaryPlan]) -> list[Any]:
-        return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=reaction_time)
+        return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=wanted.reaction_time)
 
     labels = dict(zip((p.vehicle_id for p in planned.plans), label(planned.plans), strict=True))
-    if avoidable == "only":
+    if wanted.avoidable == "only":
         def draw(j: int) -> PlannedScenario | None:
             return further_draw(scene, index, seed, gen, drivable, j)
 

@@ -14,6 +14,9 @@ the table of what each command does with an existing output):
 - :func:`new_staging` makes the hidden folder a command writes into; :func:`publish` moves the old
   output aside, renames the staging folder in, and removes the old one last, so a kill at any
   moment leaves either the old output or the new one whole (plus hidden leftovers).
+- :func:`staged_output` does the whole round for a command that replaces its output whole: check,
+  lock, clean leftovers, check again under the lock, a staging folder to write into, published
+  when the command's block ends and removed when it raises.
 - :func:`clean_leftovers` (called with the lock held) removes what killed commands left beside
   the output, and puts an old output back where a kill came between the two renames.
 
@@ -31,7 +34,7 @@ import os
 import secrets
 import shutil
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -187,6 +190,28 @@ def new_staging(out: Path) -> Path:
     path = out.parent / f".{out.name}.{STAGING_TAG}.{os.getpid()}.{secrets.token_hex(4)}"
     os.mkdir(path)  # the user's umask, unlike tempfile.mkdtemp
     return path
+
+
+@contextlib.contextmanager
+def staged_output(out: Path, *, kind: str, inputs: Iterable[Path] = (), overwrite: bool = False) -> Iterator[Path]:
+    """``with staged_output(out, kind=...) as staging:`` the block writes into ``staging``, which
+    becomes ``out`` when the block ends (:func:`publish`) and is removed when it raises.
+
+    ``out`` is checked (:func:`check_output`) before the lock is taken and again under it (another
+    command may have written it in between), and what killed commands left beside it is cleaned
+    up; the lock is held until the output is in place.
+    """
+    check_output(out, kind=kind, inputs=inputs, overwrite=overwrite)
+    with OutputLock(out):
+        clean_leftovers(out)
+        check_output(out, kind=kind, inputs=(), overwrite=overwrite)
+        staging = new_staging(out)
+        try:
+            yield staging
+            publish(staging, out, kind=kind)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
 
 
 def _leftovers(out: Path, tag: str) -> list[Path]:

@@ -25,11 +25,10 @@ from coster_sumo.atomic import write_json
 from coster_sumo.defects import attach_labels, keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
-from coster_sumo.formats.sumocfg import config_files
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
-from coster_sumo.outdir import OutputLock, check_output, clean_leftovers, new_staging, publish
+from coster_sumo.outdir import staged_output
 from coster_sumo.outputs import write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
@@ -39,18 +38,28 @@ from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.scenario import choose_target, nominal_scene
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.sim.inject import InjectionResult, VariantFailure, default_planner, inject_variants
+from coster_sumo.sim.inject import (
+    InjectionResult,
+    VariantFailure,
+    default_planner,
+    inject_variants,
+)
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
+from coster_sumo.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 
 
-@dataclass
+@dataclass(frozen=True)
 class RunOptions:
-    """Everything ``coster-sumo run`` takes (see ``coster-sumo run --help``)."""
+    """Everything ``coster-sumo run`` takes (see ``coster-sumo run --help``), checked when it is made.
+
+    A bad option is one :class:`InputError` line (exit code 2) raised here, before any work: the
+    methods and their weights, the labels' options, the counts, the configuration and its window
+    (resolved once into :attr:`source`), the planner, and an id for every one of several targets.
+    """
 
     spec: ScenarioSpec
     out: Path
@@ -69,6 +78,26 @@ class RunOptions:
     copy_outside: bool = False  # exports also copy the files the configuration names outside its folder
     reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
     avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
+    source: ScenarioSource = field(init=False, repr=False, compare=False)  # ``spec`` resolved once
+    labels: LabelOptions = field(init=False, repr=False, compare=False)  # reaction_time and avoidable, checked
+    injection: InjectionSettings = field(init=False, repr=False, compare=False)  # how the variants are injected
+
+    def __post_init__(self) -> None:
+        check_generation(self.generation)
+        object.__setattr__(self, "labels", LabelOptions(self.reaction_time, self.avoidable))
+        if self.snapshots < 1:
+            raise InputError(f"--snapshots must be >= 1, not {self.snapshots}")
+        if not self.spec.config.is_file():
+            raise not_found(self.spec.config)
+        # a bad window is one line before any work
+        object.__setattr__(self, "source", ScenarioSource.resolve(self.spec))
+        if self.planner is not None:
+            check_planner(self.planner)
+        object.__setattr__(self, "injection", InjectionSettings(
+            self.planner or default_planner(self.source.converted), traci=self.traci, workers=self.workers,
+            timeout=self.timeout))
+        if len(self.targets) > 1 and None in self.targets:
+            raise InputError("with several targets every one needs an id (--target ID, repeated)")
 
     def to_json(self) -> dict[str, Any]:
         """The options as summary.json records them."""
@@ -93,75 +122,49 @@ def run(opts: RunOptions) -> RunResult:
     result is then a :class:`~coster_sumo.results.RunSummary` of their
     :class:`~coster_sumo.results.TargetResult`\ s.
     """
-    check_generation(opts.generation)
-    check_avoidable(opts.avoidable)
-    check_reaction_time(opts.reaction_time)
-    if opts.snapshots < 1:
-        raise InputError(f"--snapshots must be >= 1, not {opts.snapshots}")
-    if not opts.spec.config.is_file():
-        raise not_found(opts.spec.config)
-    source = ScenarioSource.resolve(opts.spec)  # a bad window is one line before any work
-    if opts.planner is not None:
-        check_planner(opts.planner)
-    spec = opts.spec
-    targets = opts.targets
-    several = len(targets) > 1
-    if several and None in targets:
-        raise InputError("with several targets every one needs an id (--target ID, repeated)")
-    named = [str(t) for t in targets if t is not None]
-    timings: dict[str, float] = {}
-    check_output(opts.out, kind="run", inputs=config_files(spec.config), overwrite=opts.overwrite)
-    with OutputLock(opts.out):
-        clean_leftovers(opts.out)
-        # again under the lock: another command may have written OUT since the first check
-        check_output(opts.out, kind="run", inputs=(), overwrite=opts.overwrite)
-        return _run_locked(opts, source, targets, named, timings)
-
-
-def _run_locked(opts: RunOptions, source: ScenarioSource, targets: list[str | None], named: list[str],
-                timings: dict[str, float]) -> RunResult:
-    """:func:`run` once its output folder is checked and locked."""
-    spec, converted = opts.spec, source.converted
+    source, spec, planner = opts.source, opts.spec, opts.injection.planner
+    named = [str(t) for t in opts.targets if t is not None]
     end = source.window[1] if source.window is not None else None
-    several = len(targets) > 1
-    staging = new_staging(opts.out)
-    # an adversary appears up to its horizon before t_col, which may come right after the target departs
-    held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=named[1:])
-            if not (opts.from_begin or opts.traci) else None)
-    try:
-        t0 = time.perf_counter()
-        planner = opts.planner or default_planner(converted)
-        # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
-        # copies of it must have them
-        extra = [] if converted or planner == "replay" else make_planner(planner).additional_files(staging)
-        with progress_bar("nominal pass", "sim s", quiet=opts.quiet) as bar:
-            clock = None if end is None else SimClock(bar, end)
-            scene, converted = nominal_scene(source, traci=opts.traci, hold=None if converted else held,
-                                             additional=extra, progress=clock.update if clock else None,
-                                             more_targets=named[1:])
-        timings["nominal_s"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        drivable = DrivableArea.from_road_map(scene.road_map)
-        timings["drivable_s"] = time.perf_counter() - t0
-        result: RunResult
-        if not several:
-            result = _one_target(opts, source, scene, spec.target, drivable, held, planner, staging, opts.out,
-                                 timings)
-        else:
-            result = _several_targets(opts, source, scene, named, drivable, held, planner, staging, timings)
-        publish(staging, opts.out, kind="run")
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    finally:
-        if held is not None:
-            held.close()
-    return result
+    timings: dict[str, float] = {}
+    with staged_output(opts.out, kind="run", inputs=source.inputs, overwrite=opts.overwrite) as staging:
+        # an adversary appears up to its horizon before t_col, which may come right after the target departs
+        held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=named[1:])
+                if not (opts.from_begin or opts.traci) else None)
+        try:
+            t0 = time.perf_counter()
+            # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
+            # copies of it must have them
+            extra = ([] if source.converted or planner == "replay"
+                     else make_planner(planner).additional_files(staging))
+            with progress_bar("nominal pass", "sim s", quiet=opts.quiet) as bar:
+                clock = None if end is None else SimClock(bar, end)
+                scene, _ = nominal_scene(source, traci=opts.traci, hold=None if source.converted else held,
+                                         additional=extra, progress=clock.update if clock else None,
+                                         more_targets=named[1:])
+            timings["nominal_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            nominal = NominalPass(scene, DrivableArea.from_road_map(scene.road_map), held)
+            timings["drivable_s"] = time.perf_counter() - t0
+            if len(named) <= 1:
+                return _one_target(opts, nominal, spec.target, staging, opts.out, timings)
+            return _several_targets(opts, nominal, named, staging, timings)
+        finally:
+            if held is not None:
+                held.close()
 
 
-def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, named: list[str], drivable: DrivableArea,
-                     held: HeldStates | None, planner: str, staging: Path, timings: dict[str, float]
-                     ) -> RunSummary:
+@dataclass(frozen=True)
+class NominalPass:
+    """What the targets of a run share: the nominal scene, its drivable area, and the held copies of
+    the pass (None: every variant simulates from the begin)."""
+
+    scene: Scene
+    drivable: DrivableArea
+    held: HeldStates | None
+
+
+def _several_targets(opts: RunOptions, nominal: NominalPass, named: list[str], staging: Path,
+                     timings: dict[str, float]) -> RunSummary:
     """Every target of a run with several into its own folder of ``staging``, and the list of them
     (``staging/summary.json``)."""
     entries: list[TargetEntry] = []
@@ -171,8 +174,7 @@ def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, nam
         folder.mkdir()
         try:
             # its result says where publish puts it
-            result = _one_target(opts, source, scene, tid, drivable, held, planner, folder, opts.out / folder.name,
-                                 dict(timings))
+            result = _one_target(opts, nominal, tid, folder, opts.out / folder.name, dict(timings))
         except InputError as exc:  # this target has no scenario; the others go on
             shutil.rmtree(folder, ignore_errors=True)
             entries.append(TargetEntry(tid, error=str(exc)))
@@ -184,7 +186,7 @@ def _several_targets(opts: RunOptions, source: ScenarioSource, scene: Scene, nam
         raise InputError("; ".join(str(t.error) for t in entries))
     summary = RunSummary(opts.out, str(opts.spec.config), tuple(entries), extra={
         **({"target_choice": list(opts.target_choice)} if opts.target_choice else {}),
-        "nominal_until_s": float(scene.timestamps[-1]),
+        "nominal_until_s": float(nominal.scene.timestamps[-1]),
         "timings_s": {k: round(v, 3) for k, v in timings.items()}, "options": opts.to_json()})
     write_json(staging / "summary.json", summary.to_json())
     return summary
@@ -206,66 +208,66 @@ def target_folder(target_id: str, taken: set[str]) -> str:
     return name
 
 
-def _one_target(opts: RunOptions, source: ScenarioSource, scene: Scene, requested: str | None, drivable: DrivableArea,
-                held: HeldStates | None, planner: str, out: Path, published: Path, timings: dict[str, float]
-                ) -> TargetResult:
+def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, out: Path, published: Path,
+                timings: dict[str, float]) -> TargetResult:
     """Generation, the variants and the outputs (into ``out``, its ``summary.json`` last) of one target
     of the nominal scene; its result names ``published``, where ``out`` is renamed to."""
-    spec = opts.spec
+    spec, source = opts.spec, opts.source
+    how, wanted = opts.injection, opts.labels  # the injection's settings, the labels' options
+    scene, drivable, held = nominal.scene, nominal.drivable, nominal.held
+    threads = generation_threads(opts.generation, held)
     target = choose_target(scene, requested, spec.config)
+    target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
     advance = _advance_held(held)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
-        with progress_bar(f"generation ({str(scene.tracks.ids[target])})", "draw", quiet=opts.quiet) as bar:
+        with progress_bar(f"generation ({target_id})", "draw", quiet=opts.quiet) as bar:
             def drawn(snap: CollisionSnapshot) -> None:
                 bar.set_postfix_str(f"t_col {snap.time:.1f} s", refresh=False)
                 bar.update(1)
                 if advance is not None:
                     advance(snap)
 
-            with torch_threads(generation_threads(opts.generation, held)):
+            with torch_threads(threads):
                 planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
                                          on_snapshot=drawn)
     except NoSnapshot as exc:
-        raise InputError(f"{spec.config}: no collision snapshot for target "
-                         f"{str(scene.tracks.ids[target])!r}: {exc}") from None
+        raise InputError(f"{spec.config}: no collision snapshot for target {target_id!r}: {exc}") from None
     timings["generation_s"] = time.perf_counter() - t0
     # every variant's avoidability, its escapes proven in SUMO (part of generation: docs/method.md step 8)
-    target_id = str(scene.tracks.ids[target])
 
     def label(plans: list[Any]) -> list[Any]:
-        return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=opts.workers,
-                           traci=opts.traci, reaction_time_s=opts.reaction_time, timings=timings)
+        return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
+                           traci=how.traci, reaction_time_s=wanted.reaction_time, timings=timings)
 
     labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
                       label([pl for p in planned for pl in p.plans]), strict=True))
     tried: dict[str, Any] | None = None
-    if opts.avoidable == "only":
+    if wanted.avoidable == "only":
         def draw(j: int) -> PlannedScenario | None:
             return further_draw(scene, target, spec.seed, opts.generation, drivable, j)
 
         planned, tried = keep_avoidable(planned, labels, draw, label, opts.generation.variants * opts.snapshots)
         if not any(p.plans for p in planned):
             raise InputError(f"{spec.config}: none of the {tried['tried']} variants for target {target_id!r} "
-                             f"was avoidable at a reaction time of {opts.reaction_time:g} s (--avoidable only)")
+                             f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with progress_bar("variants", "variant", total=len(plans), quiet=opts.quiet) as bar:
-        outcomes = inject_variants(source, scene, target, plans, planner, drivable=drivable, traci=opts.traci,
-                                   workdir=out, held=held, workers=opts.workers, timeout=opts.timeout,
+        outcomes = inject_variants(source, scene, target, plans, how, drivable=drivable, workdir=out, held=held,
                                    done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0
     planned, results = drop_failed_variants(planned, outcomes)
-    planned, results = drop_bystander_wrecks(planned, results, str(scene.tracks.ids[target]))
+    planned, results = drop_bystander_wrecks(planned, results, target_id)
     if not any(p.plans for p in planned):
         failed = [f for p in planned for f in p.info.get("failed", [])]
         if failed and len(failed) == len(plans):
-            raise SumoError(f"{spec.config}: the SUMO pass of every variant of target "
-                            f"{str(scene.tracks.ids[target])!r} failed (first: {failed[0]['reason']})")
-        raise InputError(f"{spec.config}: every adversary of target {str(scene.tracks.ids[target])!r} ran into "
-                         "another vehicle before t_col in the simulation")
-    summary = write_run_outputs(out, spec, planner, planned, results, timings, render=opts.render,
+            raise SumoError(f"{spec.config}: the SUMO pass of every variant of target {target_id!r} failed "
+                            f"(first: {failed[0]['reason']})")
+        raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
+                         "t_col in the simulation")
+    summary = write_run_outputs(out, spec, how.planner, planned, results, timings, render=opts.render,
                                 options=opts.to_json(), copy_outside=opts.copy_outside)
     if tried is not None:
         summary["avoidable_only"] = tried

@@ -25,9 +25,9 @@ from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.source import ScenarioSource, simulation_window
+from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
-from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand
+from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand, missing_target
 
 MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)
 
@@ -49,12 +49,21 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     the arrival of the last of them).
     """
     source = ScenarioSource.of(scenario)
-    spec, cfg = source.spec, source.spec.config
-    if source.log is not None:
-        return load_scene(source.log), True
+    if source.log is None:
+        return _recorded(source, traci=traci, hold=hold, additional=additional, progress=progress,
+                         more_targets=more_targets), False
+    return load_scene(source.log), True
+
+
+def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, additional: Sequence[Path],
+              progress: Callable[[float], None] | None, more_targets: Sequence[str]) -> Scene:
+    """:func:`nominal_scene` of a SUMO configuration: its pass recorded around the target(s)."""
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
 
-    _, end = source.window or simulation_window(spec)  # a SUMO configuration's source has its window
+    spec, cfg = source.spec, source.spec.config
+
+    assert source.window is not None  # a SUMO configuration's source has its window
+    end = source.window[1]
     target = spec.target or "ego"
     wanted = list(dict.fromkeys((target, *more_targets)))
     demand = config_demand(cfg)  # seconds, where a pass that finds no target takes minutes
@@ -91,7 +100,7 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
         # every recorded vehicle stays: SUMO found it within the radius (of the target's front, not
         # its centre), and dropping a few would copy every track array of the pass
         return crop_scene(scene, SURROUNDINGS_RADIUS_M, present[0], agent_radius_m=np.inf,
-                          more_targets=present[1:]), False
+                          more_targets=present[1:])
     # no target ever ran: the focused pass kept who did (and for how long), for the error
     pass_window = scene.meta.get("pass_window_s")
     if pass_window is None:
@@ -119,21 +128,3 @@ def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
     if scene.tracks.valid[index].sum() < 2:
         raise InputError(f"{config}: target {ids[index]!r} never departs in the window")
     return index
-
-
-def missing_target(config: Any, requested: Sequence[str | None], window: str, ran: dict[str, float]) -> InputError:
-    """The one-line error for targets that never run: ``requested`` (None: the default 'ego'), the
-    window, and candidates from ``ran`` (every vehicle that ran, in order of appearance, with how
-    long it ran): ids containing a requested name, else the longest-running ones."""
-    if not ran:
-        return InputError(f"{config}: no vehicle runs in the window ({window}) at all")
-    if requested == [None]:
-        longest = sorted(ran, key=lambda v: -ran[v])[:8]
-        return InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
-                          "--target, e.g. " + ", ".join(longest))
-    names = [r or "ego" for r in requested]
-    near = [v for v in ran if any(n.lower() in v.lower() for n in names)][:8] or list(ran)[:8]
-    which = (f"target {names[0]!r} never runs" if len(names) == 1 else
-             "none of the targets " + ", ".join(map(repr, names)) + " runs")
-    return InputError(f"{config}: {which} in the window ({window}); candidates: {', '.join(near)}")
-

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_folder import converted_scene_file
-from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.formats.sumocfg import config_files, read_sumocfg
 from coster_sumo.spec import ScenarioSpec
 
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
@@ -47,11 +47,13 @@ class ScenarioSource:
         log: the converted WOMD scene's log (``scene.npz``), None for any other SUMO configuration.
         window: [begin, end] [s] of a SUMO configuration's run (:func:`simulation_window`); None for
             a converted scene (its log is its window).
+        inputs: the configuration and the files it names (an output folder must hold none of them).
     """
 
     spec: ScenarioSpec
     log: Path | None
     window: tuple[float, float] | None
+    inputs: tuple[Path, ...] = ()
 
     @property
     def converted(self) -> bool:
@@ -69,4 +71,4 @@ class ScenarioSource:
         if not spec.config.exists():
             raise not_found(spec.config)
         log = converted_scene_file(spec.config)
-        return cls(spec, log, None if log is not None else simulation_window(spec))
+        return cls(spec, log, None if log is not None else simulation_window(spec), tuple(config_files(spec.config)))

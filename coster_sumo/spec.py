@@ -1,6 +1,8 @@
 """What to generate: one scenario spec (which simulation, which target) and one generation config
 (which methods, how many samples and variants). Plain data, shared by ``run``, ``regress``,
-``eval scenarios`` and the Python API; the generation core (:mod:`coster_sumo.method.generation`) takes both.
+``eval scenarios`` and the Python API; the generation core (:mod:`coster_sumo.method.generation`)
+takes both. Besides them, what a run's avoidability labels are stated for (:class:`LabelOptions`)
+and how its variants are injected (:class:`InjectionSettings`), each checked or settled once.
 """
 
 from __future__ import annotations
@@ -98,3 +100,39 @@ def check_avoidable(choice: str) -> None:
 def check_reaction_time(seconds: float) -> None:
     if not 0.0 <= seconds <= 5.0:
         raise InputError(f"--reaction-time must be between 0 and 5 s, not {seconds:g}")
+
+
+@dataclass(frozen=True)
+class LabelOptions:
+    """What the avoidability labels of a run are stated for, checked when made (one
+    :class:`InputError` line for a bad one).
+
+    Attributes:
+        reaction_time: [s] the reaction time each variant's avoidable / unavoidable label is for.
+        avoidable: any (keep every variant) or only (keep the avoidable ones, drawing more).
+    """
+
+    reaction_time: float = 1.0
+    avoidable: str = "any"
+
+    def __post_init__(self) -> None:
+        check_avoidable(self.avoidable)
+        check_reaction_time(self.reaction_time)
+
+
+@dataclass(frozen=True)
+class InjectionSettings:
+    """How the variants of a run are injected (:func:`coster_sumo.sim.inject.inject_variants`),
+    settled once where the run's options are made (:class:`coster_sumo.run.RunOptions`).
+
+    Attributes:
+        planner: who drives the target (see ``coster-sumo run --planner``), already chosen.
+        traci: a TraCI socket instead of libsumo.
+        workers: variants run at a time from held copies of the nominal pass.
+        timeout: [s] wall clock per variant's pass (None: no limit).
+    """
+
+    planner: str
+    traci: bool = False
+    workers: int = 1
+    timeout: float | None = None

@@ -26,13 +26,14 @@ What the demand says, and how it is read:
 
 The free-flow time is a lower bound of the real one (queues, signals and insertion backlogs only add
 to it), so a chosen vehicle may still never run in the window; the run then lists it with that
-reason and the others go on (``OUT/summary.json``).
+reason and the others go on (``OUT/summary.json``). :func:`missing_target` is that reason's line,
+with the vehicles that did run as candidates.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -387,3 +388,21 @@ def choose_targets(config: str | Path, n: int, begin: float | None = None,
     if not out:
         raise InputError(f"{config}: its log has no vehicle to target")
     return out
+
+
+def missing_target(config: Any, requested: Sequence[str | None], window: str, ran: dict[str, float]) -> InputError:
+    """The one-line error for targets that never run: ``requested`` (None: the default 'ego'), the
+    window, and candidates from ``ran`` (every vehicle that ran, in order of appearance, with how
+    long it ran): ids containing a requested name, else the longest-running ones."""
+    if not ran:
+        return InputError(f"{config}: no vehicle runs in the window ({window}) at all")
+    if requested == [None]:
+        longest = sorted(ran, key=lambda v: -ran[v])[:8]
+        return InputError(f"{config}: no vehicle 'ego' runs in the window ({window}); pick a target with "
+                          "--target, e.g. " + ", ".join(longest))
+    names = [r or "ego" for r in requested]
+    near = [v for v in ran if any(n.lower() in v.lower() for n in names)][:8] or list(ran)[:8]
+    which = (f"target {names[0]!r} never runs" if len(names) == 1 else
+             "none of the targets " + ", ".join(map(repr, names)) + " runs")
+    return InputError(f"{config}: {which} in the window ({window}); candidates: {', '.join(near)}")
+

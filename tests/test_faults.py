@@ -163,7 +163,7 @@ def test_convert_killed_before_its_rename_counts_no_scene_twice(tmp_path):
     assert _hidden(scenes) == [".coster-sumo.json"]
 
 
-@pytest.mark.parametrize("where", ["coster_sumo.outputs.write_json", "coster_sumo.run.publish"])
+@pytest.mark.parametrize("where", ["coster_sumo.outputs.write_json", "coster_sumo.outdir.publish"])
 def test_a_full_disk_is_one_line_and_leaves_no_half_output(tmp_path, capfd, monkeypatch, where):
     """ENOSPC injected where the run writes its summary, and where it renames its output into place."""
     def full(*args, **kwargs):
@@ -177,12 +177,12 @@ def test_a_full_disk_is_one_line_and_leaves_no_half_output(tmp_path, capfd, monk
 
 
 def test_a_folder_it_may_not_write_is_one_line(tmp_path, capfd, monkeypatch):
-    import coster_sumo.run as run_module
+    import coster_sumo.outdir as outdir_module
 
     def read_only(out):
         raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(out.parent))
 
-    monkeypatch.setattr(run_module, "new_staging", read_only)
+    monkeypatch.setattr(outdir_module, "new_staging", read_only)
     rc = main(["-q", *RUN, "-o", str(tmp_path / "ro" / "o")])
     err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
     assert rc == 1 and len(err) == 1 and "Permission denied" in err[0], err

@@ -157,7 +157,7 @@ def test_a_target_that_never_runs_is_named_after_one_pass(tmp_path: Path, monkey
     with pytest.raises(InputError, match="no vehicle 'ego' in its demand"):
         nominal_scene(ScenarioSpec(cfg, end=40.0))
     # candidates: names like the one asked for, else those that ran (for the default, longest first)
-    from coster_sumo.scenario import missing_target
+    from coster_sumo.targets import missing_target
 
     ran = {"short": 12.0, "long": 30.0, "longer": 31.0}
     assert str(missing_target(cfg, ["x"], "w", ran)).endswith("candidates: short, long, longer")

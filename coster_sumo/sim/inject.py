@@ -40,7 +40,7 @@ from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
 from coster_sumo.sim.session import SumoSession, VehicleStates
 from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import ScenarioSpec
+from coster_sumo.spec import InjectionSettings, ScenarioSpec
 
 ADVERSARY_COLOR = (220, 30, 30, 255)  # RGBA: red in sumo-gui
 POST_CONTACT_S = 5.0  # [s] a pass goes on this long after the contact (the wreck, the target's reaction)
@@ -451,23 +451,23 @@ class VariantFailure:
 
 
 def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: list[AdversaryPlan],
-                    planner: str | None, *, drivable: DrivableArea | None = None, traci: bool = False,
-                    workdir: Path | None = None, held: HeldStates | None = None, workers: int = 1,
-                    post_contact_s: float | None = POST_CONTACT_S, timeout: float | None = None,
+                    how: InjectionSettings, *, drivable: DrivableArea | None = None, workdir: Path | None = None,
+                    held: HeldStates | None = None, post_contact_s: float | None = POST_CONTACT_S,
                     done: Callable[[int], None] | None = None) -> list[InjectionResult | VariantFailure]:
     """:func:`inject_variant` for every plan, each in a process of its own; from held copies of
     the nominal pass where there are.
 
     With ``held`` (the nominal pass of a SUMO configuration run with it), each variant continues
-    from the latest held moment before its adversary appears, up to ``workers`` at a time, instead
-    of simulating from ``begin`` again; the outcome is the same (see :mod:`coster_sumo.sim.hold`).
-    Events before that moment are the nominal pass's and are not checked again. The other variants
-    run from ``begin`` in a forked child each. A variant whose pass crashes (a libsumo segfault),
-    raises, or runs past ``timeout`` [s] comes back as a :class:`VariantFailure`; the others are
-    not affected. ``done(n)`` is called as n more variants finish (progress).
+    from the latest held moment before its adversary appears, up to ``how.workers`` at a time,
+    instead of simulating from ``begin`` again; the outcome is the same (see
+    :mod:`coster_sumo.sim.hold`). Events before that moment are the nominal pass's and are not
+    checked again. The other variants run from ``begin`` in a forked child each. A variant whose
+    pass crashes (a libsumo segfault), raises, or runs past ``how.timeout`` [s] comes back as a
+    :class:`VariantFailure`; the others are not affected. ``done(n)`` is called as n more variants
+    finish (progress).
     """
     source = ScenarioSource.of(scenario)
-    planner_spec = planner or default_planner(source.converted)
+    planner_spec, traci, timeout = how.planner, how.traci, how.timeout
     results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
     groups: dict[int, list[int]] = {}
     if held is not None and not source.converted and not traci:
@@ -482,7 +482,7 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
                             post_contact_s=post_contact_s)
     for h_index, members in groups.items():
         jobs = [(_continue_held, HeldVariant(target_id, plans[i], planner_spec, nominal, settings)) for i in members]
-        finished = held.run_each(held.holders[h_index], jobs, workers, timeout) if held is not None else []
+        finished = held.run_each(held.holders[h_index], jobs, how.workers, timeout) if held is not None else []
         for i, (ok, value) in zip(members, finished, strict=True):
             results[i] = value if ok else VariantFailure(str(value))
         if done is not None:
