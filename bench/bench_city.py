@@ -2,6 +2,7 @@
 
     python bench/bench_city.py [--vehicles-per-s 5] [--duration 1200] [--work DIR] [--target ID]
     python bench/bench_city.py --config networks/intersection/intersection.sumocfg   # any configuration
+    python bench/bench_city.py --config networks/merge/merge.sumocfg --served       # through coster-sumo serve
 
 Without ``--config`` it builds a city-scale configuration first (once, cached in ``--work``): the
 real OSM network of Braunschweig that ships in the eclipse-sumo wheel (``tools/game/DRT``) with
@@ -19,16 +20,19 @@ a city-scale configuration: <= 1.3.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import re
 import shutil
 import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
-from coster_sumo import sumo_env
+from coster_sumo import server, sumo_env
 from coster_sumo.formats.sumocfg import read_sumocfg
 
 REPO = Path(__file__).resolve().parents[1]
@@ -72,9 +76,9 @@ def pick_target(cfg: Path) -> str:
     return best
 
 
-def timed(cmd: list[str]) -> float:
+def timed(cmd: list[str], env: dict[str, str] | None = None) -> float:
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
     if proc.returncode != 0:
         raise SystemExit(f"{cmd[0]} ... {cmd[-1]} failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
     return time.perf_counter() - t0
@@ -89,16 +93,46 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-city"))
     ap.add_argument("--repeats", type=int, default=2,
                     help="pairs of (run, sumo), alternating; the ratio of each pair and their median are printed")
+    ap.add_argument("--served", action="store_true",
+                    help="run through `coster-sumo serve` (started here, its own socket in --work): the run "
+                         "without the imports every fresh command pays")
     args = ap.parse_args()
+    if args.served:
+        with serving(args.work / "sock" / "s.sock") as env:
+            bench(args, env)
+    else:
+        bench(args, None)
+
+
+@contextlib.contextmanager
+def serving(sock: Path) -> Iterator[dict[str, str]]:
+    """A ``coster-sumo serve`` on ``sock`` while the block runs; yields the environment that reaches it."""
+    env = {**os.environ, server.SOCKET_ENV: str(sock)}
+    env.pop("COSTER_SUMO_SERVER", None)
+    proc = subprocess.Popen([sys.executable, "-m", "coster_sumo.client", "--quiet", "serve"], env=env)
+    try:
+        while not server._alive(sock):
+            if proc.poll() is not None:
+                raise SystemExit("coster-sumo serve did not start")
+            time.sleep(0.2)
+        yield env
+    finally:
+        server.stop(sock)
+        proc.wait(timeout=60)
+
+
+def bench(args: argparse.Namespace, env: dict[str, str] | None) -> None:
+    """The pairs of (run, sumo); ``env``: the environment of a running server (None: fresh processes)."""
     cfg = args.config or build_city(args.work, args.vehicles_per_s, args.duration)
     target = args.target or ("ego" if args.config else pick_target(cfg))
     routes = read_sumocfg(cfg).route_files
     vehicles = sum(len(re.findall(r"<(?:vehicle|trip) ", p.read_text())) for p in routes if p.suffix != ".gz")
     out = args.work / "run"
     shutil.rmtree(out, ignore_errors=True)
-    run_cmd = [sys.executable, "-m", "coster_sumo", "--quiet", "run", str(cfg), "--target", target,
-               "--planner", "replay", "-o", str(out)]
-    t_run = timed(run_cmd)
+    entry = "coster_sumo" if env is None else "coster_sumo.client"  # the client hands the run to the server
+    run_cmd = [sys.executable, "-m", entry, "--quiet", "run", str(cfg), "--target", target,
+               "--planner", "replay", "-o", str(out), "--overwrite"]
+    t_run = timed(run_cmd, env)
     summary = json.loads((out / "summary.json").read_text())
     until = summary["nominal_until_s"]
     sumo_cmd = [sumo_env.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
@@ -107,7 +141,7 @@ def main() -> None:
     n_pairs = max(2, args.repeats)
     for i in range(1, n_pairs + 1):
         if i > 1:
-            runs.append(timed(run_cmd))
+            runs.append(timed(run_cmd, env))
             t_sumo.append(timed(sumo_cmd))
         print(f"pair {i}/{n_pairs}: run {runs[-1]:.1f} s, sumo {t_sumo[-1]:.1f} s, ratio {runs[-1] / t_sumo[-1]:.2f}",
               flush=True)
@@ -122,6 +156,9 @@ def main() -> None:
           "the mean of the sumo runs")
     print(f"ratio of each (run, sumo) pair: {' '.join(f'{r:.2f}' for r in pairs)}; "
           f"median {statistics.median(pairs):.2f}")
+    print(f"run - sumo of each pair [s]: {' '.join(f'{r - s:.2f}' for r, s in zip(runs, t_sumo, strict=True))}; "
+          f"median {statistics.median(r - s for r, s in zip(runs, t_sumo, strict=True)):.2f}"
+          + (" (through coster-sumo serve)" if env is not None else ""))
 
 
 if __name__ == "__main__":
