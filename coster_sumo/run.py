@@ -29,7 +29,7 @@ from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.outdir import staged_output
-from coster_sumo.outputs import write_run_outputs
+from coster_sumo.outputs import OverviewRenders, write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import SimClock, progress_bar
@@ -235,6 +235,8 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     except NoSnapshot as exc:
         raise InputError(f"{spec.config}: no collision snapshot for target {target_id!r}: {exc}") from None
     timings["generation_s"] = time.perf_counter() - t0
+    # the overviews are drawn on another core while the variants are labelled and simulated
+    overviews = OverviewRenders(out, planned) if opts.render else None
     # every variant's avoidability, its escapes proven in SUMO (part of generation: docs/method.md step 8)
 
     def label(plans: list[Any]) -> list[Any]:
@@ -268,7 +270,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
         raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
                          "t_col in the simulation")
     summary = write_run_outputs(out, spec, how.planner, planned, results, timings, render=opts.render,
-                                options=opts.to_json(), copy_outside=opts.copy_outside)
+                                options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews)
     if tried is not None:
         summary["avoidable_only"] = tried
     kept = [pl for p in planned for pl in p.plans]
