@@ -40,6 +40,23 @@ class ChildFailed(SumoError):
     """A forked child crashed, timed out or raised; the message is its one-line reason."""
 
 
+_IMPORTS_ONLY = False  # True in a process coster-sumo serve forked for a command, until that command runs torch
+
+
+def mark_imports_only() -> None:
+    """Say that this process (a fork of ``coster-sumo serve``, :mod:`coster_sumo.server`) has torch
+    and scikit-learn imported but never ran their thread pools."""
+    global _IMPORTS_ONLY
+    _IMPORTS_ONLY = True
+
+
+def imports_only() -> bool:
+    """Whether torch and scikit-learn, if imported, never ran here (see :func:`mark_imports_only`):
+    this process may then fork children that run them, as the command line does before it loads
+    them. Callers that would otherwise keep torch in this process check it."""
+    return _IMPORTS_ONLY
+
+
 def die_with_parent() -> None:
     """Linux: have the kernel SIGKILL this process when its parent dies (a killed command leaves no orphans)."""
     if not sys.platform.startswith("linux"):

@@ -36,6 +36,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from coster_sumo import procs
+
 IDLE_EXIT_S = 1800.0  # [s] the server exits after this long without a command
 MAX_HEADER = 1 << 20  # [bytes] a command's header (argv, folder, environment)
 Runner = Callable[[list[str]], int]  # runs one command line, returns its exit code
@@ -136,6 +138,7 @@ def preload() -> None:
 def _run_command(run: Runner, listener: socket.socket, conn: socket.socket, header: dict[str, Any],
                  fds: list[int]) -> None:
     """In the forked child: become the command (its folder, environment, terminal) and run it."""
+    procs.mark_imports_only()
     listener.close()
     runner = os.getpid()
     send_message(conn, {"pid": runner})

@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from behaviour import outcomes_of_run  # noqa: E402
 
 CLIENT = [sys.executable, "-m", "coster_sumo.client"]
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -104,6 +105,31 @@ def test_ctrl_c_in_the_client_stops_the_served_command(served, tmp_path: Path) -
     for pid in runner:  # the served process is gone, or a zombie nobody reaped yet: not running
         stat = Path(f"/proc/{pid}/stat")
         assert not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] in ("Z", "X")
+
+
+def test_a_sumo_crash_in_a_served_run_is_one_line(tmp_path: Path) -> None:
+    """The served run keeps the command line's crash isolation: SUMO aborting in the nominal pass
+    stops the run with one line and leaves nothing, and the server goes on."""
+    sock = tmp_path / "sock" / "s.sock"
+    env = {**os.environ, server.SOCKET_ENV: str(sock)}
+    env.pop("COSTER_SUMO_SERVER", None)
+    code = ("import os, sys, coster_sumo.run as r; r.nominal_scene = lambda *a, **k: os.abort(); "
+            "from coster_sumo.client import main; sys.exit(main(['serve']))")
+    proc = subprocess.Popen([sys.executable, "-c", code], env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        while not server._alive(sock):
+            assert proc.poll() is None
+            time.sleep(0.2)
+        cfg = REPO / "networks" / "intersection" / "intersection.sumocfg"
+        done = _client(["-q", "run", str(cfg), "--end", "20", "-o", "o"], env, tmp_path)
+        err = [line for line in done.stderr.splitlines() if line.strip()]
+        assert done.returncode == 1 and len(err) == 1, err
+        assert f"run of {cfg}: stopped, crashed (SIGABRT)" in err[0]
+        assert [p.name for p in tmp_path.iterdir()] == ["sock"]  # no OUT, no staging folder, no lock
+        assert _client(["run", str(tmp_path / "nowhere.sumocfg")], env, tmp_path).returncode == 2  # still serving
+    finally:
+        server.stop(sock)
+        proc.wait(timeout=30)
 
 
 def test_the_socket_folder_must_be_private(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.procs import die_with_parent, one_openmp_thread_after_fork, signal_name
+from coster_sumo.procs import die_with_parent, imports_only, one_openmp_thread_after_fork, signal_name
 
 # modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
 SUMO_TASK_MODULES = ("libsumo", "coster_sumo.scenario", "coster_sumo.method.generation", "coster_sumo.sim.inject",
@@ -233,8 +233,9 @@ def _driver_has_run_threads() -> bool:
     """Whether this process may have started thread pools that a forked child would inherit broken:
     torch's and scikit-learn's OpenMP pools (a child that runs them on more than one thread hangs)
     and the locks other threads may hold at the moment of the fork. The command line forks its tasks
-    before it loads either; a test or a Python API user may have run both."""
-    return "torch" in sys.modules or "sklearn" in sys.modules
+    before it loads either; a test or a Python API user may have run both. A command that
+    ``coster-sumo serve`` runs has them imported but never run (:func:`coster_sumo.procs.imports_only`)."""
+    return ("torch" in sys.modules or "sklearn" in sys.modules) and not imports_only()
 
 
 def _default_start_method() -> str:

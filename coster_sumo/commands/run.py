@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from coster_sumo import procs
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES
@@ -192,7 +193,7 @@ def _supervised_run(opts: RunOptions) -> RunResult:
     from coster_sumo.outdir import OutputLock, clean_leftovers
     from coster_sumo.procs import run_supervised
 
-    if "torch" in sys.modules:
+    if "torch" in sys.modules and not procs.imports_only():
         return run_scenario(opts)
     try:
         result: RunResult = run_supervised(functools.partial(run_scenario, opts), f"run of {opts.spec.config}")
