@@ -20,16 +20,13 @@ a city-scale configuration: <= 1.3.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import os
 import re
 import shutil
 import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 from coster_sumo import server, sumo_env
@@ -98,27 +95,10 @@ def main() -> None:
                          "without the imports every fresh command pays")
     args = ap.parse_args()
     if args.served:
-        with serving(args.work / "sock" / "s.sock") as env:
+        with server.serving(args.work / "sock" / "s.sock") as env:
             bench(args, env)
     else:
         bench(args, None)
-
-
-@contextlib.contextmanager
-def serving(sock: Path) -> Iterator[dict[str, str]]:
-    """A ``coster-sumo serve`` on ``sock`` while the block runs; yields the environment that reaches it."""
-    env = {**os.environ, server.SOCKET_ENV: str(sock)}
-    env.pop("COSTER_SUMO_SERVER", None)
-    proc = subprocess.Popen([sys.executable, "-m", "coster_sumo.client", "--quiet", "serve"], env=env)
-    try:
-        while not server._alive(sock):
-            if proc.poll() is not None:
-                raise SystemExit("coster-sumo serve did not start")
-            time.sleep(0.2)
-        yield env
-    finally:
-        server.stop(sock)
-        proc.wait(timeout=60)
 
 
 def bench(args: argparse.Namespace, env: dict[str, str] | None) -> None:

@@ -14,7 +14,6 @@ server's child's, which this process cannot see: only wall times are compared.
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import subprocess
 import sys
@@ -46,15 +45,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         tmpdir = Path(tmp)
         sock = tmpdir / "sock" / "s.sock"
-        served = {**os.environ, server.SOCKET_ENV: str(sock)}
-        served.pop("COSTER_SUMO_SERVER", None)
-        alone = {**served, "COSTER_SUMO_SERVER": "off"}
-        proc = subprocess.Popen([*CLIENT, "--quiet", "serve"], env=served)
-        try:
-            while not server._alive(sock):
-                if proc.poll() is not None:
-                    raise SystemExit("the server did not start")
-                time.sleep(0.2)
+        with server.serving(sock) as served:
+            alone = {**served, "COSTER_SUMO_SERVER": "off"}
             demo(alone, tmpdir / "warm-alone", args.network)
             demo(served, tmpdir / "warm-served", args.network)
             times: dict[str, list[float]] = {"alone": [], "served": []}
@@ -66,9 +58,6 @@ def main() -> None:
                     times[how].append(demo(alone if how == "alone" else served, out, args.network))
                     outcomes.add(repr(outcomes_of_run(out)))
                     print(f"round {r + 1} {how:6s} wall {times[how][-1]:6.2f} s", flush=True)
-        finally:
-            server.stop(sock)
-            proc.wait(timeout=30)
     ratios = [a / s for a, s in zip(times["alone"], times["served"], strict=True)]
     med = {how: statistics.median(ts) for how, ts in times.items()}
     print(f"\nmedian wall: alone {med['alone']:.2f} s, served {med['served']:.2f} s; per-round ratio alone / served: "

@@ -29,10 +29,11 @@ import json
 import os
 import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -267,28 +268,42 @@ def _handle(run: Runner, listener: socket.socket, conn: socket.socket, files: di
     return False
 
 
-def _alive(path: Path) -> bool:
-    """Whether a server answers on ``path``."""
+def _ask(path: Path, op: str, timeout_s: float) -> bool:
+    """Send ``op`` (ping, stop) to the server on ``path``; whether it answered."""
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-            s.settimeout(2.0)
+            s.settimeout(timeout_s)
             s.connect(str(path))
-            send_message(s, {"op": "ping"})
+            send_message(s, {"op": op})
             recv_message(s)
             return True
     except (OSError, EOFError, ValueError):
         return False
+
+
+def _alive(path: Path) -> bool:
+    """Whether a server answers on ``path``."""
+    return _ask(path, "ping", 2.0)
 
 
 def stop(path: Path | None = None) -> bool:
     """Ask the server on ``path`` to exit; False if none answered."""
-    path = path or socket_path()
+    return _ask(path or socket_path(), "stop", 5.0)
+
+
+@contextlib.contextmanager
+def serving(path: Path) -> Iterator[dict[str, str]]:
+    """A ``coster-sumo serve`` on ``path`` in a child process while the block runs (benches); yields
+    the environment whose ``coster-sumo`` commands reach it."""
+    env = {**os.environ, SOCKET_ENV: str(path)}
+    env.pop("COSTER_SUMO_SERVER", None)
+    proc = subprocess.Popen([sys.executable, "-m", "coster_sumo.client", "--quiet", "serve"], env=env)
     try:
-        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-            s.settimeout(5.0)
-            s.connect(str(path))
-            send_message(s, {"op": "stop"})
-            recv_message(s)
-            return True
-    except (OSError, EOFError, ValueError):
-        return False
+        while not _alive(path):
+            if proc.poll() is not None:
+                raise OSError(f"{path}: coster-sumo serve did not start (exit code {proc.returncode})")
+            time.sleep(0.2)
+        yield env
+    finally:
+        stop(path)
+        proc.wait(timeout=60)
