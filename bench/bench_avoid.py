@@ -16,6 +16,7 @@ import json
 import tempfile
 from pathlib import Path
 
+from coster_sumo.progress import bars
 from coster_sumo.run import RunOptions, run
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -36,8 +37,8 @@ def main() -> None:
         for seed in range(args.seeds):
             with tempfile.TemporaryDirectory(prefix="bench-avoid-") as tmp:
                 opts = RunOptions(spec=ScenarioSpec(cfg, seed=seed), out=Path(tmp) / "out",
-                                  generation=GenerationConfig(), planner="replay", render=False, quiet=True)
-                s = run(opts).to_json()
+                                  generation=GenerationConfig(), planner="replay", render=False)
+                s = run(opts, bars(quiet=True)).to_json()
             t = s["timings_s"]
             n = s["num_variants"]
             gen = sum(t.get(k, 0.0) for k in GENERATION)

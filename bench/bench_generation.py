@@ -59,7 +59,10 @@ import coster_sumo.batch.evaluate, coster_sumo.outputs  # noqa: F401
 NEW = os.path.isdir(os.path.join(sys.argv[1], "coster_sumo", "method"))
 if NEW:
     from coster_sumo.method.generation import generate_variants
-    from coster_sumo.scenario import choose_target
+    try:
+        from coster_sumo.targets import choose_target
+    except ImportError:  # before it moved beside the other ways of choosing targets
+        from coster_sumo.scenario import choose_target
 else:
     from coster_sumo.core import choose_target, generate_variants
 if os.path.isfile(os.path.join(sys.argv[1], "coster_sumo", "formats", "scene_file.py")):

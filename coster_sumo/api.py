@@ -27,10 +27,11 @@ from coster_sumo.defects import keep_avoidable, label_plans
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.method.generation import PlannedScenario, further_draw, plan_scenarios
 from coster_sumo.plan import AdversaryPlan
-from coster_sumo.scenario import choose_target, nominal_scene
+from coster_sumo.scenario import nominal_scene
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.spec import GenerationConfig, LabelOptions, ScenarioSpec
+from coster_sumo.targets import choose_target
 
 __all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
            "SumoSession", "inject_variant", "plan_adversaries", "run_injection"]

@@ -8,8 +8,14 @@ line in that case.
 
 from __future__ import annotations
 
+import functools
 import sys
+from collections.abc import Callable
 from typing import Any
+
+# what a long job takes to show its progress: ``bars(desc, unit, total=None)`` -> a tqdm-like bar
+# (a context manager with ``update``); :func:`bars` makes one, quiet or not
+Bars = Callable[..., Any]
 
 
 def progress_bar(desc: str, unit: str, total: float | None = None, quiet: bool = False) -> Any:
@@ -30,6 +36,12 @@ def progress_bar(desc: str, unit: str, total: float | None = None, quiet: bool =
 
     tqdm.monitor_interval = 0  # no monitor thread in a process that forks
     return _Bar(total=total, desc=desc, unit=unit, disable=quiet, leave=False, file=sys.stderr, dynamic_ncols=True)
+
+
+def bars(quiet: bool = False) -> Bars:
+    """:func:`progress_bar` with ``quiet`` fixed: a command's ``--quiet`` is a matter of its console,
+    handed to the work it runs as this, not as an option of the work."""
+    return functools.partial(progress_bar, quiet=quiet)
 
 
 class SimClock:

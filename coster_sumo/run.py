@@ -23,7 +23,6 @@ from typing import Any
 
 from coster_sumo.atomic import write_json
 from coster_sumo.defects import attach_labels, keep_avoidable, label_plans
-from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
@@ -32,11 +31,10 @@ from coster_sumo.outdir import staged_output
 from coster_sumo.outputs import OverviewRenders, write_run_outputs
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
-from coster_sumo.progress import SimClock, progress_bar
+from coster_sumo.progress import Bars, progress_bar
 from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
-from coster_sumo.scenario import choose_target, nominal_scene
-from coster_sumo.scene import Scene
+from coster_sumo.scenario import NominalPass, nominal_pass
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import (
     InjectionResult,
@@ -67,7 +65,6 @@ class RunOptions:
     planner: str | None = None
     traci: bool = False
     render: bool = True
-    quiet: bool = False
     snapshots: int = 1  # collision snapshots (each with its variants) from the one nominal pass
     more_targets: tuple[str, ...] = ()  # further targets sharing the nominal pass (each its own folder)
     from_begin: bool = False  # every variant simulates from begin instead of a held copy of the nominal pass
@@ -113,8 +110,11 @@ class RunOptions:
         return list(dict.fromkeys((self.spec.target, *self.more_targets)))
 
 
-def run(opts: RunOptions) -> RunResult:
+def run(opts: RunOptions, bars: Bars = progress_bar) -> RunResult:
     r"""Run the whole pipeline; returns its result (summary.json in OUT is its JSON).
+
+    ``bars`` shows the progress of the nominal pass, the generation and the variants
+    (:func:`coster_sumo.progress.bars`: ``bars(quiet=True)`` shows none).
 
     With several targets (``more_targets``) they share the nominal pass and its held copies; each
     gets its own folder ``OUT/<target>/`` laid out as a one-target OUT, and ``OUT/summary.json``
@@ -124,7 +124,6 @@ def run(opts: RunOptions) -> RunResult:
     """
     source, spec, planner = opts.source, opts.spec, opts.injection.planner
     named = [str(t) for t in opts.targets if t is not None]
-    end = source.window[1] if source.window is not None else None
     timings: dict[str, float] = {}
     with staged_output(opts.out, kind="run", inputs=source.inputs, overwrite=opts.overwrite) as staging:
         # an adversary appears up to its horizon before t_col, which may come right after the target departs
@@ -136,35 +135,20 @@ def run(opts: RunOptions) -> RunResult:
             # copies of it must have them
             extra = ([] if source.converted or planner == "replay"
                      else make_planner(planner).additional_files(staging))
-            with progress_bar("nominal pass", "sim s", quiet=opts.quiet) as bar:
-                clock = None if end is None else SimClock(bar, end)
-                scene, _ = nominal_scene(source, traci=opts.traci, hold=None if source.converted else held,
-                                         additional=extra, progress=clock.update if clock else None,
-                                         more_targets=named[1:])
-            timings["nominal_s"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            nominal = NominalPass(scene, DrivableArea.from_road_map(scene.road_map), held)
-            timings["drivable_s"] = time.perf_counter() - t0
+            with bars("nominal pass", "sim s") as bar:
+                nominal = nominal_pass(source, opts.targets, traci=opts.traci, hold=held, additional=extra, bar=bar)
+            timings["nominal_s"] = time.perf_counter() - t0 - nominal.drivable_s
+            timings["drivable_s"] = nominal.drivable_s
             if len(named) <= 1:
-                return _one_target(opts, nominal, spec.target, staging, opts.out, timings)
-            return _several_targets(opts, nominal, named, staging, timings)
+                return _one_target(opts, nominal, spec.target, staging, opts.out, timings, bars)
+            return _several_targets(opts, nominal, named, staging, timings, bars)
         finally:
             if held is not None:
                 held.close()
 
 
-@dataclass(frozen=True)
-class NominalPass:
-    """What the targets of a run share: the nominal scene, its drivable area, and the held copies of
-    the pass (None: every variant simulates from the begin)."""
-
-    scene: Scene
-    drivable: DrivableArea
-    held: HeldStates | None
-
-
 def _several_targets(opts: RunOptions, nominal: NominalPass, named: list[str], staging: Path,
-                     timings: dict[str, float]) -> RunSummary:
+                     timings: dict[str, float], bars: Bars) -> RunSummary:
     """Every target of a run with several into its own folder of ``staging``, and the list of them
     (``staging/summary.json``)."""
     entries: list[TargetEntry] = []
@@ -174,7 +158,7 @@ def _several_targets(opts: RunOptions, nominal: NominalPass, named: list[str], s
         folder.mkdir()
         try:
             # its result says where publish puts it
-            result = _one_target(opts, nominal, tid, folder, opts.out / folder.name, dict(timings))
+            result = _one_target(opts, nominal, tid, folder, opts.out / folder.name, dict(timings), bars)
         except InputError as exc:  # this target has no scenario; the others go on
             shutil.rmtree(folder, ignore_errors=True)
             entries.append(TargetEntry(tid, error=str(exc)))
@@ -209,20 +193,22 @@ def target_folder(target_id: str, taken: set[str]) -> str:
 
 
 def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, out: Path, published: Path,
-                timings: dict[str, float]) -> TargetResult:
+                timings: dict[str, float], bars: Bars) -> TargetResult:
     """Generation, the variants and the outputs (into ``out``, its ``summary.json`` last) of one target
     of the nominal scene; its result names ``published``, where ``out`` is renamed to."""
     spec, source = opts.spec, opts.source
     how, wanted = opts.injection, opts.labels  # the injection's settings, the labels' options
     scene, drivable, held = nominal.scene, nominal.drivable, nominal.held
     threads = generation_threads(opts.generation, held)
-    target = choose_target(scene, requested, spec.config)
+    if requested in nominal.missing:
+        raise InputError(nominal.missing[requested])
+    target = nominal.targets[requested]
     target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
     advance = _advance_held(held)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
-        with progress_bar(f"generation ({target_id})", "draw", quiet=opts.quiet) as bar:
+        with bars(f"generation ({target_id})", "draw") as bar:
             def drawn(snap: CollisionSnapshot) -> None:
                 bar.set_postfix_str(f"t_col {snap.time:.1f} s", refresh=False)
                 bar.update(1)
@@ -256,7 +242,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                              f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
-    with progress_bar("variants", "variant", total=len(plans), quiet=opts.quiet) as bar:
+    with bars("variants", "variant", total=len(plans)) as bar:
         outcomes = inject_variants(source, scene, target, plans, how, drivable=drivable, workdir=out, held=held,
                                    done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0

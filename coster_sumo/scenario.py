@@ -6,35 +6,41 @@
 2. :func:`nominal_scene`: the nominal traffic at 10 Hz. A converted WOMD scene is its log
    (``scene.npz``, see :mod:`coster_sumo.formats.scene_folder`); any other configuration is
    simulated with libsumo and recorded with the spec's seed (the injection passes use the same);
-3. :func:`choose_target`: the spec's target, else the SDC of a converted scene, else ``ego``.
+3. :func:`nominal_pass`: for ``coster-sumo run``, the scene, its drivable area and each requested
+   target chosen once (:func:`coster_sumo.targets.choose_target`: the spec's target, else the SDC
+   of a converted scene, else ``ego``), in one :class:`NominalPass` that the targets of a run share.
 
 The generation itself is :mod:`coster_sumo.method.generation`.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from coster_sumo.dataset import crop_scene
+from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
+from coster_sumo.progress import SimClock
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
-from coster_sumo.targets import OFF_ROAD_CLASSES, config_demand, missing_target
+from coster_sumo.targets import OFF_ROAD_CLASSES, choose_target, config_demand, missing_target
 
 MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)
 
 
 def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = False, hold: HeldStates | None = None,
                   additional: Sequence[Path] = (), progress: Callable[[float], None] | None = None,
-                  more_targets: Sequence[str] = ()) -> tuple[Scene, bool]:
+                  more_targets: Sequence[str] = (), bar: Any = None) -> tuple[Scene, bool]:
     """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
 
     ``scenario``: a spec, or a source resolved from it already.
@@ -44,19 +50,20 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     (:class:`~coster_sumo.sim.record.Focus`: what the models read is exactly what SUMO did);
     with ``hold`` the pass leaves held copies of itself for the variants (:mod:`coster_sumo.sim.hold`);
     ``additional`` files are loaded as the variants' passes will load them (a planner's vType);
-    ``progress`` is called with the simulation time [s] after every step; ``more_targets`` are
+    ``progress`` is called with the simulation time [s] after every step, and ``bar`` (a progress
+    bar) moves along it to the window's end; ``more_targets`` are
     recorded like the target (one pass for several targets: the union of their surroundings, up to
     the arrival of the last of them).
     """
     source = ScenarioSource.of(scenario)
     if source.log is None:
         return _recorded(source, traci=traci, hold=hold, additional=additional, progress=progress,
-                         more_targets=more_targets), False
+                         more_targets=more_targets, bar=bar), False
     return load_scene(source.log), True
 
 
 def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, additional: Sequence[Path],
-              progress: Callable[[float], None] | None, more_targets: Sequence[str]) -> Scene:
+              progress: Callable[[float], None] | None, more_targets: Sequence[str], bar: Any) -> Scene:
     """:func:`nominal_scene` of a SUMO configuration: its pass recorded around the target(s)."""
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
 
@@ -84,10 +91,13 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
+    clock = SimClock(bar, end) if bar is not None else None
 
     def after_step(session: Any, states: Any) -> bool:
         if progress is not None:
             progress(session.time)
+        if clock is not None:
+            clock.update(session.time)
         return hold.after_step(session, states) if hold is not None else False
 
     scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
@@ -109,22 +119,42 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     raise missing_target(cfg, list(dict.fromkeys((spec.target, *more_targets))), window, scene.meta["ran_s"])
 
 
-def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
-    """Index of the target: ``requested``, else the SDC of a converted scene, else ``ego``.
+@dataclass(frozen=True)
+class NominalPass:
+    """What the targets of a run share: the nominal scene, its drivable area, the held copies of the
+    pass (None: every variant simulates from the begin), and each requested target chosen once.
 
-    Raises :class:`InputError` (naming ``config`` and candidate ids) when there is none, or when
-    the target runs for fewer than two steps of the window.
+    Attributes:
+        targets: requested id (None: the default target) -> its agent index in :attr:`scene`.
+        missing: requested id -> why it has no target (the :class:`InputError` line), for the
+            requested ids not in :attr:`targets`.
+        drivable_s: [s] the drivable area took.
     """
-    ids = scene.tracks.ids.tolist()
-    ts = scene.timestamps
-    window = f"{float(ts[0]):.1f}-{float(ts[-1]):.1f} s" if len(ts) else "empty"
-    if requested is None and scene.sdc_index >= 0:
-        index = scene.sdc_index
-    elif (requested or "ego") in ids:
-        index = ids.index(requested or "ego")
-    else:
-        steps = scene.tracks.valid.sum(axis=1).tolist()
-        raise missing_target(config, [requested], window, dict(zip(ids, steps, strict=True)))
-    if scene.tracks.valid[index].sum() < 2:
-        raise InputError(f"{config}: target {ids[index]!r} never departs in the window")
-    return index
+
+    scene: Scene
+    drivable: DrivableArea
+    held: HeldStates | None
+    targets: dict[str | None, int]
+    missing: dict[str | None, str]
+    drivable_s: float = 0.0
+
+
+def nominal_pass(source: ScenarioSource, requested: Sequence[str | None], *, traci: bool = False,
+                 hold: HeldStates | None = None, additional: Sequence[Path] = (), bar: Any = None) -> NominalPass:
+    """:func:`nominal_scene` of ``source`` recorded for the ``requested`` targets (the first leads the
+    pass, see ``more_targets`` there; ``hold`` is used for a SUMO configuration only), its drivable
+    area, and every requested target chosen with :func:`choose_target`; ``bar`` (a progress bar)
+    follows the simulation time of a recorded pass."""
+    named = [str(t) for t in requested if t is not None]
+    scene, _ = nominal_scene(source, traci=traci, hold=None if source.converted else hold, additional=additional,
+                             more_targets=named[1:], bar=bar)
+    targets: dict[str | None, int] = {}
+    missing: dict[str | None, str] = {}
+    for r in requested:
+        try:
+            targets[r] = choose_target(scene, r, source.spec.config)
+        except InputError as exc:
+            missing[r] = str(exc)
+    t0 = time.perf_counter()
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    return NominalPass(scene, drivable, hold, targets, missing, time.perf_counter() - t0)

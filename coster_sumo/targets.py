@@ -37,12 +37,15 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from defusedxml import ElementTree as SafeET
 
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import check_xml, open_maybe_gzip, parse_time, read_sumocfg
+
+if TYPE_CHECKING:
+    from coster_sumo.scene import Scene
 
 # vehicle classes that use no road lanes: the prior places road vehicles, so none is a target
 # (trams stay: their tracks often run in the street)
@@ -406,3 +409,23 @@ def missing_target(config: Any, requested: Sequence[str | None], window: str, ra
              "none of the targets " + ", ".join(map(repr, names)) + " runs")
     return InputError(f"{config}: {which} in the window ({window}); candidates: {', '.join(near)}")
 
+
+def choose_target(scene: Scene, requested: str | None, config: Any) -> int:
+    """Index of the target: ``requested``, else the SDC of a converted scene, else ``ego``.
+
+    Raises :class:`InputError` (naming ``config`` and candidate ids) when there is none, or when
+    the target runs for fewer than two steps of the window.
+    """
+    ids = scene.tracks.ids.tolist()
+    ts = scene.timestamps
+    window = f"{float(ts[0]):.1f}-{float(ts[-1]):.1f} s" if len(ts) else "empty"
+    if requested is None and scene.sdc_index >= 0:
+        index = scene.sdc_index
+    elif (requested or "ego") in ids:
+        index = ids.index(requested or "ego")
+    else:
+        steps = scene.tracks.valid.sum(axis=1).tolist()
+        raise missing_target(config, [requested], window, dict(zip(ids, steps, strict=True)))
+    if scene.tracks.valid[index].sum() < 2:
+        raise InputError(f"{config}: target {ids[index]!r} never departs in the window")
+    return index

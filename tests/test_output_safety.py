@@ -294,7 +294,7 @@ def test_a_second_batch_on_one_folder_refuses_in_one_line(tmp_path, capsys):
 # ---------------------------------------------------------------- 5. a SUMO crash is one line, not a dead command
 
 @pytest.mark.parametrize(("command", "where"), [("replay", "coster_sumo.sim.replay.replay"),
-                                                ("run", "coster_sumo.run.nominal_scene")])
+                                                ("run", "coster_sumo.run.nominal_pass")])
 def test_a_sumo_crash_outside_the_variants_is_one_line(tmp_path, command, where):
     """The command as a user starts it, with a libsumo crash (SIGABRT, as a segfault takes its
     process down) injected where it simulates outside the variants."""

@@ -11,6 +11,7 @@ import pytest
 
 import coster_sumo.defects as defects
 from coster_sumo.cli import main
+from coster_sumo.progress import bars
 from coster_sumo.run import RunOptions, run
 from coster_sumo.sim import proof
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
@@ -21,7 +22,7 @@ pytestmark = [pytest.mark.sumo, pytest.mark.slow, pytest.mark.realdata, requires
 
 def _verdicts(cfg: Path, seed: int, out: Path) -> list[list[dict | None]]:
     s = run(RunOptions(spec=ScenarioSpec(cfg, seed=seed), out=out, generation=GenerationConfig(), planner="replay",
-                       render=False, quiet=True)).to_json()
+                       render=False), bars(quiet=True)).to_json()
     return [[e and e.get("proof") for e in v["avoidability"]["escapes"].values()] for v in s["variants"]]
 
 

@@ -308,7 +308,7 @@ def test_several_targets_need_ids(tmp_path, capsys):
 
     spec = ScenarioSpec(REPO / "networks/intersection/intersection.sumocfg", seed=0, end=45.0)
     with pytest.raises(InputError, match="every one needs an id"):
-        run(RunOptions(spec=spec, out=tmp_path / "out", more_targets=("ego",), quiet=True))
+        run(RunOptions(spec=spec, out=tmp_path / "out", more_targets=("ego",)))
 
 
 def test_target_folders_are_distinct_and_file_name_safe():

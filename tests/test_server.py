@@ -113,7 +113,7 @@ def test_a_sumo_crash_in_a_served_run_is_one_line(tmp_path: Path) -> None:
     sock = tmp_path / "sock" / "s.sock"
     env = {**os.environ, server.SOCKET_ENV: str(sock)}
     env.pop("COSTER_SUMO_SERVER", None)
-    code = ("import os, sys, coster_sumo.run as r; r.nominal_scene = lambda *a, **k: os.abort(); "
+    code = ("import os, sys, coster_sumo.run as r; r.nominal_pass = lambda *a, **k: os.abort(); "
             "from coster_sumo.client import main; sys.exit(main(['serve']))")
     proc = subprocess.Popen([sys.executable, "-c", code], env=env, stderr=subprocess.PIPE, text=True)
     try:

@@ -87,7 +87,7 @@ def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[in
 def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: nominal pass of one scene (cached .npz) and its speed/acceleration histograms."""
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.scenario import choose_target
+    from coster_sumo.targets import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scene, _, path = nominal_for(spec, Path(payload["scenes_dir"]))
@@ -121,9 +121,9 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.method.generation import generate_variants, missing_weights
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.scenario import choose_target
     from coster_sumo.scene import LaneType
     from coster_sumo.sim.inject import inject_variant
+    from coster_sumo.targets import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scenes_dir = Path(payload["scenes_dir"])

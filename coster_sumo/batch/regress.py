@@ -53,7 +53,7 @@ def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Task: nominal pass + variants of one scene -> ``plans/<scene_key>.json`` (+ the scene's .npz)."""
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants
-    from coster_sumo.scenario import choose_target
+    from coster_sumo.targets import choose_target
 
     t0 = time.perf_counter()
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)

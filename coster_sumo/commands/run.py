@@ -9,11 +9,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from coster_sumo import procs
+from coster_sumo import procs, progress
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
+from coster_sumo.progress import Bars
 from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult
 from coster_sumo.rollout.methods import ROLLOUTS
 from coster_sumo.run import RunOptions
@@ -145,13 +146,13 @@ def run(args: argparse.Namespace) -> int:
         print("\n".join(iter_lines(picked)), flush=True)  # before the long part: the user sees who
     spec = ScenarioSpec(args.config, seed=args.seed, begin=args.begin, end=end, target=targets[0])
     opts = RunOptions(spec=spec, out=args.out, generation=generation_config(args), planner=args.planner,
-                      traci=args.traci, render=not args.no_render, quiet=args.quiet,
+                      traci=args.traci, render=not args.no_render,
                       snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False),
                       more_targets=tuple(str(t) for t in targets[1:]), target_choice=tuple(chosen),
                       overwrite=getattr(args, "overwrite", False), timeout=_positive_timeout(args),
                       copy_outside=getattr(args, "copy_outside", False),
                       reaction_time=getattr(args, "reaction_time", 1.0), avoidable=getattr(args, "avoidable", "any"))
-    result = _supervised_run(opts)
+    result = _supervised_run(opts, progress.bars(quiet=args.quiet))
     entries = result.targets if isinstance(result, RunSummary) else (TargetEntry(result.target, result=result),)
     results: list[TargetResult] = []
     for entry in entries:  # several targets: one folder each
@@ -182,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0  # 1: the work ran, some variants failed (each named above)
 
 
-def _supervised_run(opts: RunOptions) -> RunResult:
+def _supervised_run(opts: RunOptions, bars: Bars) -> RunResult:
     """:func:`coster_sumo.run.run` in a child process: a SUMO crash is one line, and whatever stops
     the run (a crash, Ctrl-C) leaves nothing beside OUT (the old OUT, if any, stays as it was).
 
@@ -194,9 +195,9 @@ def _supervised_run(opts: RunOptions) -> RunResult:
     from coster_sumo.procs import run_supervised
 
     if "torch" in sys.modules and not procs.imports_only():
-        return run_scenario(opts)
+        return run_scenario(opts, bars)
     try:
-        result: RunResult = run_supervised(functools.partial(run_scenario, opts), f"run of {opts.spec.config}")
+        result: RunResult = run_supervised(functools.partial(run_scenario, opts, bars), f"run of {opts.spec.config}")
     except BaseException as exc:
         if not isinstance(exc, InputError):  # an input error stopped it before it wrote anything
             # the child's own children (held copies) die with it: wait for them to let go of the lock

@@ -51,8 +51,8 @@ def run(args: argparse.Namespace) -> int:
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.errors import InputError, NoSnapshot
     from coster_sumo.method.snapshot import prior_snapshot
-    from coster_sumo.scenario import choose_target
     from coster_sumo.scene import resample
+    from coster_sumo.targets import choose_target
 
     scene = _scene(args)
     target = choose_target(scene, args.target, args.source)

@@ -261,7 +261,8 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
     """Build (or resume) the scenario set ``opts.out``; returns the manifest's counts."""
     from coster_sumo.batch.sources import parse_sources
     from coster_sumo.method.generation import check_generation
-    from coster_sumo.scenario import choose_target, nominal_scene
+    from coster_sumo.scenario import nominal_scene
+    from coster_sumo.targets import choose_target
 
     if opts.method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, not {opts.method!r}")
