@@ -200,9 +200,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     how, wanted = opts.injection, opts.labels  # the injection's settings, the labels' options
     scene, drivable, held = nominal.scene, nominal.drivable, nominal.held
     threads = generation_threads(opts.generation, held)
-    if requested in nominal.missing:
-        raise InputError(nominal.missing[requested])
-    target = nominal.targets[requested]
+    target = nominal.target(requested)
     target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
     advance = _advance_held(held)

@@ -138,6 +138,12 @@ class NominalPass:
     missing: dict[str | None, str]
     drivable_s: float = 0.0
 
+    def target(self, requested: str | None) -> int:
+        """The agent index of a requested target; :class:`InputError` (why it has none) otherwise."""
+        if requested in self.missing:
+            raise InputError(self.missing[requested])
+        return self.targets[requested]
+
 
 def nominal_pass(source: ScenarioSource, requested: Sequence[str | None], *, traci: bool = False,
                  hold: HeldStates | None = None, additional: Sequence[Path] = (), bar: Any = None) -> NominalPass:
