@@ -88,6 +88,9 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
             v, c = next(iter(classes.items()))
             raise InputError(f"{cfg}: target {v!r} is a {c} vehicle (vClass of its vType); COSTER places road "
                              "vehicles around a road vehicle: pick one with --target, or --targets N")
+        if hold is not None:
+            planned = [demand.depart_s(v) for v in wanted]
+            hold.expect_departure(None if None in planned else min(p for p in planned if p is not None))
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ

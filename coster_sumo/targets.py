@@ -32,6 +32,7 @@ with the vehicles that did run as candidates.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -194,6 +195,12 @@ class DemandIds:
     vehicles: tuple[str, ...]
     flows: tuple[str, ...]
     classes: dict[str, str] = field(default_factory=dict)  # vehicle or flow id -> its vType's vClass
+    departs: dict[str, float] = field(default_factory=dict)  # vehicle id -> its planned departure [s]
+
+    def depart_s(self, vehicle_id: str) -> float | None:
+        """When ``vehicle_id`` is planned to depart [s] (SUMO inserts it then or later); None for a
+        flow's vehicle, a departure that is no time (``triggered``), or an id not in the demand."""
+        return self.departs.get(vehicle_id)
 
     def vclass(self, vehicle_id: str) -> str | None:
         """The vehicle class of ``vehicle_id`` (a flow member's is its flow's); None if not in the demand."""
@@ -236,6 +243,7 @@ def config_demand(config: str | Path) -> DemandIds | None:
     vehicles: list[str] = []
     flows: list[str] = []
     types: dict[str, str] = {}  # vehicle or flow id -> its type id
+    departs: dict[str, float] = {}
     vtypes: dict[str, str] = {}  # type id -> vClass
     for path in [*cfg.route_files, *cfg.additional_files]:
         try:
@@ -249,13 +257,16 @@ def config_demand(config: str | Path) -> DemandIds | None:
                         (flows if tag == "flow" else vehicles).append(vid)
                         if el.get("type"):
                             types[vid] = str(el.get("type"))
+                        if tag != "flow":
+                            with contextlib.suppress(InputError):  # "triggered", "now": no time
+                                departs[vid] = parse_time(str(el.get("depart", "")), str(path))
                     elif vid and tag == "vType":
                         vtypes[vid] = el.get("vClass") or "passenger"
                     el.clear()  # a city's demand is large: keep no element's content
         except Exception:  # noqa: BLE001 - any reading problem: leave the answer to the simulation
             return None
     classes = {v: vtypes.get(t, "passenger") for v, t in types.items()}
-    return DemandIds(tuple(vehicles), tuple(flows), classes)
+    return DemandIds(tuple(vehicles), tuple(flows), classes, departs)
 
 
 def _in_window(depart: float, duration: float, begin: float, end: float) -> float:

@@ -103,6 +103,9 @@ def test_config_demand_knows_what_the_files_can_insert(tmp_path: Path) -> None:
         assert demand.vclass(vid) is None, vid
     assert demand.examples(["NESTED"]) == ["nested_route"]
     assert demand.examples([], n=3) == ["named_route", "nested_route", "before_begin"]
+    # when each is planned to depart (the held copies wait for it); none for a flow's or a triggered one
+    assert (demand.depart_s("named_route"), demand.depart_s("trip")) == (20.0, 30.0)
+    assert demand.depart_s("waits") is None and demand.depart_s("periodic.0") is None
     # a calibrator inserts vehicles the files do not name; a missing file is the simulation's to report
     (tmp_path / "calib.add.xml").write_text('<additional><calibrator id="c" lane="N2C_0" pos="5"/></additional>')
     cfg = tmp_path / "c.sumocfg"
