@@ -31,6 +31,7 @@ from pathlib import Path
 
 from coster_sumo import server, sumo_env
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.targets import config_demand
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -105,8 +106,8 @@ def bench(args: argparse.Namespace, env: dict[str, str] | None) -> None:
     """The pairs of (run, sumo); ``env``: the environment of a running server (None: fresh processes)."""
     cfg = args.config or build_city(args.work, args.vehicles_per_s, args.duration)
     target = args.target or ("ego" if args.config else pick_target(cfg))
-    routes = read_sumocfg(cfg).route_files
-    vehicles = sum(len(re.findall(r"<(?:vehicle|trip) ", p.read_text())) for p in routes if p.suffix != ".gz")
+    demand = config_demand(cfg)  # what its route and additional files insert (gzipped ones too)
+    vehicles = "?" if demand is None else f"{len(demand.vehicles)} vehicles and {len(demand.flows)} flows"
     out = args.work / "run"
     shutil.rmtree(out, ignore_errors=True)
     entry = "coster_sumo" if env is None else "coster_sumo.client"  # the client hands the run to the server
@@ -128,7 +129,7 @@ def bench(args: argparse.Namespace, env: dict[str, str] | None) -> None:
     summary = json.loads((out / "summary.json").read_text())  # the last run's
     plain = sum(t_sumo) / len(t_sumo)
     pairs = [r / s for r, s in zip(runs, t_sumo, strict=True)]
-    print(f"config {cfg} ({vehicles} vehicles in its route files), target {target}, simulated to {until:.1f} s")
+    print(f"config {cfg} ({vehicles} in its demand), target {target}, simulated to {until:.1f} s")
     print(f"plain sumo (0.1 s steps, to the target's arrival): {' '.join(f'{t:.1f}' for t in t_sumo)} s")
     print(f"coster-sumo run (5 variants, renders): {' '.join(f'{t:.1f}' for t in runs)} s "
           f"(timings of the last: {summary['timings_s']}; {summary.get('num_variants')} variants kept)")
