@@ -203,7 +203,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     target = nominal.target(requested)
     target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
-    advance = _advance_held(held)
+    advance = _advance_held(held, threads)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
         with bars(f"generation ({target_id})", "draw") as bar:
@@ -213,7 +213,9 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                 if advance is not None:
                     advance(snap)
 
-            with torch_threads(threads):
+            # every core until a held copy advances beside (the prior's curves over the target's life
+            # come first: 28.5 s on one thread, 22.1 s on two on A10KW, the same plans)
+            with torch_threads(None if threads is None else usable_cores()):
                 planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
                                          on_snapshot=drawn)
     except NoSnapshot as exc:
@@ -328,21 +330,28 @@ def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[Injectio
 
 
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:
-    """torch threads for the generation of a run: one core less than the process may use when held
-    copies of the nominal pass advance beside it (a drawn snapshot starts one, see
-    :func:`_advance_held`); None (torch's own choice) without held copies or without a model."""
+    """torch threads for the generation of a run once held copies of the nominal pass advance beside
+    it (a drawn snapshot starts one, see :func:`_advance_held`): one core less than the process may
+    use; None (torch's own choice) without held copies or without a model."""
     if held is None or not (SNAPSHOT_INITS[gen.init].weights or ROLLOUTS[gen.rollout].weights):
         return None
     return max(1, usable_cores() - 1)
 
 
-def _advance_held(held: HeldStates | None) -> Callable[[CollisionSnapshot], None] | None:
+def _advance_held(held: HeldStates | None, threads: int | None = None
+                  ) -> Callable[[CollisionSnapshot], None] | None:
     """Once a collision time is drawn, a held copy starts simulating up to shortly before any of its
-    adversaries can appear (in its own process, while this one generates them)."""
+    adversaries can appear (in its own process, while this one generates them); torch then computes
+    on ``threads`` (None: as it does), leaving that copy a core (torch's pool spin-waits for every
+    thread, :func:`coster_sumo.procs.torch_threads`)."""
     if held is None:
         return None
 
     def advance(snap: CollisionSnapshot) -> None:
+        if threads is not None:
+            import torch
+
+            torch.set_num_threads(threads)
         held.advance(snap.time - HORIZON_STEPS / PRIOR_RATE_HZ - ADVANCE_MARGIN_S)
 
     return advance
