@@ -23,9 +23,9 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.defects import keep_avoidable, label_plans
+from coster_sumo.defects import label_plans
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.method.generation import PlannedScenario, further_draw, plan_scenarios
+from coster_sumo.method.generation import PlannedScenario, keep_avoidable, plan_scenarios
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scenario import nominal_scene
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
@@ -73,10 +73,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
 
     labels = dict(zip((p.vehicle_id for p in planned.plans), label(planned.plans), strict=True))
     if wanted.avoidable == "only":
-        def draw(j: int) -> PlannedScenario | None:
-            return further_draw(scene, index, seed, gen, drivable, j)
-
-        kept, tried = keep_avoidable([planned], labels, draw, label, variants)
+        kept, tried = keep_avoidable([planned], labels, label, variants, seed=seed, gen=gen, drivable=drivable)
         planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable
         planned.info["avoidable_only"] = tried
     planned.info["avoidability"] = {p.vehicle_id: labels[p.vehicle_id].summary() for p in planned.plans}

@@ -1,7 +1,7 @@
 """Defects, not crashes: every variant's avoidability label, proven in SUMO, and what a planner did.
 
 Generation calls :func:`label_plans` for its kept plans: :func:`coster_sumo.avoid.assess` searches
-the target's escapes, :func:`coster_sumo.sim.proof.prove_escapes` replays each one in the variant's
+the target's escapes, :func:`coster_sumo.sim.proof.prove_labels` replays each one in the variant's
 own pass, and an escape that SUMO refutes no longer counts (docs/method.md, step 8). The rest of
 this module turns labels and a planner's pass into what users read: the summary entries, the
 outcome lines ("avoided: braked to 3.1 m/s, clearance 1.2 m"; "hit, unavoidable") and the defect
@@ -10,7 +10,6 @@ rate of a regression (contact in an avoidable variant, Wilson interval).
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,7 +25,7 @@ from coster_sumo.metrics import MetricSample, RunOutcome, compute, rate_with_ci
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.sim.proof import EscapeJob, prove_escapes
+from coster_sumo.sim.proof import prove_labels
 from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
 
@@ -47,44 +46,12 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
     labels = [assess(scene, target, plan, drivable, reaction_times=reaction_times, reaction_time_s=reaction_time_s)
               for plan in plans]
     t1 = time.perf_counter()
-    jobs: list[EscapeJob] = []
-    owners: list[Escape] = []
-    for plan, lab in zip(plans, labels, strict=True):
-        seen: set[tuple[float, str]] = set()
-        for e in lab.escapes.values():  # equal plans at several reaction times are replayed once
-            if e is not None and _key(e) not in seen:
-                seen.add(_key(e))
-                jobs.append(EscapeJob(plan, e))
-                owners.append(e)
-    if jobs:
-        verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
-                                 traci=traci, horizon_s=HORIZON_AFTER_TCOL_S)
-        for e, v in zip(owners, verdicts, strict=True):
-            e.proven, e.proof = v.ok, v.to_json()
-    # several reaction times may share one plan: the same object got one verdict
-    for lab in labels:
-        _share_verdicts(lab)
+    prove_labels(scenario, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
+                 horizon_s=HORIZON_AFTER_TCOL_S)
     if timings is not None:
         timings["avoidability_s"] = timings.get("avoidability_s", 0.0) + t1 - t0
         timings["proof_s"] = timings.get("proof_s", 0.0) + time.perf_counter() - t1
     return labels
-
-
-def _key(e: Escape) -> tuple[float, str]:
-    return round(e.t_act, 3), e.manoeuvre.describe()
-
-
-def _share_verdicts(lab: Avoidability) -> None:
-    """Equal escapes (same act and manoeuvre) at several reaction times carry one verdict."""
-    by_key: dict[tuple[float, str], Escape] = {}
-    for e in lab.escapes.values():
-        if e is not None and e.proven is not None:
-            by_key[_key(e)] = e
-    for e in lab.escapes.values():
-        if e is not None and e.proven is None:
-            twin = by_key.get(_key(e))
-            if twin is not None:
-                e.proven, e.proof = twin.proven, twin.proof
 
 
 def label_line(lab: dict[str, Any]) -> str:
@@ -169,45 +136,6 @@ def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: 
                 make_boxes(tr.x[b, both], tr.y[b, both], tr.heading[b, both], tr.length[b, both], tr.width[b, both]))
             parts.append(f"clearance {float(gap.min()):.1f} m")
     return "avoided: " + ", ".join(parts)
-
-
-# ----------------------------------------------------------------------------- --avoidable only
-
-EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under --avoidable only
-
-
-def keep_avoidable(planned: list[Any], labels: dict[str, Avoidability], draw: Any, label: Any,
-                   wanted: int) -> tuple[list[Any], dict[str, Any]]:
-    """Drop the unavoidable plans of ``planned`` (PlannedScenario list, labels by adversary id) and
-    replace them by plans of further draws until ``wanted`` are avoidable or :data:`EXTRA_DRAWS`
-    more draws are spent.
-
-    ``draw(j)`` returns the PlannedScenario of extra draw j (or None: no snapshot); ``label(plans)``
-    the labels of its plans. Returns the kept scenarios and what was tried.
-    """
-    tried = sum(len(p.plans) for p in planned)
-    for p in planned:
-        p.plans = [pl for pl in p.plans if labels[pl.vehicle_id].avoidable]
-    kept = sum(len(p.plans) for p in planned)
-    draws = 0
-    for j in range(1, EXTRA_DRAWS + 1):
-        if kept >= wanted:
-            break
-        extra = draw(j)
-        draws += 1
-        if extra is None:
-            continue
-        ids = [f"adversary{tried + i}" for i in range(len(extra.plans))]
-        extra.plans = [dataclasses.replace(pl, vehicle_id=v) for pl, v in zip(extra.plans, ids, strict=True)]
-        tried += len(extra.plans)
-        for pl, lab in zip(extra.plans, label(extra.plans), strict=True):
-            labels[pl.vehicle_id] = lab
-        extra.plans = [pl for pl in extra.plans if labels[pl.vehicle_id].avoidable][:wanted - kept]
-        kept += len(extra.plans)
-        if extra.plans:
-            planned.append(extra)
-    planned = [p for p in planned if p.plans] or planned[:1]
-    return planned, {"tried": tried, "kept": kept, "extra_draws": draws}
 
 
 # ----------------------------------------------------------------------------- batches

@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import write_json
-from coster_sumo.defects import attach_labels, keep_avoidable, label_plans
+from coster_sumo.defects import attach_labels, label_plans
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
-from coster_sumo.method.generation import PlannedScenario, check_generation, further_draw, plan_scenarios
+from coster_sumo.method.generation import PlannedScenario, check_generation, keep_avoidable, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.outdir import staged_output
 from coster_sumo.outputs import OverviewRenders, write_run_outputs
@@ -233,10 +233,8 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                       label([pl for p in planned for pl in p.plans]), strict=True))
     tried: dict[str, Any] | None = None
     if wanted.avoidable == "only":
-        def draw(j: int) -> PlannedScenario | None:
-            return further_draw(scene, target, spec.seed, opts.generation, drivable, j)
-
-        planned, tried = keep_avoidable(planned, labels, draw, label, opts.generation.variants * opts.snapshots)
+        planned, tried = keep_avoidable(planned, labels, label, opts.generation.variants * opts.snapshots,
+                                        seed=spec.seed, gen=opts.generation, drivable=drivable)
         if not any(p.plans for p in planned):
             raise InputError(f"{spec.config}: none of the {tried['tried']} variants for target {target_id!r} "
                              f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")

@@ -85,8 +85,8 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
                    drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, Any]]:
     """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.defects`);
     with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws."""
-    from coster_sumo.defects import EXTRA_DRAWS, label_plans
-    from coster_sumo.method.generation import derived_seed, generate_variants
+    from coster_sumo.defects import label_plans
+    from coster_sumo.method.generation import EXTRA_DRAWS, derived_seed, generate_variants
 
     reaction = float(payload.get("reaction_time", 1.0))
 

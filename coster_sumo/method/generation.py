@@ -30,6 +30,7 @@ import numpy as np
 from coster_sumo import weights
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError, NoSnapshot
+from coster_sumo.evasion import Avoidability
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES, COLLISION_TIMES, PRIOR_RATE_HZ, around
 from coster_sumo.method.filters import keep_clear_plans
 from coster_sumo.method.snapshot import (
@@ -276,6 +277,44 @@ def further_draw(scene: Scene, target: int, seed: int, gen: GenerationConfig, dr
         return plan_scenario(scene, target, derived_seed(seed, 100 + j), gen, drivable)
     except NoSnapshot:
         return None
+
+
+EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under --avoidable only
+
+
+def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidability],
+                   label: Callable[[list[AdversaryPlan]], list[Avoidability]], wanted: int, *, seed: int,
+                   gen: GenerationConfig, drivable: DrivableArea) -> tuple[list[PlannedScenario], dict[str, Any]]:
+    """``--avoidable only``: drop the unavoidable plans of ``planned`` (``labels`` by adversary id,
+    of the scene and target of ``planned``) and replace them by plans of :func:`further_draw` (with
+    ``seed``, ``gen``, ``drivable``) until ``wanted`` are avoidable or :data:`EXTRA_DRAWS` more draws
+    are spent. ``label(plans)`` gives the labels of a further draw's plans (``labels`` gains them).
+
+    Returns the kept scenarios (at least one, maybe without plans) and what was tried.
+    """
+    tried = sum(len(p.plans) for p in planned)
+    for p in planned:
+        p.plans = [pl for pl in p.plans if labels[pl.vehicle_id].avoidable]
+    kept = sum(len(p.plans) for p in planned)
+    draws = 0
+    for j in range(1, EXTRA_DRAWS + 1):
+        if kept >= wanted:
+            break
+        extra = further_draw(planned[0].scene, planned[0].target_index, seed, gen, drivable, j)
+        draws += 1
+        if extra is None:
+            continue
+        ids = [f"adversary{tried + i}" for i in range(len(extra.plans))]
+        extra.plans = [dataclasses.replace(pl, vehicle_id=v) for pl, v in zip(extra.plans, ids, strict=True)]
+        tried += len(extra.plans)
+        for pl, lab in zip(extra.plans, label(extra.plans), strict=True):
+            labels[pl.vehicle_id] = lab
+        extra.plans = [pl for pl in extra.plans if labels[pl.vehicle_id].avoidable][:wanted - kept]
+        kept += len(extra.plans)
+        if extra.plans:
+            planned.append(extra)
+    planned = [p for p in planned if p.plans] or planned[:1]
+    return planned, {"tried": tried, "kept": kept, "extra_draws": draws}
 
 
 def derived_seed(seed: int, j: int) -> int:

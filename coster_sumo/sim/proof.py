@@ -12,13 +12,14 @@ the target touches nobody (our box check, the ground truth of every pass) and st
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.evasion import Escape
+from coster_sumo.evasion import Avoidability, Escape
 from coster_sumo.formats.scene_folder import agent_sizes, vtype_for
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan, sim_time_of
@@ -308,3 +309,35 @@ def _take(states: VehicleStates, rows: list[int]) -> VehicleStates:
 # points are at most a few metres apart
 PROOF_RADIUS_M = 30.0
 
+
+def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],
+                 labels: Sequence[Avoidability], *, drivable: DrivableArea | None, held: HeldStates | None = None,
+                 workers: int = 1, traci: bool = False, horizon_s: float = 3.0) -> None:
+    """Replay every escape of ``labels`` (one per plan of ``plans``) with :func:`prove_escapes` and
+    mark it proven or refuted (``Escape.proven``, ``Escape.proof``). Equal escapes of one plan (the
+    same act and manoeuvre at several reaction times) are replayed once and share the verdict."""
+    jobs: list[EscapeJob] = []
+    owners: list[Escape] = []
+    for plan, lab in zip(plans, labels, strict=True):
+        seen: set[tuple[float, str]] = set()
+        for e in lab.escapes.values():
+            if e is not None and _same_escape(e) not in seen:
+                seen.add(_same_escape(e))
+                jobs.append(EscapeJob(plan, e))
+                owners.append(e)
+    if jobs:
+        verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
+                                 traci=traci, horizon_s=horizon_s)
+        for e, v in zip(owners, verdicts, strict=True):
+            e.proven, e.proof = v.ok, v.to_json()
+    for lab in labels:  # the same object got one verdict; its equals at other reaction times share it
+        by_key = {_same_escape(e): e for e in lab.escapes.values() if e is not None and e.proven is not None}
+        for e in lab.escapes.values():
+            twin = by_key.get(_same_escape(e)) if e is not None and e.proven is None else None
+            if e is not None and twin is not None:
+                e.proven, e.proof = twin.proven, twin.proof
+
+
+def _same_escape(e: Escape) -> tuple[float, str]:
+    """What makes two escapes of one plan the same: when the target acts, and how."""
+    return round(e.t_act, 3), e.manoeuvre.describe()
