@@ -16,7 +16,7 @@ The generation itself is :mod:`coster_sumo.method.generation`.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,8 +39,8 @@ MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at
 
 
 def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = False, hold: HeldStates | None = None,
-                  additional: Sequence[Path] = (), progress: Callable[[float], None] | None = None,
-                  more_targets: Sequence[str] = (), bar: Any = None) -> tuple[Scene, bool]:
+                  additional: Sequence[Path] = (), more_targets: Sequence[str] = (), bar: Any = None
+                  ) -> tuple[Scene, bool]:
     """The nominal scene at 10 Hz and whether it is a converted WOMD scene (its log).
 
     ``scenario``: a spec, or a source resolved from it already.
@@ -50,20 +50,19 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
     (:class:`~coster_sumo.sim.record.Focus`: what the models read is exactly what SUMO did);
     with ``hold`` the pass leaves held copies of itself for the variants (:mod:`coster_sumo.sim.hold`);
     ``additional`` files are loaded as the variants' passes will load them (a planner's vType);
-    ``progress`` is called with the simulation time [s] after every step, and ``bar`` (a progress
-    bar) moves along it to the window's end; ``more_targets`` are
+    ``bar`` (a progress bar) moves along the simulation time to the window's end; ``more_targets`` are
     recorded like the target (one pass for several targets: the union of their surroundings, up to
     the arrival of the last of them).
     """
     source = ScenarioSource.of(scenario)
     if source.log is None:
-        return _recorded(source, traci=traci, hold=hold, additional=additional, progress=progress,
-                         more_targets=more_targets, bar=bar), False
+        return _recorded(source, traci=traci, hold=hold, additional=additional, more_targets=more_targets,
+                         bar=bar), False
     return load_scene(source.log), True
 
 
 def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, additional: Sequence[Path],
-              progress: Callable[[float], None] | None, more_targets: Sequence[str], bar: Any) -> Scene:
+              more_targets: Sequence[str], bar: Any) -> Scene:
     """:func:`nominal_scene` of a SUMO configuration: its pass recorded around the target(s)."""
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
 
@@ -97,8 +96,6 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     clock = SimClock(bar, end) if bar is not None else None
 
     def after_step(session: Any, states: Any) -> bool:
-        if progress is not None:
-            progress(session.time)
         if clock is not None:
             clock.update(session.time)
         return hold.after_step(session, states) if hold is not None else False
