@@ -319,22 +319,22 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
     jobs: list[EscapeJob] = []
     owners: list[Escape] = []
     for plan, lab in zip(plans, labels, strict=True):
-        seen: set[tuple[float, str]] = set()
+        seen: set[tuple[float, str]] = set()  # one object may stand at several reaction times too
         for e in lab.escapes.values():
-            if e is not None and _same_escape(e) not in seen:
-                seen.add(_same_escape(e))
-                jobs.append(EscapeJob(plan, e))
-                owners.append(e)
+            if e is None or (key := _same_escape(e)) in seen:
+                continue
+            seen.add(key)
+            jobs.append(EscapeJob(plan, e))
+            owners.append(e)
     if jobs:
         verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
                                  traci=traci, horizon_s=horizon_s)
         for e, v in zip(owners, verdicts, strict=True):
             e.proven, e.proof = v.ok, v.to_json()
-    for lab in labels:  # the same object got one verdict; its equals at other reaction times share it
+    for lab in labels:  # an escape's equals at other reaction times share its verdict
         by_key = {_same_escape(e): e for e in lab.escapes.values() if e is not None and e.proven is not None}
         for e in lab.escapes.values():
-            twin = by_key.get(_same_escape(e)) if e is not None and e.proven is None else None
-            if e is not None and twin is not None:
+            if e is not None and e.proven is None and (twin := by_key.get(_same_escape(e))) is not None:
                 e.proven, e.proof = twin.proven, twin.proof
 
 
