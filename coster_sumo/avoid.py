@@ -127,7 +127,9 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     idx = np.where(ok, idx, np.minimum(idx, last_valid))
     length = float(np.median(tr.length[target][valid_t]))
     width = float(np.median(tr.width[target][valid_t]))
+    # what the target can do: its class's limits and the manoeuvres they allow
     limits = vehicle_class(int(tr.object_type[target]), length, width)
+    man = manoeuvres(limits)
     nx, ny, nyaw = tr.x[target, idx], tr.y[target, idx], tr.heading[target, idx]
     nv = np.hypot(tr.vx[target, idx], tr.vy[target, idx])
     # after the log ends the nominal target drives on at its last speed (only the horizon needs it)
@@ -153,7 +155,6 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     if not len(act_k):
         return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, None, escapes, reaction_time_s)
 
-    man = manoeuvres(limits)
     path = _path(np.stack([tr.x[target][valid_t], tr.y[target][valid_t]], 1), tr.heading[target][valid_t], 400.0)
     ctx = _SearchContext(scene, target, plan, drivable, man, limits, times, nx, ny, nyaw, nv, length, width, path)
     t_acts_all = times[act_k]
