@@ -75,7 +75,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     if wanted.avoidable == "only":
         kept, tried = keep_avoidable([planned], labels, label, variants, seed=seed, gen=gen, drivable=drivable)
         planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable
-        planned.info["avoidable_only"] = tried
+        planned.info["avoidable_only"] = tried.to_json()
     planned.info["avoidability"] = {p.vehicle_id: labels[p.vehicle_id].summary() for p in planned.plans}
     if len(planned.plans) < variants:
         warnings.warn(f"{config}: {len(planned.plans)} of {variants} variants; "

@@ -10,6 +10,7 @@ rate of a regression (contact in an avoidable variant, Wilson interval).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,6 +24,7 @@ from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.metrics import MetricSample, RunOutcome, compute, rate_with_ci
 from coster_sumo.plan import AdversaryPlan
+from coster_sumo.results import LabelCounts, TargetResult
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.proof import prove_labels
@@ -54,63 +56,68 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
     return labels
 
 
-def label_line(lab: dict[str, Any]) -> str:
+def label_line(lab: Avoidability) -> str:
     """One phrase for a variant's label (``run`` prints it after the variant's result)."""
-    if lab.get("avoidable"):
-        e = lab["escapes"][f"{lab['reaction_time_s']:g}"] or next(
-            (x for x in lab["escapes"].values() if x and x.get("proven_in_sumo") is not False), None)
-        how = f" by '{e['manoeuvre']}' from {lab['t_col'] - e['t_act']:.1f} s before t_col" if e else ""
-        return (f"avoidable at {lab['reaction_time_s']:g} s reaction{how} (proven in SUMO; last moment to act "
-                f"{lab['last_moment_to_act_s']:.1f} s before t_col), {lab['contact_kind'].replace('_', ' ')}")
-    last = lab.get("last_moment_to_act_s")
-    refuted = any(e and e.get("proven_in_sumo") is False for e in lab["escapes"].values())
-    why = ("no escape from a reaction of {r:g} s after the threat" if last is None or not refuted
-           else "its escape failed in SUMO").format(r=lab["reaction_time_s"])
-    return f"unavoidable ({why}), {lab['contact_kind'].replace('_', ' ')}"
+    kind = lab.contact_kind.replace("_", " ")
+    if lab.avoidable:
+        e = lab.escapes.get(lab.reaction_time_s) or next(
+            (x for _, x in sorted(lab.escapes.items()) if x and x.proven is not False), None)
+        # the times as summary.json rounds them, so that the line reads as the file does
+        how = (f" by '{e.manoeuvre.describe()}' from {round(lab.t_col, 3) - round(e.t_act, 3):.1f} s before t_col"
+               if e else "")
+        last = ("" if lab.last_moment_s is None
+                else f"; last moment to act {round(lab.last_moment_s, 3):.1f} s before t_col")
+        return f"avoidable at {lab.reaction_time_s:g} s reaction{how} (proven in SUMO{last}), {kind}"
+    refuted = any(e and e.proven is False for e in lab.escapes.values())
+    why = ("no escape from a reaction of {r:g} s after the threat" if lab.last_moment_s is None or not refuted
+           else "its escape failed in SUMO").format(r=lab.reaction_time_s)
+    return f"unavoidable ({why}), {kind}"
 
 
-def attach_labels(out: Path, summary: dict[str, Any], labels: Sequence[Avoidability],
-                  passes: Sequence[tuple[AdversaryPlan, Any]] = ()) -> dict[str, Any]:
-    """Add each variant's label to ``summary``, write its escape plan (``variants/<i>/escape.csv``,
-    10 Hz), and count avoidable variants; returns the summary.
+def attach_labels(out: Path, result: TargetResult, labels: Sequence[Avoidability],
+                  passes: Sequence[tuple[AdversaryPlan, Any]] = ()) -> TargetResult:
+    """``result`` with each variant's label, and its escape plan written (``variants/<i>/escape.csv``,
+    10 Hz), and the counts of avoidable variants and of defects.
 
     ``passes``: (plan, injection result) per variant: each then gets its planner's ``outcome`` line.
     """
-    for k, (rec, lab) in enumerate(zip(summary["variants"], labels, strict=True)):
-        entry = lab.summary()
-        rec["avoidability"] = entry
-        rec["label"] = label_line(entry)
+    variants = []
+    for k, (rec, lab) in enumerate(zip(result.variants, labels, strict=True)):
+        line, outcome = label_line(lab), None
         if k < len(passes):
             plan, res = passes[k]
-            tid = summary["target"]
-            hit = any(e.kind == "collision" and tid in e.vehicles and e.time <= lab.t_col + HORIZON_AFTER_TCOL_S + 1e-6
-                      for e in res.events)
-            rec["outcome"] = planner_outcome(res.scene, tid, plan, hit, entry)
+            hit = any(e.kind == "collision" and result.target in e.vehicles
+                      and e.time <= lab.t_col + HORIZON_AFTER_TCOL_S + 1e-6 for e in res.events)
+            outcome = planner_outcome(res.scene, result.target, plan, hit, lab.avoidable)
+        entry = lab.summary()
         esc = lab.escape
         if esc is not None:
-            (out / "variants" / str(rec["variant"]) / ESCAPE_FILE).write_text(esc.csv())
-            rec["avoidability"]["escape_file"] = f"variants/{rec['variant']}/{ESCAPE_FILE}"
+            (out / "variants" / str(rec.variant) / ESCAPE_FILE).write_text(esc.csv())
+            entry["escape_file"] = f"variants/{rec.variant}/{ESCAPE_FILE}"
+        variants.append(dataclasses.replace(rec, avoidability=entry, label=line, outcome=outcome))
     n = len(labels)
-    summary["avoidable_variants"] = sum(lab.avoidable for lab in labels)
-    summary["reaction_time_s"] = labels[0].reaction_time_s if labels else DEFAULT_REACTION_S
-    summary["defects"] = sum(bool(r["collision"]) and r["avoidability"]["avoidable"] for r in summary["variants"])
-    summary["unavoidable_contacts"] = sum(bool(r["collision"]) and not r["avoidability"]["avoidable"]
-                                          for r in summary["variants"])
-    summary["avoidable_share"] = summary["avoidable_variants"] / n if n else None
-    return summary
+    avoidable = sum(lab.avoidable for lab in labels)
+    counts = LabelCounts(
+        avoidable_variants=avoidable,
+        reaction_time_s=labels[0].reaction_time_s if labels else DEFAULT_REACTION_S,
+        defects=sum(v.collision and bool(v.avoidable) for v in variants),
+        unavoidable_contacts=sum(v.collision and not v.avoidable for v in variants),
+        avoidable_share=avoidable / n if n else None)
+    return dataclasses.replace(result, variants=tuple(variants), labels=counts)
 
 
 # ----------------------------------------------------------------------------- a planner's outcome
 
-def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: bool, label: dict[str, Any] | None
+def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: bool, avoidable: bool | None
                     ) -> str:
-    # ``contact``: the target touched someone up to the label's horizon
     """How the planner's pass ended, in words: how it avoided (its lowest speed, its smallest gap to
-    the adversary) or whether a hit was a defect or unavoidable. ``scene``: the pass recorded."""
+    the adversary) or whether a hit was a defect or unavoidable. ``scene``: the pass recorded;
+    ``contact``: the target touched someone up to the label's horizon; ``avoidable``: the variant's
+    label (None: not labelled)."""
     if contact:
-        if label is None:
+        if avoidable is None:
             return "hit"
-        return "hit, a defect: the contact was avoidable" if label["avoidable"] else "hit, unavoidable"
+        return "hit, a defect: the contact was avoidable" if avoidable else "hit, unavoidable"
     tr = scene.tracks
     ids = tr.ids.tolist()
     if target_id not in ids:

@@ -21,12 +21,13 @@ in ``OUTDIR/summary.json`` (see :func:`coster_sumo.run.run`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
 import sys
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +41,7 @@ from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.method.generation import PlannedScenario
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.procs import die_with_parent
-from coster_sumo.results import VariantOutcome
+from coster_sumo.results import SnapshotRecord, TargetMotion, TargetResult, VariantOutcome
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
@@ -56,7 +57,14 @@ TARGET_MOVED_M = 0.5
 
 def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
                    nominal: Scene | None = None) -> dict[str, Any]:
-    """Per-variant entry of summary.json; the contact offset is counted from t_col on SUMO's step grid.
+    """:func:`variant_outcome` as the JSON a batch's result row keeps."""
+    return variant_outcome(i, plan, res, target_id, t_col, nominal).to_json()
+
+
+def variant_outcome(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
+                    nominal: Scene | None = None, snapshot: int = 0) -> VariantOutcome:
+    """Variant ``i`` (of ``snapshot``) as summary.json lists it; the contact offset is counted from
+    t_col on SUMO's step grid.
 
     ``nominal``: the nominal scene, for the reason of a variant without contact (where the target
     was against where it would have been).
@@ -68,24 +76,24 @@ def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id:
     sumo_others = [e for e in res.events if e.kind == "sumo_collision" and set(e.vehicles) != pair]
     gap = closest_approach(res.scene, target_id, plan.vehicle_id)
     xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
-    return {
-        "variant": i, "adversary_id": plan.vehicle_id,
+    return VariantOutcome(
+        i, adversary_id=plan.vehicle_id,
         # what sets variants of one snapshot apart (their contact is the same by construction)
-        "plan_start_s": round(plan.t_start, 3), "approach_m": round(float(np.hypot(np.diff(xs), np.diff(ys)).sum()), 1),
-        "collision": c is not None, "collision_time": round(c.time, 3) if c else None,
-        "contact_offset_s": round(c.time - t_col_sim, 3) if c else None,
-        "relative_speed": c.relative_speed if c else None, "impact_angle": c.impact_angle if c else None,
-        "no_contact_reason": None if c else no_contact_reason(plan, res, target_id, t_col, nominal, gap),
-        "closest_distance_m": round(gap[0], 2) if gap else None,
-        "adversary_off_road": res.adversary_off_road, "target_off_road": res.target_off_road,
-        "route_completed": res.route_completed, "target_arrived": res.target_arrived,
-        "min_ttc": res.min_ttc if np.isfinite(res.min_ttc) else None,
-        "other_collisions": len(others),
-        "other_collisions_list": [f"{' vs '.join(e.vehicles)} at {e.time:.1f} s" for e in others],
-        "sumo_only_collisions": len(sumo_others),
-        "sumo_reported_contact": any(e.kind == "sumo_collision" and set(e.vehicles) == pair for e in res.events),
-        "wall_time_s": round(res.wall_time_s, 3),
-    }
+        plan_start_s=round(plan.t_start, 3), approach_m=round(float(np.hypot(np.diff(xs), np.diff(ys)).sum()), 1),
+        collision=c is not None, collision_time=round(c.time, 3) if c else None,
+        contact_offset_s=round(c.time - t_col_sim, 3) if c else None,
+        relative_speed=c.relative_speed if c else None, impact_angle=c.impact_angle if c else None,
+        no_contact_reason=None if c else no_contact_reason(plan, res, target_id, t_col, nominal, gap),
+        closest_distance_m=round(gap[0], 2) if gap else None,
+        adversary_off_road=res.adversary_off_road, target_off_road=res.target_off_road,
+        route_completed=res.route_completed, target_arrived=res.target_arrived,
+        min_ttc=res.min_ttc if np.isfinite(res.min_ttc) else None,
+        other_collisions=len(others),
+        other_collisions_list=tuple(f"{' vs '.join(e.vehicles)} at {e.time:.1f} s" for e in others),
+        sumo_only_collisions=len(sumo_others),
+        sumo_reported_contact=any(e.kind == "sumo_collision" and set(e.vehicles) == pair for e in res.events),
+        wall_time_s=round(res.wall_time_s, 3), snapshot=snapshot, t_col=round(t_col, 3),
+    )
 
 
 def closest_approach(scene: Scene, a_id: str, b_id: str) -> tuple[float, float] | None:
@@ -188,7 +196,7 @@ def export_variant(folder: Path, config: Path, plan: AdversaryPlan, meta: dict[s
     return cfg
 
 
-def target_motion(scene: Scene, index: int) -> dict[str, float]:
+def target_motion(scene: Scene, index: int) -> TargetMotion:
     """How the target moved in the nominal pass: seconds in the recording, seconds standing still
     (slower than the rollout's stopped flag, ``STOPPED_MPS``), metres driven. A target that stood still for most of
     its time sits in a jam or a gridlock of the configuration (its variants are then contacts with
@@ -196,17 +204,16 @@ def target_motion(scene: Scene, index: int) -> dict[str, float]:
     tr = scene.tracks
     valid = tr.valid[index]
     if valid.sum() < 2:
-        return {"in_window_s": 0.0, "stopped_s": 0.0, "distance_m": 0.0}
+        return TargetMotion()
     dt = np.diff(scene.timestamps, append=scene.timestamps[-1])[valid]
     speed = np.hypot(tr.vx[index], tr.vy[index])[valid]
     xy = np.stack([tr.x[index][valid], tr.y[index][valid]], 1)
-    return {"in_window_s": round(float(dt.sum()), 2),
-            "stopped_s": round(float(dt[speed < STOPPED_MPS].sum()), 2),
-            "distance_m": round(float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()), 1)}
+    return TargetMotion(in_window_s=round(float(dt.sum()), 2), stopped_s=round(float(dt[speed < STOPPED_MPS].sum()), 2),
+                        distance_m=round(float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()), 1))
 
 
 def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
-                  rec: dict[str, Any], nominal: Scene, target: int, planned_state: AgentState, t_col_step: int) -> None:
+                  rec: VariantOutcome, nominal: Scene, target: int, planned_state: AgentState, t_col_step: int) -> None:
     """A variant's render as SUMO drove it: every vehicle at the contact (else at t_col) where the
     injection pass had it, the driven paths solid, the adversary's plan dashed; the title says so."""
     xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
@@ -217,7 +224,7 @@ def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult,
     when = c.time if c else t_col
     step = int(np.argmin(np.abs(driven.timestamps - when)))
     what = (f"contact at {c.time:.1f} s, {c.relative_speed or 0.0:.1f} m/s, {round(c.impact_angle or 0.0):d} deg" if c
-            else f"no contact ({rec.get('closest_distance_m')} m at closest)")
+            else f"no contact ({rec.closest_distance_m} m at closest)")
     if target_id in ids and plan.vehicle_id in ids:
         a = ids.index(plan.vehicle_id)
         upto = driven.tracks.valid[a] & (driven.timestamps <= when + 1e-6)
@@ -292,10 +299,10 @@ class OverviewRenders:
 def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
                       results: list[InjectionResult], timings: dict[str, float], *, render: bool,
                       options: dict[str, Any], copy_outside: bool = False,
-                      overviews: OverviewRenders | None = None) -> dict[str, Any]:
-    """Write everything of a run into ``out`` (the caller renames it into place) but ``summary.json``;
-    returns the summary (``summary.json`` is the JSON of the target's result, written by
-    :func:`coster_sumo.run.run` once the avoidability labels are in it).
+                      overviews: OverviewRenders | None = None, folder: Path | None = None) -> TargetResult:
+    """Write everything of a run into ``out`` (the caller renames it into place, to ``folder``: None,
+    ``out`` itself) but ``summary.json``; returns the target's result (``summary.json`` is its JSON,
+    written by :func:`coster_sumo.run.run` once the avoidability labels are in it).
 
     ``planned``: one entry per collision snapshot (``--snapshots``); ``results``: one per plan, in
     the order of the snapshots' plans. Variants are numbered across snapshots. ``overviews``: the
@@ -310,8 +317,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
             for e in res.events:
                 fh.write(json.dumps({"variant": i, **e.to_dict()}, default=json_default) + "\n")
     collisions_xml(out / "collisions.xml", results)
-    variants: list[dict[str, Any]] = []
-    snapshots: list[dict[str, Any]] = []
+    variants: list[VariantOutcome] = []
+    snapshots: list[SnapshotRecord] = []
     renders: list[str] = []
     i = 0
     for k, p in enumerate(planned):
@@ -334,47 +341,42 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         snapshots.append(_snapshot_record(k, p, mine, step))
     if render and overviews is not None:
         overviews.finish(out, planned)
-    n = len(variants)
     snap0 = first.snapshot
-    summary = {
-        "config": str(spec.config), "scenario_id": scene.scenario_id, "target": target_id,
-        "planner": planner, "seed": spec.seed, "t_col": round(snap0.time, 3),
-        "t_col_sim": sim_time_of(snap0.time, step), "t_col_index_2hz": snap0.t_index,
-        "collision_time_method": snap0.collision_time_method, "init_method": snap0.init_method,
-        "snapshot_signed_distance": round(snap0.signed_distance, 3),
-        "nominal_until_s": float(scene.timestamps[-1]),
-        **({"nominal_cut_after_s": scene.meta["cut_after_s"]} if scene.meta.get("cut_after_s") else {}),
-        "num_snapshots": len(snapshots), "num_variants": n,
-        **run_metrics(variants),
-        "target_motion": target_motion(scene, target),
-        "variants": variants, "snapshots": snapshots, "generation": first.info,
-        "timings_s": {k: round(v, 3) for k, v in timings.items()},
-        "options": options, "renders": renders,
+    rates = run_metrics(variants)
+    return TargetResult(
+        folder if folder is not None else out, target_id, config=str(spec.config), planner=planner,
+        seed=spec.seed, t_col=round(snap0.time, 3), num_snapshots=len(snapshots), num_variants=len(variants),
+        collision_rate=rates["collision_rate"], off_road_rate=rates["off_road_rate"],
+        impact_angle_spread_deg=rates["impact_angle_spread_deg"], variants=tuple(variants), snapshots=tuple(snapshots),
+        scenario_id=scene.scenario_id, t_col_sim=sim_time_of(snap0.time, step), t_col_index_2hz=snap0.t_index,
+        collision_time_method=snap0.collision_time_method, init_method=snap0.init_method,
+        snapshot_signed_distance=round(snap0.signed_distance, 3), nominal_until_s=float(scene.timestamps[-1]),
+        nominal_cut_after_s=scene.meta.get("cut_after_s") or None,
+        target_motion=target_motion(scene, target), generation=first.info,
+        timings_s={k: round(v, 3) for k, v in timings.items()}, options=options, renders=tuple(renders),
         # where the README documents it: how --targets N chose (also under options)
-        **({"target_choice": options["target_choice"]} if options.get("target_choice") else {}),
-    }
-    return summary
+        target_choice=tuple(options["target_choice"]) if options.get("target_choice") else None)
 
 
 # summary.json's figures over a run's variants: key -> the metric of coster_sumo.metrics.REGISTRY
 RUN_METRICS = {"collision_rate": "CR", "off_road_rate": "ORR", "impact_angle_spread_deg": "impact_angle_spread"}
 
 
-def run_metrics(variants: Sequence[Mapping[str, Any]]) -> dict[str, float | None]:
-    """:data:`RUN_METRICS` of a run's variant records, from the registry (None without variants)."""
-    sample = metrics.MetricSample(tuple(VariantOutcome.from_json(v).run_outcome() for v in variants))
+def run_metrics(variants: Sequence[VariantOutcome]) -> dict[str, float | None]:
+    """:data:`RUN_METRICS` of a run's variants, from the registry (None without variants)."""
+    sample = metrics.MetricSample(tuple(v.run_outcome() for v in variants))
     return {key: metrics.compute(name, sample).value for key, name in RUN_METRICS.items()}
 
 
 def _write_variant(out: Path, i: int, k: int, plan: AdversaryPlan, res: InjectionResult, spec: ScenarioSpec,
                    planner: str, scene: Scene, target: int, snap: CollisionSnapshot, t_col_step: int, *,
-                   render: bool, copy_outside: bool) -> dict[str, Any]:
+                   render: bool, copy_outside: bool) -> VariantOutcome:
     """Variant ``i`` (of snapshot ``k``) into ``out/variants/i``: trajectories, the plain-SUMO export,
     the render; returns its record for summary.json."""
     target_id = str(scene.tracks.ids[target])
     vdir = out / "variants" / str(i)
     vdir.mkdir(parents=True)
-    rec = {**variant_record(i, plan, res, target_id, snap.time, scene), "snapshot": k, "t_col": round(snap.time, 3)}
+    rec = variant_outcome(i, plan, res, target_id, snap.time, scene, snapshot=k)
     trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
     write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
     try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
@@ -384,20 +386,21 @@ def _write_variant(out: Path, i: int, k: int, plan: AdversaryPlan, res: Injectio
                        copy_outside=copy_outside)
     except (SumoError, InputError) as exc:
         shutil.rmtree(vdir / "export", ignore_errors=True)
-        rec["export_error"] = str(exc)
+        rec = dataclasses.replace(rec, export_error=str(exc))
     if render:
         render_driven(vdir / "render.png", i, plan, res, target_id, snap.time, rec, scene, target,
                       snap.adversary, t_col_step)
     return rec
 
 
-def _snapshot_record(k: int, p: PlannedScenario, mine: list[dict[str, Any]], step: float) -> dict[str, Any]:
-    """Snapshot ``k``'s entry of summary.json (``mine``: the records of its variants)."""
+def _snapshot_record(k: int, p: PlannedScenario, mine: list[VariantOutcome], step: float) -> SnapshotRecord:
+    """Snapshot ``k``'s entry of summary.json (``mine``: its variants)."""
     snap, a = p.snapshot, p.snapshot.adversary
-    return {"snapshot": k, "t_col": round(snap.time, 3), "t_col_sim": sim_time_of(snap.time, step),
-            "t_col_index_2hz": snap.t_index, "collision_time_method": snap.collision_time_method,
-            "init_method": snap.init_method, "signed_distance": round(snap.signed_distance, 3),
-            "adversary": {"x": round(a.x, 3), "y": round(a.y, 3), "heading_deg": round(float(np.degrees(a.yaw)), 2),
-                          "speed": round(a.speed, 3), "length": round(a.length, 3), "width": round(a.width, 3)},
-            "variants": [r["variant"] for r in mine], "generation": p.info,
-            "impact_angles_deg": [r["impact_angle"] for r in mine if r["collision"]]}
+    return SnapshotRecord(
+        k, t_col=round(snap.time, 3), t_col_sim=sim_time_of(snap.time, step), t_col_index_2hz=snap.t_index,
+        collision_time_method=snap.collision_time_method, init_method=snap.init_method,
+        signed_distance=round(snap.signed_distance, 3),
+        adversary={"x": round(a.x, 3), "y": round(a.y, 3), "heading_deg": round(float(np.degrees(a.yaw)), 2),
+                   "speed": round(a.speed, 3), "length": round(a.length, 3), "width": round(a.width, 3)},
+        variants=tuple(r.variant for r in mine), generation=p.info,
+        impact_angles_deg=tuple(r.impact_angle for r in mine if r.collision))

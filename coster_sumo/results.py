@@ -14,21 +14,27 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import json_default
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.metrics import RunOutcome
-
-
-def plain_json(obj: Any) -> Any:
-    """``obj`` as the plain JSON values a reader of its file gets (numpy numbers as floats, paths as
-    strings, tuples as lists), without writing it anywhere."""
-    return json.loads(json.dumps(obj, default=json_default))
 
 
 def _split(cls: type, d: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """The keys of ``d`` that are fields of ``cls`` (but ``extra``), and the others."""
     names = {f.name for f in fields(cls)} - {"extra"}
     return {k: v for k, v in d.items() if k in names}, {k: v for k, v in d.items() if k not in names}
+
+
+def _plain(obj: Any, omit: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The fields of a record in their order (its JSON's key order), without ``extra`` and
+    ``folder``, and without the ``omit`` ones that are None (a key such a summary has only when it
+    applies); tuples as lists."""
+    out: dict[str, Any] = {}
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if f.name in ("extra", "folder") or (f.name in omit and v is None):
+            continue
+        out[f.name] = list(v) if isinstance(v, tuple) else v
+    return out
 
 
 @dataclass(frozen=True)
@@ -49,7 +55,11 @@ class VariantOutcome:
         other_collisions: collisions not between the two; other_collisions_list: one line each.
         sumo_only_collisions: SUMO's own reports of those; sumo_reported_contact: SUMO saw the contact.
         wall_time_s: [s] the pass's wall clock.
-        extra: what later steps add (``export_error``, ``avoidability``, ``label``, ``outcome``).
+        export_error: why its plain-SUMO export is missing (None: it was written).
+        avoidability: its label as summary.json holds it (``Avoidability.summary`` of
+            :mod:`coster_sumo.evasion`, plus ``escape_file``); label: the label in words;
+            outcome: how the target's planner fared, in words (None until labelled).
+        extra: keys this version does not know.
     """
 
     variant: int
@@ -75,18 +85,27 @@ class VariantOutcome:
     wall_time_s: float | None = None
     snapshot: int = 0
     t_col: float | None = None
+    export_error: str | None = None
+    avoidability: Mapping[str, Any] | None = None
+    label: str | None = None
+    outcome: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
 
+    _OMITTED = ("export_error", "avoidability", "label", "outcome")
+
     def to_json(self) -> dict[str, Any]:
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
-        out["other_collisions_list"] = list(self.other_collisions_list)
-        return {**out, **self.extra}
+        return {**_plain(self, self._OMITTED), **self.extra}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> VariantOutcome:
         known, extra = _split(cls, d)
         known["other_collisions_list"] = tuple(known.get("other_collisions_list", ()))
         return cls(**known, extra=extra)
+
+    @property
+    def avoidable(self) -> bool | None:
+        """Whether its contact was avoidable (None: not labelled)."""
+        return None if self.avoidability is None else bool(self.avoidability["avoidable"])
 
     def run_outcome(self) -> RunOutcome:
         """The variant as the metrics read it (:data:`coster_sumo.metrics.REGISTRY`)."""
@@ -96,8 +115,112 @@ class VariantOutcome:
 
 
 @dataclass(frozen=True)
+class SnapshotRecord:
+    """One collision snapshot of a run (summary.json ``snapshots[k]``).
+
+    Attributes:
+        snapshot: its number; t_col: [s] its collision time; t_col_sim: [s] the same on SUMO's step
+            grid; t_col_index_2hz: its 2 Hz step; collision_time_method, init_method: how it was chosen.
+        signed_distance: [m] of the two boxes in the snapshot (<= 0: in contact).
+        adversary: the adversary's state in it (x, y [m], heading_deg, speed [m/s], length, width [m]).
+        variants: the numbers of its variants; impact_angles_deg: of those in contact.
+        generation: what its rollout reported (timings, clusters, and the candidates ``dropped``,
+            ``failed`` and ``collision_times_given_up``, with their reasons).
+        extra: keys this version does not know.
+    """
+
+    snapshot: int = 0
+    t_col: float | None = None
+    t_col_sim: float | None = None
+    t_col_index_2hz: int | None = None
+    collision_time_method: str = ""
+    init_method: str = ""
+    signed_distance: float | None = None
+    adversary: Mapping[str, float] = field(default_factory=dict)
+    variants: tuple[int, ...] = ()
+    generation: Mapping[str, Any] = field(default_factory=dict)
+    impact_angles_deg: tuple[float | None, ...] = ()
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {**_plain(self), **self.extra}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> SnapshotRecord:
+        known, extra = _split(cls, d)
+        known["variants"] = tuple(known.get("variants", ()))
+        known["impact_angles_deg"] = tuple(known.get("impact_angles_deg", ()))
+        return cls(**known, extra=extra)
+
+    @property
+    def failed(self) -> list[dict[str, Any]]:
+        """Its variants whose SUMO pass failed: adversary, t_col, reason."""
+        return list(self.generation.get("failed", []))
+
+    @property
+    def dropped(self) -> list[dict[str, Any]]:
+        """Its candidates that did not become variants: candidate, reason."""
+        return list(self.generation.get("dropped", []))
+
+    @property
+    def given_up(self) -> dict[str, str]:
+        """Collision times given up before this one ("t_col 20.6 s") -> why."""
+        return dict(self.generation.get("collision_times_given_up") or {})
+
+
+@dataclass(frozen=True)
+class TargetMotion:
+    """How the target moved in the nominal pass (summary.json ``target_motion``): seconds in the
+    recording, seconds standing still, metres driven."""
+
+    in_window_s: float = 0.0
+    stopped_s: float = 0.0
+    distance_m: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return _plain(self)
+
+
+@dataclass(frozen=True)
+class AvoidableOnly:
+    """What ``--avoidable only`` tried (summary.json ``avoidable_only``): variants labelled, those
+    kept (avoidable), and the further draws spent."""
+
+    tried: int
+    kept: int
+    extra_draws: int
+
+    def to_json(self) -> dict[str, Any]:
+        return _plain(self)
+
+
+@dataclass(frozen=True)
+class LabelCounts:
+    """The labels over a target's variants (summary.json, beside its variants).
+
+    Attributes:
+        avoidable_variants: variants whose contact was avoidable; reaction_time_s: [s] the
+            reaction time of the labels; defects: contacts that were avoidable;
+            unavoidable_contacts: contacts that were not; avoidable_share: avoidable / variants
+            (None without variants).
+    """
+
+    avoidable_variants: int
+    reaction_time_s: float
+    defects: int
+    unavoidable_contacts: int
+    avoidable_share: float | None
+
+    def to_json(self) -> dict[str, Any]:
+        return _plain(self)
+
+
+@dataclass(frozen=True)
 class TargetResult:
     """The result of one target (summary.json of a one-target run, or of ``OUT/<target>/``).
+
+    The fields are in summary.json's order; those that are None where a run has nothing to say
+    (``nominal_cut_after_s``, ``target_choice``, ``avoidable_only``, ``labels``) are left out of it.
 
     Attributes:
         folder: where it was written.
@@ -106,8 +229,18 @@ class TargetResult:
         collision_rate, off_road_rate: shares of the variants (None without variants);
             impact_angle_spread_deg: [deg] the circular range of the impact angles.
         variants: every variant's outcome; snapshots: one record per collision snapshot.
-        extra: every other key of summary.json, as written (timings, options, generation,
-            avoidability counts, ...).
+        scenario_id: the nominal scene's id; t_col_sim, t_col_index_2hz, collision_time_method,
+            init_method, snapshot_signed_distance: of the first snapshot (see :class:`SnapshotRecord`).
+        nominal_until_s: [s] the nominal pass's last step; nominal_cut_after_s: [s] after the
+            target's departure, where a pass stopped before it arrived (None: it did not stop).
+        target_motion: how the target moved in the nominal pass.
+        generation: the first snapshot's rollout report (as in :attr:`SnapshotRecord.generation`).
+        timings_s: [s] per phase; options: the run's options (``RunOptions.to_json``).
+        renders: the PNGs written, relative to :attr:`folder`.
+        target_choice: how ``--targets N`` chose (None: it was named).
+        avoidable_only: what ``--avoidable only`` tried (None: not asked).
+        labels: the labels' counts (None before the labels are attached).
+        extra: keys this version does not know.
     """
 
     folder: Path
@@ -122,28 +255,59 @@ class TargetResult:
     off_road_rate: float | None = None
     impact_angle_spread_deg: float | None = None
     variants: tuple[VariantOutcome, ...] = ()
-    snapshots: tuple[Mapping[str, Any], ...] = ()
+    snapshots: tuple[SnapshotRecord, ...] = ()
+    scenario_id: str = ""
+    t_col_sim: float | None = None
+    t_col_index_2hz: int | None = None
+    collision_time_method: str = ""
+    init_method: str = ""
+    snapshot_signed_distance: float | None = None
+    nominal_until_s: float | None = None
+    nominal_cut_after_s: float | None = None
+    target_motion: TargetMotion = field(default_factory=TargetMotion)
+    generation: Mapping[str, Any] = field(default_factory=dict)
+    timings_s: Mapping[str, float] = field(default_factory=dict)
+    options: Mapping[str, Any] = field(default_factory=dict)
+    renders: tuple[str, ...] = ()
+    target_choice: tuple[Mapping[str, Any], ...] | None = None
+    avoidable_only: AvoidableOnly | None = None
+    labels: LabelCounts | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+
+    _OMITTED = ("nominal_cut_after_s", "target_choice", "avoidable_only", "labels")
 
     @property
     def failed(self) -> list[dict[str, Any]]:
         """The variants whose SUMO pass failed (crash, timeout): adversary, t_col, reason."""
-        return [f for s in self.snapshots for f in s.get("generation", {}).get("failed", [])]
+        return [f for s in self.snapshots for f in s.failed]
 
     def to_json(self) -> dict[str, Any]:
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("extra", "folder")}
+        out = _plain(self, self._OMITTED)
         out["variants"] = [v.to_json() for v in self.variants]
-        out["snapshots"] = [dict(s) for s in self.snapshots]
-        return {**out, **self.extra}
+        out["snapshots"] = [s.to_json() for s in self.snapshots]
+        out["target_motion"] = self.target_motion.to_json()
+        if self.avoidable_only is not None:
+            out["avoidable_only"] = self.avoidable_only.to_json()
+        labels = out.pop("labels", None)
+        return {**out, **(labels.to_json() if labels is not None else {}), **self.extra}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any], folder: Path) -> TargetResult:
-        known, extra = _split(cls, d)
+        counted = {f.name for f in fields(LabelCounts)}
+        known, extra = _split(cls, {k: v for k, v in d.items() if k not in counted})
         known.pop("folder", None)
+        known.pop("labels", None)
         known["variants"] = tuple(VariantOutcome.from_json(v) for v in d.get("variants", ()))
-        known["snapshots"] = tuple(d.get("snapshots", ()))
+        known["snapshots"] = tuple(SnapshotRecord.from_json(s) for s in d.get("snapshots", ()))
         known["target"] = str(known.get("target", ""))
-        return cls(folder=Path(folder), **known, extra=extra)
+        known["target_motion"] = TargetMotion(**known.get("target_motion", {}))
+        known["renders"] = tuple(known.get("renders", ()))
+        if known.get("target_choice") is not None:
+            known["target_choice"] = tuple(known["target_choice"])
+        if known.get("avoidable_only") is not None:
+            known["avoidable_only"] = AvoidableOnly(**known["avoidable_only"])
+        labels = LabelCounts(**{k: d[k] for k in counted}) if counted <= d.keys() else None
+        return cls(folder=Path(folder), **known, labels=labels, extra=extra)
 
 
 @dataclass(frozen=True)

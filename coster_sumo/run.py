@@ -12,11 +12,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,20 +26,18 @@ from coster_sumo.atomic import write_json
 from coster_sumo.defects import attach_labels, label_plans
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
-from coster_sumo.method.generation import PlannedScenario, check_generation, keep_avoidable, plan_scenarios
+from coster_sumo.method.filters import drop_bystander_wrecks, drop_failed_variants
+from coster_sumo.method.generation import check_generation, keep_avoidable, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.outdir import staged_output
 from coster_sumo.outputs import OverviewRenders, write_run_outputs
-from coster_sumo.plan import AdversaryPlan
 from coster_sumo.procs import torch_threads, usable_cores
 from coster_sumo.progress import Bars, progress_bar
-from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, plain_json
+from coster_sumo.results import AvoidableOnly, RunResult, RunSummary, TargetEntry, TargetResult
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.scenario import NominalPass, nominal_pass
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import (
-    InjectionResult,
-    VariantFailure,
     default_planner,
     inject_variants,
 )
@@ -231,12 +230,12 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
 
     labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
                       label([pl for p in planned for pl in p.plans]), strict=True))
-    tried: dict[str, Any] | None = None
+    tried: AvoidableOnly | None = None
     if wanted.avoidable == "only":
         planned, tried = keep_avoidable(planned, labels, label, opts.generation.variants * opts.snapshots,
                                         seed=spec.seed, gen=opts.generation, drivable=drivable)
         if not any(p.plans for p in planned):
-            raise InputError(f"{spec.config}: none of the {tried['tried']} variants for target {target_id!r} "
+            raise InputError(f"{spec.config}: none of the {tried.tried} variants for target {target_id!r} "
                              f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
@@ -253,78 +252,14 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                             f"(first: {failed[0]['reason']})")
         raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
                          "t_col in the simulation")
-    summary = write_run_outputs(out, spec, how.planner, planned, results, timings, render=opts.render,
-                                options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews)
-    if tried is not None:
-        summary["avoidable_only"] = tried
+    result = write_run_outputs(out, spec, how.planner, planned, results, timings, render=opts.render,
+                               options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews,
+                               folder=published)
     kept = [pl for p in planned for pl in p.plans]
-    summary = attach_labels(out, summary, [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
-    result = TargetResult.from_json(plain_json(summary), published)
+    result = attach_labels(out, dataclasses.replace(result, avoidable_only=tried),
+                           [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
     write_json(out / "summary.json", result.to_json())
     return result
-
-
-def _leave_out(planned: list[PlannedScenario], outcomes: Sequence[Any],
-               verdict: Callable[[AdversaryPlan, Any], tuple[str, dict[str, Any]] | None]
-               ) -> tuple[list[PlannedScenario], list[Any]]:
-    """The plans and outcomes (one per plan, in order) that ``verdict`` keeps (it returns None);
-    a left-out one is recorded under its snapshot's ``info[key]`` with the entry ``verdict`` gives."""
-    it = iter(outcomes)
-    kept_outcomes: list[Any] = []
-    for p in planned:
-        kept = []
-        for plan in p.plans:
-            res = next(it)
-            why = verdict(plan, res)
-            if why is None:
-                kept.append(plan)
-                kept_outcomes.append(res)
-            else:
-                p.info.setdefault(why[0], []).append(why[1])
-        p.plans = kept
-    return planned, kept_outcomes
-
-
-def drop_failed_variants(planned: list[PlannedScenario], outcomes: list[InjectionResult | VariantFailure]
-                         ) -> tuple[list[PlannedScenario], list[InjectionResult]]:
-    """The plans and results without the variants whose pass failed (SUMO crashed, timed out).
-
-    Each failure is kept in its snapshot's ``info["failed"]`` (summary.json ``generation.failed``:
-    the adversary, its t_col and the reason), which ``coster-sumo run`` prints as one line each; the
-    other variants go on.
-    """
-    def failed(plan: AdversaryPlan, res: InjectionResult | VariantFailure) -> tuple[str, dict[str, Any]] | None:
-        if not isinstance(res, VariantFailure):
-            return None
-        return "failed", {"candidate": plan.vehicle_id, "t_col": plan.t_col, "reason": f"its SUMO pass {res.reason}"}
-
-    return _leave_out(planned, outcomes, failed)
-
-
-def drop_bystander_wrecks(planned: list[PlannedScenario], results: list[InjectionResult], target_id: str
-                          ) -> tuple[list[PlannedScenario], list[InjectionResult]]:
-    """The plans and results without the variants whose adversary ran into another vehicle before
-    t_col in the simulation (their ``info["dropped"]`` says so).
-
-    The generation already drops plans that overlap another vehicle's nominal path
-    (:func:`coster_sumo.method.filters.bystander_contact`), but in the simulation the other vehicles react to
-    the adversary (they brake or change lanes when it appears): on A10KW a car 5.9 m clear of the
-    plan's path in the nominal pass ran into it 0.8 s before t_col. Such an adversary stops there as
-    a wreck (:class:`~coster_sumo.sim.inject.AdversaryController`), so the variant is not the
-    generated scenario, even when the target then runs into the wreck at t_col (the demo's
-    adversary hit a car 1 s before t_col and the target hit both: its export no longer followed the
-    plan).
-    """
-    def wrecked(plan: AdversaryPlan, res: InjectionResult) -> tuple[str, dict[str, Any]] | None:
-        wreck = next((e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles
-                      and target_id not in e.vehicles and e.time < plan.t_col - 0.1 - 1e-6), None)
-        if wreck is None:
-            return None
-        other = next(v for v in wreck.vehicles if v != plan.vehicle_id)
-        return "dropped", {"candidate": plan.vehicle_id,
-                           "reason": f"ran into {other} at {wreck.time:.1f} s in the simulation, before t_col"}
-
-    return _leave_out(planned, results, wrecked)
 
 
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from coster_sumo.run import drop_bystander_wrecks
+from coster_sumo.method.filters import drop_bystander_wrecks
 from coster_sumo.sim.events import Event
 
 

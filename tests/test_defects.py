@@ -11,6 +11,7 @@ import pytest
 from coster_sumo.batch.store import ResultStore
 from coster_sumo.cli import main
 from coster_sumo.defects import defect_rates, label_line
+from coster_sumo.evasion import Avoidability
 from coster_sumo.metrics import RunOutcome
 
 REPO = Path(__file__).resolve().parents[1]
@@ -34,8 +35,8 @@ def test_defect_rate_counts_contacts_in_avoidable_variants_only():
 
 
 def test_label_line_says_why():
-    lab = {"avoidable": False, "reaction_time_s": 1.0, "contact_kind": "rear_end_by_adversary",
-           "last_moment_to_act_s": None, "escapes": {"0.5": None, "1": None}}
+    lab = Avoidability(t_col=20.0, t_appear=16.0, t_threat=18.0, contact_kind="rear_end_by_adversary",
+                       vehicle_class="car", last_moment_s=None, escapes={0.5: None, 1.0: None}, reaction_time_s=1.0)
     assert label_line(lab) == "unavoidable (no escape from a reaction of 1 s after the threat), rear end by adversary"
 
 

@@ -61,8 +61,8 @@ def test_diversity_interval_resamples_scenes():
 
 
 def test_run_summary_takes_its_rates_from_the_registry(monkeypatch):
-    variants = [VariantOutcome(0, collision=True, relative_speed=3.0, impact_angle=20.0).to_json(),
-                VariantOutcome(1, adversary_off_road=True, min_ttc=1.5).to_json()]
+    variants = [VariantOutcome(0, collision=True, relative_speed=3.0, impact_angle=20.0),
+                VariantOutcome(1, adversary_off_road=True, min_ttc=1.5)]
     assert run_metrics(variants) == {"collision_rate": 0.5, "off_road_rate": 0.5, "impact_angle_spread_deg": 0.0}
     monkeypatch.setitem(metrics.REGISTRY, "CR", _fixed("CR", 0.25))
     assert run_metrics(variants)["collision_rate"] == 0.25

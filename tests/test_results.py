@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from coster_sumo.errors import InputError
-from coster_sumo.results import RunSummary, TargetEntry, TargetResult, VariantOutcome, plain_json, read_run
+from coster_sumo.results import RunSummary, TargetEntry, TargetResult, VariantOutcome, read_run
 
 
 def _variant(i: int, collision: bool) -> dict:
@@ -22,22 +22,45 @@ def _variant(i: int, collision: bool) -> dict:
 
 
 def _summary() -> dict:
-    return {"config": "a.sumocfg", "scenario_id": "a", "target": "ego", "planner": "replay", "seed": 0,
-            "t_col": 15.0, "num_snapshots": 1, "num_variants": 2, "collision_rate": 0.5, "off_road_rate": 0.0,
+    """A summary.json as this version writes it (every key, in its order)."""
+    generation = {"failed": [{"candidate": "adversary2", "t_col": 15.0, "reason": "crashed"}]}
+    return {"target": "ego", "config": "a.sumocfg", "planner": "replay", "seed": 0, "t_col": 15.0,
+            "num_snapshots": 1, "num_variants": 2, "collision_rate": 0.5, "off_road_rate": 0.0,
             "impact_angle_spread_deg": 0.0, "variants": [_variant(0, True), _variant(1, False)],
-            "snapshots": [{"snapshot": 0, "t_col": 15.0, "generation": {"failed": [{"candidate": "adversary2",
-                                                                                      "t_col": 15.0,
-                                                                                      "reason": "crashed"}]}}],
-            "timings_s": {"nominal_s": 1.0}, "defects": 0}
+            "snapshots": [{"snapshot": 0, "t_col": 15.0, "t_col_sim": 15.0, "t_col_index_2hz": 30,
+                           "collision_time_method": "entropy", "init_method": "snapshot", "signed_distance": -0.1,
+                           "adversary": {"x": 1.0, "y": 2.0, "heading_deg": 90.0, "speed": 5.0, "length": 4.5,
+                                         "width": 1.8},
+                           "variants": [0, 1], "generation": generation, "impact_angles_deg": [30.0]}],
+            "scenario_id": "a", "t_col_sim": 15.0, "t_col_index_2hz": 30, "collision_time_method": "entropy",
+            "init_method": "snapshot", "snapshot_signed_distance": -0.1, "nominal_until_s": 40.0,
+            "target_motion": {"in_window_s": 40.0, "stopped_s": 0.0, "distance_m": 300.0},
+            "generation": generation, "timings_s": {"nominal_s": 1.0}, "options": {"variants": 2},
+            "renders": ["overview.png"], "avoidable_only": {"tried": 3, "kept": 2, "extra_draws": 1},
+            "avoidable_variants": 2, "reaction_time_s": 1.0, "defects": 1, "unavoidable_contacts": 0,
+            "avoidable_share": 1.0}
 
 
 def test_a_target_result_round_trips_its_summary():
     d = _summary()
     result = TargetResult.from_json(d, Path("out"))
-    assert result.to_json() == d
+    assert result.to_json() == d and list(result.to_json()) == list(d)  # the same keys in the same order
     assert result.variants[0].collision and result.variants[1].no_contact_reason == "braked"
-    assert result.variants[0].extra == {"label": "avoidable (1.0 s)"}  # what later steps add is kept
+    assert result.variants[0].label == "avoidable (1.0 s)" and result.variants[0].to_json() == _variant(0, True)
     assert [f["candidate"] for f in result.failed] == ["adversary2"]
+    assert result.avoidable_only is not None and result.avoidable_only.extra_draws == 1
+    assert result.labels is not None and result.labels.defects == 1
+    assert result.target_motion.distance_m == 300.0
+
+
+def test_a_summary_without_the_optional_keys_leaves_them_out():
+    d = _summary()
+    for key in ("avoidable_only", "avoidable_variants", "reaction_time_s", "defects", "unavoidable_contacts",
+                "avoidable_share"):
+        del d[key]
+    result = TargetResult.from_json(d, Path("out"))
+    assert result.labels is None and result.avoidable_only is None
+    assert result.to_json() == d
 
 
 def test_a_run_with_several_targets_lists_each_with_its_result_or_reason():
@@ -48,12 +71,6 @@ def test_a_run_with_several_targets_lists_each_with_its_result_or_reason():
     assert d["num_targets"] == 2 and d["targets"][1] == {"target": "veh1", "error": "no snapshot"}
     assert RunSummary.from_json(d, Path("out")).to_json() == d
     assert run.results == [one]
-
-
-def test_plain_json_is_what_a_reader_of_the_file_gets():
-    import numpy as np
-
-    assert plain_json({"a": np.float64(1.5), "b": (1, 2), "c": Path("x")}) == {"a": 1.5, "b": [1, 2], "c": "x"}
 
 
 def test_reading_a_folder_that_is_no_run_is_one_line(tmp_path):

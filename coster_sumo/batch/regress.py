@@ -174,7 +174,8 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
                       avoidable=None if label is None else bool(label["avoidable"]),
                       contact_in_horizon=in_horizon,
                       contact_kind=None if label is None else label["contact_kind"],
-                      outcome=planner_outcome(res.scene, target_id, plan, in_horizon, label))
+                      outcome=planner_outcome(res.scene, target_id, plan, in_horizon,
+                                              None if label is None else bool(label["avoidable"])))
 
 
 @dataclass(kw_only=True)

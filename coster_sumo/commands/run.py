@@ -15,7 +15,7 @@ from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.progress import Bars
-from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult
+from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, VariantOutcome
 from coster_sumo.rollout.methods import ROLLOUTS
 from coster_sumo.run import RunOptions
 from coster_sumo.run import run as run_scenario
@@ -160,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
             lines.append(f"target {entry.target}: no scenario ({entry.error})")
             continue
         results.append(entry.result)
-        lines += target_lines(entry.result.to_json())
+        lines += target_lines(entry.result)
         failed += [(entry.target, f) for f in entry.result.failed]
     folders = [one.folder for one in results]
     for target, f in failed:  # one line each, on stderr like every failure; the other variants are kept
@@ -219,56 +219,58 @@ STILL_NOTE_MIN_S = 30.0
 STILL_NOTE_SHARE = 0.8
 
 
-def target_lines(summary: dict[str, Any]) -> list[str]:
-    """The one-line results of one target's summary: its collision times, then a line per variant."""
-    lines = [f"target {summary['target']}: t_col = "
-             + ", ".join(f"{s['t_col']:.1f} s" for s in summary["snapshots"])
-             + f" ({summary['collision_time_method']}, init {summary['init_method']}), planner {summary['planner']}"]
-    if summary.get("nominal_cut_after_s"):
-        lines.append(f"  note: the nominal pass stopped {summary['nominal_cut_after_s']:.0f} s after "
-                     f"{summary['target']} departed (at {summary['nominal_until_s']:.1f} s; it had not arrived): "
+def target_lines(result: TargetResult) -> list[str]:
+    """The one-line results of one target: its collision times, then a line per variant."""
+    r = result
+    lines = [f"target {r.target}: t_col = " + ", ".join(f"{s.t_col:.1f} s" for s in r.snapshots)
+             + f" ({r.collision_time_method}, init {r.init_method}), planner {r.planner}"]
+    if r.nominal_cut_after_s:
+        lines.append(f"  note: the nominal pass stopped {r.nominal_cut_after_s:.0f} s after "
+                     f"{r.target} departed (at {r.nominal_until_s:.1f} s; it had not arrived): "
                      "--begin/--end choose another part of its life")
-    motion = summary.get("target_motion") or {}
-    in_window = motion.get("in_window_s", 0.0)
-    if in_window >= STILL_NOTE_MIN_S and motion["stopped_s"] >= STILL_NOTE_SHARE * in_window:
-        lines.append(f"  note: {summary['target']} stood still for {motion['stopped_s']:.0f} s of its "
-                     f"{motion['in_window_s']:.0f} s in the nominal pass (a jam or gridlock in the configuration); "
+    motion = r.target_motion
+    if motion.in_window_s >= STILL_NOTE_MIN_S and motion.stopped_s >= STILL_NOTE_SHARE * motion.in_window_s:
+        lines.append(f"  note: {r.target} stood still for {motion.stopped_s:.0f} s of its "
+                     f"{motion.in_window_s:.0f} s in the nominal pass (a jam or gridlock in the configuration); "
                      "its contacts are with a standing vehicle")
-    for v in summary["variants"]:
-        hit = (f"contact at {v['collision_time']:.1f} s ({v['contact_offset_s']:+.1f} s), "
-               f"{v['relative_speed']:.1f} m/s, {round(v['impact_angle']):d} deg") if v["collision"] else (
-            "no contact: " + (v.get("no_contact_reason") or "no reason recorded"))
-        others = v.get("other_collisions_list") or []
-        approach = (f"; approach {v['approach_m']:.0f} m from {v['plan_start_s']:.1f} s"
-                    if v.get("approach_m") is not None else "")
-        lines.append(f"  variant {v['variant']}: {hit}" + approach
-                     + ("; adversary off-road" if v["adversary_off_road"] else "")
-                     + (f"; {len(others)} other collision{'s' if len(others) != 1 else ''} ({others[0]}"
-                        + (", ..." if len(others) > 1 else "") + ")" if others else "")
-                     + (f"; no SUMO export ({v['export_error']})" if v.get("export_error") else "")
-                     + (f"; {v['outcome']}" if v.get("outcome") else "")
-                     + (f"; {v['label']}" if v.get("label") else ""))
-    if summary.get("avoidable_only"):
-        a = summary["avoidable_only"]
-        lines.append(f"  --avoidable only: {a['kept']} avoidable of {a['tried']} variants tried "
-                     f"({a['extra_draws']} extra draws)")
-    lines += dropped_lines(summary)
+    lines += [variant_line(v) for v in r.variants]
+    if r.avoidable_only is not None:
+        a = r.avoidable_only
+        lines.append(f"  --avoidable only: {a.kept} avoidable of {a.tried} variants tried "
+                     f"({a.extra_draws} extra draws)")
+    lines += dropped_lines(r)
     return lines
 
 
-def dropped_lines(summary: dict[str, Any]) -> list[str]:
+def variant_line(v: VariantOutcome) -> str:
+    """A variant's result in one line: its contact (or why none), its approach, what else happened,
+    the planner's outcome and the label."""
+    hit = (f"contact at {v.collision_time:.1f} s ({v.contact_offset_s:+.1f} s), "
+           f"{v.relative_speed:.1f} m/s, {round(v.impact_angle or 0.0):d} deg") if v.collision else (
+        "no contact: " + (v.no_contact_reason or "no reason recorded"))
+    others = v.other_collisions_list
+    approach = (f"; approach {v.approach_m:.0f} m from {v.plan_start_s:.1f} s" if v.approach_m is not None else "")
+    return (f"  variant {v.variant}: {hit}" + approach
+            + ("; adversary off-road" if v.adversary_off_road else "")
+            + (f"; {len(others)} other collision{'s' if len(others) != 1 else ''} ({others[0]}"
+               + (", ..." if len(others) > 1 else "") + ")" if others else "")
+            + (f"; no SUMO export ({v.export_error})" if v.export_error else "")
+            + (f"; {v.outcome}" if v.outcome else "")
+            + (f"; {v.label}" if v.label else ""))
+
+
+def dropped_lines(result: TargetResult) -> list[str]:
     """One line per candidate that did not become a variant, with its reason, and how many of the
     variants asked for were kept."""
     lines: list[str] = []
-    asked = (summary.get("options") or {}).get("variants")
-    for s in summary.get("snapshots", []):
-        gen = s.get("generation") or {}
-        for d in gen.get("dropped", []):
+    asked = result.options.get("variants")
+    for s in result.snapshots:
+        for d in s.dropped:
             c = d["candidate"]
             lines.append(f"  dropped {'candidate ' + str(c) if isinstance(c, int) else c}: {d['reason']}")
-        for t, why in (gen.get("collision_times_given_up") or {}).items():
+        for t, why in s.given_up.items():
             lines.append(f"  gave up {t}: {why}")
-    n = len(summary.get("variants", []))
-    if asked is not None and n < asked * len(summary.get("snapshots", [1])):
-        lines.insert(0, f"  {n} of {asked * len(summary.get('snapshots', [1]))} variants kept; the others:")
+    n, wanted = len(result.variants), None if asked is None else asked * len(result.snapshots)
+    if wanted is not None and n < wanted:
+        lines.insert(0, f"  {n} of {wanted} variants kept; the others:")
     return lines

@@ -156,8 +156,8 @@ def _export_target(result: TargetResult, fmt: str, radius: float,
             progress(len(results), len(result.variants))
         vdir = result.folder / "variants" / str(variant.variant)
         res: dict[str, Any] = {"variant": variant.variant}
-        if variant.extra.get("export_error"):  # the run could not write its SUMO folder, which both formats read
-            results.append({**res, "skipped": variant.extra["export_error"]})
+        if variant.export_error:  # the run could not write its SUMO folder, which both formats read
+            results.append({**res, "skipped": variant.export_error})
             continue
         if fmt in ("sumo", "all"):
             res["sumo"] = sumo_export(vdir)

@@ -41,6 +41,7 @@ from coster_sumo.method.snapshot import (
     place_closing_first,
 )
 from coster_sumo.plan import AdversaryPlan
+from coster_sumo.results import AvoidableOnly
 from coster_sumo.rollout.methods import ROLLOUTS, RolloutRequest
 from coster_sumo.scene import Scene, resample
 from coster_sumo.snapshot_state import CollisionSnapshot
@@ -284,7 +285,7 @@ EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under
 
 def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidability],
                    label: Callable[[list[AdversaryPlan]], list[Avoidability]], wanted: int, *, seed: int,
-                   gen: GenerationConfig, drivable: DrivableArea) -> tuple[list[PlannedScenario], dict[str, Any]]:
+                   gen: GenerationConfig, drivable: DrivableArea) -> tuple[list[PlannedScenario], AvoidableOnly]:
     """``--avoidable only``: drop the unavoidable plans of ``planned`` (``labels`` by adversary id,
     of the scene and target of ``planned``) and replace them by plans of :func:`further_draw` (with
     ``seed``, ``gen``, ``drivable``) until ``wanted`` are avoidable or :data:`EXTRA_DRAWS` more draws
@@ -314,7 +315,7 @@ def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidabilit
         if extra.plans:
             planned.append(extra)
     planned = [p for p in planned if p.plans] or planned[:1]
-    return planned, {"tried": tried, "kept": kept, "extra_draws": draws}
+    return planned, AvoidableOnly(tried=tried, kept=kept, extra_draws=draws)
 
 
 def derived_seed(seed: int, j: int) -> int:
