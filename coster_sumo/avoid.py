@@ -45,6 +45,7 @@ from coster_sumo.evasion import (
     lateral_profile,
     manoeuvres,
     speed_profiles,
+    threat_time,
     vehicle_class,
 )
 from coster_sumo.geometry import (
@@ -59,7 +60,6 @@ from coster_sumo.scene import Scene
 
 HORIZON_AFTER_TCOL_S = 3.0  # [s] an escape must stay clear and on the road this long after t_col
 MIN_CLEARANCE_M = 0.3  # [m] smallest gap an escape keeps to every box (the SUMO replay is the arbiter)
-THREAT_LOOKAHEAD_S = 3.0  # [s] constant-velocity look-ahead that makes the adversary a threat
 REACTION_TIMES_S = (0.5, 1.0, 1.5)  # [s] reaction times reported for every variant
 ACT_SPACING_S = 0.2  # [s] moments to act are searched on this grid (plus the reaction moments)
 OFF_ROAD_SPACING_S = 0.2  # [s] on-road checks every other step (a car moves < 8 m in it)
@@ -89,24 +89,6 @@ def _path(xy: np.ndarray, heading: np.ndarray, extend_m: float) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- the search
 
-def threat_time(times: np.ndarray, tx: np.ndarray, ty: np.ndarray, tyaw: np.ndarray, tv: np.ndarray,
-                tl: float, tw: float, plan: AdversaryPlan) -> float:
-    """The first moment from the adversary's appearance at which it is a threat: both vehicles,
-    extrapolated at their current velocities, overlap within :data:`THREAT_LOOKAHEAD_S`.
-
-    Args:
-        times: (K,) [s] from t_start to t_col; tx, ty, tyaw, tv: (K,) the target's nominal state.
-    """
-    ax, ay, ayaw, av = plan.sample(times)
-    tau = np.arange(0.0, THREAT_LOOKAHEAD_S + 1e-9, DT_S)  # (L,)
-    t_box = make_boxes(tx[:, None] + tv[:, None] * np.cos(tyaw)[:, None] * tau,
-                       ty[:, None] + tv[:, None] * np.sin(tyaw)[:, None] * tau, tyaw[:, None], tl, tw)
-    a_box = make_boxes(ax[:, None] + av[:, None] * np.cos(ayaw)[:, None] * tau,
-                       ay[:, None] + av[:, None] * np.sin(ayaw)[:, None] * tau, ayaw[:, None], plan.length, plan.width)
-    hit = (box_signed_distance(t_box, a_box) <= 0.0).any(axis=1)  # (K,)
-    return float(times[np.argmax(hit)]) if hit.any() else float(times[-1])
-
-
 def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableArea | None,
            reaction_times: tuple[float, ...] = REACTION_TIMES_S, reaction_time_s: float = DEFAULT_REACTION_S
            ) -> Avoidability:
@@ -127,6 +109,7 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     idx = np.where(ok, idx, np.minimum(idx, last_valid))
     length = float(np.median(tr.length[target][valid_t]))
     width = float(np.median(tr.width[target][valid_t]))
+    path = _path(np.stack([tr.x[target][valid_t], tr.y[target][valid_t]], 1), tr.heading[target][valid_t], 400.0)
     # what the target can do: its class's limits and the manoeuvres they allow
     limits = vehicle_class(int(tr.object_type[target]), length, width)
     man = manoeuvres(limits)
@@ -143,8 +126,9 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     ax_c, ay_c, ayaw_c, av_c = (float(v[0]) for v in plan.sample(np.array([t_col])))
     kind = contact_kind(float(nx[tcol_k]), float(ny[tcol_k]), float(nyaw[tcol_k]), length, width, float(nv[tcol_k]),
                         ax_c, ay_c, ayaw_c, plan.length, plan.width, av_c)
-    t_threat = threat_time(times[:tcol_k + 1], nx[:tcol_k + 1], ny[:tcol_k + 1], nyaw[:tcol_k + 1],
-                           nv[:tcol_k + 1], length, width, plan)
+    upto = slice(0, tcol_k + 1)
+    t_threat = threat_time(times[upto], nx[upto], ny[upto], nyaw[upto], nv[upto], length, width,
+                           *plan.sample(times[upto]), plan.length, plan.width)
     # moments to act: a grid from the appearance to t_col plus each reaction moment
     grid = np.arange(plan.t_start, t_col + 1e-9, ACT_SPACING_S)
     react = np.array([t_threat + r for r in reaction_times])
@@ -155,7 +139,6 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     if not len(act_k):
         return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, None, escapes, reaction_time_s)
 
-    path = _path(np.stack([tr.x[target][valid_t], tr.y[target][valid_t]], 1), tr.heading[target][valid_t], 400.0)
     ctx = _SearchContext(scene, target, plan, drivable, man, limits, times, nx, ny, nyaw, nv, length, width, path)
     t_acts_all = times[act_k]
     # the moments before the shortest reaction serve only the last moment to act, which is searched

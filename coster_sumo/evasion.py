@@ -1,7 +1,8 @@
 """What a target can do to evade a generated collision, and what the search for it reports.
 
 The vehicle classes' limits (:class:`ClassLimits`), the manoeuvres searched for each class and
-their jerk-limited speed and smooth lateral profiles, the kind of a contact, and the search's
+their jerk-limited speed and smooth lateral profiles, the kind of a contact and when the adversary
+becomes a threat, and the search's
 results: an :class:`Escape` plan and a variant's :class:`Avoidability` (docs/method.md, "Step 8
 Avoidability"). The search itself, which builds every candidate plan from these and checks it
 against the scene, is :func:`coster_sumo.avoid.assess`.
@@ -16,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.scene import ObjectType
 
 DT_S = 0.1  # [s] the plans' step (SUMO's step in the injection pass)
@@ -97,6 +99,29 @@ def contact_kind(tx: float, ty: float, tyaw: float, tl: float, tw: float, tspeed
     if lat_gap >= lon_gap:
         return "side_swipe"
     return "into_vehicle_ahead" if lon > 0 else "rear_end_by_adversary"
+
+
+THREAT_LOOKAHEAD_S = 3.0  # [s] constant-velocity look-ahead that makes the adversary a threat
+
+
+def threat_time(times: np.ndarray, tx: np.ndarray, ty: np.ndarray, tyaw: np.ndarray, tv: np.ndarray,
+                tl: float, tw: float, ax: np.ndarray, ay: np.ndarray, ayaw: np.ndarray, av: np.ndarray,
+                al: float, aw: float) -> float:
+    """The first moment from the adversary's appearance at which it is a threat: both vehicles,
+    extrapolated at their current velocities, overlap within :data:`THREAT_LOOKAHEAD_S`.
+
+    Args:
+        times: (K,) [s] from t_start to t_col; tx, ty, tyaw, tv: (K,) the target's nominal state
+            (box centre [m], heading [rad], speed [m/s]) then, tl, tw: its size [m]; ax, ay, ayaw,
+            av, al, aw: the same of the adversary's plan.
+    """
+    tau = np.arange(0.0, THREAT_LOOKAHEAD_S + 1e-9, DT_S)  # (L,)
+    t_box = make_boxes(tx[:, None] + tv[:, None] * np.cos(tyaw)[:, None] * tau,
+                       ty[:, None] + tv[:, None] * np.sin(tyaw)[:, None] * tau, tyaw[:, None], tl, tw)
+    a_box = make_boxes(ax[:, None] + av[:, None] * np.cos(ayaw)[:, None] * tau,
+                       ay[:, None] + av[:, None] * np.sin(ayaw)[:, None] * tau, ayaw[:, None], al, aw)
+    hit = (box_signed_distance(t_box, a_box) <= 0.0).any(axis=1)  # (K,)
+    return float(times[np.argmax(hit)]) if hit.any() else float(times[-1])
 
 
 @dataclass(frozen=True)

@@ -468,18 +468,18 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
     """
     source = ScenarioSource.of(scenario)
     planner_spec, traci, timeout = how.planner, how.traci, how.timeout
+    # what every variant's pass shares: the target's nominal replay and the pass's settings
+    target_id = str(scene.tracks.ids[target])
+    nominal = nominal_replay(scene, target)
+    settings = PassSettings(end=float(scene.timestamps[-1]) + 1e-9, drivable=drivable,
+                            surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=post_contact_s)
     results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
-    groups: dict[int, list[int]] = {}
+    groups: dict[int, list[int]] = {}  # the held copy each variant continues from (by its index)
     if held is not None and not source.converted and not traci:
         for i, plan in enumerate(plans):
             h = held.holder_before(plan.t_start - TIME_EPS)
             if h is not None:
                 groups.setdefault(held.holders.index(h), []).append(i)
-    target_id = str(scene.tracks.ids[target])
-    nominal = nominal_replay(scene, target)
-    end = float(scene.timestamps[-1]) + 1e-9
-    settings = PassSettings(end=end, drivable=drivable, surroundings_m=SURROUNDINGS_RADIUS_M,
-                            post_contact_s=post_contact_s)
     for h_index, members in groups.items():
         jobs = [(_continue_held, HeldVariant(target_id, plans[i], planner_spec, nominal, settings)) for i in members]
         finished = held.run_each(held.holders[h_index], jobs, how.workers, timeout) if held is not None else []

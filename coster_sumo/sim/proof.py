@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.evasion import Avoidability, Escape
+from coster_sumo.evasion import Avoidability, Escape, Manoeuvre
 from coster_sumo.formats.scene_folder import agent_sizes, vtype_for
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan, sim_time_of
@@ -225,17 +225,17 @@ class _JointProof:
         self.spec, self.scene, self.jobs = spec, scene, jobs
         tr = scene.tracks
         self.target_id = str(tr.ids[target])
+        self.length = float(np.median(tr.length[target][tr.valid[target]]))
+        self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
         lengths, widths = agent_sizes(scene)
         self.size = (float(lengths[target]), float(widths[target]))
         self.vtype = vtype_for(int(tr.object_type[target]))
-        self.length = float(np.median(tr.length[target][tr.valid[target]]))
+        self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
+        self.adversaries = [AdversaryController(j.plan, vehicle_id=a) for j, (_, a) in zip(jobs, self.ids, strict=True)]
+        self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
         paths = np.concatenate([np.stack([j.escape.x, j.escape.y], -1) for j in jobs])
         far = far_agents(scene.tracks, paths, PROOF_RADIUS_M)
         self.replayer = LogReplayer.for_config(spec.config, scene, exclude=far | {self.target_id})
-        self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
-        self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
-        self.adversaries = [AdversaryController(j.plan, vehicle_id=a) for j, (_, a) in zip(jobs, self.ids, strict=True)]
-        self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
         step = round(scene.dt, 6)  # SUMO runs a converted scene at its log's step
         self.starts = [sim_time_of(j.plan.t_start, step) for j in jobs]
         self.ends = [j.plan.t_col + horizon_s + 1e-6 for j in jobs]
@@ -319,7 +319,7 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
     jobs: list[EscapeJob] = []
     owners: list[Escape] = []
     for plan, lab in zip(plans, labels, strict=True):
-        seen: set[tuple[float, str]] = set()  # one object may stand at several reaction times too
+        seen: set[tuple[float, Manoeuvre]] = set()  # one object may stand at several reaction times too
         for e in lab.escapes.values():
             if e is None or (key := _same_escape(e)) in seen:
                 continue
@@ -338,6 +338,6 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
                 e.proven, e.proof = twin.proven, twin.proof
 
 
-def _same_escape(e: Escape) -> tuple[float, str]:
+def _same_escape(e: Escape) -> tuple[float, Manoeuvre]:
     """What makes two escapes of one plan the same: when the target acts, and how."""
-    return round(e.t_act, 3), e.manoeuvre.describe()
+    return round(e.t_act, 3), e.manoeuvre
