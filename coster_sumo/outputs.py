@@ -27,7 +27,7 @@ import os
 import shutil
 import sys
 import xml.etree.ElementTree as ET
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +45,7 @@ from coster_sumo.results import SnapshotRecord, TargetMotion, TargetResult, Vari
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
-from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
+from coster_sumo.snapshot_state import AgentState
 from coster_sumo.spec import ScenarioSpec
 
 VARIANT_FILE = "variant.json"
@@ -259,15 +259,11 @@ def _render_overview(out: Path, k: int, p: PlannedScenario, plans: Sequence[Adve
                         snap.entropy or None, p.scene_2hz.timestamps, snap.time)
 
 
-class OverviewRenders:
-    """The overview of every collision snapshot, drawn in a forked process while the variants are
-    labelled and simulated: on a second core the drawing costs no wall time (about 0.4 s of the
-    demo's 3 s through ``coster-sumo serve``). It draws the plans of its start; should a variant be
-    left out later (its pass failed, ``--avoidable only``) or the drawing fail, :meth:`finish` draws
-    the overview again here with the plans kept. Where there is no ``fork``, :meth:`finish` draws."""
+class _Drawing:
+    """``draw()`` in a forked process, on another core, while this one goes on; where there is no
+    ``fork`` nothing is drawn there (:meth:`wait` says so and the caller draws)."""
 
-    def __init__(self, out: Path, planned: Sequence[PlannedScenario]) -> None:
-        self.drawn = _plans_key(planned)
+    def __init__(self, draw: Callable[[], None]) -> None:
         self.pid: int | None = None
         if not hasattr(os, "fork"):
             return
@@ -278,19 +274,39 @@ class OverviewRenders:
             code = 1
             try:
                 die_with_parent()
-                for k, p in enumerate(planned):
-                    _render_overview(out, k, p, p.plans)
+                draw()
                 code = 0
             finally:
                 os._exit(code)
         self.pid = pid
 
+    def wait(self) -> bool:
+        """Wait for the drawing; whether it drew everything."""
+        if self.pid is None:
+            return False
+        _, status = os.waitpid(self.pid, 0)
+        return os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+
+
+class OverviewRenders:
+    """The overview of every collision snapshot, drawn in a forked process while the variants are
+    labelled and simulated: on a second core the drawing costs no wall time (about 0.4 s of the
+    demo's 3 s through ``coster-sumo serve``). It draws the plans of its start; should a variant be
+    left out later (its pass failed, ``--avoidable only``) or the drawing fail, :meth:`finish` draws
+    the overview again here with the plans kept. Where there is no ``fork``, :meth:`finish` draws."""
+
+    def __init__(self, out: Path, planned: Sequence[PlannedScenario]) -> None:
+        self.drawn = _plans_key(planned)
+
+        def draw() -> None:
+            for k, p in enumerate(planned):
+                _render_overview(out, k, p, p.plans)
+
+        self.drawing = _Drawing(draw)
+
     def finish(self, out: Path, planned: Sequence[PlannedScenario]) -> None:
         """Wait for the drawing; draw again what it did not draw, or no longer shows the plans kept."""
-        ok = False
-        if self.pid is not None:
-            _, status = os.waitpid(self.pid, 0)
-            ok = os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+        ok = self.drawing.wait()
         if not ok or _plans_key(planned) != self.drawn:
             for k, p in enumerate(planned):
                 _render_overview(out, k, p, p.plans)
@@ -317,30 +333,39 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
             for e in res.events:
                 fh.write(json.dumps({"variant": i, **e.to_dict()}, default=json_default) + "\n")
     collisions_xml(out / "collisions.xml", results)
-    variants: list[VariantOutcome] = []
+    # variant i: its snapshot's number and the snapshot, its plan, and its outcome
+    jobs = [(k, p, plan) for k, p in enumerate(planned) for plan in p.plans]
+    variants = [variant_outcome(i, plan, results[i], target_id, p.snapshot.time, scene, snapshot=k)
+                for i, (k, p, plan) in enumerate(jobs)]
+    for i in range(len(jobs)):
+        (out / "variants" / str(i)).mkdir(parents=True)
+
+    def draw_variants() -> None:
+        for i, (_, p, plan) in enumerate(jobs):
+            render_driven(out / "variants" / str(i) / "render.png", i, plan, results[i], target_id, p.snapshot.time,
+                          variants[i], scene, target, p.snapshot.adversary,
+                          int(np.argmin(np.abs(scene.timestamps - p.snapshot.time))))
+
+    # the renders are drawn on another core while the files and exports are written here
+    drawing = _Drawing(draw_variants) if render else None
+    for i, (_, _, plan) in enumerate(jobs):
+        variants[i] = _write_variant(out, i, plan, results[i], spec, planner, scene, target_id, variants[i],
+                                     copy_outside=copy_outside)
     snapshots: list[SnapshotRecord] = []
-    renders: list[str] = []
-    i = 0
     for k, p in enumerate(planned):
-        snap = p.snapshot
-        snap.save(out / ("snapshot.json" if k == 0 else f"snapshot_{k}.json"))
-        t_col_step = int(np.argmin(np.abs(scene.timestamps - snap.time)))
-        mine = []
-        for plan in p.plans:
-            rec = _write_variant(out, i, k, plan, results[i], spec, planner, scene, target, snap, t_col_step,
-                                 render=render, copy_outside=copy_outside)
-            variants.append(rec)
-            mine.append(rec)
-            if render:
-                renders.append(f"variants/{i}/render.png")
-            i += 1
-        if render:
-            if overviews is None:
+        p.snapshot.save(out / ("snapshot.json" if k == 0 else f"snapshot_{k}.json"))
+        snapshots.append(_snapshot_record(k, p, [v for v in variants if v.snapshot == k], step))
+    renders: list[str] = []
+    if render:
+        if overviews is None:
+            for k, p in enumerate(planned):
                 _render_overview(out, k, p, p.plans)
-            renders.insert(k, _overview_name(k))
-        snapshots.append(_snapshot_record(k, p, mine, step))
-    if render and overviews is not None:
-        overviews.finish(out, planned)
+        else:
+            overviews.finish(out, planned)
+        if drawing is not None and not drawing.wait():
+            draw_variants()
+        renders = [_overview_name(k) for k in range(len(planned))] + [f"variants/{i}/render.png"
+                                                                      for i in range(len(jobs))]
     snap0 = first.snapshot
     rates = run_metrics(variants)
     return TargetResult(
@@ -368,15 +393,11 @@ def run_metrics(variants: Sequence[VariantOutcome]) -> dict[str, float | None]:
     return {key: metrics.compute(name, sample).value for key, name in RUN_METRICS.items()}
 
 
-def _write_variant(out: Path, i: int, k: int, plan: AdversaryPlan, res: InjectionResult, spec: ScenarioSpec,
-                   planner: str, scene: Scene, target: int, snap: CollisionSnapshot, t_col_step: int, *,
-                   render: bool, copy_outside: bool) -> VariantOutcome:
-    """Variant ``i`` (of snapshot ``k``) into ``out/variants/i``: trajectories, the plain-SUMO export,
-    the render; returns its record for summary.json."""
-    target_id = str(scene.tracks.ids[target])
+def _write_variant(out: Path, i: int, plan: AdversaryPlan, res: InjectionResult, spec: ScenarioSpec, planner: str,
+                   scene: Scene, target_id: str, rec: VariantOutcome, *, copy_outside: bool) -> VariantOutcome:
+    """Variant ``i``'s files into ``out/variants/i``: trajectories and the plain-SUMO export; returns
+    its record (``rec``) with the export's error, if any."""
     vdir = out / "variants" / str(i)
-    vdir.mkdir(parents=True)
-    rec = variant_outcome(i, plan, res, target_id, snap.time, scene, snapshot=k)
     trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
     write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
     try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
@@ -386,10 +407,7 @@ def _write_variant(out: Path, i: int, k: int, plan: AdversaryPlan, res: Injectio
                        copy_outside=copy_outside)
     except (SumoError, InputError) as exc:
         shutil.rmtree(vdir / "export", ignore_errors=True)
-        rec = dataclasses.replace(rec, export_error=str(exc))
-    if render:
-        render_driven(vdir / "render.png", i, plan, res, target_id, snap.time, rec, scene, target,
-                      snap.adversary, t_col_step)
+        return dataclasses.replace(rec, export_error=str(exc))
     return rec
 
 
