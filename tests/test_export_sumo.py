@@ -173,6 +173,33 @@ def test_rewrite_demand_drops_the_target_and_sets_insertion_checks(tmp_path):
     assert [el.get("id") for el in ET.parse(rou).getroot()] == ["car", "other"]
 
 
+def test_the_variants_copies_of_one_demand_file_are_parsed_once(tmp_path, monkeypatch):
+    """Every variant's export rewrites its copy of the same file alike: the content is read once;
+    a copy whose content differs is read again."""
+    from coster_sumo.exports import demand
+
+    text = ('<routes>\n  <trip id="ego" depart="2" from="a" to="b"/>\n'
+            '  <trip id="other" depart="1" from="a" to="b"/>\n</routes>\n')
+    reads = []
+    real_read = demand._read
+    monkeypatch.setattr(demand, "_read", lambda path: reads.append(path) or real_read(path))
+    copies = [tmp_path / f"v{i}" / "r.rou.xml" for i in range(3)]
+    for c in copies:
+        c.parent.mkdir()
+        c.write_text(text)
+    results = [(demand_ids(c), rewrite_demand(c, checks="all", drop_vehicles=frozenset({"ego"}))) for c in copies]
+    assert len(reads) == 2  # once for the ids, once for the rewrite
+    assert all(r == results[0] for r in results)
+    assert len({c.read_bytes() for c in copies}) == 1 and b'id="ego"' not in copies[2].read_bytes()
+    results[0][0]["vehicle"].add("changed by a caller")  # a caller's changes do not reach the memo
+    fresh = tmp_path / "fresh.rou.xml"
+    fresh.write_text(text)
+    assert demand_ids(fresh) == {"vehicle": {"ego", "other"}, "flow": set()} and len(reads) == 2
+    edited = tmp_path / "edited.rou.xml"
+    edited.write_text(text.replace("other", "third"))
+    assert demand_ids(edited)["vehicle"] == {"ego", "third"} and len(reads) == 3
+
+
 def test_flows_that_begin_after_the_export_ends_leave_it(tmp_path):
     """SUMO ends a flow without ``end`` at the run's end and refuses one that then ends before it
     begins: an export that stops at its contact must not carry flows that begin later (the wheel's
