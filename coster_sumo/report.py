@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_text
+from coster_sumo.batch.summaries import RegressionSummary
 from coster_sumo.defects import avoidability_report_table, defect_table
+from coster_sumo.metrics import MetricValue
 
 EXAMPLES_PER_PLANNER = 3
 
@@ -33,10 +35,11 @@ def _legend(ax: Any, **kwargs: Any) -> None:
     if ax.get_legend_handles_labels()[0]:
         ax.legend(**kwargs)
 
-def _pct(entry: dict[str, Any]) -> str:
-    if entry.get("rate") is None:
+def _pct(rate: MetricValue) -> str:
+    """A rate in the regression's table: percent and its Wilson interval."""
+    if rate.value is None:
         return "n/a"
-    return f"{100 * entry['rate']:.1f}% [{100 * entry['ci_low']:.1f}, {100 * entry['ci_high']:.1f}]"
+    return f"{100 * rate.value:.1f}% [{100 * (rate.ci_low or 0.0):.1f}, {100 * (rate.ci_high or 0.0):.1f}]"
 
 
 def _fmt(x: Any, digits: int = 3) -> str:
@@ -59,32 +62,31 @@ def _plt() -> Any:
 # ============================================================================ regression
 
 
-def regression_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+def regression_table(summary: RegressionSummary) -> tuple[list[str], list[list[str]]]:
     head = ["planner", "runs", "failed", "RCR", "CR", "ORR", "adversary contact", "median min TTC [s]",
             "mean rel. speed [m/s]"]
     rows = []
-    for name, p in summary["planners"].items():
-        rows.append([name, str(p["runs"]), str(p["failed"]), _pct(p["RCR"]), _pct(p["CR"]), _pct(p["ORR"]),
-                     _pct(p["adversary_contact_rate"]), _fmt(p["median_min_ttc_s"], 2),
-                     _fmt(p["mean_relative_speed_mps"], 2)])
+    for name, p in summary.planners.items():
+        rows.append([name, str(p.runs), str(p.failed), _pct(p.RCR), _pct(p.CR), _pct(p.ORR),
+                     _pct(p.adversary_contact_rate), _fmt(p.median_min_ttc_s, 2), _fmt(p.mean_relative_speed_mps, 2)])
     return head, rows
 
 
-def _defect_words(summary: dict[str, Any]) -> str:
-    return (f"{summary.get('avoidable_variants', 0)} of {summary['variants']} variants were avoidable "
+def _defect_words(summary: RegressionSummary) -> str:
+    return (f"{summary.avoidable_variants} of {summary.variants} variants were avoidable "
             "(an escape proven in SUMO from the stated reaction time after the adversary became a threat, "
             "docs/method.md step 8). A contact in an avoidable variant is a defect of the planner; a contact "
             "in an unavoidable one is not. Brackets: Wilson 95% interval (k/n runs).")
 
 
-def defect_section_md(summary: dict[str, Any], head: list[str], rows: list[list[str]]) -> list[str]:
+def defect_section_md(summary: RegressionSummary, head: list[str], rows: list[list[str]]) -> list[str]:
     """The headline of a regression: defects (contact in an avoidable variant) apart from unavoidable contacts."""
     if not rows:
         return []
     return ["## Defects", "", _defect_words(summary), "", _md_table(head, rows), ""]
 
 
-def defect_section_html(summary: dict[str, Any], head: list[str], rows: list[list[str]]) -> list[str]:
+def defect_section_html(summary: RegressionSummary, head: list[str], rows: list[list[str]]) -> list[str]:
     """:func:`defect_section_md` in HTML, in the same words."""
     if not rows:
         return []
@@ -103,17 +105,18 @@ def _html_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def plot_rates(path: Path, summary: dict[str, Any]) -> Path:
+def plot_rates(path: Path, summary: RegressionSummary) -> Path:
     """Grouped bars of RCR / CR / ORR per planner with Wilson 95 % error bars."""
     plt = _plt()
-    planners = list(summary["planners"])
+    planners = list(summary.planners)
     metrics = ["RCR", "CR", "ORR"]
     fig, ax = plt.subplots(figsize=(max(5.0, 1.8 * len(planners) + 2), 4))
     w = 0.8 / len(metrics)
     for j, m in enumerate(metrics):
-        rate = np.array([summary["planners"][p][m]["rate"] or 0.0 for p in planners], float)
-        lo = np.array([summary["planners"][p][m]["ci_low"] or 0.0 for p in planners], float)
-        hi = np.array([summary["planners"][p][m]["ci_high"] or 0.0 for p in planners], float)
+        values = [getattr(summary.planners[p], m) for p in planners]
+        rate = np.array([v.value or 0.0 for v in values], float)
+        lo = np.array([v.ci_low or 0.0 for v in values], float)
+        hi = np.array([v.ci_high or 0.0 for v in values], float)
         x = np.arange(len(planners)) + (j - 1) * w
         ax.bar(x, rate, w, label=m, yerr=np.clip(np.stack([rate - lo, hi - rate]), 0, None), capsize=3)
     ax.set_xticks(np.arange(len(planners)), planners)
@@ -256,10 +259,10 @@ def _example_caption(r: Mapping[str, Any]) -> str:
             + (f"; {r['outcome']}" if r.get("outcome") else ""))
 
 
-def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[Mapping[str, Any]]) -> list[str]:
+def write_regression_report(out: Path, summary: RegressionSummary, rows: Sequence[Mapping[str, Any]]) -> list[str]:
     """report.md, report.html, plots/ and examples/ in ``out``; returns the written paths (relative)."""
     out = Path(out)
-    planners = list(summary["planners"])
+    planners = list(summary.planners)
     keys = {r["run_key"] for r in rows}
     rows = [r for r in rows if r["planner"] in planners and r["run_key"] in keys]
     (out / "plots").mkdir(exist_ok=True)
@@ -273,13 +276,12 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[M
     written += [rel for chosen in ex_files.values() for _, rel in chosen if rel.startswith("examples/")]
     head, table = regression_table(summary)
     d_head, d_table = defect_table(summary)
-    failures = summary["runs"]["failures"]
-    sc = summary["scenes"]
+    failures = summary.runs.failures
+    sc = summary.scenes
     # the same words in both reports (the HTML one had dropped the definitions, captions and the
     # "no failure" line)
-    intro = (f"{sc['generated']} of {sc['total']} scenes generated, {summary['variants']} variants, "
-             f"{summary['runs']['recorded']} of {summary['runs']['expected']} runs recorded "
-             f"({summary['runs']['failed']} failed).")
+    intro = (f"{sc.generated} of {sc.total} scenes generated, {summary.variants} variants, "
+             f"{summary.runs.recorded} of {summary.runs.expected} runs recorded ({summary.runs.failed} failed).")
     definitions = ("RCR: route completion rate; CR: collision rate (the target touches the adversary or anyone); "
                    "ORR: the target's off-road rate; median min TTC: over the runs where the adversary never "
                    "touched the target; mean rel. speed: at contact. Brackets: Wilson 95% interval. Failed runs "
@@ -290,12 +292,11 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[M
           _md_table(head, table), "", "![rates](plots/rates.png)", "",
           "## Contacts", "", "![impact angles](plots/impact_angles.png) ![relative speeds](plots/relative_speeds.png)",
           ""]
-    if sc["failed"]:
+    if sc.failed:
         md += ["## Scenes without variants", "", _md_table(["scene", "reason"],
-                                                            [[f["scene"], str(f["reason"])] for f in sc["failed"]]), ""]
+                                                            [[f.scene, str(f.reason)] for f in sc.failed]), ""]
     if failures:
-        md += ["## Failed runs", "", _md_table(["run", "reason"], [[f["run_key"], str(f["reason"])] for f in failures]),
-               ""]
+        md += ["## Failed runs", "", _md_table(["run", "reason"], [[f.run_key, str(f.reason)] for f in failures]), ""]
     md += ["## Failure examples", ""]
     for p in planners:
         md.append(f"### {p}")
@@ -315,12 +316,11 @@ def write_regression_report(out: Path, summary: dict[str, Any], rows: Sequence[M
          f"<p>{html.escape(intro)}</p>", f"<p>{html.escape(definitions)}</p>",
          _html_table(head, table), "<p><img src='plots/rates.png'></p>", "<h2>Contacts</h2>",
          "<p><img src='plots/impact_angles.png'> <img src='plots/relative_speeds.png'></p>"]
-    if sc["failed"]:
+    if sc.failed:
         h += ["<h2>Scenes without variants</h2>",
-              _html_table(["scene", "reason"], [[f["scene"], str(f["reason"])] for f in sc["failed"]])]
+              _html_table(["scene", "reason"], [[f.scene, str(f.reason)] for f in sc.failed])]
     if failures:
-        h += ["<h2>Failed runs</h2>", _html_table(["run", "reason"], [[f["run_key"], str(f["reason"])]
-                                                                     for f in failures])]
+        h += ["<h2>Failed runs</h2>", _html_table(["run", "reason"], [[f.run_key, str(f.reason)] for f in failures])]
     h.append("<h2>Failure examples</h2>")
     for p in planners:
         h.append(f"<h3>{html.escape(p)}</h3>")

@@ -81,15 +81,15 @@ def _write_rows(out: Path) -> dict[str, ScenarioSpec]:
 
 def test_regress_takes_its_rates_from_the_registry(tmp_path, monkeypatch):
     keys = _write_rows(tmp_path)
-    p = summarize_regression(tmp_path, keys, ["replay"])["planners"]["replay"]
+    p = summarize_regression(tmp_path, keys, ["replay"]).planners["replay"]
     # CR: the target touched anyone (2 of 3); adversary contact: 1 of 3
-    assert (p["CR"]["k"], p["adversary_contact_rate"]["k"], p["RCR"]["k"]) == (2, 1, 2)
-    assert p["median_min_ttc_s"] == 3.5 and p["mean_relative_speed_mps"] == 6.0
-    assert (p["defects"]["defect_rate"]["k"], p["defects"]["defect_rate"]["n"]) == (1, 1)
+    assert (p.CR.k, p.adversary_contact_rate.k, p.RCR.k) == (2, 1, 2)
+    assert p.median_min_ttc_s == 3.5 and p.mean_relative_speed_mps == 6.0
+    assert (p.defects.defect_rate.k, p.defects.defect_rate.n) == (1, 1)
     monkeypatch.setitem(metrics.REGISTRY, "CR_target", _fixed("CR_target", 0.125))
-    p = summarize_regression(tmp_path, keys, ["replay"])["planners"]["replay"]
-    assert p["CR"]["rate"] == 0.125 and p["defects"]["by_label"]["avoidable"]["CR"]["rate"] == 0.125
-    assert p["adversary_contact_rate"]["k"] == 1  # another metric: not replaced
+    p = summarize_regression(tmp_path, keys, ["replay"]).planners["replay"]
+    assert p.CR.value == 0.125 and p.defects.avoidable.CR.value == 0.125
+    assert p.adversary_contact_rate.k == 1  # another metric: not replaced
 
 
 def test_eval_scenarios_takes_its_figures_from_the_registry(tmp_path, monkeypatch):
@@ -115,3 +115,13 @@ def test_eval_scenarios_takes_its_figures_from_the_registry(tmp_path, monkeypatc
                                                         lambda s: MetricValue(42.0, 40.0, 44.0)))
     m = table()
     assert m["CSD"] == 42.0 and m["CSD_ci"] == [40.0, 44.0]
+
+
+def test_regression_summary_round_trips_through_its_json(tmp_path):
+    from coster_sumo.batch.summaries import RegressionSummary
+
+    summary = summarize_regression(tmp_path, _write_rows(tmp_path), ["replay"])
+    doc = json.loads(json.dumps(summary.to_json()))
+    assert RegressionSummary.from_json(doc) == summary
+    assert doc["runs"] == {"expected": 0, "recorded": 3, "ok": 3, "failed": 0, "failures": []}
+    assert doc["planners"]["replay"]["defects"]["by_label"]["avoidable"]["CR"]["k"] == 1

@@ -35,6 +35,15 @@ from coster_sumo.batch.sources import (
     task_folders,
 )
 from coster_sumo.batch.store import ResultRow, ResultStore, read_json, result_row, row_outcome
+from coster_sumo.batch.summaries import (
+    GenerationFailure,
+    PlannerSummary,
+    RegressionRunOptions,
+    RegressionSummary,
+    RunCounts,
+    RunFailure,
+    SceneCounts,
+)
 from coster_sumo.defects import PLANNER_RATES, defect_rates, escape_dict
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -45,7 +54,6 @@ from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
 from coster_sumo.weights import WEIGHT_FILES
 
-GENERATION_KEYS = ("init", "rollout", "collision_time", "variants", "samples")
 ESCAPE_PLANNER = "escape"  # the reference planner: the target drives the variant's proven escape (replay without one)
 
 
@@ -233,7 +241,7 @@ def run_key(scene: str, variant: int, planner: str) -> str:
     return f"{scene}__v{variant}__{slug(planner)}"
 
 
-def regress(opts: RegressOptions) -> dict[str, Any]:
+def regress(opts: RegressOptions) -> RegressionSummary:
     """Run the regression (module docstring); returns the summary (also OUT/summary.json)."""
     t_start = time.perf_counter()
     check_planners(opts.planners)
@@ -258,7 +266,7 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
 
 
 def _regress_locked(opts: RegressOptions, t_start: float, generation: GenerationConfig,
-                    specs: list[ScenarioSpec], out: Path) -> dict[str, Any]:
+                    specs: list[ScenarioSpec], out: Path) -> RegressionSummary:
     """:func:`regress` once OUT is checked and locked: leftovers of stopped batches removed, then the runs."""
     plans_dir, logs_dir = out / "plans", out / "logs"
     gen = generation.to_dict()
@@ -323,16 +331,18 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
             expected_total=len(initial) + n_runs_expected - len(done),
             start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
             ray_address=opts.ray_address, preload=GENERATION_TASK_MODULES)
-    summary = summarize_regression(out, keys, opts.planners)
-    summary["wall_time_s"] = round(time.perf_counter() - t_start, 3)
-    summary["options"] = {"variants": opts.variants, "workers": opts.workers, "executor": opts.executor,
-                          "timeout_s": opts.timeout, **{k: gen[k] for k in GENERATION_KEYS}, "seed": opts.seed}
-    write_json(out / "summary.json", summary)  # before the report: a plotting failure loses no result
+    summary = dataclasses.replace(
+        summarize_regression(out, keys, opts.planners), wall_time_s=round(time.perf_counter() - t_start, 3),
+        options=RegressionRunOptions(variants=generation.variants, workers=opts.workers, executor=opts.executor,
+                                     timeout_s=opts.timeout, init=generation.init, rollout=generation.rollout,
+                                     collision_time=generation.collision_time, samples=generation.samples,
+                                     seed=opts.seed))
+    write_json(out / "summary.json", summary.to_json())  # before the report: a plotting failure loses no result
     if opts.report:
         from coster_sumo.report import write_regression_report
 
-        summary["report"] = write_regression_report(out, summary, store.read())
-        write_json(out / "summary.json", summary)
+        summary = dataclasses.replace(summary, report=tuple(write_regression_report(out, summary, store.read())))
+        write_json(out / "summary.json", summary.to_json())
     return summary
 
 
@@ -364,8 +374,9 @@ REGRESS_RATES = {**PLANNER_RATES, "adversary_contact_rate": "CR"}
 REGRESS_FIGURES = {"median_min_ttc_s": "median_min_ttc", "mean_relative_speed_mps": "mean_relative_speed"}
 
 
-def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Sequence[str]) -> dict[str, Any]:
-    """summary.json content of a regression over ``keys`` x ``planners`` (rows already in OUT/results)."""
+def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Sequence[str]) -> RegressionSummary:
+    """The summary of a regression over ``keys`` x ``planners`` (rows already in OUT/results), without
+    the command's wall time, options and report."""
     plans_dir = out / "plans"
     rows = [r for r in ResultStore(out / "results").read() if r["scene_key"] in keys and r["planner"] in planners]
     scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
@@ -376,34 +387,28 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
             n_avoidable += sum(bool(a["avoidable"]) for a in doc.get("avoidability") or [])
             tried += (doc.get("avoidable_only") or {}).get("tried", len(doc["variants"]))
         else:
-            scenes_failed.append({"scene_key": key, "scene": spec.label(), "reason": doc.get("reason")})
-    per_planner: dict[str, Any] = {}
-    for p in planners:
-        mine = [r for r in rows if r["planner"] == p]
-        ok = [row_outcome(r) for r in mine if r["status"] == "ok"]
-        sample = MetricSample(tuple(ok))
-        per_planner[p] = {
-            "runs": len(mine), "failed": len(mine) - len(ok),
-            **{key: compute(name, sample).rate_json() for key, name in REGRESS_RATES.items()},
-            **{key: compute(name, sample).value for key, name in REGRESS_FIGURES.items()},
-            "defects": defect_rates(ok),
-        }
-    failures = [{"run_key": r["run_key"], "reason": r["reason"]} for r in rows if r["status"] != "ok"]
-    return {
-        "command": "regress",
-        "scenes": {"total": len(keys), "generated": len(keys) - len(scenes_failed), "failed": scenes_failed},
-        "variants": n_variants, "avoidable_variants": n_avoidable, "variants_tried": tried,
-        "runs": {"expected": n_variants * len(planners), "recorded": len(rows), "ok": len(rows) - len(failures),
-                 "failed": len(failures), "failures": failures},
-        "planners": per_planner,
-        "results": "results/ (Parquet dataset, one part per run)",
-        "units": {"rates": "fraction of runs, Wilson 95% interval",
-                  "defect_rate": "fraction of runs on avoidable variants with a contact of the target",
-                  "min_ttc": "s", "relative_speed": "m/s",
-                  "impact_angle": "deg"},
-    }
+            scenes_failed.append(GenerationFailure(key, spec.label(), doc.get("reason")))
+    failures = tuple(RunFailure(r["run_key"], r["reason"]) for r in rows if r["status"] != "ok")
+    return RegressionSummary(
+        scenes=SceneCounts(len(keys), len(keys) - len(scenes_failed), tuple(scenes_failed)),
+        variants=n_variants, avoidable_variants=n_avoidable, variants_tried=tried,
+        runs=RunCounts(expected=n_variants * len(planners), recorded=len(rows), ok=len(rows) - len(failures),
+                       failed=len(failures), failures=failures),
+        planners={p: planner_summary([r for r in rows if r["planner"] == p]) for p in planners})
 
 
-def regression_exit_code(summary: dict[str, Any]) -> int:
+def planner_summary(rows: Sequence[ResultRow]) -> PlannerSummary:
+    """One planner's figures from its rows, from the metrics' registry (failed runs are not in them)."""
+    ok = [row_outcome(r) for r in rows if r["status"] == "ok"]
+    sample = MetricSample(tuple(ok))
+    rates = {key: compute(name, sample) for key, name in REGRESS_RATES.items()}
+    figures = {key: compute(name, sample).value for key, name in REGRESS_FIGURES.items()}
+    return PlannerSummary(runs=len(rows), failed=len(rows) - len(ok), RCR=rates["RCR"], CR=rates["CR"],
+                          ORR=rates["ORR"], adversary_contact_rate=rates["adversary_contact_rate"],
+                          median_min_ttc_s=figures["median_min_ttc_s"],
+                          mean_relative_speed_mps=figures["mean_relative_speed_mps"], defects=defect_rates(ok))
+
+
+def regression_exit_code(summary: RegressionSummary) -> int:
     """0 when every scene generated and every run finished; 1 otherwise (docs/method.md, Contracts)."""
-    return 1 if summary["scenes"]["failed"] or summary["runs"]["failed"] else 0
+    return 1 if summary.scenes.failed or summary.runs.failed else 0
