@@ -11,14 +11,15 @@ rate of a regression (contact in an avoidable variant, Wilson interval).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
-from coster_sumo.batch.summaries import DefectRates, LabelRates, RegressionSummary, rate_from_json
+from coster_sumo.batch.generator_summary import GeneratorResult
+from coster_sumo.batch.summaries import DefectRates, LabelRates, RegressionSummary
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.geometry import box_signed_distance, make_boxes
@@ -252,20 +253,18 @@ def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs)}
 
 
-def avoidability_report_table(methods: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
-    """Per generator: avoidable share at each reaction time, the collision rate split by the label,
-    and the median last moment to act (``eval scenarios``' report)."""
+def avoidability_report_table(methods: Mapping[str, GeneratorResult]) -> tuple[list[str], list[list[str]]]:
+    """Per generator that ran: avoidable share at each reaction time, the collision rate split by the
+    label, and the median last moment to act (``eval scenarios``' report)."""
     head = ["method", "variants", "avoidable @0.5 s", "avoidable @1 s", "avoidable @1.5 s", "CR avoidable",
             "CR unavoidable", "last moment to act, median [s]"]
     rows = []
     for name, m in methods.items():
-        a = m.get("avoidability")
-        if m.get("status") != "ok" or not a or not a["variants"]:
+        a = m.avoidability
+        if not a.variants:
             continue
-        sh = a["avoidable_share"]
-        rows.append([name, str(a["variants"]),
-                     *(_pct(rate_from_json(sh[t])) if t in sh else "n/a" for t in ("0.5", "1", "1.5")),
-                     _pct(rate_from_json(a["CR_by_label"]["avoidable"])),
-                     _pct(rate_from_json(a["CR_by_label"]["unavoidable"])),
-                     str(a["last_moment_s"].get("p50", "n/a"))])
+        sh = a.avoidable_share
+        rows.append([name, str(a.variants), *(_pct(sh[t]) if t in sh else "n/a" for t in ("0.5", "1", "1.5")),
+                     _pct(a.CR_avoidable), _pct(a.CR_unavoidable),
+                     str(a.last_moment_percentiles.get("p50", "n/a"))])
     return head, rows

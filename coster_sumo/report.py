@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.atomic import write_text
+from coster_sumo.batch.generator_summary import EvalSummary, GeneratorResult, SkippedGenerator
 from coster_sumo.batch.summaries import RegressionSummary
 from coster_sumo.defects import avoidability_report_table, defect_table
 from coster_sumo.metrics import MetricValue
@@ -340,43 +341,49 @@ def write_regression_report(out: Path, summary: RegressionSummary, rows: Sequenc
 GENERATOR_COLUMNS = ("SUR", "CR", "ORR", "VDD", "ADD", "CSD", "CPD", "CPD_circular")
 
 
-def _vdd_tcol(m: dict[str, Any]) -> str:
+def _vdd_tcol(m: GeneratorResult) -> str:
     """VDD at t_col with, in brackets, the floor its sample size allows."""
-    floor = m.get("VDD_tcol_floor")
-    return _fmt(m.get("VDD_tcol"), 3) + (f" ({floor:.3f})" if floor is not None else "")
+    floor = m.VDD_tcol_floor
+    return _fmt(m.VDD_tcol, 3) + (f" ({floor:.3f})" if floor is not None else "")
 
 
-def generator_table(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+def generator_table(summary: EvalSummary) -> tuple[list[str], list[list[str]]]:
     head = ["method", "group", "scenes", "variants", "SUR", "CR", "ORR", "VDD", "ADD", "CSD [m/s]", "CPD [deg]",
             "CPD circ. [deg]", "VDD at t_col (floor)", "sizes in class", "gen. s/variant"]
     rows = []
-    for name, m in summary["methods"]["table"].items():
-        if m["status"] != "ok":
-            rows.append([name, m["group"], "-", "-"] + [f"skipped: {m['reason']}"] + [""] * (len(head) - 5))
+    for name, m in summary.methods.table.items():
+        if isinstance(m, SkippedGenerator):
+            rows.append([name, m.method.group, "-", "-"] + [f"skipped: {m.reason}"] + [""] * (len(head) - 5))
             continue
-        rows.append([name, m["group"], str(m["scenes"]), str(m["variants"]),
-                     *[_fmt(m[c], 3) for c in ("SUR", "CR", "ORR", "VDD", "ADD")],
-                     _fmt(m["CSD"], 2), _fmt(m["CPD"], 1), _fmt(m["CPD_circular"], 1),
-                     _vdd_tcol(m), _fmt(m.get("size_in_class"), 3),
-                     _fmt(m["generation_s_per_variant"], 3)])
+        rows.append([name, m.method.group, str(m.scenes), str(m.variants),
+                     *[_fmt(v, 3) for v in (m.SUR.value, m.CR.value, m.ORR.value, m.VDD, m.ADD)],
+                     _fmt(m.CSD.value, 2), _fmt(m.CPD.value, 1), _fmt(m.CPD_circular.value, 1),
+                     _vdd_tcol(m), _fmt(m.size_in_class, 3), _fmt(m.generation_s_per_variant, 3)])
     return head, rows
 
 
-def plot_generator_metrics(path: Path, summary: dict[str, Any]) -> Path:
+def _columns(m: GeneratorResult) -> dict[str, MetricValue]:
+    """The figures of :data:`GENERATOR_COLUMNS` (VDD and ADD without an interval)."""
+    return {"SUR": m.SUR, "CR": m.CR, "ORR": m.ORR, "VDD": MetricValue(m.VDD), "ADD": MetricValue(m.ADD),
+            "CSD": m.CSD, "CPD": m.CPD, "CPD_circular": m.CPD_circular}
+
+
+def plot_generator_metrics(path: Path, summary: EvalSummary) -> Path:
     """One small bar chart per metric, the methods that ran side by side."""
     plt = _plt()
-    table = {k: v for k, v in summary["methods"]["table"].items() if v["status"] == "ok"}
+    table = {k: _columns(m) for k, m in summary.methods.ran.items()}
     fig, axes = plt.subplots(2, 4, figsize=(14, 6))
     names = list(table)
     for ax, col in zip(axes.ravel(), GENERATOR_COLUMNS, strict=True):
-        vals = np.array([table[n][col] if table[n][col] is not None else np.nan for n in names], float)
-        # CSD and CPD carry intervals from resampling scenes
-        ci = np.array([table[n].get(f"{col}_ci") or [np.nan, np.nan] for n in names], float)
+        figures = [table[n][col] for n in names]
+        vals = np.array([v.value if v.value is not None else np.nan for v in figures], float)
+        # rates carry Wilson intervals, CSD and CPD intervals from resampling scenes
+        ci = np.array([[v.ci_low, v.ci_high] for v in figures], float)
         err = np.abs(ci - vals[:, None]).T if np.isfinite(ci).any() else None
         ax.bar(np.arange(len(names)), vals, color=[f"C{i}" for i in range(len(names))], yerr=err, capsize=3)
         ax.set_xticks(np.arange(len(names)), names, rotation=35, ha="right", fontsize=7)
         ax.set_title(col, fontsize=10)
-    skipped = [k for k, v in summary["methods"]["table"].items() if v["status"] != "ok"]
+    skipped = [k for k, m in summary.methods.table.items() if isinstance(m, SkippedGenerator)]
     fig.suptitle("scenario generators" + (f" (skipped: {', '.join(skipped)})" if skipped else ""), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -384,48 +391,51 @@ def plot_generator_metrics(path: Path, summary: dict[str, Any]) -> Path:
     return path
 
 
-def _with_ci(v: float | None, ci: Sequence[float] | None, digits: int) -> str:
-    if v is None or ci is None or not all(math.isfinite(c) for c in ci):
-        return _fmt(v, digits)
-    return f"{v:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+def _with_ci(v: MetricValue | tuple[float, float, float], digits: int) -> str:
+    """A figure and its interval, or the figure alone where the interval is missing or not finite."""
+    value, low, high = (v.value, v.ci_low, v.ci_high) if isinstance(v, MetricValue) else v
+    if value is None or low is None or high is None or not all(math.isfinite(c) for c in (low, high)):
+        return _fmt(value, digits)
+    return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
-def diversity_section(summary: dict[str, Any]) -> list[str]:
+def diversity_section(summary: EvalSummary) -> list[str]:
     """Markdown lines: CSD and CPD with 95 % intervals from resampling scenes, and COSTER's minus
     every other method's on the same scenes (empty when there is nothing to show)."""
-    cols = (("CSD", 2), ("CPD", 1), ("CPD_circular", 1))
-    table = {k: m for k, m in summary["methods"]["table"].items() if m.get("status") == "ok" and "CSD_ci" in m}
+    digits = {"CSD": 2, "CPD": 1, "CPD_circular": 1}
+    table = summary.methods.ran
     if not table:
         return []
     head = ["method", "CSD [m/s]", "CPD [deg]", "CPD circ. [deg]"]
-    rows = [[name, *[_with_ci(m[c], m.get(f"{c}_ci"), d) for c, d in cols]] for name, m in table.items()]
+    rows = [[name, _with_ci(m.CSD, digits["CSD"]), _with_ci(m.CPD, digits["CPD"]),
+             _with_ci(m.CPD_circular, digits["CPD_circular"])] for name, m in table.items()]
     md = ["## Diversity: how sure", "",
           "In brackets the 95 % interval from resampling the scenes (1,000 draws; the variants of a scene "
           "share its snapshot, so a scene is one draw).", "", _md_table(head, rows), ""]
-    paired = summary["methods"].get("paired") or {}
+    paired = summary.methods.paired
     if paired:
-        prow = [[name, str(e["scenes"]), *[_with_ci(e[c][0], e[c][1:], d) for c, d in cols]]
-                for name, e in paired.items()]
+        prow = [[name, str(e.scenes), _with_ci(e.CSD, digits["CSD"]), _with_ci(e.CPD, digits["CPD"]),
+                 _with_ci(e.CPD_circular, digits["CPD_circular"])] for name, e in paired.items()]
         md += ["The differences on the scenes both methods generated for, the same scenes resampled for both: "
                "an interval that holds 0 says the ordering is not settled by these scenes.", "",
                _md_table(["difference", "scenes", "CSD [m/s]", "CPD [deg]", "CPD circ. [deg]"], prow), ""]
     return md
 
 
-def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
+def write_generator_report(out: Path, summary: EvalSummary) -> list[str]:
     """metrics.json, metrics.md and metrics.png in ``out``; returns the written paths (relative)."""
     out = Path(out)
-    table = summary["methods"]["table"]
-    slim = {k: {c: v for c, v in m.items() if c not in ("relative_speeds", "impact_angles")} for k, m in table.items()}
-    doc = {"methods": slim, "paired": summary["methods"].get("paired", {}),
-           "failed_scenes": summary["methods"]["failed_scenes"], "planner": summary["planner"],
-           "variants": summary["variants"], "units": summary["units"]}
+    methods = summary.methods
+    doc = {"methods": {k: m.to_json(contacts=False) for k, m in methods.table.items()},
+           "paired": {k: p.to_json() for k, p in methods.paired.items()},
+           "failed_scenes": [f.to_json() for f in methods.failed_scenes], "planner": summary.planner,
+           "variants": summary.variants, "units": dict(summary.units)}
     write_text(out / "metrics.json", json.dumps(doc, indent=1))
     plot_generator_metrics(out / "metrics.png", summary)
     head, rows = generator_table(summary)
     md = ["# Scenario generators", "",
-          f"{len(summary['scenes'])} scenes, up to {summary['variants']} variants per scene and method, target "
-          f"driven by `{summary['planner']}`. Measured on these scenes with this installation; not the paper's "
+          f"{len(summary.scenes)} scenes, up to {summary.variants} variants per scene and method, target "
+          f"driven by `{summary.planner}`. Measured on these scenes with this installation; not the paper's "
           "figures.", "",
           "SUR: share of scenes with at least one colliding variant; CR: colliding variants; ORR: adversaries "
           "leaving the road; VDD/ADD: Jensen-Shannon divergence (nats) of the adversaries' speed / acceleration "
@@ -436,15 +446,15 @@ def write_generator_report(out: Path, summary: dict[str, Any]) -> list[str]:
           "many adversaries); sizes in class: adversaries whose length and width fit one vehicle class of the "
           "corpus.", "",
           _md_table(head, rows), "", "![metrics](metrics.png)", "", *diversity_section(summary)]
-    a_head, a_rows = avoidability_report_table(table)
+    a_head, a_rows = avoidability_report_table(methods.ran)
     if a_rows:
         md += ["## Avoidability", "", "Share of variants the target could have avoided (an escape proven in SUMO "
                "acting that long after the adversary became a threat; docs/method.md step 8), Wilson 95% interval; "
                "the collision rate of each part (a contact in an avoidable variant is a planner's defect).", "",
                _md_table(a_head, a_rows), ""]
-    failed = summary["methods"]["failed_scenes"]
-    if failed:
+    if methods.failed_scenes:
         md += ["## Scenes that failed", "", _md_table(["scene", "reason"],
-                                                       [[f["scene_key"], str(f["reason"])] for f in failed]), ""]
+                                                       [[f.scene_key, str(f.reason)] for f in methods.failed_scenes]),
+               ""]
     write_text(out / "metrics.md", "\n".join(md) + "\n")
     return ["metrics.json", "metrics.md", "metrics.png"]

@@ -11,6 +11,7 @@ import pytest
 
 from coster_sumo import metrics
 from coster_sumo.batch.evaluate import GeneratorMethod, aggregate_generator_metrics, part_key
+from coster_sumo.batch.generator_summary import GeneratorResult
 from coster_sumo.batch.regress import summarize_regression
 from coster_sumo.batch.store import ResultStore, result_row
 from coster_sumo.metrics import Metric, MetricSample, MetricValue, RunOutcome
@@ -104,17 +105,19 @@ def test_eval_scenarios_takes_its_figures_from_the_registry(tmp_path, monkeypatc
         {"status": "ok", "records": records, "generation_s": 3.0, "scene_key": "s", **hist}))
     keys = {"s": ScenarioSpec(Path("net.sumocfg"))}
 
-    def table() -> dict:
-        return aggregate_generator_metrics(tmp_path, keys, [method], {}, 3, "w")["table"][method.name]
+    def table() -> GeneratorResult:
+        return aggregate_generator_metrics(tmp_path, keys, [method], {}, 3, "w").ran[method.name]
 
     m = table()
-    assert (m["SUR"], m["CR"], m["ORR"]) == (1.0, pytest.approx(2 / 3), 0.0)
-    assert m["CSD"] == pytest.approx(2.0) and m["VDD"] == 0.0 and m["size_in_class"] == 1.0
-    assert m["adversaries_by_lane_type"] == {"FREEWAY": 3} and m["VDD_tcol"] is not None
+    assert (m.SUR.value, m.CR.value, m.ORR.value) == (1.0, pytest.approx(2 / 3), 0.0)
+    assert m.CSD.value == pytest.approx(2.0) and m.VDD == 0.0 and m.size_in_class == 1.0
+    assert m.adversaries_by_lane_type == {"FREEWAY": 3} and m.VDD_tcol is not None
+    written = json.dumps(m.to_json())  # the rates' k and n are not in the file: the JSON round-trips
+    assert json.dumps(GeneratorResult.from_json(method.name, json.loads(written)).to_json()) == written
     monkeypatch.setitem(metrics.REGISTRY, "CSD", Metric("CSD", "m/s", "a stand-in",
                                                         lambda s: MetricValue(42.0, 40.0, 44.0)))
     m = table()
-    assert m["CSD"] == 42.0 and m["CSD_ci"] == [40.0, 44.0]
+    assert m.CSD == MetricValue(42.0, 40.0, 44.0) and m.to_json()["CSD_ci"] == [40.0, 44.0]
 
 
 def test_regression_summary_round_trips_through_its_json(tmp_path):
