@@ -22,6 +22,7 @@ import numpy as np
 
 from coster_sumo.atomic import write_text
 from coster_sumo.batch.generator_summary import EvalSummary, GeneratorResult, SkippedGenerator
+from coster_sumo.batch.store import ResultRow
 from coster_sumo.batch.summaries import RegressionSummary
 from coster_sumo.defects import avoidability_report_table, defect_table
 from coster_sumo.metrics import MetricValue
@@ -131,7 +132,7 @@ def plot_rates(path: Path, summary: RegressionSummary) -> Path:
     return path
 
 
-def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[Mapping[str, Any]],
+def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[ResultRow],
                   planners: Sequence[str]) -> tuple[Path, Path]:
     """Impact-angle histogram (polar) and relative-speed histogram of first contacts, per planner."""
     plt = _plt()
@@ -139,7 +140,7 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[Mapping[s
     ax = fig.add_subplot(projection="polar")
     bins = np.radians(np.linspace(-180, 180, 25))
     for p in planners:
-        a = [r["impact_angle"] for r in rows if r["planner"] == p and r["impact_angle"] is not None]
+        a = [r.impact_angle for r in rows if r.planner == p and r.impact_angle is not None]
         if a:
             h, _ = np.histogram(np.radians(a), bins=bins)
             ax.bar(bins[:-1] + 0.5 * np.diff(bins), h, width=np.diff(bins), alpha=0.45, edgecolor="black",
@@ -151,7 +152,7 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[Mapping[s
     fig.savefig(angles_path, dpi=110)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4))
-    speeds = {p: [r["relative_speed"] for r in rows if r["planner"] == p and r["relative_speed"] is not None]
+    speeds = {p: [r.relative_speed for r in rows if r.planner == p and r.relative_speed is not None]
               for p in planners}
     top = max([max(v) for v in speeds.values() if v] + [1.0])
     edges = np.linspace(0, top * 1.05, 21)
@@ -167,41 +168,41 @@ def plot_contacts(angles_path: Path, speeds_path: Path, rows: Sequence[Mapping[s
     return angles_path, speeds_path
 
 
-def failure_examples(rows: Sequence[Mapping[str, Any]], planners: Sequence[str],
-                     per_planner: int = EXAMPLES_PER_PLANNER) -> dict[str, list[Mapping[str, Any]]]:
+def failure_examples(rows: Sequence[ResultRow], planners: Sequence[str],
+                     per_planner: int = EXAMPLES_PER_PLANNER) -> dict[str, list[ResultRow]]:
     """Per planner, up to ``per_planner`` finished runs that failed the test: collision first, then
     off-road, then route not completed (stable order by run key)."""
-    out: dict[str, list[Mapping[str, Any]]] = {}
+    out: dict[str, list[ResultRow]] = {}
     for p in planners:
-        mine = sorted((r for r in rows if r["planner"] == p and r["status"] == "ok"), key=lambda r: r["run_key"])
+        mine = sorted((r for r in rows if r.planner == p and r.ok), key=lambda r: r.run_key)
 
-        def rank(r: Mapping[str, Any]) -> int:
-            return 0 if r["collision"] else 1 if r["target_off_road"] else 2 if not r["route_completed"] else 3
+        def rank(r: ResultRow) -> int:
+            return 0 if r.collision else 1 if r.target_off_road else 2 if not r.route_completed else 3
 
         out[p] = [r for r in sorted(mine, key=rank) if rank(r) < 3][:per_planner]
     return out
 
 
-def render_example(path: Path, out: Path, row: Mapping[str, Any], cache: dict[str, Any]) -> Path | None:
+def render_example(path: Path, out: Path, row: ResultRow, cache: dict[str, Any]) -> Path | None:
     """The scene at t_col, the target's nominal (dashed) and driven path, the adversary's plan and contact."""
     from coster_sumo import viz
     from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.plan import AdversaryPlan
 
     plans_dir = out / "plans"
-    key = row["scene_key"]
+    key = row.scene_key
     if key not in cache:
         doc = json.loads((plans_dir / f"{key}.json").read_text())
         cache[key] = (doc, load_scene(plans_dir / doc["scene_file"]))
     doc, scene = cache[key]
-    v = doc["variants"][row["variant"]]
+    v = doc["variants"][row.variant]
     plan = AdversaryPlan.from_dict(v["plan"])
     t = scene.tracks
     target = t.index_of(doc["target_id"])
     tv = t.valid[target]
     adv_t = np.arange(plan.t_start, plan.t_col + 1e-9, 0.1)
     ax_, ay_, _, _ = plan.sample(adv_t)
-    driven = np.asarray(json.loads(row["target_path"] or "[]"), float).reshape(-1, 2)
+    driven = np.asarray(json.loads(row.target_path or "[]"), float).reshape(-1, 2)
     t_col_step = int(np.argmin(np.abs(scene.timestamps - plan.t_col)))
     near = tv & (scene.timestamps >= plan.t_start - 1.0) & (scene.timestamps <= plan.t_col + 2.0)
     pts = np.concatenate([np.stack([ax_, ay_], 1), np.stack([t.x[target, near], t.y[target, near]], 1)])
@@ -212,20 +213,20 @@ def render_example(path: Path, out: Path, row: Mapping[str, Any], cache: dict[st
     viz.draw_agents(ax, scene, t_col_step, {target: viz.TARGET_COLOR})
     ax.plot(t.x[target, tv], t.y[target, tv], "--", color=viz.TARGET_COLOR, lw=1.0, label="target nominal", zorder=3)
     if len(driven):
-        ax.plot(driven[:, 0], driven[:, 1], color="#2ca02c", lw=1.6, label=f"target driven ({row['planner']})",
+        ax.plot(driven[:, 0], driven[:, 1], color="#2ca02c", lw=1.6, label=f"target driven ({row.planner})",
                 zorder=4)
     ax.plot(ax_, ay_, color=viz.ADVERSARY_COLOR, lw=1.5, label="adversary plan", zorder=4)
-    escape = (doc.get("escapes") or [None] * (row["variant"] + 1))[row["variant"]]
+    escape = (doc.get("escapes") or [None] * (row.variant + 1))[row.variant]
     if escape:  # the variant was avoidable: the escape proven in SUMO
         ax.plot(escape["x"], escape["y"], ":", color="#9467bd", lw=1.8, label="escape (proven in SUMO)", zorder=5)
     s = v["snapshot"]["adversary"]
     viz.draw_box(ax, s["x"], s["y"], s["yaw"], s["length"], s["width"], viz.ADVERSARY_COLOR, label="adversary at t_col")
-    if row["contact_time"] is not None:
-        cx, cy, _, _ = plan.sample(np.array([row["contact_time"]]))
+    if row.contact_time is not None:
+        cx, cy, _, _ = plan.sample(np.array([row.contact_time]))
         ax.plot(cx[0], cy[0], marker="*", ms=14, color="gold", mec="black", zorder=8, label="first contact")
-    what = ("collision" if row["collision"] else "off-road" if row["target_off_road"] else "route not completed")
-    ax.set_title(f"{row['run_key']}\n{what}" + (f", {row['relative_speed']:.1f} m/s, {row['impact_angle']:.0f} deg"
-                                                if row["relative_speed"] is not None else ""), fontsize=8)
+    what = ("collision" if row.collision else "off-road" if row.target_off_road else "route not completed")
+    ax.set_title(f"{row.run_key}\n{what}" + (f", {row.relative_speed:.1f} m/s, {row.impact_angle:.0f} deg"
+                                            if row.relative_speed is not None else ""), fontsize=8)
     _legend(ax, loc="upper right", fontsize=7)
     ax.set_xlim(window[0], window[2])
     ax.set_ylim(window[1], window[3])
@@ -236,15 +237,15 @@ def render_example(path: Path, out: Path, row: Mapping[str, Any], cache: dict[st
     return path
 
 
-def _render_examples(out: Path, examples: Mapping[str, Sequence[Mapping[str, Any]]]
-                     ) -> dict[str, list[tuple[Mapping[str, Any], str]]]:
+def _render_examples(out: Path, examples: Mapping[str, Sequence[ResultRow]]
+                     ) -> dict[str, list[tuple[ResultRow, str]]]:
     """Each planner's failure examples drawn into ``out/examples/``: per planner, (row, picture path
     relative to ``out``, or "(render failed: ...)")."""
     cache: dict[str, Any] = {}
-    ex_files: dict[str, list[tuple[Mapping[str, Any], str]]] = {}
+    ex_files: dict[str, list[tuple[ResultRow, str]]] = {}
     for p, chosen in examples.items():
         for r in chosen:
-            rel = f"examples/{r['run_key']}.png"
+            rel = f"examples/{r.run_key}.png"
             try:
                 render_example(out / rel, out, r, cache)
             except Exception as exc:  # noqa: BLE001 - a missing render never fails the report
@@ -253,24 +254,24 @@ def _render_examples(out: Path, examples: Mapping[str, Sequence[Mapping[str, Any
     return ex_files
 
 
-def _example_caption(r: Mapping[str, Any]) -> str:
+def _example_caption(r: ResultRow) -> str:
     """What went wrong in a failure example's run, in words."""
-    return (("collision" if r["collision"] else "off-road" if r["target_off_road"] else "route not completed")
-            + (f" at {r['contact_time']:.1f} s" if r["contact_time"] is not None else "")
-            + (f"; {r['outcome']}" if r.get("outcome") else ""))
+    return (("collision" if r.collision else "off-road" if r.target_off_road else "route not completed")
+            + (f" at {r.contact_time:.1f} s" if r.contact_time is not None else "")
+            + (f"; {r.outcome}" if r.outcome else ""))
 
 
-def write_regression_report(out: Path, summary: RegressionSummary, rows: Sequence[Mapping[str, Any]]) -> list[str]:
+def write_regression_report(out: Path, summary: RegressionSummary, rows: Sequence[ResultRow]) -> list[str]:
     """report.md, report.html, plots/ and examples/ in ``out``; returns the written paths (relative)."""
     out = Path(out)
     planners = list(summary.planners)
-    keys = {r["run_key"] for r in rows}
-    rows = [r for r in rows if r["planner"] in planners and r["run_key"] in keys]
+    keys = {r.run_key for r in rows}
+    rows = [r for r in rows if r.planner in planners and r.run_key in keys]
     (out / "plots").mkdir(exist_ok=True)
     (out / "examples").mkdir(exist_ok=True)
     written = ["report.md", "report.html"]
     plot_rates(out / "plots" / "rates.png", summary)
-    ok_rows = [r for r in rows if r["status"] == "ok"]
+    ok_rows = [r for r in rows if r.ok]
     plot_contacts(out / "plots" / "impact_angles.png", out / "plots" / "relative_speeds.png", ok_rows, planners)
     written += ["plots/rates.png", "plots/impact_angles.png", "plots/relative_speeds.png"]
     ex_files = _render_examples(out, failure_examples(ok_rows, planners))
@@ -305,9 +306,9 @@ def write_regression_report(out: Path, summary: RegressionSummary, rows: Sequenc
         if not ex_files.get(p):
             md += [no_failure, ""]
         for r, rel in ex_files.get(p, []):
-            md.append(f"- `{r['run_key']}`: " + caption(r))
+            md.append(f"- `{r.run_key}`: " + caption(r))
             if rel.startswith("examples/"):
-                md.append(f"\n  ![{r['run_key']}]({rel})")
+                md.append(f"\n  ![{r.run_key}]({rel})")
         md.append("")
     write_text(out / "report.md", "\n".join(md) + "\n")
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>coster-sumo regression</title>",
@@ -328,7 +329,7 @@ def write_regression_report(out: Path, summary: RegressionSummary, rows: Sequenc
         if not ex_files.get(p):
             h.append(f"<p>{html.escape(no_failure)}</p>")
         for r, rel in ex_files.get(p, []):
-            h.append(f"<figure><figcaption><code>{html.escape(r['run_key'])}</code>: {html.escape(caption(r))}"
+            h.append(f"<figure><figcaption><code>{html.escape(r.run_key)}</code>: {html.escape(caption(r))}"
                      "</figcaption>" + (f"<img src='{html.escape(rel)}'>" if rel.startswith("examples/") else "")
                      + "</figure>")
     h.append("</body></html>")

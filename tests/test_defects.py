@@ -61,7 +61,7 @@ def test_the_escape_planner_scores_no_defect_on_every_avoidable_variant_of_a_bat
     replay = summary["planners"]["replay"]["defects"]
     assert replay["defect_rate"]["k"] == replay["avoidable_runs"]
     rows = ResultStore(out / "results").read()
-    assert all(r["outcome"].startswith("avoided") for r in rows if r["planner"] == "escape" and r["avoidable"])
+    assert all(str(r.outcome).startswith("avoided") for r in rows if r.planner == "escape" and r.avoidable)
     report = (out / "report.md").read_text()
     assert report.index("## Defects") < report.index("RCR: route completion rate")
 

@@ -14,7 +14,7 @@ import dataclasses
 import json
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -273,8 +273,8 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
     keys = {scene_key(s, gen): s for s in specs}
     store = _start_folder(out, opts, keys)
     # failed runs are done, unless the failure was the machine's (timeout, memory, disk) or --retry-failed
-    failed_runs = {r["run_key"] for r in store.read()
-                   if r["status"] != "ok" and (opts.retry_failed or is_transient(r["reason"] or ""))}
+    failed_runs = {r.run_key for r in store.read()
+                   if not r.ok and (opts.retry_failed or is_transient(r.reason or ""))}
     done = store.keys() - failed_runs
     n_runs_expected = len(keys) * opts.variants * len(opts.planners)
 
@@ -313,9 +313,8 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                                                      "spec": task.payload["spec"], "generation": gen})
             _append_log(logs_dir / f"{task.key}.log", outcome)
             return []
-        row: Mapping[str, Any]
         if outcome.ok:
-            row = {**outcome.value, "wall_time_s": round(outcome.wall_time_s, 3)}
+            row = dataclasses.replace(outcome.value, wall_time_s=round(outcome.wall_time_s, 3))
         else:
             _append_log(logs_dir / f"{task.key}.log", outcome)
             row = result_row(task.payload, status="failed", reason=outcome.reason,
@@ -378,7 +377,7 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
     """The summary of a regression over ``keys`` x ``planners`` (rows already in OUT/results), without
     the command's wall time, options and report."""
     plans_dir = out / "plans"
-    rows = [r for r in ResultStore(out / "results").read() if r["scene_key"] in keys and r["planner"] in planners]
+    rows = [r for r in ResultStore(out / "results").read() if r.scene_key in keys and r.planner in planners]
     scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
     for key, spec in keys.items():
         doc = read_json(plans_dir / f"{key}.json") or {"status": "failed", "reason": "not generated"}
@@ -388,18 +387,18 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
             tried += (doc.get("avoidable_only") or {}).get("tried", len(doc["variants"]))
         else:
             scenes_failed.append(GenerationFailure(key, spec.label(), doc.get("reason")))
-    failures = tuple(RunFailure(r["run_key"], r["reason"]) for r in rows if r["status"] != "ok")
+    failures = tuple(RunFailure(r.run_key, r.reason) for r in rows if not r.ok)
     return RegressionSummary(
         scenes=SceneCounts(len(keys), len(keys) - len(scenes_failed), tuple(scenes_failed)),
         variants=n_variants, avoidable_variants=n_avoidable, variants_tried=tried,
         runs=RunCounts(expected=n_variants * len(planners), recorded=len(rows), ok=len(rows) - len(failures),
                        failed=len(failures), failures=failures),
-        planners={p: planner_summary([r for r in rows if r["planner"] == p]) for p in planners})
+        planners={p: planner_summary([r for r in rows if r.planner == p]) for p in planners})
 
 
 def planner_summary(rows: Sequence[ResultRow]) -> PlannerSummary:
     """One planner's figures from its rows, from the metrics' registry (failed runs are not in them)."""
-    ok = [row_outcome(r) for r in rows if r["status"] == "ok"]
+    ok = [row_outcome(r) for r in rows if r.ok]
     sample = MetricSample(tuple(ok))
     rates = {key: compute(name, sample) for key, name in REGRESS_RATES.items()}
     figures = {key: compute(name, sample).value for key, name in REGRESS_FIGURES.items()}
