@@ -128,3 +128,30 @@ def test_regression_summary_round_trips_through_its_json(tmp_path):
     assert RegressionSummary.from_json(doc) == summary
     assert doc["runs"] == {"expected": 0, "recorded": 3, "ok": 3, "failed": 0, "failures": []}
     assert doc["planners"]["replay"]["defects"]["by_label"]["avoidable"]["CR"]["k"] == 1
+
+
+def test_eval_summary_round_trips_through_its_json_and_skipped_methods_keep_their_reason(tmp_path):
+    from coster_sumo.batch.generator_summary import EvalSummary, SkippedGenerator, VariantRecord
+
+    ran, skipped = GeneratorMethod("Random+CV", "random", "cv", "last"), GeneratorMethod("COSTER", "snapshot", "cvae")
+    hist = {"speed_hist": [1] * 100, "accel_hist": [1] * 200}
+    (tmp_path / "s__scene.json").write_text(json.dumps({"status": "ok", **hist}))
+    record = VariantRecord(variant=0, collision=True, relative_speed=3.0, impact_angle=10.0, t_col=5.0,
+                           adversary_speed=20.0, adversary_length=4.5, adversary_width=1.9,
+                           adversary_lane_type="FREEWAY", avoidable=True,
+                           extra={"avoidable_at": {"1": True}, "escape_found_at": {"1": True},
+                                  "contact_kind": "head_on", "last_moment_s": 0.7})
+    assert VariantRecord.from_json(record.to_json()) == record
+    (tmp_path / f"{part_key('s', ran.name, 1, 'w')}.json").write_text(json.dumps(
+        {"status": "ok", "records": [record.to_json()], "generation_s": 1.0, "scene_key": "s", **hist}))
+    table = aggregate_generator_metrics(tmp_path, {"s": ScenarioSpec(Path("net.sumocfg")), "t": ScenarioSpec(
+        Path("other.sumocfg"))}, [ran, skipped], {"COSTER": "no weights"}, 1, "w")
+    assert table.table["COSTER"] == SkippedGenerator(skipped, "no weights")
+    assert [f.scene_key for f in table.failed_scenes] == ["t"]  # no nominal pass: not run
+    assert table.ran["Random+CV"].avoidability.variants == 1
+    summary = EvalSummary(scenes={"s": "net.sumocfg"}, planner="replay", variants=1, samples=10, methods=table,
+                          wall_time_s=1.5, report=("metrics.json",))
+    written = json.dumps(summary.to_json())
+    assert list(json.loads(written)) == ["command", "scenes", "planner", "variants", "samples", "methods",
+                                         "wall_time_s", "units", "report"]
+    assert json.dumps(EvalSummary.from_json(json.loads(written)).to_json()) == written

@@ -30,6 +30,7 @@ from coster_sumo.batch.generator_summary import (
     PairedDiversity,
     SceneFailure,
     SkippedGenerator,
+    VariantRecord,
 )
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
@@ -158,11 +159,12 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
             res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
         c = res.contact
         adv = v.snapshot.adversary
-        records.append({"variant": i, "collision": c is not None, "adversary_off_road": res.adversary_off_road,
-                        "relative_speed": c.relative_speed if c else None,
-                        "impact_angle": c.impact_angle if c else None, "t_col": v.snapshot.time,
-                        "adversary_speed": adv.speed, "adversary_length": adv.length, "adversary_width": adv.width,
-                        "adversary_lane_type": LaneType(int(lane_types[i])).name, **label_record(labels[i])})
+        label = label_record(labels[i])
+        records.append(VariantRecord(
+            variant=i, collision=c is not None, adversary_off_road=res.adversary_off_road,
+            relative_speed=c.relative_speed if c else None, impact_angle=c.impact_angle if c else None,
+            t_col=v.snapshot.time, adversary_speed=adv.speed, adversary_length=adv.length, adversary_width=adv.width,
+            adversary_lane_type=LaneType(int(lane_types[i])).name, avoidable=label.pop("avoidable"), extra=label))
         tr = res.scene.tracks
         if plan.vehicle_id in set(tr.ids.tolist()):
             a = tr.index_of(plan.vehicle_id)
@@ -173,7 +175,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
             accels.append(sa)
     sv = np.concatenate(speeds) if speeds else np.zeros(0)
     sa = np.concatenate(accels) if accels else np.zeros(0)
-    return {"status": "ok", "records": records, "generation_s": gen_s, "avoidability_s": avoid_s,
+    return {"status": "ok", "records": [r.to_json() for r in records], "generation_s": gen_s, "avoidability_s": avoid_s,
             "speed_hist": _hist(sv, SPEED_BINS, 0, 50), "accel_hist": _hist(sa, ACCEL_BINS, -10, 10)}
 
 
@@ -346,8 +348,8 @@ def generator_result(m: GeneratorMethod, parts: Sequence[Mapping[str, Any]], nom
     sample its metrics were computed on."""
     ok = [p for p in parts if p.get("status") == "ok"]
     # a scene's variants share a snapshot: name it, so the VDD at t_col floor counts it once
-    keyed = [(p["scene_key"], {**r, "snapshot": f"{p['scene_key']}@{r.get('t_col')}"})
-             for p in ok for r in p["records"]]
+    keyed = [(p["scene_key"], dataclasses.replace(r, snapshot=f"{p['scene_key']}@{r.t_col}"))
+             for p in ok for r in map(VariantRecord.from_json, p["records"])]
     records = [r for _, r in keyed]
     sample = MetricSample(
         tuple(record_outcome(r, key) for key, r in keyed),
@@ -405,22 +407,21 @@ def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float | None], li
     return out
 
 
-def record_outcome(r: Mapping[str, Any], scene: str = "") -> RunOutcome:
+def record_outcome(r: VariantRecord, scene: str = "") -> RunOutcome:
     """A variant's record of :func:`method_task` (``snapshot`` added by the aggregation) as the
     metrics read it; the adversary's size is checked against the corpus's vehicle classes
     (:data:`~coster_sumo.method.plausible.VEHICLE_CLASSES`) here."""
     from coster_sumo.method.plausible import VEHICLE_CLASSES
 
     eps = 1e-6
-    speed = r.get("adversary_speed")
-    in_class = speed is not None and any(
-        l0 - eps <= r["adversary_length"] <= l1 + eps and w0 - eps <= r["adversary_width"] <= w1 + eps
-        for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values())
-    return RunOutcome(scene=scene, adversary_contact=bool(r.get("collision")),
-                      adversary_off_road=bool(r.get("adversary_off_road")), relative_speed=r.get("relative_speed"),
-                      impact_angle=r.get("impact_angle"), avoidable=r.get("avoidable"), adversary_speed=speed,
-                      adversary_lane_type=r.get("adversary_lane_type"), adversary_size_in_class=in_class,
-                      snapshot=str(r["snapshot"]) if "snapshot" in r else None)
+    length, width = r.adversary_length, r.adversary_width
+    in_class = (r.adversary_speed is not None and length is not None and width is not None and any(
+        l0 - eps <= length <= l1 + eps and w0 - eps <= width <= w1 + eps
+        for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values()))
+    return RunOutcome(scene=scene, adversary_contact=r.collision, adversary_off_road=r.adversary_off_road,
+                      relative_speed=r.relative_speed, impact_angle=r.impact_angle, avoidable=r.avoidable,
+                      adversary_speed=r.adversary_speed, adversary_lane_type=r.adversary_lane_type,
+                      adversary_size_in_class=in_class, snapshot=r.snapshot)
 
 
 def adversaries_by_lane_type(sample: MetricSample) -> dict[str, int]:
@@ -428,7 +429,7 @@ def adversaries_by_lane_type(sample: MetricSample) -> dict[str, int]:
     return dict(Counter(str(o.adversary_lane_type) for o in sample.outcomes if o.adversary_speed is not None))
 
 
-def snapshot_state_metrics(records: Sequence[Mapping[str, Any]], nominal_by_type: Mapping[str, np.ndarray]
+def snapshot_state_metrics(records: Sequence[VariantRecord], nominal_by_type: Mapping[str, np.ndarray]
                            ) -> dict[str, Any]:
     """The adversaries' states at t_col against the nominal traffic (None where not recorded), from
     the registry of :mod:`coster_sumo.metrics` (docs/method.md, Step 7).
@@ -451,11 +452,11 @@ def snapshot_state_metrics(records: Sequence[Mapping[str, Any]], nominal_by_type
             "adversaries_by_lane_type": adversaries_by_lane_type(sample)}
 
 
-def avoidability_summary(records: Sequence[dict[str, Any]]) -> AvoidabilityStats:
+def avoidability_summary(records: Sequence[VariantRecord]) -> AvoidabilityStats:
     """The labels of a method's variants (:func:`coster_sumo.defects.avoidability_table`)."""
     from coster_sumo.defects import avoidability_table
 
-    return AvoidabilityStats.from_json(avoidability_table(records))
+    return AvoidabilityStats.from_json(avoidability_table([r.to_json() for r in records]))
 
 
 def eval_exit_code(summary: EvalSummary) -> int:

@@ -9,7 +9,7 @@ written as the value under its name and ``[ci_low, ci_high]`` under ``<name>_ci`
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
 from coster_sumo.batch.summaries import rate_from_json
@@ -40,6 +40,51 @@ class SceneFailure:
 
     def to_json(self) -> dict[str, Any]:
         return {"scene_key": self.scene_key, "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class VariantRecord:
+    """One variant of a generator, injected with the target's planner: a record of a part file
+    (``OUT/parts/<part_key>.json`` ``records[i]``).
+
+    Attributes:
+        variant: its number on its scene; t_col: [s] its collision time.
+        collision: the adversary touched the target; relative_speed: [m/s], impact_angle: [deg] then.
+        adversary_off_road: the adversary left the drivable area.
+        adversary_speed: [m/s], adversary_length, adversary_width: [m] the adversary at t_col;
+            adversary_lane_type: the :class:`~coster_sumo.scene.LaneType` name under it then (None:
+            not recorded).
+        avoidable: its avoidability label (None: unlabelled).
+        extra: the label's other fields as :func:`coster_sumo.defects.label_record` writes them, and
+            keys this version does not know.
+        snapshot: the key of its collision snapshot (set by the aggregation, not stored).
+    """
+
+    variant: int = 0
+    collision: bool = False
+    adversary_off_road: bool = False
+    relative_speed: float | None = None
+    impact_angle: float | None = None
+    t_col: float | None = None
+    adversary_speed: float | None = None
+    adversary_length: float | None = None
+    adversary_width: float | None = None
+    adversary_lane_type: str | None = None
+    avoidable: bool | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+    snapshot: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("extra", "snapshot")}
+        out |= self.extra
+        if self.snapshot is not None:
+            out["snapshot"] = self.snapshot
+        return out
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> VariantRecord:
+        names = {f.name for f in fields(cls)} - {"extra"}
+        return cls(**{k: v for k, v in d.items() if k in names}, extra={k: v for k, v in d.items() if k not in names})
 
 
 def _rates(d: Mapping[str, Any]) -> dict[str, MetricValue]:
