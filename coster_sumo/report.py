@@ -186,19 +186,19 @@ def failure_examples(rows: Sequence[ResultRow], planners: Sequence[str],
 def render_example(path: Path, out: Path, row: ResultRow, cache: dict[str, Any]) -> Path | None:
     """The scene at t_col, the target's nominal (dashed) and driven path, the adversary's plan and contact."""
     from coster_sumo import viz
+    from coster_sumo.batch.scene_plans import ScenePlans
     from coster_sumo.formats.scene_file import load_scene
-    from coster_sumo.plan import AdversaryPlan
 
     plans_dir = out / "plans"
     key = row.scene_key
     if key not in cache:
-        doc = json.loads((plans_dir / f"{key}.json").read_text())
-        cache[key] = (doc, load_scene(plans_dir / doc["scene_file"]))
+        doc = ScenePlans.from_json(json.loads((plans_dir / f"{key}.json").read_text()))
+        cache[key] = (doc, load_scene(plans_dir / doc.scene_file))
     doc, scene = cache[key]
-    v = doc["variants"][row.variant]
-    plan = AdversaryPlan.from_dict(v["plan"])
+    variant = doc.variant(row.variant)
+    plan = variant.plan
     t = scene.tracks
-    target = t.index_of(doc["target_id"])
+    target = t.index_of(doc.target_id)
     tv = t.valid[target]
     adv_t = np.arange(plan.t_start, plan.t_col + 1e-9, 0.1)
     ax_, ay_, _, _ = plan.sample(adv_t)
@@ -216,11 +216,11 @@ def render_example(path: Path, out: Path, row: ResultRow, cache: dict[str, Any])
         ax.plot(driven[:, 0], driven[:, 1], color="#2ca02c", lw=1.6, label=f"target driven ({row.planner})",
                 zorder=4)
     ax.plot(ax_, ay_, color=viz.ADVERSARY_COLOR, lw=1.5, label="adversary plan", zorder=4)
-    escape = (doc.get("escapes") or [None] * (row.variant + 1))[row.variant]
+    escape = doc.escape(row.variant)
     if escape:  # the variant was avoidable: the escape proven in SUMO
         ax.plot(escape["x"], escape["y"], ":", color="#9467bd", lw=1.8, label="escape (proven in SUMO)", zorder=5)
-    s = v["snapshot"]["adversary"]
-    viz.draw_box(ax, s["x"], s["y"], s["yaw"], s["length"], s["width"], viz.ADVERSARY_COLOR, label="adversary at t_col")
+    s = variant.snapshot.adversary
+    viz.draw_box(ax, s.x, s.y, s.yaw, s.length, s.width, viz.ADVERSARY_COLOR, label="adversary at t_col")
     if row.contact_time is not None:
         cx, cy, _, _ = plan.sample(np.array([row.contact_time]))
         ax.plot(cx[0], cy[0], marker="*", ms=14, color="gold", mec="black", zorder=8, label="first contact")

@@ -23,6 +23,7 @@ import numpy as np
 
 from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.scene_plans import ScenePlans, read_plans
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -34,7 +35,7 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import ResultRow, ResultStore, read_json, result_row, row_outcome
+from coster_sumo.batch.store import ResultRow, ResultStore, result_row, row_outcome
 from coster_sumo.batch.summaries import (
     GenerationFailure,
     PlannerSummary,
@@ -75,24 +76,26 @@ def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     t1 = time.perf_counter()
     variants, info = generate_variants(scene, target, spec.seed, gen, drivable)
     t2 = time.perf_counter()
-    variants, labels, extra = label_variants(spec, scene, target, variants, gen, drivable, payload)
-    doc = {"scene_key": payload["scene_key"], "status": "ok", "spec": spec.to_dict(), "converted": converted,
-           "scene_file": scene_file.name, "target_id": str(scene.tracks.ids[target]),
-           "end": float(scene.timestamps[-1]), "generation": payload["generation"],
-           "variants": [v.to_dict() for v in variants], "info": info,
-           "avoidability": [lab.summary() for lab in labels], "escapes": [escape_dict(lab.escape) for lab in labels],
-           **extra, "timings_s": {"nominal": round(t1 - t0, 3), "generation": round(t2 - t1, 3),
-                                  "avoidability": round(time.perf_counter() - t2, 3)}}
-    write_json(plans_dir / f"{payload['scene_key']}.json", doc)
+    variants, labels, avoidable_only = label_variants(spec, scene, target, variants, gen, drivable, payload)
+    doc = ScenePlans(scene_key=payload["scene_key"], status="ok", spec=spec.to_dict(), converted=converted,
+                     scene_file=scene_file.name, target_id=str(scene.tracks.ids[target]),
+                     end=float(scene.timestamps[-1]), generation=payload["generation"],
+                     variants=tuple(v.to_dict() for v in variants), info=info,
+                     avoidability=tuple(lab.summary() for lab in labels),
+                     escapes=tuple(escape_dict(lab.escape) for lab in labels), avoidable_only=avoidable_only,
+                     timings_s={"nominal": round(t1 - t0, 3), "generation": round(t2 - t1, 3),
+                                "avoidability": round(time.perf_counter() - t2, 3)})
+    write_json(plans_dir / f"{payload['scene_key']}.json", doc.to_json())
     return {"scene_key": payload["scene_key"], "variants": len(variants)}
 
 
 
 
 def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[Variant], gen: GenerationConfig,
-                   drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, Any]]:
+                   drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, int] | None]:
     """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.defects`);
-    with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws."""
+    with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws (and
+    the counts of variants tried, kept and extra draws are returned; None without)."""
     from coster_sumo.defects import label_plans
     from coster_sumo.method.generation import EXTRA_DRAWS, derived_seed, generate_variants
 
@@ -103,7 +106,7 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
 
     labels = label(variants)
     if payload.get("avoidable", "any") != "only":
-        return variants, labels, {}
+        return variants, labels, None
     tried = len(variants)
     kept = [(v, lab) for v, lab in zip(variants, labels, strict=True) if lab.avoidable]
     draws = 0
@@ -123,7 +126,7 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
     if not out:
         raise NoSnapshot(f"none of the {tried} variants was avoidable at a reaction time of {reaction:g} s "
                          "(--avoidable only)")
-    return out, [lab for _, lab in kept], {"avoidable_only": {"tried": tried, "kept": len(out), "extra_draws": draws}}
+    return out, [lab for _, lab in kept], {"tried": tried, "kept": len(out), "extra_draws": draws}
 
 
 def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
@@ -145,20 +148,19 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     from coster_sumo.sim.inject import inject_variant
 
     plans_dir = Path(payload["plans_dir"])
-    doc = json.loads((plans_dir / f"{payload['scene_key']}.json").read_text())
-    scene = load_scene(plans_dir / doc["scene_file"])
-    spec = located(ScenarioSpec.from_dict(doc["spec"]), payload)
+    doc = ScenePlans.from_json(json.loads((plans_dir / f"{payload['scene_key']}.json").read_text()))
+    scene = load_scene(plans_dir / doc.scene_file)
+    spec = located(ScenarioSpec.from_dict(doc.spec), payload)
     i = int(payload["variant"])
-    variant = Variant.from_dict(doc["variants"][i])
+    variant = doc.variant(i)
     plan, t_col = variant.plan, variant.snapshot.time
-    target_id = doc["target_id"]
+    target_id = doc.target_id
     target = scene.tracks.index_of(target_id)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    labels = doc.get("avoidability") or []
-    label = labels[i] if i < len(labels) else None
+    label = doc.label(i)
     driver = None
     if payload["planner"] == ESCAPE_PLANNER:  # the reference: the variant's own escape, where it has one
-        esc = (doc.get("escapes") or [None] * (i + 1))[i]
+        esc = doc.escape(i)
         length = float(np.median(scene.tracks.length[target][scene.tracks.valid[target]]))
         driver = escape_replay(esc, length) if esc else None
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
@@ -278,26 +280,26 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
     done = store.keys() - failed_runs
     n_runs_expected = len(keys) * opts.variants * len(opts.planners)
 
-    def run_tasks_for(key: str, doc: dict[str, Any]) -> list[Task]:
+    def run_tasks_for(key: str, doc: ScenePlans) -> list[Task]:
         spec = keys[key]
         tasks = []
-        for i in range(len(doc["variants"])):
+        for i in range(len(doc.variants)):
             for p in opts.planners:
                 rk = run_key(key, i, p)
                 if rk not in done:
                     tasks.append(Task(rk, run_task, {"run_key": rk, "scene_key": key, "variant": i, "planner": p,
                                                      "plans_dir": str(plans_dir), "config": str(spec.config),
                                                      "seed": spec.seed, CONFIG_DIR: config_dir(spec)}, kind="run",
-                                      folders=task_folders(spec, plans_dir=(f"{key}.json", doc["scene_file"]))))
+                                      folders=task_folders(spec, plans_dir=(f"{key}.json", doc.scene_file))))
         return tasks
 
     initial: list[Task] = []
     for key, spec in keys.items():
         pf = plans_dir / f"{key}.json"
-        doc = read_json(pf)
-        retry = opts.retry_failed or is_transient(str((doc or {}).get("reason") or ""))
-        if doc is not None and (doc.get("status") == "ok" or not retry):
-            if doc.get("status") == "ok":
+        doc = read_plans(pf)
+        retry = opts.retry_failed or is_transient(str(doc.reason if doc else "") or "")
+        if doc is not None and (doc.ok or not retry):
+            if doc.ok:
                 initial.extend(run_tasks_for(key, doc))
             continue
         initial.append(generation_task_for(key, spec, plans_dir, gen, generation.models_dir,
@@ -307,10 +309,10 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         key = task.payload["scene_key"]
         if task.kind == "plan":
             if outcome.ok:
-                doc = read_json(plans_dir / f"{key}.json")
+                doc = read_plans(plans_dir / f"{key}.json")
                 return run_tasks_for(key, doc) if doc else []
-            write_json(plans_dir / f"{key}.json", {"scene_key": key, "status": "failed", "reason": outcome.reason,
-                                                     "spec": task.payload["spec"], "generation": gen})
+            write_json(plans_dir / f"{key}.json", ScenePlans(scene_key=key, status="failed", reason=outcome.reason,
+                                                             spec=task.payload["spec"], generation=gen).to_json())
             _append_log(logs_dir / f"{task.key}.log", outcome)
             return []
         if outcome.ok:
@@ -380,13 +382,13 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
     rows = [r for r in ResultStore(out / "results").read() if r.scene_key in keys and r.planner in planners]
     scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
     for key, spec in keys.items():
-        doc = read_json(plans_dir / f"{key}.json") or {"status": "failed", "reason": "not generated"}
-        if doc.get("status") == "ok":
-            n_variants += len(doc["variants"])
-            n_avoidable += sum(bool(a["avoidable"]) for a in doc.get("avoidability") or [])
-            tried += (doc.get("avoidable_only") or {}).get("tried", len(doc["variants"]))
+        doc = read_plans(plans_dir / f"{key}.json")
+        if doc is not None and doc.ok:
+            n_variants += len(doc.variants)
+            n_avoidable += doc.avoidable_variants
+            tried += doc.variants_tried
         else:
-            scenes_failed.append(GenerationFailure(key, spec.label(), doc.get("reason")))
+            scenes_failed.append(GenerationFailure(key, spec.label(), doc.reason if doc else "not generated"))
     failures = tuple(RunFailure(r.run_key, r.reason) for r in rows if not r.ok)
     return RegressionSummary(
         scenes=SceneCounts(len(keys), len(keys) - len(scenes_failed), tuple(scenes_failed)),
