@@ -27,10 +27,14 @@ from coster_sumo.batch.generator_summary import (
     GeneratorMethod,
     GeneratorResult,
     GeneratorTable,
+    MethodPart,
     PairedDiversity,
     SceneFailure,
+    ScenePart,
     SkippedGenerator,
     VariantRecord,
+    read_method_part,
+    read_scene_part,
 )
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
@@ -43,7 +47,6 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import read_json
 from coster_sumo.errors import InputError
 from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
@@ -206,9 +209,9 @@ def part_key(scene: str, method: str, variants: int, weights: str) -> str:
     return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}"
 
 
-def _done(doc: dict[str, Any] | None) -> bool:
+def _done(part: ScenePart | MethodPart | None) -> bool:
     """A part written by an earlier batch that counts: ok, or failed for a reason of the input's."""
-    return doc is not None and (doc.get("status") != "failed" or not is_transient(str(doc.get("reason") or "")))
+    return part is not None and (part.status != "failed" or not is_transient(part.reason or ""))
 
 
 def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorMethod], specs: list[ScenarioSpec],
@@ -233,7 +236,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
         tasks = []
         for m in active:
             pk = part_key(key, m.name, opts.variants, weights)
-            if _done(read_json(parts_dir / f"{pk}.json")):
+            if _done(read_method_part(parts_dir / f"{pk}.json")):
                 continue
             folders = task_folders(keys[key], scenes_dir=(scene_file,))
             if opts.models_dir:
@@ -248,9 +251,9 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
 
     initial = []
     for key, spec in keys.items():
-        sp = read_json(parts_dir / f"{key}__scene.json")
-        if sp is not None and sp.get("status") == "ok":
-            initial.extend(method_tasks(key, sp["scene_file"]))
+        sp = read_scene_part(parts_dir / f"{key}__scene.json")
+        if sp is not None and sp.ok:
+            initial.extend(method_tasks(key, sp.scene_file))
         elif not _done(sp):
             initial.append(Task(f"{key}__scene", scene_task, {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir),
                                                               "scene_key": key, CONFIG_DIR: config_dir(spec)},
@@ -296,9 +299,9 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
     nominal = NominalTraffic()
     failed_scenes = []
     for key in keys:
-        sp = read_json(parts_dir / f"{key}__scene.json")
-        if sp is None or sp.get("status") != "ok":
-            failed_scenes.append(SceneFailure(key, (sp or {}).get("reason", "not run")))
+        sp = read_scene_part(parts_dir / f"{key}__scene.json")
+        if sp is None or not sp.ok:
+            failed_scenes.append(SceneFailure(key, sp.reason if sp is not None else "not run"))
             continue
         nominal.add(key, sp)
     per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]] = {}  # method -> scene -> contacts
@@ -307,17 +310,17 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if m.name in skipped:
             table[m.name] = SkippedGenerator(m, skipped[m.name])
             continue
-        loaded = [read_json(parts_dir / f"{part_key(k, m.name, variants, weights)}.json") for k in nominal.scenes]
-        parts: list[dict[str, Any]] = [p for p in loaded if p is not None]
-        skip = [p for p in parts if p.get("status") == "skipped"]
+        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights)}.json")
+                  for k in nominal.scenes]
+        parts = [p for p in loaded if p is not None]
+        skip = [p for p in parts if p.status == "skipped"]
         if parts and len(skip) == len(parts):
-            table[m.name] = SkippedGenerator(m, skip[0]["reason"])
+            table[m.name] = SkippedGenerator(m, str(skip[0].reason))
             continue
-        ok = [p for p in parts if p.get("status") == "ok"]
         table[m.name], sample = generator_result(m, parts, nominal)
-        per_scene[m.name] = {p["scene_key"]: ([o.relative_speed for o in sample.contacts if o.scene == p["scene_key"]],
-                                              [o.impact_angle for o in sample.contacts if o.scene == p["scene_key"]])
-                             for p in ok}
+        per_scene[m.name] = {p.scene_key: ([o.relative_speed for o in sample.contacts if o.scene == p.scene_key],
+                                           [o.impact_angle for o in sample.contacts if o.scene == p.scene_key])
+                             for p in parts if p.status == "ok"}
     return GeneratorTable(table, tuple(failed_scenes), paired_diversity(per_scene))
 
 
@@ -332,36 +335,35 @@ class NominalTraffic:
     accel_hist: np.ndarray | None = None
     speed_hist_by_lane_type: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def add(self, key: str, part: Mapping[str, Any]) -> None:
+    def add(self, key: str, part: ScenePart) -> None:
         """A scene's part (:func:`scene_task`) added."""
         self.scenes.append(key)
-        v, a = np.asarray(part["speed_hist"]), np.asarray(part["accel_hist"])
-        self.speed_hist = v if self.speed_hist is None else np.add(self.speed_hist, part["speed_hist"])
-        self.accel_hist = a if self.accel_hist is None else np.add(self.accel_hist, part["accel_hist"])
-        for kind, hist in part.get("speed_hist_by_lane_type", {}).items():
+        v, a = np.asarray(part.speed_hist), np.asarray(part.accel_hist)
+        self.speed_hist = v if self.speed_hist is None else np.add(self.speed_hist, part.speed_hist)
+        self.accel_hist = a if self.accel_hist is None else np.add(self.accel_hist, part.accel_hist)
+        for kind, hist in part.speed_hist_by_lane_type.items():
             self.speed_hist_by_lane_type[kind] = self.speed_hist_by_lane_type.get(kind, 0) + np.asarray(hist)
 
 
-def generator_result(m: GeneratorMethod, parts: Sequence[Mapping[str, Any]], nominal: NominalTraffic
+def generator_result(m: GeneratorMethod, parts: Sequence[MethodPart], nominal: NominalTraffic
                      ) -> tuple[GeneratorResult, MetricSample]:
     """One method's entry from its parts (:func:`method_task`) on the scenes of ``nominal``, and the
     sample its metrics were computed on."""
-    ok = [p for p in parts if p.get("status") == "ok"]
+    ok = [p for p in parts if p.status == "ok"]
     # a scene's variants share a snapshot: name it, so the VDD at t_col floor counts it once
-    keyed = [(p["scene_key"], dataclasses.replace(r, snapshot=f"{p['scene_key']}@{r.t_col}"))
-             for p in ok for r in map(VariantRecord.from_json, p["records"])]
+    keyed = [(p.scene_key, dataclasses.replace(r, snapshot=f"{p.scene_key}@{r.t_col}")) for p in ok for r in p.records]
     records = [r for _, r in keyed]
     sample = MetricSample(
         tuple(record_outcome(r, key) for key, r in keyed),
         scenes=tuple(nominal.scenes), nominal_speed_hist=nominal.speed_hist, nominal_accel_hist=nominal.accel_hist,
-        generated_speed_hist=np.sum([p["speed_hist"] for p in ok], axis=0) if records else None,
-        generated_accel_hist=np.sum([p["accel_hist"] for p in ok], axis=0) if records else None,
+        generated_speed_hist=np.sum([p.speed_hist for p in ok], axis=0) if records else None,
+        generated_accel_hist=np.sum([p.accel_hist for p in ok], axis=0) if records else None,
         nominal_speed_hist_by_lane_type=nominal.speed_hist_by_lane_type)
     values = {name: compute(name, sample) for name in GENERATOR_METRICS}
-    gen_time = [p["generation_s"] / max(1, len(p["records"])) for p in ok if p["records"]]
+    gen_time = [(p.generation_s or 0.0) / len(p.records) for p in ok if p.records]
     result = GeneratorResult(
         method=m, scenes=len(nominal.scenes), variants=len(records),
-        failed_tasks=tuple(SceneFailure(p["scene_key"], p.get("reason")) for p in parts if p.get("status") == "failed"),
+        failed_tasks=tuple(SceneFailure(p.scene_key, p.reason) for p in parts if p.status == "failed"),
         SUR=values["SUR"], CR=values["CR"], ORR=values["ORR"], VDD=values["VDD"].value, ADD=values["ADD"].value,
         CSD=values["CSD"], CPD=values["CPD"], CPD_circular=values["CPD_circular"],
         generation_s_per_variant=float(np.mean(gen_time)) if gen_time else None,

@@ -8,8 +8,10 @@ written as the value under its name and ``[ci_low, ci_high]`` under ``<name>_ci`
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 from typing import Any, ClassVar
 
 from coster_sumo.batch.summaries import rate_from_json
@@ -85,6 +87,81 @@ class VariantRecord:
     def from_json(cls, d: Mapping[str, Any]) -> VariantRecord:
         names = {f.name for f in fields(cls)} - {"extra"}
         return cls(**{k: v for k, v in d.items() if k in names}, extra={k: v for k, v in d.items() if k not in names})
+
+
+@dataclass(frozen=True)
+class ScenePart:
+    """``OUT/parts/<scene_key>__scene.json``: a scene's nominal pass (status "ok", or "failed" with
+    ``reason``): its cached scene file and the histograms of its vehicles' speeds, (100,) over
+    :data:`~coster_sumo.metrics.SPEED_BINS`, and accelerations, (200,) over
+    :data:`~coster_sumo.metrics.ACCEL_BINS`, all vehicles and per lane type name."""
+
+    status: str
+    reason: str | None = None
+    scene_file: str = ""
+    speed_hist: list[int] = field(default_factory=list)
+    accel_hist: list[int] = field(default_factory=list)
+    speed_hist_by_lane_type: dict[str, list[int]] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> ScenePart:
+        return cls(str(d.get("status")), d.get("reason"), d.get("scene_file", ""), list(d.get("speed_hist") or ()),
+                   list(d.get("accel_hist") or ()), dict(d.get("speed_hist_by_lane_type") or {}))
+
+
+@dataclass(frozen=True)
+class MethodPart:
+    """``OUT/parts/<part_key>.json``: one generator on one scene.
+
+    Attributes:
+        scene_key, method: which; status: "ok", "skipped" (weights missing), "no_scenario" (no
+            snapshot) or "failed" (the task), with ``reason`` but for "ok".
+        records: its variants; generation_s, avoidability_s: [s] the generation and the labels.
+        speed_hist, accel_hist: the adversaries' speeds and accelerations (histograms as in
+            :class:`ScenePart`; empty but for "ok").
+    """
+
+    scene_key: str
+    status: str
+    method: str = ""
+    reason: str | None = None
+    records: tuple[VariantRecord, ...] = ()
+    generation_s: float | None = None
+    avoidability_s: float | None = None
+    speed_hist: list[int] = field(default_factory=list)
+    accel_hist: list[int] = field(default_factory=list)
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> MethodPart:
+        return cls(str(d.get("scene_key", "")), str(d.get("status")), str(d.get("method", "")), d.get("reason"),
+                   tuple(VariantRecord.from_json(r) for r in d.get("records") or ()), d.get("generation_s"),
+                   d.get("avoidability_s"), list(d.get("speed_hist") or ()), list(d.get("accel_hist") or ()))
+
+
+def _read(path: Path) -> Mapping[str, Any] | None:
+    if not path.exists():
+        return None
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
+def read_scene_part(path: Path) -> ScenePart | None:
+    """A scene's part file, or None when it is missing or unreadable (not done yet)."""
+    d = _read(path)
+    return None if d is None else ScenePart.from_json(d)
+
+
+def read_method_part(path: Path) -> MethodPart | None:
+    """A generator's part file, or None when it is missing or unreadable (not done yet)."""
+    d = _read(path)
+    return None if d is None else MethodPart.from_json(d)
 
 
 def _rates(d: Mapping[str, Any]) -> dict[str, MetricValue]:
