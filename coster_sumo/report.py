@@ -400,23 +400,26 @@ def _with_ci(v: MetricValue | tuple[float, float, float], digits: int) -> str:
     return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
+def _diversity_cells(csd: MetricValue | tuple[float, float, float], cpd: MetricValue | tuple[float, float, float],
+                     cpd_circular: MetricValue | tuple[float, float, float]) -> list[str]:
+    """CSD [m/s] to 2 digits, CPD and circular CPD [deg] to 1, each with its interval."""
+    return [_with_ci(csd, 2), _with_ci(cpd, 1), _with_ci(cpd_circular, 1)]
+
+
 def diversity_section(summary: EvalSummary) -> list[str]:
     """Markdown lines: CSD and CPD with 95 % intervals from resampling scenes, and COSTER's minus
     every other method's on the same scenes (empty when there is nothing to show)."""
-    digits = {"CSD": 2, "CPD": 1, "CPD_circular": 1}
     table = summary.methods.ran
     if not table:
         return []
     head = ["method", "CSD [m/s]", "CPD [deg]", "CPD circ. [deg]"]
-    rows = [[name, _with_ci(m.CSD, digits["CSD"]), _with_ci(m.CPD, digits["CPD"]),
-             _with_ci(m.CPD_circular, digits["CPD_circular"])] for name, m in table.items()]
+    rows = [[name, *_diversity_cells(m.CSD, m.CPD, m.CPD_circular)] for name, m in table.items()]
     md = ["## Diversity: how sure", "",
           "In brackets the 95 % interval from resampling the scenes (1,000 draws; the variants of a scene "
           "share its snapshot, so a scene is one draw).", "", _md_table(head, rows), ""]
     paired = summary.methods.paired
     if paired:
-        prow = [[name, str(e.scenes), _with_ci(e.CSD, digits["CSD"]), _with_ci(e.CPD, digits["CPD"]),
-                 _with_ci(e.CPD_circular, digits["CPD_circular"])] for name, e in paired.items()]
+        prow = [[name, str(e.scenes), *_diversity_cells(e.CSD, e.CPD, e.CPD_circular)] for name, e in paired.items()]
         md += ["The differences on the scenes both methods generated for, the same scenes resampled for both: "
                "an interval that holds 0 says the ordering is not settled by these scenes.", "",
                _md_table(["difference", "scenes", "CSD [m/s]", "CPD [deg]", "CPD circ. [deg]"], prow), ""]
