@@ -34,6 +34,7 @@ from coster_sumo.converters.read import iter_scenes
 
 from coster_sumo import metrics, weights
 from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
+from coster_sumo.batch.generator_summary import VariantRecord
 from coster_sumo.dataset import list_scenes, split
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import NoSnapshot
@@ -197,7 +198,8 @@ def main() -> None:
                          "CPD_circular": metrics.circular_std_deg(ang), "mean_relative_speed": float(np.mean(rel)),
                          "stopped_share": float(np.mean([r["adversary_speed"] < 0.5 for r in records]))}
         records_by[method] = records
-        per_network[method] = {net: snapshot_state_metrics([r for r in records if r["network"] == net], by)
+        per_network[method] = {net: snapshot_state_metrics([VariantRecord.from_json(r) for r in records
+                                                            if r["network"] == net], by)
                                for net, by in nominal.items()}
     print("| collision time | scenes | SUR | CSD [m/s] | CPD [deg] | circular CPD [deg] | mean rel. speed [m/s] | "
           "stopped adversaries |")

@@ -52,7 +52,7 @@ def regress(args: argparse.Namespace, out: Path, cwd: Path, env: dict[str, str],
     wall = time.perf_counter() - t0
     if done.returncode not in (0, 1):
         raise SystemExit(f"regress failed ({done.returncode}): {done.stderr[-2000:]}")
-    rows = {r["run_key"]: tuple(r[k] for k in OUTCOME) for r in ResultStore(out / "results").read()}
+    rows = {r.run_key: tuple(getattr(r, k) for k in OUTCOME) for r in ResultStore(out / "results").read()}
     return wall, rows
 
 

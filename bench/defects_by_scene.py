@@ -15,7 +15,7 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-from coster_sumo.batch.store import ResultStore
+from coster_sumo.batch.store import ResultRow, ResultStore
 from coster_sumo.metrics import rate_with_ci
 
 
@@ -36,16 +36,16 @@ def main() -> None:
     ap.add_argument("--group", action="append", default=[], help="NAME=cfg1,cfg2: report these configurations together")
     args = ap.parse_args()
     groups = {c: name for g in args.group for name, cfgs in [g.split("=", 1)] for c in cfgs.split(",")}
-    table: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    table: dict[tuple[str, str], list[ResultRow]] = defaultdict(list)
     for r in ResultStore(args.out / "results").read():
-        if r["status"] == "ok" and r.get("avoidable") is not None:
-            cfg = config_of(r["scene_key"])
-            table[(groups.get(cfg, cfg), r["planner"])].append(r)
+        if r.ok and r.avoidable is not None:
+            cfg = config_of(r.scene_key)
+            table[(groups.get(cfg, cfg), r.planner)].append(r)
     print("| scenes | planner | defect rate | unavoidable-contact rate |\n|---|---|---|---|")
     for (group, planner), rows in sorted(table.items()):
-        hit = [bool(r["contact_in_horizon"]) for r in rows]
-        av = [h for h, r in zip(hit, rows, strict=True) if r["avoidable"]]
-        un = [h for h, r in zip(hit, rows, strict=True) if not r["avoidable"]]
+        hit = [bool(r.contact_in_horizon) for r in rows]
+        av = [h for h, r in zip(hit, rows, strict=True) if r.avoidable]
+        un = [h for h, r in zip(hit, rows, strict=True) if not r.avoidable]
         print(f"| {group} | {planner} | {fmt(rate_with_ci(av))} | {fmt(rate_with_ci(un))} |")
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -177,16 +178,15 @@ def test_wilson_interval_empty_and_rate_helper():
 def test_result_store_writes_atomically_and_reads_as_a_dataset(tmp_path):
     store = ResultStore(tmp_path / "results")
     for i in range(3):
-        store.write({"run_key": run_key("scene", i, "sumo:IDM"), "scene_key": "scene", "variant": i,
-                     "planner": "sumo:IDM", "status": "ok", "reason": "", "collision": i == 1,
-                     "min_ttc": float("inf")})
+        store.write(ResultRow(run_key=run_key("scene", i, "sumo:IDM"), scene_key="scene", variant=i,
+                              planner="sumo:IDM", status="ok", reason="", collision=i == 1, min_ttc=float("inf")))
     (tmp_path / "results" / ".half-written.tmp").write_bytes(b"PAR1 garbage")  # a crash mid-write
     rows = store.read()
     assert len(rows) == 3 and store.keys() == {f"scene__v{i}__sumo-IDM" for i in range(3)}
-    assert sorted(r["collision"] for r in rows) == [False, False, True]
-    assert all(r["min_ttc"] is None and r["finished_at"] for r in rows)
+    assert sorted(r.collision for r in rows) == [False, False, True]
+    assert all(r.min_ttc is None and r.finished_at for r in rows)
     assert ds.dataset(tmp_path / "results", format="parquet").count_rows() == 3
-    store.write({**rows[0], "status": "failed"})  # rewriting a key replaces its row
+    store.write(dataclasses.replace(rows[0], status="failed"))  # rewriting a key replaces its row
     assert len(store.read()) == 3
 
 
@@ -195,7 +195,8 @@ def test_a_result_row_has_the_stored_fields_in_their_order():
 
     assert list(get_type_hints(ResultRow)) == list(RESULT_FIELDS)
     row = result_row({"run_key": "k", "scene_key": "s", "variant": "2", "planner": "replay"}, status="ok")
-    assert list(row) == list(RESULT_FIELDS) and row["variant"] == 2 and row["collision"] is None
+    assert list(row.to_json()) == list(RESULT_FIELDS) and row.variant == 2 and row.collision is None
+    assert ResultRow.from_json(row.to_json()) == row
 
 
 RESUMABLE_BATCH = textwrap.dedent("""
@@ -207,8 +208,8 @@ RESUMABLE_BATCH = textwrap.dedent("""
     done = store.keys()
     tasks = [Task(f"run{i:02d}", probe_task, {"name": i, "sleep": 1.0}) for i in range(12) if f"run{i:02d}" not in done]
     def on_done(task, outcome):
-        store.write({"run_key": task.key, "scene_key": "s", "variant": 0, "planner": "p",
-                     "status": "ok" if outcome.ok else "failed", "reason": outcome.reason})
+        store.write(result_row({"run_key": task.key, "scene_key": "s", "variant": 0, "planner": "p"},
+                               status="ok" if outcome.ok else "failed", reason=outcome.reason))
         return []
     execute(tasks, on_done=on_done, workers=2)
     print(len(tasks))
@@ -230,8 +231,8 @@ def test_sigkill_halfway_then_rerun_gives_every_run_exactly_once(tmp_path):
                          text=True, check=True)
     assert int(out.stdout.split()[-1]) == 12 - done_before  # only the missing runs ran again
     rows = ResultStore(results).read()
-    assert sorted(r["run_key"] for r in rows) == [f"run{i:02d}" for i in range(12)]
-    assert all(r["status"] == "ok" for r in rows)
+    assert sorted(r.run_key for r in rows) == [f"run{i:02d}" for i in range(12)]
+    assert all(r.ok for r in rows)
 
 
 def test_parse_sources_overrides_seeds_lists_and_folders(tmp_path):

@@ -27,11 +27,11 @@ def test_defect_rate_counts_contacts_in_avoidable_variants_only():
     rows = [_row(True, True), _row(True, False), _row(True, True, in_horizon=False),  # a late contact is no defect
             _row(False, True), _row(False, True), _row(None, True)]
     d = defect_rates(rows)
-    assert (d["defect_rate"]["k"], d["defect_rate"]["n"]) == (1, 3)
-    assert (d["unavoidable_contact_rate"]["k"], d["unavoidable_contact_rate"]["n"]) == (2, 2)
-    assert d["unlabelled_runs"] == 1
-    assert 0.0 <= d["defect_rate"]["ci_low"] < 1 / 3 < d["defect_rate"]["ci_high"] <= 1.0
-    assert d["by_label"]["unavoidable"]["CR"]["k"] == 2 and d["by_label"]["avoidable"]["RCR"]["k"] == 1
+    assert (d.defect_rate.k, d.defect_rate.n) == (1, 3)
+    assert (d.unavoidable_contact_rate.k, d.unavoidable_contact_rate.n) == (2, 2)
+    assert d.unlabelled_runs == 1
+    assert 0.0 <= (d.defect_rate.ci_low or 0.0) < 1 / 3 < (d.defect_rate.ci_high or 0.0) <= 1.0
+    assert d.unavoidable.CR.k == 2 and d.avoidable.RCR.k == 1
 
 
 def test_label_line_says_why():
@@ -62,7 +62,7 @@ def test_the_escape_planner_scores_no_defect_on_every_avoidable_variant_of_a_bat
     replay = summary["planners"]["replay"]["defects"]
     assert replay["defect_rate"]["k"] == replay["avoidable_runs"]
     rows = ResultStore(out / "results").read()
-    assert all(r["outcome"].startswith("avoided") for r in rows if r["planner"] == "escape" and r["avoidable"])
+    assert all(str(r.outcome).startswith("avoided") for r in rows if r.planner == "escape" and r.avoidable)
     report = (out / "report.md").read_text()
     assert report.index("## Defects") < report.index("RCR: route completion rate")
 

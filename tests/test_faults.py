@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 
+from coster_sumo.batch.store import ResultRow
 from coster_sumo.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -199,17 +200,17 @@ def test_a_timed_out_run_is_retried_by_a_plain_rerun_a_crash_is_kept(tmp_path):
         done = subprocess.run([sys.executable, "-m", "coster_sumo", "-q", *args], env=env, capture_output=True,
                               text=True, timeout=600)
         assert done.returncode == 1, done.stderr  # the Abort row fails both times
-        rows = {r["planner"].rsplit(":", 1)[1]: r for r in _rows(out)}
+        rows = {r.planner.rsplit(":", 1)[1]: r for r in _rows(out)}
         assert len(rows) == 2
         if attempt == 0:
-            assert "timed out" in rows["HangOnce"]["reason"]
-            aborted_at = rows["Abort"]["finished_at"]
+            assert "timed out" in str(rows["HangOnce"].reason)
+            aborted_at = rows["Abort"].finished_at
         else:  # the timeout was the machine's: run again, and it finished; the crash is the input's: kept
-            assert rows["HangOnce"]["status"] == "ok"
-            assert rows["Abort"]["finished_at"] == aborted_at and "SIGABRT" in rows["Abort"]["reason"]
+            assert rows["HangOnce"].status == "ok"
+            assert rows["Abort"].finished_at == aborted_at and "SIGABRT" in str(rows["Abort"].reason)
 
 
-def _rows(out: Path) -> list[dict]:
+def _rows(out: Path) -> list[ResultRow]:
     from coster_sumo.batch.store import ResultStore
 
     return ResultStore(out / "results").read()

@@ -131,21 +131,27 @@ def test_paired_scene_bootstrap_separates_a_real_difference_from_none():
 
 
 def test_paired_diversity_compares_coster_on_shared_scenes_only():
-    from coster_sumo.batch.evaluate import paired_diversity
+    from coster_sumo.batch.evaluate import GENERATOR_METHODS, avoidability_summary, paired_diversity
+    from coster_sumo.batch.generator_summary import EvalSummary, GeneratorResult, GeneratorTable
+    from coster_sumo.metrics import MetricValue
     from coster_sumo.report import diversity_section
 
     per_scene = {"COSTER": {"s1": ([1.0, 2.0], [10.0, 20.0]), "s2": ([5.0], [-90.0]), "s3": ([3.0], [0.0])},
                  "COSTER t_col=last": {"s1": ([1.0], [0.0]), "s2": ([1.0], [0.0])}}
     paired = paired_diversity(per_scene)
     entry = paired["COSTER - COSTER t_col=last"]
-    assert entry["scenes"] == 2  # s3: only COSTER generated for it
-    assert entry["CSD"][0] == pytest.approx(np.std([1.0, 2.0, 5.0]) - 0.0)
-    assert entry["CPD"][0] == pytest.approx(np.std([10.0, 20.0, -90.0]))
+    assert entry.scenes == 2  # s3: only COSTER generated for it
+    assert entry.CSD[0] == pytest.approx(np.std([1.0, 2.0, 5.0]) - 0.0)
+    assert entry.CPD[0] == pytest.approx(np.std([10.0, 20.0, -90.0]))
     assert paired_diversity({"other": per_scene["COSTER"]}) == {}
-    summary = {"methods": {"table": {"COSTER": {"status": "ok", "CSD": 1.0, "CSD_ci": [0.5, 1.5], "CPD": 2.0,
-                                                "CPD_ci": [1.0, 3.0], "CPD_circular": 3.0,
-                                                "CPD_circular_ci": [float("nan"), 4.0]}},
-                           "paired": paired}}
+    coster = GeneratorResult(
+        method=GENERATOR_METHODS[0], scenes=3, variants=4, failed_tasks=(), SUR=MetricValue(1.0), CR=MetricValue(1.0),
+        ORR=MetricValue(0.0), VDD=None, ADD=None, CSD=MetricValue(1.0, 0.5, 1.5), CPD=MetricValue(2.0, 1.0, 3.0),
+        CPD_circular=MetricValue(3.0, float("nan"), 4.0), generation_s_per_variant=None,
+        avoidability=avoidability_summary([]), relative_speeds=(), impact_angles=(), VDD_tcol=None,
+        VDD_tcol_floor=None, size_in_class=None)
+    summary = EvalSummary(scenes={}, planner="replay", variants=4, samples=1,
+                          methods=GeneratorTable({"COSTER": coster}, paired=paired))
     md = "\n".join(diversity_section(summary))
     assert "| COSTER | 1.00 [0.50, 1.50] | 2.0 [1.0, 3.0] | 3.0 |" in md
     assert "| COSTER - COSTER t_col=last | 2 |" in md

@@ -82,7 +82,7 @@ def _regress(cfg: Path, out: Path, cwd: Path, env: dict[str, str], *extra: str) 
 
 
 def _outcomes(out: Path) -> dict[str, dict]:
-    return {r["run_key"]: {k: r[k] for k in OUTCOME} for r in ResultStore(out / "results").read()}
+    return {r.run_key: {k: getattr(r, k) for k in OUTCOME} for r in ResultStore(out / "results").read()}
 
 
 def test_the_worker_nodes_cannot_read_the_driver_folder(cluster):
@@ -185,8 +185,8 @@ def test_runs_lost_with_a_worker_node_are_run_again_by_the_rerun(driver, local_o
         _, err = batch.communicate(timeout=600)
         assert batch.returncode == 1, err  # a run failed: the batch says so
         rows = ResultStore(out / "results").read()
-        lost = [r for r in rows if r["status"] != "ok"]
-        assert lost and all(r["reason"].startswith("lost on the Ray cluster") for r in lost)
+        lost = [r for r in rows if not r.ok]
+        assert lost and all(str(r.reason).startswith("lost on the Ray cluster") for r in lost)
         again = _regress(cfg, out, driver, c.env, "--executor", "ray", "--address", c.address)
         assert again.returncode == 0, again.stderr
     assert _outcomes(out) == local_outcomes

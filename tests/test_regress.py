@@ -45,9 +45,9 @@ def test_regress_two_planners_same_variants_then_rerun_skips(tmp_path):
     for p in summary["planners"].values():
         assert p["runs"] == 2 and p["RCR"]["n"] == 2 and 0 <= p["CR"]["ci_low"] <= p["CR"]["ci_high"] <= 1
     rows = ResultStore(out / "results").read()
-    assert sorted((r["variant"], r["planner"]) for r in rows) == [(0, "replay"), (0, "sumo:IDM"),
+    assert sorted((r.variant, r.planner) for r in rows) == [(0, "replay"), (0, "sumo:IDM"),
                                                                   (1, "replay"), (1, "sumo:IDM")]
-    assert len({r["t_col"] for r in rows if r["variant"] == 0}) == 1  # both planners saw the same variant
+    assert len({r.t_col for r in rows if r.variant == 0}) == 1  # both planners saw the same variant
     for f in ("report.md", "report.html", "plots/rates.png", "plots/impact_angles.png", "plots/relative_speeds.png"):
         assert (out / f).stat().st_size > 0
     before = {p.name: p.stat().st_mtime_ns for p in (out / "results").glob("*.parquet")}
@@ -64,14 +64,14 @@ def test_regress_sumo_crash_or_hang_is_one_failed_row_and_the_rest_finish(tmp_pa
            "--planner", "tests.misbehaving_planners:Hang", "--timeout", "30", "--workers", "2", "-o", str(out)]
     done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert done.returncode == 1, done.stderr  # the work ran, some runs failed
-    rows = {(r["variant"], r["planner"]): r for r in ResultStore(out / "results").read()}
+    rows = {(r.variant, r.planner): r for r in ResultStore(out / "results").read()}
     assert len(rows) == 6
     for v in (0, 1):
-        assert rows[(v, "sumo")]["status"] == "ok"
-        assert rows[(v, "tests.misbehaving_planners:Abort")]["status"] == "failed"
-        assert "SIGABRT" in rows[(v, "tests.misbehaving_planners:Abort")]["reason"]
-        assert rows[(v, "tests.misbehaving_planners:Hang")]["status"] == "failed"
-        assert "timed out" in rows[(v, "tests.misbehaving_planners:Hang")]["reason"]
+        assert rows[(v, "sumo")].status == "ok"
+        assert rows[(v, "tests.misbehaving_planners:Abort")].status == "failed"
+        assert "SIGABRT" in str(rows[(v, "tests.misbehaving_planners:Abort")].reason)
+        assert rows[(v, "tests.misbehaving_planners:Hang")].status == "failed"
+        assert "timed out" in str(rows[(v, "tests.misbehaving_planners:Hang")].reason)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["runs"]["ok"] == 2 and summary["runs"]["failed"] == 4
 
@@ -92,8 +92,8 @@ def test_regress_killed_halfway_resumes_without_duplicates(tmp_path):
     assert 2 <= first < 6
     assert subprocess.run(cmd, cwd=REPO, capture_output=True).returncode == 0
     rows = ResultStore(out / "results").read()
-    keys = [r["run_key"] for r in rows]
-    assert len(keys) == 6 and len(set(keys)) == 6 and all(r["status"] == "ok" for r in rows)
+    keys = [r.run_key for r in rows]
+    assert len(keys) == 6 and len(set(keys)) == 6 and all(r.ok for r in rows)
 
 
 @pytest.mark.sumo

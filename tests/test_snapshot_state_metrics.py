@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
+from coster_sumo.batch.generator_summary import VariantRecord
 from coster_sumo.metrics import SPEED_BINS
 from coster_sumo.synthetic import two_lane_road
 
@@ -16,9 +17,9 @@ def _hist(speeds):
     return np.histogram(speeds, bins=SPEED_BINS)[0]
 
 
-def _rec(speed, lane_type="FREEWAY", length=4.5, width=1.9):
-    return {"adversary_speed": speed, "adversary_length": length, "adversary_width": width,
-            "adversary_lane_type": lane_type}
+def _rec(speed, lane_type="FREEWAY", length=4.5, width=1.9, snapshot=None):
+    return VariantRecord(adversary_speed=speed, adversary_length=length, adversary_width=width,
+                         adversary_lane_type=lane_type, snapshot=snapshot)
 
 
 def test_each_adversary_is_compared_with_traffic_on_its_own_lane_type():
@@ -39,7 +40,7 @@ def test_sizes_outside_every_vehicle_class_are_counted():
 
 
 def test_nothing_recorded_gives_none():
-    assert snapshot_state_metrics([{"collision": True}], {}) == {"VDD_tcol": None, "VDD_tcol_floor": None,
+    assert snapshot_state_metrics([VariantRecord(collision=True)], {}) == {"VDD_tcol": None, "VDD_tcol_floor": None,
                                                                 "size_in_class": None,
                                                                 "adversaries_by_lane_type": {}}
 
@@ -58,7 +59,7 @@ def test_the_floor_is_what_the_nominal_traffic_itself_scores_with_as_few_adversa
     stopped = snapshot_state_metrics([_rec(0.0, "SURFACE_STREET")] * 2000, nominal)  # 2000 snapshots
     assert stopped["VDD_tcol"] > 10 * stopped["VDD_tcol_floor"]
     # 20 snapshots with 5 variants each are 20 draws, not 100: the floor is that of 20
-    repeated = snapshot_state_metrics([{**_rec(v, "SURFACE_STREET"), "snapshot": f"scene{i // 5}"}
+    repeated = snapshot_state_metrics([_rec(v, "SURFACE_STREET", snapshot=f"scene{i // 5}")
                                        for i, v in enumerate(np.repeat(drawn[:20], 5))], nominal)
     hundred = snapshot_state_metrics([_rec(v, "SURFACE_STREET") for v in drawn[:100]], nominal)
     assert repeated["VDD_tcol_floor"] > 2 * hundred["VDD_tcol_floor"]

@@ -12,7 +12,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +20,22 @@ import numpy as np
 
 from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.generator_summary import (
+    AvoidabilityStats,
+    EvalSummary,
+    GeneratorEntry,
+    GeneratorMethod,
+    GeneratorResult,
+    GeneratorTable,
+    MethodPart,
+    PairedDiversity,
+    SceneFailure,
+    ScenePart,
+    SkippedGenerator,
+    VariantRecord,
+    read_method_part,
+    read_scene_part,
+)
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -31,7 +47,6 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import read_json
 from coster_sumo.errors import InputError
 from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
@@ -47,18 +62,6 @@ from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, w
 from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.weights import WEIGHT_FILES, weights_digest
-
-
-@dataclass(frozen=True)
-class GeneratorMethod:
-    """One scenario generator of the evaluation table."""
-
-    name: str
-    init: str
-    rollout: str
-    collision_time: str = "entropy"
-    group: str = "main"  # "main" | "ablation" (collision time) | "baseline"
-
 
 GENERATOR_METHODS: tuple[GeneratorMethod, ...] = (
     GeneratorMethod("COSTER", "snapshot", "cvae", "entropy"),
@@ -159,11 +162,12 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
             res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
         c = res.contact
         adv = v.snapshot.adversary
-        records.append({"variant": i, "collision": c is not None, "adversary_off_road": res.adversary_off_road,
-                        "relative_speed": c.relative_speed if c else None,
-                        "impact_angle": c.impact_angle if c else None, "t_col": v.snapshot.time,
-                        "adversary_speed": adv.speed, "adversary_length": adv.length, "adversary_width": adv.width,
-                        "adversary_lane_type": LaneType(int(lane_types[i])).name, **label_record(labels[i])})
+        label = label_record(labels[i])
+        records.append(VariantRecord(
+            variant=i, collision=c is not None, adversary_off_road=res.adversary_off_road,
+            relative_speed=c.relative_speed if c else None, impact_angle=c.impact_angle if c else None,
+            t_col=v.snapshot.time, adversary_speed=adv.speed, adversary_length=adv.length, adversary_width=adv.width,
+            adversary_lane_type=LaneType(int(lane_types[i])).name, avoidable=label.pop("avoidable"), extra=label))
         tr = res.scene.tracks
         if plan.vehicle_id in set(tr.ids.tolist()):
             a = tr.index_of(plan.vehicle_id)
@@ -174,11 +178,11 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
             accels.append(sa)
     sv = np.concatenate(speeds) if speeds else np.zeros(0)
     sa = np.concatenate(accels) if accels else np.zeros(0)
-    return {"status": "ok", "records": records, "generation_s": gen_s, "avoidability_s": avoid_s,
+    return {"status": "ok", "records": [r.to_json() for r in records], "generation_s": gen_s, "avoidability_s": avoid_s,
             "speed_hist": _hist(sv, SPEED_BINS, 0, 50), "accel_hist": _hist(sa, ACCEL_BINS, -10, 10)}
 
 
-def evaluate_generators(opts: EvalOptions) -> dict[str, Any]:
+def evaluate_generators(opts: EvalOptions) -> EvalSummary:
     """``coster-sumo eval scenarios``: every generator on every scene; metrics table (JSON, Markdown, PNG)."""
     t_start = time.perf_counter()
     names = opts.methods or [m.name for m in GENERATOR_METHODS]
@@ -205,13 +209,13 @@ def part_key(scene: str, method: str, variants: int, weights: str) -> str:
     return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}"
 
 
-def _done(doc: dict[str, Any] | None) -> bool:
+def _done(part: ScenePart | MethodPart | None) -> bool:
     """A part written by an earlier batch that counts: ok, or failed for a reason of the input's."""
-    return doc is not None and (doc.get("status") != "failed" or not is_transient(str(doc.get("reason") or "")))
+    return part is not None and (part.status != "failed" or not is_transient(part.reason or ""))
 
 
 def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorMethod], specs: list[ScenarioSpec],
-                     out: Path) -> dict[str, Any]:
+                     out: Path) -> EvalSummary:
     """:func:`evaluate_generators` once OUT is checked and locked."""
     scenes_dir, parts_dir = out / "scenes", out / "parts"
     parts_dir.mkdir(parents=True, exist_ok=True)
@@ -232,7 +236,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
         tasks = []
         for m in active:
             pk = part_key(key, m.name, opts.variants, weights)
-            if _done(read_json(parts_dir / f"{pk}.json")):
+            if _done(read_method_part(parts_dir / f"{pk}.json")):
                 continue
             folders = task_folders(keys[key], scenes_dir=(scene_file,))
             if opts.models_dir:
@@ -247,9 +251,9 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
 
     initial = []
     for key, spec in keys.items():
-        sp = read_json(parts_dir / f"{key}__scene.json")
-        if sp is not None and sp.get("status") == "ok":
-            initial.extend(method_tasks(key, sp["scene_file"]))
+        sp = read_scene_part(parts_dir / f"{key}__scene.json")
+        if sp is not None and sp.ok:
+            initial.extend(method_tasks(key, sp.scene_file))
         elif not _done(sp):
             initial.append(Task(f"{key}__scene", scene_task, {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir),
                                                               "scene_key": key, CONFIG_DIR: config_dir(spec)},
@@ -276,84 +280,99 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
             log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
             preload=GENERATION_TASK_MODULES)
     table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
-    summary = {"command": "eval scenarios", "scenes": {k: s.label() for k, s in keys.items()},
-               "planner": opts.planner, "variants": opts.variants, "samples": opts.samples,
-               "methods": table, "wall_time_s": round(time.perf_counter() - t_start, 3),
-               "units": {"SUR/CR/ORR": "fraction", "VDD/ADD": "Jensen-Shannon divergence, nats (max ln 2)",
-                         "CSD": "m/s", "CPD/CPD_circular": "deg", "generation_s_per_variant": "s"}}
-    write_json(out / "summary.json", summary)
+    summary = EvalSummary(scenes={k: s.label() for k, s in keys.items()}, planner=opts.planner,
+                          variants=opts.variants, samples=opts.samples, methods=table,
+                          wall_time_s=round(time.perf_counter() - t_start, 3))
+    write_json(out / "summary.json", summary.to_json())
     from coster_sumo.report import write_generator_report
 
-    summary["report"] = write_generator_report(out, summary)
-    write_json(out / "summary.json", summary)
+    summary = dataclasses.replace(summary, report=tuple(write_generator_report(out, summary)))
+    write_json(out / "summary.json", summary.to_json())
     return summary
 
 
 def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], methods: Sequence[GeneratorMethod],
-                                skipped: dict[str, str], variants: int, weights: str) -> dict[str, Any]:
+                                skipped: dict[str, str], variants: int, weights: str) -> GeneratorTable:
     """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD (with 95 %
     intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
     the same scenes (:func:`paired_diversity`)."""
-    raw_v = raw_a = None
-    per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]] = {}  # method -> scene -> contacts
-    by_type: dict[str, np.ndarray] = {}  # lane type -> nominal speed histogram of every scene
-    good_scenes = []
+    nominal = NominalTraffic()
     failed_scenes = []
     for key in keys:
-        sp = read_json(parts_dir / f"{key}__scene.json")
-        if sp is None or sp.get("status") != "ok":
-            failed_scenes.append({"scene_key": key, "reason": (sp or {}).get("reason", "not run")})
+        sp = read_scene_part(parts_dir / f"{key}__scene.json")
+        if sp is None or not sp.ok:
+            failed_scenes.append(SceneFailure(key, sp.reason if sp is not None else "not run"))
             continue
-        good_scenes.append(key)
-        raw_v = np.add(raw_v, sp["speed_hist"]) if raw_v is not None else np.asarray(sp["speed_hist"])
-        raw_a = np.add(raw_a, sp["accel_hist"]) if raw_a is not None else np.asarray(sp["accel_hist"])
-        for kind, hist in sp.get("speed_hist_by_lane_type", {}).items():
-            by_type[kind] = by_type.get(kind, 0) + np.asarray(hist)
-    table: dict[str, Any] = {}
+        nominal.add(key, sp)
+    per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]] = {}  # method -> scene -> contacts
+    table: dict[str, GeneratorEntry] = {}
     for m in methods:
-        entry: dict[str, Any] = {"group": m.group, "init": m.init, "rollout": m.rollout,
-                                 "collision_time": m.collision_time}
         if m.name in skipped:
-            table[m.name] = {**entry, "status": "skipped", "reason": skipped[m.name]}
+            table[m.name] = SkippedGenerator(m, skipped[m.name])
             continue
-        loaded = [read_json(parts_dir / f"{part_key(k, m.name, variants, weights)}.json") for k in good_scenes]
-        parts: list[dict[str, Any]] = [p for p in loaded if p is not None]
-        skip = [p for p in parts if p.get("status") == "skipped"]
+        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights)}.json")
+                  for k in nominal.scenes]
+        parts = [p for p in loaded if p is not None]
+        skip = [p for p in parts if p.status == "skipped"]
         if parts and len(skip) == len(parts):
-            table[m.name] = {**entry, "status": "skipped", "reason": skip[0]["reason"]}
+            table[m.name] = SkippedGenerator(m, str(skip[0].reason))
             continue
-        ok = [p for p in parts if p.get("status") == "ok"]
-        # a scene's variants share a snapshot: name it, so the VDD at t_col floor counts it once
-        keyed = [(p["scene_key"], {**r, "snapshot": f"{p['scene_key']}@{r.get('t_col')}"})
-                 for p in ok for r in p["records"]]
-        records = [r for _, r in keyed]
-        sample = MetricSample(
-            tuple(record_outcome(r, key) for key, r in keyed),
-            scenes=tuple(good_scenes), nominal_speed_hist=raw_v, nominal_accel_hist=raw_a,
-            generated_speed_hist=np.sum([p["speed_hist"] for p in ok], axis=0) if records else None,
-            generated_accel_hist=np.sum([p["accel_hist"] for p in ok], axis=0) if records else None,
-            nominal_speed_hist_by_lane_type=by_type)
-        values = {name: compute(name, sample) for name in GENERATOR_METRICS}
-        gen_time = [p["generation_s"] / max(1, len(p["records"])) for p in ok if p["records"]]
-        table[m.name] = {
-            **entry, "status": "ok", "scenes": len(good_scenes), "variants": len(records),
-            "failed_tasks": [{"scene_key": p["scene_key"], "reason": p.get("reason")} for p in parts
-                             if p.get("status") == "failed"],
-            **{name: values[name].value for name in ("SUR", "CR", "ORR")},
-            **{f"{name}_ci": [values[name].ci_low, values[name].ci_high] for name in ("SUR", "CR", "ORR")},
-            **{name: values[name].value for name in ("VDD", "ADD", *DIVERSITY)},
-            "generation_s_per_variant": float(np.mean(gen_time)) if gen_time else None,
-            "avoidability": avoidability_summary(records),
-            "relative_speeds": [o.relative_speed for o in sample.contacts],
-            "impact_angles": [o.impact_angle for o in sample.contacts],
-            **{name: values[name].value for name in ("VDD_tcol", "VDD_tcol_floor", "size_in_class")},
-            "adversaries_by_lane_type": adversaries_by_lane_type(sample),
-            **{f"{name}_ci": [values[name].ci_low, values[name].ci_high] for name in DIVERSITY},
-        }
-        per_scene[m.name] = {p["scene_key"]: ([o.relative_speed for o in sample.contacts if o.scene == p["scene_key"]],
-                                              [o.impact_angle for o in sample.contacts if o.scene == p["scene_key"]])
-                             for p in ok}
-    return {"table": table, "failed_scenes": failed_scenes, "paired": paired_diversity(per_scene)}
+        table[m.name], sample = generator_result(m, parts, nominal)
+        per_scene[m.name] = {p.scene_key: ([o.relative_speed for o in sample.contacts if o.scene == p.scene_key],
+                                           [o.impact_angle for o in sample.contacts if o.scene == p.scene_key])
+                             for p in parts if p.status == "ok"}
+    return GeneratorTable(table, tuple(failed_scenes), paired_diversity(per_scene))
+
+
+@dataclass
+class NominalTraffic:
+    """The scenes that ran their nominal pass, and the sums of their speed and acceleration
+    histograms: (100,) over :data:`~coster_sumo.metrics.SPEED_BINS`, (200,) over
+    :data:`~coster_sumo.metrics.ACCEL_BINS`, and per lane type name (100,) (None: no scene yet)."""
+
+    scenes: list[str] = field(default_factory=list)
+    speed_hist: np.ndarray | None = None
+    accel_hist: np.ndarray | None = None
+    speed_hist_by_lane_type: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def add(self, key: str, part: ScenePart) -> None:
+        """A scene's part (:func:`scene_task`) added."""
+        self.scenes.append(key)
+        v, a = np.asarray(part.speed_hist), np.asarray(part.accel_hist)
+        self.speed_hist = v if self.speed_hist is None else np.add(self.speed_hist, part.speed_hist)
+        self.accel_hist = a if self.accel_hist is None else np.add(self.accel_hist, part.accel_hist)
+        for kind, hist in part.speed_hist_by_lane_type.items():
+            self.speed_hist_by_lane_type[kind] = self.speed_hist_by_lane_type.get(kind, 0) + np.asarray(hist)
+
+
+def generator_result(m: GeneratorMethod, parts: Sequence[MethodPart], nominal: NominalTraffic
+                     ) -> tuple[GeneratorResult, MetricSample]:
+    """One method's entry from its parts (:func:`method_task`) on the scenes of ``nominal``, and the
+    sample its metrics were computed on."""
+    ok = [p for p in parts if p.status == "ok"]
+    # a scene's variants share a snapshot: name it, so the VDD at t_col floor counts it once
+    keyed = [(p.scene_key, dataclasses.replace(r, snapshot=f"{p.scene_key}@{r.t_col}")) for p in ok for r in p.records]
+    records = [r for _, r in keyed]
+    sample = MetricSample(
+        tuple(record_outcome(r, key) for key, r in keyed),
+        scenes=tuple(nominal.scenes), nominal_speed_hist=nominal.speed_hist, nominal_accel_hist=nominal.accel_hist,
+        generated_speed_hist=np.sum([p.speed_hist for p in ok], axis=0) if records else None,
+        generated_accel_hist=np.sum([p.accel_hist for p in ok], axis=0) if records else None,
+        nominal_speed_hist_by_lane_type=nominal.speed_hist_by_lane_type)
+    values = {name: compute(name, sample) for name in GENERATOR_METRICS}
+    gen_time = [(p.generation_s or 0.0) / len(p.records) for p in ok if p.records]
+    result = GeneratorResult(
+        method=m, scenes=len(nominal.scenes), variants=len(records),
+        failed_tasks=tuple(SceneFailure(p.scene_key, p.reason) for p in parts if p.status == "failed"),
+        SUR=values["SUR"], CR=values["CR"], ORR=values["ORR"], VDD=values["VDD"].value, ADD=values["ADD"].value,
+        CSD=values["CSD"], CPD=values["CPD"], CPD_circular=values["CPD_circular"],
+        generation_s_per_variant=float(np.mean(gen_time)) if gen_time else None,
+        avoidability=avoidability_summary(records),
+        relative_speeds=tuple(o.relative_speed for o in sample.contacts),
+        impact_angles=tuple(o.impact_angle for o in sample.contacts),
+        VDD_tcol=values["VDD_tcol"].value, VDD_tcol_floor=values["VDD_tcol_floor"].value,
+        size_in_class=values["size_in_class"].value, adversaries_by_lane_type=adversaries_by_lane_type(sample))
+    return result, sample
 
 
 # eval scenarios' figures per method: the metrics of coster_sumo.metrics.REGISTRY by name
@@ -367,43 +386,44 @@ DIVERSITY: dict[str, tuple[Callable[[np.ndarray], float], int]] = {
 REFERENCE_METHOD = "COSTER"
 
 
-def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]]) -> dict[str, Any]:
+def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]]
+                     ) -> dict[str, PairedDiversity]:
     """CSD and CPD of :data:`REFERENCE_METHOD` minus those of every other method, on the scenes both
     generated for, with 95 % intervals from resampling those scenes (:func:`scene_bootstrap`): is
     an ordering a property of the methods or of the scenes drawn? Empty without the reference."""
     ref = per_scene.get(REFERENCE_METHOD)
     if ref is None:
         return {}
-    out: dict[str, Any] = {}
+    out: dict[str, PairedDiversity] = {}
     for name, scenes in per_scene.items():
         if name == REFERENCE_METHOD:
             continue
         shared = [k for k in ref if k in scenes]
-        entry: dict[str, Any] = {"scenes": len(shared)}
+        differences = {}
         for col, (fn, which) in DIVERSITY.items():
             a = [np.asarray(ref[k][which], float) for k in shared]
             b = [np.asarray(scenes[k][which], float) for k in shared]
-            entry[col] = list(scene_bootstrap(fn, a, b))  # [difference, low, high]
-        out[f"{REFERENCE_METHOD} - {name}"] = entry
+            differences[col] = scene_bootstrap(fn, a, b)  # (difference, low, high)
+        out[f"{REFERENCE_METHOD} - {name}"] = PairedDiversity(len(shared), differences["CSD"], differences["CPD"],
+                                                              differences["CPD_circular"])
     return out
 
 
-def record_outcome(r: Mapping[str, Any], scene: str = "") -> RunOutcome:
+def record_outcome(r: VariantRecord, scene: str = "") -> RunOutcome:
     """A variant's record of :func:`method_task` (``snapshot`` added by the aggregation) as the
     metrics read it; the adversary's size is checked against the corpus's vehicle classes
     (:data:`~coster_sumo.method.plausible.VEHICLE_CLASSES`) here."""
     from coster_sumo.method.plausible import VEHICLE_CLASSES
 
     eps = 1e-6
-    speed = r.get("adversary_speed")
-    in_class = speed is not None and any(
-        l0 - eps <= r["adversary_length"] <= l1 + eps and w0 - eps <= r["adversary_width"] <= w1 + eps
-        for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values())
-    return RunOutcome(scene=scene, adversary_contact=bool(r.get("collision")),
-                      adversary_off_road=bool(r.get("adversary_off_road")), relative_speed=r.get("relative_speed"),
-                      impact_angle=r.get("impact_angle"), avoidable=r.get("avoidable"), adversary_speed=speed,
-                      adversary_lane_type=r.get("adversary_lane_type"), adversary_size_in_class=in_class,
-                      snapshot=str(r["snapshot"]) if "snapshot" in r else None)
+    length, width = r.adversary_length, r.adversary_width
+    in_class = (r.adversary_speed is not None and length is not None and width is not None and any(
+        l0 - eps <= length <= l1 + eps and w0 - eps <= width <= w1 + eps
+        for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values()))
+    return RunOutcome(scene=scene, adversary_contact=r.collision, adversary_off_road=r.adversary_off_road,
+                      relative_speed=r.relative_speed, impact_angle=r.impact_angle, avoidable=r.avoidable,
+                      adversary_speed=r.adversary_speed, adversary_lane_type=r.adversary_lane_type,
+                      adversary_size_in_class=in_class, snapshot=r.snapshot)
 
 
 def adversaries_by_lane_type(sample: MetricSample) -> dict[str, int]:
@@ -411,7 +431,7 @@ def adversaries_by_lane_type(sample: MetricSample) -> dict[str, int]:
     return dict(Counter(str(o.adversary_lane_type) for o in sample.outcomes if o.adversary_speed is not None))
 
 
-def snapshot_state_metrics(records: Sequence[Mapping[str, Any]], nominal_by_type: Mapping[str, np.ndarray]
+def snapshot_state_metrics(records: Sequence[VariantRecord], nominal_by_type: Mapping[str, np.ndarray]
                            ) -> dict[str, Any]:
     """The adversaries' states at t_col against the nominal traffic (None where not recorded), from
     the registry of :mod:`coster_sumo.metrics` (docs/method.md, Step 7).
@@ -434,14 +454,14 @@ def snapshot_state_metrics(records: Sequence[Mapping[str, Any]], nominal_by_type
             "adversaries_by_lane_type": adversaries_by_lane_type(sample)}
 
 
-def avoidability_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def avoidability_summary(records: Sequence[VariantRecord]) -> AvoidabilityStats:
     """The labels of a method's variants (:func:`coster_sumo.defects.avoidability_table`)."""
     from coster_sumo.defects import avoidability_table
 
-    return avoidability_table(records)
+    return AvoidabilityStats.from_json(avoidability_table([r.to_json() for r in records]))
 
 
-def eval_exit_code(summary: dict[str, Any]) -> int:
-    t = summary["methods"]
-    bad = bool(t["failed_scenes"]) or any(m.get("failed_tasks") for m in t["table"].values())
-    return 1 if bad else 0
+def eval_exit_code(summary: EvalSummary) -> int:
+    """0 when every scene ran its nominal pass and every generator's task finished; 1 otherwise."""
+    t = summary.methods
+    return 1 if t.failed_scenes or any(m.failed_tasks for m in t.ran.values()) else 0

@@ -14,7 +14,7 @@ import dataclasses
 import json
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,6 +23,7 @@ import numpy as np
 
 from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.scene_plans import ScenePlans, read_plans
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -34,7 +35,16 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.batch.store import ResultRow, ResultStore, read_json, result_row, row_outcome
+from coster_sumo.batch.store import ResultRow, ResultStore, result_row, row_outcome
+from coster_sumo.batch.summaries import (
+    GenerationFailure,
+    PlannerSummary,
+    RegressionRunOptions,
+    RegressionSummary,
+    RunCounts,
+    RunFailure,
+    SceneCounts,
+)
 from coster_sumo.defects import PLANNER_RATES, defect_rates, escape_dict
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -45,7 +55,6 @@ from coster_sumo.sim.planners import check_planner
 from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
 from coster_sumo.weights import WEIGHT_FILES
 
-GENERATION_KEYS = ("init", "rollout", "collision_time", "variants", "samples")
 ESCAPE_PLANNER = "escape"  # the reference planner: the target drives the variant's proven escape (replay without one)
 
 
@@ -67,24 +76,26 @@ def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     t1 = time.perf_counter()
     variants, info = generate_variants(scene, target, spec.seed, gen, drivable)
     t2 = time.perf_counter()
-    variants, labels, extra = label_variants(spec, scene, target, variants, gen, drivable, payload)
-    doc = {"scene_key": payload["scene_key"], "status": "ok", "spec": spec.to_dict(), "converted": converted,
-           "scene_file": scene_file.name, "target_id": str(scene.tracks.ids[target]),
-           "end": float(scene.timestamps[-1]), "generation": payload["generation"],
-           "variants": [v.to_dict() for v in variants], "info": info,
-           "avoidability": [lab.summary() for lab in labels], "escapes": [escape_dict(lab.escape) for lab in labels],
-           **extra, "timings_s": {"nominal": round(t1 - t0, 3), "generation": round(t2 - t1, 3),
-                                  "avoidability": round(time.perf_counter() - t2, 3)}}
-    write_json(plans_dir / f"{payload['scene_key']}.json", doc)
+    variants, labels, avoidable_only = label_variants(spec, scene, target, variants, gen, drivable, payload)
+    doc = ScenePlans(scene_key=payload["scene_key"], status="ok", spec=spec.to_dict(), converted=converted,
+                     scene_file=scene_file.name, target_id=str(scene.tracks.ids[target]),
+                     end=float(scene.timestamps[-1]), generation=payload["generation"],
+                     variants=tuple(v.to_dict() for v in variants), info=info,
+                     avoidability=tuple(lab.summary() for lab in labels),
+                     escapes=tuple(escape_dict(lab.escape) for lab in labels), avoidable_only=avoidable_only,
+                     timings_s={"nominal": round(t1 - t0, 3), "generation": round(t2 - t1, 3),
+                                "avoidability": round(time.perf_counter() - t2, 3)})
+    write_json(plans_dir / f"{payload['scene_key']}.json", doc.to_json())
     return {"scene_key": payload["scene_key"], "variants": len(variants)}
 
 
 
 
 def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[Variant], gen: GenerationConfig,
-                   drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, Any]]:
+                   drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, int] | None]:
     """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.defects`);
-    with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws."""
+    with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws (and
+    the counts of variants tried, kept and extra draws are returned; None without)."""
     from coster_sumo.defects import label_plans
     from coster_sumo.method.generation import EXTRA_DRAWS, derived_seed, generate_variants
 
@@ -95,7 +106,7 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
 
     labels = label(variants)
     if payload.get("avoidable", "any") != "only":
-        return variants, labels, {}
+        return variants, labels, None
     tried = len(variants)
     kept = [(v, lab) for v, lab in zip(variants, labels, strict=True) if lab.avoidable]
     draws = 0
@@ -115,7 +126,7 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
     if not out:
         raise NoSnapshot(f"none of the {tried} variants was avoidable at a reaction time of {reaction:g} s "
                          "(--avoidable only)")
-    return out, [lab for _, lab in kept], {"avoidable_only": {"tried": tried, "kept": len(out), "extra_draws": draws}}
+    return out, [lab for _, lab in kept], {"tried": tried, "kept": len(out), "extra_draws": draws}
 
 
 def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
@@ -137,20 +148,19 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     from coster_sumo.sim.inject import inject_variant
 
     plans_dir = Path(payload["plans_dir"])
-    doc = json.loads((plans_dir / f"{payload['scene_key']}.json").read_text())
-    scene = load_scene(plans_dir / doc["scene_file"])
-    spec = located(ScenarioSpec.from_dict(doc["spec"]), payload)
+    doc = ScenePlans.from_json(json.loads((plans_dir / f"{payload['scene_key']}.json").read_text()))
+    scene = load_scene(plans_dir / doc.scene_file)
+    spec = located(ScenarioSpec.from_dict(doc.spec), payload)
     i = int(payload["variant"])
-    variant = Variant.from_dict(doc["variants"][i])
+    variant = doc.variant(i)
     plan, t_col = variant.plan, variant.snapshot.time
-    target_id = doc["target_id"]
+    target_id = doc.target_id
     target = scene.tracks.index_of(target_id)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    labels = doc.get("avoidability") or []
-    label = labels[i] if i < len(labels) else None
+    label = doc.label(i)
     driver = None
     if payload["planner"] == ESCAPE_PLANNER:  # the reference: the variant's own escape, where it has one
-        esc = (doc.get("escapes") or [None] * (i + 1))[i]
+        esc = doc.escape(i)
         length = float(np.median(scene.tracks.length[target][scene.tracks.valid[target]]))
         driver = escape_replay(esc, length) if esc else None
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
@@ -234,7 +244,7 @@ def run_key(scene: str, variant: int, planner: str) -> str:
     return f"{scene}__v{variant}__{slug(planner)}"
 
 
-def regress(opts: RegressOptions) -> dict[str, Any]:
+def regress(opts: RegressOptions) -> RegressionSummary:
     """Run the regression (module docstring); returns the summary (also OUT/summary.json)."""
     t_start = time.perf_counter()
     check_planners(opts.planners)
@@ -259,38 +269,38 @@ def regress(opts: RegressOptions) -> dict[str, Any]:
 
 
 def _regress_locked(opts: RegressOptions, t_start: float, generation: GenerationConfig,
-                    specs: list[ScenarioSpec], out: Path) -> dict[str, Any]:
+                    specs: list[ScenarioSpec], out: Path) -> RegressionSummary:
     """:func:`regress` once OUT is checked and locked: leftovers of stopped batches removed, then the runs."""
     plans_dir, logs_dir = out / "plans", out / "logs"
     gen = generation.to_dict()
     keys = {scene_key(s, gen): s for s in specs}
     store = _start_folder(out, opts, keys)
     # failed runs are done, unless the failure was the machine's (timeout, memory, disk) or --retry-failed
-    failed_runs = {r["run_key"] for r in store.read()
-                   if r["status"] != "ok" and (opts.retry_failed or is_transient(r["reason"] or ""))}
+    failed_runs = {r.run_key for r in store.read()
+                   if not r.ok and (opts.retry_failed or is_transient(r.reason or ""))}
     done = store.keys() - failed_runs
     n_runs_expected = len(keys) * opts.variants * len(opts.planners)
 
-    def run_tasks_for(key: str, doc: dict[str, Any]) -> list[Task]:
+    def run_tasks_for(key: str, doc: ScenePlans) -> list[Task]:
         spec = keys[key]
         tasks = []
-        for i in range(len(doc["variants"])):
+        for i in range(len(doc.variants)):
             for p in opts.planners:
                 rk = run_key(key, i, p)
                 if rk not in done:
                     tasks.append(Task(rk, run_task, {"run_key": rk, "scene_key": key, "variant": i, "planner": p,
                                                      "plans_dir": str(plans_dir), "config": str(spec.config),
                                                      "seed": spec.seed, CONFIG_DIR: config_dir(spec)}, kind="run",
-                                      folders=task_folders(spec, plans_dir=(f"{key}.json", doc["scene_file"]))))
+                                      folders=task_folders(spec, plans_dir=(f"{key}.json", doc.scene_file))))
         return tasks
 
     initial: list[Task] = []
     for key, spec in keys.items():
         pf = plans_dir / f"{key}.json"
-        doc = read_json(pf)
-        retry = opts.retry_failed or is_transient(str((doc or {}).get("reason") or ""))
-        if doc is not None and (doc.get("status") == "ok" or not retry):
-            if doc.get("status") == "ok":
+        doc = read_plans(pf)
+        retry = opts.retry_failed or is_transient(str(doc.reason if doc else "") or "")
+        if doc is not None and (doc.ok or not retry):
+            if doc.ok:
                 initial.extend(run_tasks_for(key, doc))
             continue
         initial.append(generation_task_for(key, spec, plans_dir, gen, generation.models_dir,
@@ -300,15 +310,14 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         key = task.payload["scene_key"]
         if task.kind == "plan":
             if outcome.ok:
-                doc = read_json(plans_dir / f"{key}.json")
+                doc = read_plans(plans_dir / f"{key}.json")
                 return run_tasks_for(key, doc) if doc else []
-            write_json(plans_dir / f"{key}.json", {"scene_key": key, "status": "failed", "reason": outcome.reason,
-                                                     "spec": task.payload["spec"], "generation": gen})
+            write_json(plans_dir / f"{key}.json", ScenePlans(scene_key=key, status="failed", reason=outcome.reason,
+                                                             spec=task.payload["spec"], generation=gen).to_json())
             _append_log(logs_dir / f"{task.key}.log", outcome)
             return []
-        row: Mapping[str, Any]
         if outcome.ok:
-            row = {**outcome.value, "wall_time_s": round(outcome.wall_time_s, 3)}
+            row = dataclasses.replace(outcome.value, wall_time_s=round(outcome.wall_time_s, 3))
         else:
             _append_log(logs_dir / f"{task.key}.log", outcome)
             row = result_row(task.payload, status="failed", reason=outcome.reason,
@@ -324,16 +333,18 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
             expected_total=len(initial) + n_runs_expected - len(done),
             start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
             ray_address=opts.ray_address, preload=GENERATION_TASK_MODULES)
-    summary = summarize_regression(out, keys, opts.planners)
-    summary["wall_time_s"] = round(time.perf_counter() - t_start, 3)
-    summary["options"] = {"variants": opts.variants, "workers": opts.workers, "executor": opts.executor,
-                          "timeout_s": opts.timeout, **{k: gen[k] for k in GENERATION_KEYS}, "seed": opts.seed}
-    write_json(out / "summary.json", summary)  # before the report: a plotting failure loses no result
+    summary = dataclasses.replace(
+        summarize_regression(out, keys, opts.planners), wall_time_s=round(time.perf_counter() - t_start, 3),
+        options=RegressionRunOptions(variants=generation.variants, workers=opts.workers, executor=opts.executor,
+                                     timeout_s=opts.timeout, init=generation.init, rollout=generation.rollout,
+                                     collision_time=generation.collision_time, samples=generation.samples,
+                                     seed=opts.seed))
+    write_json(out / "summary.json", summary.to_json())  # before the report: a plotting failure loses no result
     if opts.report:
         from coster_sumo.report import write_regression_report
 
-        summary["report"] = write_regression_report(out, summary, store.read())
-        write_json(out / "summary.json", summary)
+        summary = dataclasses.replace(summary, report=tuple(write_regression_report(out, summary, store.read())))
+        write_json(out / "summary.json", summary.to_json())
     return summary
 
 
@@ -365,46 +376,41 @@ REGRESS_RATES = {**PLANNER_RATES, "adversary_contact_rate": "CR"}
 REGRESS_FIGURES = {"median_min_ttc_s": "median_min_ttc", "mean_relative_speed_mps": "mean_relative_speed"}
 
 
-def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Sequence[str]) -> dict[str, Any]:
-    """summary.json content of a regression over ``keys`` x ``planners`` (rows already in OUT/results)."""
+def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Sequence[str]) -> RegressionSummary:
+    """The summary of a regression over ``keys`` x ``planners`` (rows already in OUT/results), without
+    the command's wall time, options and report."""
     plans_dir = out / "plans"
-    rows = [r for r in ResultStore(out / "results").read() if r["scene_key"] in keys and r["planner"] in planners]
+    rows = [r for r in ResultStore(out / "results").read() if r.scene_key in keys and r.planner in planners]
     scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
     for key, spec in keys.items():
-        doc = read_json(plans_dir / f"{key}.json") or {"status": "failed", "reason": "not generated"}
-        if doc.get("status") == "ok":
-            n_variants += len(doc["variants"])
-            n_avoidable += sum(bool(a["avoidable"]) for a in doc.get("avoidability") or [])
-            tried += (doc.get("avoidable_only") or {}).get("tried", len(doc["variants"]))
+        doc = read_plans(plans_dir / f"{key}.json")
+        if doc is not None and doc.ok:
+            n_variants += len(doc.variants)
+            n_avoidable += doc.avoidable_variants
+            tried += doc.variants_tried
         else:
-            scenes_failed.append({"scene_key": key, "scene": spec.label(), "reason": doc.get("reason")})
-    per_planner: dict[str, Any] = {}
-    for p in planners:
-        mine = [r for r in rows if r["planner"] == p]
-        ok = [row_outcome(r) for r in mine if r["status"] == "ok"]
-        sample = MetricSample(tuple(ok))
-        per_planner[p] = {
-            "runs": len(mine), "failed": len(mine) - len(ok),
-            **{key: compute(name, sample).rate_json() for key, name in REGRESS_RATES.items()},
-            **{key: compute(name, sample).value for key, name in REGRESS_FIGURES.items()},
-            "defects": defect_rates(ok),
-        }
-    failures = [{"run_key": r["run_key"], "reason": r["reason"]} for r in rows if r["status"] != "ok"]
-    return {
-        "command": "regress",
-        "scenes": {"total": len(keys), "generated": len(keys) - len(scenes_failed), "failed": scenes_failed},
-        "variants": n_variants, "avoidable_variants": n_avoidable, "variants_tried": tried,
-        "runs": {"expected": n_variants * len(planners), "recorded": len(rows), "ok": len(rows) - len(failures),
-                 "failed": len(failures), "failures": failures},
-        "planners": per_planner,
-        "results": "results/ (Parquet dataset, one part per run)",
-        "units": {"rates": "fraction of runs, Wilson 95% interval",
-                  "defect_rate": "fraction of runs on avoidable variants with a contact of the target",
-                  "min_ttc": "s", "relative_speed": "m/s",
-                  "impact_angle": "deg"},
-    }
+            scenes_failed.append(GenerationFailure(key, spec.label(), doc.reason if doc else "not generated"))
+    failures = tuple(RunFailure(r.run_key, r.reason) for r in rows if not r.ok)
+    return RegressionSummary(
+        scenes=SceneCounts(len(keys), len(keys) - len(scenes_failed), tuple(scenes_failed)),
+        variants=n_variants, avoidable_variants=n_avoidable, variants_tried=tried,
+        runs=RunCounts(expected=n_variants * len(planners), recorded=len(rows), ok=len(rows) - len(failures),
+                       failed=len(failures), failures=failures),
+        planners={p: planner_summary([r for r in rows if r.planner == p]) for p in planners})
 
 
-def regression_exit_code(summary: dict[str, Any]) -> int:
+def planner_summary(rows: Sequence[ResultRow]) -> PlannerSummary:
+    """One planner's figures from its rows, from the metrics' registry (failed runs are not in them)."""
+    ok = [row_outcome(r) for r in rows if r.ok]
+    sample = MetricSample(tuple(ok))
+    rates = {key: compute(name, sample) for key, name in REGRESS_RATES.items()}
+    figures = {key: compute(name, sample).value for key, name in REGRESS_FIGURES.items()}
+    return PlannerSummary(runs=len(rows), failed=len(rows) - len(ok), RCR=rates["RCR"], CR=rates["CR"],
+                          ORR=rates["ORR"], adversary_contact_rate=rates["adversary_contact_rate"],
+                          median_min_ttc_s=figures["median_min_ttc_s"],
+                          mean_relative_speed_mps=figures["mean_relative_speed_mps"], defects=defect_rates(ok))
+
+
+def regression_exit_code(summary: RegressionSummary) -> int:
     """0 when every scene generated and every run finished; 1 otherwise (docs/method.md, Contracts)."""
-    return 1 if summary["scenes"]["failed"] or summary["runs"]["failed"] else 0
+    return 1 if summary.scenes.failed or summary.runs.failed else 0

@@ -88,15 +88,15 @@ def run(args: argparse.Namespace) -> int:
         print("  ".join(h.ljust(w) for h, w in zip(head, width, strict=True)))
         for r in rows:
             print("  ".join(c.ljust(w) for c, w in zip(r, width, strict=True)))
-    sc, runs = summary["scenes"], summary["runs"]
-    if summary.get("variants_tried", summary["variants"]) != summary["variants"]:
-        print(f"--avoidable only: {summary['variants']} avoidable variants of {summary['variants_tried']} tried")
-    print(f"{sc['generated']}/{sc['total']} scenes, {runs['recorded']}/{runs['expected']} runs "
-          f"({runs['failed']} failed) in {summary['wall_time_s']:.1f} s"
+    sc, runs = summary.scenes, summary.runs
+    if summary.variants_tried != summary.variants:
+        print(f"--avoidable only: {summary.variants} avoidable variants of {summary.variants_tried} tried")
+    print(f"{sc.generated}/{sc.total} scenes, {runs.recorded}/{runs.expected} runs "
+          f"({runs.failed} failed) in {summary.wall_time_s or 0.0:.1f} s"
           + ("" if args.quiet else f"; wrote {args.out}/summary.json"
              + (f", {args.out}/report.html" if not args.no_report else "")))
-    for f in sc["failed"]:
-        print(f"  scene failed: {f['scene']}: {f['reason']}")
-    for f in runs["failures"]:
-        print(f"  run failed: {f['run_key']}: {f['reason']}")
+    for f in sc.failed:
+        print(f"  scene failed: {f.scene}: {f.reason}")
+    for failure in runs.failures:
+        print(f"  run failed: {failure.run_key}: {failure.reason}")
     return regression_exit_code(summary)
