@@ -109,7 +109,7 @@ def run_train(args: argparse.Namespace) -> int:
     metrics = train_prior(train, val, args.out, mcfg, tcfg, state_path=args.state, resume=not args.restart,
                           progress=progress, meta=meta, log=_log(args), device=args.device)
     if not args.quiet:
-        print(f"wrote {args.out} (best epoch {metrics['best_epoch']}, score {metrics['best_score']:.4f}, "
+        print(f"wrote {args.out} (best epoch {metrics.best_epoch}, score {metrics.best_score:.4f}, "
               f"{time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
 

@@ -403,5 +403,6 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     samples = epoch_samples(scenes, np.random.default_rng([seed, 10**6 + 1]), 1)
     if len(samples):
         result["heldout_loss"] = {
-            mode: evaluate_loss(model, scenes, samples, 64, seed, visible=mode) for mode in ("map", "context")}
+            mode: evaluate_loss(model, scenes, samples, 64, seed, visible=mode).to_json()
+            for mode in ("map", "context")}
     return result
