@@ -304,7 +304,7 @@ def test_mmd_and_reliability():
     assert mmd(x, rng.normal(size=(200, 2))) < 0.05
     p = rng.random(20000)
     r = reliability(p, rng.random(20000) < p)
-    assert r["ece"] < 0.02 and len(r["reliability"]) == 10 and r["auc"] > 0.7
+    assert r.ece is not None and r.ece < 0.02 and len(r.bins) == 10 and r.auc is not None and r.auc > 0.7
 
 
 def _tiny_dataset(root):

@@ -5,7 +5,7 @@ and without the history in the checkpoint). ``to_json`` gives the keys those fil
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 
@@ -100,3 +100,122 @@ class PriorTrainMetrics:
         return out | {"num_train_scenes": self.num_train_scenes, "num_val_scenes": self.num_val_scenes,
                       "train_config": self.train_config, "model_config": self.model_config,
                       "num_parameters": self.num_parameters, "device": self.device, "cpu": self.cpu, **self.meta}
+
+
+@dataclass(frozen=True)
+class ReliabilityBin:
+    """One equal-width bin [lo, hi) of predicted presence probabilities: how many predictions fell
+    in it, their mean and how often an agent was there (both None for an empty bin)."""
+
+    lo: float
+    hi: float
+    count: int
+    mean_predicted: float | None = None
+    observed: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"lo": self.lo, "hi": self.hi, "count": self.count}
+        if self.mean_predicted is not None:
+            out |= {"mean_predicted": self.mean_predicted, "observed": self.observed}
+        return out
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Calibration of ``count`` presence probabilities against what was there: expected calibration
+    error, BCE, Brier score, the observed and predicted rates, the reliability bins, and the ROC AUC
+    (None when every outcome is the same). All but ``count`` are None without predictions."""
+
+    count: int
+    ece: float | None = None
+    bce: float | None = None
+    brier: float | None = None
+    rate_observed: float | None = None
+    rate_predicted: float | None = None
+    bins: tuple[ReliabilityBin, ...] = ()
+    auc: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"count": self.count}
+        if self.ece is not None:
+            out |= {"ece": self.ece, "bce": self.bce, "brier": self.brier, "rate_observed": self.rate_observed,
+                    "rate_predicted": self.rate_predicted, "reliability": [b.to_json() for b in self.bins]}
+        if self.auc is not None:
+            out["auc"] = self.auc
+        return out
+
+
+@dataclass(frozen=True)
+class MethodMmd:
+    """A method's MMD per attribute (attribute -> mean over the scored scenes; None when no scene was
+    scored) and how many scenes were scored."""
+
+    values: dict[str, float | None]
+    scenes: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.values, "scenes": self.scenes}
+
+
+@dataclass(frozen=True)
+class TrafficScores:
+    """The MMDs (method -> scores) in map mode and in the hidden disc (context mode), and the mean
+    agent counts per scene (map mode) and in the hidden disc (name -> count)."""
+
+    mmd: dict[str, MethodMmd]
+    mmd_hidden_disc: dict[str, MethodMmd]
+    agents_per_scene: dict[str, float]
+    agents_in_hidden_disc: dict[str, float]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"mmd": _mmds(self.mmd), "mmd_hidden_disc": _mmds(self.mmd_hidden_disc),
+                "agents_per_scene": self.agents_per_scene, "agents_in_hidden_disc": self.agents_in_hidden_disc}
+
+
+def _mmds(scores: dict[str, MethodMmd]) -> dict[str, Any]:
+    return {name: m.to_json() for name, m in scores.items()}
+
+
+@dataclass(frozen=True)
+class DensityOffset:
+    """The presence offsets fitted per scene (context mode): their mean, range, and how many reached
+    the limit."""
+
+    mean: float
+    min: float
+    max: float
+    at_limit: int
+
+
+@dataclass(frozen=True)
+class PriorEvaluation:
+    """What ``coster-sumo eval prior`` reports (the module docstring of
+    :mod:`coster_sumo.prior.evaluate` defines each number).
+
+    Attributes:
+        scores: with every agent; ``without_centre_agent``: the centre agent's own region left out.
+        presence: mode or baseline -> calibration of its presence probabilities.
+        density_offset: None when no scene was adapted.
+        heldout_loss: mode ("map", "context") -> the training objective on the scenes; None without samples.
+    """
+
+    num_scenes: int
+    mmd_estimator: str
+    scores: TrafficScores
+    presence: dict[str, Calibration]
+    without_centre_agent: TrafficScores
+    density_offset: DensityOffset | None = None
+    heldout_loss: dict[str, HeldOutLoss] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"num_scenes": self.num_scenes, "mmd_estimator": self.mmd_estimator,
+                               "mmd": _mmds(self.scores.mmd), "agents_per_scene": self.scores.agents_per_scene,
+                               "presence": {k: c.to_json() for k, c in self.presence.items()},
+                               "agents_in_hidden_disc": self.scores.agents_in_hidden_disc}
+        if self.density_offset is not None:
+            out["density_offset"] = asdict(self.density_offset)
+        out["mmd_hidden_disc"] = _mmds(self.scores.mmd_hidden_disc)
+        out["without_centre_agent"] = self.without_centre_agent.to_json()
+        if self.heldout_loss is not None:
+            out["heldout_loss"] = {mode: loss.to_json() for mode, loss in self.heldout_loss.items()}
+        return out
