@@ -36,7 +36,7 @@ import numpy as np
 from coster_sumo import dataset as ds
 from coster_sumo.atomic import write_json
 from coster_sumo.batch import nets
-from coster_sumo.batch.records import NetworkRecord
+from coster_sumo.batch.records import BatchCounts, CorpusSummary, NetworkRecord
 from coster_sumo.batch.simulate import DEFAULT_TIMEOUT_S, RunTask, Source, run_batch
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -316,7 +316,7 @@ def plan_corpus(cfg: CorpusConfig, networks: list[Network]) -> list[RunTask]:
     return tasks
 
 
-def build_corpus(cfg: CorpusConfig) -> dict[str, Any]:
+def build_corpus(cfg: CorpusConfig) -> CorpusSummary:
     """Build (or finish building) the corpus; returns the summary (``DATASET/summary.json``)."""
     t_wall = time.perf_counter()
     if cfg.runs_per_network < 1 or cfg.workers < 1 or cfg.duration_s <= WARMUP_S:
@@ -340,10 +340,10 @@ def build_corpus(cfg: CorpusConfig) -> dict[str, Any]:
     result = run_batch(tasks, cfg.dataset, manifest, workers=cfg.workers, timeout_s=cfg.timeout_s,
                        quiet=cfg.quiet, debug=cfg.debug, what="corpus")
     manifest = ds.read_manifest(cfg.dataset)
-    summary = {"dataset": str(cfg.dataset), "networks": len(networks), "runs_planned": result.planned,
-               "runs_done_now": result.done_now, "runs_failed_now": len(result.failures),
-               "clips_now": result.clips, "failures": errors + result.failures,
-               "total_clips": manifest["counts"]["scenes"], "simulated_hours": manifest["simulated_hours"],
-               "wall_s": round(time.perf_counter() - t_wall, 2)}
-    write_json(cfg.dataset / "summary.json", summary)
+    counts = BatchCounts(runs_planned=result.planned, runs_done_now=result.done_now,
+                         runs_failed_now=len(result.failures), clips_now=result.clips,
+                         failures=errors + result.failures, total_clips=manifest["counts"]["scenes"],
+                         simulated_hours=manifest["simulated_hours"], wall_s=round(time.perf_counter() - t_wall, 2))
+    summary = CorpusSummary(dataset=str(cfg.dataset), networks=len(networks), counts=counts)
+    write_json(cfg.dataset / "summary.json", summary.to_json())
     return summary

@@ -141,3 +141,57 @@ class CorpusManifest:
                    networks=tuple(NetworkRecord.from_json(n) for n in d.get("networks", [])),
                    heldout_networks=tuple(d.get("heldout_networks", [])),
                    wheel_excluded=dict(d.get("corpus", {}).get("wheel_excluded", {})))
+
+
+@dataclass(frozen=True)
+class BatchCounts:
+    """What one batch call did: runs planned, run now and failed now (one line per failure, other
+    failures such as a network that could not be built included), clips written now, and the
+    dataset's totals after it (clips, simulated hours [h]); ``wall_s`` [s] of the call."""
+
+    runs_planned: int
+    runs_done_now: int
+    runs_failed_now: int
+    clips_now: int
+    failures: list[str]
+    total_clips: int
+    simulated_hours: float
+    wall_s: float
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+
+@dataclass(frozen=True)
+class SimulateSummary:
+    """``DATASET/summary.json`` of ``coster-sumo simulate``: the counts and the configuration (as
+    JSON: paths as strings, the sources as given)."""
+
+    dataset: str
+    counts: BatchCounts
+    config: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        c = self.counts
+        return {"dataset": self.dataset, "runs_planned": c.runs_planned, "runs_done_now": c.runs_done_now,
+                "runs_failed_now": c.runs_failed_now, "clips_now": c.clips_now, "failures": c.failures,
+                "total_scenes": c.total_clips, "simulated_hours": c.simulated_hours, "wall_s": c.wall_s,
+                "config": self.config}
+
+
+@dataclass(frozen=True)
+class CorpusSummary:
+    """``DATASET/summary.json`` of ``coster-sumo corpus build``: the counts over ``networks``
+    networks."""
+
+    dataset: str
+    networks: int
+    counts: BatchCounts
+
+    def to_json(self) -> dict[str, Any]:
+        c = self.counts
+        return {"dataset": self.dataset, "networks": self.networks, "runs_planned": c.runs_planned,
+                "runs_done_now": c.runs_done_now, "runs_failed_now": c.runs_failed_now, "clips_now": c.clips_now,
+                "failures": c.failures, "total_clips": c.total_clips, "simulated_hours": c.simulated_hours,
+                "wall_s": c.wall_s}
