@@ -1,6 +1,7 @@
 """What rollout training and evaluation report, as types: the per-epoch history of
-``coster-sumo train rollout`` (in ``OUT.json``, ``OUT.state`` and the checkpoint's meta) and the
-errors of ``coster-sumo eval rollout``. ``to_json`` gives the keys those files have always had.
+``coster-sumo train rollout`` (in ``OUT.json``, ``OUT.state`` and the checkpoint's meta), the
+training state it resumes from, and the errors of ``coster-sumo eval rollout``. ``to_json`` /
+``to_dict`` give the keys those files have always had.
 """
 
 from __future__ import annotations
@@ -142,3 +143,42 @@ class EpochRecord:
         return cls(epoch=int(d["epoch"]), train=ElboTerms.from_json(d, "train_"), time_s=d["time_s"],
                    val=ElboTerms.from_json(d, "val_") if "val_loss" in d else None,
                    val_errors=DisplacementErrors.from_json(d, "val_") if "val_minADE" in d else None)
+
+
+RESUME_FORMAT = "coster-sumo-rollout-train"
+
+
+@dataclass(frozen=True)
+class RolloutTrainingState:
+    """``OUT.state``: what a rollout training run needs to go on after ``epoch`` epochs.
+
+    Attributes:
+        model, optimizer: torch ``state_dict`` s of the model and the AdamW optimiser.
+        config: the model's ``RolloutConfig.to_dict()``; train_config: ``asdict(TrainConfig)`` as
+            saved (states of older versions lack the newer fields). Both None when absent.
+        data: the dataset folder, resolved (None when absent).
+    """
+
+    epoch: int
+    model: dict[str, Any]
+    optimizer: dict[str, Any]
+    config: dict[str, Any] | None
+    train_config: dict[str, Any]
+    data: str | None
+    history: tuple[EpochRecord, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """As ``torch.save`` writes it."""
+        return {"format": RESUME_FORMAT, "epoch": self.epoch, "model": self.model, "optimizer": self.optimizer,
+                "config": self.config, "train_config": self.train_config, "data": self.data,
+                "history": [e.to_json() for e in self.history]}
+
+    @classmethod
+    def from_dict(cls, state: Any) -> RolloutTrainingState | None:
+        """From what ``torch.load`` read; None when it is not a rollout training state."""
+        if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
+            return None
+        return cls(epoch=int(state.get("epoch", 0)), model=state.get("model", {}),
+                   optimizer=state.get("optimizer", {}), config=state.get("config"),
+                   train_config=dict(state.get("train_config", {})), data=state.get("data"),
+                   history=tuple(EpochRecord.from_json(e) for e in state.get("history", [])))

@@ -61,9 +61,8 @@ from coster_sumo.rollout.config import FREE_ON_INIT
 from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
 from coster_sumo.rollout.evaluate import cvae_errors
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
-from coster_sumo.rollout.records import ElboTerms, EpochRecord
+from coster_sumo.rollout.records import ElboTerms, EpochRecord, RolloutTrainingState
 
-RESUME_FORMAT = "coster-sumo-rollout-train"
 PRECISIONS = ("fp32", "bf16")
 
 
@@ -306,20 +305,20 @@ def _scored_rows(val_set: Examples, cfg: RolloutConfig, tcfg: TrainConfig) -> tu
 def _resume(rpath: Path, run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer) -> tuple[list[EpochRecord], int]:
     """Load the training state ``rpath`` into ``model`` and ``opt``: its history and the epochs done.
     A state of other data or settings is an error that names them."""
-    state = read_torch_file(rpath)
-    if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
+    state = RolloutTrainingState.from_dict(read_torch_file(rpath))
+    if state is None:
         raise InputError(f"{rpath}: not a rollout training state")
-    conflicts = resume_conflicts(dict(state.get("train_config", {})), run.tcfg, int(state.get("epoch", 0)))
-    if state.get("config") != run.cfg.to_dict():
+    conflicts = resume_conflicts(state.train_config, run.tcfg, state.epoch)
+    if state.config != run.cfg.to_dict():
         conflicts.insert(0, "the model settings")
-    if state.get("data") != run.data:
-        conflicts.insert(0, f"data {state.get('data')} -> {run.data}")
+    if state.data != run.data:
+        conflicts.insert(0, f"data {state.data} -> {run.data}")
     if conflicts:
         raise InputError(f"{rpath}: the run to resume used other data or settings ({'; '.join(conflicts)}); "
                          "start afresh with --restart (or write to another -o)")
-    model.load_state_dict(state["model"])
-    opt.load_state_dict(state["optimizer"])
-    return [EpochRecord.from_json(e) for e in state.get("history", [])], int(state["epoch"])
+    model.load_state_dict(state.model)
+    opt.load_state_dict(state.optimizer)
+    return list(state.history), state.epoch
 
 
 def _train_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, epoch: int, steps_per_epoch: int
@@ -379,10 +378,10 @@ def _save_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, histo
     meta = {"data": run.data, "epochs": epochs, "seed": run.tcfg.seed,
             "train_config": dataclasses.asdict(run.tcfg), "last": entry}
     save_checkpoint(model, run.out, meta=meta)
-    atomic_torch_save({"format": RESUME_FORMAT, "epoch": epochs, "model": model.state_dict(),
-                       "optimizer": opt.state_dict(), "config": run.cfg.to_dict(),
-                       "train_config": dataclasses.asdict(run.tcfg), "data": run.data,
-                       "history": [e.to_json() for e in history]}, state_path(run.out))
+    state = RolloutTrainingState(epoch=epochs, model=model.state_dict(), optimizer=opt.state_dict(),
+                                 config=run.cfg.to_dict(), train_config=dataclasses.asdict(run.tcfg), data=run.data,
+                                 history=tuple(history))
+    atomic_torch_save(state.to_dict(), state_path(run.out))
 
 
 def _run_metrics(run: _Run, model: RolloutCVAE, history: list[EpochRecord]) -> dict[str, Any]:
