@@ -5,6 +5,8 @@ and without the history in the checkpoint). ``to_json`` gives the keys those fil
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -219,3 +221,36 @@ class PriorEvaluation:
         if self.heldout_loss is not None:
             out["heldout_loss"] = {mode: loss.to_json() for mode, loss in self.heldout_loss.items()}
         return out
+
+
+@dataclass(frozen=True)
+class PriorTrainingState:
+    """``OUTPUT.state``: what prior training needs to go on after ``epoch`` epochs.
+
+    Attributes:
+        config: the model's ``PriorConfig.to_dict()``; train_config: ``asdict(TrainConfig)`` as saved.
+        model, optimizer: torch ``state_dict`` s; best_model: the weights of the best epoch (None: none yet).
+        best: the best score so far (:attr:`PriorEpoch.score`).
+    """
+
+    config: dict[str, Any] | None
+    train_config: dict[str, Any]
+    model: dict[str, Any]
+    optimizer: dict[str, Any]
+    epoch: int
+    best: float
+    best_model: dict[str, Any] | None
+    history: tuple[PriorEpoch, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """As ``torch.save`` writes it (the history as a JSON string: the file loads with ``weights_only``)."""
+        return {"config": self.config, "train_config": self.train_config, "model": self.model,
+                "optimizer": self.optimizer, "epoch": self.epoch, "best": self.best, "best_model": self.best_model,
+                "history": json.dumps([e.to_json() for e in self.history])}
+
+    @classmethod
+    def from_dict(cls, state: dict[str, Any]) -> PriorTrainingState:
+        return cls(config=state.get("config"), train_config=dict(state.get("train_config") or {}),
+                   model=state.get("model", {}), optimizer=state.get("optimizer", {}), epoch=int(state.get("epoch", 0)),
+                   best=float(state.get("best", math.inf)), best_model=state.get("best_model"),
+                   history=tuple(PriorEpoch.from_json(e) for e in json.loads(state.get("history", "[]"))))

@@ -15,7 +15,6 @@ sums).
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -33,7 +32,7 @@ from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
 from coster_sumo.prior.features import Tokens
 from coster_sumo.prior.infer import save_prior
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
-from coster_sumo.prior.records import HeldOutLoss, PriorEpoch, PriorTrainMetrics
+from coster_sumo.prior.records import HeldOutLoss, PriorEpoch, PriorTrainingState, PriorTrainMetrics
 
 
 @dataclass
@@ -102,20 +101,19 @@ def _resumed(state_path: Path, mcfg: PriorConfig, tcfg: TrainConfig, model: Traf
              opt: torch.optim.Optimizer, log: Callable[[str], None] | None) -> _Progress:
     """The progress of the training state at ``state_path``, loaded into ``model`` and ``opt``; a
     fresh start when it was written with other settings (said in the log)."""
-    state = torch.load(state_path, map_location="cpu", weights_only=True)
+    state = PriorTrainingState.from_dict(torch.load(state_path, map_location="cpu", weights_only=True))
     # the thread count only reorders floating-point sums: a run may resume on another one
-    saved_tc = {**dict(state.get("train_config") or {}), "threads": tcfg.threads}
+    saved_tc = {**state.train_config, "threads": tcfg.threads}
     differ = [k for k, v in asdict(tcfg).items() if saved_tc.get(k) != v]
-    if state.get("config") != mcfg.to_dict():
+    if state.config != mcfg.to_dict():
         differ.insert(0, "model settings")
     if differ:
         if log:
             log(f"ignoring {state_path}: it was written with another configuration ({', '.join(differ)})")
         return _Progress()
-    model.load_state_dict(state["model"])
-    opt.load_state_dict(state["optimizer"])
-    done = _Progress(int(state["epoch"]), float(state["best"]), state.get("best_model"),
-                     [PriorEpoch.from_json(e) for e in json.loads(state["history"])])
+    model.load_state_dict(state.model)
+    opt.load_state_dict(state.optimizer)
+    done = _Progress(state.epoch, state.best, state.best_model, list(state.history))
     if log:
         log(f"resuming from {state_path} after epoch {done.epoch}")
     return done
@@ -164,10 +162,10 @@ def _save_state(state_path: Path, mcfg: PriorConfig, tcfg: TrainConfig, model: T
     """The training state after ``done.epoch`` epochs, written atomically."""
     state_path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(state_path) as tmp:
-        torch.save({"config": mcfg.to_dict(), "train_config": asdict(tcfg), "model": model.state_dict(),
-                    "optimizer": opt.state_dict(), "epoch": done.epoch, "best": done.best,
-                    "best_model": done.best_state,
-                    "history": json.dumps([e.to_json() for e in done.history])}, tmp)
+        state = PriorTrainingState(config=mcfg.to_dict(), train_config=asdict(tcfg), model=model.state_dict(),
+                                   optimizer=opt.state_dict(), epoch=done.epoch, best=done.best,
+                                   best_model=done.best_state, history=tuple(done.history))
+        torch.save(state.to_dict(), tmp)
 
 
 def _write_best(model: TrafficPrior, output: Path, done: _Progress, train: Sequence[ScenePriorData],
