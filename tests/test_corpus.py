@@ -32,7 +32,7 @@ def test_catalogue_covers_the_road_types_and_names_its_heldout_networks(tmp_path
     assert sum(n.family == "freeway" for n in held) >= 1
     assert sum(n.family == "wheel-osm" for n in held) >= 2
     assert sum(n.family in ("netgenerate", "roundabout", "rural") for n in held) >= 1
-    assert all(n.provenance["source"] for n in nets)
+    assert all(n.source for n in nets)
 
 
 def test_plan_sweeps_demand_models_and_sublane_and_is_deterministic(tmp_path):

@@ -317,7 +317,7 @@ def test_policy_training_resumes_and_leaves_nothing_in_the_temporary_directory(n
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))
     out = tmp_path / "policy"
     first = train(TrainOptions(scenarios=nominal_set, out=out, timesteps=512, checkpoint_steps=512, quiet=True))
-    assert first["steps"] >= 512 and (out / "policy.zip").exists() and (out / "checkpoint.zip").exists()
+    assert first.steps >= 512 and (out / "policy.zip").exists() and (out / "checkpoint.zip").exists()
     again = train(TrainOptions(scenarios=nominal_set, out=out, timesteps=1024, checkpoint_steps=512, quiet=True))
-    assert again["steps"] >= 1024 and again["wall_s"] > first["wall_s"]  # went on from the checkpoint
+    assert again.steps >= 1024 and again.wall_s > first.wall_s  # went on from the checkpoint
     assert not [p.name for p in scratch.iterdir() if p.name.startswith("SB3-")]  # SB3's default logger folders

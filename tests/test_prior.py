@@ -25,6 +25,7 @@ from coster_sumo.prior.infer import (
     save_prior,
 )
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
+from coster_sumo.prior.records import PriorTrainMetrics
 from coster_sumo.prior.train import TrainConfig, train_prior
 from tests.conftest import WOMD_PKL, WOMD_PROTO, requires_womd
 
@@ -303,7 +304,7 @@ def test_mmd_and_reliability():
     assert mmd(x, rng.normal(size=(200, 2))) < 0.05
     p = rng.random(20000)
     r = reliability(p, rng.random(20000) < p)
-    assert r["ece"] < 0.02 and len(r["reliability"]) == 10 and r["auc"] > 0.7
+    assert r.ece is not None and r.ece < 0.02 and len(r.bins) == 10 and r.auc is not None and r.auc > 0.7
 
 
 def _tiny_dataset(root):
@@ -333,7 +334,7 @@ def stop_after_epoch(epoch: int):  # type: ignore[no-untyped-def]
 def test_training_is_deterministic_and_resumes(tmp_path, prepared):
     tcfg = TrainConfig(epochs=3, batch_size=8, warmup_steps=2)
 
-    def run(name: str, log=None) -> dict:
+    def run(name: str, log=None) -> PriorTrainMetrics:
         return train_prior(prepared[:2], prepared[2:], tmp_path / name, model_config=SMALL, train_config=tcfg,
                            progress=False, log=log)
 
@@ -345,16 +346,16 @@ def test_training_is_deterministic_and_resumes(tmp_path, prepared):
     a = torch.load(tmp_path / "a.pt", weights_only=True)["state_dict"]
     b = torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
     assert all(torch.equal(a[k], b[k]) for k in a)
-    assert len(metrics["history"]) == 3 and "val" in metrics["history"][-1]
+    assert len(metrics.history) == 3 and metrics.history[-1].val is not None
     saved = json.loads((tmp_path / "b.json").read_text())
-    assert saved["best_epoch"] == metrics["best_epoch"]
+    assert saved["best_epoch"] == metrics.best_epoch
 
 
 def test_training_resumes_on_another_thread_count_and_names_what_stops_a_resume(tmp_path, prepared):
     threads = torch.get_num_threads()
     lines: list[str] = []
 
-    def run(tcfg: TrainConfig, stop: int | None = None) -> dict:
+    def run(tcfg: TrainConfig, stop: int | None = None) -> PriorTrainMetrics:
         log = stop_after_epoch(stop) if stop else lines.append
         return train_prior(prepared[:2], prepared[2:], tmp_path / "p.pt", model_config=SMALL, train_config=tcfg,
                            progress=False, log=log)
@@ -363,7 +364,7 @@ def test_training_resumes_on_another_thread_count_and_names_what_stops_a_resume(
         with pytest.raises(StopTraining):
             run(TrainConfig(epochs=2, batch_size=8, warmup_steps=2, threads=1), stop=1)
         metrics = run(TrainConfig(epochs=2, batch_size=8, warmup_steps=2, threads=2))
-        assert len(metrics["history"]) == 2
+        assert len(metrics.history) == 2
         assert any(line.startswith("resuming from") and "after epoch 1" in line for line in lines), lines
         lines.clear()
         run(TrainConfig(epochs=2, batch_size=8, warmup_steps=2, threads=2, lr=0.01))
@@ -378,8 +379,8 @@ def test_training_device_cpu_and_auto_without_a_gpu_give_the_same_weights(tmp_pa
     for name, device in (("a.pt", "cpu"), ("b.pt", "cpu" if torch.cuda.is_available() else "auto")):
         metrics = train_prior(prepared[:2], prepared[2:], tmp_path / name, model_config=SMALL, train_config=tcfg,
                               progress=False, log=None, device=device)
-        assert metrics["device"] == "cpu"
-        assert torch.backends.cpu.get_cpu_capability() in metrics["cpu"]  # what the card's hardware line needs
+        assert metrics.device == "cpu"
+        assert torch.backends.cpu.get_cpu_capability() in metrics.cpu  # what the card's hardware line needs
     a = torch.load(tmp_path / "a.pt", weights_only=True)["state_dict"]
     b = torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
     assert all(torch.equal(a[k], b[k]) for k in a)
@@ -406,7 +407,7 @@ def test_prior_trained_on_a_gpu_loads_on_the_cpu_and_resumes_there(tmp_path, pre
                     progress=False, log=stop_after_epoch(1), device="cuda")
     metrics = train_prior(prepared[:2], prepared[2:], tmp_path / "g.pt", model_config=SMALL, train_config=tcfg,
                           progress=False, log=None, device="cpu")
-    assert len(metrics["history"]) == 2
+    assert len(metrics.history) == 2
     model = load_prior(tmp_path / "g.pt")
     assert all(p.device.type == "cpu" for p in model.parameters())
 

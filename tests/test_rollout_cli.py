@@ -281,8 +281,9 @@ def test_errors_by_neighbours_bucket_the_contexts():
     from coster_sumo.metrics import ade_fde
 
     out = by_neighbours(*ade_fde(pred, truth, np.ones((4, 3), bool)), np.array([0, 2, 12, 3]))
-    assert [(b["neighbours"], b["contexts"]) for b in out] == [("0", 1), ("1-3", 2), ("10+", 1)]
-    assert [b["minFDE"] for b in out] == [1.0, 3.0, 3.0]
+    assert [(b.group, b.label, b.contexts) for b in out] == [("neighbours", "0", 1), ("neighbours", "1-3", 2),
+                                                              ("neighbours", "10+", 1)]
+    assert [b.min_fde for b in out] == [1.0, 3.0, 3.0]
 
 
 def test_lane_neighbour_is_an_agent_close_ahead_or_behind_in_the_same_direction():
@@ -306,8 +307,9 @@ def test_lane_neighbour_is_an_agent_close_ahead_or_behind_in_the_same_direction(
     assert has_lane_neighbour(nbr, mask, scale).tolist() == [want for _, want in cases] + [False]
     ade = np.array([[1.0, 2.0], [3.0, 1.0], [5.0, 5.0]])
     out = by_lane_neighbour(ade, ade, np.array([True, True, False]))
-    assert [(g["lane_neighbour"], g["contexts"], g["minFDE"]) for g in out] == [("yes", 2, 1.0), ("no", 1, 5.0)]
-    assert [g["lane_neighbour"] for g in by_lane_neighbour(ade, ade, np.zeros(3, bool))] == ["no"]
+    assert [(g.group, g.label, g.contexts, g.min_fde) for g in out] == [("lane_neighbour", "yes", 2, 1.0),
+                                                                        ("lane_neighbour", "no", 1, 5.0)]
+    assert [g.label for g in by_lane_neighbour(ade, ade, np.zeros(3, bool))] == ["no"]
 
 
 def test_init_may_widen_the_attention_radius_and_nothing_that_sizes_a_weight(dataset, tmp_path, capsys):

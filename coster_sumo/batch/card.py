@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ import numpy as np
 from coster_sumo import dataset as ds
 from coster_sumo.atomic import atomic_path, write_text
 from coster_sumo.batch import corpus
+from coster_sumo.batch.records import CorpusManifest, NetworkRecord, RunRecord
 from coster_sumo.batch.simulate import STATS_DIR
 from coster_sumo.errors import InputError
 
@@ -39,13 +41,14 @@ CARD = "card.md"
 CARD_DIR = "card"
 
 
-def _load_stats(dataset: Path, runs: list[dict[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
+def _load_stats(dataset: Path, runs: list[RunRecord]) -> dict[str, dict[str, np.ndarray]]:
+    """run id -> its ``stats/<run>.npz`` arrays (runs without one left out)."""
     out = {}
     for r in runs:
-        path = dataset / STATS_DIR / f"{r['run_id']}.npz"
+        path = dataset / STATS_DIR / f"{r.run_id}.npz"
         if path.exists():
             with np.load(path) as d:
-                out[r["run_id"]] = {k: d[k] for k in d.files}
+                out[r.run_id] = {k: d[k] for k in d.files}
     return out
 
 
@@ -93,36 +96,80 @@ def _declared_sizes() -> dict[str, list[float]]:
     return {k: sorted(set(v)) for k, v in out.items()}
 
 
-def card_data(dataset: Path) -> dict[str, Any]:
-    """Everything the card shows, as plain data (also handy in tests)."""
-    manifest = ds.read_manifest(dataset)
-    runs = [r for r in manifest["runs"] if r.get("status") == "ok"]
+@dataclass(frozen=True)
+class NetworkRow:
+    """One line of the card's "Networks" table.
+
+    Attributes:
+        size: the net's lanes, lane km and junctions; None when its file is not there.
+        hours: [h] simulated over its runs.
+        speed_p50, speed_p95, speed_max: [m/s] as printed ("-" without samples); agents_p50 likewise.
+        levels: the demand levels of its runs.
+    """
+
+    name: str
+    family: str
+    source: str
+    heldout: bool
+    freeway: bool
+    runs: int
+    hours: float
+    clips: int
+    vclasses: list[str]
+    speed_p50: str
+    speed_p95: str
+    speed_max: str
+    agents_p50: str
+    levels: list[str]
+    size: corpus.NetSize | None = None
+
+
+@dataclass(frozen=True)
+class CardData:
+    """Everything the card shows: the manifest, its finished runs, their stats (run id -> arrays), one
+    row per network with runs."""
+
+    manifest: CorpusManifest
+    runs: list[RunRecord]
+    stats: dict[str, dict[str, np.ndarray]]
+    rows: list[NetworkRow]
+
+
+def _net_size(dataset: Path, info: NetworkRecord) -> corpus.NetSize | None:
+    """The net's lanes, lane km and junctions, or None when its file is not there (or unreadable)."""
+    net_path = Path(info.net)
+    net_path = net_path if net_path.is_absolute() else dataset / net_path
+    if info.net and net_path.exists():
+        with contextlib.suppress(Exception):
+            return corpus.net_size(net_path)
+    return None
+
+
+def card_data(dataset: Path) -> CardData:
+    """Everything the card shows (also handy in tests)."""
+    manifest = CorpusManifest.from_json(ds.read_manifest(dataset))
+    runs = [r for r in manifest.runs if r.ok]
     stats = _load_stats(dataset, runs)
-    by_net: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    by_net: dict[str, list[RunRecord]] = defaultdict(list)
     for r in runs:
-        by_net[r.get("network") or r["run_id"].rsplit("_", 1)[0]].append(r)
-    networks = {n["name"]: n for n in manifest.get("networks", [])}
+        by_net[r.network_name].append(r)
+    networks = {n.name: n for n in manifest.networks}
     rows = []
     for name, net_runs in sorted(by_net.items()):
-        info = networks.get(name, {"name": name, "family": "-", "source": "-", "heldout": False})
-        st = [stats[r["run_id"]] for r in net_runs if r["run_id"] in stats]
-        size: dict[str, float] = {}
-        net_path = Path(info.get("net", ""))
-        net_path = net_path if net_path.is_absolute() else dataset / net_path
-        if info.get("net") and net_path.exists():
-            with contextlib.suppress(Exception):
-                size = corpus.net_size(net_path)
+        info = networks.get(name, NetworkRecord(name=name))
+        st = [stats[r.run_id] for r in net_runs if r.run_id in stats]
+        size = _net_size(dataset, info)
         speed = _cat([s["speed"] for s in st])
         vclasses = sorted(set(_cat([s["vclass"] for s in st]).tolist())) if st else []
-        rows.append({"name": name, "family": info.get("family", "-"), "source": info.get("source", "-"),
-                     "heldout": bool(info.get("heldout")), "freeway": bool(info.get("freeway")), **size,
-                     "runs": len(net_runs), "hours": sum(r["duration_s"] for r in net_runs) / 3600.0,
-                     "clips": sum(r["clips"] for r in net_runs), "vclasses": vclasses,
-                     "speed_p50": _q(speed, 0.5), "speed_p95": _q(speed, 0.95),
-                     "speed_max": f"{speed.max():.1f}" if len(speed) else "-",
-                     "agents_p50": _q(_cat([s["clip_agents"] for s in st]), 0.5),
-                     "levels": sorted({r.get("level", "-") for r in net_runs})})
-    return {"manifest": manifest, "runs": runs, "stats": stats, "rows": rows}
+        rows.append(NetworkRow(
+            name=name, family=info.family, source=info.source, heldout=info.heldout, freeway=info.freeway, size=size,
+            runs=len(net_runs), hours=sum(r.duration_s for r in net_runs) / 3600.0,
+            clips=sum(r.clips for r in net_runs), vclasses=vclasses,
+            speed_p50=_q(speed, 0.5), speed_p95=_q(speed, 0.95),
+            speed_max=f"{speed.max():.1f}" if len(speed) else "-",
+            agents_p50=_q(_cat([s["clip_agents"] for s in st]), 0.5),
+            levels=sorted({r.level for r in net_runs})))
+    return CardData(manifest=manifest, runs=runs, stats=stats, rows=rows)
 
 
 @dataclass(frozen=True)
@@ -130,9 +177,9 @@ class _Pool:
     """The per-run stats of a corpus, pooled over its runs (``where``: only the runs it accepts)."""
 
     stats: dict[str, dict[str, np.ndarray]]
-    run_of: dict[str, dict[str, Any]]
+    run_of: dict[str, RunRecord]
 
-    def __call__(self, key: str, where: Any = None) -> np.ndarray:
+    def __call__(self, key: str, where: Callable[[RunRecord], bool] | None = None) -> np.ndarray:
         return _cat([s[key] for rid, s in self.stats.items() if where is None or where(self.run_of[rid])])
 
 
@@ -154,16 +201,16 @@ class _Samples:
     classes: list[str]
 
     @classmethod
-    def of(cls, pool: _Pool, rows: list[dict[str, Any]]) -> _Samples:
-        net_rows = {row["name"]: row for row in rows}
+    def of(cls, pool: _Pool, rows: list[NetworkRow]) -> _Samples:
+        freeway = {row.name for row in rows if row.freeway}
         stats, run_of = pool.stats, pool.run_of
         vclass = pool("vclass")
-        is_fw = np.concatenate([np.full(len(s["speed"]), net_rows.get(run_of[rid].get("network", ""), {}).get(
-            "freeway", False)) for rid, s in stats.items()]) if stats else np.zeros(0, bool)
+        is_fw = np.concatenate([np.full(len(s["speed"]), run_of[rid].network in freeway)
+                                for rid, s in stats.items()]) if stats else np.zeros(0, bool)
         return cls(speed=pool("speed"), limit_kmh=pool("limit") * 3.6, vclass=vclass, length=pool("length"),
                    width=pool("width"), is_freeway=is_fw,
-                   lat_sublane=pool("lat_speed", lambda r: r.get("sublane")),
-                   lat_other=pool("lat_speed", lambda r: not r.get("sublane")),
+                   lat_sublane=pool("lat_speed", lambda r: r.sublane),
+                   lat_other=pool("lat_speed", lambda r: not r.sublane),
                    clip_median=pool("clip_median_speed"), clip_limit=pool("clip_speed_limit"),
                    classes=sorted(set(vclass.tolist())))
 
@@ -189,14 +236,14 @@ def _draw_histograms(figs: Path, s: _Samples, pool: _Pool) -> None:
           {"clips": s.clip_median}, np.arange(0, 40, 1.0))
 
 
-def _totals_lines(dataset: Path, manifest: dict[str, Any], runs: list[dict[str, Any]], rows: list[dict[str, Any]],
+def _totals_lines(dataset: Path, manifest: CorpusManifest, runs: list[RunRecord], rows: list[NetworkRow],
                   s: _Samples) -> list[str]:
     """The card's heading and its "Totals" section."""
-    hours = manifest["simulated_hours"]
-    wall = sum(float(r.get("wall_s", 0.0)) for r in runs)
-    timed = [r for r in runs if "cpu_s" in r]
-    cpu_h = sum(float(r["cpu_s"]) for r in timed) / 3600.0
-    cpu_rate = sum(float(r["duration_s"]) for r in timed) / 3600.0 / cpu_h if cpu_h > 0 else float("nan")
+    hours = manifest.simulated_hours
+    wall = sum(r.wall_s for r in runs)
+    cpu_s = [r.cpu_s for r in runs if r.cpu_s is not None]
+    cpu_h = sum(cpu_s) / 3600.0
+    cpu_rate = sum(r.duration_s for r in runs if r.cpu_s is not None) / 3600.0 / cpu_h if cpu_h > 0 else float("nan")
     train_clips = len(ds.list_scenes(dataset)) if ds.scenes_dir(dataset).is_dir() else 0
     heldout_clips = len(ds.list_heldout(dataset))
     speed, is_fw, lat_sub, lat_other = s.speed, s.is_freeway, s.lat_sublane, s.lat_other
@@ -207,15 +254,15 @@ def _totals_lines(dataset: Path, manifest: dict[str, Any], runs: list[dict[str, 
         f"Generated by `coster-sumo corpus card` from `{ds.MANIFEST}` and `{STATS_DIR}/` "
         "(definitions: docs/corpus.md).", "",
         "## Totals", "",
-        f"- networks with runs: **{len(rows)}** (catalogue: {len(manifest.get('networks', []))}); "
-        f"held out: {', '.join(manifest.get('heldout_networks', [])) or 'none'}",
-        f"- runs: {len(runs)} ok, {manifest['counts']['runs_failed']} failed; simulated: **{hours:.2f} h** "
+        f"- networks with runs: **{len(rows)}** (catalogue: {len(manifest.networks)}); "
+        f"held out: {', '.join(manifest.heldout_networks) or 'none'}",
+        f"- runs: {len(runs)} ok, {manifest.runs_failed} failed; simulated: **{hours:.2f} h** "
         f"(warm-up included)",
         f"- clips (9.1 s, 10 Hz): {train_clips} for training/validation (`scenes/`), {heldout_clips} held out "
         f"(`heldout/`)",
         f"- run wall time (sum over runs, one process each): {wall / 3600:.2f} h, i.e. "
         f"{hours / max(wall / 3600, 1e-9):.1f} simulated h per process-hour (wall time depends on the machine's "
-        f"load); CPU time of the {len(timed)} runs that measured it: {cpu_h:.2f} h, {cpu_rate:.1f} simulated h "
+        f"load); CPU time of the {len(cpu_s)} runs that measured it: {cpu_h:.2f} h, {cpu_rate:.1f} simulated h "
         "per CPU-hour",
         f"- vehicle classes ({len(s.classes)}): {', '.join(s.classes)}",
         f"- freeway networks: {np.mean(speed[is_fw] > 30) if is_fw.any() else 0:.1%} of samples above 30 m/s "
@@ -253,16 +300,20 @@ def _class_and_speed_lines(s: _Samples) -> list[str]:
     return lines
 
 
-def _level_and_network_lines(manifest: dict[str, Any], runs: list[dict[str, Any]], rows: list[dict[str, Any]],
+def _of_level(level: str) -> Callable[[RunRecord], bool]:
+    return lambda r: r.level == level
+
+
+def _level_and_network_lines(manifest: CorpusManifest, runs: list[RunRecord], rows: list[NetworkRow],
                              pool: _Pool) -> list[str]:
     """The "Demand levels" table, the acceleration line and the "Networks" table."""
     lines = ["", "## Demand levels", "",
              "| level | runs | clips | congested | free flow | clip median moving speed p10 / p50 / p90 [m/s] |",
              "|---|---|---|---|---|---|"]
-    for level in sorted({r.get("level", "-") for r in runs}):
-        med = pool("clip_median_speed", lambda r, lv=level: r.get("level", "-") == lv)
-        lim = pool("clip_speed_limit", lambda r, lv=level: r.get("level", "-") == lv)
-        lines.append(f"| {level} | {sum(r.get('level', '-') == level for r in runs)} | {len(med)} | "
+    for level in sorted({r.level for r in runs}):
+        med = pool("clip_median_speed", _of_level(level))
+        lim = pool("clip_speed_limit", _of_level(level))
+        lines.append(f"| {level} | {sum(r.level == level for r in runs)} | {len(med)} | "
                      f"{int(np.sum(med < CONGESTED_MPS))} | {int(np.sum(med >= FREE_FLOW_SHARE * lim))} | "
                      f"{_q(med, 0.1)} / {_q(med, 0.5)} / {_q(med, 0.9)} |")
     acc = pool("accel")
@@ -274,11 +325,12 @@ def _level_and_network_lines(manifest: dict[str, Any], runs: list[dict[str, Any]
               "speed p50 / p95 / max [m/s] | agents/clip p50 | classes |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
-        lines.append(f"| {row['name']} | {row['family']} | {'yes' if row['heldout'] else ''} | {row['source']} | "
-                     f"{row.get('lanes', '-')} | {row.get('lane_km', '-')} | {row['runs']} | {row['hours']:.2f} | "
-                     f"{row['clips']} | {', '.join(row['levels'])} | {row['speed_p50']} / {row['speed_p95']} / "
-                     f"{row['speed_max']} | {row['agents_p50']} | {len(row['vclasses'])} |")
-    excluded = manifest.get("corpus", {}).get("wheel_excluded", {})
+        lanes, lane_km = (row.size.lanes, row.size.lane_km) if row.size else ("-", "-")
+        lines.append(f"| {row.name} | {row.family} | {'yes' if row.heldout else ''} | {row.source} | "
+                     f"{lanes} | {lane_km} | {row.runs} | {row.hours:.2f} | "
+                     f"{row.clips} | {', '.join(row.levels)} | {row.speed_p50} / {row.speed_p95} / "
+                     f"{row.speed_max} | {row.agents_p50} | {len(row.vclasses)} |")
+    excluded = manifest.wheel_excluded
     if excluded:
         lines += ["", "Wheel networks left out: " + "; ".join(f"{k} ({v})" for k, v in excluded.items()) + "."]
     return lines
@@ -293,8 +345,8 @@ def write_card(dataset: Path, output: Path | None = None) -> Path:
     figs = out / CARD_DIR
     figs.mkdir(parents=True, exist_ok=True)
     data = card_data(dataset)
-    manifest, runs, rows = data["manifest"], data["runs"], data["rows"]
-    pool = _Pool(data["stats"], {r["run_id"]: r for r in runs})
+    manifest, runs, rows = data.manifest, data.runs, data.rows
+    pool = _Pool(data.stats, {r.run_id: r for r in runs})
     samples = _Samples.of(pool, rows)
     _draw_histograms(figs, samples, pool)
     lines = _totals_lines(dataset, manifest, runs, rows, samples)

@@ -27,7 +27,7 @@ import sys
 import time
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,7 @@ import numpy as np
 from coster_sumo import dataset as ds
 from coster_sumo.atomic import write_json
 from coster_sumo.batch import nets
+from coster_sumo.batch.records import BatchCounts, CorpusSummary, NetworkRecord
 from coster_sumo.batch.simulate import DEFAULT_TIMEOUT_S, RunTask, Source, run_batch
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -109,7 +110,7 @@ _CF_SHARE = (0.4, 0.3, 0.3)
 
 @dataclass(frozen=True)
 class Network:
-    """One corpus network and where it comes from (``provenance`` goes to the manifest)."""
+    """One corpus network and where it comes from (``source`` and ``params`` go to the manifest)."""
 
     name: str
     family: str
@@ -118,7 +119,8 @@ class Network:
     additional: tuple[Path, ...] = ()
     window: tuple[float, float] = (0.0, 0.0)  # [s] begin, end of its own demand (0, 0: none)
     heldout: bool = False
-    provenance: dict[str, Any] = field(default_factory=dict)
+    source: str = ""  # where it comes from: the wheel, the repository, or the builder and its arguments
+    params: dict[str, Any] | None = None  # the builder's parameters (networks this project authors)
     lane_km: float = 0.0  # [km] lane length (internal lanes left out); 0 when unknown
 
     @property
@@ -128,11 +130,11 @@ class Network:
     def own_demand_fits(self, duration_s: float) -> bool:
         return bool(self.routes) and self.window[1] - self.window[0] >= duration_s
 
-    def record(self, dataset: Path) -> dict[str, Any]:
+    def record(self, dataset: Path) -> NetworkRecord:
         net = str(self.net.relative_to(dataset)) if self.net.is_relative_to(dataset) else str(self.net)
-        return {"name": self.name, "family": self.family, "net": net, "heldout": self.heldout,
-                "lane_km": self.lane_km,
-                "own_demand": [str(p.name) for p in self.routes], "freeway": self.freeway} | self.provenance
+        return NetworkRecord(name=self.name, family=self.family, net=net, heldout=self.heldout, lane_km=self.lane_km,
+                             own_demand=tuple(str(p.name) for p in self.routes), freeway=self.freeway,
+                             source=self.source, params=self.params)
 
 
 def catalogue(dataset: Path, seed: int = 0, build: bool = True, only: list[str] | None = None
@@ -149,12 +151,12 @@ def catalogue(dataset: Path, seed: int = 0, build: bool = True, only: list[str] 
     for name, (fam, net, routes, adds, window) in _WHEEL.items():
         out.append(Network(name=name, family=fam, net=game / net, routes=tuple(game / r for r in routes),
                            additional=tuple(game / a for a in adds), window=window,
-                           provenance={"source": f"eclipse-sumo wheel: tools/game/{net}"}))
+                           source=f"eclipse-sumo wheel: tools/game/{net}"))
     for name in ("intersection", "merge", "arterial"):
         cfg = read_sumocfg(REPO_NETWORKS / name / f"{name}.sumocfg")
         out.append(Network(name=name, family="project", net=cfg.net_file, routes=cfg.route_files,
                            additional=cfg.additional_files, window=(cfg.begin or 0.0, cfg.end or 0.0),
-                           provenance={"source": f"repository: networks/{name}/{name}.sumocfg"}))
+                           source=f"repository: networks/{name}/{name}.sumocfg"))
     folder = dataset / ds.NETS_DIR
     folder.mkdir(parents=True, exist_ok=True)
     for stem, fam, builder, count in _AUTHORED:
@@ -174,14 +176,24 @@ def catalogue(dataset: Path, seed: int = 0, build: bool = True, only: list[str] 
                 errors.append(f"{name}: {exc}")
                 continue
             out.append(Network(name=name, family=fam, net=net_path,
-                               provenance={"source": f"authored: coster_sumo.batch.nets.{builder.__name__}"
-                                                     f"(k={k}, seed={seed})", "params": params}))
+                               source=f"authored: coster_sumo.batch.nets.{builder.__name__}(k={k}, seed={seed})",
+                               params=params))
     heldout = set(HELDOUT)
     out = [dataclasses.replace(n, heldout=n.name in heldout, lane_km=_lane_km(n.net)) for n in out]
     return out, errors
 
 
-def net_size(path: Path) -> dict[str, float]:
+@dataclass(frozen=True)
+class NetSize:
+    """The size of a SUMO net, internal lanes and junctions left out: lanes, their length [km]
+    (rounded to 0.1 km) and junctions."""
+
+    lanes: int
+    lane_km: float
+    junctions: int
+
+
+def net_size(path: Path) -> NetSize:
     """Lanes, lane length [km] and junctions of a SUMO net (internal lanes left out)."""
     from defusedxml.ElementTree import iterparse
 
@@ -202,7 +214,7 @@ def net_size(path: Path) -> dict[str, float]:
                 junctions += 1
             if tag in ("edge", "junction", "connection", "tlLogic"):
                 el.clear()
-    return {"lanes": lanes, "lane_km": round(km, 1), "junctions": junctions}
+    return NetSize(lanes=lanes, lane_km=round(km, 1), junctions=junctions)
 
 
 def _lane_km(net: Path) -> float:
@@ -213,7 +225,7 @@ def _lane_km(net: Path) -> float:
     st = net.stat()
     key = (str(net), st.st_mtime_ns, st.st_size)
     if key not in _LANE_KM:
-        _LANE_KM[key] = float(net_size(net)["lane_km"])
+        _LANE_KM[key] = net_size(net).lane_km
     return _LANE_KM[key]
 
 
@@ -304,7 +316,7 @@ def plan_corpus(cfg: CorpusConfig, networks: list[Network]) -> list[RunTask]:
     return tasks
 
 
-def build_corpus(cfg: CorpusConfig) -> dict[str, Any]:
+def build_corpus(cfg: CorpusConfig) -> CorpusSummary:
     """Build (or finish building) the corpus; returns the summary (``DATASET/summary.json``)."""
     t_wall = time.perf_counter()
     if cfg.runs_per_network < 1 or cfg.workers < 1 or cfg.duration_s <= WARMUP_S:
@@ -317,7 +329,7 @@ def build_corpus(cfg: CorpusConfig) -> dict[str, Any]:
     manifest["corpus"] = {"seed": cfg.seed, "runs_per_network": cfg.runs_per_network,
                           "duration_s": cfg.duration_s, "warmup_s": WARMUP_S,
                           "wheel_excluded": WHEEL_EXCLUDED}
-    manifest["networks"] = [n.record(cfg.dataset) for n in networks]  # the whole catalogue
+    manifest["networks"] = [n.record(cfg.dataset).to_json() for n in networks]  # the whole catalogue
     manifest["heldout_networks"] = sorted(n.name for n in networks if n.heldout)
     if cfg.networks:
         unknown = set(cfg.networks) - {n.name for n in networks}
@@ -328,10 +340,10 @@ def build_corpus(cfg: CorpusConfig) -> dict[str, Any]:
     result = run_batch(tasks, cfg.dataset, manifest, workers=cfg.workers, timeout_s=cfg.timeout_s,
                        quiet=cfg.quiet, debug=cfg.debug, what="corpus")
     manifest = ds.read_manifest(cfg.dataset)
-    summary = {"dataset": str(cfg.dataset), "networks": len(networks), "runs_planned": result.planned,
-               "runs_done_now": result.done_now, "runs_failed_now": len(result.failures),
-               "clips_now": result.clips, "failures": errors + result.failures,
-               "total_clips": manifest["counts"]["scenes"], "simulated_hours": manifest["simulated_hours"],
-               "wall_s": round(time.perf_counter() - t_wall, 2)}
-    write_json(cfg.dataset / "summary.json", summary)
+    counts = BatchCounts(runs_planned=result.planned, runs_done_now=result.done_now,
+                         runs_failed_now=len(result.failures), clips_now=result.clips,
+                         failures=errors + result.failures, total_clips=manifest["counts"]["scenes"],
+                         simulated_hours=manifest["simulated_hours"], wall_s=round(time.perf_counter() - t_wall, 2))
+    summary = CorpusSummary(dataset=str(cfg.dataset), networks=len(networks), counts=counts)
+    write_json(cfg.dataset / "summary.json", summary.to_json())
     return summary

@@ -35,6 +35,7 @@ from coster_sumo import dataset as ds
 from coster_sumo.atomic import atomic_path, write_json, write_text
 from coster_sumo.batch.executor import Outcome, Task, execute
 from coster_sumo.batch.nets import Source, generate_nets, run_tool
+from coster_sumo.batch.records import BatchCounts, RunOutcome, SimulateSummary
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.outdir import MARKER, OutputLock, check_output, write_marker
@@ -224,7 +225,7 @@ def clip_summary(clip: Any) -> tuple[int, float, float, float]:
     return tr.num_agents, med, limit, float(mean[clip.sdc_index])
 
 
-def simulate_run(task: RunTask) -> dict[str, Any]:
+def simulate_run(task: RunTask) -> RunOutcome:
     """Simulate, record in chunks, cut and write clips. Returns counts for the manifest."""
     from coster_sumo.formats.scene_file import save_scene
     from coster_sumo.sim.record import record
@@ -290,11 +291,11 @@ def simulate_run(task: RunTask) -> dict[str, Any]:
 
     children = resource.getrusage(resource.RUSAGE_CHILDREN)  # randomTrips, duarouter
     cpu = time.process_time() - t_cpu + children.ru_utime + children.ru_stime
-    return {"status": "ok", "clips": clips, "vehicles": len(vehicles), "simulated_s": round(sim_end - begin, 3),
-            "wall_s": round(time.perf_counter() - t_wall, 2), "cpu_s": round(cpu, 2)}
+    return RunOutcome(clips=clips, vehicles=len(vehicles), simulated_s=round(sim_end - begin, 3),
+                      wall_s=round(time.perf_counter() - t_wall, 2), cpu_s=round(cpu, 2))
 
 
-def run_task(payload: dict[str, Any]) -> dict[str, Any]:
+def run_task(payload: dict[str, Any]) -> RunOutcome:
     """Executor entry point: one :class:`RunTask` (``payload["run"]``)."""
     return simulate_run(payload["run"])
 
@@ -400,8 +401,9 @@ def run_batch(tasks: list[RunTask], dataset: Path, manifest: dict[str, Any], *, 
         run: RunTask = task.payload["run"]
         entry = run.manifest_entry()
         if outcome.ok:
-            entry |= outcome.value
-            clips += int(outcome.value["clips"])
+            done: RunOutcome = outcome.value
+            entry |= done.to_json()
+            clips += done.clips
             import shutil
 
             shutil.rmtree(run.work, ignore_errors=True)
@@ -436,7 +438,7 @@ def run_batch(tasks: list[RunTask], dataset: Path, manifest: dict[str, Any], *, 
                        wall_s=round(time.perf_counter() - t_wall, 2))
 
 
-def run_simulate(cfg: SimulateConfig) -> dict[str, Any]:
+def run_simulate(cfg: SimulateConfig) -> SimulateSummary:
     """Run the batch; returns the summary (also written to ``DATASET/summary.json``)."""
     t_wall = time.perf_counter()
     sources = resolve_sources(cfg.sources)
@@ -455,7 +457,7 @@ def run_simulate(cfg: SimulateConfig) -> dict[str, Any]:
         return _simulate_locked(cfg, sources, t_wall)
 
 
-def _simulate_locked(cfg: SimulateConfig, sources: list[Source], t_wall: float) -> dict[str, Any]:
+def _simulate_locked(cfg: SimulateConfig, sources: list[Source], t_wall: float) -> SimulateSummary:
     """:func:`run_simulate` once DATASET is checked and locked."""
     manifest = ds.read_manifest(cfg.dataset)
     failures: list[str] = []
@@ -472,12 +474,13 @@ def _simulate_locked(cfg: SimulateConfig, sources: list[Source], t_wall: float) 
                        quiet=cfg.quiet, debug=cfg.debug)
     failures += result.failures
     manifest = ds.read_manifest(cfg.dataset)
-    summary = {"dataset": str(cfg.dataset), "runs_planned": result.planned, "runs_done_now": result.done_now,
-               "runs_failed_now": len(result.failures), "clips_now": result.clips, "failures": failures,
-               "total_scenes": manifest["counts"]["scenes"], "simulated_hours": manifest["simulated_hours"],
-               "wall_s": round(time.perf_counter() - t_wall, 2),
-               "config": {k: (str(v) if isinstance(v, Path) else v)
-                          for k, v in dataclasses.asdict(cfg).items() if k not in ("quiet", "debug")}
-               | {"sources": [str(p) for p in cfg.sources]}}
-    write_json(cfg.dataset / "summary.json", summary)
+    counts = BatchCounts(runs_planned=result.planned, runs_done_now=result.done_now,
+                         runs_failed_now=len(result.failures), clips_now=result.clips, failures=failures,
+                         total_clips=manifest["counts"]["scenes"], simulated_hours=manifest["simulated_hours"],
+                         wall_s=round(time.perf_counter() - t_wall, 2))
+    config = {k: (str(v) if isinstance(v, Path) else v)
+              for k, v in dataclasses.asdict(cfg).items() if k not in ("quiet", "debug")}
+    summary = SimulateSummary(dataset=str(cfg.dataset), counts=counts,
+                              config=config | {"sources": [str(p) for p in cfg.sources]})
+    write_json(cfg.dataset / "summary.json", summary.to_json())
     return summary

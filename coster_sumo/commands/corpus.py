@@ -25,16 +25,16 @@ def _build(args: argparse.Namespace) -> int:
                        duration_s=args.duration, seed=args.seed, workers=args.workers,
                        networks=args.networks or None, timeout_s=args.timeout, card=not args.no_card, quiet=args.quiet,
                        debug=args.debug)
-    summary = build_corpus(cfg)
+    counts = build_corpus(cfg).counts
     if cfg.card:
         from coster_sumo.batch.card import write_card
 
         write_card(cfg.dataset)
     if not args.quiet:
-        print(f"{summary['runs_done_now'] - summary['runs_failed_now']} runs done, {summary['runs_failed_now']} "
-              f"failed, {summary['clips_now']} clips written in {summary['wall_s']:.0f} s; corpus {cfg.dataset}: "
-              f"{summary['total_clips']} clips, {summary['simulated_hours']:.2f} h simulated")
-    return 1 if summary["failures"] else 0
+        print(f"{counts.runs_done_now - counts.runs_failed_now} runs done, {counts.runs_failed_now} "
+              f"failed, {counts.clips_now} clips written in {counts.wall_s:.0f} s; corpus {cfg.dataset}: "
+              f"{counts.total_clips} clips, {counts.simulated_hours:.2f} h simulated")
+    return 0 if counts.ok else 1
 
 
 def _card(args: argparse.Namespace) -> int:

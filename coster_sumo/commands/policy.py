@@ -21,7 +21,7 @@ def _train(args: argparse.Namespace) -> int:
     progress = train(TrainOptions(scenarios=args.scenarios, out=args.out, timesteps=args.timesteps, seed=args.seed,
                                   envs=args.envs, checkpoint_steps=args.checkpoint_steps, quiet=args.quiet))
     if not args.quiet:
-        print(f"{progress['steps']} steps in {progress['wall_s']:.0f} s; outcomes {progress['outcomes']}; "
+        print(f"{progress.steps} steps in {progress.wall_s:.0f} s; outcomes {progress.outcomes}; "
               f"wrote {args.out}")
     return 0
 
@@ -34,7 +34,7 @@ def _eval(args: argparse.Namespace) -> int:
     result, rows = evaluate(policy, args.scenarios, split=None if args.split == "all" else args.split,
                             max_episodes=args.max_episodes, hard=args.hard)
     out = {"policy": str(args.policy), "scenarios": str(args.scenarios), "split": args.split, **result.to_json(),
-           "episodes_detail": rows}
+           "episodes_detail": [r.to_json() for r in rows]}
     if args.out:
         write_json(args.out, out)
     if not args.quiet:

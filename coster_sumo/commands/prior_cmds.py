@@ -7,9 +7,13 @@ import shlex
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError, not_found
+
+if TYPE_CHECKING:
+    from coster_sumo.prior.records import MethodMmd, PriorEvaluation
 
 DEFAULT_CHECKPOINT = "models/prior.pt"
 
@@ -109,7 +113,7 @@ def run_train(args: argparse.Namespace) -> int:
     metrics = train_prior(train, val, args.out, mcfg, tcfg, state_path=args.state, resume=not args.restart,
                           progress=progress, meta=meta, log=_log(args), device=args.device)
     if not args.quiet:
-        print(f"wrote {args.out} (best epoch {metrics['best_epoch']}, score {metrics['best_score']:.4f}, "
+        print(f"wrote {args.out} (best epoch {metrics.best_epoch}, score {metrics.best_score:.4f}, "
               f"{time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
 
@@ -152,41 +156,46 @@ def run_eval(args: argparse.Namespace) -> int:
         train_files = _subset(train_files, args.baseline_scenes, args.seed)
         baselines = fit_baselines(model, load_prepared(train_files, radius, progress), seed=args.seed)
     result = evaluate_prior(model, scenes, baselines, seed=args.seed, progress=progress, mmd_estimator=args.mmd)
-    result.update({"checkpoint": str(args.checkpoint), "data": [str(d) for d in args.data],
-                   "baselines_fitted_on": str(train_src) if train_src else None, "seed": args.seed,
-                   "split": args.split})
+    report = result.to_json() | {"checkpoint": str(args.checkpoint), "data": [str(d) for d in args.data],
+                                 "baselines_fitted_on": str(train_src) if train_src else None, "seed": args.seed,
+                                 "split": args.split}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_json(out, result, indent=2)
+    write_json(out, report, indent=2)
     if not args.quiet:
-        for name, m in result["mmd"].items():
-            vals = " ".join(f"{a}={m[a]:.4f}" if m[a] is not None else f"{a}=n/a"
-                            for a in ("position", "heading", "speed", "size"))
-            print(f"{name:>10}: MMD {vals} ({m['scenes']} scenes)", file=sys.stderr)
-        for name, m in result["mmd_hidden_disc"].items():
-            vals = " ".join(f"{a}={m[a]:.4f}" if m[a] is not None else f"{a}=n/a"
-                            for a in ("position", "heading", "speed", "size"))
-            print(f"{name:>10}: MMD in the hidden disc (context mode) {vals} ({m['scenes']} scenes)", file=sys.stderr)
-        a, h = result["agents_per_scene"], result["agents_in_hidden_disc"]
-        print("agents per scene (map mode): " + " ".join(f"{k}={v:.1f}" for k, v in a.items())
-              + f"; in the hidden disc (context mode): ground_truth={h['ground_truth']:.1f} "
-              f"prior={h['prior_context_expected']:.1f} (without the density offset "
-              f"{h['prior_context_raw_expected']:.1f})", file=sys.stderr)
-        w = result["without_centre_agent"]
-        for name, m in w["mmd_hidden_disc"].items():
-            vals = " ".join(f"{a}={m[a]:.4f}" if m[a] is not None else f"{a}=n/a"
-                            for a in ("position", "heading", "speed", "size"))
-            print(f"{name:>10}: MMD in the hidden disc without the centre agent {vals} ({m['scenes']} scenes)",
-                  file=sys.stderr)
-        hw = w["agents_in_hidden_disc"]
-        print(f"in the hidden disc without the centre agent: ground_truth={hw['ground_truth']:.1f} "
-              f"prior={hw['prior_context_expected']:.1f}", file=sys.stderr)
-        pm = result["presence"].get("prior_map", {})
-        if "ece" in pm:
-            print(f"presence (map mode): ECE {pm['ece']:.4f} AUC {pm.get('auc', float('nan')):.3f}", file=sys.stderr)
-        pc, pr = result["presence"].get("prior_context", {}), result["presence"].get("prior_context_raw", {})
-        if "ece" in pc and "ece" in pr:
-            print(f"presence (context mode): ECE {pc['ece']:.4f} (without the density offset {pr['ece']:.4f})",
-                  file=sys.stderr)
+        _print_evaluation(result)
         print(f"wrote {out}", file=sys.stderr)
     return 0
+
+
+def _mmd_line(m: MethodMmd) -> str:
+    return " ".join(f"{a}={m.values[a]:.4f}" if m.values[a] is not None else f"{a}=n/a"
+                    for a in ("position", "heading", "speed", "size"))
+
+
+def _print_evaluation(result: PriorEvaluation) -> None:
+    """The evaluation's headline numbers, on stderr."""
+    for name, m in result.scores.mmd.items():
+        print(f"{name:>10}: MMD {_mmd_line(m)} ({m.scenes} scenes)", file=sys.stderr)
+    for name, m in result.scores.mmd_hidden_disc.items():
+        print(f"{name:>10}: MMD in the hidden disc (context mode) {_mmd_line(m)} ({m.scenes} scenes)", file=sys.stderr)
+    a, h = result.scores.agents_per_scene, result.scores.agents_in_hidden_disc
+    print("agents per scene (map mode): " + " ".join(f"{k}={v:.1f}" for k, v in a.items())
+          + f"; in the hidden disc (context mode): ground_truth={h['ground_truth']:.1f} "
+          f"prior={h['prior_context_expected']:.1f} (without the density offset "
+          f"{h['prior_context_raw_expected']:.1f})", file=sys.stderr)
+    w = result.without_centre_agent
+    for name, m in w.mmd_hidden_disc.items():
+        print(f"{name:>10}: MMD in the hidden disc without the centre agent {_mmd_line(m)} ({m.scenes} scenes)",
+              file=sys.stderr)
+    hw = w.agents_in_hidden_disc
+    print(f"in the hidden disc without the centre agent: ground_truth={hw['ground_truth']:.1f} "
+          f"prior={hw['prior_context_expected']:.1f}", file=sys.stderr)
+    pm = result.presence.get("prior_map")
+    if pm is not None and pm.ece is not None:
+        auc = pm.auc if pm.auc is not None else float("nan")
+        print(f"presence (map mode): ECE {pm.ece:.4f} AUC {auc:.3f}", file=sys.stderr)
+    pc, pr = result.presence.get("prior_context"), result.presence.get("prior_context_raw")
+    if pc is not None and pr is not None and pc.ece is not None and pr.ece is not None:
+        print(f"presence (context mode): ECE {pc.ece:.4f} (without the density offset {pr.ece:.4f})",
+              file=sys.stderr)

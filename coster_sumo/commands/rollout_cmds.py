@@ -270,7 +270,7 @@ def run_eval(args: argparse.Namespace) -> int:
                               batch_size=args.batch_size, max_examples=args.max_examples)
     report = {"format": "coster-sumo-rollout-eval", "data": [str(d) for d in args.data], "split": args.split,
               "t_rev": args.t_rev,
-              "scenes": len(scenes), **result, "skipped": skipped,
+              "scenes": len(scenes), **result.to_json(), "skipped": skipped,
               "checkpoints": {"cvae_dsa": args.checkpoint or DEFAULT_CHECKPOINT,
                               "cvae_no_dsa": args.checkpoint_no_dsa or DEFAULT_CHECKPOINT_NO_DSA},
               "seed": args.seed, "threads": torch.get_num_threads(), "torch": torch.__version__,
@@ -278,16 +278,18 @@ def run_eval(args: argparse.Namespace) -> int:
               "units": {"ADE/FDE": "m", "time_per_trajectory_s": "s (CPU wall time)"}}
     _write_json(Path(args.out), report)
     if not args.quiet:
-        for name, m in result["methods"].items():
-            print(f"{name:18s} minADE {m['minADE']:.3f} minFDE {m['minFDE']:.3f} avgADE {m['avgADE']:.3f} "
-                  f"avgFDE {m['avgFDE']:.3f} m, {1e3 * m['time_per_trajectory_s']:.2f} ms/traj", file=sys.stderr)
-        dsa, nodsa = result["methods"].get("cvae_dsa"), result["methods"].get("cvae_no_dsa")
+        for name, scores in result.methods.items():
+            e = scores.errors
+            print(f"{name:18s} minADE {e.min_ade:.3f} minFDE {e.min_fde:.3f} avgADE {e.avg_ade:.3f} "
+                  f"avgFDE {e.avg_fde:.3f} m, {1e3 * scores.time_per_trajectory_s:.2f} ms/traj", file=sys.stderr)
+        dsa, nodsa = result.methods.get("cvae_dsa"), result.methods.get("cvae_no_dsa")
         if dsa and nodsa:  # where the neighbours are: what DSA has to attend to
-            for split, key, title in (("by_neighbours", "neighbours", "neighbours"),
-                                      ("by_lane_neighbour", "lane_neighbour",
-                                       f"lane neighbour within {LANE_NEIGHBOUR_ALONG_M:g} m:")):
-                for a, b in zip(dsa[split], nodsa[split], strict=True):
-                    print(f"{title} {a[key]:>4s} ({a['contexts']} vehicles): minFDE DSA {a['minFDE']:.3f}, "
-                          f"no DSA {b['minFDE']:.3f} m, DSA better by {100 * (1 - a['minFDE'] / b['minFDE']):+.1f} %",
+            for title, groups_dsa, groups_nodsa in (
+                    ("neighbours", dsa.by_neighbours, nodsa.by_neighbours),
+                    (f"lane neighbour within {LANE_NEIGHBOUR_ALONG_M:g} m:", dsa.by_lane_neighbour,
+                     nodsa.by_lane_neighbour)):
+                for a, b in zip(groups_dsa or (), groups_nodsa or (), strict=True):
+                    print(f"{title} {a.label:>4s} ({a.contexts} vehicles): minFDE DSA {a.min_fde:.3f}, "
+                          f"no DSA {b.min_fde:.3f} m, DSA better by {100 * (1 - a.min_fde / b.min_fde):+.1f} %",
                           file=sys.stderr)
     return 0

@@ -33,13 +33,13 @@ def _cmd(args: argparse.Namespace) -> int:
         clips_per_run=args.clips_per_run, targets_per_window=args.targets_per_window,
         scale_range=(args.scale_range[0], args.scale_range[1]), timeout_s=args.timeout, quiet=args.quiet,
         debug=args.debug)
-    summary = run_simulate(cfg)
+    counts = run_simulate(cfg).counts
     if not args.quiet:
-        print(f"{summary['runs_done_now'] - summary['runs_failed_now']} runs done, "
-              f"{summary['runs_failed_now']} failed, {summary['clips_now']} clips written; dataset "
-              f"{cfg.dataset}: {summary['total_scenes']} scenes, "
-              f"{summary['simulated_hours']:.3f} h simulated")
-    return 1 if summary["failures"] else 0
+        print(f"{counts.runs_done_now - counts.runs_failed_now} runs done, "
+              f"{counts.runs_failed_now} failed, {counts.clips_now} clips written; dataset "
+              f"{cfg.dataset}: {counts.total_clips} scenes, "
+              f"{counts.simulated_hours:.3f} h simulated")
+    return 0 if counts.ok else 1
 
 
 def register(cli: Any) -> None:

@@ -28,7 +28,7 @@ import numpy as np
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.geometry import make_boxes, sat_overlap_depth
-from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, write_manifest, write_vtypes
+from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, SetNetwork, write_manifest, write_vtypes
 from coster_sumo.scene import ObjectType, Scene, SignalState, Tracks
 from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
@@ -156,7 +156,7 @@ class _SetProgress:
     """What the manifest of a set being built holds so far (rewritten after every source)."""
 
     entries: list[ScenarioEntry] = field(default_factory=list)
-    networks: dict[str, dict[str, Any]] = field(default_factory=dict)
+    networks: dict[str, SetNetwork] = field(default_factory=dict)
     done_sources: set[str] = field(default_factory=set)
     failed: list[dict[str, str]] = field(default_factory=list)
 
@@ -169,7 +169,7 @@ class _SetProgress:
         if old.get("method") != method:
             raise InputError(f"{out}: holds a {old.get('method')!r} set, not {method!r}")
         return cls(entries=[ScenarioEntry.from_dict(d) for d in old.get("scenarios", [])],
-                   networks=dict(old.get("networks", {})),
+                   networks={n: SetNetwork.from_json(v) for n, v in old.get("networks", {}).items()},
                    done_sources=set(old.get("options", {}).get("done_sources", [])),
                    failed=list(old.get("options", {}).get("failed", [])))
 
@@ -200,8 +200,8 @@ def _register_source(opts: BuildOptions, spec: ScenarioSpec, progress: _SetProgr
     label = spec.label()
     net_name = network_name(spec.config)
     split = "test" if net_name in opts.heldout else "train"
-    progress.networks.setdefault(net_name, {"split": split, "sources": []})
-    progress.networks[net_name]["sources"].append(label)
+    net = progress.networks.get(net_name, SetNetwork(split))
+    progress.networks[net_name] = dataclasses.replace(net, sources=(*net.sources, label))
     net_rel = f"nets/{net_name}.net.xml"
     if not (opts.out / net_rel).exists():
         shutil.copyfile(_net_file(spec.config), opts.out / net_rel)
@@ -309,7 +309,7 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
         say(f"{label}: {len(new)} scenario(s) ({sum(e.kind == 'variant' for e in new)} variants)")
     progress.write(opts)
     return {"scenarios": len(progress.entries), "variants": sum(e.kind == "variant" for e in progress.entries),
-            "networks": {n: v["split"] for n, v in progress.networks.items()}, "failed": progress.failed}
+            "networks": {n: v.split for n, v in progress.networks.items()}, "failed": progress.failed}
 
 
 def criticality(scene: Scene, target: int) -> dict[str, float]:

@@ -90,6 +90,22 @@ class ScenarioEntry:
 
 
 @dataclass(frozen=True)
+class SetNetwork:
+    """A network of a scenario set: its split (every scenario on it is in that split) and the
+    sources (configurations and their seeds) recorded on it."""
+
+    split: str
+    sources: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {"split": self.split, "sources": list(self.sources)}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> SetNetwork:
+        return cls(split=d["split"], sources=tuple(d.get("sources", ())))
+
+
+@dataclass(frozen=True)
 class ScenarioSet:
     """A scenario set read from its folder (only the manifest; scenes load on demand)."""
 
@@ -142,15 +158,16 @@ def write_vtypes(root: Path) -> None:
 
 
 def write_manifest(root: Path, method: str, seed: int, entries: list[ScenarioEntry],
-                   networks: dict[str, dict[str, Any]], options: dict[str, Any]) -> None:
+                   networks: dict[str, SetNetwork], options: dict[str, Any]) -> None:
     """Write ``manifest.json`` atomically (the build rewrites it after every source: resumable)."""
     from coster_sumo.atomic import write_json
 
-    splits: dict[str, list[str]] = {s: sorted(n for n, v in networks.items() if v["split"] == s) for s in SPLITS}
+    splits: dict[str, list[str]] = {s: sorted(n for n, v in networks.items() if v.split == s) for s in SPLITS}
     counts = {s: {k: sum(1 for e in entries if e.split == s and e.kind == k) for k in ("nominal", "variant")}
               for s in SPLITS}
     write_json(root / MANIFEST, {"format": SET_FORMAT, "method": method, "seed": seed, "options": options,
-                                 "networks": networks, "splits": splits, "counts": counts,
+                                 "networks": {n: v.to_json() for n, v in networks.items()}, "splits": splits,
+                                 "counts": counts,
                                  "scenarios": [e.to_dict() for e in entries]})
 
 

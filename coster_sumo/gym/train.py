@@ -9,10 +9,11 @@ network (an MLP of two hidden layers of 64), the same PPO settings and the same 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,37 @@ class TrainOptions:
     quiet: bool = False
 
 
+@dataclass(frozen=True)
+class TrainProgress:
+    """What a training run has done (``OUT/progress.json``, rewritten at every checkpoint).
+
+    Attributes:
+        options: the :class:`TrainOptions` of the latest call, as strings.
+        steps: environment steps trained; wall_s: [s] wall time over every call.
+        outcomes: episode outcome -> episodes that ended so.
+        curve: (steps, mean episode return since the previous checkpoint) at each checkpoint.
+    """
+
+    options: dict[str, str]
+    steps: int = 0
+    wall_s: float = 0.0
+    outcomes: dict[str, int] = field(default_factory=dict)
+    curve: tuple[tuple[int, float], ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {"options": self.options, "steps": self.steps, "wall_s": self.wall_s, "outcomes": self.outcomes,
+                "curve": [list(point) for point in self.curve]}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> TrainProgress:
+        return cls(options=dict(d["options"]), steps=int(d["steps"]), wall_s=float(d["wall_s"]),
+                   outcomes=dict(d.get("outcomes", {})), curve=tuple((int(s), float(r)) for s, r in d["curve"]))
+
+
+def _option_strings(opts: TrainOptions) -> dict[str, str]:
+    return {k: str(v) for k, v in asdict(opts).items()}
+
+
 def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: float):  # type: ignore[no-untyped-def]
     def make():  # type: ignore[no-untyped-def]
         from stable_baselines3.common.monitor import Monitor
@@ -54,7 +86,7 @@ def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: fl
     return make
 
 
-def train(opts: TrainOptions) -> dict[str, Any]:
+def train(opts: TrainOptions) -> TrainProgress:
     """Train (or resume) PPO on the ``train`` split of ``opts.scenarios``; returns the progress record."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
@@ -66,11 +98,10 @@ def train(opts: TrainOptions) -> dict[str, Any]:
     venv = SubprocVecEnv(makers) if opts.envs > 1 else DummyVecEnv(makers)
     ckpt = opts.out / "checkpoint.zip"
     progress_path = opts.out / "progress.json"
-    progress: dict[str, Any] = {"options": {k: str(v) for k, v in asdict(opts).items()}, "steps": 0, "wall_s": 0.0,
-                                "outcomes": {}, "curve": []}
+    progress = TrainProgress(options=_option_strings(opts))
     if ckpt.exists() and progress_path.exists():
-        progress = json.loads(progress_path.read_text())
-        progress["options"] = {k: str(v) for k, v in asdict(opts).items()}  # the budget may have grown
+        progress = dataclasses.replace(TrainProgress.from_json(json.loads(progress_path.read_text())),
+                                       options=_option_strings(opts))  # the budget may have grown
         model = PPO.load(ckpt, env=venv, device="cpu")
     else:
         model = PPO("MlpPolicy", venv, seed=opts.seed, device="cpu", n_steps=512, batch_size=128, n_epochs=5,
@@ -82,25 +113,27 @@ def train(opts: TrainOptions) -> dict[str, Any]:
 
     model.set_logger(Logger(folder=None, output_formats=[]))
     t_start = time.perf_counter()
-    wall_before = float(progress["wall_s"])
-    outcomes: dict[str, int] = dict(progress.get("outcomes", {}))
+    wall_before = progress.wall_s
+    outcomes: dict[str, int] = dict(progress.outcomes)
     returns: list[float] = []
 
     def save() -> None:
+        nonlocal progress
         tmp = opts.out / ".checkpoint.tmp.zip"
         model.save(tmp)
         os.replace(tmp, ckpt)
-        progress.update(steps=int(model.num_timesteps), wall_s=wall_before + time.perf_counter() - t_start,
-                        outcomes=outcomes)
+        curve = progress.curve
         if returns:
-            progress["curve"].append([int(model.num_timesteps), float(np.mean(returns))])
+            curve = (*curve, (int(model.num_timesteps), float(np.mean(returns))))
             returns.clear()
-        write_json(progress_path, progress)
+        progress = dataclasses.replace(progress, steps=int(model.num_timesteps), outcomes=dict(outcomes), curve=curve,
+                                       wall_s=wall_before + time.perf_counter() - t_start)
+        write_json(progress_path, progress.to_json())
 
     class Checkpoints(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
-            self.last = int(progress["steps"])
+            self.last = progress.steps
 
         def _on_step(self) -> bool:
             for info in self.locals.get("infos", []):
@@ -112,20 +145,55 @@ def train(opts: TrainOptions) -> dict[str, Any]:
                 self.last = self.num_timesteps
                 save()
                 if not opts.quiet:
-                    print(f"{opts.out}: {self.num_timesteps} steps, {progress['wall_s']:.0f} s", flush=True)
+                    print(f"{opts.out}: {self.num_timesteps} steps, {progress.wall_s:.0f} s", flush=True)
             return True
 
-    left = opts.timesteps - int(progress["steps"])
+    left = opts.timesteps - progress.steps
     if left > 0:
         model.learn(total_timesteps=left, callback=Checkpoints(), reset_num_timesteps=False, progress_bar=False)
         save()
     venv.close()
     final = opts.out / "policy.zip"
-    if int(progress["steps"]) >= opts.timesteps:
+    if progress.steps >= opts.timesteps:
         tmp = opts.out / ".policy.tmp.zip"
         model.save(tmp)
         os.replace(tmp, final)
     return progress
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One evaluation episode: the scenario, its network and kind (nominal / variant), how it ended,
+    the route completion (fraction), whether it hit the variant's adversary, and the variant's
+    avoidability label (None: unlabelled)."""
+
+    scenario: str
+    network: str
+    kind: str
+    outcome: str
+    route_completion: float
+    collided_with_adversary: bool
+    avoidable: bool | None
+
+    @classmethod
+    def from_info(cls, info: dict[str, Any]) -> EpisodeRecord:
+        """From the environment's last ``info`` of the episode."""
+        return cls(scenario=info["scenario"], network=info["network"], kind=info["kind"], outcome=info["outcome"],
+                   route_completion=info["route_completion"], collided_with_adversary=info["collided_with_adversary"],
+                   avoidable=info["avoidable"])
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class KindOutcomes:
+    """RCR, CR and ORR (as :class:`EvalResult`) over the episodes of one scenario kind."""
+
+    rcr: float
+    cr: float
+    orr: float
+    episodes: int
 
 
 @dataclass
@@ -147,7 +215,7 @@ class EvalResult:
     rcr: float
     cr: float
     orr: float
-    per_kind: dict[str, dict[str, float]]
+    per_kind: dict[str, KindOutcomes]
     defect_rate: float | None = None
     avoidable_variants: int = 0
 
@@ -155,12 +223,12 @@ class EvalResult:
         return asdict(self)
 
 
-def _summary(rows: list[dict[str, Any]]) -> tuple[float, float, float]:
+def _summary(rows: list[EpisodeRecord]) -> tuple[float, float, float]:
     if not rows:
         return float("nan"), float("nan"), float("nan")
-    return (float(np.mean([r["route_completion"] for r in rows])),
-            float(np.mean([r["outcome"] == "collision" for r in rows])),
-            float(np.mean([r["outcome"] == "off_road" for r in rows])))
+    return (float(np.mean([r.route_completion for r in rows])),
+            float(np.mean([r.outcome == "collision" for r in rows])),
+            float(np.mean([r.outcome == "off_road" for r in rows])))
 
 
 HARD_TOP_FRACTION = 0.2  # the most critical nominal scenes of a hard set (by criticality score) that count
@@ -180,7 +248,7 @@ def hard_ids(scenarios: str | Path, split: str | None) -> list[str]:
 
 def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None = "test",
              control_period_s: float = 0.2, max_episodes: int | None = None,
-             hard: bool = False) -> tuple[EvalResult, list[dict[str, Any]]]:
+             hard: bool = False) -> tuple[EvalResult, list[EpisodeRecord]]:
     """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0));
     ``hard``: only the scenarios of :func:`hard_ids`."""
     from coster_sumo.gym.env import ScenarioEnv
@@ -192,7 +260,7 @@ def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None
         from stable_baselines3 import PPO
 
         model = PPO.load(policy, device="cpu")
-    rows: list[dict[str, Any]] = []
+    rows: list[EpisodeRecord] = []
     n = len(env.entries) if max_episodes is None else min(max_episodes, len(env.entries))
     for i in range(n):
         obs, info = env.reset(seed=0) if i == 0 else env.reset()
@@ -201,14 +269,13 @@ def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None
             action = model.predict(obs, deterministic=True)[0] if model is not None else np.zeros(2, np.float32)
             obs, _, terminated, truncated, info = env.step(action)
             done = terminated or truncated
-        rows.append({k: info[k] for k in ("scenario", "network", "kind", "outcome", "route_completion",
-                                          "collided_with_adversary", "avoidable")})
+        rows.append(EpisodeRecord.from_info(info))
     env.close()
     rcr, cr, orr = _summary(rows)
     per_kind = {}
-    for kind in sorted({r["kind"] for r in rows}):
-        k_rcr, k_cr, k_orr = _summary([r for r in rows if r["kind"] == kind])
-        per_kind[kind] = {"rcr": k_rcr, "cr": k_cr, "orr": k_orr, "episodes": sum(r["kind"] == kind for r in rows)}
-    avoidable = [r for r in rows if r["kind"] == "variant" and r["avoidable"] is True]
-    defects = float(np.mean([r["collided_with_adversary"] for r in avoidable])) if avoidable else None
+    for kind in sorted({r.kind for r in rows}):
+        of_kind = [r for r in rows if r.kind == kind]
+        per_kind[kind] = KindOutcomes(*_summary(of_kind), episodes=len(of_kind))
+    avoidable = [r for r in rows if r.kind == "variant" and r.avoidable is True]
+    defects = float(np.mean([r.collided_with_adversary for r in avoidable])) if avoidable else None
     return EvalResult(len(rows), rcr, cr, orr, per_kind, defects, len(avoidable)), rows

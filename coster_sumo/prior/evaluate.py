@@ -51,7 +51,7 @@ baselines.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -67,6 +67,14 @@ from coster_sumo.prior.infer import (
     width_table,
 )
 from coster_sumo.prior.model import TrafficPrior
+from coster_sumo.prior.records import (
+    Calibration,
+    DensityOffset,
+    MethodMmd,
+    PriorEvaluation,
+    ReliabilityBin,
+    TrafficScores,
+)
 from coster_sumo.prior.train import evaluate_loss
 
 MMD_ATTRIBUTES = ("position", "heading", "speed", "size")
@@ -95,34 +103,33 @@ def mmd(x: np.ndarray, y: np.ndarray, unbiased: bool = False) -> float:
     return float(k[:nx, :nx].mean() + k[nx:, nx:].mean() - 2.0 * k[:nx, nx:].mean())
 
 
-def reliability(p: np.ndarray, y: np.ndarray, num_bins: int = 10) -> dict:
+def reliability(p: np.ndarray, y: np.ndarray, num_bins: int = 10) -> Calibration:
     """Calibration of probabilities ``p`` (n,) against outcomes ``y`` (n,) bool."""
     p = np.asarray(p, np.float64)
     y = np.asarray(y, bool)
-    out: dict = {"count": int(len(p))}
     if len(p) == 0:
-        return out
+        return Calibration(count=0)
     which = np.minimum((p * num_bins).astype(np.int64), num_bins - 1)
     table, ece = [], 0.0
     for b in range(num_bins):
         sel = which == b
         n = int(sel.sum())
-        row = {"lo": b / num_bins, "hi": (b + 1) / num_bins, "count": n}
         if n:
-            row["mean_predicted"] = float(p[sel].mean())
-            row["observed"] = float(y[sel].mean())
-            ece += n / len(p) * abs(row["mean_predicted"] - row["observed"])
-        table.append(row)
+            mean_predicted, observed = float(p[sel].mean()), float(y[sel].mean())
+            ece += n / len(p) * abs(mean_predicted - observed)
+            table.append(ReliabilityBin(b / num_bins, (b + 1) / num_bins, n, mean_predicted, observed))
+        else:
+            table.append(ReliabilityBin(b / num_bins, (b + 1) / num_bins, n))
     eps = 1e-7
     pc = np.clip(p, eps, 1 - eps)
-    out.update({"ece": ece, "bce": float(-np.mean(y * np.log(pc) + (~y) * np.log(1 - pc))),
-                "brier": float(np.mean((p - y) ** 2)), "rate_observed": float(y.mean()),
-                "rate_predicted": float(p.mean()), "reliability": table})
+    auc = None
     if 0 < y.sum() < len(y):
         from sklearn.metrics import roc_auc_score
 
-        out["auc"] = float(roc_auc_score(y, p))
-    return out
+        auc = float(roc_auc_score(y, p))
+    return Calibration(count=int(len(p)), ece=ece, bce=float(-np.mean(y * np.log(pc) + (~y) * np.log(1 - pc))),
+                       brier=float(np.mean((p - y) ** 2)), rate_observed=float(y.mean()),
+                       rate_predicted=float(p.mean()), bins=tuple(table), auc=auc)
 
 
 def centre_rows(data: ScenePriorData, rng: np.random.Generator) -> np.ndarray:
@@ -346,37 +353,36 @@ def _score_hidden_disc(ev: _Evaluation, c: _Centres, t: _Tallies) -> None:
                  ev.unbiased)
 
 
-def _summary(per_method: _Scores) -> dict[str, dict]:
-    return {name: {**{a: (float(np.mean(v)) if v else None) for a, v in per.items()},
-                   "scenes": len(per["position"])} for name, per in per_method.items()}
+def _summary(per_method: _Scores) -> dict[str, MethodMmd]:
+    return {name: MethodMmd({a: (float(np.mean(v)) if v else None) for a, v in per.items()},
+                            scenes=len(per["position"])) for name, per in per_method.items()}
 
 
 def _mean_counts(counts: dict[str, list[int]] | dict[str, list[float]]) -> dict[str, float]:
     return {name: float(np.mean(c)) if c else 0.0 for name, c in counts.items()}
 
 
-def _results(t: _Tallies, mmd_estimator: str) -> dict:
+def _results(t: _Tallies, mmd_estimator: str) -> PriorEvaluation:
     """The evaluation's numbers from the per-scene tallies (but for the held-out losses)."""
-    result: dict = {"num_scenes": len(t.counts["ground_truth"]), "mmd_estimator": mmd_estimator,
-                    "mmd": _summary(t.per_scene), "agents_per_scene": _mean_counts(t.counts), "presence": {}}
-    result["agents_in_hidden_disc"] = _mean_counts(t.hidden)
+    offset = None
     if t.offsets:
         o = np.asarray(t.offsets)
-        result["density_offset"] = {"mean": float(o.mean()), "min": float(o.min()), "max": float(o.max()),
-                                    "at_limit": int(np.sum(np.abs(o) >= DENSITY_OFFSET_LIMIT - 1e-9))}
-    result["mmd_hidden_disc"] = _summary(t.per_scene_disc)
-    result["without_centre_agent"] = {
-        "mmd": _summary(t.per_scene_others), "mmd_hidden_disc": _summary(t.per_scene_disc_others),
-        "agents_per_scene": _mean_counts(t.counts_others), "agents_in_hidden_disc": _mean_counts(t.hidden_others)}
-    for name, (ps, ys) in t.cal.items():
-        if ps:
-            result["presence"][name] = reliability(np.concatenate(ps), np.concatenate(ys))
-    return result
+        offset = DensityOffset(mean=float(o.mean()), min=float(o.min()), max=float(o.max()),
+                               at_limit=int(np.sum(np.abs(o) >= DENSITY_OFFSET_LIMIT - 1e-9)))
+    return PriorEvaluation(
+        num_scenes=len(t.counts["ground_truth"]), mmd_estimator=mmd_estimator,
+        scores=TrafficScores(mmd=_summary(t.per_scene), mmd_hidden_disc=_summary(t.per_scene_disc),
+                             agents_per_scene=_mean_counts(t.counts), agents_in_hidden_disc=_mean_counts(t.hidden)),
+        presence={name: reliability(np.concatenate(ps), np.concatenate(ys)) for name, (ps, ys) in t.cal.items() if ps},
+        without_centre_agent=TrafficScores(
+            mmd=_summary(t.per_scene_others), mmd_hidden_disc=_summary(t.per_scene_disc_others),
+            agents_per_scene=_mean_counts(t.counts_others), agents_in_hidden_disc=_mean_counts(t.hidden_others)),
+        density_offset=offset)
 
 
 def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
                    baselines: Sequence[MeanValueBaseline | GMMBaseline] = (), seed: int = 0,
-                   progress: bool = False, mmd_estimator: str = "biased") -> dict:
+                   progress: bool = False, mmd_estimator: str = "biased") -> PriorEvaluation:
     """MMD of generated vs ground-truth traffic, presence calibration and held-out losses;
     ``mmd_estimator``: "biased" or "unbiased" (module docstring)."""
     if mmd_estimator not in ("biased", "unbiased"):
@@ -402,6 +408,6 @@ def evaluate_prior(model: TrafficPrior, scenes: Sequence[ScenePriorData],
     result = _results(tallies, mmd_estimator)
     samples = epoch_samples(scenes, np.random.default_rng([seed, 10**6 + 1]), 1)
     if len(samples):
-        result["heldout_loss"] = {
-            mode: evaluate_loss(model, scenes, samples, 64, seed, visible=mode) for mode in ("map", "context")}
+        result = replace(result, heldout_loss={
+            mode: evaluate_loss(model, scenes, samples, 64, seed, visible=mode) for mode in ("map", "context")})
     return result

@@ -15,11 +15,10 @@ sums).
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +32,7 @@ from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
 from coster_sumo.prior.features import Tokens
 from coster_sumo.prior.infer import save_prior
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
+from coster_sumo.prior.records import HeldOutLoss, PriorEpoch, PriorTrainingState, PriorTrainMetrics
 
 
 @dataclass
@@ -56,7 +56,7 @@ def _torch_batch(tok: Tokens, device: torch.device | str = "cpu") -> tuple[torch
 
 @torch.no_grad()
 def evaluate_loss(model: TrafficPrior, scenes: Sequence[ScenePriorData], samples: np.ndarray, batch_size: int,
-                  seed: int, visible: str = "random") -> dict[str, float]:
+                  seed: int, visible: str = "random") -> HeldOutLoss:
     """Held-out loss (the training objective) and per-head mean losses, for fixed samples."""
     model.eval()
     cfg = model.config
@@ -74,10 +74,9 @@ def evaluate_loss(model: TrafficPrior, scenes: Sequence[ScenePriorData], samples
             sums[k] = sums.get(k, 0.0) + float(v)
         n_query += float(q.sum())
     n_q, n_p = max(sums.get("num_query", 0.0), 1.0), max(sums.get("num_present", 0.0), 1.0)
-    out = {"loss": total / max(n_query, 1.0), "presence_bce": sums.get("presence", 0.0) / n_q,
-           "presence_rate": sums.get("num_present", 0.0) / n_q, "num_query": sums.get("num_query", 0.0)}
-    out.update({f"{a}_ce": sums.get(a, 0.0) / n_p for a in ATTRIBUTES})
-    return out
+    return HeldOutLoss(loss=total / max(n_query, 1.0), presence_bce=sums.get("presence", 0.0) / n_q,
+                       presence_rate=sums.get("num_present", 0.0) / n_q, num_query=sums.get("num_query", 0.0),
+                       attribute_ce={a: sums.get(a, 0.0) / n_p for a in ATTRIBUTES})
 
 
 def _lr_at(step: int, total: int, cfg: TrainConfig) -> float:
@@ -94,28 +93,27 @@ class _Progress:
 
     epoch: int = 0
     best: float = math.inf
-    best_state: dict | None = None
-    history: list[dict] = field(default_factory=list)
+    best_state: dict[str, torch.Tensor] | None = None
+    history: list[PriorEpoch] = field(default_factory=list)
 
 
 def _resumed(state_path: Path, mcfg: PriorConfig, tcfg: TrainConfig, model: TrafficPrior,
              opt: torch.optim.Optimizer, log: Callable[[str], None] | None) -> _Progress:
     """The progress of the training state at ``state_path``, loaded into ``model`` and ``opt``; a
     fresh start when it was written with other settings (said in the log)."""
-    state = torch.load(state_path, map_location="cpu", weights_only=True)
+    state = PriorTrainingState.from_dict(torch.load(state_path, map_location="cpu", weights_only=True))
     # the thread count only reorders floating-point sums: a run may resume on another one
-    saved_tc = {**dict(state.get("train_config") or {}), "threads": tcfg.threads}
+    saved_tc = {**state.train_config, "threads": tcfg.threads}
     differ = [k for k, v in asdict(tcfg).items() if saved_tc.get(k) != v]
-    if state.get("config") != mcfg.to_dict():
+    if state.config != mcfg.to_dict():
         differ.insert(0, "model settings")
     if differ:
         if log:
             log(f"ignoring {state_path}: it was written with another configuration ({', '.join(differ)})")
         return _Progress()
-    model.load_state_dict(state["model"])
-    opt.load_state_dict(state["optimizer"])
-    done = _Progress(int(state["epoch"]), float(state["best"]), state.get("best_model"),
-                     json.loads(state["history"]))
+    model.load_state_dict(state.model)
+    opt.load_state_dict(state.optimizer)
+    done = _Progress(state.epoch, state.best, state.best_model, list(state.history))
     if log:
         log(f"resuming from {state_path} after epoch {done.epoch}")
     return done
@@ -164,36 +162,38 @@ def _save_state(state_path: Path, mcfg: PriorConfig, tcfg: TrainConfig, model: T
     """The training state after ``done.epoch`` epochs, written atomically."""
     state_path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(state_path) as tmp:
-        torch.save({"config": mcfg.to_dict(), "train_config": asdict(tcfg), "model": model.state_dict(),
-                    "optimizer": opt.state_dict(), "epoch": done.epoch, "best": done.best,
-                    "best_model": done.best_state, "history": json.dumps(done.history)}, tmp)
+        state = PriorTrainingState(config=mcfg.to_dict(), train_config=asdict(tcfg), model=model.state_dict(),
+                                   optimizer=opt.state_dict(), epoch=done.epoch, best=done.best,
+                                   best_model=done.best_state, history=tuple(done.history))
+        torch.save(state.to_dict(), tmp)
 
 
 def _write_best(model: TrafficPrior, output: Path, done: _Progress, train: Sequence[ScenePriorData],
-                val: Sequence[ScenePriorData], tcfg: TrainConfig, dev: torch.device, meta: dict | None) -> dict:
+                val: Sequence[ScenePriorData], tcfg: TrainConfig, dev: torch.device, meta: dict | None
+                ) -> PriorTrainMetrics:
     """Load the best weights into ``model`` (on the CPU), write them to ``output`` and the metrics
     beside it; returns the metrics."""
     model.cpu()  # the checkpoint is the CPU's
     if done.best_state is not None:
         model.load_state_dict(done.best_state)
-    best_epoch = next((h["epoch"] for h in reversed(done.history) if h.get("best")), None)
-    metrics = {"best_epoch": best_epoch, "best_score": done.best, "history": done.history,
-               "num_train_scenes": len(train), "num_val_scenes": len(val),
-               "train_config": asdict(tcfg), "model_config": model.config.to_dict(),
-               "num_parameters": sum(p.numel() for p in model.parameters()), "device": device_name(dev),
-               "cpu": cpu_description(), **(meta or {})}
-    save_prior(model, output, metrics={k: v for k, v in metrics.items() if k != "history"},
-               meta=meta or {})
-    write_json(output.with_suffix(".json"), metrics)
+    best_epoch = next((e.epoch for e in reversed(done.history) if e.best), None)
+    metrics = PriorTrainMetrics(
+        best_epoch=best_epoch, best_score=done.best, history=done.history, num_train_scenes=len(train),
+        num_val_scenes=len(val), train_config=asdict(tcfg), model_config=model.config.to_dict(),
+        num_parameters=sum(p.numel() for p in model.parameters()), device=device_name(dev), cpu=cpu_description(),
+        meta=meta or {})
+    save_prior(model, output, metrics=metrics.to_json(history=False), meta=meta or {})
+    write_json(output.with_suffix(".json"), metrics.to_json())
     return metrics
 
 
 def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], output: str | Path,
                 model_config: PriorConfig | None = None, train_config: TrainConfig | None = None,
                 state_path: str | Path | None = None, resume: bool = True, progress: bool = True,
-                meta: dict | None = None, log: Callable[[str], None] | None = print, device: str = "cpu") -> dict:
+                meta: dict | None = None, log: Callable[[str], None] | None = print, device: str = "cpu"
+                ) -> PriorTrainMetrics:
     """Train the prior; write the best held-out checkpoint to ``output`` and metrics beside it
-    (``output`` with suffix ``.json``). Returns the metrics dict.
+    (``output`` with suffix ``.json``). Returns the metrics.
 
     ``device``: where the model trains (:func:`coster_sumo.devices.training_device`); the tokens are
     built on the CPU and moved there, the checkpoint is written for the CPU and the state is read
@@ -222,21 +222,17 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
     for epoch in range(done.epoch, tcfg.epochs):
         t0 = time.perf_counter()
         train_loss = _train_epoch(model, opt, train, tcfg, dev, epoch, steps_per_epoch, total_steps, progress)
-        record: dict = {"epoch": epoch + 1, "train_loss": train_loss, "seconds": time.perf_counter() - t0}
+        record = PriorEpoch(epoch=epoch + 1, train_loss=train_loss, seconds=time.perf_counter() - t0)
         if val_samples is not None and len(val_samples):
-            record["val"] = evaluate_loss(model, val, val_samples, tcfg.batch_size, tcfg.seed)
-            score = record["val"]["loss"]
-        else:
-            score = record["train_loss"]
-        if score < done.best:
-            done.best = score
+            record = replace(record, val=evaluate_loss(model, val, val_samples, tcfg.batch_size, tcfg.seed))
+        if record.score < done.best:
+            done.best = record.score
             done.best_state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
-            record["best"] = True
+            record = replace(record, best=True)
         done.history.append(record)
         done.epoch = epoch + 1
         _save_state(state_path, mcfg, tcfg, model, opt, done)
         if log:
-            val_txt = f" val {record['val']['loss']:.4f}" if "val" in record else ""
-            log(f"epoch {epoch + 1}/{tcfg.epochs}: train {record['train_loss']:.4f}{val_txt} "
-                f"({record['seconds']:.1f} s)")
+            val_txt = f" val {record.val.loss:.4f}" if record.val is not None else ""
+            log(f"epoch {epoch + 1}/{tcfg.epochs}: train {record.train_loss:.4f}{val_txt} ({record.seconds:.1f} s)")
     return _write_best(model, output, done, train, val, tcfg, dev, meta)

@@ -38,6 +38,7 @@ import mmap
 import os
 import shutil
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +57,7 @@ from coster_sumo.rollout.data import (
 
 FEATURE_VERSION = 1
 CACHE_DIR_NAME = ".cache"
+CACHE_FORMAT = "coster-sumo-rollout-features"  # meta.json's "format"
 ENCODING_FIELDS = ("max_horizon", "max_neighbors", "neighbor_select_radius_m", "max_map_chunks", "map_radius_m",
                    "lane_spacing_m", "chunk_vectors", "pos_scale_m", "vel_scale_mps")
 # name -> dtype; "per example" arrays first, then the ragged map chunks and neighbour slots
@@ -65,6 +67,38 @@ _MAP_FIELDS = {"map_vec": np.float32, "map_vec_mask": np.bool_, "map_attr": np.u
                "map_mask": np.bool_}
 _NBR_FIELDS = {"nbr": np.float32, "nbr_mask": np.bool_}
 _ALL_FIELDS = {**_EXAMPLE_FIELDS, **_MAP_FIELDS, **_NBR_FIELDS}
+
+
+@dataclass
+class CacheCounts:
+    """Rows written so far: examples, map chunks and neighbour slots (the leading sizes of the
+    per-example, map and neighbour arrays)."""
+
+    examples: int = 0
+    map_chunks: int = 0
+    neighbour_slots: int = 0
+
+
+@dataclass(frozen=True)
+class CacheMeta:
+    """A cache folder's ``meta.json``: its key, the encoding settings (:func:`encoding_settings`),
+    how many scene files it encoded and how many of them had examples, and the row counts."""
+
+    key: str
+    settings: dict[str, Any]
+    scene_files: int
+    scenes: int
+    counts: CacheCounts
+
+    def to_json(self) -> dict[str, Any]:
+        return {"format": CACHE_FORMAT, "key": self.key, "settings": self.settings, "scene_files": self.scene_files,
+                "scenes": self.scenes, "examples": self.counts.examples, "map_chunks": self.counts.map_chunks,
+                "neighbour_slots": self.counts.neighbour_slots}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> CacheMeta:
+        return cls(key=d["key"], settings=d["settings"], scene_files=d["scene_files"], scenes=d["scenes"],
+                   counts=CacheCounts(d["examples"], d["map_chunks"], d["neighbour_slots"]))
 
 
 def encoding_settings(cfg: RolloutConfig, min_steps: int) -> dict[str, Any]:
@@ -185,7 +219,7 @@ def build_feature_cache(paths: Sequence[Path], cfg: RolloutConfig, min_steps: in
     jobs = [(str(p), cfg.to_dict(), int(min_steps)) for p in paths]
     raw = {name: open(tmp / f"{name}.raw", "wb") for name in _ALL_FIELDS}  # noqa: SIM115 (closed below)
     inner: dict[str, tuple[int, ...]] = {}
-    rows = {"example": 0, "map": 0, "nbr": 0}
+    rows = CacheCounts()
     map_off: list[np.ndarray] = [np.zeros(1, np.int64)]
     nbr_off: list[np.ndarray] = [np.zeros(1, np.int64)]
     num_scenes = 0
@@ -214,11 +248,11 @@ def build_feature_cache(paths: Sequence[Path], cfg: RolloutConfig, min_steps: in
                     a = np.ascontiguousarray(res[name])
                     inner.setdefault(name, a.shape[1:])
                     raw[name].write(a.tobytes())
-                map_off.append(rows["map"] + np.cumsum(res["map_count"]))
-                nbr_off.append(rows["nbr"] + np.cumsum(res["nbr_count"]))
-                rows["example"] += len(res["index"])
-                rows["map"] += int(res["map_count"].sum())
-                rows["nbr"] += int(res["nbr_count"].sum())
+                map_off.append(rows.map_chunks + np.cumsum(res["map_count"]))
+                nbr_off.append(rows.neighbour_slots + np.cumsum(res["nbr_count"]))
+                rows.examples += len(res["index"])
+                rows.map_chunks += int(res["map_count"].sum())
+                rows.neighbour_slots += int(res["nbr_count"].sum())
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
@@ -230,14 +264,14 @@ def build_feature_cache(paths: Sequence[Path], cfg: RolloutConfig, min_steps: in
                      "map_vec": (p, 6), "map_vec_mask": (p,), "map_attr": (9,), "map_pos": (4,), "map_mask": (),
                      "nbr": (h + 1, 12), "nbr_mask": (h + 1,)}
     for name, dtype in _ALL_FIELDS.items():
-        lead = rows["example"] if name in _EXAMPLE_FIELDS else rows["map"] if name in _MAP_FIELDS else rows["nbr"]
+        lead = (rows.examples if name in _EXAMPLE_FIELDS else rows.map_chunks if name in _MAP_FIELDS
+                else rows.neighbour_slots)
         _npy_from_raw(tmp / f"{name}.raw", tmp / f"{name}.npy", dtype, (lead, *inner.get(name, default_inner[name])))
     np.save(tmp / "map_offset.npy", np.concatenate(map_off))
     np.save(tmp / "nbr_offset.npy", np.concatenate(nbr_off))
-    write_json(tmp / "meta.json", {"format": "coster-sumo-rollout-features", "key": folder.name,
-                                   "settings": encoding_settings(cfg, min_steps), "scene_files": len(paths),
-                                   "scenes": num_scenes, "examples": rows["example"], "map_chunks": rows["map"],
-                                   "neighbour_slots": rows["nbr"]})
+    meta = CacheMeta(key=folder.name, settings=encoding_settings(cfg, min_steps), scene_files=len(paths),
+                     scenes=num_scenes, counts=rows)
+    write_json(tmp / "meta.json", meta.to_json())
     try:
         os.replace(tmp, folder)
     except OSError:  # another process finished the same cache first: keep theirs
@@ -270,7 +304,7 @@ class CachedExamples:
 
     def __init__(self, folder: str | Path) -> None:
         self.folder = Path(folder)
-        self.meta = json.loads((self.folder / "meta.json").read_text())
+        self.meta = CacheMeta.from_json(json.loads((self.folder / "meta.json").read_text()))
         names = [*_ALL_FIELDS, "map_offset", "nbr_offset"]
         self.arrays = {n: np.load(self.folder / f"{n}.npy", mmap_mode="r") for n in names}
         # the small arrays every batch looks up are read into memory once; the rest stay mapped

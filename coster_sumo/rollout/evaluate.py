@@ -16,8 +16,9 @@ its own checkpoint when given).
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from coster_sumo.errors import InputError
 from coster_sumo.metrics import ade_fde
 from coster_sumo.rollout.baselines import LaneIndex, constant_lane_backward, constant_velocity_backward
 from coster_sumo.rollout.data import ExampleSet, to_frame, to_tensors
+from coster_sumo.rollout.records import DisplacementErrors, GroupErrors, MethodErrors, RolloutEvaluation
 from coster_sumo.snapshot_state import AgentState
 
 if TYPE_CHECKING:
@@ -34,11 +36,9 @@ if TYPE_CHECKING:
 BASELINES = ("constant_velocity", "constant_lane")
 
 
-def _summary(ade: np.ndarray, fde: np.ndarray, elapsed_s: float) -> dict[str, float]:
+def _summary(ade: np.ndarray, fde: np.ndarray, elapsed_s: float) -> MethodErrors:
     """ade, fde (R, S) per context and sample (:func:`~coster_sumo.metrics.ade_fde`) -> the metrics."""
-    return {"minADE": float(ade.min(-1).mean()), "minFDE": float(fde.min(-1).mean()),
-            "avgADE": float(ade.mean()), "avgFDE": float(fde.mean()), "num_contexts": int(ade.shape[0]),
-            "samples": int(ade.shape[1]), "time_per_trajectory_s": elapsed_s / max(ade.size, 1)}
+    return MethodErrors(DisplacementErrors.of(ade, fde), time_per_trajectory_s=elapsed_s / max(ade.size, 1))
 
 
 # neighbour counts at t_rev (the vehicles the model sees around the one it reconstructs), for
@@ -95,14 +95,14 @@ def cvae_predictions(model: RolloutCVAE, examples: ExampleSet | CachedExamples, 
 
 
 def _groups(ade: np.ndarray, fde: np.ndarray, key: str, groups: list[tuple[str, np.ndarray]]
-            ) -> list[dict[str, Any]]:
+            ) -> tuple[GroupErrors, ...]:
     """minADE / minFDE of each (label, selection) group of contexts, empty groups left out;
     ``ade``, ``fde`` (R, S) per context and sample."""
-    return [{key: label, "contexts": int(sel.sum()), "minADE": float(ade[sel].min(-1).mean()),
-             "minFDE": float(fde[sel].min(-1).mean())} for label, sel in groups if sel.any()]
+    return tuple(GroupErrors(group=key, label=label, contexts=int(sel.sum()), min_ade=float(ade[sel].min(-1).mean()),
+                             min_fde=float(fde[sel].min(-1).mean())) for label, sel in groups if sel.any())
 
 
-def by_neighbours(ade: np.ndarray, fde: np.ndarray, neighbours: np.ndarray) -> list[dict[str, Any]]:
+def by_neighbours(ade: np.ndarray, fde: np.ndarray, neighbours: np.ndarray) -> tuple[GroupErrors, ...]:
     """minADE / minFDE per bucket of :data:`NEIGHBOUR_BUCKETS` (empty buckets left out); ``ade``,
     ``fde`` (R, S) per context and sample, ``neighbours`` (R,)."""
     return _groups(ade, fde, "neighbours", [
@@ -110,23 +110,23 @@ def by_neighbours(ade: np.ndarray, fde: np.ndarray, neighbours: np.ndarray) -> l
         for lo, hi in NEIGHBOUR_BUCKETS])
 
 
-def by_lane_neighbour(ade: np.ndarray, fde: np.ndarray, lane_neighbour: np.ndarray) -> list[dict[str, Any]]:
+def by_lane_neighbour(ade: np.ndarray, fde: np.ndarray, lane_neighbour: np.ndarray) -> tuple[GroupErrors, ...]:
     """minADE / minFDE of the contexts with and without a neighbour in their lane close ahead or
     behind (:func:`has_lane_neighbour`; empty groups left out)."""
     return _groups(ade, fde, "lane_neighbour", [("yes", lane_neighbour), ("no", ~lane_neighbour)])
 
 
 def cvae_errors(model: RolloutCVAE, examples: ExampleSet | CachedExamples, rows: np.ndarray, num_samples: int = 5,
-                seed: int = 0, batch_size: int = 64) -> dict[str, Any]:
+                seed: int = 0, batch_size: int = 64) -> MethodErrors:
     """minADE / minFDE / avgADE / avgFDE [m] and time per trajectory [s] of the CVAE on ``rows``,
     ``by_neighbours`` (:func:`by_neighbours`) and ``by_lane_neighbour`` (:func:`by_lane_neighbour`)."""
     pred, truth, mask, elapsed, info = cvae_predictions(model, examples, rows, num_samples, seed, batch_size)
     ade, fde = ade_fde(pred, truth, mask)
-    return {**_summary(ade, fde, elapsed), "by_neighbours": by_neighbours(ade, fde, info["neighbours"]),
-            "by_lane_neighbour": by_lane_neighbour(ade, fde, info["lane_neighbour"])}
+    return dataclasses.replace(_summary(ade, fde, elapsed), by_neighbours=by_neighbours(ade, fde, info["neighbours"]),
+                               by_lane_neighbour=by_lane_neighbour(ade, fde, info["lane_neighbour"]))
 
 
-def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: int) -> dict[str, float]:
+def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: int) -> MethodErrors:
     """The metrics of one baseline (``constant_velocity`` or ``constant_lane``) on ``rows``."""
     if name not in BASELINES:
         raise InputError(f"unknown baseline {name!r} (choose from {', '.join(BASELINES)})")
@@ -160,19 +160,15 @@ def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: 
 
 def evaluate_rollout(examples: ExampleSet, models: dict[str, RolloutCVAE], *, horizon: int = 10,
                      num_samples: int = 5, seed: int = 0, batch_size: int = 64,
-                     max_examples: int = 0) -> dict[str, Any]:
-    """Score the baselines and every model on the examples with a full ``horizon`` past.
-
-    Returns:
-        ``{"num_examples": R, "methods": {name: metrics}}``; ``max_examples`` > 0 scores a seeded
-        subset of that many.
-    """
+                     max_examples: int = 0) -> RolloutEvaluation:
+    """Score the baselines and every model on the examples with a full ``horizon`` past
+    (``max_examples`` > 0: a seeded subset of that many)."""
     rows = np.flatnonzero(examples.index[:, 3] >= horizon) if len(examples) else np.zeros(0, np.int64)
     if max_examples > 0 and len(rows) > max_examples:
         rows = np.sort(np.random.default_rng(seed).choice(rows, max_examples, replace=False))
     if len(rows) == 0:
         raise InputError(f"no vehicle with a full {horizon * 0.5:g} s past to evaluate on")
-    methods: dict[str, Any] = {}
+    methods: dict[str, MethodErrors] = {}
     for name in BASELINES:
         methods[name] = baseline_errors(name, examples, rows, horizon)
     for name, model in models.items():
@@ -180,4 +176,4 @@ def evaluate_rollout(examples: ExampleSet, models: dict[str, RolloutCVAE], *, ho
             raise InputError(f"{name}: the model reconstructs at most {model.cfg.max_horizon} steps, "
                              f"the evaluation needs {horizon}")
         methods[name] = cvae_errors(model, examples, rows, num_samples, seed, batch_size)
-    return {"num_examples": int(len(rows)), "horizon_steps": horizon, "methods": methods}
+    return RolloutEvaluation(num_examples=int(len(rows)), horizon_steps=horizon, methods=methods)

@@ -61,8 +61,8 @@ from coster_sumo.rollout.config import FREE_ON_INIT
 from coster_sumo.rollout.data import ExampleSet, build_examples, to_tensors
 from coster_sumo.rollout.evaluate import cvae_errors
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
+from coster_sumo.rollout.records import ElboTerms, EpochRecord, RolloutTrainingState
 
-RESUME_FORMAT = "coster-sumo-rollout-train"
 PRECISIONS = ("fp32", "bf16")
 
 
@@ -214,22 +214,23 @@ def _tensors(batch: dict[str, np.ndarray], device: torch.device | str = "cpu"
 
 @torch.no_grad()
 def validation_loss(model: RolloutCVAE, examples: Examples, rows: np.ndarray, batch_size: int, seed: int
-                    ) -> dict[str, float]:
+                    ) -> ElboTerms:
     """Posterior ELBO terms on ``rows`` (per valid step, averaged over examples)."""
     model.eval()
     gen = torch.Generator().manual_seed(seed)
-    tot = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
+    loss = recon = kl = 0.0
     count = 0
     for start in range(0, len(rows), batch_size):
         ctx, traj, mask = _tensors(examples.batch(rows[start:start + batch_size], model.cfg), model.device)
         out = model(ctx, traj, mask, generator=gen)
         k = len(traj)
         assert out.loss is not None and out.recon is not None and out.kl is not None
-        tot["loss"] += float(out.loss) * k
-        tot["recon"] += float(out.recon) * k
-        tot["kl"] += float(out.kl) * k
+        loss += float(out.loss) * k
+        recon += float(out.recon) * k
+        kl += float(out.kl) * k
         count += k
-    return {f"val_{k}": v / max(count, 1) for k, v in tot.items()}
+    n = max(count, 1)
+    return ElboTerms(loss=loss / n, recon=recon / n, kl=kl / n)
 
 
 def state_path(out: Path) -> Path:
@@ -301,34 +302,34 @@ def _scored_rows(val_set: Examples, cfg: RolloutConfig, tcfg: TrainConfig) -> tu
     return val_rows, ade_rows
 
 
-def _resume(rpath: Path, run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer) -> tuple[list[dict[str, Any]], int]:
+def _resume(rpath: Path, run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer) -> tuple[list[EpochRecord], int]:
     """Load the training state ``rpath`` into ``model`` and ``opt``: its history and the epochs done.
     A state of other data or settings is an error that names them."""
-    state = read_torch_file(rpath)
-    if not isinstance(state, dict) or state.get("format") != RESUME_FORMAT:
+    state = RolloutTrainingState.from_dict(read_torch_file(rpath))
+    if state is None:
         raise InputError(f"{rpath}: not a rollout training state")
-    conflicts = resume_conflicts(dict(state.get("train_config", {})), run.tcfg, int(state.get("epoch", 0)))
-    if state.get("config") != run.cfg.to_dict():
+    conflicts = resume_conflicts(state.train_config, run.tcfg, state.epoch)
+    if state.config != run.cfg.to_dict():
         conflicts.insert(0, "the model settings")
-    if state.get("data") != run.data:
-        conflicts.insert(0, f"data {state.get('data')} -> {run.data}")
+    if state.data != run.data:
+        conflicts.insert(0, f"data {state.data} -> {run.data}")
     if conflicts:
         raise InputError(f"{rpath}: the run to resume used other data or settings ({'; '.join(conflicts)}); "
                          "start afresh with --restart (or write to another -o)")
-    model.load_state_dict(state["model"])
-    opt.load_state_dict(state["optimizer"])
-    return list(state.get("history", [])), int(state["epoch"])
+    model.load_state_dict(state.model)
+    opt.load_state_dict(state.optimizer)
+    return list(state.history), state.epoch
 
 
 def _train_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, epoch: int, steps_per_epoch: int
-                 ) -> dict[str, float]:
+                 ) -> ElboTerms:
     """One pass over the epoch's training rows: the mean loss, reconstruction and KL per example."""
     tcfg, cfg, dev = run.tcfg, run.cfg, run.dev
     model.train()
     torch.manual_seed(tcfg.seed * 1_000_003 + epoch)
     rows = _epoch_rows(len(run.train_set), tcfg, epoch)
     batches = range(0, len(rows), tcfg.batch_size)
-    sums = {"loss": 0.0, "recon": 0.0, "kl": 0.0}
+    loss = recon = kl = 0.0
     seen = 0
     # the next batch is assembled by a background thread while this one trains
     ahead = prefetch(lambda part: _tensors(run.train_set.batch(part, cfg), dev),
@@ -345,42 +346,45 @@ def _train_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, epoc
         torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
         opt.step()
         k = len(traj)
-        sums["loss"] += float(res.loss.detach()) * k
-        sums["recon"] += float(res.recon) * k
-        sums["kl"] += float(res.kl) * k
+        loss += float(res.loss.detach()) * k
+        recon += float(res.recon) * k
+        kl += float(res.kl) * k
         seen += k
-        bar.set_postfix(loss=f"{sums['loss'] / seen:.3f}", kl=f"{sums['kl'] / seen:.3f}")
-    return {f"train_{k}": v / max(seen, 1) for k, v in sums.items()}
+        bar.set_postfix(loss=f"{loss / seen:.3f}", kl=f"{kl / seen:.3f}")
+    n = max(seen, 1)
+    return ElboTerms(loss=loss / n, recon=recon / n, kl=kl / n)
 
 
-def _held_out_scores(run: _Run, model: RolloutCVAE, epoch: int) -> dict[str, float]:
-    """The held-out ELBO terms and minADE / minFDE after ``epoch`` (0-based)."""
+def _epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, epoch: int, steps_per_epoch: int
+           ) -> EpochRecord:
+    """Train ``epoch`` (0-based), then score the held-out ELBO terms and minADE / minFDE."""
+    t_epoch = time.perf_counter()
     tcfg = run.tcfg
-    scores: dict[str, float] = {}
+    train = _train_epoch(run, model, opt, epoch, steps_per_epoch)
+    val = val_errors = None
     if len(run.val_rows):
-        scores.update(validation_loss(model, run.val_set, run.val_rows, tcfg.batch_size, tcfg.seed + epoch))
+        val = validation_loss(model, run.val_set, run.val_rows, tcfg.batch_size, tcfg.seed + epoch)
     if len(run.ade_rows):
-        errs = cvae_errors(model, run.val_set, run.ade_rows, tcfg.eval_samples, seed=tcfg.seed,
-                           batch_size=tcfg.batch_size)
-        kept = {k: v for k, v in errs.items() if k != "time_per_trajectory_s" and not k.startswith("by_")}
-        scores.update({f"val_{k}": v for k, v in kept.items()})
-    return scores
+        val_errors = cvae_errors(model, run.val_set, run.ade_rows, tcfg.eval_samples, seed=tcfg.seed,
+                                 batch_size=tcfg.batch_size).errors
+    return EpochRecord(epoch=epoch + 1, train=train, val=val, val_errors=val_errors,
+                       time_s=time.perf_counter() - t_epoch)
 
 
-def _save_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, history: list[dict[str, Any]]) -> None:
+def _save_epoch(run: _Run, model: RolloutCVAE, opt: torch.optim.Optimizer, history: list[EpochRecord]) -> None:
     """The checkpoint and the training state after the last epoch of ``history``."""
-    entry = history[-1]
-    epochs = entry["epoch"]
+    entry = history[-1].to_json()
+    epochs = history[-1].epoch
     meta = {"data": run.data, "epochs": epochs, "seed": run.tcfg.seed,
             "train_config": dataclasses.asdict(run.tcfg), "last": entry}
     save_checkpoint(model, run.out, meta=meta)
-    atomic_torch_save({"format": RESUME_FORMAT, "epoch": epochs, "model": model.state_dict(),
-                       "optimizer": opt.state_dict(), "config": run.cfg.to_dict(),
-                       "train_config": dataclasses.asdict(run.tcfg), "data": run.data,
-                       "history": history}, state_path(run.out))
+    state = RolloutTrainingState(epoch=epochs, model=model.state_dict(), optimizer=opt.state_dict(),
+                                 config=run.cfg.to_dict(), train_config=dataclasses.asdict(run.tcfg), data=run.data,
+                                 history=tuple(history))
+    atomic_torch_save(state.to_dict(), state_path(run.out))
 
 
-def _run_metrics(run: _Run, model: RolloutCVAE, history: list[dict[str, Any]]) -> dict[str, Any]:
+def _run_metrics(run: _Run, model: RolloutCVAE, history: list[EpochRecord]) -> dict[str, Any]:
     """The metrics of the run so far (written to ``OUT.json`` after every epoch)."""
     return {
         "format": "coster-sumo-rollout-metrics", "data": run.data,
@@ -390,7 +394,7 @@ def _run_metrics(run: _Run, model: RolloutCVAE, history: list[dict[str, Any]]) -
         "config": run.cfg.to_dict(), "train_config": dataclasses.asdict(run.tcfg),
         "init": None if run.init is None else str(Path(run.init).resolve()),
         "parameters": sum(p.numel() for p in model.parameters()),
-        "epochs": history, "final": history[-1],
+        "epochs": [e.to_json() for e in history], "final": history[-1].to_json(),
         "wall_time_s": time.perf_counter() - run.t_start, "torch": torch.__version__,
         "threads": torch.get_num_threads(), "machine": platform.machine(), "cpu": run.cpu,
         "device": device_name(run.dev),
@@ -447,25 +451,21 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     run = _Run(str(Path(data).resolve()), out, cfg, tcfg, dev, train_paths, val_paths, train_set, val_set,
                *_scored_rows(val_set, cfg, tcfg), init, command, cpu, t_start, quiet)
-    history: list[dict[str, Any]] = []
+    history: list[EpochRecord] = []
     first_epoch = 0
     if resume and state_path(out).is_file():
         history, first_epoch = _resume(state_path(out), run, model, opt)
     metrics: dict[str, Any] = {}
     steps_per_epoch = math.ceil(len(_epoch_rows(len(train_set), tcfg, 0)) / tcfg.batch_size)
     for epoch in range(first_epoch, tcfg.epochs):
-        t_epoch = time.perf_counter()
-        entry: dict[str, Any] = {"epoch": epoch + 1, **_train_epoch(run, model, opt, epoch, steps_per_epoch)}
-        entry.update(_held_out_scores(run, model, epoch))
-        entry["time_s"] = time.perf_counter() - t_epoch
-        history.append(entry)
+        history.append(_epoch(run, model, opt, epoch, steps_per_epoch))
         _save_epoch(run, model, opt, history)
         metrics = _run_metrics(run, model, history)
         write_json(_metrics_path(out), metrics)
         if not quiet:
-            shown = {k: round(v, 4) for k, v in entry.items() if isinstance(v, float)}
+            shown = {k: round(v, 4) for k, v in history[-1].to_json().items() if isinstance(v, float)}
             print(f"epoch {epoch + 1}: {shown}", file=sys.stderr)
     if not metrics:  # nothing left to do (resumed a finished run)
         mp = _metrics_path(out)
-        metrics = json.loads(mp.read_text()) if mp.is_file() else {"epochs": history}
+        metrics = json.loads(mp.read_text()) if mp.is_file() else {"epochs": [e.to_json() for e in history]}
     return metrics
