@@ -55,12 +55,6 @@ VARIANT_FILE = "variant.json"
 TARGET_MOVED_M = 0.5
 
 
-def variant_record(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
-                   nominal: Scene | None = None) -> dict[str, Any]:
-    """:func:`variant_outcome` as the JSON a batch's result row keeps."""
-    return variant_outcome(i, plan, res, target_id, t_col, nominal).to_json()
-
-
 def variant_outcome(i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
                     nominal: Scene | None = None, snapshot: int = 0) -> VariantOutcome:
     """Variant ``i`` (of ``snapshot``) as summary.json lists it; the contact offset is counted from

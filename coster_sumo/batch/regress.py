@@ -144,7 +144,7 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     from coster_sumo.defects import escape_replay, planner_outcome
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.formats.scene_file import load_scene
-    from coster_sumo.outputs import variant_record
+    from coster_sumo.outputs import variant_outcome
     from coster_sumo.sim.inject import inject_variant
 
     plans_dir = Path(payload["plans_dir"])
@@ -158,6 +158,7 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     target = scene.tracks.index_of(target_id)
     drivable = DrivableArea.from_road_map(scene.road_map)
     label = doc.label(i)
+    avoidable = None if label is None else bool(label["avoidable"])
     driver = None
     if payload["planner"] == ESCAPE_PLANNER:  # the reference: the variant's own escape, where it has one
         esc = doc.escape(i)
@@ -166,26 +167,24 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
         res = inject_variant(spec, scene, target, plan, "replay" if payload["planner"] == ESCAPE_PLANNER
                              else payload["planner"], drivable=drivable, workdir=Path(wd), driver=driver)
-    rec = variant_record(i, plan, res, target_id, t_col)
+    rec = variant_outcome(i, plan, res, target_id, t_col)
     in_horizon = any(e.kind == "collision" and target_id in e.vehicles and e.time <= t_col + HORIZON_AFTER_TCOL_S + 1e-6
                      for e in res.events)
     target_any = any(e.kind == "collision" and target_id in e.vehicles for e in res.events)
-    return result_row(payload, status="ok", reason="", collision=bool(rec["collision"]) or target_any,
-                      adversary_contact=bool(rec["collision"]),
+    return result_row(payload, status="ok", reason="", collision=rec.collision or target_any,
+                      adversary_contact=rec.collision,
                       target_other_collision=any(e.kind == "collision" and target_id in e.vehicles
                                                  and plan.vehicle_id not in e.vehicles for e in res.events),
                       target_off_road=bool(res.target_off_road), adversary_off_road=bool(res.adversary_off_road),
                       route_completed=bool(res.route_completed), target_arrived=bool(res.target_arrived),
-                      min_ttc=rec["min_ttc"], contact_time=rec["collision_time"],
-                      contact_offset_s=rec["contact_offset_s"], relative_speed=rec["relative_speed"],
-                      impact_angle=rec["impact_angle"], sumo_reported_contact=bool(rec["sumo_reported_contact"]),
+                      min_ttc=rec.min_ttc, contact_time=rec.collision_time,
+                      contact_offset_s=rec.contact_offset_s, relative_speed=rec.relative_speed,
+                      impact_angle=rec.impact_angle, sumo_reported_contact=rec.sumo_reported_contact,
                       t_col=t_col, sim_wall_time_s=float(res.wall_time_s),
                       target_path=json.dumps(_target_path(res, target_id)),
-                      avoidable=None if label is None else bool(label["avoidable"]),
-                      contact_in_horizon=in_horizon,
+                      avoidable=avoidable, contact_in_horizon=in_horizon,
                       contact_kind=None if label is None else label["contact_kind"],
-                      outcome=planner_outcome(res.scene, target_id, plan, in_horizon,
-                                              None if label is None else bool(label["avoidable"])))
+                      outcome=planner_outcome(res.scene, target_id, plan, in_horizon, avoidable))
 
 
 @dataclass(kw_only=True)
