@@ -4,27 +4,27 @@ Generation calls :func:`label_plans` for its kept plans: :func:`coster_sumo.avoi
 the target's escapes, :func:`coster_sumo.sim.proof.prove_labels` replays each one in the variant's
 own pass, and an escape that SUMO refutes no longer counts (docs/method.md, step 8). The rest of
 this module turns labels and a planner's pass into what users read: the summary entries, the
-outcome lines ("avoided: braked to 3.1 m/s, clearance 1.2 m"; "hit, unavoidable") and the defect
-rate of a regression (contact in an avoidable variant, Wilson interval).
+outcome lines ("avoided: braked to 3.1 m/s, clearance 1.2 m"; "hit, unavoidable") and the label
+statistics over many variants. A regression's defect rate (contact in an avoidable variant, Wilson
+interval) is :func:`coster_sumo.batch.summaries.defect_rates`, its tables are
+:mod:`coster_sumo.batch.report`'s.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
-from coster_sumo.batch.generator_summary import GeneratorResult
-from coster_sumo.batch.summaries import DefectRates, LabelRates, RegressionSummary
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.geometry import box_signed_distance, make_boxes
-from coster_sumo.metrics import MetricSample, MetricValue, RunOutcome, compute, rate_with_ci
+from coster_sumo.metrics import MetricSample, RunOutcome, compute, rate_with_ci
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.results import LabelCounts, TargetResult
 from coster_sumo.scene import Scene
@@ -166,56 +166,6 @@ def escape_replay(d: dict[str, Any], length_m: float) -> Any:
                          np.asarray(d["speed"], float), np.ones(len(times), bool), length_m)
 
 
-# a planner's rates in a regression: key of summary.json -> the metric of coster_sumo.metrics.REGISTRY
-# (the target is under test: CR and ORR are the target's)
-PLANNER_RATES = {"RCR": "RCR", "CR": "CR_target", "ORR": "ORR_target"}
-
-
-def defect_rates(outcomes: Sequence[RunOutcome]) -> DefectRates:
-    """The defect rate (a contact of the target in an avoidable variant) beside the unavoidable-contact
-    rate, and :data:`PLANNER_RATES` split by the label, of one planner's finished runs, all from the
-    metrics' registry.
-
-    A contact counts up to the label's horizon (:data:`~coster_sumo.avoid.HORIZON_AFTER_TCOL_S` after
-    t_col): that is what an escape is proven for; what happens later (the pass goes on until the
-    target arrives) stays in the plain collision rate.
-    """
-    every = MetricSample(tuple(outcomes))
-    avoidable = MetricSample(tuple(o for o in outcomes if o.avoidable is True))
-    unavoidable = MetricSample(tuple(o for o in outcomes if o.avoidable is False))
-    av, un = len(avoidable.outcomes), len(unavoidable.outcomes)
-    return DefectRates(defect_rate=compute("defect_rate", every),
-                       unavoidable_contact_rate=compute("unavoidable_contact_rate", every),
-                       avoidable_runs=av, unavoidable_runs=un, unlabelled_runs=len(outcomes) - av - un,
-                       avoidable=_label_rates(avoidable), unavoidable=_label_rates(unavoidable))
-
-
-def _label_rates(part: MetricSample) -> LabelRates:
-    """:data:`PLANNER_RATES` of the runs of one label."""
-    return LabelRates(CR=compute(PLANNER_RATES["CR"], part), RCR=compute(PLANNER_RATES["RCR"], part),
-                      ORR=compute(PLANNER_RATES["ORR"], part))
-
-
-def _pct(rate: MetricValue) -> str:
-    """A rate in a report's table: percent, its Wilson interval, k/n."""
-    if rate.value is None:
-        return "n/a"
-    return (f"{100 * rate.value:.1f}% [{100 * (rate.ci_low or 0.0):.1f}, {100 * (rate.ci_high or 0.0):.1f}] "
-            f"({rate.k}/{rate.n})")
-
-
-def defect_table(summary: RegressionSummary) -> tuple[list[str], list[list[str]]]:
-    """The headline table of a regression: per planner, the defect rate beside the unavoidable-contact rate."""
-    head = ["planner", "defect rate (contact in an avoidable variant)", "unavoidable-contact rate",
-            "RCR avoidable", "RCR unavoidable"]
-    rows = []
-    for name, p in summary.planners.items():
-        d = p.defects
-        rows.append([name, _pct(d.defect_rate), _pct(d.unavoidable_contact_rate),
-                     _pct(d.avoidable.RCR), _pct(d.unavoidable.RCR)])
-    return head, rows
-
-
 # ----------------------------------------------------------------------------- label statistics
 
 def label_record(lab: Avoidability) -> dict[str, Any]:
@@ -258,20 +208,3 @@ def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "escapes_found": found,
             "escapes_replayed": sum(int(r.get("escapes_replayed", 0)) for r in recs),
             "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs)}
-
-
-def avoidability_report_table(methods: Mapping[str, GeneratorResult]) -> tuple[list[str], list[list[str]]]:
-    """Per generator that ran: avoidable share at each reaction time, the collision rate split by the
-    label, and the median last moment to act (``eval scenarios``' report)."""
-    head = ["method", "variants", "avoidable @0.5 s", "avoidable @1 s", "avoidable @1.5 s", "CR avoidable",
-            "CR unavoidable", "last moment to act, median [s]"]
-    rows = []
-    for name, m in methods.items():
-        a = m.avoidability
-        if not a.variants:
-            continue
-        sh = a.avoidable_share
-        rows.append([name, str(a.variants), *(_pct(sh[t]) if t in sh else "n/a" for t in ("0.5", "1", "1.5")),
-                     _pct(a.CR_avoidable), _pct(a.CR_unavoidable),
-                     str(a.last_moment_percentiles.get("p50", "n/a"))])
-    return head, rows

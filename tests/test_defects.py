@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 
 from coster_sumo.batch.store import ResultStore
+from coster_sumo.batch.summaries import defect_rates
 from coster_sumo.cli import main
-from coster_sumo.defects import defect_rates, label_line
+from coster_sumo.defects import label_line
 from coster_sumo.evasion import Avoidability
 from coster_sumo.metrics import RunOutcome
 

@@ -133,8 +133,8 @@ def test_paired_scene_bootstrap_separates_a_real_difference_from_none():
 def test_paired_diversity_compares_coster_on_shared_scenes_only():
     from coster_sumo.batch.evaluate import GENERATOR_METHODS, avoidability_summary, paired_diversity
     from coster_sumo.batch.generator_summary import EvalSummary, GeneratorResult, GeneratorTable
+    from coster_sumo.batch.report import diversity_section
     from coster_sumo.metrics import MetricValue
-    from coster_sumo.report import diversity_section
 
     per_scene = {"COSTER": {"s1": ([1.0, 2.0], [10.0, 20.0]), "s2": ([5.0], [-90.0]), "s3": ([3.0], [0.0])},
                  "COSTER t_col=last": {"s1": ([1.0], [0.0]), "s2": ([1.0], [0.0])}}

@@ -284,7 +284,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
                           variants=opts.variants, samples=opts.samples, methods=table,
                           wall_time_s=round(time.perf_counter() - t_start, 3))
     write_json(out / "summary.json", summary.to_json())
-    from coster_sumo.report import write_generator_report
+    from coster_sumo.batch.report import write_generator_report
 
     summary = dataclasses.replace(summary, report=tuple(write_generator_report(out, summary)))
     write_json(out / "summary.json", summary.to_json())

@@ -37,6 +37,7 @@ from coster_sumo.batch.sources import (
 )
 from coster_sumo.batch.store import ResultRow, ResultStore, result_row, row_outcome
 from coster_sumo.batch.summaries import (
+    PLANNER_RATES,
     GenerationFailure,
     PlannerSummary,
     RegressionRunOptions,
@@ -44,8 +45,9 @@ from coster_sumo.batch.summaries import (
     RunCounts,
     RunFailure,
     SceneCounts,
+    defect_rates,
 )
-from coster_sumo.defects import PLANNER_RATES, defect_rates, escape_dict
+from coster_sumo.defects import escape_dict
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.method.generation import Variant, check_generation
@@ -340,7 +342,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                                      seed=opts.seed))
     write_json(out / "summary.json", summary.to_json())  # before the report: a plotting failure loses no result
     if opts.report:
-        from coster_sumo.report import write_regression_report
+        from coster_sumo.batch.report import write_regression_report
 
         summary = dataclasses.replace(summary, report=tuple(write_regression_report(out, summary, store.read())))
         write_json(out / "summary.json", summary.to_json())

@@ -10,11 +10,11 @@ written as ``{"rate", "ci_low", "ci_high", "k", "n"}``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from coster_sumo.metrics import MetricValue
+from coster_sumo.metrics import MetricSample, MetricValue, RunOutcome, compute
 
 
 def rate_from_json(d: Mapping[str, Any]) -> MetricValue:
@@ -47,7 +47,7 @@ class LabelRates:
 
 @dataclass(frozen=True)
 class DefectRates:
-    """One planner's defects (:func:`coster_sumo.defects.defect_rates`).
+    """One planner's defects (:func:`defect_rates`).
 
     Attributes:
         defect_rate: runs on avoidable variants with a contact of the target (within the label's horizon).
@@ -247,3 +247,33 @@ class RegressionSummary:
                    d.get("results", RESULTS_NOTE), dict(d.get("units", REGRESSION_UNITS)), d.get("wall_time_s"),
                    RegressionRunOptions(**d["options"]) if "options" in d else None,
                    tuple(d["report"]) if "report" in d else None)
+
+
+# a planner's rates in a regression: key of summary.json -> the metric of coster_sumo.metrics.REGISTRY
+# (the target is under test: CR and ORR are the target's)
+PLANNER_RATES = {"RCR": "RCR", "CR": "CR_target", "ORR": "ORR_target"}
+
+
+def defect_rates(outcomes: Sequence[RunOutcome]) -> DefectRates:
+    """The defect rate (a contact of the target in an avoidable variant) beside the unavoidable-contact
+    rate, and :data:`PLANNER_RATES` split by the label, of one planner's finished runs, all from the
+    metrics' registry.
+
+    A contact counts up to the label's horizon (:data:`~coster_sumo.avoid.HORIZON_AFTER_TCOL_S` after
+    t_col): that is what an escape is proven for; what happens later (the pass goes on until the
+    target arrives) stays in the plain collision rate.
+    """
+    every = MetricSample(tuple(outcomes))
+    avoidable = MetricSample(tuple(o for o in outcomes if o.avoidable is True))
+    unavoidable = MetricSample(tuple(o for o in outcomes if o.avoidable is False))
+    av, un = len(avoidable.outcomes), len(unavoidable.outcomes)
+    return DefectRates(defect_rate=compute("defect_rate", every),
+                       unavoidable_contact_rate=compute("unavoidable_contact_rate", every),
+                       avoidable_runs=av, unavoidable_runs=un, unlabelled_runs=len(outcomes) - av - un,
+                       avoidable=_label_rates(avoidable), unavoidable=_label_rates(unavoidable))
+
+
+def _label_rates(part: MetricSample) -> LabelRates:
+    """:data:`PLANNER_RATES` of the runs of one label."""
+    return LabelRates(CR=compute(PLANNER_RATES["CR"], part), RCR=compute(PLANNER_RATES["RCR"], part),
+                      ORR=compute(PLANNER_RATES["ORR"], part))

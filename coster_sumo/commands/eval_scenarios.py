@@ -30,7 +30,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 def run(args: argparse.Namespace) -> int:
     from coster_sumo.batch.evaluate import EvalOptions, eval_exit_code, evaluate_generators
-    from coster_sumo.report import generator_table
+    from coster_sumo.batch.report import generator_table
 
     opts = EvalOptions(sources=args.sources, out=args.out, methods=args.methods, planner=args.planner,
                        variants=args.variants, samples=args.samples, workers=args.workers, executor=args.executor,

@@ -80,8 +80,7 @@ def run(args: argparse.Namespace) -> int:
                           reaction_time=args.reaction_time, avoidable=args.avoidable)
     summary = regress(opts)
     # --quiet drops the progress bars and the file list; the tables and every failure line stay
-    from coster_sumo.defects import defect_table
-    from coster_sumo.report import regression_table
+    from coster_sumo.batch.report import defect_table, regression_table
 
     for head, rows in (defect_table(summary), regression_table(summary)):
         width = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(head)]

@@ -24,7 +24,6 @@ from coster_sumo.atomic import write_text
 from coster_sumo.batch.generator_summary import EvalSummary, GeneratorResult, SkippedGenerator
 from coster_sumo.batch.store import ResultRow
 from coster_sumo.batch.summaries import RegressionSummary
-from coster_sumo.defects import avoidability_report_table, defect_table
 from coster_sumo.metrics import MetricValue
 
 EXAMPLES_PER_PLANNER = 3
@@ -62,6 +61,43 @@ def _plt() -> Any:
 
 
 # ============================================================================ regression
+
+
+def _pct_of(rate: MetricValue) -> str:
+    """A rate in a report's table: percent, its Wilson interval, k/n."""
+    if rate.value is None:
+        return "n/a"
+    return (f"{100 * rate.value:.1f}% [{100 * (rate.ci_low or 0.0):.1f}, {100 * (rate.ci_high or 0.0):.1f}] "
+            f"({rate.k}/{rate.n})")
+
+
+def defect_table(summary: RegressionSummary) -> tuple[list[str], list[list[str]]]:
+    """The headline table of a regression: per planner, the defect rate beside the unavoidable-contact rate."""
+    head = ["planner", "defect rate (contact in an avoidable variant)", "unavoidable-contact rate",
+            "RCR avoidable", "RCR unavoidable"]
+    rows = []
+    for name, p in summary.planners.items():
+        d = p.defects
+        rows.append([name, _pct_of(d.defect_rate), _pct_of(d.unavoidable_contact_rate),
+                     _pct_of(d.avoidable.RCR), _pct_of(d.unavoidable.RCR)])
+    return head, rows
+
+
+def avoidability_report_table(methods: Mapping[str, GeneratorResult]) -> tuple[list[str], list[list[str]]]:
+    """Per generator that ran: avoidable share at each reaction time, the collision rate split by the
+    label, and the median last moment to act (``eval scenarios``' report)."""
+    head = ["method", "variants", "avoidable @0.5 s", "avoidable @1 s", "avoidable @1.5 s", "CR avoidable",
+            "CR unavoidable", "last moment to act, median [s]"]
+    rows = []
+    for name, m in methods.items():
+        a = m.avoidability
+        if not a.variants:
+            continue
+        sh = a.avoidable_share
+        rows.append([name, str(a.variants), *(_pct_of(sh[t]) if t in sh else "n/a" for t in ("0.5", "1", "1.5")),
+                     _pct_of(a.CR_avoidable), _pct_of(a.CR_unavoidable),
+                     str(a.last_moment_percentiles.get("p50", "n/a"))])
+    return head, rows
 
 
 def regression_table(summary: RegressionSummary) -> tuple[list[str], list[list[str]]]:
