@@ -133,3 +133,18 @@ def test_a_run_planned_differently_runs_again_and_leftovers_go(tmp_path):
     assert not leftover.exists()
     assert len(dataset.list_scenes(out)) == manifest["counts"]["scenes"]
     assert first  # (the first run made clips)
+
+
+def test_the_batch_summaries_keep_their_keys_in_order():
+    """summary.json of simulate and of corpus build: the counts under the names each has written."""
+    from coster_sumo.batch.records import BatchCounts, CorpusSummary, SimulateSummary
+
+    counts = BatchCounts(runs_planned=3, runs_done_now=2, runs_failed_now=1, clips_now=40, failures=["r1: x"],
+                         total_clips=80, simulated_hours=0.5, wall_s=12.0)
+    tail = ["runs_planned", "runs_done_now", "runs_failed_now", "clips_now", "failures"]
+    simulate = SimulateSummary(dataset="d", counts=counts, config={"seeds": [0]}).to_json()
+    assert list(simulate) == ["dataset", *tail, "total_scenes", "simulated_hours", "wall_s", "config"]
+    assert simulate["total_scenes"] == 80 and simulate["failures"] == ["r1: x"]
+    corpus = CorpusSummary(dataset="d", networks=2, counts=counts).to_json()
+    assert list(corpus) == ["dataset", "networks", *tail, "total_clips", "simulated_hours", "wall_s"]
+    assert corpus["total_clips"] == 80 and corpus["wall_s"] == 12.0

@@ -162,6 +162,13 @@ class BatchCounts:
     def ok(self) -> bool:
         return not self.failures
 
+    def to_json(self, total_key: str) -> dict[str, Any]:
+        """The counts as a batch's summary.json lists them; ``total_key`` names the dataset's total
+        of clips (``simulate`` writes ``total_scenes``, ``corpus build`` ``total_clips``)."""
+        return {"runs_planned": self.runs_planned, "runs_done_now": self.runs_done_now,
+                "runs_failed_now": self.runs_failed_now, "clips_now": self.clips_now, "failures": self.failures,
+                total_key: self.total_clips, "simulated_hours": self.simulated_hours, "wall_s": self.wall_s}
+
 
 @dataclass(frozen=True)
 class SimulateSummary:
@@ -173,11 +180,7 @@ class SimulateSummary:
     config: dict[str, Any]
 
     def to_json(self) -> dict[str, Any]:
-        c = self.counts
-        return {"dataset": self.dataset, "runs_planned": c.runs_planned, "runs_done_now": c.runs_done_now,
-                "runs_failed_now": c.runs_failed_now, "clips_now": c.clips_now, "failures": c.failures,
-                "total_scenes": c.total_clips, "simulated_hours": c.simulated_hours, "wall_s": c.wall_s,
-                "config": self.config}
+        return {"dataset": self.dataset, **self.counts.to_json("total_scenes"), "config": self.config}
 
 
 @dataclass(frozen=True)
@@ -190,8 +193,4 @@ class CorpusSummary:
     counts: BatchCounts
 
     def to_json(self) -> dict[str, Any]:
-        c = self.counts
-        return {"dataset": self.dataset, "networks": self.networks, "runs_planned": c.runs_planned,
-                "runs_done_now": c.runs_done_now, "runs_failed_now": c.runs_failed_now, "clips_now": c.clips_now,
-                "failures": c.failures, "total_clips": c.total_clips, "simulated_hours": c.simulated_hours,
-                "wall_s": c.wall_s}
+        return {"dataset": self.dataset, "networks": self.networks, **self.counts.to_json("total_clips")}
