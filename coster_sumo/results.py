@@ -386,8 +386,10 @@ def read_run(folder: Path) -> RunResult:
         d = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
-    if isinstance(d, dict) and "targets" in d:
-        return RunSummary.from_json(d, folder)
-    if not isinstance(d, dict) or "variants" not in d:
+    if not isinstance(d, dict) or not ("targets" in d or "variants" in d):
         raise InputError(f"{path}: not the summary of a `coster-sumo run` output")
-    return TargetResult.from_json(d, folder)
+    try:
+        return RunSummary.from_json(d, folder) if "targets" in d else TargetResult.from_json(d, folder)
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:  # a key of the wrong shape
+        raise InputError(f"{path}: not the summary of a `coster-sumo run` output ({type(exc).__name__}: "
+                         f"{exc})") from None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -78,6 +79,14 @@ def test_reading_a_folder_that_is_no_run_is_one_line(tmp_path):
         read_run(tmp_path)
     (tmp_path / "summary.json").write_text('{"jobs": []}')
     with pytest.raises(InputError, match="not the summary of a `coster-sumo run` output"):
+        read_run(tmp_path)
+    # a summary whose records have the wrong shape (edited by hand, or cut short) is one line too
+    for key, value in (("target_motion", None), ("avoidable_only", {"tried": 1}), ("variants", [3])):
+        (tmp_path / "summary.json").write_text(json.dumps({**_summary(), key: value}))
+        with pytest.raises(InputError, match=r"summary.json: not the summary of a `coster-sumo run` output \("):
+            read_run(tmp_path)
+    (tmp_path / "summary.json").write_text(json.dumps({"config": "a.sumocfg", "targets": [{"folder": "x"}]}))
+    with pytest.raises(InputError, match="KeyError"):
         read_run(tmp_path)
 
 
