@@ -268,3 +268,17 @@ def test_ray_executor_isolates_crashes_and_hangs():
     assert out["a"].ok and out["b"].ok
     assert not out["crash"].ok and not out["stuck"].ok and "timed out" in out["stuck"].reason
     assert not out["oops"].ok and "probe oops failed on purpose" in out["oops"].reason
+
+
+def test_a_part_file_of_another_shape_is_done_again(tmp_path):
+    """eval scenarios resumes from its part files: one that is JSON but not a part (edited by hand,
+    written by another version) counts as not done, instead of stopping the batch."""
+    import json
+
+    from coster_sumo.batch.generator_summary import read_method_part
+
+    part = tmp_path / "p.json"
+    part.write_text(json.dumps({"status": "ok", "records": [3]}))
+    assert read_method_part(part) is None
+    part.write_text(json.dumps({"status": "ok", "records": []}))
+    assert read_method_part(part) is not None and read_method_part(tmp_path / "missing.json") is None

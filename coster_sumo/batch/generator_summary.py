@@ -9,10 +9,10 @@ written as the value under its name and ``[ci_low, ci_high]`` under ``<name>_ci`
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 from coster_sumo.batch.summaries import rate_from_json
 from coster_sumo.metrics import MetricValue
@@ -154,14 +154,27 @@ def _read(path: Path) -> Mapping[str, Any] | None:
 
 def read_scene_part(path: Path) -> ScenePart | None:
     """A scene's part file, or None when it is missing or unreadable (not done yet)."""
-    d = _read(path)
-    return None if d is None else ScenePart.from_json(d)
+    return _parsed(path, ScenePart.from_json)
 
 
 def read_method_part(path: Path) -> MethodPart | None:
     """A generator's part file, or None when it is missing or unreadable (not done yet)."""
+    return _parsed(path, MethodPart.from_json)
+
+
+P = TypeVar("P")
+
+
+def _parsed(path: Path, parse: Callable[[Mapping[str, Any]], P]) -> P | None:
+    """``parse`` of a part file; None when it is missing, no JSON object, or of another shape (a
+    part of that shape is done again rather than stopping the batch)."""
     d = _read(path)
-    return None if d is None else MethodPart.from_json(d)
+    if d is None:
+        return None
+    try:
+        return parse(d)
+    except (TypeError, ValueError, KeyError, AttributeError):
+        return None
 
 
 def _rates(d: Mapping[str, Any]) -> dict[str, MetricValue]:
