@@ -229,3 +229,18 @@ def test_a_focused_recording_stops_max_life_s_after_the_target_departs():
         t0 = sim.time
         late = record(sim, end=60.0, focus=Focus("ego", 100.0, tail_s=2.0, max_life_s=5.0))
     assert late.meta["cut_after_s"] == 5.0 and late.timestamps[-1] == pytest.approx(t0 + 5.0, abs=1e-6)
+
+
+def test_small_pages_switch_numpy_off_inside_and_restore_it_after():
+    from numpy._core.multiarray import _set_madvise_hugepage
+
+    from coster_sumo.sim.record import _small_pages
+
+    original = _set_madvise_hugepage(True)
+    for before in (True, False):
+        _set_madvise_hugepage(before)
+        with _small_pages():
+            inside = _set_madvise_hugepage(False)  # returns the setting it replaces
+        after = _set_madvise_hugepage(True)
+        assert (inside, after) == (False, before)
+    _set_madvise_hugepage(original)

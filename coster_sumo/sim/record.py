@@ -31,7 +31,8 @@ of the internal lane, the end of the incoming lane (both are the stop line).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -296,6 +297,49 @@ class _FocusedReader:
         return session.vehicle_states(near), full
 
 
+@contextlib.contextmanager
+def _small_pages() -> Iterator[None]:
+    """numpy arrays allocated inside get the kernel's 4 KB pages, not huge pages.
+
+    numpy advises huge pages (2 MB) for large arrays, so the first write anywhere in such a page
+    commits and zeroes all 2 MB of it. A pass's tracks are mostly empty: every vehicle that came
+    near the target has a row over all steps but is there for a short span of them (A10KW: 3,614
+    vehicles x 14,000 steps, 5 % valid). With huge pages the rows' scattered writes commit the whole
+    2.9 GB and took 6.2-6.7 s; with 4 KB pages they commit 0.27 GB and take 0.85-0.88 s
+    (docs/performance.md). Reading a page never written costs nothing either way.
+    """
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage  # type: ignore[attr-defined]
+    except ImportError:  # a numpy without the switch: huge pages are its own business
+        yield
+        return
+    previous = _set_madvise_hugepage(False)
+    try:
+        yield
+    finally:
+        _set_madvise_hugepage(previous)
+
+
+class _SignalReader:
+    """The signal states of the controlled lanes at each recorded step. Lights change every few
+    seconds, so a step whose state strings equal the last step's shares its row (the same values:
+    a city pass records 14,000 steps, and mapping each one's strings cost 0.7 s of A10KW's pass)."""
+
+    def __init__(self, session: SumoSession, table: SignalTable) -> None:
+        self.session, self.table = session, table
+        self.last: dict[str, str] | None = None
+        self.row = np.zeros(0, np.int8)
+
+    def read(self) -> np.ndarray:
+        """(num_controlled,) int8 :class:`SignalState` of every controlled lane now."""
+        if not len(self.table.lane_index):
+            return self.row
+        now = self.session.tls_states()
+        if now != self.last:
+            self.last, self.row = now, self.table.states(now)
+        return self.row
+
+
 class _Rows:
     """The recorded steps as they come (agents numbered by first appearance), and their tracks."""
 
@@ -331,9 +375,10 @@ class _Rows:
         """(agents, steps) tracks of the recorded steps, filled between samples."""
         rows = self.rows
         num_agents, num_steps = len(self.agent), len(self.times)
-        arrays = {f: np.zeros((num_agents, num_steps), np.float64)
-                  for f in ("x", "y", "heading", "vx", "vy", "length", "width")}
-        valid = np.zeros((num_agents, num_steps), bool)
+        with _small_pages():
+            arrays = {f: np.zeros((num_agents, num_steps), np.float64)
+                      for f in ("x", "y", "heading", "vx", "vy", "length", "width")}
+            valid = np.zeros((num_agents, num_steps), bool)
         if rows:  # one scatter per field over all steps (a city pass has ~10^4 steps)
             a_all = np.concatenate([idx for idx, _ in rows])
             s_all = np.repeat(np.arange(len(rows)), [len(idx) for idx, _ in rows])
@@ -393,6 +438,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
 
     rec = _Rows()
     reader = _FocusedReader(session, focus) if focus is not None else None
+    signals = _SignalReader(session, table)
     steps = 0
     first_t: float | None = None
     t = session.time
@@ -418,7 +464,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         stop = bool(after_step(session, st)) if after_step is not None else False
         # a focused recording starts when its (first) vehicle departs
         if (reader is None or reader.started) and (begin is None or t >= begin - eps):
-            rec.add(t, st, full, table.states(session.tls_states()) if len(table.lane_index) else np.zeros(0, np.int8))
+            rec.add(t, st, full, signals.read())
         if stop:
             break
 
