@@ -13,8 +13,9 @@ from coster_sumo import sumo_env
 from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.formats.sumo_net import load_sumo_net
 from coster_sumo.scene import ObjectType, SignalState
-from coster_sumo.sim.record import LINK_STATE, SignalTable, link_state_to_signal, record, record_config
+from coster_sumo.sim.record import record, record_config
 from coster_sumo.sim.session import SumoSession
+from coster_sumo.sim.signals import LINK_STATE, SignalTable, link_state_to_signal
 
 ROUTES = """<routes>
   <vType id="car" length="4.5" width="1.8"/>
