@@ -12,10 +12,11 @@ The signals of each recorded step: :mod:`coster_sumo.sim.signals`.
 from __future__ import annotations
 
 import contextlib
+import importlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -187,16 +188,29 @@ def _small_pages() -> Iterator[None]:
     2.9 GB and took 6.2-6.7 s; with 4 KB pages they commit 0.27 GB and take 0.85-0.88 s
     (docs/performance.md). Reading a page never written costs nothing either way.
     """
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage  # type: ignore[attr-defined]
-    except ImportError:  # a numpy without the switch: huge pages are its own business
+    switch = hugepage_switch()
+    if switch is None:  # a numpy without the switch: huge pages are its own business
         yield
         return
-    previous = _set_madvise_hugepage(False)
+    previous = switch(False)
     try:
         yield
     finally:
-        _set_madvise_hugepage(previous)
+        switch(previous)
+
+
+def hugepage_switch() -> Callable[[bool], bool] | None:
+    """numpy's switch for huge-page advice on large arrays (it returns the setting it replaces;
+    ``numpy._core`` since numpy 2, ``numpy.core`` before), or None where numpy has none."""
+    for name in ("numpy._core.multiarray", "numpy.core.multiarray"):
+        try:
+            module = importlib.import_module(name)
+        except ImportError:
+            continue
+        switch = getattr(module, "_set_madvise_hugepage", None)
+        if switch is not None:
+            return cast(Callable[[bool], bool], switch)
+    return None
 
 
 class _Rows:
