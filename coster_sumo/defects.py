@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -76,10 +75,10 @@ def label_line(lab: Avoidability) -> str:
     return f"unavoidable ({why}), {kind}"
 
 
-def attach_labels(out: Path, result: TargetResult, labels: Sequence[Avoidability],
+def attach_labels(result: TargetResult, labels: Sequence[Avoidability],
                   passes: Sequence[tuple[AdversaryPlan, Any]] = ()) -> TargetResult:
-    """``result`` with each variant's label, and its escape plan written (``variants/<i>/escape.csv``,
-    10 Hz), and the counts of avoidable variants and of defects.
+    """``result`` with each variant's label (and the file its escape plan goes to, :data:`ESCAPE_FILE`
+    in its folder, where it has one), and the counts of avoidable variants and of defects.
 
     ``passes``: (plan, injection result) per variant: each then gets its planner's ``outcome`` line.
     """
@@ -92,9 +91,7 @@ def attach_labels(out: Path, result: TargetResult, labels: Sequence[Avoidability
                       and e.time <= lab.t_col + HORIZON_AFTER_TCOL_S + 1e-6 for e in res.events)
             outcome = planner_outcome(res.scene, result.target, plan, hit, lab.avoidable)
         entry = lab.summary()
-        esc = lab.escape
-        if esc is not None:
-            (out / "variants" / str(rec.variant) / ESCAPE_FILE).write_text(esc.csv())
+        if lab.escape is not None:
             entry["escape_file"] = f"variants/{rec.variant}/{ESCAPE_FILE}"
         variants.append(dataclasses.replace(rec, avoidability=entry, label=line, outcome=outcome))
     n = len(labels)

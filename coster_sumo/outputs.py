@@ -10,6 +10,8 @@ OUTDIR/
   variants/<i>/trajectory.csv   time_s, vehicle, x_m, y_m, heading_deg, speed_mps of target and adversary (10 Hz)
   variants/<i>/trajectories.csv every vehicle of the pass (coster_sumo/exports/trajectories.py)
   variants/<i>/render.png       the variant
+  variants/<i>/escape.csv       the target's escape, where its avoidability label has one (10 Hz;
+                                coster_sumo/defects.py)
   variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg and
                                 traj.fcd.xml: `sumo -c` (or `coster-sumo replay`) plays it, adversary
                                 included (coster_sumo/exports/sumo.py)
@@ -35,13 +37,15 @@ import numpy as np
 
 from coster_sumo import metrics, viz
 from coster_sumo.atomic import json_default, write_json
+from coster_sumo.defects import ESCAPE_FILE, attach_labels
 from coster_sumo.errors import InputError, SumoError
+from coster_sumo.evasion import Avoidability, Escape
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.method.generation import PlannedScenario
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.procs import die_with_parent
-from coster_sumo.results import SnapshotRecord, TargetMotion, TargetResult, VariantOutcome
+from coster_sumo.results import AvoidableOnly, SnapshotRecord, TargetMotion, TargetResult, VariantOutcome
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
@@ -307,16 +311,17 @@ class OverviewRenders:
 
 
 def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
-                      results: list[InjectionResult], timings: dict[str, float], *, render: bool,
-                      options: dict[str, Any], copy_outside: bool = False,
-                      overviews: OverviewRenders | None = None, folder: Path | None = None) -> TargetResult:
+                      results: list[InjectionResult], labels: Sequence[Avoidability], timings: dict[str, float], *,
+                      render: bool, options: dict[str, Any], copy_outside: bool = False,
+                      overviews: OverviewRenders | None = None, folder: Path | None = None,
+                      avoidable_only: AvoidableOnly | None = None) -> TargetResult:
     """Write everything of a run into ``out`` (the caller renames it into place, to ``folder``: None,
-    ``out`` itself) but ``summary.json``; returns the target's result (``summary.json`` is its JSON,
-    written by :func:`coster_sumo.run.run` once the avoidability labels are in it).
+    ``out`` itself), ``summary.json`` last; returns the target's result (``summary.json`` is its JSON).
 
-    ``planned``: one entry per collision snapshot (``--snapshots``); ``results``: one per plan, in
-    the order of the snapshots' plans. Variants are numbered across snapshots. ``overviews``: the
-    overviews started before the variants ran (None: drawn here).
+    ``planned``: one entry per collision snapshot (``--snapshots``); ``results`` and ``labels``: one
+    per plan, in the order of the snapshots' plans. Variants are numbered across snapshots.
+    ``overviews``: the overviews started before the variants ran (None: drawn here);
+    ``avoidable_only``: what ``--avoidable only`` tried.
     """
     first = planned[0]
     scene, target = first.scene, first.target_index
@@ -343,8 +348,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
     # the renders are drawn on another core while the files and exports are written here
     drawing = _Drawing(draw_variants) if render else None
     for i, (_, _, plan) in enumerate(jobs):
-        variants[i] = _write_variant(out, i, plan, results[i], spec, planner, scene, target_id, variants[i],
-                                     copy_outside=copy_outside)
+        variants[i] = _write_variant(out, i, plan, results[i], labels[i].escape, spec, planner, scene, target_id,
+                                     variants[i], copy_outside=copy_outside)
     snapshots: list[SnapshotRecord] = []
     for k, p in enumerate(planned):
         p.snapshot.save(out / ("snapshot.json" if k == 0 else f"snapshot_{k}.json"))
@@ -362,7 +367,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
                                                                       for i in range(len(jobs))]
     snap0 = first.snapshot
     rates = run_metrics(variants)
-    return TargetResult(
+    result = TargetResult(
         folder if folder is not None else out, target_id, config=str(spec.config), planner=planner,
         seed=spec.seed, t_col=round(snap0.time, 3), num_snapshots=len(snapshots), num_variants=len(variants),
         collision_rate=rates["collision_rate"], off_road_rate=rates["off_road_rate"],
@@ -374,7 +379,11 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         target_motion=target_motion(scene, target), generation=first.info,
         timings_s={k: round(v, 3) for k, v in timings.items()}, options=options, renders=tuple(renders),
         # where the README documents it: how --targets N chose (also under options)
-        target_choice=tuple(options["target_choice"]) if options.get("target_choice") else None)
+        target_choice=tuple(options["target_choice"]) if options.get("target_choice") else None,
+        avoidable_only=avoidable_only)
+    result = attach_labels(result, labels, [(plan, results[i]) for i, (_, _, plan) in enumerate(jobs)])
+    write_json(out / "summary.json", result.to_json())
+    return result
 
 
 # summary.json's figures over a run's variants: key -> the metric of coster_sumo.metrics.REGISTRY
@@ -387,13 +396,17 @@ def run_metrics(variants: Sequence[VariantOutcome]) -> dict[str, float | None]:
     return {key: metrics.compute(name, sample).value for key, name in RUN_METRICS.items()}
 
 
-def _write_variant(out: Path, i: int, plan: AdversaryPlan, res: InjectionResult, spec: ScenarioSpec, planner: str,
-                   scene: Scene, target_id: str, rec: VariantOutcome, *, copy_outside: bool) -> VariantOutcome:
-    """Variant ``i``'s files into ``out/variants/i``: trajectories and the plain-SUMO export; returns
-    its record (``rec``) with the export's error, if any."""
+def _write_variant(out: Path, i: int, plan: AdversaryPlan, res: InjectionResult, escape: Escape | None,
+                   spec: ScenarioSpec, planner: str, scene: Scene, target_id: str, rec: VariantOutcome, *,
+                   copy_outside: bool) -> VariantOutcome:
+    """Variant ``i``'s files into ``out/variants/i``: trajectories, the target's ``escape`` (None: its
+    label has none) and the plain-SUMO export; returns its record (``rec``) with the export's error,
+    if any."""
     vdir = out / "variants" / str(i)
     trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
     write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
+    if escape is not None:
+        (vdir / ESCAPE_FILE).write_text(escape.csv())
     try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
         export_variant(vdir / "export", spec.config, plan,
                        {"target_id": target_id, "planner": planner, "seed": spec.seed,

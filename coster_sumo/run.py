@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import re
 import shutil
@@ -23,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.atomic import write_json
-from coster_sumo.defects import attach_labels, label_plans
+from coster_sumo.defects import label_plans
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.filters import drop_bystander_wrecks, drop_failed_variants
@@ -252,14 +251,10 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                             f"(first: {failed[0]['reason']})")
         raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
                          "t_col in the simulation")
-    result = write_run_outputs(out, spec, how.planner, planned, results, timings, render=opts.render,
-                               options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews,
-                               folder=published)
-    kept = [pl for p in planned for pl in p.plans]
-    result = attach_labels(out, dataclasses.replace(result, avoidable_only=tried),
-                           [labels[pl.vehicle_id] for pl in kept], list(zip(kept, results, strict=True)))
-    write_json(out / "summary.json", result.to_json())
-    return result
+    kept = [labels[pl.vehicle_id] for p in planned for pl in p.plans]
+    return write_run_outputs(out, spec, how.planner, planned, results, kept, timings, render=opts.render,
+                             options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews,
+                             folder=published, avoidable_only=tried)
 
 
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:

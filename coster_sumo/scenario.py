@@ -63,8 +63,10 @@ def nominal_scene(scenario: ScenarioSpec | ScenarioSource, *, traci: bool = Fals
 
 def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, additional: Sequence[Path],
               more_targets: Sequence[str], bar: Any) -> Scene:
-    """:func:`nominal_scene` of a SUMO configuration: its pass recorded around the target(s)."""
-    from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record_config
+    """:func:`nominal_scene` of a SUMO configuration: its pass recorded around the target(s), in a
+    session of its own, opened here as the variants' passes open theirs."""
+    from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
+    from coster_sumo.sim.session import SumoSession
 
     spec, cfg = source.spec, source.spec.config
 
@@ -100,10 +102,11 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
             clock.update(session.time)
         return hold.after_step(session, states) if hold is not None else False
 
-    scene = record_config(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
-                          focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
-                                      more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S),
-                          after_step=after_step, additional=list(additional))
+    with SumoSession(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
+                     additional=list(additional)) as session:
+        scene = record(session, begin=spec.begin, end=end, after_step=after_step,
+                       focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
+                                   more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S))
     ids = scene.tracks.ids.tolist()
     present = [ids.index(v) for v in wanted if v in ids]
     if present:  # regions and the drivable area cover its (their) surroundings only

@@ -11,6 +11,7 @@ import pytest
 
 from coster_sumo.errors import InputError
 from coster_sumo.scenario import nominal_scene
+from coster_sumo.sim import session
 from coster_sumo.spec import ScenarioSpec
 from coster_sumo.sumo_env import sumo_home
 from coster_sumo.targets import MIN_IN_WINDOW_S, choose_targets, config_demand, long_lived
@@ -74,8 +75,7 @@ def test_long_lived_respects_the_window(tmp_path: Path) -> None:
 
 def test_targets_are_road_vehicles(tmp_path: Path, monkeypatch) -> None:
     """A train is no target (the prior places road vehicles); a config with trains only says so."""
-    record = importlib.import_module("coster_sumo.sim.record")
-    monkeypatch.setattr(record, "record_config", lambda *_a, **_k: pytest.fail("simulated"))
+    monkeypatch.setattr(session, "SumoSession", lambda *_a, **_k: pytest.fail("simulated"))
     (tmp_path / "d.rou.xml").write_text("""<routes>
   <vehicle id="train" type="loco" depart="0"><route edges="W2C C2E"/></vehicle>
   <vehicle id="car" depart="5"><route edges="N2C C2S"/></vehicle>
@@ -127,12 +127,10 @@ def test_config_demand_knows_what_the_files_can_insert(tmp_path: Path) -> None:
     ("periodc", "target 'periodc' is not in its demand (route and additional files); candidates: "),
 ])
 def test_a_target_not_in_the_demand_fails_before_the_pass(tmp_path: Path, monkeypatch, target, message) -> None:
-    record = importlib.import_module("coster_sumo.sim.record")  # the package exports a function of that name
-
     def no_pass(*_a, **_k):
         raise AssertionError("simulated although the demand has no such vehicle")
 
-    monkeypatch.setattr(record, "record_config", no_pass)
+    monkeypatch.setattr(session, "SumoSession", no_pass)
     with pytest.raises(InputError) as err:
         nominal_scene(ScenarioSpec(_config(tmp_path), target=target))
     assert message in str(err.value) and "t.sumocfg" in str(err.value)
@@ -144,8 +142,8 @@ def test_a_target_that_never_runs_is_named_after_one_pass(tmp_path: Path, monkey
     record = importlib.import_module("coster_sumo.sim.record")  # the package exports a function of that name
 
     passes = []
-    real = record.record_config
-    monkeypatch.setattr(record, "record_config", lambda *a, **k: passes.append(1) or real(*a, **k))
+    real = record.record
+    monkeypatch.setattr(record, "record", lambda *a, **k: passes.append(1) or real(*a, **k))
     (tmp_path / "d.rou.xml").write_text("""<routes><vType id="car"/>
   <vehicle id="short" type="car" depart="0"><route edges="N2C C2S"/></vehicle>
   <vehicle id="long" type="car" depart="1" departSpeed="0"><route edges="W2C C2E"/></vehicle>
