@@ -66,14 +66,16 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    planned = plan_scenarios(scene, index, seed, gen, drivable)[0]  # one snapshot: the first draw
+    shared: dict[str, Any] = {}  # what every draw for this target computes once
+    planned = plan_scenarios(scene, index, seed, gen, drivable, memo=shared)[0]  # one snapshot: the first draw
 
     def label(plans: list[AdversaryPlan]) -> list[Any]:
         return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=wanted.reaction_time)
 
     labels = dict(zip((p.vehicle_id for p in planned.plans), label(planned.plans), strict=True))
     if wanted.avoidable == "only":
-        kept, tried = keep_avoidable([planned], labels, label, variants, seed=seed, gen=gen, drivable=drivable)
+        kept, tried = keep_avoidable([planned], labels, label, variants, seed=seed, gen=gen, drivable=drivable,
+                                     memo=shared)
         planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable
         planned.info["avoidable_only"] = tried.to_json()
     planned.info["avoidability"] = {p.vehicle_id: labels[p.vehicle_id].summary() for p in planned.plans}

@@ -202,6 +202,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
     advance = _advance_held(held, threads)
+    shared: dict[str, Any] = {}  # what every draw for this target computes once (--avoidable only draws again)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
         with bars(f"generation ({target_id})", "draw") as bar:
@@ -215,7 +216,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
             # come first: 28.5 s on one thread, 22.1 s on two on A10KW, the same plans)
             with torch_threads(None if threads is None else usable_cores()):
                 planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
-                                         on_snapshot=drawn)
+                                         on_snapshot=drawn, memo=shared)
     except NoSnapshot as exc:
         raise InputError(f"{spec.config}: no collision snapshot for target {target_id!r}: {exc}") from None
     timings["generation_s"] = time.perf_counter() - t0
@@ -232,7 +233,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     tried: AvoidableOnly | None = None
     if wanted.avoidable == "only":
         planned, tried = keep_avoidable(planned, labels, label, opts.generation.variants * opts.snapshots,
-                                        seed=spec.seed, gen=opts.generation, drivable=drivable)
+                                        seed=spec.seed, gen=opts.generation, drivable=drivable, memo=shared)
         if not any(p.plans for p in planned):
             raise InputError(f"{spec.config}: none of the {tried.tried} variants for target {target_id!r} "
                              f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")

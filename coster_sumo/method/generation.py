@@ -221,17 +221,19 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
 
 def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
                    max_draws: int, apart: bool = False,
-                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None
-                   ) -> Iterator[tuple[int, int, PlannedScenario | NoSnapshot]]:
+                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
+                   memo: dict[str, Any] | None = None) -> Iterator[tuple[int, int, PlannedScenario | NoSnapshot]]:
     """The one loop of generation: draw ``j`` = 0, 1, ... of :func:`plan_scenario` with ``seed``
     itself, then :func:`derived_seed` (``seed``, j), all sharing one memo (the 2 Hz scene, the
     regions, the entropy curve are computed once per scene and target).
 
     Yields (j, the draw's seed, its :class:`PlannedScenario` or the :class:`NoSnapshot` it raised);
     a draw is made only when the caller asks for the next one. With ``apart`` no draw takes a
-    collision time closer than 2 s to one taken before (several snapshots of one scene).
+    collision time closer than 2 s to one taken before (several snapshots of one scene). ``memo``:
+    that memo, when the caller draws again later for the same scene, target and ``gen``
+    (:func:`keep_avoidable`).
     """
-    memo: dict[str, Any] = {}
+    memo = {} if memo is None else memo
     excluded: set[int] = set()
     for j in range(max_draws):
         draw_seed = seed if j == 0 else derived_seed(seed, j)
@@ -247,17 +249,18 @@ def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
 
 
 def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                   snapshots: int = 1, on_snapshot: Callable[[CollisionSnapshot], None] | None = None
-                   ) -> list[PlannedScenario]:
+                   snapshots: int = 1, on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
+                   memo: dict[str, Any] | None = None) -> list[PlannedScenario]:
     """Up to ``snapshots`` snapshots for one target, each with its own plans: the best collision time
     first, then the next best at least 2 s away from those taken.
 
     The first equals :func:`plan_scenario` with the same seed; the others draw with derived seeds.
     Raises :class:`NoSnapshot` only when not even the first exists; fewer than asked is fine.
+    ``memo``: see :func:`draw_scenarios`.
     """
     taken: list[PlannedScenario] = []
     for j, _, drawn in draw_scenarios(scene, target, seed, gen, drivable, snapshots, apart=True,
-                                      on_snapshot=on_snapshot):
+                                      on_snapshot=on_snapshot, memo=memo):
         if isinstance(drawn, NoSnapshot):
             if j == 0:
                 raise drawn
@@ -271,11 +274,13 @@ def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
 
 
 def further_draw(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                 j: int) -> PlannedScenario | None:
+                 j: int, memo: dict[str, Any] | None = None) -> PlannedScenario | None:
     """Draw ``j`` of the further draws that replace unavoidable variants (``--avoidable only``):
-    seeds far from those of :func:`draw_scenarios`; None when it has no snapshot."""
+    seeds far from those of :func:`draw_scenarios`; None when it has no snapshot. ``memo``: the
+    first draws' (:func:`draw_scenarios`): the prior's curves over the target's life are not
+    computed again."""
     try:
-        return plan_scenario(scene, target, derived_seed(seed, 100 + j), gen, drivable)
+        return plan_scenario(scene, target, derived_seed(seed, 100 + j), gen, drivable, memo=memo)
     except NoSnapshot:
         return None
 
@@ -285,11 +290,13 @@ EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under
 
 def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidability],
                    label: Callable[[list[AdversaryPlan]], list[Avoidability]], wanted: int, *, seed: int,
-                   gen: GenerationConfig, drivable: DrivableArea) -> tuple[list[PlannedScenario], AvoidableOnly]:
+                   gen: GenerationConfig, drivable: DrivableArea, memo: dict[str, Any] | None = None
+                   ) -> tuple[list[PlannedScenario], AvoidableOnly]:
     """``--avoidable only``: drop the unavoidable plans of ``planned`` (``labels`` by adversary id,
     of the scene and target of ``planned``) and replace them by plans of :func:`further_draw` (with
     ``seed``, ``gen``, ``drivable``) until ``wanted`` are avoidable or :data:`EXTRA_DRAWS` more draws
     are spent. ``label(plans)`` gives the labels of a further draw's plans (``labels`` gains them).
+    ``memo``: the one :func:`plan_scenarios` drew ``planned`` with (None: computed again).
 
     Returns the kept scenarios (at least one, maybe without plans) and what was tried.
     """
@@ -301,7 +308,7 @@ def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidabilit
     for j in range(1, EXTRA_DRAWS + 1):
         if kept >= wanted:
             break
-        extra = further_draw(planned[0].scene, planned[0].target_index, seed, gen, drivable, j)
+        extra = further_draw(planned[0].scene, planned[0].target_index, seed, gen, drivable, j, memo)
         draws += 1
         if extra is None:
             continue
