@@ -40,7 +40,7 @@ from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import NoSnapshot
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.method.collision_time import in_ellipse
-from coster_sumo.method.snapshot import prior_snapshot
+from coster_sumo.method.snapshot import PriorMemo, prior_snapshot
 from coster_sumo.prior.infer import load_prior, predict_scene
 from coster_sumo.scene import LaneType, Scene, resample
 from coster_sumo.snapshot_state import AgentState
@@ -142,7 +142,7 @@ def main() -> None:
         for i, (net, scene) in enumerate(scenes):
             low = resample(scene, 2.0)
             drivable = DrivableArea.from_road_map(scene.road_map)
-            memo: dict = {}
+            memo = PriorMemo()
             for d in range(args.draws):
                 seed = i + d * len(scenes)
                 try:
@@ -160,12 +160,12 @@ def main() -> None:
                 # from, adapted to the scene's traffic as the snapshot used it
                 at = (scene.sdc_index, s.t_index)
                 pose = np.array([[low.tracks.x[at], low.tracks.y[at], low.tracks.heading[at]]])
-                pred = predict_scene(model, memo["data"], scene.sdc_index, steps=np.array([s.t_index]),
-                                     heads=("speed",), pose=pose, adaptation=memo.get("adaptation"))
+                pred = predict_scene(model, memo.data, scene.sdc_index, steps=np.array([s.t_index]),
+                                     heads=("speed",), pose=pose, adaptation=memo.adaptation)
                 k = np.flatnonzero(pred.region_index[0] == s.region_id)
                 p_stop = float(pred.probs["speed"][0, k[0], 0]) if len(k) else float("nan")
                 # how much the scene's visible traffic moved the stopped class (1: not at all)
-                class_w = memo["adaptation"].class_weights if "adaptation" in memo else {}
+                class_w = memo.adaptation.class_weights if memo.adaptation is not None else {}
                 w_stop = float(class_w["speed"][0]) if "speed" in class_w else float("nan")
                 # the real vehicles around the target at t_col (within the prior's hidden disc): how
                 # many of them stand, the local reference for the adversary's standstill share

@@ -25,7 +25,7 @@ from typing import Any
 
 from coster_sumo.defects import label_plans
 from coster_sumo.drivable import DrivableArea
-from coster_sumo.method.generation import PlannedScenario, keep_avoidable, plan_scenarios
+from coster_sumo.method.generation import DrawMemo, PlannedScenario, keep_avoidable, plan_scenarios
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.scenario import nominal_scene
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
@@ -66,7 +66,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    shared: dict[str, Any] = {}  # what every draw for this target computes once
+    shared = DrawMemo()  # what every draw for this target computes once
     planned = plan_scenarios(scene, index, seed, gen, drivable, memo=shared)[0]  # one snapshot: the first draw
 
     def label(plans: list[AdversaryPlan]) -> list[Any]:

@@ -26,7 +26,7 @@ from coster_sumo.defects import label_plans
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.filters import drop_bystander_wrecks, drop_failed_variants
-from coster_sumo.method.generation import check_generation, keep_avoidable, plan_scenarios
+from coster_sumo.method.generation import DrawMemo, check_generation, keep_avoidable, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.outdir import staged_output
 from coster_sumo.outputs import OverviewRenders, write_run_outputs
@@ -202,7 +202,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
     advance = _advance_held(held, threads)
-    shared: dict[str, Any] = {}  # what every draw for this target computes once (--avoidable only draws again)
+    shared = DrawMemo()  # what every draw for this target computes once (--avoidable only draws again)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
         with bars(f"generation ({target_id})", "draw") as bar:

@@ -102,7 +102,7 @@ def test_further_draws_reuse_the_first_draws_prior_curves(synthetic_scene, monke
     and the draw is the one it would be alone."""
     from coster_sumo.errors import NoSnapshot
     from coster_sumo.method import snapshot
-    from coster_sumo.method.generation import further_draw, plan_scenarios
+    from coster_sumo.method.generation import DrawMemo, further_draw, plan_scenarios
 
     scene = synthetic_scene
     if scene.sdc_index < 0:
@@ -111,7 +111,7 @@ def test_further_draws_reuse_the_first_draws_prior_curves(synthetic_scene, monke
     curves = []
     real = snapshot.entropy_curve
     monkeypatch.setattr(snapshot, "entropy_curve", lambda *a, **k: curves.append(1) or real(*a, **k))
-    shared: dict = {}
+    shared = DrawMemo()
     try:
         plan_scenarios(scene, scene.sdc_index, 0, gen, drivable, memo=shared)
     except NoSnapshot as exc:

@@ -6,7 +6,7 @@ import numpy as np
 
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import NoSnapshot
-from coster_sumo.method.snapshot import prior_snapshot
+from coster_sumo.method.snapshot import PriorMemo, prior_snapshot
 from coster_sumo.scene import resample
 
 
@@ -16,7 +16,7 @@ def test_the_adversary_never_comes_from_the_targets_own_region(synthetic_scene):
     low = resample(synthetic_scene, 2.0)
     target = low.sdc_index if low.sdc_index >= 0 else 0
     drivable = DrivableArea.from_road_map(low.road_map)
-    memo: dict = {}
+    memo = PriorMemo()
     placed = 0
     for seed in range(4):
         try:
@@ -24,6 +24,6 @@ def test_the_adversary_never_comes_from_the_targets_own_region(synthetic_scene):
         except NoSnapshot:
             continue
         placed += 1
-        occupant = memo["data"].occupancy.gather(np.array([snap.t_index]), np.array([snap.region_id]))[0]
+        occupant = memo.data.occupancy.gather(np.array([snap.t_index]), np.array([snap.region_id]))[0]
         assert int(occupant[0]) != target, f"seed {seed}: region {snap.region_id} is the target's own"
     assert placed > 0

@@ -38,6 +38,7 @@ from coster_sumo.method.snapshot import (
     SNAPSHOT_INITS,
     STRICT_PER_TIME,
     PlacementRequest,
+    PriorMemo,
     place_closing_first,
 )
 from coster_sumo.plan import AdversaryPlan
@@ -116,13 +117,23 @@ def generation_rng(seed: int, scene: Scene) -> np.random.Generator:
     return np.random.default_rng([seed, int.from_bytes(hashlib.sha256(scene.scenario_id.encode()).digest()[:4], "big")])
 
 
+@dataclass
+class DrawMemo:
+    """What the draws for one scene, target and generation config share (the draws of
+    :func:`draw_scenarios`, and :func:`keep_avoidable`'s further draws): the scene at the models'
+    2 Hz (None until made) and what the prior computes once (:class:`PriorMemo`)."""
+
+    low: Scene | None = None
+    prior: PriorMemo = field(default_factory=PriorMemo)
+
+
 class _Draws:
     """The draws of one :func:`plan_scenario`: the seeded generator, the 2 Hz steps not to take as
     t_col, the collision times given up (label -> why its last draw failed) and the draws made."""
 
     def __init__(self, scene: Scene, low: Scene, target: int, seed: int, gen: GenerationConfig,
                  drivable: DrivableArea, exclude: Collection[int],
-                 on_snapshot: Callable[[CollisionSnapshot], None] | None, init_memo: dict[str, Any]) -> None:
+                 on_snapshot: Callable[[CollisionSnapshot], None] | None, init_memo: PriorMemo) -> None:
         self.scene, self.low, self.target, self.seed, self.gen, self.drivable = scene, low, target, seed, gen, drivable
         self.on_snapshot, self.init_memo = on_snapshot, init_memo
         self.rng = generation_rng(seed, scene)
@@ -186,7 +197,7 @@ class _Draws:
 def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
                   drivable: DrivableArea, exclude: Collection[int] = (),
                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
-                  memo: dict[str, Any] | None = None) -> PlannedScenario:
+                  memo: DrawMemo | None = None) -> PlannedScenario:
     """Snapshot and adversary plans for ``target`` (one draw of the seeded generator).
 
     Plans that would hit the target, or another vehicle on its nominal path, before t_col are
@@ -200,13 +211,13 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
     collision times: :class:`NoSnapshot`, naming each with its reason.
     ``exclude``: 2 Hz steps not to take as t_col. ``on_snapshot`` is called with every snapshot
     drawn, before its adversaries are generated (the variants' simulations can get ready meanwhile).
-    ``memo``: a dict the caller keeps across draws for the same scene, target and ``gen`` (the 2 Hz
-    scene and the prior's entropy curve are computed once in it).
+    ``memo``: kept by the caller across draws for the same scene, target and ``gen`` (the 2 Hz
+    scene and the prior's curves are computed once in it, :class:`DrawMemo`).
     """
-    memo = {} if memo is None else memo
-    if "low" not in memo:
-        memo["low"] = resample(scene, PRIOR_RATE_HZ)
-    draws = _Draws(scene, memo["low"], target, seed, gen, drivable, exclude, on_snapshot, memo.setdefault("init", {}))
+    memo = DrawMemo() if memo is None else memo
+    if memo.low is None:
+        memo.low = resample(scene, PRIOR_RATE_HZ)
+    draws = _Draws(scene, memo.low, target, seed, gen, drivable, exclude, on_snapshot, memo.prior)
     for _ in range(COLLISION_TIMES):
         planned, here = draws.at_one_time()
         if planned is not None:
@@ -222,7 +233,7 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
 def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
                    max_draws: int, apart: bool = False,
                    on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
-                   memo: dict[str, Any] | None = None) -> Iterator[tuple[int, int, PlannedScenario | NoSnapshot]]:
+                   memo: DrawMemo | None = None) -> Iterator[tuple[int, int, PlannedScenario | NoSnapshot]]:
     """The one loop of generation: draw ``j`` = 0, 1, ... of :func:`plan_scenario` with ``seed``
     itself, then :func:`derived_seed` (``seed``, j), all sharing one memo (the 2 Hz scene, the
     regions, the entropy curve are computed once per scene and target).
@@ -233,7 +244,7 @@ def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
     that memo, when the caller draws again later for the same scene, target and ``gen``
     (:func:`keep_avoidable`).
     """
-    memo = {} if memo is None else memo
+    memo = DrawMemo() if memo is None else memo
     excluded: set[int] = set()
     for j in range(max_draws):
         draw_seed = seed if j == 0 else derived_seed(seed, j)
@@ -250,7 +261,7 @@ def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
 
 def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
                    snapshots: int = 1, on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
-                   memo: dict[str, Any] | None = None) -> list[PlannedScenario]:
+                   memo: DrawMemo | None = None) -> list[PlannedScenario]:
     """Up to ``snapshots`` snapshots for one target, each with its own plans: the best collision time
     first, then the next best at least 2 s away from those taken.
 
@@ -274,7 +285,7 @@ def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
 
 
 def further_draw(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                 j: int, memo: dict[str, Any] | None = None) -> PlannedScenario | None:
+                 j: int, memo: DrawMemo | None = None) -> PlannedScenario | None:
     """Draw ``j`` of the further draws that replace unavoidable variants (``--avoidable only``):
     seeds far from those of :func:`draw_scenarios`; None when it has no snapshot. ``memo``: the
     first draws' (:func:`draw_scenarios`): the prior's curves over the target's life are not
@@ -290,7 +301,7 @@ EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under
 
 def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidability],
                    label: Callable[[list[AdversaryPlan]], list[Avoidability]], wanted: int, *, seed: int,
-                   gen: GenerationConfig, drivable: DrivableArea, memo: dict[str, Any] | None = None
+                   gen: GenerationConfig, drivable: DrivableArea, memo: DrawMemo | None = None
                    ) -> tuple[list[PlannedScenario], AvoidableOnly]:
     """``--avoidable only``: drop the unavoidable plans of ``planned`` (``labels`` by adversary id,
     of the scene and target of ``planned``) and replace them by plans of :func:`further_draw` (with

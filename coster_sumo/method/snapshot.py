@@ -186,26 +186,42 @@ def scene_adaptation(model: Any, data: Any, scene: Scene, target: int) -> Any:
     return fit_scene_adaptation(model, data, full, full_pose, context)
 
 
-def _scene_prior(model: Any, scene: Scene, target: int, memo: dict[str, Any]) -> Any:
-    """The prior's regions and agents near the target's whole path, kept in ``memo`` with the
-    entropy curve (``memo["entropy"]``) and the adaptation to the traffic around
-    (``memo["adaptation"]``): they depend on nothing a draw changes."""
+@dataclass
+class PriorMemo:
+    """What the prior computes once for one scene and target and keeps across draws (it depends on
+    nothing a draw changes; None until computed).
+
+    Attributes:
+        data: the prior's regions and agents near the target's whole path
+            (:class:`~coster_sumo.prior.data.ScenePriorData`).
+        entropy: (num_steps,) the velocity entropy over the search window (:func:`entropy_curve`).
+        adaptation: the prior adapted to the traffic around the target (:func:`scene_adaptation`).
+    """
+
+    data: Any = None
+    entropy: np.ndarray | None = None
+    adaptation: Any = None
+
+
+def _scene_prior(model: Any, scene: Scene, target: int, memo: PriorMemo) -> tuple[Any, np.ndarray]:
+    """The prior's regions and agents near the target's whole path and the entropy curve, from
+    ``memo`` or computed into it (with the adaptation)."""
     from coster_sumo.prior.data import at_prior_rate, prepare_scene
 
     tr = scene.tracks
-    if "data" not in memo:
+    if memo.data is None:
         # regions near the target's whole path; the velocity heads at every candidate step first,
         # then every head at t_col only (the 1,600-class position head over a long life is costly)
-        memo["data"] = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
-                                     spacing=model.config.region_spacing, width=model.config.region_width,
-                                     crop=tr.xy_of(target, tr.valid[target]).reshape(-1, 2))
-    data = memo["data"]
+        memo.data = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
+                                  spacing=model.config.region_spacing, width=model.config.region_width,
+                                  crop=tr.xy_of(target, tr.valid[target]).reshape(-1, 2))
+    data = memo.data
     if len(data.regions.centre) == 0:
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
-    if "entropy" not in memo:
-        memo["entropy"] = entropy_curve(model, data, scene, target)
-        memo["adaptation"] = scene_adaptation(model, data, scene, target)
-    return data
+    if memo.entropy is None:
+        memo.entropy = entropy_curve(model, data, scene, target)
+        memo.adaptation = scene_adaptation(model, data, scene, target)
+    return data, memo.entropy
 
 
 def _plausible_sample(pred: Any, k: int, scene: Scene, t_col: int, target: int, rng: np.random.Generator
@@ -228,15 +244,15 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
                    collision_time: str = "entropy", seed: int = 0, models_dir: Path | None = None,
                    model: Any = None, regions_out: dict[str, np.ndarray] | None = None,
                    exclude: Collection[int] = (), strict: bool = True,
-                   memo: dict[str, Any] | None = None) -> CollisionSnapshot:
+                   memo: PriorMemo | None = None) -> CollisionSnapshot:
     """COSTER's snapshot: t_col from the velocity entropy, placement from the prior (module docstring).
 
     ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in ``models_dir`` (default: the shipped
     models folder). ``regions_out``, when given, receives the region centres ``xy`` (K, 2) [m] and
-    presence probabilities ``presence`` (K,) around the target at t_col, for pictures. ``memo``: a
-    dict kept by the caller across draws for the same scene, target and model: the regions, the
+    presence probabilities ``presence`` (K,) around the target at t_col, for pictures. ``memo``:
+    kept by the caller across draws for the same scene, target and model: the regions, the
     entropy curve and the prior's adaptation to the traffic around (fitted over the whole search
-    window) are computed once in it (they depend on nothing else).
+    window) are computed once in it (:class:`PriorMemo`; they depend on nothing else).
     """
     from coster_sumo import weights
     from coster_sumo.prior.infer import load_prior, predict_scene
@@ -247,13 +263,12 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     if len(window) == 0:
         raise NoSnapshot("the target is not valid inside the collision-time search window")
     tr = scene.tracks
-    memo = {} if memo is None else memo
-    data = _scene_prior(model, scene, target, memo)
-    entropy = memo["entropy"]
+    memo = PriorMemo() if memo is None else memo
+    data, entropy = _scene_prior(model, scene, target, memo)
     t_col = choose_collision_time(window, collision_time, rng, entropy)
     at_col = np.array([t_col])
     pred = predict_scene(model, data, target, steps=at_col, pose=target_pose(scene, target, at_col),
-                         adaptation=memo["adaptation"])
+                         adaptation=memo.adaptation)
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
     centres_col = pred.regions.centre[np.maximum(pred.region_index[0], 0)]  # (K, 2)
@@ -327,7 +342,7 @@ class PlacementRequest:
     models_dir: Path | None = None
     exclude: Collection[int] = ()
     strict: bool = True
-    memo: dict[str, Any] | None = None
+    memo: PriorMemo | None = None
 
 
 class SnapshotPlacer(Protocol):
