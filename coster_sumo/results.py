@@ -18,7 +18,7 @@ from coster_sumo.errors import InputError, not_found
 from coster_sumo.metrics import RunOutcome
 
 
-def _split(cls: type, d: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+def split_known(cls: type, d: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """The keys of ``d`` that are fields of ``cls`` (but ``extra``), and the others."""
     names = {f.name for f in fields(cls)} - {"extra"}
     return {k: v for k, v in d.items() if k in names}, {k: v for k, v in d.items() if k not in names}
@@ -98,7 +98,7 @@ class VariantOutcome:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> VariantOutcome:
-        known, extra = _split(cls, d)
+        known, extra = split_known(cls, d)
         known["other_collisions_list"] = tuple(known.get("other_collisions_list", ()))
         return cls(**known, extra=extra)
 
@@ -147,7 +147,7 @@ class SnapshotRecord:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> SnapshotRecord:
-        known, extra = _split(cls, d)
+        known, extra = split_known(cls, d)
         known["variants"] = tuple(known.get("variants", ()))
         known["impact_angles_deg"] = tuple(known.get("impact_angles_deg", ()))
         return cls(**known, extra=extra)
@@ -294,7 +294,7 @@ class TargetResult:
     @classmethod
     def from_json(cls, d: Mapping[str, Any], folder: Path) -> TargetResult:
         counted = {f.name for f in fields(LabelCounts)}
-        known, extra = _split(cls, {k: v for k, v in d.items() if k not in counted})
+        known, extra = split_known(cls, {k: v for k, v in d.items() if k not in counted})
         known.pop("folder", None)
         known.pop("labels", None)
         known["variants"] = tuple(VariantOutcome.from_json(v) for v in d.get("variants", ()))

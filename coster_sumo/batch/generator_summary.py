@@ -16,6 +16,7 @@ from typing import Any, ClassVar, TypeVar
 
 from coster_sumo.batch.summaries import rate_from_json
 from coster_sumo.metrics import MetricValue
+from coster_sumo.results import split_known
 
 
 @dataclass(frozen=True)
@@ -85,8 +86,8 @@ class VariantRecord:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> VariantRecord:
-        names = {f.name for f in fields(cls)} - {"extra"}
-        return cls(**{k: v for k, v in d.items() if k in names}, extra={k: v for k, v in d.items() if k not in names})
+        known, extra = split_known(cls, d)
+        return cls(**known, extra=extra)
 
 
 @dataclass(frozen=True)
