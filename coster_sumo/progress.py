@@ -42,20 +42,3 @@ def bars(quiet: bool = False) -> Bars:
     """:func:`progress_bar` with ``quiet`` fixed: a command's ``--quiet`` is a matter of its console,
     handed to the work it runs as this, not as an option of the work."""
     return functools.partial(progress_bar, quiet=quiet)
-
-
-class SimClock:
-    """Moves a progress bar along the simulation time, from the first step to ``end`` [s] (the
-    ``progress`` callback of a recorded pass: :meth:`update` takes the simulation time)."""
-
-    def __init__(self, bar: Any, end: float) -> None:
-        self.bar, self.end = bar, end
-        self.begin: float | None = None
-
-    def update(self, t: float) -> None:
-        if self.begin is None:
-            self.begin = t
-            self.bar.total = round(max(self.end - t, 1.0), 1)
-        done = round(t - self.begin, 1)
-        if done - self.bar.n >= 1.0:  # redraw once per simulated second
-            self.bar.update(done - self.bar.n)

@@ -28,7 +28,6 @@ from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
-from coster_sumo.progress import SimClock
 from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.source import ScenarioSource
@@ -95,16 +94,13 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
-    clock = SimClock(bar, end) if bar is not None else None
 
     def after_step(session: Any, states: Any) -> bool:
-        if clock is not None:
-            clock.update(session.time)
         return hold.after_step(session, states) if hold is not None else False
 
     with SumoSession(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
                      additional=list(additional)) as session:
-        scene = record(session, begin=spec.begin, end=end, after_step=after_step,
+        scene = record(session, begin=spec.begin, end=end, after_step=after_step, bar=bar,
                        focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
                                    more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S))
     ids = scene.tracks.ids.tolist()

@@ -246,3 +246,25 @@ def test_small_pages_switch_numpy_off_inside_and_restore_it_after():
         after = _set_madvise_hugepage(True)
         assert (inside, after) == (False, before)
     _set_madvise_hugepage(original)
+
+
+@pytest.mark.sumo
+def test_a_progress_bar_follows_the_simulation_time_to_the_end(grid_cfg):
+    """The nominal pass's bar: its total is the window from the first step to ``end``, it moves
+    once per simulated second, and it stands at the last whole second when the recording ends."""
+    class Bar:  # what the pass uses of a tqdm bar
+        total: float | None = None
+        n = 0.0
+
+        def update(self, k: float) -> None:
+            moves.append(k)
+            self.n += k
+
+    bar = Bar()
+    moves: list[float] = []
+    with SumoSession(grid_cfg, seed=1, end=12.0) as session:
+        scene = record(session, end=12.0, bar=bar)
+    first = float(scene.timestamps[0])
+    assert bar.total == pytest.approx(12.0 - first)
+    assert moves and all(m >= 1.0 - 1e-9 for m in moves)
+    assert 12.0 - first - 1.0 <= bar.n <= 12.0 - first + 1e-9

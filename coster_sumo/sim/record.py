@@ -274,7 +274,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
            max_steps: int | None = None, net: SumoNet | None = None, incoming_lanes: bool = True,
            before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
            scenario_id: str | None = None, meta: dict[str, Any] | None = None,
-           focus: Focus | None = None) -> Scene:
+           focus: Focus | None = None, bar: Any = None) -> Scene:
     """Step a running session and record it into a :class:`Scene` (``source="sumo"``).
 
     Stepping stops at the first of: the time reaches ``end`` [s] (default: the session's own
@@ -296,6 +296,7 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
             targets needs, without a second pass.
         scenario_id: default ``<config or net stem>_seed<seed>``.
         meta: extra metadata merged into ``Scene.meta``.
+        bar: a progress bar (tqdm-like) moved along the simulation time to ``end``.
     """
     if not session.is_running:
         raise InputError(f"{session.name}: start the session before recording it")
@@ -316,17 +317,17 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     first_t: float | None = None
     t = session.time
     while True:
-        if max_steps is not None and steps >= max_steps:
-            break
-        if end is not None and session.time >= end - eps:
-            break
-        if end is None and max_steps is None and steps > 0 and session.min_expected_number() == 0:
+        if ((max_steps is not None and steps >= max_steps) or (end is not None and session.time >= end - eps)
+                or (end is None and max_steps is None and steps > 0 and session.min_expected_number() == 0)):
             break
         if before_step is not None:
             before_step(session)
         t = session.step()
         first_t = t if first_t is None else first_t
         steps += 1
+        if bar is not None and end is not None and t - first_t - bar.n >= 1.0:  # once per simulated second
+            bar.total = round(max(end - first_t, 1.0), 1)
+            bar.update(round(t - first_t - bar.n, 1))
         if reader is None:
             st, full = session.vehicle_states(), True
         else:
