@@ -66,8 +66,8 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
-    shared = DrawMemo()  # what every draw for this target computes once
-    planned = plan_scenarios(scene, index, seed, gen, drivable, memo=shared)[0]  # one snapshot: the first draw
+    shared = DrawMemo.of(scene)  # what every draw for this target computes once
+    planned = plan_scenarios(scene, index, seed, gen, drivable, shared)[0]  # one snapshot: the first draw
 
     def label(plans: list[AdversaryPlan]) -> list[Any]:
         return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=wanted.reaction_time)

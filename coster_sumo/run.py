@@ -202,7 +202,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     target_id = str(scene.tracks.ids[target])
     t0 = time.perf_counter()
     advance = _advance_held(held, threads)
-    shared = DrawMemo()  # what every draw for this target computes once (--avoidable only draws again)
+    shared = DrawMemo(nominal.low)  # what every draw for this target computes once (--avoidable only draws again)
     try:
         # the CVAE's draws take seconds each: a bar that counts them, so the console is not silent
         with bars(f"generation ({target_id})", "draw") as bar:
@@ -215,8 +215,8 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
             # every core until a held copy advances beside (the prior's curves over the target's life
             # come first: 28.5 s on one thread, 22.1 s on two on A10KW, the same plans)
             with torch_threads(None if threads is None else usable_cores()):
-                planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, opts.snapshots,
-                                         on_snapshot=drawn, memo=shared)
+                planned = plan_scenarios(scene, target, spec.seed, opts.generation, drivable, shared, opts.snapshots,
+                                         on_snapshot=drawn)
     except NoSnapshot as exc:
         raise InputError(f"{spec.config}: no collision snapshot for target {target_id!r}: {exc}") from None
     timings["generation_s"] = time.perf_counter() - t0

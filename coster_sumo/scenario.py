@@ -28,7 +28,7 @@ from coster_sumo.drivable import DrivableArea
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
-from coster_sumo.scene import Scene
+from coster_sumo.scene import Scene, resample
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import ScenarioSpec
@@ -120,8 +120,9 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
 
 @dataclass(frozen=True)
 class NominalPass:
-    """What the targets of a run share: the nominal scene, its drivable area, the held copies of the
-    pass (None: every variant simulates from the begin), and each requested target chosen once.
+    """What the targets of a run share: the nominal scene (at 10 Hz, and at the models' 2 Hz for
+    their draws, :class:`~coster_sumo.method.generation.DrawMemo`), its drivable area, the held copies
+    of the pass (None: every variant simulates from the begin), and each requested target chosen once.
 
     Attributes:
         targets: requested id (None: the default target) -> its agent index in :attr:`scene`.
@@ -131,6 +132,7 @@ class NominalPass:
     """
 
     scene: Scene
+    low: Scene
     drivable: DrivableArea
     held: HeldStates | None
     targets: dict[str | None, int]
@@ -162,4 +164,5 @@ def nominal_pass(source: ScenarioSource, requested: Sequence[str | None], *, tra
             missing[r] = str(exc)
     t0 = time.perf_counter()
     drivable = DrivableArea.from_road_map(scene.road_map)
-    return NominalPass(scene, drivable, hold, targets, missing, time.perf_counter() - t0)
+    drivable_s = time.perf_counter() - t0
+    return NominalPass(scene, resample(scene, PRIOR_RATE_HZ), drivable, hold, targets, missing, drivable_s)

@@ -111,15 +111,15 @@ def test_further_draws_reuse_the_first_draws_prior_curves(synthetic_scene, monke
     curves = []
     real = snapshot.entropy_curve
     monkeypatch.setattr(snapshot, "entropy_curve", lambda *a, **k: curves.append(1) or real(*a, **k))
-    shared = DrawMemo()
+    shared = DrawMemo.of(scene)
     try:
-        plan_scenarios(scene, scene.sdc_index, 0, gen, drivable, memo=shared)
+        plan_scenarios(scene, scene.sdc_index, 0, gen, drivable, shared)
     except NoSnapshot as exc:
         pytest.skip(f"no snapshot: {exc}")
     assert len(curves) == 1
     again = further_draw(scene, scene.sdc_index, 0, gen, drivable, 1, shared)
     assert len(curves) == 1  # the shared memo had it
-    alone = further_draw(scene, scene.sdc_index, 0, gen, drivable, 1)
+    alone = further_draw(scene, scene.sdc_index, 0, gen, drivable, 1, DrawMemo.of(scene))
     assert len(curves) == 2
     assert (again is None) == (alone is None)
     if again is not None and alone is not None:

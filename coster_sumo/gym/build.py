@@ -228,11 +228,12 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
     from coster_sumo.defects import label_plans
     from coster_sumo.drivable import DrivableArea
     from coster_sumo.errors import NoSnapshot
-    from coster_sumo.method.generation import plan_scenarios
+    from coster_sumo.method.generation import DrawMemo, plan_scenarios
 
     drivable = DrivableArea.from_road_map(src.scene.road_map)
     try:
-        planned = plan_scenarios(src.scene, src.target, src.spec.seed, gen, drivable, opts.snapshots)
+        planned = plan_scenarios(src.scene, src.target, src.spec.seed, gen, drivable, DrawMemo.of(src.scene),
+                                 opts.snapshots)
     except NoSnapshot as exc:
         planned = []
         failed.append({"source": src.spec.label(), "reason": f"no snapshot: {exc}"})

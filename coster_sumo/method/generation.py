@@ -121,10 +121,19 @@ def generation_rng(seed: int, scene: Scene) -> np.random.Generator:
 class DrawMemo:
     """What the draws for one scene, target and generation config share (the draws of
     :func:`draw_scenarios`, and :func:`keep_avoidable`'s further draws): the scene at the models'
-    2 Hz (None until made) and what the prior computes once (:class:`PriorMemo`)."""
+    2 Hz and what the prior computes once (:class:`PriorMemo`).
 
-    low: Scene | None = None
+    The 2 Hz scene comes with the memo: a run resamples its nominal scene once for all its targets
+    (:class:`coster_sumo.scenario.NominalPass`); :meth:`of` resamples a scene.
+    """
+
+    low: Scene
     prior: PriorMemo = field(default_factory=PriorMemo)
+
+    @classmethod
+    def of(cls, scene: Scene) -> DrawMemo:
+        """A fresh memo for draws on ``scene`` (10 Hz): its 2 Hz scene made here."""
+        return cls(resample(scene, PRIOR_RATE_HZ))
 
 
 class _Draws:
@@ -212,11 +221,16 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
     ``exclude``: 2 Hz steps not to take as t_col. ``on_snapshot`` is called with every snapshot
     drawn, before its adversaries are generated (the variants' simulations can get ready meanwhile).
     ``memo``: kept by the caller across draws for the same scene, target and ``gen`` (the 2 Hz
-    scene and the prior's curves are computed once in it, :class:`DrawMemo`).
+    scene and the prior's curves are computed once in it, :class:`DrawMemo`); None: a fresh one.
     """
-    memo = DrawMemo() if memo is None else memo
-    if memo.low is None:
-        memo.low = resample(scene, PRIOR_RATE_HZ)
+    return _plan(scene, target, seed, gen, drivable, DrawMemo.of(scene) if memo is None else memo, exclude,
+                 on_snapshot)
+
+
+def _plan(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea, memo: DrawMemo,
+          exclude: Collection[int] = (), on_snapshot: Callable[[CollisionSnapshot], None] | None = None
+          ) -> PlannedScenario:
+    """:func:`plan_scenario` with its memo."""
     draws = _Draws(scene, memo.low, target, seed, gen, drivable, exclude, on_snapshot, memo.prior)
     for _ in range(COLLISION_TIMES):
         planned, here = draws.at_one_time()
@@ -231,9 +245,9 @@ def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,
 
 
 def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                   max_draws: int, apart: bool = False,
-                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
-                   memo: DrawMemo | None = None) -> Iterator[tuple[int, int, PlannedScenario | NoSnapshot]]:
+                   max_draws: int, memo: DrawMemo, apart: bool = False,
+                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None
+                   ) -> Iterator[tuple[int, int, PlannedScenario | NoSnapshot]]:
     """The one loop of generation: draw ``j`` = 0, 1, ... of :func:`plan_scenario` with ``seed``
     itself, then :func:`derived_seed` (``seed``, j), all sharing one memo (the 2 Hz scene, the
     regions, the entropy curve are computed once per scene and target).
@@ -241,16 +255,14 @@ def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
     Yields (j, the draw's seed, its :class:`PlannedScenario` or the :class:`NoSnapshot` it raised);
     a draw is made only when the caller asks for the next one. With ``apart`` no draw takes a
     collision time closer than 2 s to one taken before (several snapshots of one scene). ``memo``:
-    that memo, when the caller draws again later for the same scene, target and ``gen``
-    (:func:`keep_avoidable`).
+    that memo (:meth:`DrawMemo.of` the scene), which the caller keeps when it draws again later for
+    the same scene, target and ``gen`` (:func:`keep_avoidable`).
     """
-    memo = DrawMemo() if memo is None else memo
     excluded: set[int] = set()
     for j in range(max_draws):
         draw_seed = seed if j == 0 else derived_seed(seed, j)
         try:
-            planned = plan_scenario(scene, target, draw_seed, gen, drivable, exclude=excluded,
-                                    on_snapshot=on_snapshot, memo=memo)
+            planned = _plan(scene, target, draw_seed, gen, drivable, memo, exclude=excluded, on_snapshot=on_snapshot)
         except NoSnapshot as exc:
             yield j, draw_seed, exc
             continue
@@ -260,8 +272,8 @@ def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
 
 
 def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                   snapshots: int = 1, on_snapshot: Callable[[CollisionSnapshot], None] | None = None,
-                   memo: DrawMemo | None = None) -> list[PlannedScenario]:
+                   memo: DrawMemo, snapshots: int = 1,
+                   on_snapshot: Callable[[CollisionSnapshot], None] | None = None) -> list[PlannedScenario]:
     """Up to ``snapshots`` snapshots for one target, each with its own plans: the best collision time
     first, then the next best at least 2 s away from those taken.
 
@@ -270,8 +282,8 @@ def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
     ``memo``: see :func:`draw_scenarios`.
     """
     taken: list[PlannedScenario] = []
-    for j, _, drawn in draw_scenarios(scene, target, seed, gen, drivable, snapshots, apart=True,
-                                      on_snapshot=on_snapshot, memo=memo):
+    for j, _, drawn in draw_scenarios(scene, target, seed, gen, drivable, snapshots, memo, apart=True,
+                                      on_snapshot=on_snapshot):
         if isinstance(drawn, NoSnapshot):
             if j == 0:
                 raise drawn
@@ -285,13 +297,13 @@ def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
 
 
 def further_draw(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                 j: int, memo: DrawMemo | None = None) -> PlannedScenario | None:
+                 j: int, memo: DrawMemo) -> PlannedScenario | None:
     """Draw ``j`` of the further draws that replace unavoidable variants (``--avoidable only``):
     seeds far from those of :func:`draw_scenarios`; None when it has no snapshot. ``memo``: the
     first draws' (:func:`draw_scenarios`): the prior's curves over the target's life are not
     computed again."""
     try:
-        return plan_scenario(scene, target, derived_seed(seed, 100 + j), gen, drivable, memo=memo)
+        return _plan(scene, target, derived_seed(seed, 100 + j), gen, drivable, memo)
     except NoSnapshot:
         return None
 
@@ -301,13 +313,13 @@ EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under
 
 def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidability],
                    label: Callable[[list[AdversaryPlan]], list[Avoidability]], wanted: int, *, seed: int,
-                   gen: GenerationConfig, drivable: DrivableArea, memo: DrawMemo | None = None
+                   gen: GenerationConfig, drivable: DrivableArea, memo: DrawMemo
                    ) -> tuple[list[PlannedScenario], AvoidableOnly]:
     """``--avoidable only``: drop the unavoidable plans of ``planned`` (``labels`` by adversary id,
     of the scene and target of ``planned``) and replace them by plans of :func:`further_draw` (with
     ``seed``, ``gen``, ``drivable``) until ``wanted`` are avoidable or :data:`EXTRA_DRAWS` more draws
     are spent. ``label(plans)`` gives the labels of a further draw's plans (``labels`` gains them).
-    ``memo``: the one :func:`plan_scenarios` drew ``planned`` with (None: computed again).
+    ``memo``: the one :func:`plan_scenarios` drew ``planned`` with.
 
     Returns the kept scenarios (at least one, maybe without plans) and what was tried.
     """
@@ -372,7 +384,7 @@ def generate_variants(scene: Scene, target: int, seed: int, gen: GenerationConfi
     reasons: list[str] = []
     max_draws = max_draws if max_draws is not None else 3 * gen.variants
     if gen.variants > 0:
-        for j, draw_seed, planned in draw_scenarios(scene, target, seed, gen, drivable, max_draws):
+        for j, draw_seed, planned in draw_scenarios(scene, target, seed, gen, drivable, max_draws, DrawMemo.of(scene)):
             if isinstance(planned, NoSnapshot):
                 reasons.append(f"draw {j}: {planned}")
                 if not one_each:
