@@ -20,7 +20,6 @@ import numpy as np
 
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.evasion import Avoidability, Escape, Manoeuvre
-from coster_sumo.formats.scene_folder import agent_sizes, vtype_for
 from coster_sumo.geometry import box_signed_distance, make_boxes
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.scene import Scene
@@ -227,9 +226,7 @@ class _JointProof:
         self.target_id = str(tr.ids[target])
         self.length = float(np.median(tr.length[target][tr.valid[target]]))
         self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
-        lengths, widths = agent_sizes(scene)
-        self.size = (float(lengths[target]), float(widths[target]))
-        self.vtype = vtype_for(int(tr.object_type[target]))
+        self.target = target
         self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
         self.adversaries = [AdversaryController(j.plan, vehicle_id=a) for j, (_, a) in zip(jobs, self.ids, strict=True)]
         self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
@@ -259,9 +256,9 @@ class _JointProof:
                 continue
             if k not in self.added:
                 esc = self.jobs[k].escape
-                session.add_vehicle(tid, *self.size, self.vtype[1], base_type=self.vtype[0],
-                                    route_edges=edge_under(session, float(esc.x[0]), float(esc.y[0]),
-                                                            float(esc.yaw[0]), self.length))
+                # the target's copy as the log's target is added (size, vType)
+                self.replayer.add_as(session, self.target, tid, route_edges=edge_under(
+                    session, float(esc.x[0]), float(esc.y[0]), float(esc.yaw[0]), self.length))
                 self.added.add(k)
             self.drivers[k].before_step(session, tid, t_next, True)
             self.adversaries[k].before_step(session, t_next)

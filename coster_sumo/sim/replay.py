@@ -175,13 +175,19 @@ class LogReplayer:
         k = int(round((t - ts[0]) / dt))
         return k if 0 <= k < len(ts) and abs(t - ts[0] - k * dt) < 0.25 * dt else None
 
+    def add_as(self, sim: SumoSession, a: int, sid: str, route_edges: list[str] | None = None) -> None:
+        """Add vehicle ``sid`` with logged agent ``a``'s length, width and vType (the log does not
+        drive it: a replayed agent's own copy is :meth:`before_step`'s)."""
+        vt = vtype_for(int(self.scene.tracks.object_type[a]))
+        sim.add_vehicle(sid, float(self.lengths[a]), float(self.widths[a]), vt[1], base_type=vt[0],
+                        route_edges=route_edges)
+
     def _add(self, sim: SumoSession, a: int) -> str:
         tr = self.scene.tracks
         n = int(self.appearances[a])
         sid = str(tr.ids[a]) if n == 0 else f"{tr.ids[a]}#{n}"
         self.appearances[a] += 1
-        vt = vtype_for(int(tr.object_type[a]))
-        sim.add_vehicle(sid, float(self.lengths[a]), float(self.widths[a]), vt[1], base_type=vt[0])
+        self.add_as(sim, a, sid)
         self.active[a] = sid
         if not self._staging_checked:
             self._slots = _staging_slots(sim, self.staging_lane)
