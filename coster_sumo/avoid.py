@@ -150,7 +150,7 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
         last_moment = _Candidates(ctx, act_k[~late]).last_moment(t_col)
     if late_cand is not None:
         for r in reaction_times:
-            escapes[r] = late_cand.least_escape(t_threat + r, man)
+            escapes[r] = late_cand.least_escape(t_threat + r)
     return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, last_moment, escapes, reaction_time_s,
                         candidates=int(len(act_k) * len(man)))
 
@@ -245,7 +245,7 @@ class _Candidates:
                 return float(t_col - self.t_acts[k])
         return None
 
-    def least_escape(self, t_from: float, man: list[Manoeuvre]) -> Escape | None:
+    def least_escape(self, t_from: float) -> Escape | None:
         """The least demanding escape acting at ``t_from`` [s] or later: smallest peak acceleration;
         then the earlier act; then the first manoeuvre (longitudinal before lateral, the gentler
         first)."""
@@ -264,7 +264,7 @@ class _Candidates:
             gap = np.minimum(gap, np.where(self.others[1], box_signed_distance(box[None], self.others[0]),
                                            np.inf).min(0))
         clearance = float(gap[self.after[kb, 0]].min())
-        return Escape(t_act=float(self.t_acts[kb]), manoeuvre=man[mb], times=ctx.times.copy(),
+        return Escape(t_act=float(self.t_acts[kb]), manoeuvre=ctx.man[mb], times=ctx.times.copy(),
                       x=pos[kb, mb, :, 0].copy(), y=pos[kb, mb, :, 1].copy(),
                       yaw=(yaw[kb, mb] + np.pi) % (2 * np.pi) - np.pi, speed=self.v[kb, mb].copy(),
                       clearance_m=clearance, peak_decel=float(self.peak_decel[kb, mb]),
