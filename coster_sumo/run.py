@@ -25,7 +25,6 @@ from coster_sumo.atomic import write_json
 from coster_sumo.defects import label_plans
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
-from coster_sumo.method.filters import drop_bystander_wrecks, drop_failed_variants
 from coster_sumo.method.generation import DrawMemo, check_generation, keep_avoidable, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.outdir import staged_output
@@ -40,6 +39,7 @@ from coster_sumo.sim.inject import (
     default_planner,
     inject_variants,
 )
+from coster_sumo.sim.outcomes import drop_bystander_wrecks, drop_failed_variants
 from coster_sumo.sim.planners import check_planner, make_planner
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.source import ScenarioSource

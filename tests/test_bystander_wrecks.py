@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from coster_sumo.method.filters import drop_bystander_wrecks
 from coster_sumo.sim.events import Event
+from coster_sumo.sim.outcomes import drop_bystander_wrecks
 
 
 def _hit(t: float, *ids: str) -> Event:
