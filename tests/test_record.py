@@ -268,3 +268,18 @@ def test_a_progress_bar_follows_the_simulation_time_to_the_end(grid_cfg):
     assert bar.total == pytest.approx(12.0 - first)
     assert moves and all(m >= 1.0 - 1e-9 for m in moves)
     assert 12.0 - first - 1.0 <= bar.n <= 12.0 - first + 1e-9
+
+
+@pytest.mark.sumo
+def test_a_quiet_progress_bar_is_still_moved_once_per_simulated_second(grid_cfg):
+    """A quiet tqdm bar (``disable=True``) does not count what it is given: the pass must not call
+    it on every one of its steps."""
+    from tqdm import tqdm
+
+    calls: list[float] = []
+    bar = tqdm(disable=True)
+    update = bar.update
+    bar.update = lambda k: calls.append(k) or update(k)
+    with SumoSession(grid_cfg, seed=1, end=12.0) as session:
+        record(session, end=12.0, bar=bar)
+    assert 1 <= len(calls) <= 12  # 119 steps of 0.1 s

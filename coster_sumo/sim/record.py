@@ -309,11 +309,10 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         net = load_sumo_net(net_path)
     table = SignalTable.build(net, incoming_lanes=incoming_lanes)
     eps = 1e-6 * session.step_length
-
     rec = _Rows()
     reader = _FocusedReader(session, focus) if focus is not None else None
     signals = SignalReader(session, table)
-    steps = 0
+    steps, shown = 0, 0.0  # steps taken; [s] of simulation time the bar shows
     first_t: float | None = None
     t = session.time
     while True:
@@ -325,9 +324,10 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         t = session.step()
         first_t = t if first_t is None else first_t
         steps += 1
-        if bar is not None and end is not None and t - first_t - bar.n >= 1.0:  # once per simulated second
-            bar.total = round(max(end - first_t, 1.0), 1)
-            bar.update(round(t - first_t - bar.n, 1))
+        if bar is not None and end is not None and t - first_t >= shown + 1.0:  # once per simulated second
+            bar.total, done = round(max(end - first_t, 1.0), 1), round(t - first_t, 1)
+            bar.update(done - shown)
+            shown = done
         if reader is None:
             st, full = session.vehicle_states(), True
         else:
