@@ -94,13 +94,10 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
-
-    def after_step(session: Any, states: Any) -> bool:
-        return hold.after_step(session, states) if hold is not None else False
-
     with SumoSession(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
                      additional=list(additional)) as session:
-        scene = record(session, begin=spec.begin, end=end, after_step=after_step, bar=bar,
+        scene = record(session, begin=spec.begin, end=end, bar=bar,
+                       after_step=None if hold is None else hold.after_step,
                        focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,
                                    more_targets=tuple(more_targets), max_life_s=MAX_TARGET_LIFE_S))
     ids = scene.tracks.ids.tolist()
