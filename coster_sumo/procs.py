@@ -143,6 +143,9 @@ def _child_body(fn: Callable[[], Any], path: str) -> None:
         code = 1
     sys.stdout.flush()
     sys.stderr.flush()
+    outputs = sys.modules.get("coster_sumo.sim.sumo_outputs")
+    if outputs is not None:  # a temporary folder this child made itself (none where its parent had one)
+        outputs.cleanup()
     os._exit(code)  # no atexit handlers inherited from the parent (libsumo, tqdm)
 
 

@@ -41,6 +41,7 @@ from coster_sumo.sim.inject import (
 )
 from coster_sumo.sim.outcomes import drop_bystander_wrecks, drop_failed_variants
 from coster_sumo.sim.planners import check_planner, make_planner
+from coster_sumo.sim.sumo_outputs import keep_nominal_outputs
 from coster_sumo.snapshot_state import CollisionSnapshot
 from coster_sumo.source import ScenarioSource
 from coster_sumo.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
@@ -133,8 +134,9 @@ def run(opts: RunOptions, bars: Bars = progress_bar) -> RunResult:
             # copies of it must have them
             extra = ([] if source.converted or planner == "replay"
                      else make_planner(planner).additional_files(staging))
-            with bars("nominal pass", "sim s") as bar:
+            with bars("nominal pass", "sim s") as bar, keep_nominal_outputs(staging / "sumo-outputs") as kept:
                 nominal = nominal_pass(source, opts.targets, traci=opts.traci, hold=held, additional=extra, bar=bar)
+            kept.write_listing()  # what the configuration would have written, and where it went
             timings["nominal_s"] = time.perf_counter() - t0 - nominal.drivable_s
             timings["drivable_s"] = nominal.drivable_s
             if len(named) <= 1:

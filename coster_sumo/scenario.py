@@ -66,6 +66,7 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     session of its own, opened here as the variants' passes open theirs."""
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
     from coster_sumo.sim.session import SumoSession
+    from coster_sumo.sim.sumo_outputs import nominal_outputs
 
     spec, cfg = source.spec, source.spec.config
 
@@ -94,8 +95,11 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     # recording goes on a little after the target arrives: the collision-time search keeps the last
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
-    with SumoSession(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci,
-                     additional=list(additional)) as session:
+    kept = nominal_outputs()  # the configuration's own outputs: into the command's folder, or a temporary one
+    with SumoSession(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci, additional=list(additional),
+                     sumo_outputs=None if kept is None else kept.folder) as session:
+        if kept is not None:
+            kept.redirects = session.redirects
         scene = record(session, begin=spec.begin, end=end, bar=bar,
                        after_step=None if hold is None else hold.after_step,
                        focus=Focus(target, SURROUNDINGS_RADIUS_M, tail_s=tail_s, surroundings_hz=PRIOR_RATE_HZ,

@@ -41,6 +41,7 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.formats.sumocfg import open_maybe_gzip, parse_time
+from coster_sumo.sim.sumo_outputs import sandbox
 
 DEMAND_TAGS = ("vehicle", "trip", "flow")
 EXPANDED_FILE = "flows_expanded.rou.xml"
@@ -171,7 +172,8 @@ def expand_flows(config: Path, flows: set[str], leave_out: frozenset[str], out: 
     rerouted vehicle's first route). Returns the ids written, in departure order.
     """
     tmp = out.with_name(f".{out.name}.vehroute.xml")
-    cmd = [sumo_env.binary("sumo"), "-c", str(config), "--device.fcd-replay.files", "",
+    quiet = sandbox(config).config or config  # without the configuration's own outputs (none beside it)
+    cmd = [sumo_env.binary("sumo"), "-c", str(quiet), "--device.fcd-replay.files", "",
            "--vehroute-output", str(tmp), "--vehroute-output.sorted", "true",
            "--vehroute-output.intended-depart", "true", "--vehroute-output.write-unfinished", "true",
            "--vehroute-output.speedfactor", "true", "--no-warnings", "true", "--no-step-log", "true"]

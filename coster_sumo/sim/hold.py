@@ -48,6 +48,7 @@ from typing import Any
 from coster_sumo.errors import SumoError
 from coster_sumo.procs import die_with_parent, fork_and_wait
 from coster_sumo.sim.session import SumoSession
+from coster_sumo.sim.sumo_outputs import detach_outputs
 
 MAX_HOLDERS = 8
 FIRST_SPACING_S = 10.0  # [s] simulation time between holders before any thinning
@@ -157,6 +158,8 @@ class HeldStates:
         pid = os.fork()
         if pid == 0:  # the holder
             die_with_parent()
+            if session.sumo_outputs is not None:  # the pass's kept outputs are the parent's alone
+                detach_outputs(session.sumo_outputs)
             parent_end.close()
             for h in self.holders:  # the other holders' pipes belong to the parent
                 with contextlib.suppress(OSError):

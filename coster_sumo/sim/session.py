@@ -35,6 +35,7 @@ import numpy as np
 from coster_sumo import frames, sumo_env
 from coster_sumo.errors import CosterError, InputError, SumoError
 from coster_sumo.formats.sumocfg import check_xml, read_sumocfg, runnable_config
+from coster_sumo.sim import sumo_outputs as sumo_outputs_mod
 from coster_sumo.sim.control import SessionControl, sumo_message
 from coster_sumo.sim.states import VehicleStates, empty_states
 from coster_sumo.sim.sumo_options import (
@@ -78,6 +79,8 @@ class SumoSession(SessionControl):
         port: attach to a SUMO server already listening on this port (implies ``traci``; the
             files and options above are then ignored: the server was started by someone else).
         host: host of that server.
+        sumo_outputs: the folder the outputs the configuration and additional files declare go to
+            (None: a temporary one, :mod:`coster_sumo.sim.sumo_outputs`); never where they say.
     """
 
     def __init__(self, config: str | Path | None = None, *, net: str | Path | None = None,
@@ -87,7 +90,7 @@ class SumoSession(SessionControl):
                  begin: float | None = None, end: float | None = None,
                  options: Mapping[str, object] | None = None, extra_args: Sequence[str] = (),
                  traci: bool = False, gui: bool = False, port: int | None = None,
-                 host: str = "localhost") -> None:
+                 host: str = "localhost", sumo_outputs: Path | None = None) -> None:
         if config is None and net is None and port is None:
             raise InputError("SumoSession needs a .sumocfg, a net file, or a port to attach to")
         self.config = Path(config) if config is not None else None
@@ -104,6 +107,8 @@ class SumoSession(SessionControl):
         self.port = port
         self.host = host
         self.uses_traci = bool(traci or gui or port is not None)
+        self.sumo_outputs = sumo_outputs
+        self.redirects: tuple[sumo_outputs_mod.Redirect, ...] = ()  # set by command()
         self._api: Any = None
         self._label: str | None = None
         self._static: dict[str, tuple[float, float, str, str]] = {}  # id -> length, width, vclass, type
@@ -158,16 +163,20 @@ class SumoSession(SessionControl):
         """The SUMO command line this session starts (binary first)."""
         binary = sumo_env.binary("sumo-gui" if self.gui else "sumo")
         cmd = [binary]
+        # the outputs the configuration declares: into self.sumo_outputs, or discarded (a quiet copy)
+        box = sumo_outputs_mod.sandbox(self.config, self.additional, self.sumo_outputs)
+        self.redirects = tuple(box.redirects)
         if self.config is not None:
-            cmd += ["-c", str(runnable_config(self.config))]
+            cmd += ["-c", str(box.config or runnable_config(self.config))]
         if self.net is not None:
             cmd += ["-n", str(self.net)]
         if self.routes:
             cmd += ["-r", ",".join(str(p) for p in self.routes)]
-        if self.additional:  # -a replaces the configuration's additional-files: name them too
-            own = list(read_sumocfg(self.config).additional_files) if self.config is not None else []
-            cmd += ["-a", ",".join(str(p) for p in [*own, *self.additional])]
+        # -a replaces the configuration's additional-files: name them too
+        if self.additional or (box.staged and box.config is None):
+            cmd += ["-a", ",".join(str(p) for p in box.additional)]
         opts = dict(RECOMMENDED_OPTIONS)
+        opts.update(zip(box.args[::2], box.args[1::2], strict=True))  # its outputs into our folder
         opts["--step-length"] = fmt(self.step_length)
         if self.seed is not None:
             opts["--seed"] = str(int(self.seed))
