@@ -14,8 +14,11 @@ import json
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.extras import require
+
 
 def _train(args: argparse.Namespace) -> int:
+    require("rl", "coster-sumo policy train")
     from coster_sumo.gym.train import TrainOptions, train
 
     progress = train(TrainOptions(scenarios=args.scenarios, out=args.out, timesteps=args.timesteps, seed=args.seed,
@@ -27,6 +30,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
+    require("rl", "coster-sumo policy eval")
     from coster_sumo.atomic import write_json
     from coster_sumo.gym.train import evaluate
 

@@ -12,9 +12,12 @@ vectorise with ``gymnasium.vector.AsyncVectorEnv`` or stable-baselines3's ``Subp
 
 from __future__ import annotations
 
-import gymnasium
-
 ENV_ID = "coster_sumo/Scenario-v0"
 
-if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="coster_sumo.gym.env:ScenarioEnv", disable_env_checker=False)
+try:
+    import gymnasium
+except ModuleNotFoundError:  # building scenario sets (gym.build) needs none; the environment does (extra rl)
+    pass
+else:
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="coster_sumo.gym.env:ScenarioEnv", disable_env_checker=False)

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from coster_sumo.errors import InputError
+from coster_sumo.extras import require
 from coster_sumo.geometry import project_points
 from coster_sumo.sim.driver import STEP_S, Driver, Route
 
@@ -66,10 +67,9 @@ class PolicyPlanner(Driver):
 
     def setup(self, session: SumoSession, target_id: str) -> None:
         if self._model is None:
-            try:
-                from stable_baselines3 import PPO
-            except ImportError:
-                raise InputError("planner policy:...: needs stable-baselines3 (pip install coster-sumo[rl])") from None
+            require("rl", f"planner policy:{self.path}")
+            from stable_baselines3 import PPO
+
             self._model = PPO.load(self.path, device="cpu")
         self._taken = False
         self.target_id = target_id
