@@ -28,6 +28,7 @@ import json
 import os
 import shutil
 import sys
+import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -314,15 +315,18 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
                       results: list[InjectionResult], labels: Sequence[Avoidability], timings: dict[str, float], *,
                       render: bool, options: dict[str, Any], copy_outside: bool = False,
                       overviews: OverviewRenders | None = None, folder: Path | None = None,
-                      avoidable_only: AvoidableOnly | None = None) -> TargetResult:
+                      avoidable_only: AvoidableOnly | None = None,
+                      done: Callable[[int], object] | None = None) -> TargetResult:
     """Write everything of a run into ``out`` (the caller renames it into place, to ``folder``: None,
     ``out`` itself), ``summary.json`` last; returns the target's result (``summary.json`` is its JSON).
 
     ``planned``: one entry per collision snapshot (``--snapshots``); ``results`` and ``labels``: one
     per plan, in the order of the snapshots' plans. Variants are numbered across snapshots.
     ``overviews``: the overviews started before the variants ran (None: drawn here);
-    ``avoidable_only``: what ``--avoidable only`` tried.
+    ``avoidable_only``: what ``--avoidable only`` tried; ``done(1)`` is called as each variant's files
+    and export are written. ``timings`` gains ``outputs_s``.
     """
+    t0 = time.perf_counter()
     first = planned[0]
     scene, target = first.scene, first.target_index
     target_id = str(scene.tracks.ids[target])
@@ -350,6 +354,8 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
     for i, (_, _, plan) in enumerate(jobs):
         variants[i] = _write_variant(out, i, plan, results[i], labels[i].escape, spec, planner, scene, target_id,
                                      variants[i], copy_outside=copy_outside)
+        if done is not None:
+            done(1)
     snapshots: list[SnapshotRecord] = []
     for k, p in enumerate(planned):
         p.snapshot.save(out / ("snapshot.json" if k == 0 else f"snapshot_{k}.json"))
@@ -367,6 +373,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
                                                                       for i in range(len(jobs))]
     snap0 = first.snapshot
     rates = run_metrics(variants)
+    timings = {**timings, "outputs_s": time.perf_counter() - t0}
     result = TargetResult(
         folder if folder is not None else out, target_id, config=str(spec.config), planner=planner,
         seed=spec.seed, t_col=round(snap0.time, 3), num_snapshots=len(snapshots), num_variants=len(variants),

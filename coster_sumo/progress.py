@@ -9,8 +9,10 @@ line in that case.
 from __future__ import annotations
 
 import functools
+import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 # what a long job takes to show its progress: ``bars(desc, unit, total=None)`` -> a tqdm-like bar
@@ -42,3 +44,15 @@ def bars(quiet: bool = False) -> Bars:
     """:func:`progress_bar` with ``quiet`` fixed: a command's ``--quiet`` is a matter of its console,
     handed to the work it runs as this, not as an option of the work."""
     return functools.partial(progress_bar, quiet=quiet)
+
+
+def process_age_s() -> float:
+    """[s] since this process started (its fork, for a command a server runs); 0 where the system
+    does not say (no ``/proc``). What ``timings_s.startup_s`` counts from."""
+    try:
+        stat = Path("/proc/self/stat").read_text()
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+        start_ticks = float(stat.rsplit(")", 1)[1].split()[19])  # field 22: starttime, in clock ticks
+        return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return 0.0

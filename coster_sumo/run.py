@@ -74,6 +74,7 @@ class RunOptions:
     copy_outside: bool = False  # exports also copy the files the configuration names outside its folder
     reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
     avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
+    started: float | None = None  # time.perf_counter() when the command began (None: when run() begins)
     source: ScenarioSource = field(init=False, repr=False, compare=False)  # ``spec`` resolved once
     labels: LabelOptions = field(init=False, repr=False, compare=False)  # reaction_time and avoidable, checked
     injection: InjectionSettings = field(init=False, repr=False, compare=False)  # how the variants are injected
@@ -124,12 +125,14 @@ def run(opts: RunOptions, bars: Bars = progress_bar) -> RunResult:
     source, spec, planner = opts.source, opts.spec, opts.injection.planner
     named = [str(t) for t in opts.targets if t is not None]
     timings: dict[str, float] = {}
+    begun = time.perf_counter() if opts.started is None else opts.started
     with staged_output(opts.out, kind="run", inputs=source.inputs, overwrite=opts.overwrite) as staging:
         # an adversary appears up to its horizon before t_col, which may come right after the target departs
         held = (HeldStates(spec.target or "ego", lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=named[1:])
                 if not (opts.from_begin or opts.traci) else None)
         try:
             t0 = time.perf_counter()
+            timings["startup_s"] = t0 - begun  # imports, checks of the inputs, the output folder
             # a planner's own files (the vType of sumo:<model>) go into the nominal pass too: the held
             # copies of it must have them
             extra = ([] if source.converted or planner == "replay"
@@ -239,6 +242,9 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
         if not any(p.plans for p in planned):
             raise InputError(f"{spec.config}: none of the {tried.tried} variants for target {target_id!r} "
                              f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")
+    labelled = timings.get("avoidability_s", 0.0) + timings.get("proof_s", 0.0)
+    # the rest since generation: the overviews' fork, --avoidable only's further draws
+    timings["labels_other_s"] = time.perf_counter() - t0 - timings["generation_s"] - labelled
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with bars("variants", "variant", total=len(plans)) as bar:
@@ -255,9 +261,10 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
         raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
                          "t_col in the simulation")
     kept = [labels[pl.vehicle_id] for p in planned for pl in p.plans]
-    return write_run_outputs(out, spec, how.planner, planned, results, kept, timings, render=opts.render,
-                             options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews,
-                             folder=published, avoidable_only=tried)
+    with bars("outputs", "variant", total=sum(len(p.plans) for p in planned)) as bar:
+        return write_run_outputs(out, spec, how.planner, planned, results, kept, timings, render=opts.render,
+                                 options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews,
+                                 folder=published, avoidable_only=tried, done=bar.update)
 
 
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:

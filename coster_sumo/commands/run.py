@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import functools
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -151,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
                       more_targets=tuple(str(t) for t in targets[1:]), target_choice=tuple(chosen),
                       overwrite=getattr(args, "overwrite", False), timeout=_positive_timeout(args),
                       copy_outside=getattr(args, "copy_outside", False),
-                      reaction_time=getattr(args, "reaction_time", 1.0), avoidable=getattr(args, "avoidable", "any"))
+                      reaction_time=getattr(args, "reaction_time", 1.0), avoidable=getattr(args, "avoidable", "any"),
+                      started=time.perf_counter() - progress.process_age_s())
     result = _supervised_run(opts, progress.bars(quiet=args.quiet))
     entries = result.targets if isinstance(result, RunSummary) else (TargetEntry(result.target, result=result),)
     results: list[TargetResult] = []
