@@ -40,7 +40,7 @@ from defusedxml import ElementTree as SafeET
 
 from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
-from coster_sumo.formats.sumocfg import open_maybe_gzip, parse_time
+from coster_sumo.formats.sumocfg import config_files, open_maybe_gzip, parse_time
 from coster_sumo.sim.sumo_outputs import sandbox
 
 DEMAND_TAGS = ("vehicle", "trip", "flow")
@@ -163,14 +163,49 @@ def _begin_s(flow: ET.Element, path: Path) -> float:
 
 
 def expand_flows(config: Path, flows: set[str], leave_out: frozenset[str], out: Path, *, checks: str,
-                 timeout_s: float = 3600.0) -> list[str]:
+                 timeout_s: float = 3600.0, same_without: frozenset[str] = frozenset()) -> list[str]:
     """Write ``out``: every member of ``flows`` that the export's configuration runs, as a vehicle.
 
     Runs plain ``sumo -c config`` without the FCD replay device (a temporary vehroute file beside
     ``out``), keeps the vehicles whose id is ``<flow id>.<n>`` for a flow in ``flows``, drops those in
     ``leave_out``, gives each one ``insertionChecks=checks`` and the route it departed with (a
     rerouted vehicle's first route). Returns the ids written, in departure order.
+
+    ``same_without``: names of the configuration's files the expansion does not depend on (the FCD
+    replay device's, which it runs without); an expansion whose other inputs are the same as an
+    earlier one's in this process is copied from it, not simulated again (a run's variants differ
+    only there: on the wheel's ramp the expanded files of its variants were byte-identical).
     """
+    key = _expansion_key(config, flows, leave_out, checks, same_without)
+    if key in _EXPANDED:
+        data, kept = _EXPANDED[key]
+        _write(data, out)
+        return list(kept)
+    ids = _expand(config, flows, leave_out, out, checks=checks, timeout_s=timeout_s)
+    if len(_EXPANDED) >= MAX_EXPANSIONS_KEPT:
+        _EXPANDED.pop(next(iter(_EXPANDED)))
+    _EXPANDED[key] = (out.read_bytes(), tuple(ids))
+    return ids
+
+
+MAX_EXPANSIONS_KEPT = 8
+_EXPANDED: dict[str, tuple[bytes, tuple[str, ...]]] = {}
+
+
+def _expansion_key(config: Path, flows: set[str], leave_out: frozenset[str], checks: str,
+                   same_without: frozenset[str]) -> str:
+    """What an expansion depends on: the bytes of the files the configuration names (but
+    ``same_without``), the flows kept and left out, the insertion checks."""
+    h = hashlib.sha256(repr((sorted(flows), sorted(leave_out), checks)).encode())
+    for f in config_files(config):
+        if f.name not in same_without:
+            h.update(f.name.encode() + b"\0" + (f.read_bytes() if f.is_file() else b"(missing)") + b"\0")
+    return h.hexdigest()
+
+
+def _expand(config: Path, flows: set[str], leave_out: frozenset[str], out: Path, *, checks: str,
+            timeout_s: float) -> list[str]:
+    """:func:`expand_flows` by running SUMO."""
     tmp = out.with_name(f".{out.name}.vehroute.xml")
     quiet = sandbox(config).config or config  # without the configuration's own outputs (none beside it)
     cmd = [sumo_env.binary("sumo"), "-c", str(quiet), "--device.fcd-replay.files", "",

@@ -168,7 +168,7 @@ def _write_config(cfg: Path, config: Path, names: dict[str, list[str]], demand: 
         return []
     # expanding reads the configuration just written (its demand as SUMO loads it)
     expanded = expand_flows(cfg, demand.flows, frozenset({target_id}), cfg.parent / EXPANDED_FILE,
-                            checks=demand.checks or "all")
+                            checks=demand.checks or "all", same_without=frozenset({FCD_FILE, VTYPES_FILE}))
     for f in demand_files:
         rewrite_demand(f, drop_flows=True)
     names["route-files"] = [*names.get("route-files", []), EXPANDED_FILE]
