@@ -115,6 +115,8 @@ def test_run_keeps_the_nominal_outputs_and_touches_no_input_folder(tmp_path):
     out = tmp_path / "o"
     assert main(["-q", "run", str(cfg), *FAST, "-o", str(out)]) == 0
     assert _hashes(folders) == before
+    timings = json.loads((out / "summary.json").read_text())["timings_s"]
+    assert {"startup_s", "nominal_s", "generation_s", "injection_s", "outputs_s"} <= set(timings)
     listing = json.loads((out / "sumo-outputs" / "declared.json").read_text())
     assert {Path(r["declared"]).name for r in listing} >= {"out.xml", "loop.xml", "fcd.xml", "trips.xml"}
     for row in listing:
@@ -146,3 +148,28 @@ def test_no_command_writes_into_the_configurations_folders(tmp_path, command):
     rc = main(["-q", *(a.format(cfg=cfg, out=out) for a in command)])
     assert rc in (0, 1), rc  # 1: a regression that found failures; the folders are what is checked
     assert _hashes(folders) == before
+
+
+def test_a_flow_expansion_whose_inputs_match_an_earlier_one_is_not_simulated_again(tmp_path, monkeypatch):
+    from coster_sumo.exports import demand
+
+    calls: list[Path] = []
+    real = demand._expand
+    monkeypatch.setattr(demand, "_expand", lambda config, *a, **k: calls.append(config) or real(config, *a, **k))
+    monkeypatch.setattr(demand, "_EXPANDED", {})
+    merge = REPO / "networks" / "merge"
+    flows = set(re.findall(r'<flow id="([^"]+)"', (merge / "merge.rou.xml").read_text()))
+    outs = []
+    for k, replay_file in enumerate(("a", "b", "a")):
+        folder = tmp_path / str(k)
+        shutil.copytree(merge, folder)
+        (folder / "replay.xml").write_text(replay_file)  # stands for the FCD replay device's file
+        out = folder / "expanded.rou.xml"
+        ids = demand.expand_flows(folder / "merge.sumocfg", flows, frozenset(), out, checks="all",
+                                  same_without=frozenset({"replay.xml"}))
+        outs.append((ids, out.read_bytes()))
+    assert len(calls) == 1 and outs[0] == outs[1] == outs[2] and outs[0][0]
+    (tmp_path / "0" / "merge.rou.xml").write_text((merge / "merge.rou.xml").read_text().replace("<flow", "<flow ", 1))
+    demand.expand_flows(tmp_path / "0" / "merge.sumocfg", flows, frozenset(), tmp_path / "0" / "again.rou.xml",
+                        checks="all")
+    assert len(calls) == 2  # a changed input is simulated

@@ -180,6 +180,9 @@ def run(args: argparse.Namespace) -> int:
         lines += [f"wrote {f}/summary.json" + renders.format(f=f) for f in folders]
         if len(folders) != 1 or folders[0] != args.out:
             lines.append(f"targets listed in {args.out}/summary.json")
+        declared = args.out / "sumo-outputs" / "declared.json"
+        if declared.is_file():  # what the configuration asks SUMO to write, from the nominal pass
+            lines.append(f"the configuration's own SUMO outputs: {declared.parent}/ (listed in {declared.name})")
     print("\n".join(lines))
     sys.stdout.flush()
     return 1 if failed else 0  # 1: the work ran, some variants failed (each named above)
