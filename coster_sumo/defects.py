@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,19 +38,27 @@ ESCAPE_FILE = "escape.csv"
 def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
                 drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                 traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
-                timings: dict[str, float] | None = None) -> list[Avoidability]:
+                timings: dict[str, float] | None = None,
+                done: Callable[[int], object] | None = None) -> list[Avoidability]:
     """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
     spec, or its source resolved already).
 
-    ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays).
+    ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays);
+    ``done(1)`` is called after each plan's search and once more after the replays.
     """
     reaction_times = tuple(sorted({0.5, 1.0, 1.5, float(reaction_time_s)}))
     t0 = time.perf_counter()
-    labels = [assess(scene, target, plan, drivable, reaction_times=reaction_times, reaction_time_s=reaction_time_s)
-              for plan in plans]
+    labels = []
+    for plan in plans:
+        labels.append(assess(scene, target, plan, drivable, reaction_times=reaction_times,
+                             reaction_time_s=reaction_time_s))
+        if done is not None:
+            done(1)
     t1 = time.perf_counter()
     prove_labels(scenario, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
                  horizon_s=HORIZON_AFTER_TCOL_S)
+    if done is not None:
+        done(1)
     if timings is not None:
         timings["avoidability_s"] = timings.get("avoidability_s", 0.0) + t1 - t0
         timings["proof_s"] = timings.get("proof_s", 0.0) + time.perf_counter() - t1

@@ -230,8 +230,11 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     # every variant's avoidability, its escapes proven in SUMO (part of generation: docs/method.md step 8)
 
     def label(plans: list[Any]) -> list[Any]:
-        return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
-                           traci=how.traci, reaction_time_s=wanted.reaction_time, timings=timings)
+        # one step per plan's kinematic search, one for the escapes' replays in SUMO
+        with bars("labels (escapes proven in SUMO last)", "step", total=len(plans) + 1) as bar:
+            return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
+                               traci=how.traci, reaction_time_s=wanted.reaction_time, timings=timings,
+                               done=bar.update)
 
     labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
                       label([pl for p in planned for pl in p.plans]), strict=True))
