@@ -4,9 +4,9 @@ A generated collision is a planner's *defect* only where the target could have a
 (docs/method.md, "Step 8 Avoidability"). This module searches the target's evasive plans with what
 generation already knows, before any planner runs:
 
-- the adversary follows its plan to t_col and then goes on at constant velocity along its final
-  heading (what the injection pass does with an adversary whose contact was avoided,
-  :meth:`coster_sumo.plan.AdversaryPlan.sample`);
+- the adversary follows its plan to t_col and then drives on along the lane it is on at its speed
+  (what the injection pass does with an adversary whose contact was avoided, both through
+  :meth:`coster_sumo.plan.AdversaryPlan.sample`; :mod:`coster_sumo.road_follow`);
 - every other vehicle follows its nominal trajectory (the scene at 10 Hz);
 - the target follows its nominal trajectory until it acts at ``t_act``; from then on it keeps to
   its nominal path, shifted sideways by a lateral profile (none, a swerve inside its lane, a lane
@@ -55,10 +55,10 @@ from coster_sumo.geometry import (
     project_points,
     sat_overlap_depth,
 )
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan
 from coster_sumo.scene import Scene
 
-HORIZON_AFTER_TCOL_S = 3.0  # [s] an escape must stay clear and on the road this long after t_col
+# HORIZON_AFTER_TCOL_S (coster_sumo.plan) [s]: an escape must stay clear and on the road this long after t_col
 MIN_CLEARANCE_M = 0.3  # [m] smallest gap an escape keeps to every box (the SUMO replay is the arbiter)
 REACTION_TIMES_S = (0.5, 1.0, 1.5)  # [s] reaction times reported for every variant
 ACT_SPACING_S = 0.2  # [s] moments to act are searched on this grid (plus the reaction moments)
