@@ -38,18 +38,24 @@ ESCAPE_FILE = "escape.csv"
 def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
                 drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                 traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
-                timings: dict[str, float] | None = None) -> list[Avoidability]:
+                timings: dict[str, float] | None = None, reactive_others: bool | None = None) -> list[Avoidability]:
     """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
     spec, or its source resolved already).
 
+    ``reactive_others``: whether the other vehicles are SUMO's drivers in the proof, so that plans
+    blocked only by them are tried there (:func:`coster_sumo.avoid.assess`); None: so on a SUMO
+    configuration, not on a converted WOMD scene, whose log moves every other agent (a converted
+    scene whose logged agents SUMO drives passes True).
     ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays).
     """
     reaction_times = tuple(sorted({0.5, 1.0, 1.5, float(reaction_time_s)}))
+    source = ScenarioSource.of(scenario)
+    reactive = not source.converted if reactive_others is None else reactive_others
     t0 = time.perf_counter()
-    labels = [assess(scene, target, plan, drivable, reaction_times=reaction_times, reaction_time_s=reaction_time_s)
-              for plan in plans]
+    labels = [assess(scene, target, plan, drivable, reaction_times=reaction_times, reaction_time_s=reaction_time_s,
+                     reactive_others=reactive) for plan in plans]
     t1 = time.perf_counter()
-    prove_labels(scenario, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
+    prove_labels(source, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
                  horizon_s=HORIZON_AFTER_TCOL_S)
     if timings is not None:
         timings["avoidability_s"] = timings.get("avoidability_s", 0.0) + t1 - t0
@@ -68,10 +74,15 @@ def label_line(lab: Avoidability) -> str:
                if e else "")
         last = ("" if lab.last_moment_s is None
                 else f"; last moment to act {round(lab.last_moment_s, 3):.1f} s before t_col")
-        return f"avoidable at {lab.reaction_time_s:g} s reaction{how} (proven in SUMO{last}), {kind}"
+        traffic = (f"; only {', '.join(e.blocked_by)} stood in its way, and SUMO's driver gave way"
+                   if e is not None and e.blocked_by else "")
+        return f"avoidable at {lab.reaction_time_s:g} s reaction{how} (proven in SUMO{last}{traffic}), {kind}"
     refuted = any(e and e.proven is False for e in lab.escapes.values())
     why = ("no escape from a reaction of {r:g} s after the threat" if lab.last_moment_s is None or not refuted
            else "its escape failed in SUMO").format(r=lab.reaction_time_s)
+    tried = sum(e.proven is not None for e in lab.blocked)
+    if tried:
+        why += f"; {tried} blocked only by traffic tried in SUMO, none cleared"
     return f"unavoidable ({why}), {kind}"
 
 
@@ -172,6 +183,9 @@ def label_record(lab: Avoidability) -> dict[str, Any]:
             "escape_found_at": kinematic,
             "escapes_replayed": sum(e is not None and e.proven is not None for e in lab.escapes.values()),
             "escapes_refuted": sum(e is not None and e.proven is False for e in lab.escapes.values()),
+            "blocked_tried": sum(e.proven is not None for e in lab.blocked),
+            "blocked_cleared": sum(bool(e.proven) for e in lab.blocked),
+            "flipped_by_reacting_traffic": lab.flipped_by_reacting_traffic,
             "contact_kind": lab.contact_kind, "last_moment_s": lab.last_moment_s,
             "threat_before_tcol_s": lab.t_col - lab.t_threat}
 
@@ -204,4 +218,16 @@ def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
                                  if len(last) else {})},
             "escapes_found": found,
             "escapes_replayed": sum(int(r.get("escapes_replayed", 0)) for r in recs),
-            "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs)}
+            "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs),
+            **labels_moved(recs)}
+
+
+def labels_moved(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """What each change to the labels moved over these variants: the plans blocked only by traffic
+    that reacts, how many SUMO tried and cleared, and the labels that turned avoidable through them
+    (count and share)."""
+    n = len(records)
+    flipped = sum(bool(r.get("flipped_by_reacting_traffic")) for r in records)
+    return {"blocked_escapes_tried_in_sumo": sum(int(r.get("blocked_tried", 0)) for r in records),
+            "blocked_escapes_cleared_in_sumo": sum(int(r.get("blocked_cleared", 0)) for r in records),
+            "labels_flipped_by_reacting_traffic": {"count": flipped, "share": round(flipped / n, 4) if n else None}}
