@@ -101,6 +101,8 @@ def attach_labels(result: TargetResult, labels: Sequence[Avoidability],
             hit = any(e.kind == "collision" and result.target in e.vehicles
                       and e.time <= lab.t_col + HORIZON_AFTER_TCOL_S + 1e-6 for e in res.events)
             outcome = planner_outcome(res.scene, result.target, plan, hit, lab.avoidable)
+            if not hit and not lab.avoidable:
+                line = both_clause(lab, acted_after_threat(res.scene, result.target, lab))
         entry = lab.summary()
         if lab.escape is not None:
             entry["escape_file"] = f"variants/{rec.variant}/{ESCAPE_FILE}"
@@ -117,6 +119,38 @@ def attach_labels(result: TargetResult, labels: Sequence[Avoidability],
 
 
 # ----------------------------------------------------------------------------- a planner's outcome
+
+ACTING_ACCEL = 1.0  # [m/s^2] braking or accelerating this hard is acting on the threat
+
+
+def acted_after_threat(scene: Scene, target_id: str, lab: Avoidability) -> float | None:
+    """[s] after the threat (negative: before) when the target in its pass first braked or
+    accelerated by :data:`ACTING_ACCEL` or more from the adversary's appearance on; None: it did not."""
+    tr = scene.tracks
+    if target_id not in tr.ids.tolist():
+        return None
+    a = tr.index_of(target_id)
+    steps = np.flatnonzero(tr.valid[a] & (scene.timestamps >= lab.t_appear - 1e-6)
+                           & (scene.timestamps <= lab.t_col + 1e-6))
+    if len(steps) < 2:
+        return None
+    ts = scene.timestamps[steps]
+    accel = np.diff(np.hypot(tr.vx[a, steps], tr.vy[a, steps])) / np.maximum(np.diff(ts), 1e-6)
+    acting = np.flatnonzero(np.abs(accel) >= ACTING_ACCEL)
+    return None if not len(acting) else float(ts[acting[0]] - lab.t_threat)
+
+
+def both_clause(lab: Avoidability, acted_s: float | None) -> str:
+    """The label of a variant the target avoided but the reference driver could not, saying both:
+    "unavoidable for a driver reacting 1 s after the threat; this target acted 0.3 s after it"."""
+    kind = lab.contact_kind.replace("_", " ")
+    when = ("; this target avoided it" if acted_s is None else
+            f"; this target acted {acted_s:.1f} s after the threat" if acted_s >= 0.05 else
+            f"; this target acted {max(-acted_s, 0.0):.1f} s before the threat" if acted_s <= -0.05 else
+            "; this target acted at the threat")
+    tried = sum(e.proven is not None for e in lab.blocked)
+    blocked = f" ({tried} blocked only by traffic tried in SUMO, none cleared)" if tried else ""
+    return f"unavoidable for a driver reacting {lab.reaction_time_s:g} s after the threat{blocked}{when}, {kind}"
 
 def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: bool, avoidable: bool | None
                     ) -> str:

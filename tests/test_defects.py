@@ -3,17 +3,21 @@ with the defect rate (coster_sumo.defects, regress, run)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from coster_sumo.batch.store import ResultStore
 from coster_sumo.batch.summaries import defect_rates
 from coster_sumo.cli import main
-from coster_sumo.defects import label_line
+from coster_sumo import synthetic
+from coster_sumo.defects import acted_after_threat, both_clause, label_line
 from coster_sumo.evasion import Avoidability
 from coster_sumo.metrics import RunOutcome
+from coster_sumo.scene import Scene, SignalStates
 
 REPO = Path(__file__).resolve().parents[1]
 NETWORKS = [REPO / "networks" / n / f"{n}.sumocfg" for n in ("intersection", "merge")]
@@ -39,6 +43,22 @@ def test_label_line_says_why():
     lab = Avoidability(t_col=20.0, t_appear=16.0, t_threat=18.0, contact_kind="rear_end_by_adversary",
                        vehicle_class="car", last_moment_s=None, escapes={0.5: None, 1.0: None}, reaction_time_s=1.0)
     assert label_line(lab) == "unavoidable (no escape from a reaction of 1 s after the threat), rear end by adversary"
+
+
+def test_a_variant_the_target_avoided_but_the_reference_driver_could_not_says_both():
+    lab = Avoidability(t_col=20.0, t_appear=16.0, t_threat=18.0, contact_kind="rear_end_by_adversary",
+                       vehicle_class="car", last_moment_s=None, escapes={0.5: None, 1.0: None}, reaction_time_s=1.0)
+    t = np.round(np.arange(150, 220) * 0.1, 6)
+    speed = np.where(t < 18.3, 10.0, np.maximum(10.0 - 4.0 * (t - 18.3), 0.0))  # brakes 0.3 s after the threat
+    x = np.concatenate([[0.0], np.cumsum(speed[:-1] * 0.1)])
+    tracks = synthetic._tracks([("ego", x, np.zeros(len(t)), np.zeros(len(t)), 10.0)], steps=len(t))
+    tracks = dataclasses.replace(tracks, vx=speed[None].copy())
+    scene = Scene(scenario_id="s", timestamps=t, tracks=tracks, road_map=synthetic.two_lane_road().road_map,
+                  signals=SignalStates.empty(len(t)), sdc_index=0, source="synthetic")
+    acted = acted_after_threat(scene, "ego", lab)
+    assert acted == pytest.approx(0.3, abs=0.051)
+    assert both_clause(lab, acted) == ("unavoidable for a driver reacting 1 s after the threat; this target acted "
+                                       "0.3 s after the threat, rear end by adversary")
 
 
 @pytest.mark.sumo
