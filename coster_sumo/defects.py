@@ -80,9 +80,7 @@ def label_line(lab: Avoidability) -> str:
     refuted = any(e and e.proven is False for e in lab.escapes.values())
     why = ("no escape from a reaction of {r:g} s after the threat" if lab.last_moment_s is None or not refuted
            else "its escape failed in SUMO").format(r=lab.reaction_time_s)
-    tried = sum(e.proven is not None for e in lab.blocked)
-    if tried:
-        why += f"; {tried} blocked only by traffic tried in SUMO, none cleared"
+    why += blocked_words(lab)
     return f"unavoidable ({why}), {kind}"
 
 
@@ -148,9 +146,20 @@ def both_clause(lab: Avoidability, acted_s: float | None) -> str:
             f"; this target acted {acted_s:.1f} s after the threat" if acted_s >= 0.05 else
             f"; this target acted {max(-acted_s, 0.0):.1f} s before the threat" if acted_s <= -0.05 else
             "; this target acted at the threat")
-    tried = sum(e.proven is not None for e in lab.blocked)
-    blocked = f" ({tried} blocked only by traffic tried in SUMO, none cleared)" if tried else ""
+    blocked = blocked_words(lab)
     return f"unavoidable for a driver reacting {lab.reaction_time_s:g} s after the threat{blocked}{when}, {kind}"
+
+
+def blocked_words(lab: Avoidability) -> str:
+    """'; N blocked only by traffic tried in SUMO, none cleared' for an unavoidable label ('' when
+    none was tried); one cleared acts too early for the label's reaction time, and is said so."""
+    tried = sum(e.proven is not None for e in lab.blocked)
+    if not tried:
+        return ""
+    cleared = sum(bool(e.proven) for e in lab.blocked)
+    return (f"; {tried} blocked only by traffic tried in SUMO, "
+            + ("none cleared" if not cleared else
+               f"{cleared} cleared acting less than {lab.reaction_time_s:g} s after the threat"))
 
 def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: bool, avoidable: bool | None
                     ) -> str:

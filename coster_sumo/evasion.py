@@ -250,7 +250,7 @@ class Avoidability:
     @property
     def flipped_by_reacting_traffic(self) -> bool:
         """Avoidable only through a plan the search found blocked and SUMO's traffic cleared."""
-        return self.avoidable and self.escape is not None and bool(self.escape.blocked_by)
+        return self.flipped_at(self.reaction_time_s)
 
     def avoidable_at(self, reaction_s: float) -> bool:
         """An escape acting ``reaction_s`` after the threat or later that SUMO did not refute.
@@ -285,7 +285,13 @@ class Avoidability:
                 "candidates_checked": self.candidates,
                 "blocked_escapes_tried_in_sumo": sum(e.proven is not None for e in self.blocked),
                 "blocked_escapes_cleared_in_sumo": sum(bool(e.proven) for e in self.blocked),
-                "flipped_by_reacting_traffic": self.flipped_by_reacting_traffic}
+                "flipped_by_reacting_traffic": self.flipped_by_reacting_traffic,
+                "flipped_by_reacting_traffic_at": {f"{r:g}": self.flipped_at(r) for r in sorted(self.escapes)}}
+
+    def flipped_at(self, reaction_s: float) -> bool:
+        """Avoidable at ``reaction_s`` only through blocked plans SUMO's traffic cleared."""
+        ok = [e for r, e in self.escapes.items() if r >= reaction_s - 1e-9 and e is not None and e.proven is not False]
+        return bool(ok) and all(e.blocked_by for e in ok)
 
 
 # ----------------------------------------------------------------------------- profiles
