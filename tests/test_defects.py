@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coster_sumo import synthetic
 from coster_sumo.batch.store import ResultStore
 from coster_sumo.batch.summaries import defect_rates
 from coster_sumo.cli import main
-from coster_sumo import synthetic
 from coster_sumo.defects import acted_after_threat, both_clause, label_line
 from coster_sumo.evasion import Avoidability
 from coster_sumo.metrics import RunOutcome
@@ -135,3 +135,19 @@ def test_regress_avoidable_only_replaces_unavoidable_variants_and_says_how_many_
     assert summary["planners"]["sumo"]["defects"]["unavoidable_runs"] == 0
     if summary["variants_tried"] != summary["variants"]:
         assert f"of {summary['variants_tried']} tried" in capsys.readouterr().out
+
+
+def test_the_labels_moved_by_reacting_traffic_reach_eval_scenarios_table():
+    from coster_sumo.batch.generator_summary import AvoidabilityStats
+    from coster_sumo.defects import avoidability_table
+
+    def rec(flipped: bool, tried: int, cleared: int) -> dict:
+        return {"avoidable": flipped, "avoidable_at": {"1": flipped}, "escape_found_at": {"1": False},
+                "contact_kind": "into_vehicle_ahead", "last_moment_s": None, "threat_before_tcol_s": 2.0,
+                "blocked_tried": tried, "blocked_cleared": cleared, "flipped_by_reacting_traffic": flipped}
+
+    table = avoidability_table([rec(True, 2, 1), rec(False, 4, 0), rec(False, 0, 0), rec(False, 0, 0)])
+    assert table["labels_flipped_by_reacting_traffic"] == {"count": 1, "share": 0.25}
+    stats = AvoidabilityStats.from_json(json.loads(json.dumps(table)))
+    assert stats.to_json()["blocked_escapes_tried_in_sumo"] == 6
+    assert stats.moved_cell() == "1 (25.0 %; 1 of 6 blocked escapes cleared)"
