@@ -66,3 +66,34 @@ def test_a_braking_target_blocked_only_by_its_follower_is_avoidable(tmp_path):
     moved = labels_moved([label_record(lab)])
     assert moved["labels_flipped_by_reacting_traffic"] == {"count": 1, "share": 1.0}
     assert moved["blocked_escapes_cleared_in_sumo"] >= 1
+
+
+def test_sumo_drives_an_adversary_that_missed_once_the_horizon_has_passed(tmp_path):
+    """A slow adversary ahead of the target in its lane, never touched: it keeps to the lane at its
+    speed up to the labels' horizon, then SUMO's driver takes it over (it speeds up to the road's
+    limit, stays on the road, and the target's driver follows it without contact)."""
+    from coster_sumo.plan import HORIZON_AFTER_TCOL_S
+    from coster_sumo.road_follow import follow_road
+    from coster_sumo.sim.inject import run_injection
+    from coster_sumo.sim.planners import make_planner
+
+    cfg = _one_lane_road(tmp_path)
+    scene, _ = nominal_scene(ScenarioSpec(cfg, seed=1, end=30.0))
+    tr = scene.tracks
+    k = int(np.argmin(np.abs(scene.timestamps - 6.0)))
+    x0, y = float(tr.x[tr.index_of("ego"), k]) + 60.0, float(tr.y[tr.index_of("ego"), k])
+    times = np.arange(6.0, 10.01, 0.5)  # t_col 10 s, 60-100 m ahead of the target at 8 m/s
+    plan = follow_road(AdversaryPlan(times=times, x=x0 + 8.0 * (times - 6.0), y=np.full(len(times), y),
+                                     yaw=np.zeros(len(times)), final_speed=8.0, length=5.0, width=1.8),
+                       scene.road_map)
+    assert plan.road is not None
+    res = run_injection(cfg, "ego", plan, make_planner("sumo"), seed=1, end=22.0,
+                        drivable=DrivableArea.from_road_map(scene.road_map), workdir=tmp_path)
+    assert res.contact is None
+    assert not [e for e in res.events if plan.vehicle_id in e.vehicles]  # no contact, never off the road
+    ts, a = res.scene.timestamps, res.scene.tracks.index_of(plan.vehicle_id)
+    speed = np.hypot(res.scene.tracks.vx[a], res.scene.tracks.vy[a])
+    horizon = (ts > plan.t_col + 0.05) & (ts <= plan.t_col + HORIZON_AFTER_TCOL_S)
+    assert np.allclose(speed[horizon], 8.0, atol=0.05)  # its plan: the lane at its speed
+    late = res.scene.tracks.valid[a] & (ts >= plan.t_col + HORIZON_AFTER_TCOL_S + 5.0)
+    assert late.any() and speed[late].max() > 12.0  # SUMO's driver: up to the 15 m/s limit
