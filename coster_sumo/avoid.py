@@ -4,9 +4,9 @@ A generated collision is a planner's *defect* only where the target could have a
 (docs/method.md, "Step 8 Avoidability"). This module searches the target's evasive plans with what
 generation already knows, before any planner runs:
 
-- the adversary follows its plan to t_col and then goes on at constant velocity along its final
-  heading (what the injection pass does with an adversary whose contact was avoided,
-  :meth:`coster_sumo.plan.AdversaryPlan.sample`);
+- the adversary follows its plan to t_col and then drives on along the lane it is on at its speed
+  (what the injection pass does with an adversary whose contact was avoided, both through
+  :meth:`coster_sumo.plan.AdversaryPlan.sample`; :mod:`coster_sumo.road_follow`);
 - every other vehicle follows its nominal trajectory (the scene at 10 Hz);
 - the target follows its nominal trajectory until it acts at ``t_act``; from then on it keeps to
   its nominal path, shifted sideways by a lateral profile (none, a swerve inside its lane, a lane
@@ -55,15 +55,18 @@ from coster_sumo.geometry import (
     project_points,
     sat_overlap_depth,
 )
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan
 from coster_sumo.scene import Scene
 
-HORIZON_AFTER_TCOL_S = 3.0  # [s] an escape must stay clear and on the road this long after t_col
+# HORIZON_AFTER_TCOL_S (coster_sumo.plan) [s]: an escape must stay clear and on the road this long after t_col
 MIN_CLEARANCE_M = 0.3  # [m] smallest gap an escape keeps to every box (the SUMO replay is the arbiter)
 REACTION_TIMES_S = (0.5, 1.0, 1.5)  # [s] reaction times reported for every variant
 ACT_SPACING_S = 0.2  # [s] moments to act are searched on this grid (plus the reaction moments)
 OFF_ROAD_SPACING_S = 0.2  # [s] on-road checks every other step (a car moves < 8 m in it)
 NEAR_M = 60.0  # [m] other vehicles further than this from the target's path never matter
+# candidates clear of the adversary and blocked only by traffic that reacts, tried in SUMO per
+# reaction time without an escape: the least demanding few (docs/method.md step 8)
+BLOCKED_TRIED_PER_REACTION = 2
 
 
 
@@ -90,10 +93,15 @@ def _path(xy: np.ndarray, heading: np.ndarray, extend_m: float) -> np.ndarray:
 # ----------------------------------------------------------------------------- the search
 
 def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableArea | None,
-           reaction_times: tuple[float, ...] = REACTION_TIMES_S, reaction_time_s: float = DEFAULT_REACTION_S
-           ) -> Avoidability:
+           reaction_times: tuple[float, ...] = REACTION_TIMES_S, reaction_time_s: float = DEFAULT_REACTION_S,
+           reactive_others: bool = False) -> Avoidability:
     """Search the target's escapes from ``plan`` in ``scene`` (module docstring); kinematic only
-    (the SUMO replay, :mod:`coster_sumo.sim.proof`, confirms or refutes each escape)."""
+    (the SUMO replay, :mod:`coster_sumo.sim.proof`, confirms or refutes each escape).
+
+    ``reactive_others``: the other vehicles are SUMO's drivers in the proof (a SUMO configuration);
+    then, for every reaction time without an escape, the :data:`BLOCKED_TRIED_PER_REACTION` least
+    demanding plans that keep clear of the adversary but not of another vehicle are kept in
+    ``Avoidability.blocked`` for the proof to try: there that vehicle reacts."""
     tr = scene.tracks
     ts = scene.timestamps
     valid_t = tr.valid[target]
@@ -148,11 +156,15 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     last_moment = late_cand.last_moment(t_col) if late_cand is not None else None
     if last_moment is None and not late.all():
         last_moment = _Candidates(ctx, act_k[~late]).last_moment(t_col)
+    blocked: dict[tuple[float, Manoeuvre], Escape] = {}
     if late_cand is not None:
         for r in reaction_times:
             escapes[r] = late_cand.least_escape(t_threat + r)
+            if reactive_others and escapes[r] is None:
+                for e in late_cand.blocked_escapes(t_threat + r, BLOCKED_TRIED_PER_REACTION):
+                    blocked.setdefault((round(e.t_act, 3), e.manoeuvre), e)
     return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, last_moment, escapes, reaction_time_s,
-                        candidates=int(len(act_k) * len(man)))
+                        candidates=int(len(act_k) * len(man)), blocked=list(blocked.values()))
 
 
 @dataclass(frozen=True)
@@ -222,7 +234,8 @@ class _Candidates:
         if len(kk):  # the adversary first: it rules out most candidates
             hit = _hits_adversary(pos[kk, mm], yaw[kk, mm], grown, self.adv_box, after[kk, 0])
             good[kk[hit], mm[hit]] = False
-        self.others = _other_boxes(ctx.scene, ctx.target, times, ctx.path)
+        self.clear_of_adversary = good.copy()
+        self.others, self.other_ids = _other_boxes(ctx.scene, ctx.target, times, ctx.path)
         kk, mm = np.nonzero(good)
         if self.others is not None and len(kk):
             o_box, o_valid = self.others  # (N, n, 5), (N, n)
@@ -256,19 +269,43 @@ class _Candidates:
         best = self.on_road.least(ok_r, self.demand)
         if best is None:
             return None
-        kb, mb = best
+        return self._escape(*best)
+
+    def blocked_escapes(self, t_from: float, count: int) -> list[Escape]:
+        """Up to ``count`` plans acting at ``t_from`` [s] or later that keep clear of the adversary
+        and stay on the road but come too close to another vehicle, least demanding first; each
+        names the vehicles in its way (``Escape.blocked_by``)."""
+        allowed = self.clear_of_adversary & ~self.good & (self.t_acts >= t_from - 1e-6)[:, None]
+        flat = np.flatnonzero(allowed)
+        flat = flat[np.lexsort((flat, self.demand.ravel()[flat]))]
+        out: list[Escape] = []
+        for start in range(0, len(flat), _RoadCheck.CHUNK):
+            kk, mm = np.unravel_index(flat[start:start + _RoadCheck.CHUNK], allowed.shape)
+            ok = self.on_road(kk, mm)
+            out += [self._escape(int(k), int(m)) for k, m in zip(kk[ok], mm[ok], strict=True)][:count - len(out)]
+            if len(out) >= count:
+                break
+        return out
+
+    def _escape(self, kb: int, mb: int) -> Escape:
+        """Candidate (kb, mb) as an :class:`Escape`, its clearance and the vehicles closer than
+        :data:`MIN_CLEARANCE_M` (none for an escape)."""
         pos, yaw, ctx = self.pos, self.yaw, self.ctx
         box = make_boxes(pos[kb, mb, :, 0], pos[kb, mb, :, 1], yaw[kb, mb], ctx.length, ctx.width)  # (n, 5)
-        gap = box_signed_distance(box, self.adv_box)
+        acted = self.after[kb, 0]
+        gap = box_signed_distance(box, self.adv_box)[acted].min()
+        blocked_by: tuple[str, ...] = ()
         if self.others is not None:
-            gap = np.minimum(gap, np.where(self.others[1], box_signed_distance(box[None], self.others[0]),
-                                           np.inf).min(0))
-        clearance = float(gap[self.after[kb, 0]].min())
+            per = np.where(self.others[1], box_signed_distance(box[None], self.others[0]), np.inf)[:, acted]
+            near = per.min(1) if per.shape[1] else np.full(len(per), np.inf)
+            gap = min(gap, near.min())
+            blocked_by = tuple(self.other_ids[near < MIN_CLEARANCE_M].tolist())
         return Escape(t_act=float(self.t_acts[kb]), manoeuvre=ctx.man[mb], times=ctx.times.copy(),
                       x=pos[kb, mb, :, 0].copy(), y=pos[kb, mb, :, 1].copy(),
                       yaw=(yaw[kb, mb] + np.pi) % (2 * np.pi) - np.pi, speed=self.v[kb, mb].copy(),
-                      clearance_m=clearance, peak_decel=float(self.peak_decel[kb, mb]),
-                      peak_lateral_accel=float(self.peak_lat[kb, mb]), peak_accel=float(self.demand[kb, mb]))
+                      clearance_m=float(gap), peak_decel=float(self.peak_decel[kb, mb]),
+                      peak_lateral_accel=float(self.peak_lat[kb, mb]), peak_accel=float(self.demand[kb, mb]),
+                      blocked_by=blocked_by)
 
 
 def _profiles(ctx: _SearchContext, act_k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -369,8 +406,9 @@ class _RoadCheck:
 
 
 def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """(N, T, 5) boxes and (N, T) validity of the other vehicles near the target's path on the grid."""
+                 ) -> tuple[tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
+    """(N, T, 5) boxes and (N, T) validity of the other vehicles near the target's path on the grid
+    (None: none), and their (N,) ids."""
     tr = scene.tracks
     ts = scene.timestamps
     idx = np.clip(np.searchsorted(ts, times - 1e-6), 0, len(ts) - 1)
@@ -379,18 +417,18 @@ def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
     inside = np.abs(ts[idx] - times) <= 0.06
     others = np.flatnonzero(np.arange(tr.num_agents) != target)
     if not len(others):
-        return None
+        return None, np.zeros(0, str)
     valid = tr.valid[np.ix_(others, idx)] & inside[None]
     ox, oy = tr.x[np.ix_(others, idx)], tr.y[np.ix_(others, idx)]
     lo, hi = path[1:-1].min(0) - NEAR_M, path[1:-1].max(0) + NEAR_M
     near = valid & (ox >= lo[0]) & (ox <= hi[0]) & (oy >= lo[1]) & (oy <= hi[1])
     keep = near.any(1)
     if not keep.any():
-        return None
+        return None, np.zeros(0, str)
     rows = others[keep]
     boxes = make_boxes(tr.x[np.ix_(rows, idx)], tr.y[np.ix_(rows, idx)], tr.heading[np.ix_(rows, idx)],
                        tr.length[np.ix_(rows, idx)], tr.width[np.ix_(rows, idx)])
-    return boxes, valid[keep]
+    return (boxes, valid[keep]), tr.ids[rows].astype(str)
 
 
 def _hits_adversary(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], adv_box: np.ndarray,

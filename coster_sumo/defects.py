@@ -38,24 +38,30 @@ ESCAPE_FILE = "escape.csv"
 def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
                 drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                 traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
-                timings: dict[str, float] | None = None,
+                timings: dict[str, float] | None = None, reactive_others: bool | None = None,
                 done: Callable[[int], object] | None = None) -> list[Avoidability]:
     """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
     spec, or its source resolved already).
 
+    ``reactive_others``: whether the other vehicles are SUMO's drivers in the proof, so that plans
+    blocked only by them are tried there (:func:`coster_sumo.avoid.assess`); None: so on a SUMO
+    configuration, not on a converted WOMD scene, whose log moves every other agent (a converted
+    scene whose logged agents SUMO drives passes True).
     ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays);
     ``done(1)`` is called after each plan's search and once more after the replays.
     """
     reaction_times = tuple(sorted({0.5, 1.0, 1.5, float(reaction_time_s)}))
+    source = ScenarioSource.of(scenario)
+    reactive = not source.converted if reactive_others is None else reactive_others
     t0 = time.perf_counter()
     labels = []
     for plan in plans:
         labels.append(assess(scene, target, plan, drivable, reaction_times=reaction_times,
-                             reaction_time_s=reaction_time_s))
+                             reaction_time_s=reaction_time_s, reactive_others=reactive))
         if done is not None:
             done(1)
     t1 = time.perf_counter()
-    prove_labels(scenario, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
+    prove_labels(source, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
                  horizon_s=HORIZON_AFTER_TCOL_S)
     if done is not None:
         done(1)
@@ -76,10 +82,13 @@ def label_line(lab: Avoidability) -> str:
                if e else "")
         last = ("" if lab.last_moment_s is None
                 else f"; last moment to act {round(lab.last_moment_s, 3):.1f} s before t_col")
-        return f"avoidable at {lab.reaction_time_s:g} s reaction{how} (proven in SUMO{last}), {kind}"
+        traffic = (f"; only {', '.join(e.blocked_by)} stood in its way, and SUMO's driver gave way"
+                   if e is not None and e.blocked_by else "")
+        return f"avoidable at {lab.reaction_time_s:g} s reaction{how} (proven in SUMO{last}{traffic}), {kind}"
     refuted = any(e and e.proven is False for e in lab.escapes.values())
     why = ("no escape from a reaction of {r:g} s after the threat" if lab.last_moment_s is None or not refuted
            else "its escape failed in SUMO").format(r=lab.reaction_time_s)
+    why += blocked_words(lab)
     return f"unavoidable ({why}), {kind}"
 
 
@@ -98,6 +107,8 @@ def attach_labels(result: TargetResult, labels: Sequence[Avoidability],
             hit = any(e.kind == "collision" and result.target in e.vehicles
                       and e.time <= lab.t_col + HORIZON_AFTER_TCOL_S + 1e-6 for e in res.events)
             outcome = planner_outcome(res.scene, result.target, plan, hit, lab.avoidable)
+            if not hit and not lab.avoidable:
+                line = both_clause(lab, acted_after_threat(res.scene, result.target, lab))
         entry = lab.summary()
         if lab.escape is not None:
             entry["escape_file"] = f"variants/{rec.variant}/{ESCAPE_FILE}"
@@ -114,6 +125,49 @@ def attach_labels(result: TargetResult, labels: Sequence[Avoidability],
 
 
 # ----------------------------------------------------------------------------- a planner's outcome
+
+ACTING_ACCEL = 1.0  # [m/s^2] braking or accelerating this hard is acting on the threat
+
+
+def acted_after_threat(scene: Scene, target_id: str, lab: Avoidability) -> float | None:
+    """[s] after the threat (negative: before) when the target in its pass first braked or
+    accelerated by :data:`ACTING_ACCEL` or more from the adversary's appearance on; None: it did not."""
+    tr = scene.tracks
+    if target_id not in tr.ids.tolist():
+        return None
+    a = tr.index_of(target_id)
+    steps = np.flatnonzero(tr.valid[a] & (scene.timestamps >= lab.t_appear - 1e-6)
+                           & (scene.timestamps <= lab.t_col + 1e-6))
+    if len(steps) < 2:
+        return None
+    ts = scene.timestamps[steps]
+    accel = np.diff(np.hypot(tr.vx[a, steps], tr.vy[a, steps])) / np.maximum(np.diff(ts), 1e-6)
+    acting = np.flatnonzero(np.abs(accel) >= ACTING_ACCEL)
+    return None if not len(acting) else float(ts[acting[0]] - lab.t_threat)
+
+
+def both_clause(lab: Avoidability, acted_s: float | None) -> str:
+    """The label of a variant the target avoided but the reference driver could not, saying both:
+    "unavoidable for a driver reacting 1 s after the threat; this target acted 0.3 s after it"."""
+    kind = lab.contact_kind.replace("_", " ")
+    when = ("; this target avoided it" if acted_s is None else
+            f"; this target acted {acted_s:.1f} s after the threat" if acted_s >= 0.05 else
+            f"; this target acted {max(-acted_s, 0.0):.1f} s before the threat" if acted_s <= -0.05 else
+            "; this target acted at the threat")
+    blocked = blocked_words(lab)
+    return f"unavoidable for a driver reacting {lab.reaction_time_s:g} s after the threat{blocked}{when}, {kind}"
+
+
+def blocked_words(lab: Avoidability) -> str:
+    """'; N blocked only by traffic tried in SUMO, none cleared' for an unavoidable label ('' when
+    none was tried); one cleared acts too early for the label's reaction time, and is said so."""
+    tried = sum(e.proven is not None for e in lab.blocked)
+    if not tried:
+        return ""
+    cleared = sum(bool(e.proven) for e in lab.blocked)
+    return (f"; {tried} blocked only by traffic tried in SUMO, "
+            + ("none cleared" if not cleared else
+               f"{cleared} cleared acting less than {lab.reaction_time_s:g} s after the threat"))
 
 def planner_outcome(scene: Scene, target_id: str, plan: AdversaryPlan, contact: bool, avoidable: bool | None
                     ) -> str:
@@ -180,6 +234,9 @@ def label_record(lab: Avoidability) -> dict[str, Any]:
             "escape_found_at": kinematic,
             "escapes_replayed": sum(e is not None and e.proven is not None for e in lab.escapes.values()),
             "escapes_refuted": sum(e is not None and e.proven is False for e in lab.escapes.values()),
+            "blocked_tried": sum(e.proven is not None for e in lab.blocked),
+            "blocked_cleared": sum(bool(e.proven) for e in lab.blocked),
+            "flipped_by_reacting_traffic": lab.flipped_by_reacting_traffic,
             "contact_kind": lab.contact_kind, "last_moment_s": lab.last_moment_s,
             "threat_before_tcol_s": lab.t_col - lab.t_threat}
 
@@ -212,4 +269,16 @@ def avoidability_table(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
                                  if len(last) else {})},
             "escapes_found": found,
             "escapes_replayed": sum(int(r.get("escapes_replayed", 0)) for r in recs),
-            "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs)}
+            "escapes_refuted_in_sumo": sum(int(r.get("escapes_refuted", 0)) for r in recs),
+            **labels_moved(recs)}
+
+
+def labels_moved(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """What each change to the labels moved over these variants: the plans blocked only by traffic
+    that reacts, how many SUMO tried and cleared, and the labels that turned avoidable through them
+    (count and share)."""
+    n = len(records)
+    flipped = sum(bool(r.get("flipped_by_reacting_traffic")) for r in records)
+    return {"blocked_escapes_tried_in_sumo": sum(int(r.get("blocked_tried", 0)) for r in records),
+            "blocked_escapes_cleared_in_sumo": sum(int(r.get("blocked_cleared", 0)) for r in records),
+            "labels_flipped_by_reacting_traffic": {"count": flipped, "share": round(flipped / n, 4) if n else None}}

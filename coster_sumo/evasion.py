@@ -173,6 +173,9 @@ class Escape:
             [m/s^2] largest combined acceleration (what the escape demands).
         proven: None before the SUMO replay; then whether SUMO confirmed it (no contact, on road).
         proof: what the replay found.
+        blocked_by: the vehicles the plan came closer to than the search allows, moving as in the
+            nominal pass (empty for an escape the search found clear); SUMO's drivers of those
+            vehicles react in the replay.
     """
 
     t_act: float
@@ -188,6 +191,7 @@ class Escape:
     peak_accel: float
     proven: bool | None = None
     proof: dict[str, Any] = field(default_factory=dict)
+    blocked_by: tuple[str, ...] = ()
 
     def summary(self) -> dict[str, Any]:
         return {"t_act": round(self.t_act, 3), "manoeuvre": self.manoeuvre.describe(),
@@ -195,7 +199,8 @@ class Escape:
                 "lateral_m": self.manoeuvre.lateral_m, "clearance_m": round(self.clearance_m, 3),
                 "peak_decel": round(self.peak_decel, 3), "peak_lateral_accel": round(self.peak_lateral_accel, 3),
                 "peak_accel": round(self.peak_accel, 3), "min_speed": round(float(self.speed.min()), 3),
-                "proven_in_sumo": self.proven, **({"proof": self.proof} if self.proof else {})}
+                "proven_in_sumo": self.proven, **({"proof": self.proof} if self.proof else {}),
+                **({"blocked_by": list(self.blocked_by)} if self.blocked_by else {})}
 
     def csv(self) -> str:
         """The plan at 10 Hz: time [s], x, y [m] (box centre), yaw_deg, speed [m/s]."""
@@ -218,6 +223,9 @@ class Avoidability:
             time or later (None where there is none).
         reaction_time_s: [s] the reaction time ``avoidable`` is stated for.
         candidates: how many plans were checked.
+        blocked: plans clear of the adversary that only vehicles SUMO drives were in the way of,
+            tried in SUMO where no escape was found (:func:`coster_sumo.avoid.assess`); one that
+            SUMO clears becomes the escape of every reaction time it acts late enough for.
     """
 
     t_col: float
@@ -229,6 +237,20 @@ class Avoidability:
     escapes: dict[float, Escape | None]
     reaction_time_s: float = DEFAULT_REACTION_S
     candidates: int = 0
+    blocked: list[Escape] = field(default_factory=list)
+
+    def adopt_cleared(self) -> None:
+        """After the proof: every reaction time without an escape takes the least demanding blocked
+        plan SUMO cleared that acts at least that long after the threat."""
+        cleared = sorted((e for e in self.blocked if e.proven), key=lambda e: (e.peak_accel, e.t_act))
+        for r, e in self.escapes.items():
+            if e is None:
+                self.escapes[r] = next((b for b in cleared if b.t_act >= self.t_threat + r - 1e-6), None)
+
+    @property
+    def flipped_by_reacting_traffic(self) -> bool:
+        """Avoidable only through a plan the search found blocked and SUMO's traffic cleared."""
+        return self.flipped_at(self.reaction_time_s)
 
     def avoidable_at(self, reaction_s: float) -> bool:
         """An escape acting ``reaction_s`` after the threat or later that SUMO did not refute.
@@ -260,7 +282,16 @@ class Avoidability:
                 "last_moment_to_act_s": None if self.last_moment_s is None else round(self.last_moment_s, 3),
                 "escapes": {f"{r:g}": (e.summary() if e is not None else None)
                             for r, e in sorted(self.escapes.items())},
-                "candidates_checked": self.candidates}
+                "candidates_checked": self.candidates,
+                "blocked_escapes_tried_in_sumo": sum(e.proven is not None for e in self.blocked),
+                "blocked_escapes_cleared_in_sumo": sum(bool(e.proven) for e in self.blocked),
+                "flipped_by_reacting_traffic": self.flipped_by_reacting_traffic,
+                "flipped_by_reacting_traffic_at": {f"{r:g}": self.flipped_at(r) for r in sorted(self.escapes)}}
+
+    def flipped_at(self, reaction_s: float) -> bool:
+        """Avoidable at ``reaction_s`` only through blocked plans SUMO's traffic cleared."""
+        ok = [e for r, e in self.escapes.items() if r >= reaction_s - 1e-9 and e is not None and e.proven is not False]
+        return bool(ok) and all(e.blocked_by for e in ok)
 
 
 # ----------------------------------------------------------------------------- profiles

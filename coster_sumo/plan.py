@@ -8,8 +8,10 @@ state, exactly). SUMO steps at 0.1 s, so the controller needs the state at every
   at the start; the knots themselves are hit exactly;
 - heading: the knots' headings, unwrapped, interpolated with a shape-preserving (PCHIP) spline, so
   turning never overshoots;
-- after ``t_col`` (no knots): constant velocity along the final heading. The controller stops
-  following the plan at the first contact (see :mod:`coster_sumo.sim.inject`).
+- after ``t_col`` (no knots): on along the road at the final speed, along ``road`` (the lane it is
+  on, :mod:`coster_sumo.road_follow`); where the plan has no road, constant velocity along the final
+  heading. The controller stops following the plan at the first contact, and hands the adversary
+  to SUMO's driver :data:`HORIZON_AFTER_TCOL_S` after t_col (see :mod:`coster_sumo.sim.inject`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,10 @@ from scipy.interpolate import CubicSpline, PchipInterpolator
 from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
 from coster_sumo.snapshot_state import AgentState
+
+# [s] after t_col: how long an escape must stay clear (the labels' horizon, docs/method.md step 8),
+# and when SUMO's driver takes over an adversary that missed
+HORIZON_AFTER_TCOL_S = 3.0
 
 
 def sim_time_of(t: float, step_length: float) -> float:
@@ -47,6 +53,8 @@ class AdversaryPlan:
         final_speed: [m/s] speed at t_col (the snapshot's).
         length, width: [m].
         vehicle_id: the SUMO id used when it is injected.
+        road: (n, 2) [m] or None: the path it drives after t_col, from its centre at t_col
+            (:func:`coster_sumo.road_follow.road_path`); None: straight on along its final heading.
     """
 
     times: np.ndarray
@@ -57,6 +65,7 @@ class AdversaryPlan:
     length: float
     width: float
     vehicle_id: str = "adversary"
+    road: np.ndarray | None = None
 
     @property
     def t_start(self) -> float:
@@ -113,23 +122,28 @@ class AdversaryPlan:
             speed[inside] = self.final_speed
         after = ~inside
         dt = t[after] - self.t_col
-        x[after] = self.x[-1] + fin_v[0] * dt
-        y[after] = self.y[-1] + fin_v[1] * dt
-        yaw[after] = self.yaw[-1]
+        if self.road is not None and len(self.road) >= 2:
+            x[after], y[after], yaw[after] = _along(self.road, self.final_speed * dt)
+        else:
+            x[after] = self.x[-1] + fin_v[0] * dt
+            y[after] = self.y[-1] + fin_v[1] * dt
+            yaw[after] = self.yaw[-1]
         speed[after] = self.final_speed
         return x, y, (yaw + np.pi) % (2 * np.pi) - np.pi, speed
 
     def to_dict(self) -> dict:
         return {"vehicle_id": self.vehicle_id, "length": self.length, "width": self.width,
                 "final_speed": self.final_speed, "times": self.times.tolist(), "x": self.x.tolist(),
-                "y": self.y.tolist(), "yaw": self.yaw.tolist()}
+                "y": self.y.tolist(), "yaw": self.yaw.tolist(),
+                **({"road": np.round(self.road, 3).tolist()} if self.road is not None else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> AdversaryPlan:
         return cls(times=np.asarray(d["times"], float), x=np.asarray(d["x"], float),
                    y=np.asarray(d["y"], float), yaw=np.asarray(d["yaw"], float),
                    final_speed=float(d["final_speed"]), length=float(d["length"]),
-                   width=float(d["width"]), vehicle_id=str(d.get("vehicle_id", "adversary")))
+                   width=float(d["width"]), vehicle_id=str(d.get("vehicle_id", "adversary")),
+                   road=np.asarray(d["road"], float).reshape(-1, 2) if d.get("road") is not None else None)
 
     def save(self, path: str | Path) -> Path:
         return write_json(path, self.to_dict())
@@ -140,3 +154,22 @@ class AdversaryPlan:
             return cls.from_dict(json.loads(Path(path).read_text()))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise InputError(f"{path}: not an adversary plan ({exc})") from None
+
+
+def _along(road: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre x, y [m] and heading [rad] at arc lengths ``s`` [m] along ``road`` (straight on past
+    its end); the heading from the points 0.5 m either side (no jumps at the polyline's vertices)."""
+    seg = np.hypot(*np.diff(road, axis=0).T)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    end_dir = road[-1] - road[-2]
+    end_dir = end_dir / max(float(np.hypot(*end_dir)), 1e-9)
+
+    def at(q: np.ndarray) -> np.ndarray:
+        inside = np.stack([np.interp(q, cum, road[:, 0]), np.interp(q, cum, road[:, 1])], -1)
+        beyond = np.maximum(q - cum[-1], 0.0)[:, None]
+        return inside + beyond * end_dir
+
+    p = at(s)
+    ahead, behind = at(s + 0.5), at(np.maximum(s - 0.5, 0.0))
+    d = ahead - behind
+    return p[:, 0], p[:, 1], np.arctan2(d[:, 1], d[:, 0])

@@ -27,7 +27,12 @@ classes adapted per distinct vehicle of the visible traffic (the adversary's siz
 ``run`` keeps 5 variants on intersection (was 4) and 4 on WOMD 637f20cafde22ff8 (was 5), all in
 collision, the merge adversary that left the road no longer does; ``regress`` has 30 rows (32), 19
 with the adversary in contact (21), 4 with it off the road (2: merge's first variant, under both
-planners).
+planners); then with an adversary that missed driving on along its lane instead of at constant
+velocity along its final heading (docs/method.md step 8, "The others"): intersection's second
+``regress`` variant under ``sumo`` no longer ends in a contact 0.6 s after t_col (the straight run-on
+met the braking target; the lane keeps the adversary away) and completes its route, and on WOMD
+2a1e44d405a6833f, whose contact comes at the SUMO step 2 ms after t_col, the relative speed is
+7.2 m/s (was 7.193: the heading along the lane instead of the final one).
 """
 
 from __future__ import annotations

@@ -3,17 +3,21 @@ with the defect rate (coster_sumo.defects, regress, run)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from coster_sumo import synthetic
 from coster_sumo.batch.store import ResultStore
 from coster_sumo.batch.summaries import defect_rates
 from coster_sumo.cli import main
-from coster_sumo.defects import label_line
+from coster_sumo.defects import acted_after_threat, both_clause, label_line
 from coster_sumo.evasion import Avoidability
 from coster_sumo.metrics import RunOutcome
+from coster_sumo.scene import Scene, SignalStates
 
 REPO = Path(__file__).resolve().parents[1]
 NETWORKS = [REPO / "networks" / n / f"{n}.sumocfg" for n in ("intersection", "merge")]
@@ -39,6 +43,22 @@ def test_label_line_says_why():
     lab = Avoidability(t_col=20.0, t_appear=16.0, t_threat=18.0, contact_kind="rear_end_by_adversary",
                        vehicle_class="car", last_moment_s=None, escapes={0.5: None, 1.0: None}, reaction_time_s=1.0)
     assert label_line(lab) == "unavoidable (no escape from a reaction of 1 s after the threat), rear end by adversary"
+
+
+def test_a_variant_the_target_avoided_but_the_reference_driver_could_not_says_both():
+    lab = Avoidability(t_col=20.0, t_appear=16.0, t_threat=18.0, contact_kind="rear_end_by_adversary",
+                       vehicle_class="car", last_moment_s=None, escapes={0.5: None, 1.0: None}, reaction_time_s=1.0)
+    t = np.round(np.arange(150, 220) * 0.1, 6)
+    speed = np.where(t < 18.3, 10.0, np.maximum(10.0 - 4.0 * (t - 18.3), 0.0))  # brakes 0.3 s after the threat
+    x = np.concatenate([[0.0], np.cumsum(speed[:-1] * 0.1)])
+    tracks = synthetic._tracks([("ego", x, np.zeros(len(t)), np.zeros(len(t)), 10.0)], steps=len(t))
+    tracks = dataclasses.replace(tracks, vx=speed[None].copy())
+    scene = Scene(scenario_id="s", timestamps=t, tracks=tracks, road_map=synthetic.two_lane_road().road_map,
+                  signals=SignalStates.empty(len(t)), sdc_index=0, source="synthetic")
+    acted = acted_after_threat(scene, "ego", lab)
+    assert acted == pytest.approx(0.3, abs=0.051)
+    assert both_clause(lab, acted) == ("unavoidable for a driver reacting 1 s after the threat; this target acted "
+                                       "0.3 s after the threat, rear end by adversary")
 
 
 @pytest.mark.sumo
@@ -115,3 +135,19 @@ def test_regress_avoidable_only_replaces_unavoidable_variants_and_says_how_many_
     assert summary["planners"]["sumo"]["defects"]["unavoidable_runs"] == 0
     if summary["variants_tried"] != summary["variants"]:
         assert f"of {summary['variants_tried']} tried" in capsys.readouterr().out
+
+
+def test_the_labels_moved_by_reacting_traffic_reach_eval_scenarios_table():
+    from coster_sumo.batch.generator_summary import AvoidabilityStats
+    from coster_sumo.defects import avoidability_table
+
+    def rec(flipped: bool, tried: int, cleared: int) -> dict:
+        return {"avoidable": flipped, "avoidable_at": {"1": flipped}, "escape_found_at": {"1": False},
+                "contact_kind": "into_vehicle_ahead", "last_moment_s": None, "threat_before_tcol_s": 2.0,
+                "blocked_tried": tried, "blocked_cleared": cleared, "flipped_by_reacting_traffic": flipped}
+
+    table = avoidability_table([rec(True, 2, 1), rec(False, 4, 0), rec(False, 0, 0), rec(False, 0, 0)])
+    assert table["labels_flipped_by_reacting_traffic"] == {"count": 1, "share": 0.25}
+    stats = AvoidabilityStats.from_json(json.loads(json.dumps(table)))
+    assert stats.to_json()["blocked_escapes_tried_in_sumo"] == 6
+    assert stats.moved_cell() == "1 (25.0 %; 1 of 6 blocked escapes cleared)"

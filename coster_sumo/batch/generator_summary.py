@@ -210,6 +210,8 @@ class AvoidabilityStats:
             last_moment_percentiles: [s] ``p10`` .. ``p90`` of it (empty without one).
         escapes_found: kinematic escapes per reaction time; escapes_replayed, escapes_refuted_in_sumo:
             how many SUMO replayed and refuted.
+        labels_moved: what each change to the labels moved (:func:`coster_sumo.defects.labels_moved`;
+            empty: not recorded).
     """
 
     variants: int
@@ -223,6 +225,16 @@ class AvoidabilityStats:
     escapes_found: dict[str, int]
     escapes_replayed: int
     escapes_refuted_in_sumo: int
+    labels_moved: Mapping[str, Any] = field(default_factory=dict)
+
+    def moved_cell(self) -> str:
+        """The labels turned avoidable by plans SUMO's traffic cleared, for a report's table cell."""
+        f = self.labels_moved.get("labels_flipped_by_reacting_traffic")
+        if not f:
+            return "n/a"
+        return (f"{f['count']} ({100 * (f['share'] or 0.0):.1f} %; "
+                f"{self.labels_moved['blocked_escapes_cleared_in_sumo']} of "
+                f"{self.labels_moved['blocked_escapes_tried_in_sumo']} blocked escapes cleared)")
 
     def to_json(self) -> dict[str, Any]:
         return {"variants": self.variants, "avoidable_share": _rates_json(self.avoidable_share),
@@ -232,7 +244,7 @@ class AvoidabilityStats:
                 "last_moment_s": {"with_escape": self.last_moment_with_escape, "none": self.last_moment_none,
                                   **self.last_moment_percentiles},
                 "escapes_found": dict(self.escapes_found), "escapes_replayed": self.escapes_replayed,
-                "escapes_refuted_in_sumo": self.escapes_refuted_in_sumo}
+                "escapes_refuted_in_sumo": self.escapes_refuted_in_sumo, **self.labels_moved}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> AvoidabilityStats:
@@ -242,7 +254,11 @@ class AvoidabilityStats:
                    {k: ContactKindShares(v["variants"], _rates(v["avoidable_share"]))
                     for k, v in d["by_contact_kind"].items()},
                    last.pop("with_escape"), last.pop("none"), last, dict(d["escapes_found"]),
-                   d["escapes_replayed"], d["escapes_refuted_in_sumo"])
+                   d["escapes_replayed"], d["escapes_refuted_in_sumo"],
+                   {k: d[k] for k in _MOVED if k in d})
+
+
+_MOVED = ("blocked_escapes_tried_in_sumo", "blocked_escapes_cleared_in_sumo", "labels_flipped_by_reacting_traffic")
 
 
 def _ci(v: MetricValue) -> list[float | None]:

@@ -14,7 +14,7 @@ import dataclasses
 import json
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -382,10 +382,14 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
     the command's wall time, options and report."""
     plans_dir = out / "plans"
     rows = [r for r in ResultStore(out / "results").read() if r.scene_key in keys and r.planner in planners]
+    from coster_sumo.defects import labels_moved
+
     scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
+    labels: list[dict[str, Any]] = []
     for key, spec in keys.items():
         doc = read_plans(plans_dir / f"{key}.json")
         if doc is not None and doc.ok:
+            labels += [_moved_fields(a) for a in doc.avoidability]
             n_variants += len(doc.variants)
             n_avoidable += doc.avoidable_variants
             tried += doc.variants_tried
@@ -397,7 +401,15 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
         variants=n_variants, avoidable_variants=n_avoidable, variants_tried=tried,
         runs=RunCounts(expected=n_variants * len(planners), recorded=len(rows), ok=len(rows) - len(failures),
                        failed=len(failures), failures=failures),
-        planners={p: planner_summary([r for r in rows if r.planner == p]) for p in planners})
+        planners={p: planner_summary([r for r in rows if r.planner == p]) for p in planners},
+        labels_moved=labels_moved(labels))
+
+
+def _moved_fields(label: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored label (``Avoidability.summary``) in the fields :func:`~coster_sumo.defects.labels_moved` reads."""
+    return {"blocked_tried": label.get("blocked_escapes_tried_in_sumo", 0),
+            "blocked_cleared": label.get("blocked_escapes_cleared_in_sumo", 0),
+            "flipped_by_reacting_traffic": label.get("flipped_by_reacting_traffic", False)}
 
 
 def planner_summary(rows: Sequence[ResultRow]) -> PlannerSummary:

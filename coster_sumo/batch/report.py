@@ -87,7 +87,7 @@ def avoidability_report_table(methods: Mapping[str, GeneratorResult]) -> tuple[l
     """Per generator that ran: avoidable share at each reaction time, the collision rate split by the
     label, and the median last moment to act (``eval scenarios``' report)."""
     head = ["method", "variants", "avoidable @0.5 s", "avoidable @1 s", "avoidable @1.5 s", "CR avoidable",
-            "CR unavoidable", "last moment to act, median [s]"]
+            "CR unavoidable", "last moment to act, median [s]", "labels moved by reacting traffic"]
     rows = []
     for name, m in methods.items():
         a = m.avoidability
@@ -96,7 +96,7 @@ def avoidability_report_table(methods: Mapping[str, GeneratorResult]) -> tuple[l
         sh = a.avoidable_share
         rows.append([name, str(a.variants), *(_pct_of(sh[t]) if t in sh else "n/a" for t in ("0.5", "1", "1.5")),
                      _pct_of(a.CR_avoidable), _pct_of(a.CR_unavoidable),
-                     str(a.last_moment_percentiles.get("p50", "n/a"))])
+                     str(a.last_moment_percentiles.get("p50", "n/a")), a.moved_cell()])
     return head, rows
 
 
@@ -114,7 +114,7 @@ def _defect_words(summary: RegressionSummary) -> str:
     return (f"{summary.avoidable_variants} of {summary.variants} variants were avoidable "
             "(an escape proven in SUMO from the stated reaction time after the adversary became a threat, "
             "docs/method.md step 8). A contact in an avoidable variant is a defect of the planner; a contact "
-            "in an unavoidable one is not. Brackets: Wilson 95% interval (k/n runs).")
+            "in an unavoidable one is not. Brackets: Wilson 95% interval (k/n runs)." + summary.moved_words())
 
 
 def defect_section_md(summary: RegressionSummary, head: list[str], rows: list[list[str]]) -> list[str]:

@@ -211,6 +211,8 @@ class RegressionSummary:
         wall_time_s: [s] the whole command; options: what it ran with (None: not recorded, as for a
             summary computed outside the command).
         report: the report's files relative to OUT (None: ``--no-report``).
+        labels_moved: what each change to the labels moved (:func:`coster_sumo.defects.labels_moved`
+            over the variants' labels; empty: not recorded).
     """
 
     scenes: SceneCounts
@@ -224,6 +226,17 @@ class RegressionSummary:
     wall_time_s: float | None = None
     options: RegressionRunOptions | None = None
     report: tuple[str, ...] | None = None
+    labels_moved: Mapping[str, Any] = field(default_factory=dict)
+
+    def moved_words(self) -> str:
+        """One sentence on the labels that plans blocked only by reacting traffic moved ('' without)."""
+        m = self.labels_moved
+        if not m:
+            return ""
+        f = m["labels_flipped_by_reacting_traffic"]
+        return (f" SUMO tried {m['blocked_escapes_tried_in_sumo']} escapes that only traffic which reacts was in the"
+                f" way of and cleared {m['blocked_escapes_cleared_in_sumo']}; {f['count']} of {self.variants} labels"
+                f" ({100 * (f['share'] or 0.0):.1f} %) turned avoidable through them.")
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -237,6 +250,8 @@ class RegressionSummary:
             out["options"] = self.options.to_json()
         if self.report is not None:
             out["report"] = list(self.report)
+        if self.labels_moved:
+            out["labels_moved"] = dict(self.labels_moved)
         return out
 
     @classmethod
@@ -246,7 +261,7 @@ class RegressionSummary:
                    {k: PlannerSummary.from_json(p) for k, p in d["planners"].items()},
                    d.get("results", RESULTS_NOTE), dict(d.get("units", REGRESSION_UNITS)), d.get("wall_time_s"),
                    RegressionRunOptions(**d["options"]) if "options" in d else None,
-                   tuple(d["report"]) if "report" in d else None)
+                   tuple(d["report"]) if "report" in d else None, labels_moved=d.get("labels_moved") or {})
 
 
 # a planner's rates in a regression: key of summary.json -> the metric of coster_sumo.metrics.REGISTRY

@@ -43,6 +43,7 @@ from coster_sumo.method.snapshot import (
 )
 from coster_sumo.plan import AdversaryPlan
 from coster_sumo.results import AvoidableOnly
+from coster_sumo.road_follow import follow_road
 from coster_sumo.rollout.methods import ROLLOUTS, RolloutRequest
 from coster_sumo.scene import Scene, resample
 from coster_sumo.snapshot_state import CollisionSnapshot
@@ -191,6 +192,8 @@ class _Draws:
         dropped: list[dict[str, Any]] = [{"candidate": f"cluster {r['cluster']}", "reason": r["reason"]}
                                          for r in info.get("rejected_clusters", ())]
         kept, filtered = keep_clear_plans(plans, self.scene, self.target)
+        # after t_col a missed adversary keeps to its lane: the search and every pass see that
+        kept = [follow_road(p, self.scene.road_map) for p in kept]
         dropped += filtered
         if kept:
             self.failed.pop(self.label(snap.t_index), None)

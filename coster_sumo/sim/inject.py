@@ -12,8 +12,8 @@ as a private vehicle type, on the edge under its first position (docs/sumo.md §
 off every lane can crash libsumo). It follows the plan exactly, arriving in the snapshot state at
 t_col. After its first contact with any vehicle it is **frozen**: it stays at the contact pose at
 zero speed until the end of the pass (a wreck, not a vehicle that drives on). If no contact
-happens (the planner avoided it), it continues at constant velocity (see
-:class:`~coster_sumo.plan.AdversaryPlan`) until a contact or the end of the pass.
+happens (the planner avoided it), it drives on along its lane (:class:`~coster_sumo.plan.AdversaryPlan`)
+up to the labels' horizon, then SUMO's driver takes it over (:mod:`coster_sumo.sim.handover`).
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from coster_sumo.frames import centre_to_front
 from coster_sumo.plan import AdversaryPlan, sim_time_of
 from coster_sumo.procs import ChildFailed, run_forked
 from coster_sumo.scene import Scene
+from coster_sumo.sim import handover
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
@@ -81,11 +82,13 @@ class AdversaryController:
         self.freeze_at = freeze_at
         self.added = False
         self.frozen_pose: tuple[float, float, float] | None = None
-        self.gone = False
+        self.gone = self.released = False
         self._poses: dict[float, tuple[float, float, float, float]] = {}
 
     def before_step(self, session: SumoSession, t_next: float) -> None:
-        if self.gone or t_next < self.first_step - TIME_EPS:
+        if self.added and self.frozen_pose is None and not self.released and handover.due(self.plan, t_next):
+            self.released = handover.hand_over(session, self.vehicle_id, self.plan)  # SUMO's driver from now on
+        if self.gone or self.released or t_next < self.first_step - TIME_EPS:
             return
         vid = self.vehicle_id
         if self.frozen_pose is None and self.freeze_at is not None and t_next > self.freeze_at + TIME_EPS:
@@ -115,8 +118,8 @@ class AdversaryController:
         return pose
 
     def on_events(self, states: VehicleStates, events: list[Event]) -> None:
-        vid = self.vehicle_id
-        if self.frozen_pose is None and any(e.kind == "collision" and vid in e.vehicles for e in events):
+        vid, free = self.vehicle_id, self.frozen_pose is None and not self.released  # SUMO's own: never frozen
+        if free and any(e.kind == "collision" and vid in e.vehicles for e in events):
             i = int(np.flatnonzero(states.ids == vid)[0])
             self.frozen_pose = (float(states.x[i]), float(states.y[i]), float(states.yaw[i]))
 
@@ -130,8 +133,7 @@ class InjectionResult:
         events: every event, in time order.
         contact: the first adversary-target collision (our box check), or None.
         adversary_off_road: whether the adversary left the drivable area up to t_col (its
-            trajectory; later steps are the constant-velocity run-on of a missed contact, whose
-            off-road events stay in ``events``).
+            trajectory; later off-road events of a missed contact's run-on stay in ``events``).
         target_off_road: whether the target left the drivable area at any step.
         target_arrived: the target reached the end of its route.
         route_completed: arrived, or still running at the window's end, without collision or
@@ -154,10 +156,8 @@ class InjectionResult:
 
 
 def _ttc(states: VehicleStates, a: int, b: int) -> float:
-    """Time until the bounding discs of vehicles ``a`` and ``b`` meet at constant velocity [s].
-
-    0 when they already overlap, inf when never. Plain float math: this runs every step.
-    """
+    """Time until the bounding discs of vehicles ``a`` and ``b`` meet at constant velocity [s]: 0 when
+    they already overlap, inf when never. Plain float math: this runs every step."""
     x, y, yaw, v = states.x, states.y, states.yaw, states.speed
     radius = 0.5 * (math.hypot(states.length[a], states.width[a]) + math.hypot(states.length[b], states.width[b]))
     px, py = float(x[b] - x[a]), float(y[b] - y[a])

@@ -312,12 +312,14 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
                  workers: int = 1, traci: bool = False, horizon_s: float = 3.0) -> None:
     """Replay every escape of ``labels`` (one per plan of ``plans``) with :func:`prove_escapes` and
     mark it proven or refuted (``Escape.proven``, ``Escape.proof``). Equal escapes of one plan (the
-    same act and manoeuvre at several reaction times) are replayed once and share the verdict."""
+    same act and manoeuvre at several reaction times) are replayed once and share the verdict. The
+    blocked plans of a label (``Avoidability.blocked``) are replayed in the same batch, and one SUMO
+    clears becomes an escape (:meth:`~coster_sumo.evasion.Avoidability.adopt_cleared`)."""
     jobs: list[EscapeJob] = []
     owners: list[Escape] = []
     for plan, lab in zip(plans, labels, strict=True):
         seen: set[tuple[float, Manoeuvre]] = set()  # one object may stand at several reaction times too
-        for e in lab.escapes.values():
+        for e in [*lab.escapes.values(), *lab.blocked]:
             if e is None or (key := _same_escape(e)) in seen:
                 continue
             seen.add(key)
@@ -329,6 +331,7 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
         for e, v in zip(owners, verdicts, strict=True):
             e.proven, e.proof = v.ok, v.to_json()
     for lab in labels:  # an escape's equals at other reaction times share its verdict
+        lab.adopt_cleared()
         by_key = {_same_escape(e): e for e in lab.escapes.values() if e is not None and e.proven is not None}
         for e in lab.escapes.values():
             if e is not None and e.proven is None and (twin := by_key.get(_same_escape(e))) is not None:
