@@ -79,6 +79,7 @@ REPLAY_RADIUS_M = NEIGHBOUR_RADIUS_M + 30.0  # [s] the route ends where the targ
 # training set of a few hundred scenarios then loads each from disk once
 CACHED_SCENARIOS = 512
 
+TRAFFIC_MODES = ("log", "sumo", "reactive")
 REWARD_PER_M = 0.1
 COLLISION_PENALTY = -10.0
 OFF_ROAD_PENALTY = -5.0
@@ -102,7 +103,10 @@ class ScenarioEnv(gymnasium.Env, Driver):
         traffic: ``log`` (default: the other vehicles' states read from the recorded pass; SUMO
             holds the target and runs the signals) or ``sumo`` (every vehicle put into SUMO and
             moved there by moveToXY each step). Both give the same episodes (``tests/test_gym.py``);
-            ``log`` costs no moveToXY per vehicle.
+            ``log`` costs no moveToXY per vehicle. ``reactive``: each agent follows its log until
+            the target's deviation from its nominal motion reaches it, then SUMO drives it
+            (:mod:`coster_sumo.sim.reactive`; the adversary never reacts).
+        car_following: the reacting agents' car-following model, ``Krauss`` (SUMO's default) or ``IDM``.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -110,7 +114,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
     def __init__(self, scenarios: str | Path, split: str | None = None, kind: str | None = None,
                  networks: tuple[str, ...] | list[str] | None = None,
                  scenario_ids: tuple[str, ...] | list[str] | None = None, control_period_s: float = 0.2,
-                 order: str = "random", traffic: str = "log") -> None:
+                 order: str = "random", traffic: str = "log", car_following: str = "Krauss") -> None:
         super().__init__()
         self.set = ScenarioSet.load(scenarios)
         if scenario_ids is not None:
@@ -122,9 +126,14 @@ class ScenarioEnv(gymnasium.Env, Driver):
             raise ValueError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
         if order not in ("random", "cycle"):
             raise ValueError(f"order must be 'random' or 'cycle', not {order!r}")
-        if traffic not in ("log", "sumo"):
-            raise ValueError(f"traffic must be 'log' or 'sumo', not {traffic!r}")
+        if traffic not in TRAFFIC_MODES:
+            raise ValueError(f"traffic must be one of {TRAFFIC_MODES}, not {traffic!r}")
+        from coster_sumo.sim.reactive import car_following_types
+
         self.traffic = traffic
+        self.car_following = car_following
+        self._types_file, _ = car_following_types(car_following)  # checks the name in every mode
+        self._reactive: Any = None  # ReactiveTraffic of the episode when traffic == "reactive"
         self.order = order
         self.substeps = max(1, int(round(control_period_s / STEP_S)))
         self.observation_space = spaces.Box(-1.0, 1.0, (OBS_SIZE,), np.float32)
@@ -198,8 +207,10 @@ class ScenarioEnv(gymnasium.Env, Driver):
         sess = self._session
         # SUMO loads a network once for the episodes on it when nothing in it depends on SUMO's clock:
         # the log drives every signal (a converted scene) and SUMO holds the target only
-        if (sess is not None and self.traffic == "log" and self._session_net == net
+        if (sess is not None and self.traffic in ("log", "reactive") and self._session_net == net
                 and set(sess.tls_ids()) <= set(entry.tls)):
+            if self._reactive is not None:
+                self._reactive.remove_all(sess)
             if self._sumo_target is not None:
                 sess.remove_vehicle(self._sumo_target)
                 sess.step()  # gone before the next target comes (it may have the same id)
@@ -207,8 +218,9 @@ class ScenarioEnv(gymnasium.Env, Driver):
         else:
             if sess is not None:
                 sess.close()
+            extra = [self._types_file] if self._types_file is not None else []
             self._session = SumoSession(net=net, begin=begin, end=None, step_length=STEP_S, seed=0,
-                                        additional=[self.set.vtypes_file]).start()
+                                        additional=[self.set.vtypes_file, *extra]).start()
             self._session_net = net
             self._t_shift = 0.0
         self._sumo_target = None
@@ -221,6 +233,12 @@ class ScenarioEnv(gymnasium.Env, Driver):
             if len(self._replays) < CACHED_SCENARIOS:
                 self._replays[entry.id] = cached
         _, far, replayed, self._traffic = cached
+        self._reactive = None
+        if self.traffic == "reactive":  # read from the log until the target's deviation reaches them
+            from coster_sumo.sim.reactive import ReactiveTraffic
+
+            self._reactive = ReactiveTraffic(replayed, entry.target, exclude=far, adversary=entry.adversary,
+                                             route=self.route.points, car_following=self.car_following)
         if self.traffic == "sumo":  # every agent in SUMO, moved by moveToXY each step
             self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude={entry.target, *far})
         else:  # SUMO holds the target and runs the signals; the agents are read from the log
@@ -239,6 +257,10 @@ class ScenarioEnv(gymnasium.Env, Driver):
         sess = self._session
         t_next = round(self._now() + STEP_S, 9)
         self._replayer.before_step(sess, t_next)
+        if self._reactive is not None:
+            k_next = self._replayer.step_at(t_next)
+            if k_next is not None:
+                self._reactive.before_step(sess, k_next)
         x, y, yaw = self._ego_pose()
         target = self.entry.target if self.entry is not None else "ego"
         if not self._added:
@@ -258,10 +280,11 @@ class ScenarioEnv(gymnasium.Env, Driver):
         sess.step()
         self.sim_steps += 1
         st = sess.vehicle_states()
-        if self._traffic is not None:
-            k = self._replayer.step_at(self._now())
-            if k is not None:
-                st = concat_states(st, self._traffic.states_at(k))
+        k = self._replayer.step_at(self._now())
+        if k is not None and self._traffic is not None:
+            st = concat_states(st, self._traffic.states_at(k))
+        elif k is not None and self._reactive is not None:
+            st = concat_states(st, self._reactive.states_at(k))
         self.states = st
         # the target's events only (the pass detector's checks of the adversary's other contacts and
         # its batching cost more than the rest of a step here): the same box test, the same area
@@ -275,6 +298,11 @@ class ScenarioEnv(gymnasium.Env, Driver):
                 self.collided_with = str(st.ids[j])
         if not self.off_road:
             self.off_road = bool(self._drivable_now.off_road(st.x[i], st.y[i], st.yaw[i], st.length[i], st.width[i]))
+        if self._reactive is not None and k is not None:
+            from coster_sumo.sim.reactive import Pose
+
+            self._reactive.after_step(k, st, Pose(float(st.x[i]), float(st.y[i]), float(st.yaw[i]), self.v,
+                                                  self.length, self.width))
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._session is None or self.entry is None:
@@ -317,7 +345,8 @@ class ScenarioEnv(gymnasium.Env, Driver):
                 "collided_with_adversary": self.collided_with is not None and self.collided_with == e.adversary,
                 "off_road": self.off_road, "completed": done,
                 "route_completion": 1.0 if done or length <= 0 else float(min(self.s / length, 1.0)),
-                "avoidable": e.avoidable}
+                "avoidable": e.avoidable,
+                "reacting": len(self._reactive.released) if self._reactive is not None else 0}
 
     def _now(self) -> float:
         """[s] the scenario's time (SUMO's clock runs on over the episodes of a loaded network)."""
