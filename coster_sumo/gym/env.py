@@ -80,6 +80,7 @@ REPLAY_RADIUS_M = NEIGHBOUR_RADIUS_M + 30.0  # [s] the route ends where the targ
 CACHED_SCENARIOS = 512
 
 TRAFFIC_MODES = ("log", "sumo", "reactive")
+RANDOM_START_TAIL_S = 8.0  # [s] a random start leaves at least this much of the scenario (a route of 5 s)
 REWARD_PER_M = 0.1
 COLLISION_PENALTY = -10.0
 OFF_ROAD_PENALTY = -5.0
@@ -107,6 +108,9 @@ class ScenarioEnv(gymnasium.Env, Driver):
             the target's deviation from its nominal motion reaches it, then SUMO drives it
             (:mod:`coster_sumo.sim.reactive`; the adversary never reacts).
         car_following: the reacting agents' car-following model, ``Krauss`` (SUMO's default) or ``IDM``.
+        random_start: a nominal scenario's episode starts at a time drawn (with the episode's seed)
+            uniformly between its start and :data:`RANDOM_START_TAIL_S` before its end, instead of at its
+            start (variants always start at theirs: the adversary's timing is the scenario).
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -114,7 +118,8 @@ class ScenarioEnv(gymnasium.Env, Driver):
     def __init__(self, scenarios: str | Path, split: str | None = None, kind: str | None = None,
                  networks: tuple[str, ...] | list[str] | None = None,
                  scenario_ids: tuple[str, ...] | list[str] | None = None, control_period_s: float = 0.2,
-                 order: str = "random", traffic: str = "log", car_following: str = "Krauss") -> None:
+                 order: str = "random", traffic: str = "log", car_following: str = "Krauss",
+                 random_start: bool = False) -> None:
         super().__init__()
         self.set = ScenarioSet.load(scenarios)
         if scenario_ids is not None:
@@ -132,6 +137,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
 
         self.traffic = traffic
         self.car_following = car_following
+        self.random_start = random_start
         self._types_file, _ = car_following_types(car_following)  # checks the name in every mode
         self._reactive: Any = None  # ReactiveTraffic of the episode when traffic == "reactive"
         self.order = order
@@ -143,9 +149,11 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._session_net: Path | None = None  # the network the session has loaded
         self._sumo_target: str | None = None  # the target's id in SUMO once added
         self._t_shift = 0.0  # [s] SUMO's clock minus the scenario's
-        # per scenario (CACHED_SCENARIOS at most): its scene, the agents too far to replay, the replayed
-        # part, LogTraffic
-        self._replays: dict[str, tuple[Scene, set[str], Scene, Any]] = {}
+        # per scenario (CACHED_SCENARIOS at most): its scene
+        self._scenes: dict[str, Scene] = {}
+        # per scenario and start step: the agents too far to replay, the replayed part, LogTraffic (not kept
+        # with random starts: a scenario has many)
+        self._replays: dict[tuple[str, int], tuple[set[str], Scene, Any]] = {}
         self._drivable: dict[Path, DrivableArea] = {}  # per network (a clip's variants share its network)
         self._next_index = 0
         self.entry: ScenarioEntry | None = None
@@ -176,21 +184,27 @@ class ScenarioEnv(gymnasium.Env, Driver):
 
         self.entry = entry
         self.target_id = entry.target
-        cached = self._replays.get(entry.id)  # what an episode of this scenario replays never changes
-        scene = cached[0] if cached is not None else self.set.scene(entry)
+        scene = self._scenes.get(entry.id)
+        if scene is None:
+            scene = self.set.scene(entry)
+            if len(self._scenes) < CACHED_SCENARIOS:
+                self._scenes[entry.id] = scene
         self.scene = scene
         tr = scene.tracks
         ti = tr.index_of(entry.target)
         ts = scene.timestamps
-        k0 = int(np.argmin(np.abs(ts - entry.t_start)))
+        t_first = entry.t_start
+        if self.random_start and entry.kind == "nominal" and entry.t_end - RANDOM_START_TAIL_S > entry.t_start:
+            t_first = float(self.np_random.uniform(entry.t_start, entry.t_end - RANDOM_START_TAIL_S))
+        k0 = int(np.argmin(np.abs(ts - t_first)))
         valid = tr.valid[ti]
         if not valid[k0]:
             k0 = int(np.flatnonzero(valid)[0])
         self.length = float(np.median(tr.length[ti][valid]))
         self.width = float(np.median(tr.width[ti][valid]))
+        # a variant's route goes on past the planned contact along the target's nominal path as far as its
+        # episode allows (sets built before this ran 3 s past t_col: their routes end at the contact point)
         route_until = max(entry.t_end - ROUTE_SLACK_S, float(ts[k0]))
-        if entry.t_col is not None:
-            route_until = min(route_until, entry.t_col)  # a variant's route ends where the contact was planned
         keep = valid & (ts >= ts[k0] - 1e-6) & (ts <= route_until + 1e-6)
         self.route = Route(np.stack([tr.x[ti, keep], tr.y[ti, keep]], -1), float(tr.heading[ti, k0]))
         self.s = 0.0
@@ -225,14 +239,15 @@ class ScenarioEnv(gymnasium.Env, Driver):
             self._t_shift = 0.0
         self._sumo_target = None
         self.api = self._session.api
+        cached = self._replays.get((entry.id, k0))
         if cached is None:
             far = far_agents(scene.tracks, self.route.points[::4], REPLAY_RADIUS_M, from_step=k0)
             replayed = _from_step(scene, k0)
             traffic = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic == "log" else None
-            cached = (scene, far, replayed, traffic)
-            if len(self._replays) < CACHED_SCENARIOS:
-                self._replays[entry.id] = cached
-        _, far, replayed, self._traffic = cached
+            cached = (far, replayed, traffic)
+            if len(self._replays) < CACHED_SCENARIOS and not self.random_start:
+                self._replays[(entry.id, k0)] = cached
+        far, replayed, self._traffic = cached
         self._reactive = None
         if self.traffic == "reactive":  # read from the log until the target's deviation reaches them
             from coster_sumo.sim.reactive import ReactiveTraffic
