@@ -154,3 +154,38 @@ def test_check_env_passes_in_both_traffic_modes(nominal_set, traffic):
     env = gymnasium.make("coster_sumo/Scenario-v0", scenarios=nominal_set, traffic=traffic)
     check_env(env.unwrapped)
     env.close()
+
+
+@pytest.mark.sumo
+@pytest.mark.realdata
+def test_reactive_traffic_on_a_converted_womd_scene(tmp_path):
+    """On a real WOMD scene (2a1e44d405a6833f): braking at 4 m/s^2 from the start, a logged agent runs
+    into the target in the log and none does in reactive traffic; on its nominal motion the reactive
+    episode is the log's."""
+    from coster_sumo.converters.read import read_scenes
+    from coster_sumo.converters.to_sumo import convert_scene
+
+    from coster_sumo.gym.build import BuildOptions, build_set
+    from coster_sumo.gym.scenario_set import ScenarioSet
+    from tests.conftest import NO_WOMD_REASON, WOMD_PKL
+
+    pytest.importorskip("gymnasium")
+    pkl = [p for p in WOMD_PKL if "2a1e44d405a6833f" in p.name]
+    if not pkl:
+        pytest.skip(NO_WOMD_REASON)
+    scene = next(iter(read_scenes(pkl[0])))
+    folder = convert_scene(scene, tmp_path / "converted").folder
+    out = tmp_path / "set"
+    build_set(BuildOptions(sources=[str(folder)], out=out, method="nominal"))
+    (entry,) = [e.id for e in ScenarioSet.load(out).entries]
+    log, _ = _drive(out, entry, "log", "brake")
+    reactive, _ = _drive(out, entry, "reactive", "brake")
+    assert log["outcome"] == "collision", log
+    assert reactive["outcome"] != "collision" and reactive["reacting"] >= 1, reactive
+    log_info, log_states = _drive(out, entry, "log", "nominal")
+    info, states = _drive(out, entry, "reactive", "nominal")
+    assert info["reacting"] == 0 and len(states) == len(log_states)
+    for a, b in zip(log_states, states, strict=True):
+        ids_b = b.id_list()
+        j = [ids_b.index(v) for v in a.id_list()]
+        assert np.hypot(a.x - b.x[j], a.y - b.y[j]).max(initial=0.0) <= 0.05

@@ -20,7 +20,8 @@ def _train(args: argparse.Namespace) -> int:
 
     progress = train(TrainOptions(scenarios=args.scenarios, out=args.out, timesteps=args.timesteps, seed=args.seed,
                                   envs=args.envs, checkpoint_steps=args.checkpoint_steps, quiet=args.quiet,
-                                  traffic=args.traffic, car_following=args.car_following))
+                                  traffic=args.traffic, car_following=args.car_following,
+                                  random_start=args.random_start))
     if not args.quiet:
         print(f"{progress.steps} steps in {progress.wall_s:.0f} s; outcomes {progress.outcomes}; "
               f"wrote {args.out}")
@@ -55,6 +56,8 @@ def register(cli: Any) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed of the learner and the scenario draws (default 0)")
     t.add_argument("--envs", type=int, default=1, help="environments, one process each when > 1 (default 1)")
     t.add_argument("--checkpoint-steps", type=int, default=2048, help="save every N steps (default 2048)")
+    t.add_argument("--random-start", action="store_true",
+                   help="nominal episodes start at a seeded random time within the clip (not at its start)")
     add_traffic_options(t)
     t.set_defaults(func=_train)
     e = group.add_parser("eval", help="drive every scenario of a split once: RCR, CR, ORR")

@@ -43,6 +43,7 @@ class TrainOptions:
     quiet: bool = False
     traffic: str = "log"  # the environment's traffic: log (replayed) or reactive (coster_sumo.sim.reactive)
     car_following: str = "Krauss"  # the reacting agents' model (traffic="reactive")
+    random_start: bool = False  # nominal episodes start at a seeded random time within the clip
 
 
 @dataclass(frozen=True)
@@ -77,14 +78,14 @@ def _option_strings(opts: TrainOptions) -> dict[str, str]:
 
 
 def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: float,  # type: ignore[no-untyped-def]
-              traffic: str = "log", car_following: str = "Krauss"):
+              traffic: str = "log", car_following: str = "Krauss", random_start: bool = False):
     def make():  # type: ignore[no-untyped-def]
         from stable_baselines3.common.monitor import Monitor
 
         from coster_sumo.gym.env import ScenarioEnv
 
         env = ScenarioEnv(scenarios, split=split, control_period_s=control_period_s, traffic=traffic,
-                          car_following=car_following)
+                          car_following=car_following, random_start=random_start)
         env.reset(seed=seed)
         return Monitor(env, info_keywords=("outcome",))
     return make
@@ -98,7 +99,7 @@ def train(opts: TrainOptions) -> TrainProgress:
 
     opts.out.mkdir(parents=True, exist_ok=True)
     makers = [_make_env(str(opts.scenarios), "train", opts.seed * 1000 + i, opts.control_period_s, opts.traffic,
-                        opts.car_following) for i in range(opts.envs)]
+                        opts.car_following, opts.random_start) for i in range(opts.envs)]
     venv = SubprocVecEnv(makers) if opts.envs > 1 else DummyVecEnv(makers)
     ckpt = opts.out / "checkpoint.zip"
     progress_path = opts.out / "progress.json"

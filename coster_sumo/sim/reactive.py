@@ -31,6 +31,7 @@ the log.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import tempfile
 from dataclasses import dataclass
@@ -41,7 +42,7 @@ import numpy as np
 
 from coster_sumo.formats.scene_folder import VTYPES, agent_sizes, vtype_for
 from coster_sumo.geometry import project_points
-from coster_sumo.scene import Scene
+from coster_sumo.scene import ObjectType, Scene
 from coster_sumo.sim.states import VehicleStates, empty_states
 
 if TYPE_CHECKING:
@@ -59,6 +60,7 @@ HORIZON_STEP_S = 0.5  # [s] sampling of that horizon
 CONFLICT_MARGIN_M = 1.0  # [m] boxes this close (along and across) count as meeting
 SHADOW_RADIUS_M = 60.0  # [m] logged agents this close to a reacting one are put into SUMO
 CAR_FOLLOWING = ("Krauss", "IDM")
+LANE_MATCH_M = 2.0  # [m] an agent is on a lane when its front is this close to the lane's centre line
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,7 +77,8 @@ class Pose:
 
 
 def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.ndarray,
-                    route: np.ndarray | None = None, target: Pose | None = None) -> np.ndarray:
+                    route: np.ndarray | None = None, target: Pose | None = None,
+                    sizes: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Which of ``candidates`` the deviation of ``deviating`` reaches at log step ``k``.
 
     Args:
@@ -86,6 +89,8 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
             reacting yet).
         route: (P, 2) [m] the target's route, for its corridor (None: no follower/leader test).
         target: the target's pose now (with ``route``).
+        sizes: (A,) lengths and widths [m] of every agent (default :func:`agent_sizes`; a caller that
+            asks every step passes them once computed).
 
     Returns:
         (A,) bool: reached.
@@ -95,7 +100,7 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
     hit = np.zeros(len(cand), bool)
     if len(cand) == 0 or not deviating:
         return hit
-    lengths, widths = agent_sizes(scene)
+    lengths, widths = sizes if sizes is not None else agent_sizes(scene)
     if route is not None and target is not None and len(route) >= 2:
         pts = np.stack([tr.x[cand, k], tr.y[cand, k]], -1)  # (A, 2)
         s_a, d_a, seg = project_points(pts, route)
@@ -175,14 +180,18 @@ class ReactiveTraffic:
         self.scene = scene
         tr = scene.tracks
         self.target = tr.index_of(target)
-        self.route = None if route is None else np.asarray(route, np.float64).reshape(-1, 2)
+        # the corridor test needs no finer route than every 2 m (the environment's is every 0.5 m)
+        self.route = None if route is None else np.asarray(route, np.float64).reshape(-1, 2)[::4]
         self._types_file, self._suffix = car_following_types(car_following)
         self.lengths, self.widths = agent_sizes(scene)
         ids = [str(i) for i in tr.ids]
-        self.replayed = np.array([i not in exclude and i != target for i in ids], bool)  # (A,)
-        self.may_react = self.replayed & np.array([i != adversary for i in ids], bool)
+        in_log = np.array([i not in exclude and i != target for i in ids], bool)  # (A,)
         self.log = LogTraffic(scene, exclude={*exclude, target})
-        self._row = np.cumsum(self.replayed) - 1  # agent index -> row of self.log
+        self._row = np.cumsum(in_log) - 1  # agent index -> row of self.log
+        # pedestrians stay on their logs (SUMO's car-following models drive vehicles) and are not put
+        # into SUMO for the reacting vehicles to see
+        self.replayed = in_log & (tr.object_type != int(ObjectType.PEDESTRIAN))
+        self.may_react = self.replayed & np.array([i != adversary for i in ids], bool)
         self.in_sumo: dict[int, str] = {}  # agent -> SUMO id while SUMO holds it
         self.released: set[int] = set()  # driven by SUMO (never back to the log)
         self.pending: set[int] = set()  # react from the next step on
@@ -208,7 +217,8 @@ class ReactiveTraffic:
             entering = np.flatnonzero(self.may_react & tr.valid[:, k_next] & ~tr.valid[:, k_next - 1])
             entering = np.array([a for a in entering.tolist() if a not in self.in_sumo and a not in self.released
                                  and a not in self.unplaceable], np.int64)
-            hit = reacting_agents(self.scene, k_next, self._deviating, entering, self.route, self._target_pose)
+            hit = reacting_agents(self.scene, k_next, self._deviating, entering, self.route, self._target_pose,
+                                  (self.lengths, self.widths))
             for a in entering[hit].tolist():
                 self._insert(session, a, k_next)
         for a, sid in list(self.in_sumo.items()):
@@ -231,17 +241,10 @@ class ReactiveTraffic:
         x, y, h = float(tr.x[a, k]), float(tr.y[a, k]), float(tr.heading[a, k])
         length = float(self.lengths[a])
         vt = vtype_for(int(tr.object_type[a]))
-        try:
-            fx, fy = x + 0.5 * length * math.cos(h), y + 0.5 * length * math.sin(h)
-            edge, _, _ = session.api.simulation.convertRoad(fx, fy, False, vt[1])
-        except Exception:  # no lane for its class nearby: it stays a logged agent
-            edge = ""
-        if not edge or str(edge).startswith(":"):
-            self.unplaceable.add(a)
-            return
         sid = str(tr.ids[a])
-        session.add_vehicle(sid, length, float(self.widths[a]), vt[1], base_type=vt[0] + self._suffix,
-                            route_edges=[str(edge)])
+        # on SUMO's choice of edge, moved to its logged pose before the step (as the log replayer adds
+        # agents without a staging lane); whether it is on a lane matters only when it is released
+        session.add_vehicle(sid, length, float(self.widths[a]), vt[1], base_type=vt[0] + self._suffix)
         session.move_to_xy(sid, x, y, h, length=length, speed=float(math.hypot(tr.vx[a, k], tr.vy[a, k])))
         self.in_sumo[a] = sid
 
@@ -249,24 +252,23 @@ class ReactiveTraffic:
         """Agent ``a`` enters at step ``k`` already reached: SUMO inserts it at its logged place and
         speed when that is safe (a reacting driver would not appear where it cannot stop), later if not."""
         tr = self.scene.tracks
-        x, y, h = float(tr.x[a, k]), float(tr.y[a, k]), float(tr.heading[a, k])
         length = float(self.lengths[a])
         vt = vtype_for(int(tr.object_type[a]))
-        try:
-            fx, fy = x + 0.5 * length * math.cos(h), y + 0.5 * length * math.sin(h)
-            edge, pos, lane = session.api.simulation.convertRoad(fx, fy, False, vt[1])
-        except Exception:
-            edge = ""
-        if not edge or str(edge).startswith(":"):
+        under = _lane_under(session, tr, a, k, length, vt[1])
+        if under is None:
             self.unplaceable.add(a)
             return
+        edge, pos, lane = under
         sid = str(tr.ids[a])
-        steps = np.flatnonzero(tr.valid[a])
-        edges = _logged_edges(session, tr, a, steps[steps >= k], length, str(edge))
         session.add_vehicle(sid, length, float(self.widths[a]), vt[1], base_type=vt[0] + self._suffix,
-                            route_edges=edges, remote=False, depart_lane=str(int(lane)),
+                            route_edges=[edge], remote=False, depart_lane=str(int(lane)),
                             depart_pos=f"{max(float(pos) - length, 0.0):.2f}",
                             depart_speed=f"{math.hypot(tr.vx[a, k], tr.vy[a, k]):.2f}")
+        last = int(np.flatnonzero(tr.valid[a])[-1])
+        end = _lane_under(session, tr, a, last, length, vt[1])
+        if end is not None and end[0] != edge:  # on to where its log ends
+            with contextlib.suppress(Exception):
+                session.api.vehicle.changeTarget(sid, end[0])
         self.in_sumo[a] = sid
         self.released.add(a)
         self.reactions.append((sid, float(self.scene.timestamps[k])))
@@ -275,18 +277,22 @@ class ReactiveTraffic:
         """Hand agent ``a`` to SUMO's driver model, routed along its logged path."""
         tr = self.scene.tracks
         sid = self.in_sumo[a]
+        # where SUMO has it now (its logged pose of the last step): on a lane, or it stays on its log (a
+        # vehicle handed to SUMO off every lane crashes libsumo's getters)
+        under = _lane_under(session, tr, a, max(k - 1, 0), float(self.lengths[a]),
+                            vtype_for(int(tr.object_type[a]))[1])
+        self.pending.discard(a)
+        if under is None:
+            self.unplaceable.add(a)
+            return
         ahead = np.flatnonzero(tr.valid[a])
         ahead = ahead[ahead >= k]
         poses = [(float(tr.x[a, j]), float(tr.y[a, j]), float(tr.heading[a, j]), float(self.lengths[a]))
                  for j in ahead[::-1][::5][:20]]  # heading for where its log ends, the end first
+        # SUMO's route to where its log ends (on the lane-per-edge networks of converted scenes, the
+        # logged lanes): asking SUMO for the lane under every logged pose costs about 4 ms a pose there
         session.release_vehicle(sid, poses)
         veh = session.api.vehicle
-        try:  # its logged route where SUMO accepts it (else the route release_vehicle chose)
-            edges = _logged_edges(session, tr, a, ahead, float(self.lengths[a]), str(veh.getRoadID(sid)))
-            if len(edges) > 1:
-                veh.setRoute(sid, edges)
-        except Exception:
-            pass
         try:  # a log faster than the lane's limit keeps its speed as its wish
             allowed = float(veh.getAllowedSpeed(sid))
             v = float(math.hypot(tr.vx[a, k], tr.vy[a, k]))
@@ -294,7 +300,6 @@ class ReactiveTraffic:
                 veh.setSpeedFactor(sid, v / allowed)
         except Exception:
             pass
-        self.pending.discard(a)
         self.released.add(a)
         self.reactions.append((sid, float(self.scene.timestamps[min(k, self.scene.num_steps - 1)])))
 
@@ -333,7 +338,7 @@ class ReactiveTraffic:
         cand = np.flatnonzero(self.may_react & tr.valid[:, k])
         cand = np.array([a for a in cand.tolist() if a not in self.released and a not in self.pending
                          and a not in self.unplaceable], np.int64)
-        hit = reacting_agents(self.scene, k, deviating, cand, self.route, target)
+        hit = reacting_agents(self.scene, k, deviating, cand, self.route, target, (self.lengths, self.widths))
         self.pending.update(cand[hit].tolist())
         reacting = sorted(self.pending | self.released)
         if reacting:  # what reacting agents must see: the logged agents around them, in SUMO
@@ -350,20 +355,19 @@ class ReactiveTraffic:
         self.in_sumo.clear()
 
 
-def _logged_edges(session: SumoSession, tr: Tracks, a: int, steps: np.ndarray, length: float,
-                  current: str) -> list[str]:
-    """The normal edges under agent ``a``'s logged front bumper at ``steps``, in order, from the
-    edge it is on (``current``)."""
-    conv = session.api.simulation.convertRoad
-    edges = [current]
-    for j in steps.tolist():
-        h = float(tr.heading[a, j])
-        try:
-            fx, fy = float(tr.x[a, j]) + 0.5 * length * math.cos(h), float(tr.y[a, j]) + 0.5 * length * math.sin(h)
-            e, _, _ = conv(fx, fy, False, "passenger")
-        except Exception:
-            continue
-        e = str(e)
-        if e and not e.startswith(":") and e != edges[-1]:
-            edges.append(e)
-    return edges
+def _lane_under(session: SumoSession, tr: Tracks, a: int, k: int, length: float, vclass: str
+                ) -> tuple[str, float, int] | None:
+    """(edge, position [m], lane index) of the normal lane under agent ``a``'s front bumper at step ``k``,
+    or None where there is none within :data:`LANE_MATCH_M` (off the lanes, or on a junction's
+    internal lane)."""
+    h = float(tr.heading[a, k])
+    fx, fy = float(tr.x[a, k]) + 0.5 * length * math.cos(h), float(tr.y[a, k]) + 0.5 * length * math.sin(h)
+    sim = session.api.simulation
+    try:
+        edge, pos, lane = sim.convertRoad(fx, fy, False, vclass)
+        if not edge or str(edge).startswith(":"):
+            return None
+        lx, ly = sim.convert2D(str(edge), float(pos), int(lane))
+    except Exception:  # no lane for its class nearby
+        return None
+    return (str(edge), float(pos), int(lane)) if math.hypot(lx - fx, ly - fy) <= LANE_MATCH_M else None
