@@ -21,7 +21,7 @@ def _train(args: argparse.Namespace) -> int:
     progress = train(TrainOptions(scenarios=args.scenarios, out=args.out, timesteps=args.timesteps, seed=args.seed,
                                   envs=args.envs, checkpoint_steps=args.checkpoint_steps, quiet=args.quiet,
                                   traffic=args.traffic, car_following=args.car_following,
-                                  random_start=args.random_start))
+                                  random_start=args.random_start, observation=args.observation))
     if not args.quiet:
         print(f"{progress.steps} steps in {progress.wall_s:.0f} s; outcomes {progress.outcomes}; "
               f"wrote {args.out}")
@@ -35,7 +35,7 @@ def _eval(args: argparse.Namespace) -> int:
     policy = None if args.policy == "none" else args.policy
     result, rows = evaluate(policy, args.scenarios, split=None if args.split == "all" else args.split,
                             max_episodes=args.max_episodes, hard=args.hard, traffic=args.traffic,
-                            car_following=args.car_following)
+                            car_following=args.car_following, observation=args.observation)
     out = {"policy": str(args.policy), "scenarios": str(args.scenarios), "split": args.split,
            "traffic": args.traffic, "car_following": args.car_following, **result.to_json(),
            "episodes_detail": [r.to_json() for r in rows]}
@@ -82,3 +82,7 @@ def add_traffic_options(parser: argparse.ArgumentParser) -> None:
                              "its log until the target's deviation reaches it, then SUMO drives it)")
     parser.add_argument("--car-following", choices=("Krauss", "IDM"), default="Krauss",
                         help="the reacting vehicles' car-following model (default Krauss)")
+    parser.add_argument("--observation", choices=("default", "avoidance", "lidar"), default="default",
+                        help="default (90 numbers), avoidance (and the vehicles ahead/behind in the route corridor: "
+                             "gap, closing speed, TTC; time left) or lidar (72 rays to 50 m instead of the vehicle "
+                             "list); eval must use the policy's")

@@ -63,7 +63,7 @@ from gymnasium import spaces
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
 from coster_sumo.scene import Scene
-from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, OBS_SIZE, STEP_S, Driver, Route
+from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, STEP_S, Driver, Route
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
 from coster_sumo.sim.states import concat_states
 
@@ -111,6 +111,9 @@ class ScenarioEnv(gymnasium.Env, Driver):
         random_start: a nominal scenario's episode starts at a time drawn (with the episode's seed)
             uniformly between its start and :data:`RANDOM_START_TAIL_S` before its end, instead of at its
             start (variants always start at theirs: the adversary's timing is the scenario).
+        observation: ``default`` (the 90 numbers above), ``avoidance`` (those and the vehicles ahead
+            and behind in the route corridor: gap, closing speed, time to collision; time left) or
+            ``lidar`` (the target's 18, the corridor's 9, 72 rays to 50 m): :mod:`coster_sumo.gym.observe`.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -119,7 +122,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
                  networks: tuple[str, ...] | list[str] | None = None,
                  scenario_ids: tuple[str, ...] | list[str] | None = None, control_period_s: float = 0.2,
                  order: str = "random", traffic: str = "log", car_following: str = "Krauss",
-                 random_start: bool = False) -> None:
+                 random_start: bool = False, observation: str = "default") -> None:
         super().__init__()
         self.set = ScenarioSet.load(scenarios)
         if scenario_ids is not None:
@@ -142,7 +145,12 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._reactive: Any = None  # ReactiveTraffic of the episode when traffic == "reactive"
         self.order = order
         self.substeps = max(1, int(round(control_period_s / STEP_S)))
-        self.observation_space = spaces.Box(-1.0, 1.0, (OBS_SIZE,), np.float32)
+        from coster_sumo.gym.observe import OBSERVATIONS
+
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {tuple(OBSERVATIONS)}, not {observation!r}")
+        self.observation = observation
+        self.observation_space = spaces.Box(-1.0, 1.0, (OBSERVATIONS[observation],), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._session: Any = None
         self._traffic: Any = None  # LogTraffic when traffic == "log"
@@ -176,7 +184,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
             entry = self.entries[int(self.np_random.integers(len(self.entries)))]
         self._start(entry)
         self.episodes += 1
-        return self._observe(), self._info()
+        return self._observation(), self._info()
 
     def _start(self, entry: ScenarioEntry) -> None:
         from coster_sumo.sim.replay import LogReplayer, LogTraffic, far_agents
@@ -346,7 +354,14 @@ class ScenarioEnv(gymnasium.Env, Driver):
             reward += OFF_ROAD_PENALTY
         elif self.outcome == "completed":
             reward += COMPLETION_BONUS
-        return self._observe(), float(reward), terminated, truncated, self._info()
+        return self._observation(), float(reward), terminated, truncated, self._info()
+
+    def _observation(self) -> np.ndarray:
+        if self.observation == "default":
+            return self._observe()
+        from coster_sumo.gym.observe import observe
+
+        return observe(self, self.observation, self.t_end - self._now())
 
     # ------------------------------------------------------------------------- observation
 

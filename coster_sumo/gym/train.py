@@ -44,6 +44,7 @@ class TrainOptions:
     traffic: str = "log"  # the environment's traffic: log (replayed) or reactive (coster_sumo.sim.reactive)
     car_following: str = "Krauss"  # the reacting agents' model (traffic="reactive")
     random_start: bool = False  # nominal episodes start at a seeded random time within the clip
+    observation: str = "default"  # the environment's observation (coster_sumo.gym.observe)
 
 
 @dataclass(frozen=True)
@@ -78,14 +79,15 @@ def _option_strings(opts: TrainOptions) -> dict[str, str]:
 
 
 def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: float,  # type: ignore[no-untyped-def]
-              traffic: str = "log", car_following: str = "Krauss", random_start: bool = False):
+              traffic: str = "log", car_following: str = "Krauss", random_start: bool = False,
+              observation: str = "default"):
     def make():  # type: ignore[no-untyped-def]
         from stable_baselines3.common.monitor import Monitor
 
         from coster_sumo.gym.env import ScenarioEnv
 
         env = ScenarioEnv(scenarios, split=split, control_period_s=control_period_s, traffic=traffic,
-                          car_following=car_following, random_start=random_start)
+                          car_following=car_following, random_start=random_start, observation=observation)
         env.reset(seed=seed)
         return Monitor(env, info_keywords=("outcome",))
     return make
@@ -99,7 +101,7 @@ def train(opts: TrainOptions) -> TrainProgress:
 
     opts.out.mkdir(parents=True, exist_ok=True)
     makers = [_make_env(str(opts.scenarios), "train", opts.seed * 1000 + i, opts.control_period_s, opts.traffic,
-                        opts.car_following, opts.random_start) for i in range(opts.envs)]
+                        opts.car_following, opts.random_start, opts.observation) for i in range(opts.envs)]
     venv = SubprocVecEnv(makers) if opts.envs > 1 else DummyVecEnv(makers)
     ckpt = opts.out / "checkpoint.zip"
     progress_path = opts.out / "progress.json"
@@ -257,15 +259,15 @@ def hard_ids(scenarios: str | Path, split: str | None) -> list[str]:
 
 def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None = "test",
              control_period_s: float = 0.2, max_episodes: int | None = None,
-             hard: bool = False, traffic: str = "log", car_following: str = "Krauss"
-             ) -> tuple[EvalResult, list[EpisodeRecord]]:
+             hard: bool = False, traffic: str = "log", car_following: str = "Krauss",
+             observation: str = "default") -> tuple[EvalResult, list[EpisodeRecord]]:
     """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0));
     ``hard``: only the scenarios of :func:`hard_ids`; ``traffic``, ``car_following``: the environment's."""
     from coster_sumo.gym.env import ScenarioEnv
 
     ids = hard_ids(scenarios, split) if hard else None
     env = ScenarioEnv(scenarios, split=split, order="cycle", control_period_s=control_period_s, scenario_ids=ids,
-                      traffic=traffic, car_following=car_following)
+                      traffic=traffic, car_following=car_following, observation=observation)
     model = None
     if policy is not None:
         from stable_baselines3 import PPO
