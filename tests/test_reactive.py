@@ -189,3 +189,36 @@ def test_reactive_traffic_on_a_converted_womd_scene(tmp_path):
         ids_b = b.id_list()
         j = [ids_b.index(v) for v in a.id_list()]
         assert np.hypot(a.x - b.x[j], a.y - b.y[j]).max(initial=0.0) <= 0.05
+
+
+@pytest.mark.slow
+@pytest.mark.sumo
+@pytest.mark.realdata
+def test_run_with_reactive_traffic_on_a_converted_womd_scene(tmp_path):
+    """`coster-sumo run --planner sumo` on a real WOMD scene (2a1e44d405a6833f): the target brakes for
+    the adversary; in the log logged agents drive into it, with --traffic reactive none does."""
+    import json
+    import subprocess
+    import sys
+
+    from coster_sumo.converters.read import read_scenes
+    from coster_sumo.converters.to_sumo import convert_scene
+
+    from tests.conftest import NO_WOMD_REASON, WOMD_PKL
+
+    pkl = [p for p in WOMD_PKL if "2a1e44d405a6833f" in p.name]
+    if not pkl:
+        pytest.skip(NO_WOMD_REASON)
+    folder = convert_scene(next(iter(read_scenes(pkl[0]))), tmp_path / "converted").folder
+    (cfg,) = folder.glob("*.sumocfg")
+    others = {}
+    for traffic in ("log", "reactive"):
+        out = tmp_path / traffic
+        subprocess.run([sys.executable, "-m", "coster_sumo", "run", str(cfg), "-o", str(out), "--planner", "sumo",
+                        "--traffic", traffic, "--samples", "200", "--variants", "2", "--no-render"], check=True,
+                       capture_output=True)
+        summary = json.loads((out / "summary.json").read_text())
+        others[traffic] = [c for v in summary["variants"] for c in v["other_collisions_list"]
+                           if c.startswith(f"{summary['target']} vs")]
+    assert others["log"], others  # the logged followers ran into the braking target
+    assert not others["reactive"], others

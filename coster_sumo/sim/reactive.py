@@ -47,6 +47,7 @@ from coster_sumo.sim.states import VehicleStates, empty_states
 
 if TYPE_CHECKING:
     from coster_sumo.scene import Tracks
+    from coster_sumo.sim.replay import LogReplayer as LogReplayerLike
     from coster_sumo.sim.session import SumoSession
 
 DEVIATION_M = 0.5  # [m] the target's centre this far from its logged centre: it deviates
@@ -371,3 +372,49 @@ def _lane_under(session: SumoSession, tr: Tracks, a: int, k: int, length: float,
     except Exception:  # no lane for its class nearby
         return None
     return (str(edge), float(pos), int(lane)) if math.hypot(lx - fx, ly - fy) <= LANE_MATCH_M else None
+
+
+def reactive_replayer(config: str | Path, scene: Scene, target: str, handover: dict[str, float] | None = None
+                      ) -> LogReplayerLike:
+    """The log replayer of a converted scene (``config``) whose agents react: each is handed to
+    SUMO's driver (:meth:`LogReplayer.before_step`'s handover) once the target's deviation from its
+    log reaches it (:func:`reacting_agents`). For ``coster-sumo run --traffic reactive``, where every
+    logged agent is in SUMO already and the target is handed to a planner at the adversary's start."""
+    from coster_sumo.sim.replay import LogReplayer
+
+    class ReactiveReplayer(LogReplayer):
+        def before_step(self, session: SumoSession, t_next: float) -> None:
+            _react(self, session, target)
+            super().before_step(session, t_next)
+
+    return ReactiveReplayer.for_config(config, scene, handover=handover)
+
+
+def _react(replayer: LogReplayerLike, session: SumoSession, target: str) -> None:
+    """Hand over the agents the deviations of the last step reach (the adversary is not a logged agent)."""
+    scene = replayer.scene
+    tr = scene.tracks
+    k = replayer.step_at(session.time)
+    t_index = tr.index_of(target)
+    sid = replayer.active.get(t_index)
+    if k is None or sid is None or sid in session.hidden:
+        return
+    ids = [replayer.active[a] for a in sorted(replayer.active) if replayer.active[a] not in session.hidden]
+    st = session.vehicle_states(ids)
+    names = st.id_list()
+    deviating: list[Pose] = []
+    for a in sorted(replayer.released):
+        if replayer.active.get(a) in names:
+            i = names.index(replayer.active[a])
+            p = Pose(float(st.x[i]), float(st.y[i]), float(st.yaw[i]), float(st.speed[i]), float(st.length[i]),
+                     float(st.width[i]))
+            if a == t_index or deviates(p, scene, a, k) or not tr.valid[a, k]:
+                deviating.insert(0, p) if a == t_index else deviating.append(p)
+    if not deviating:
+        return
+    cand = np.array([a for a in sorted(replayer.active) if a not in replayer.handover and a != t_index
+                     and replayer.active[a] not in session.hidden and tr.valid[a, k]
+                     and int(tr.object_type[a]) != int(ObjectType.PEDESTRIAN)], np.int64)
+    hit = reacting_agents(scene, k, deviating, cand, sizes=(replayer.lengths, replayer.widths))
+    for a in cand[hit].tolist():
+        replayer.handover[a] = float(session.time)
