@@ -61,11 +61,8 @@ LEADER_BRAKE_AFTER_S = ADVERSITY_ONSET_S  # [s] the leader drives at the target'
 LEADER_DECEL = 7.0  # [m/s^2]
 CUT_IN_AHEAD_M = 8.0  # [m] centre-to-centre, ahead of the target, in the next lane
 CUT_IN_LATERAL_M = 3.5  # [m] the next lane
-CUT_IN_AFTER_S = ADVERSITY_ONSET_S  # [s] it starts moving over after this long (as far ahead at that moment as
-# one that starts 8 m ahead at 0.9 of the target's speed and moves over after 1 s)
-CUT_IN_DRIFT_S = 1.0
+CUT_IN_AFTER_S = ADVERSITY_ONSET_S  # [s] it moves over after this long, as far ahead then as if it had after 1 s
 CUT_IN_DURATION_S = 2.5  # [s] to reach the target's path
-
 LEAD_S = 3.0  # [s] an episode of a variant starts this long before its adversary appears
 HORIZON_S = 20.0  # [s] an episode of a nominal scene lasts at most this long from the target's departure
 RED_RUNNER_SPEED = 12.0  # [m/s] the red-light runner's constant speed through the junction
@@ -73,10 +70,7 @@ RED_RUNNER_MIN_ANGLE = math.radians(30.0)  # a crossing movement, not one beside
 RED_RUNNER_LEAD_S = ADVERSITY_ONSET_S  # [s] the target reaches the conflict point at least this long after the start
 RED_RUNNER_TAIL_S = AVOIDANCE_TAIL_S  # [s] and this long before the episode ends (its route ends 3 s before)
 TTC_HORIZON_S = 5.0  # [s] criticality's time-to-collision looks this far ahead
-# [s] a variant's episode runs on this long after t_col: its route goes on AVOIDANCE_TAIL_S past t_col along
-# the target's nominal path (the environment's route ends ROUTE_SLACK_S = 3 s before the episode), so a
-# target that yielded can still complete it
-POST_COLLISION_S = AVOIDANCE_TAIL_S + 3.0
+POST_COLLISION_S = AVOIDANCE_TAIL_S + 3.0  # [s] after t_col: the route goes on 5 s past it (it ends 3 s early)
 
 
 @dataclass
@@ -399,7 +393,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
     # cut-in: the next lane (left) a little ahead at the target's speed, moving onto its path
     f = np.clip((dt - CUT_IN_AFTER_S) / CUT_IN_DURATION_S, 0.0, 1.0)
     lateral = CUT_IN_LATERAL_M * (1.0 - (3 * f**2 - 2 * f**3))  # smooth step
-    s_cut = CUT_IN_AHEAD_M + 0.1 * speed0 * (CUT_IN_AFTER_S - CUT_IN_DRIFT_S) + 0.9 * speed0 * dt
+    s_cut = CUT_IN_AHEAD_M + 0.1 * speed0 * (CUT_IN_AFTER_S - 1.0) + 0.9 * speed0 * dt
     for name, s_along, d_off, speed in (("leader-braking", s_lead, np.zeros_like(dt), v_lead),
                                         ("cut-in", s_cut, lateral, np.full_like(dt, 0.9 * speed0))):
         xs, ys, hs = np.zeros(len(times)), np.zeros(len(times)), np.zeros(len(times))

@@ -192,22 +192,12 @@ class ScenarioEnv(gymnasium.Env, Driver):
 
         self.entry = entry
         self.target_id = entry.target
-        scene = self._scenes.get(entry.id)
-        if scene is None:
-            scene = self.set.scene(entry)
-            if len(self._scenes) < CACHED_SCENARIOS:
-                self._scenes[entry.id] = scene
-        self.scene = scene
+        self.scene = scene = self._scene_of(entry)
         tr = scene.tracks
         ti = tr.index_of(entry.target)
         ts = scene.timestamps
-        t_first = entry.t_start
-        if self.random_start and entry.kind == "nominal" and entry.t_end - RANDOM_START_TAIL_S > entry.t_start:
-            t_first = float(self.np_random.uniform(entry.t_start, entry.t_end - RANDOM_START_TAIL_S))
-        k0 = int(np.argmin(np.abs(ts - t_first)))
         valid = tr.valid[ti]
-        if not valid[k0]:
-            k0 = int(np.flatnonzero(valid)[0])
+        k0 = self._first_step(entry, ts, valid)
         self.length = float(np.median(tr.length[ti][valid]))
         self.width = float(np.median(tr.width[ti][valid]))
         # a variant's route goes on past the planned contact along the target's nominal path as far as its
@@ -274,6 +264,24 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._drivable_now = drivable
         self._added = False
         self._advance()  # the first step shows the scenario's first state
+
+    def _scene_of(self, entry: ScenarioEntry) -> Scene:
+        """The replay scene of ``entry`` (kept for CACHED_SCENARIOS scenarios)."""
+        scene = self._scenes.get(entry.id)
+        if scene is None:
+            scene = self.set.scene(entry)
+            if len(self._scenes) < CACHED_SCENARIOS:
+                self._scenes[entry.id] = scene
+        return scene
+
+    def _first_step(self, entry: ScenarioEntry, ts: np.ndarray, valid: np.ndarray) -> int:
+        """The scene's step the episode starts at: the scenario's start, or with ``random_start`` a
+        nominal scenario's drawn time; the target's first valid step if it is not there then."""
+        t_first = entry.t_start
+        if self.random_start and entry.kind == "nominal" and entry.t_end - RANDOM_START_TAIL_S > entry.t_start:
+            t_first = float(self.np_random.uniform(entry.t_start, entry.t_end - RANDOM_START_TAIL_S))
+        k0 = int(np.argmin(np.abs(ts - t_first)))
+        return k0 if valid[k0] else int(np.flatnonzero(valid)[0])
 
     def _advance(self) -> None:
         """One SUMO step: replay the others, place the target, step, check events."""

@@ -374,6 +374,17 @@ def _lane_under(session: SumoSession, tr: Tracks, a: int, k: int, length: float,
     return (str(edge), float(pos), int(lane)) if math.hypot(lx - fx, ly - fy) <= LANE_MATCH_M else None
 
 
+def replayer_for(config: str | Path, scene: Scene, target: str, handover: dict[str, float] | None = None,
+                 traffic: str = "log") -> LogReplayerLike:
+    """The log replayer of a converted scene (``config``) for ``traffic`` ``log`` or ``reactive``
+    (:func:`reactive_replayer`)."""
+    from coster_sumo.sim.replay import LogReplayer
+
+    if traffic == "reactive":
+        return reactive_replayer(config, scene, target, handover)
+    return LogReplayer.for_config(config, scene, handover=handover)
+
+
 def reactive_replayer(config: str | Path, scene: Scene, target: str, handover: dict[str, float] | None = None
                       ) -> LogReplayerLike:
     """The log replayer of a converted scene (``config``) whose agents react: each is handed to
