@@ -38,11 +38,12 @@ ESCAPE_FILE = "escape.csv"
 def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
                 drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                 traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
-                timings: dict[str, float] | None = None) -> list[Avoidability]:
+                timings: dict[str, float] | None = None, traffic: str = "log") -> list[Avoidability]:
     """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
     spec, or its source resolved already).
 
-    ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays).
+    ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays);
+    ``traffic``: a converted scene's agents in the proof, ``log`` or ``reactive``.
     """
     reaction_times = tuple(sorted({0.5, 1.0, 1.5, float(reaction_time_s)}))
     t0 = time.perf_counter()
@@ -50,7 +51,7 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
               for plan in plans]
     t1 = time.perf_counter()
     prove_labels(scenario, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
-                 horizon_s=HORIZON_AFTER_TCOL_S)
+                 horizon_s=HORIZON_AFTER_TCOL_S, traffic=traffic)
     if timings is not None:
         timings["avoidability_s"] = timings.get("avoidability_s", 0.0) + t1 - t0
         timings["proof_s"] = timings.get("proof_s", 0.0) + time.perf_counter() - t1

@@ -222,3 +222,29 @@ def test_run_with_reactive_traffic_on_a_converted_womd_scene(tmp_path):
                            if c.startswith(f"{summary['target']} vs")]
     assert others["log"], others  # the logged followers ran into the braking target
     assert not others["reactive"], others
+
+
+@pytest.mark.slow
+@pytest.mark.sumo
+@pytest.mark.realdata
+def test_scenarios_build_proves_the_labels_in_reactive_traffic(tmp_path):
+    """`scenarios build --traffic reactive` on a real WOMD scene: every variant gets a label whose
+    escapes were replayed (one pass each, the logged agents reacting), and the manifest says so."""
+    from coster_sumo.converters.read import read_scenes
+    from coster_sumo.converters.to_sumo import convert_scene
+
+    from coster_sumo.gym.build import BuildOptions, build_set
+    from coster_sumo.gym.scenario_set import ScenarioSet
+    from tests.conftest import NO_WOMD_REASON, WOMD_PKL
+
+    pkl = [p for p in WOMD_PKL if "2a1e44d405a6833f" in p.name]
+    if not pkl:
+        pytest.skip(NO_WOMD_REASON)
+    folder = convert_scene(next(iter(read_scenes(pkl[0]))), tmp_path / "converted").folder
+    out = tmp_path / "set"
+    build_set(BuildOptions(sources=[str(folder)], out=out, method="coster-one-per-snapshot", snapshots=1,
+                           samples=200, traffic="reactive"))
+    s = ScenarioSet.load(out)
+    assert s.meta["options"]["traffic"] == "reactive"
+    variants = s.select(kind="variant")
+    assert variants and all(isinstance(e.avoidable, bool) for e in variants)

@@ -375,18 +375,18 @@ def _lane_under(session: SumoSession, tr: Tracks, a: int, k: int, length: float,
 
 
 def replayer_for(config: str | Path, scene: Scene, target: str, handover: dict[str, float] | None = None,
-                 traffic: str = "log") -> LogReplayerLike:
+                 traffic: str = "log", exclude: set[str] | frozenset[str] = frozenset()) -> LogReplayerLike:
     """The log replayer of a converted scene (``config``) for ``traffic`` ``log`` or ``reactive``
-    (:func:`reactive_replayer`)."""
+    (:func:`reactive_replayer`); ``exclude``: agents not replayed."""
     from coster_sumo.sim.replay import LogReplayer
 
     if traffic == "reactive":
-        return reactive_replayer(config, scene, target, handover)
-    return LogReplayer.for_config(config, scene, handover=handover)
+        return reactive_replayer(config, scene, target, handover, exclude)
+    return LogReplayer.for_config(config, scene, exclude=exclude, handover=handover)
 
 
-def reactive_replayer(config: str | Path, scene: Scene, target: str, handover: dict[str, float] | None = None
-                      ) -> LogReplayerLike:
+def reactive_replayer(config: str | Path, scene: Scene, target: str, handover: dict[str, float] | None = None,
+                      exclude: set[str] | frozenset[str] = frozenset()) -> LogReplayerLike:
     """The log replayer of a converted scene (``config``) whose agents react: each is handed to
     SUMO's driver (:meth:`LogReplayer.before_step`'s handover) once the target's deviation from its
     log reaches it (:func:`reacting_agents`). For ``coster-sumo run --traffic reactive``, where every
@@ -398,7 +398,7 @@ def reactive_replayer(config: str | Path, scene: Scene, target: str, handover: d
             _react(self, session, target)
             super().before_step(session, t_next)
 
-    return ReactiveReplayer.for_config(config, scene, handover=handover)
+    return ReactiveReplayer.for_config(config, scene, exclude=exclude, handover=handover)
 
 
 def _react(replayer: LogReplayerLike, session: SumoSession, target: str) -> None:
