@@ -1,15 +1,18 @@
 """Speed and leaks of ``coster_sumo/Scenario-v0``, against highway-env's ``highway-fast-v0`` in the same run.
 
     pip install highway-env            # only for this bench (not a dependency of coster-sumo)
-    python bench/bench_gym.py --set SET [--womd-set WSET] [--episodes 1000] [--seconds 20] [--traffic log,sumo]
+    python bench/bench_gym.py --set SET [--womd-set WSET] [--episodes 1000] [--seconds 20] [--traffic log,reactive]
 
 1. Speed, per process: for every network of ``SET`` (and of ``WSET``, a set built from converted
    WOMD scenes) episodes run back to back with a fixed action (0, 0) for ``--seconds`` of wall
    time, once per traffic mode (``log``: the other vehicles read from the recorded pass, the
-   default; ``sumo``: every vehicle in SUMO, moved by moveToXY); it prints simulated seconds per
-   wall second (resets included) and environment steps per second. Then ``highway-fast-v0`` (its
-   default configuration: 1 policy step = 1 simulated second, 15 simulation steps per policy step)
-   runs the same way with its idle action, and the ratio is printed. Both run in this one process,
+   default; ``sumo``: every vehicle in SUMO, moved by moveToXY; ``reactive``: each follows its log
+   until the target's deviation reaches it, then SUMO drives it: with the action (0, 0) the target
+   keeps its first speed, so it deviates from its nominal motion wherever that changes speed); it
+   prints simulated seconds per wall second (resets included) and environment steps per second.
+   Then ``highway-fast-v0`` (its default configuration: 1 policy step = 1 simulated second, 15
+   simulation steps per policy step) runs the same way with its idle action, and the ratio is
+   printed. Both run in this one process,
    in ``--rounds`` interleaved slices (highway-fast-v0 in each round); the medians are printed.
 2. Leaks: ``--episodes`` episodes (resets and steps) of Scenario-v0 in turn over every scenario of
    ``SET``; resident memory (VmRSS), open file descriptors and child processes are read after the
@@ -100,23 +103,27 @@ def main() -> None:
     # changes during the bench (other processes on the machine)
     slice_s = args.seconds / args.rounds
     rates: dict[str, list[float]] = {}
+    step_rates: dict[str, list[float]] = {}
     ratios: dict[str, list[float]] = {}
     for _ in range(args.rounds):
-        hw_rate = run_for(hw, slice_s, idle, hw_per_step)[0] if hw is not None else float("nan")
+        hw_rate, hw_steps, _ = run_for(hw, slice_s, idle, hw_per_step) if hw is not None else (float("nan"),) * 3
         rates.setdefault("highway-fast-v0", []).append(hw_rate)
+        step_rates.setdefault("highway-fast-v0", []).append(hw_steps)
         for root, net, traffic in configs:
             env = ScenarioEnv(root, networks=(net,), traffic=traffic)
-            rate = run_for(env, slice_s, np.zeros(2, np.float32), env.substeps * STEP_S)[0]
+            rate, steps, _ = run_for(env, slice_s, np.zeros(2, np.float32), env.substeps * STEP_S)
             env.close()
             key = f"Scenario-v0 {net} traffic={traffic}"
             rates.setdefault(key, []).append(rate)
+            step_rates.setdefault(key, []).append(steps)
             ratios.setdefault(key, []).append(rate / hw_rate if hw_rate > 0 else float("nan"))
     if hw is not None:
         hw.close()
-    print(f"{'environment':52s} {'sim s / wall s (median of rounds)':>34s} {'/ highway-fast-v0':>18s}")
+    print(f"{'environment':52s} {'sim s / wall s (median of rounds)':>34s} {'env steps / s':>14s} "
+          f"{'/ highway-fast-v0':>18s}")
     for key, vals in rates.items():
         ratio = f"{float(np.median(ratios[key])):.2f}" if key in ratios else ""
-        print(f"{key:52s} {float(np.median(vals)):34.1f} {ratio:>18s}")
+        print(f"{key:52s} {float(np.median(vals)):34.1f} {float(np.median(step_rates[key])):14.0f} {ratio:>18s}")
     for traffic in args.traffic.split(","):
         mine = [float(np.median(v)) for k, v in ratios.items() if k.endswith(f"traffic={traffic}")]
         if mine:

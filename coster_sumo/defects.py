@@ -39,20 +39,21 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
                 drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
                 traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
                 timings: dict[str, float] | None = None, reactive_others: bool | None = None,
-                done: Callable[[int], object] | None = None) -> list[Avoidability]:
+                traffic: str = "log", done: Callable[[int], object] | None = None) -> list[Avoidability]:
     """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
     spec, or its source resolved already).
 
+    ``traffic``: a converted scene's agents in the proof, ``log`` or ``reactive``.
     ``reactive_others``: whether the other vehicles are SUMO's drivers in the proof, so that plans
     blocked only by them are tried there (:func:`coster_sumo.avoid.assess`); None: so on a SUMO
-    configuration, not on a converted WOMD scene, whose log moves every other agent (a converted
-    scene whose logged agents SUMO drives passes True).
+    configuration, and on a converted WOMD scene only with ``traffic="reactive"`` (with ``log`` its
+    log moves every other agent).
     ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays);
     ``done(1)`` is called after each plan's search and once more after the replays.
     """
     reaction_times = tuple(sorted({0.5, 1.0, 1.5, float(reaction_time_s)}))
     source = ScenarioSource.of(scenario)
-    reactive = not source.converted if reactive_others is None else reactive_others
+    reactive = (not source.converted or traffic == "reactive") if reactive_others is None else reactive_others
     t0 = time.perf_counter()
     labels = []
     for plan in plans:
@@ -62,7 +63,7 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
             done(1)
     t1 = time.perf_counter()
     prove_labels(source, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
-                 horizon_s=HORIZON_AFTER_TCOL_S)
+                 horizon_s=HORIZON_AFTER_TCOL_S, traffic=traffic)
     if done is not None:
         done(1)
     if timings is not None:

@@ -73,6 +73,7 @@ class RunOptions:
     timeout: float | None = None  # [s] wall clock per variant's injection pass (None: no limit)
     copy_outside: bool = False  # exports also copy the files the configuration names outside its folder
     reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
+    traffic: str = "log"  # log | reactive: a converted scene's agents (coster_sumo.sim.reactive)
     avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
     started: float | None = None  # time.perf_counter() when the command began (None: when run() begins)
     source: ScenarioSource = field(init=False, repr=False, compare=False)  # ``spec`` resolved once
@@ -90,9 +91,11 @@ class RunOptions:
         object.__setattr__(self, "source", ScenarioSource.resolve(self.spec))
         if self.planner is not None:
             check_planner(self.planner)
+        if self.traffic not in ("log", "reactive"):
+            raise InputError(f"traffic must be log or reactive, not {self.traffic!r}")
         object.__setattr__(self, "injection", InjectionSettings(
             self.planner or default_planner(self.source.converted), traci=self.traci, workers=self.workers,
-            timeout=self.timeout))
+            timeout=self.timeout, traffic=self.traffic))
         if len(self.targets) > 1 and None in self.targets:
             raise InputError("with several targets every one needs an id (--target ID, repeated)")
 

@@ -130,9 +130,13 @@ class InjectionSettings:
         traci: a TraCI socket instead of libsumo.
         workers: variants run at a time from held copies of the nominal pass.
         timeout: [s] wall clock per variant's pass (None: no limit).
+        traffic: ``log`` (a converted scene's agents replay their log) or ``reactive`` (each follows its
+            log until the target's deviation reaches it, then SUMO drives it: :mod:`coster_sumo.sim.reactive`);
+            a SUMO configuration's own traffic runs in SUMO either way.
     """
 
     planner: str
     traci: bool = False
     workers: int = 1
     timeout: float | None = None
+    traffic: str = "log"

@@ -168,7 +168,8 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
         driver = escape_replay(esc, length) if esc else None
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
         res = inject_variant(spec, scene, target, plan, "replay" if payload["planner"] == ESCAPE_PLANNER
-                             else payload["planner"], drivable=drivable, workdir=Path(wd), driver=driver)
+                             else payload["planner"], drivable=drivable, workdir=Path(wd), driver=driver,
+                             traffic=payload.get("traffic", "log"))
     rec = variant_outcome(i, plan, res, target_id, t_col)
     in_horizon = any(e.kind == "collision" and target_id in e.vehicles and e.time <= t_col + HORIZON_AFTER_TCOL_S + 1e-6
                      for e in res.events)
@@ -205,6 +206,7 @@ class RegressOptions(BatchOptions):
     start_method: str | None = None
     reaction_time: float = 1.0  # [s] the avoidability labels' reaction time (coster_sumo.defects)
     avoidable: str = "any"  # any | only
+    traffic: str = "log"  # log | reactive: converted scenes' agents (coster_sumo.sim.reactive)
 
 
 def check_planners(planners: Sequence[str]) -> None:
@@ -241,8 +243,9 @@ def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
     return dataclasses.replace(spec, end=begin + duration)
 
 
-def run_key(scene: str, variant: int, planner: str) -> str:
-    return f"{scene}__v{variant}__{slug(planner)}"
+def run_key(scene: str, variant: int, planner: str, traffic: str = "log") -> str:
+    """The run's key in the result store (reactive traffic's runs apart from the log's)."""
+    return f"{scene}__v{variant}__{slug(planner)}" + ("" if traffic == "log" else f"__{traffic}")
 
 
 def regress(opts: RegressOptions) -> RegressionSummary:
@@ -251,6 +254,8 @@ def regress(opts: RegressOptions) -> RegressionSummary:
     check_planners(opts.planners)
     check_avoidable(opts.avoidable)
     check_reaction_time(opts.reaction_time)
+    if opts.traffic not in ("log", "reactive"):
+        raise InputError(f"traffic must be log or reactive, not {opts.traffic!r}")
     generation = GenerationConfig(init=opts.init, collision_time=opts.collision_time, rollout=opts.rollout,
                                   samples=opts.samples, variants=opts.variants,
                                   models_dir=opts.models_dir.resolve() if opts.models_dir else None)
@@ -287,9 +292,10 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         tasks = []
         for i in range(len(doc.variants)):
             for p in opts.planners:
-                rk = run_key(key, i, p)
+                rk = run_key(key, i, p, opts.traffic)
                 if rk not in done:
                     tasks.append(Task(rk, run_task, {"run_key": rk, "scene_key": key, "variant": i, "planner": p,
+                                                     "traffic": opts.traffic,
                                                      "plans_dir": str(plans_dir), "config": str(spec.config),
                                                      "seed": spec.seed, CONFIG_DIR: config_dir(spec)}, kind="run",
                                       folders=task_folders(spec, plans_dir=(f"{key}.json", doc.scene_file))))

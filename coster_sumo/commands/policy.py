@@ -22,7 +22,9 @@ def _train(args: argparse.Namespace) -> int:
     from coster_sumo.gym.train import TrainOptions, train
 
     progress = train(TrainOptions(scenarios=args.scenarios, out=args.out, timesteps=args.timesteps, seed=args.seed,
-                                  envs=args.envs, checkpoint_steps=args.checkpoint_steps, quiet=args.quiet))
+                                  envs=args.envs, checkpoint_steps=args.checkpoint_steps, quiet=args.quiet,
+                                  traffic=args.traffic, car_following=args.car_following,
+                                  random_start=args.random_start, observation=args.observation))
     if not args.quiet:
         print(f"{progress.steps} steps in {progress.wall_s:.0f} s; outcomes {progress.outcomes}; "
               f"wrote {args.out}")
@@ -36,8 +38,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     policy = None if args.policy == "none" else args.policy
     result, rows = evaluate(policy, args.scenarios, split=None if args.split == "all" else args.split,
-                            max_episodes=args.max_episodes, hard=args.hard)
-    out = {"policy": str(args.policy), "scenarios": str(args.scenarios), "split": args.split, **result.to_json(),
+                            max_episodes=args.max_episodes, hard=args.hard, traffic=args.traffic,
+                            car_following=args.car_following, observation=args.observation)
+    out = {"policy": str(args.policy), "scenarios": str(args.scenarios), "split": args.split,
+           "traffic": args.traffic, "car_following": args.car_following, **result.to_json(),
            "episodes_detail": [r.to_json() for r in rows]}
     if args.out:
         write_json(args.out, out)
@@ -56,6 +60,9 @@ def register(cli: Any) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed of the learner and the scenario draws (default 0)")
     t.add_argument("--envs", type=int, default=1, help="environments, one process each when > 1 (default 1)")
     t.add_argument("--checkpoint-steps", type=int, default=2048, help="save every N steps (default 2048)")
+    t.add_argument("--random-start", action="store_true",
+                   help="nominal episodes start at a seeded random time within the clip (not at its start)")
+    add_traffic_options(t)
     t.set_defaults(func=_train)
     e = group.add_parser("eval", help="drive every scenario of a split once: RCR, CR, ORR")
     e.add_argument("policy", metavar="POLICY",
@@ -68,4 +75,18 @@ def register(cli: Any) -> None:
                         "of the nominal scenes by criticality")
     e.add_argument("-o", "--out", "--json", dest="out", type=Path, metavar="JSON",
                    help="also write the result (and every episode) to this JSON file")
+    add_traffic_options(e)
     e.set_defaults(func=_eval)
+
+
+def add_traffic_options(parser: argparse.ArgumentParser) -> None:
+    """``--traffic log|reactive`` and ``--car-following Krauss|IDM`` (coster_sumo.sim.reactive)."""
+    parser.add_argument("--traffic", choices=("log", "reactive"), default="log",
+                        help="the other vehicles: log (replayed, nothing reacts; default) or reactive (each follows "
+                             "its log until the target's deviation reaches it, then SUMO drives it)")
+    parser.add_argument("--car-following", choices=("Krauss", "IDM"), default="Krauss",
+                        help="the reacting vehicles' car-following model (default Krauss)")
+    parser.add_argument("--observation", choices=("default", "avoidance", "lidar"), default="default",
+                        help="default (90 numbers), avoidance (and the vehicles ahead/behind in the route corridor: "
+                             "gap, closing speed, TTC; time left) or lidar (72 rays to 50 m instead of the vehicle "
+                             "list); eval must use the policy's")

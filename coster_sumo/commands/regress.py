@@ -52,6 +52,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                    help="CVAE trajectories oversampled (default %(default)s)")
     add_method_arguments(p)
     add_avoidability_arguments(p)
+    p.add_argument("--traffic", choices=("log", "reactive"), default="log",
+                   help="a converted scene's agents: log (replayed; default) or reactive (each follows its log until "
+                        "the target's deviation reaches it, then SUMO drives it; one -o folder per mode)")
     p.add_argument("--retry-failed", action="store_true", help="run again what failed before (default: keep)")
     p.add_argument("--no-report", action="store_true", help="summary.json only (no Markdown/HTML/plots)")
     p.add_argument("-o", "--out", type=Path, default=Path("out/regress"), help="output folder (default out/regress)")
@@ -77,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
                           init=args.init, rollout=args.rollout, collision_time=args.collision_time,
                           samples=args.samples, models_dir=args.models, retry_failed=args.retry_failed,
                           report=not args.no_report, quiet=args.quiet, ray_address=args.ray_address,
-                          reaction_time=args.reaction_time, avoidable=args.avoidable)
+                          reaction_time=args.reaction_time, avoidable=args.avoidable, traffic=args.traffic)
     summary = regress(opts)
     # --quiet drops the progress bars and the file list; the tables and every failure line stay
     from coster_sumo.batch.report import defect_table, regression_table

@@ -42,6 +42,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--planner", help="replay | sumo | sumo:<carFollowModel> | module:Class (a module on the "
                                      "import path or in the working directory) | path/to/file.py:Class "
                                      "(default: replay for converted scenes, sumo otherwise)")
+    p.add_argument("--traffic", choices=("log", "reactive"), default="log",
+                   help="a converted scene's agents: log (replayed; default) or reactive (each follows its log until "
+                        "the target's deviation reaches it, then SUMO drives it); a SUMO configuration's traffic "
+                        "runs in SUMO either way")
     p.add_argument("--samples", type=int, default=1000, help="trajectories oversampled (default 1000)")
     p.add_argument("--variants", type=int, default=5, help="representatives kept (K-means K, default 5)")
     add_method_arguments(p)
@@ -151,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
                       snapshots=getattr(args, "snapshots", 1), from_begin=getattr(args, "from_begin", False),
                       more_targets=tuple(str(t) for t in targets[1:]), target_choice=tuple(chosen),
                       overwrite=getattr(args, "overwrite", False), timeout=_positive_timeout(args),
+                      traffic=getattr(args, "traffic", "log"),
                       copy_outside=getattr(args, "copy_outside", False),
                       reaction_time=getattr(args, "reaction_time", 1.0), avoidable=getattr(args, "avoidable", "any"),
                       started=time.perf_counter() - progress.process_age_s())

@@ -19,7 +19,7 @@ def _build(args: argparse.Namespace) -> int:
     opts = BuildOptions(sources=args.sources, out=args.out, method=args.method, seed=args.seed, seeds=args.seeds,
                         target=args.target, heldout=parse_networks(args.heldout or []), snapshots=args.snapshots,
                         variants=args.variants, samples=args.samples, models_dir=args.models, quiet=args.quiet,
-                        progress=None if args.quiet else print)
+                        progress=None if args.quiet else print, traffic=args.traffic)
     summary = build_set(opts)
     if not args.quiet:
         print(f"{summary['scenarios']} scenarios ({summary['variants']} variants) on "
@@ -45,6 +45,9 @@ def register(cli: Any) -> None:
                         "snapshot-cv, or nominal (no adversaries); adversarial sets keep the nominal scenes too")
     b.add_argument("--heldout", action="append", metavar="NET[,NET]",
                    help="networks of the test split (net file stem, or a converted scene's folder name)")
+    b.add_argument("--traffic", choices=("log", "reactive"), default="log",
+                   help="a converted source's agents in the avoidability labels' escape proof: log (replayed; "
+                        "default) or reactive (each follows its log until the target's deviation reaches it)")
     b.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     b.add_argument("--seeds", type=int, default=1, help="scenes per configuration (default 1)")
     b.add_argument("--target", help="target vehicle id (default: the SDC of a converted scene, else 'ego')")

@@ -53,23 +53,21 @@ METHODS: dict[str, Method] = {
     "hard": Method(None, None),
 }
 
-HARD_START_S = 2.0  # [s] a hand-specified adversity starts this long after the target departs
+HARD_START_S = 2.0  # [s] the episode of a hand-specified adversity starts this long after the target departs
+ADVERSITY_ONSET_S = 3.0  # [s] the adversity (the leader's braking, the cut-in's move) starts this long into it
+AVOIDANCE_TAIL_S = 5.0  # [s] an episode runs at least this long past the adversity's onset or t_col
 LEADER_GAP_M = 20.0  # [m] bumper-to-bumper gap of the braking leader at the start
-LEADER_BRAKE_AFTER_S = 2.0  # [s] the leader drives at the target's speed this long, then brakes
 LEADER_DECEL = 7.0  # [m/s^2]
 CUT_IN_AHEAD_M = 8.0  # [m] centre-to-centre, ahead of the target, in the next lane
 CUT_IN_LATERAL_M = 3.5  # [m] the next lane
-CUT_IN_AFTER_S = 1.0  # [s] it starts moving over after this long
+CUT_IN_AFTER_S = ADVERSITY_ONSET_S  # [s] it moves over after this long, as far ahead then as if it had after 1 s
 CUT_IN_DURATION_S = 2.5  # [s] to reach the target's path
-
 LEAD_S = 3.0  # [s] an episode of a variant starts this long before its adversary appears
 HORIZON_S = 20.0  # [s] an episode of a nominal scene lasts at most this long from the target's departure
 RED_RUNNER_SPEED = 12.0  # [m/s] the red-light runner's constant speed through the junction
 RED_RUNNER_MIN_ANGLE = math.radians(30.0)  # a crossing movement, not one beside the target's
-RED_RUNNER_LEAD_S = 3.0  # [s] the target reaches the conflict point at least this long after the start
-RED_RUNNER_TAIL_S = 4.0  # [s] and this long before the episode ends (its route ends 3 s before)
 TTC_HORIZON_S = 5.0  # [s] criticality's time-to-collision looks this far ahead
-POST_COLLISION_S = 3.0  # [s] a variant's episode runs on this long after t_col (the agent may have slowed)
+POST_COLLISION_S = AVOIDANCE_TAIL_S + 3.0  # [s] after t_col: the route goes on 5 s past it (it ends 3 s early)
 
 
 @dataclass
@@ -90,13 +88,14 @@ class BuildOptions:
     lead_s: float = LEAD_S
     horizon_s: float = HORIZON_S
     quiet: bool = False
+    traffic: str = "log"  # a converted source's agents in the labels' escape proof (coster_sumo.sim.reactive)
     progress: Callable[[str], None] | None = field(default=None, repr=False)
 
     def to_json(self) -> dict[str, Any]:
         return {"sources": list(self.sources), "method": self.method, "seed": self.seed, "seeds": self.seeds,
                 "target": self.target, "heldout": list(self.heldout), "snapshots": self.snapshots,
                 "variants": self.variants, "samples": self.samples, "lead_s": self.lead_s,
-                "horizon_s": self.horizon_s,
+                "horizon_s": self.horizon_s, "traffic": self.traffic,
                 "models_dir": str(self.models_dir) if self.models_dir is not None else None}
 
 
@@ -241,7 +240,8 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
     for k, p in enumerate(planned):
         plans = p.plans[:1] if method.one_per_snapshot else p.plans
         # whether the target could have avoided each contact (docs/method.md), for info["avoidable"]
-        labels = label_plans(src.spec, src.scene, src.target, plans, drivable=drivable) if plans else []
+        labels = (label_plans(src.spec, src.scene, src.target, plans, drivable=drivable, traffic=opts.traffic)
+                  if plans else [])
         for j, (plan, lab) in enumerate(zip(plans, labels, strict=True)):
             t_start = max(src.t_dep, plan.t_start - opts.lead_s)
             t_stop = min(src.t_last, plan.t_col + POST_COLLISION_S)
@@ -265,8 +265,9 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
     from coster_sumo.scenario import nominal_scene
     from coster_sumo.targets import choose_target
 
-    if opts.method not in METHODS:
-        raise InputError(f"--method must be one of {', '.join(METHODS)}, not {opts.method!r}")
+    if opts.method not in METHODS or opts.traffic not in ("log", "reactive"):
+        raise InputError(f"--method must be one of {', '.join(METHODS)} and --traffic log or reactive, not "
+                         f"{opts.method!r}, {opts.traffic!r}")
     method = METHODS[opts.method]
     gen = None
     if method.init is not None and method.rollout is not None:
@@ -371,7 +372,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
     ts = scene.timestamps
     v = tr.valid[target]
     t0 = t_dep + HARD_START_S
-    if t0 + 4.0 > t_last:
+    if t0 + ADVERSITY_ONSET_S + AVOIDANCE_TAIL_S > t_last:
         return []
     k0 = int(np.argmin(np.abs(ts - t0)))
     route = Route(np.stack([tr.x[target, v & (ts >= t0 - 1e-6)], tr.y[target, v & (ts >= t0 - 1e-6)]], -1),
@@ -384,7 +385,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
     dt = np.clip(times - t0, 0.0, None)
     entries = []
     # leader emergency braking: ahead on the target's path at its speed, then a hard stop
-    t_b = LEADER_BRAKE_AFTER_S
+    t_b = ADVERSITY_ONSET_S  # the leader drives at the target's speed this long, then brakes
     braking = np.clip(dt - t_b, 0.0, speed0 / LEADER_DECEL)  # [s] spent braking (until it stands)
     s_lead = speed0 * np.minimum(dt, t_b) + speed0 * braking - 0.5 * LEADER_DECEL * braking**2
     v_lead = np.where(dt <= t_b, speed0, np.maximum(speed0 - LEADER_DECEL * (dt - t_b), 0.0))
@@ -392,7 +393,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
     # cut-in: the next lane (left) a little ahead at the target's speed, moving onto its path
     f = np.clip((dt - CUT_IN_AFTER_S) / CUT_IN_DURATION_S, 0.0, 1.0)
     lateral = CUT_IN_LATERAL_M * (1.0 - (3 * f**2 - 2 * f**3))  # smooth step
-    s_cut = CUT_IN_AHEAD_M + 0.9 * speed0 * dt
+    s_cut = CUT_IN_AHEAD_M + 0.1 * speed0 * (CUT_IN_AFTER_S - 1.0) + 0.9 * speed0 * dt
     for name, s_along, d_off, speed in (("leader-braking", s_lead, np.zeros_like(dt), v_lead),
                                         ("cut-in", s_cut, lateral, np.full_like(dt, 0.9 * speed0))):
         xs, ys, hs = np.zeros(len(times)), np.zeros(len(times)), np.zeros(len(times))
@@ -424,7 +425,7 @@ def red_light_runner(scene: Scene, target: int, t0: float, t_stop: float
     ``scene.signals`` of the lane it runs, or None.
 
     The conflict: the first signal-controlled lane whose centreline crosses the target's logged path
-    (at more than 30 degrees) at a point the target reaches at least 3 s after ``t0`` and 4 s
+    (at more than 30 degrees) at a point the target reaches at least 3 s after ``t0`` and 5 s
     before ``t_stop``, while that lane's signal shows stop (red or red arrow). The runner drives along the
     lane (extended straight before and after it) at 12 m/s, timed so that its centre is at the
     crossing point when the target's is; before ``t0`` and after ``t_stop`` it is absent.
@@ -446,7 +447,7 @@ def red_light_runner(scene: Scene, target: int, t0: float, t_stop: float
             continue
         i, j, point = hit  # path segment i, lane segment j
         t_hit = float(path_t[i])
-        if not (t0 + RED_RUNNER_LEAD_S <= t_hit <= t_stop - RED_RUNNER_TAIL_S):
+        if not (t0 + ADVERSITY_ONSET_S <= t_hit <= t_stop - AVOIDANCE_TAIL_S):  # 3 s in, 5 s before the end
             continue
         k_hit = int(np.argmin(np.abs(ts - t_hit)))
         if int(sig.state[k_hit, c]) not in red:

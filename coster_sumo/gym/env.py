@@ -63,7 +63,7 @@ from gymnasium import spaces
 from coster_sumo.drivable import DrivableArea
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
 from coster_sumo.scene import Scene
-from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, OBS_SIZE, STEP_S, Driver, Route
+from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, STEP_S, Driver, Route
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
 from coster_sumo.sim.states import concat_states
 
@@ -79,6 +79,8 @@ REPLAY_RADIUS_M = NEIGHBOUR_RADIUS_M + 30.0  # [s] the route ends where the targ
 # training set of a few hundred scenarios then loads each from disk once
 CACHED_SCENARIOS = 512
 
+TRAFFIC_MODES = ("log", "sumo", "reactive")
+RANDOM_START_TAIL_S = 8.0  # [s] a random start leaves at least this much of the scenario (a route of 5 s)
 REWARD_PER_M = 0.1
 COLLISION_PENALTY = -10.0
 OFF_ROAD_PENALTY = -5.0
@@ -102,7 +104,16 @@ class ScenarioEnv(gymnasium.Env, Driver):
         traffic: ``log`` (default: the other vehicles' states read from the recorded pass; SUMO
             holds the target and runs the signals) or ``sumo`` (every vehicle put into SUMO and
             moved there by moveToXY each step). Both give the same episodes (``tests/test_gym.py``);
-            ``log`` costs no moveToXY per vehicle.
+            ``log`` costs no moveToXY per vehicle. ``reactive``: each agent follows its log until
+            the target's deviation from its nominal motion reaches it, then SUMO drives it
+            (:mod:`coster_sumo.sim.reactive`; the adversary never reacts).
+        car_following: the reacting agents' car-following model, ``Krauss`` (SUMO's default) or ``IDM``.
+        random_start: a nominal scenario's episode starts at a time drawn (with the episode's seed)
+            uniformly between its start and :data:`RANDOM_START_TAIL_S` before its end, instead of at its
+            start (variants always start at theirs: the adversary's timing is the scenario).
+        observation: ``default`` (the 90 numbers above), ``avoidance`` (those and the vehicles ahead
+            and behind in the route corridor: gap, closing speed, time to collision; time left) or
+            ``lidar`` (the target's 18, the corridor's 9, 72 rays to 50 m): :mod:`coster_sumo.gym.observe`.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -110,7 +121,8 @@ class ScenarioEnv(gymnasium.Env, Driver):
     def __init__(self, scenarios: str | Path, split: str | None = None, kind: str | None = None,
                  networks: tuple[str, ...] | list[str] | None = None,
                  scenario_ids: tuple[str, ...] | list[str] | None = None, control_period_s: float = 0.2,
-                 order: str = "random", traffic: str = "log") -> None:
+                 order: str = "random", traffic: str = "log", car_following: str = "Krauss",
+                 random_start: bool = False, observation: str = "default") -> None:
         super().__init__()
         self.set = ScenarioSet.load(scenarios)
         if scenario_ids is not None:
@@ -122,21 +134,34 @@ class ScenarioEnv(gymnasium.Env, Driver):
             raise ValueError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
         if order not in ("random", "cycle"):
             raise ValueError(f"order must be 'random' or 'cycle', not {order!r}")
-        if traffic not in ("log", "sumo"):
-            raise ValueError(f"traffic must be 'log' or 'sumo', not {traffic!r}")
+        if traffic not in TRAFFIC_MODES:
+            raise ValueError(f"traffic must be one of {TRAFFIC_MODES}, not {traffic!r}")
+        from coster_sumo.sim.reactive import car_following_types
+
         self.traffic = traffic
+        self.car_following = car_following
+        self.random_start = random_start
+        self._types_file, _ = car_following_types(car_following)  # checks the name in every mode
+        self._reactive: Any = None  # ReactiveTraffic of the episode when traffic == "reactive"
         self.order = order
         self.substeps = max(1, int(round(control_period_s / STEP_S)))
-        self.observation_space = spaces.Box(-1.0, 1.0, (OBS_SIZE,), np.float32)
+        from coster_sumo.gym.observe import OBSERVATIONS
+
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {tuple(OBSERVATIONS)}, not {observation!r}")
+        self.observation = observation
+        self.observation_space = spaces.Box(-1.0, 1.0, (OBSERVATIONS[observation],), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._session: Any = None
         self._traffic: Any = None  # LogTraffic when traffic == "log"
         self._session_net: Path | None = None  # the network the session has loaded
         self._sumo_target: str | None = None  # the target's id in SUMO once added
         self._t_shift = 0.0  # [s] SUMO's clock minus the scenario's
-        # per scenario (CACHED_SCENARIOS at most): its scene, the agents too far to replay, the replayed
-        # part, LogTraffic
-        self._replays: dict[str, tuple[Scene, set[str], Scene, Any]] = {}
+        # per scenario (CACHED_SCENARIOS at most): its scene
+        self._scenes: dict[str, Scene] = {}
+        # per scenario and start step: the agents too far to replay, the replayed part, LogTraffic (not kept
+        # with random starts: a scenario has many)
+        self._replays: dict[tuple[str, int], tuple[set[str], Scene, Any]] = {}
         self._drivable: dict[Path, DrivableArea] = {}  # per network (a clip's variants share its network)
         self._next_index = 0
         self.entry: ScenarioEntry | None = None
@@ -159,7 +184,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
             entry = self.entries[int(self.np_random.integers(len(self.entries)))]
         self._start(entry)
         self.episodes += 1
-        return self._observe(), self._info()
+        return self._observation(), self._info()
 
     def _start(self, entry: ScenarioEntry) -> None:
         from coster_sumo.sim.replay import LogReplayer, LogTraffic, far_agents
@@ -167,21 +192,17 @@ class ScenarioEnv(gymnasium.Env, Driver):
 
         self.entry = entry
         self.target_id = entry.target
-        cached = self._replays.get(entry.id)  # what an episode of this scenario replays never changes
-        scene = cached[0] if cached is not None else self.set.scene(entry)
-        self.scene = scene
+        self.scene = scene = self._scene_of(entry)
         tr = scene.tracks
         ti = tr.index_of(entry.target)
         ts = scene.timestamps
-        k0 = int(np.argmin(np.abs(ts - entry.t_start)))
         valid = tr.valid[ti]
-        if not valid[k0]:
-            k0 = int(np.flatnonzero(valid)[0])
+        k0 = self._first_step(entry, ts, valid)
         self.length = float(np.median(tr.length[ti][valid]))
         self.width = float(np.median(tr.width[ti][valid]))
+        # a variant's route goes on past the planned contact along the target's nominal path as far as its
+        # episode allows (sets built before this ran 3 s past t_col: their routes end at the contact point)
         route_until = max(entry.t_end - ROUTE_SLACK_S, float(ts[k0]))
-        if entry.t_col is not None:
-            route_until = min(route_until, entry.t_col)  # a variant's route ends where the contact was planned
         keep = valid & (ts >= ts[k0] - 1e-6) & (ts <= route_until + 1e-6)
         self.route = Route(np.stack([tr.x[ti, keep], tr.y[ti, keep]], -1), float(tr.heading[ti, k0]))
         self.s = 0.0
@@ -198,8 +219,10 @@ class ScenarioEnv(gymnasium.Env, Driver):
         sess = self._session
         # SUMO loads a network once for the episodes on it when nothing in it depends on SUMO's clock:
         # the log drives every signal (a converted scene) and SUMO holds the target only
-        if (sess is not None and self.traffic == "log" and self._session_net == net
+        if (sess is not None and self.traffic in ("log", "reactive") and self._session_net == net
                 and set(sess.tls_ids()) <= set(entry.tls)):
+            if self._reactive is not None:
+                self._reactive.remove_all(sess)
             if self._sumo_target is not None:
                 sess.remove_vehicle(self._sumo_target)
                 sess.step()  # gone before the next target comes (it may have the same id)
@@ -207,20 +230,28 @@ class ScenarioEnv(gymnasium.Env, Driver):
         else:
             if sess is not None:
                 sess.close()
+            extra = [self._types_file] if self._types_file is not None else []
             self._session = SumoSession(net=net, begin=begin, end=None, step_length=STEP_S, seed=0,
-                                        additional=[self.set.vtypes_file]).start()
+                                        additional=[self.set.vtypes_file, *extra]).start()
             self._session_net = net
             self._t_shift = 0.0
         self._sumo_target = None
         self.api = self._session.api
+        cached = self._replays.get((entry.id, k0))
         if cached is None:
             far = far_agents(scene.tracks, self.route.points[::4], REPLAY_RADIUS_M, from_step=k0)
             replayed = _from_step(scene, k0)
             traffic = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic == "log" else None
-            cached = (scene, far, replayed, traffic)
-            if len(self._replays) < CACHED_SCENARIOS:
-                self._replays[entry.id] = cached
-        _, far, replayed, self._traffic = cached
+            cached = (far, replayed, traffic)
+            if len(self._replays) < CACHED_SCENARIOS and not self.random_start:
+                self._replays[(entry.id, k0)] = cached
+        far, replayed, self._traffic = cached
+        self._reactive = None
+        if self.traffic == "reactive":  # read from the log until the target's deviation reaches them
+            from coster_sumo.sim.reactive import ReactiveTraffic
+
+            self._reactive = ReactiveTraffic(replayed, entry.target, exclude=far, adversary=entry.adversary,
+                                             route=self.route.points, car_following=self.car_following)
         if self.traffic == "sumo":  # every agent in SUMO, moved by moveToXY each step
             self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude={entry.target, *far})
         else:  # SUMO holds the target and runs the signals; the agents are read from the log
@@ -234,11 +265,33 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._added = False
         self._advance()  # the first step shows the scenario's first state
 
+    def _scene_of(self, entry: ScenarioEntry) -> Scene:
+        """The replay scene of ``entry`` (kept for CACHED_SCENARIOS scenarios)."""
+        scene = self._scenes.get(entry.id)
+        if scene is None:
+            scene = self.set.scene(entry)
+            if len(self._scenes) < CACHED_SCENARIOS:
+                self._scenes[entry.id] = scene
+        return scene
+
+    def _first_step(self, entry: ScenarioEntry, ts: np.ndarray, valid: np.ndarray) -> int:
+        """The scene's step the episode starts at: the scenario's start, or with ``random_start`` a
+        nominal scenario's drawn time; the target's first valid step if it is not there then."""
+        t_first = entry.t_start
+        if self.random_start and entry.kind == "nominal" and entry.t_end - RANDOM_START_TAIL_S > entry.t_start:
+            t_first = float(self.np_random.uniform(entry.t_start, entry.t_end - RANDOM_START_TAIL_S))
+        k0 = int(np.argmin(np.abs(ts - t_first)))
+        return k0 if valid[k0] else int(np.flatnonzero(valid)[0])
+
     def _advance(self) -> None:
         """One SUMO step: replay the others, place the target, step, check events."""
         sess = self._session
         t_next = round(self._now() + STEP_S, 9)
         self._replayer.before_step(sess, t_next)
+        if self._reactive is not None:
+            k_next = self._replayer.step_at(t_next)
+            if k_next is not None:
+                self._reactive.before_step(sess, k_next)
         x, y, yaw = self._ego_pose()
         target = self.entry.target if self.entry is not None else "ego"
         if not self._added:
@@ -258,10 +311,11 @@ class ScenarioEnv(gymnasium.Env, Driver):
         sess.step()
         self.sim_steps += 1
         st = sess.vehicle_states()
-        if self._traffic is not None:
-            k = self._replayer.step_at(self._now())
-            if k is not None:
-                st = concat_states(st, self._traffic.states_at(k))
+        k = self._replayer.step_at(self._now())
+        if k is not None and self._traffic is not None:
+            st = concat_states(st, self._traffic.states_at(k))
+        elif k is not None and self._reactive is not None:
+            st = concat_states(st, self._reactive.states_at(k))
         self.states = st
         # the target's events only (the pass detector's checks of the adversary's other contacts and
         # its batching cost more than the rest of a step here): the same box test, the same area
@@ -275,6 +329,11 @@ class ScenarioEnv(gymnasium.Env, Driver):
                 self.collided_with = str(st.ids[j])
         if not self.off_road:
             self.off_road = bool(self._drivable_now.off_road(st.x[i], st.y[i], st.yaw[i], st.length[i], st.width[i]))
+        if self._reactive is not None and k is not None:
+            from coster_sumo.sim.reactive import Pose
+
+            self._reactive.after_step(k, st, Pose(float(st.x[i]), float(st.y[i]), float(st.yaw[i]), self.v,
+                                                  self.length, self.width))
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._session is None or self.entry is None:
@@ -303,7 +362,14 @@ class ScenarioEnv(gymnasium.Env, Driver):
             reward += OFF_ROAD_PENALTY
         elif self.outcome == "completed":
             reward += COMPLETION_BONUS
-        return self._observe(), float(reward), terminated, truncated, self._info()
+        return self._observation(), float(reward), terminated, truncated, self._info()
+
+    def _observation(self) -> np.ndarray:
+        if self.observation == "default":
+            return self._observe()
+        from coster_sumo.gym.observe import observe
+
+        return observe(self, self.observation, self.t_end - self._now())
 
     # ------------------------------------------------------------------------- observation
 
@@ -317,7 +383,8 @@ class ScenarioEnv(gymnasium.Env, Driver):
                 "collided_with_adversary": self.collided_with is not None and self.collided_with == e.adversary,
                 "off_road": self.off_road, "completed": done,
                 "route_completion": 1.0 if done or length <= 0 else float(min(self.s / length, 1.0)),
-                "avoidable": e.avoidable}
+                "avoidable": e.avoidable,
+                "reacting": len(self._reactive.released) if self._reactive is not None else 0}
 
     def _now(self) -> float:
         """[s] the scenario's time (SUMO's clock runs on over the episodes of a loaded network)."""

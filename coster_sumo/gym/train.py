@@ -41,6 +41,10 @@ class TrainOptions:
     checkpoint_steps: int = 2_048
     control_period_s: float = 0.2
     quiet: bool = False
+    traffic: str = "log"  # the environment's traffic: log (replayed) or reactive (coster_sumo.sim.reactive)
+    car_following: str = "Krauss"  # the reacting agents' model (traffic="reactive")
+    random_start: bool = False  # nominal episodes start at a seeded random time within the clip
+    observation: str = "default"  # the environment's observation (coster_sumo.gym.observe)
 
 
 @dataclass(frozen=True)
@@ -74,13 +78,16 @@ def _option_strings(opts: TrainOptions) -> dict[str, str]:
     return {k: str(v) for k, v in asdict(opts).items()}
 
 
-def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: float):  # type: ignore[no-untyped-def]
+def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: float,  # type: ignore[no-untyped-def]
+              traffic: str = "log", car_following: str = "Krauss", random_start: bool = False,
+              observation: str = "default"):
     def make():  # type: ignore[no-untyped-def]
         from stable_baselines3.common.monitor import Monitor
 
         from coster_sumo.gym.env import ScenarioEnv
 
-        env = ScenarioEnv(scenarios, split=split, control_period_s=control_period_s)
+        env = ScenarioEnv(scenarios, split=split, control_period_s=control_period_s, traffic=traffic,
+                          car_following=car_following, random_start=random_start, observation=observation)
         env.reset(seed=seed)
         return Monitor(env, info_keywords=("outcome",))
     return make
@@ -93,8 +100,8 @@ def train(opts: TrainOptions) -> TrainProgress:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     opts.out.mkdir(parents=True, exist_ok=True)
-    makers = [_make_env(str(opts.scenarios), "train", opts.seed * 1000 + i, opts.control_period_s)
-              for i in range(opts.envs)]
+    makers = [_make_env(str(opts.scenarios), "train", opts.seed * 1000 + i, opts.control_period_s, opts.traffic,
+                        opts.car_following, opts.random_start, opts.observation) for i in range(opts.envs)]
     venv = SubprocVecEnv(makers) if opts.envs > 1 else DummyVecEnv(makers)
     ckpt = opts.out / "checkpoint.zip"
     progress_path = opts.out / "progress.json"
@@ -209,6 +216,9 @@ class EvalResult:
         per_kind: the same three per scenario kind (nominal / variant).
         defect_rate: share of the variants labelled avoidable that ended in a collision with their
             adversary (None: no variant with a label); ``avoidable_variants`` how many there were.
+        scores: :func:`coster_sumo.gym.scores.scores`: ``rcr`` as the paper defines it (share of episodes
+            that complete the route with no collision and no off-road), ``mean_completion`` (= ``rcr``
+            above), ``cr`` (anyone), ``cr_adversary``, ``orr``.
     """
 
     episodes: int
@@ -218,6 +228,7 @@ class EvalResult:
     per_kind: dict[str, KindOutcomes]
     defect_rate: float | None = None
     avoidable_variants: int = 0
+    scores: dict[str, float] = field(default_factory=dict)  # coster_sumo.gym.scores: the paper's RCR, CR by whom
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -248,13 +259,15 @@ def hard_ids(scenarios: str | Path, split: str | None) -> list[str]:
 
 def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None = "test",
              control_period_s: float = 0.2, max_episodes: int | None = None,
-             hard: bool = False) -> tuple[EvalResult, list[EpisodeRecord]]:
+             hard: bool = False, traffic: str = "log", car_following: str = "Krauss",
+             observation: str = "default") -> tuple[EvalResult, list[EpisodeRecord]]:
     """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0));
-    ``hard``: only the scenarios of :func:`hard_ids`."""
+    ``hard``: only the scenarios of :func:`hard_ids`; ``traffic``, ``car_following``: the environment's."""
     from coster_sumo.gym.env import ScenarioEnv
 
     ids = hard_ids(scenarios, split) if hard else None
-    env = ScenarioEnv(scenarios, split=split, order="cycle", control_period_s=control_period_s, scenario_ids=ids)
+    env = ScenarioEnv(scenarios, split=split, order="cycle", control_period_s=control_period_s, scenario_ids=ids,
+                      traffic=traffic, car_following=car_following, observation=observation)
     model = None
     if policy is not None:
         from stable_baselines3 import PPO
@@ -278,4 +291,6 @@ def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None
         per_kind[kind] = KindOutcomes(*_summary(of_kind), episodes=len(of_kind))
     avoidable = [r for r in rows if r.kind == "variant" and r.avoidable is True]
     defects = float(np.mean([r.collided_with_adversary for r in avoidable])) if avoidable else None
-    return EvalResult(len(rows), rcr, cr, orr, per_kind, defects, len(avoidable)), rows
+    from coster_sumo.gym.scores import scores
+
+    return EvalResult(len(rows), rcr, cr, orr, per_kind, defects, len(avoidable), scores(rows)), rows

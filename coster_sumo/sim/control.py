@@ -53,7 +53,8 @@ class SessionControl:
     def add_vehicle(self, veh_id: str, length: float, width: float, vclass: str = "passenger", *,
                     route_edges: Sequence[str] | None = None, route_id: str | None = None,
                     base_type: str = "DEFAULT_VEHTYPE", depart: str = "now",
-                    color: tuple[int, int, int, int] | None = None, remote: bool = True) -> None:
+                    color: tuple[int, int, int, int] | None = None, remote: bool = True,
+                    depart_lane: str = "first", depart_pos: str = "base", depart_speed: str = "0") -> None:
         """Add a vehicle with a private vType ``"<veh_id>@coster"`` of the given size and class.
 
         Route: ``route_edges`` (a private route is made), else ``route_id``, else ``""``, which lets
@@ -61,7 +62,9 @@ class SessionControl:
         ``remote=True`` prepares it for :meth:`move_to_xy`: speed mode and lane-change mode 0, and a
         speed factor / max speed large enough that SUMO does not cap its reported speed. Place a
         remote vehicle on a lane first: a vehicle first placed far from every lane can crash
-        libsumo on some getters (docs/sumo.md §3).
+        libsumo on some getters (docs/sumo.md §3). ``depart_lane``, ``depart_pos`` and
+        ``depart_speed`` are SUMO's departLane / departPos / departSpeed (a vehicle SUMO drives from
+        its departure waits where inserting it is unsafe).
         """
         api = self.api
         vt = api.vehicletype
@@ -88,7 +91,8 @@ class SessionControl:
                 api.route.add(route_id, list(route_edges))
                 self._routes[tuple(route_edges)] = route_id
         try:
-            api.vehicle.add(veh_id, route_id or "", typeID=type_id, depart=depart)
+            api.vehicle.add(veh_id, route_id or "", typeID=type_id, depart=depart, departLane=depart_lane,
+                            departPos=depart_pos, departSpeed=depart_speed)
         except Exception as exc:
             raise SumoError(f"{self.name}: cannot add vehicle {veh_id!r}: {sumo_message(exc)}") from None
         if color is not None:

@@ -38,6 +38,7 @@ from coster_sumo.sim import handover
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
+from coster_sumo.sim.reactive import replayer_for
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
 from coster_sumo.sim.session import SumoSession, VehicleStates
 from coster_sumo.source import ScenarioSource
@@ -375,7 +376,8 @@ def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
 def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plan: AdversaryPlan,
                    planner: str | None = None, *, drivable: DrivableArea | None = None, traci: bool = False,
                    workdir: Path | None = None, detect_events: bool = True, freeze_at: float | None = None,
-                   post_contact_s: float | None = POST_CONTACT_S, driver: Planner | None = None) -> InjectionResult:
+                   post_contact_s: float | None = POST_CONTACT_S, driver: Planner | None = None,
+                   traffic: str = "log") -> InjectionResult:
     """Inject one variant: the one place that decides who drives whom (every command goes through it).
 
     Who drives the target: the ``planner`` spec (default :func:`default_planner`).
@@ -401,10 +403,8 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
     planner_spec = planner or default_planner(converted)
     actors: tuple[StepActor, ...] = ()
     if converted:
-        from coster_sumo.sim.replay import LogReplayer
-
         handover = {} if planner_spec == "replay" and driver is None else {target_id: plan.t_start}
-        actors = (LogReplayer.for_config(spec.config, scene, handover=handover),)
+        actors = (replayer_for(spec.config, scene, target_id, handover, traffic),)
         if driver is None:
             driver = LoggedPlanner() if planner_spec == "replay" else make_planner(planner_spec)
     elif driver is None:
@@ -490,7 +490,7 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
     for i, plan in enumerate(plans):
         if results[i] is None:
             one = functools.partial(inject_variant, source, scene, target, plan, planner_spec, drivable=drivable,
-                                    traci=traci, workdir=workdir, post_contact_s=post_contact_s)
+                                    traci=traci, workdir=workdir, post_contact_s=post_contact_s, traffic=how.traffic)
             try:
                 results[i] = run_forked(one, timeout=timeout)
             except ChildFailed as exc:

@@ -152,7 +152,8 @@ def _prove_held(session: Any, held: HeldEscape) -> Verdict:
 
 def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, jobs: list[EscapeJob], *,
                   drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
-                  traci: bool = False, horizon_s: float = 3.0, together: bool = True) -> list[Verdict]:
+                  traci: bool = False, horizon_s: float = 3.0, together: bool = True,
+                  traffic: str = "log") -> list[Verdict]:
     """Replay every escape in SUMO; one verdict (:func:`verdict`) per job, in order.
 
     From the held copy of the nominal pass before the adversary appears where there is one (as the
@@ -163,7 +164,8 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     On a converted scene nothing in SUMO reacts (the log moves every other agent, the plans move
     the adversary and the target), so with ``together`` every escape is replayed in one pass
     (:class:`_JointProof`), each by a copy of the target facing its own copy of the adversary; the
-    verdicts are those of one pass per escape (``together=False``).
+    verdicts are those of one pass per escape (``together=False``). ``traffic="reactive"``: the
+    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape.
     """
     tr = scene.tracks
     target_id = str(tr.ids[target])
@@ -183,20 +185,20 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
                                              end=jobs[i].plan.t_col + horizon_s + 1e-6)) for i in members]
         for i, v in zip(members, held.run(held.holders[h_index], payloads, workers), strict=True):
             out[i] = v
-    if converted and together and not traci and jobs:
+    if converted and together and not traci and jobs and traffic == "log":
         return _JointProof(spec, scene, target, jobs, drivable, horizon_s).run()
     for i, job in enumerate(jobs):
         if out[i] is not None:
             continue
         actors: tuple[StepActor, ...] = ()
         if converted:
-            from coster_sumo.sim.replay import LogReplayer, far_agents
+            from coster_sumo.sim.reactive import replayer_for
+            from coster_sumo.sim.replay import far_agents
 
             # logged agents that never come near the escape are left out: they are replayed, so they
             # react to nothing, and the verdict is about the target's contacts
             far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
-            actors = (LogReplayer.for_config(spec.config, scene, exclude=far,
-                                             handover={target_id: job.plan.t_start}),)
+            actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, traffic, far),)
         res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), seed=spec.seed,
                             end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
                             actors=actors, traci=traci,
@@ -309,7 +311,7 @@ PROOF_RADIUS_M = 30.0
 
 def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],
                  labels: Sequence[Avoidability], *, drivable: DrivableArea | None, held: HeldStates | None = None,
-                 workers: int = 1, traci: bool = False, horizon_s: float = 3.0) -> None:
+                 workers: int = 1, traci: bool = False, horizon_s: float = 3.0, traffic: str = "log") -> None:
     """Replay every escape of ``labels`` (one per plan of ``plans``) with :func:`prove_escapes` and
     mark it proven or refuted (``Escape.proven``, ``Escape.proof``). Equal escapes of one plan (the
     same act and manoeuvre at several reaction times) are replayed once and share the verdict. The
@@ -327,7 +329,7 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
             owners.append(e)
     if jobs:
         verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
-                                 traci=traci, horizon_s=horizon_s)
+                                 traci=traci, horizon_s=horizon_s, traffic=traffic)
         for e, v in zip(owners, verdicts, strict=True):
             e.proven, e.proof = v.ok, v.to_json()
     for lab in labels:  # an escape's equals at other reaction times share its verdict

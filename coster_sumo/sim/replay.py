@@ -196,7 +196,9 @@ class LogReplayer:
             x, y = self._slots[self._slot % len(self._slots)]
             self._slot += 1
             sim.move_to_xy(sid, float(x), float(y), 0.0, length=float(self.lengths[a]))
-            sim.hidden.add(sid)  # not in the scene until its first logged step
+        # not in the scene until its first logged step (without a staging lane SUMO has put it at the
+        # start of some edge for this one step)
+        sim.hidden.add(sid)
         return sid
 
     def before_step(self, session: SumoSession, t_next: float) -> None:
