@@ -24,7 +24,7 @@ import numpy as np
 from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.scene_plans import ScenePlans, read_plans
-from coster_sumo.batch.shared_pass import PASS_FILE, pass_task_for, recorded_pass, shared_nominal, shared_passes
+from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -320,34 +320,29 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
     def run_tasks_for(key: str, doc: ScenePlans) -> list[Task]:
         return _run_tasks(key, keys[key], doc, opts.planners, done, plans_dir)
 
-    passes = shared_passes(keys)  # pass key -> the scenes (targets) that share it
-    pass_of = {k: pk for pk, ks in passes.items() for k in ks}
+    shared = SharedPasses(keys, plans_dir)  # the targets of a configuration, window and seed share its pass
     labels = {"reaction_time": opts.reaction_time, "avoidable": opts.avoidable}
 
     def generation_for(key: str) -> Task:
         return generation_task_for(key, keys[key], plans_dir, gen, generation.models_dir, labels,
-                                   f"{pass_of[key]}.npz" if key in pass_of else None)
+                                   shared.pass_file(key))
 
     initial: list[Task] = []
-    waiting: dict[str, list[str]] = {}  # pass key -> the scenes that generate once it is recorded
     for key in keys:
         doc = read_plans(plans_dir / f"{key}.json")
         retry = opts.retry_failed or is_transient(str(doc.reason if doc else "") or "")
         if doc is not None and (doc.ok or not retry):
             if doc.ok:
                 initial.extend(run_tasks_for(key, doc))
-        elif key in pass_of and not recorded_pass(plans_dir, pass_of[key]):
-            waiting.setdefault(pass_of[key], []).append(key)
-        else:
+        elif not shared.wait(key):
             initial.append(generation_for(key))
-    initial += [pass_task_for(pk, [keys[k] for k in passes[pk]], plans_dir) for pk in waiting]
+    initial += shared.tasks()
 
     def on_done(task: Task, outcome: Outcome) -> list[Task]:
         if task.kind == "pass":  # the shared pass is there: its scenes generate (or all fail with it)
-            waiting_keys = waiting.get(task.payload["pass_key"], [])
             if outcome.ok:
-                return [generation_for(k) for k in waiting_keys]
-            for k in waiting_keys:
+                return [generation_for(k) for k in shared.released(task)]
+            for k in shared.released(task):
                 _failed_plans(plans_dir, k, outcome.reason, keys[k].to_dict(), gen)
             _append_log(logs_dir / f"{task.key}.log", outcome)
             return []
@@ -368,12 +363,12 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         store.write(row)
         return []
 
-    generations = sum(t.key.startswith("plan__") for t in initial) + sum(map(len, waiting.values()))
+    generations = sum(t.key.startswith("plan__") for t in initial) + shared.waiting_scenes
     execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
             # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
             quiet=opts.quiet, desc=f"regress (first {generations} scene generation{'s' if generations != 1 else ''})"
             if generations else "regress",
-            expected_total=len(initial) + sum(map(len, waiting.values())) + n_runs_expected - len(done),
+            expected_total=len(initial) + shared.waiting_scenes + n_runs_expected - len(done),
             start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
             ray_address=opts.ray_address, preload=GENERATION_TASK_MODULES)
     return _write_summary(opts, out, keys, generation, store, t_start)

@@ -101,3 +101,39 @@ def recorded_pass(plans_dir: Path, key: str) -> bool:
     """Whether the pass ``key`` is in ``plans_dir`` already (a batch stopped after recording it)."""
     return (plans_dir / f"{key}.npz").exists()
 
+
+
+class SharedPasses:
+    """The shared passes of a batch's scenes (``keys``: scene key -> spec; the passes are written
+    into ``folder``) and the scenes waiting for theirs to be recorded."""
+
+    def __init__(self, keys: Mapping[str, ScenarioSpec], folder: Path) -> None:
+        self.keys, self.folder = keys, folder
+        self.groups = shared_passes(keys)  # pass key -> the scenes (targets) that share it
+        self.pass_of = {k: pk for pk, ks in self.groups.items() for k in ks}
+        self.waiting: dict[str, list[str]] = {}  # pass key -> the scenes that go on once it is recorded
+
+    def pass_file(self, key: str) -> str | None:
+        """The file of the pass scene ``key`` shares (in :attr:`folder`); None: a pass of its own."""
+        return f"{self.pass_of[key]}.npz" if key in self.pass_of else None
+
+    def wait(self, key: str) -> bool:
+        """Whether scene ``key`` must wait for its shared pass (then it is queued for it): the pass
+        is shared and not recorded yet."""
+        pk = self.pass_of.get(key)
+        if pk is None or recorded_pass(self.folder, pk):
+            return False
+        self.waiting.setdefault(pk, []).append(key)
+        return True
+
+    def tasks(self) -> list[Task]:
+        """A task per pass some scene waits for."""
+        return [pass_task_for(pk, [self.keys[k] for k in self.groups[pk]], self.folder) for pk in self.waiting]
+
+    def released(self, task: Task) -> list[str]:
+        """The scenes that waited for the pass of ``task`` (a :func:`pass_task`), now finished."""
+        return self.waiting.get(task.payload["pass_key"], [])
+
+    @property
+    def waiting_scenes(self) -> int:
+        return sum(map(len, self.waiting.values()))
