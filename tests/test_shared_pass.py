@@ -76,3 +76,20 @@ def test_two_targets_record_one_pass_and_a_rerun_after_a_kill_keeps_it(tmp_path)
     assert {d["scene_file"] for d in docs} == {shared.name} and all(d["status"] == "ok" for d in docs)
     rows = ResultStore(out / "results").read()
     assert len(rows) == sum(len(d["variants"]) for d in docs) >= 2 and all(r.ok for r in rows)
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_eval_scenarios_targets_of_one_configuration_share_a_pass(tmp_path):
+    from coster_sumo.cli import main
+
+    sources = tmp_path / "scenes.txt"
+    sources.write_text(f"{INTERSECTION}@target=ego,end=40,seed=2\n{INTERSECTION}@target=pre_W.1,end=40,seed=2\n")
+    out = tmp_path / "ev"
+    assert main(["-q", "eval", "scenarios", str(sources), "--variants", "1", "--method", "Random+CV",
+                 "-o", str(out)]) == 0
+    [shared] = list((out / "scenes").glob("*.npz"))
+    assert shared.name.startswith("pass_intersection_s2_e40_2t_")
+    parts = [json.loads(p.read_text()) for p in (out / "parts").glob("*__scene.json")]
+    assert len(parts) == 2 and {p["scene_file"] for p in parts} == {shared.name}
+    assert json.loads((out / "metrics.json").read_text())["methods"]["Random+CV"]["scenes"] == 2
