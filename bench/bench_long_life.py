@@ -67,6 +67,7 @@ def main() -> None:
     ap.add_argument("--scene", type=Path)
     ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-long-life"))
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--modes", nargs="+", choices=("coarse-to-fine", "exact"), default=["coarse-to-fine", "exact"])
     args = ap.parse_args()
     path = args.scene or args.work / f"{args.config.stem}_{args.target}.npz"
     nominal(args.config, args.target, path)
@@ -79,7 +80,8 @@ def main() -> None:
     scene = load_scene(path)
     target = scene.tracks.index_of(args.target)
     for r in range(args.repeats):
-        for exact in (False, True):
+        for mode in args.modes:
+            exact = mode == "exact"
             res = one_round(scene, target, exact)
             print(f"round {r} {'exact' if exact else 'coarse-to-fine'}: " + ", ".join(
                 f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in res.items()), flush=True)
