@@ -78,7 +78,7 @@ def main() -> None:
               f"(nominal pass {r['nominal_s']:.1f} s, generation {r['generation_s']:.1f} s in all, at most "
               f"{r['generation_max_s']:.1f} s per target), sumo {r['sumo_s']:.1f} s, ratio {r['ratio']:.2f}; "
               f"{r['scenarios']} scenarios ({r['in_contact']} in contact within 0.1 s of t_col), "
-              f"{r['scenarios_per_sumo_pass']:.1f} per plain-SUMO pass", flush=True)
+              f"{r['scenarios_per_sumo_pass']:.2f} per plain-SUMO pass", flush=True)
 
 
 if __name__ == "__main__":
