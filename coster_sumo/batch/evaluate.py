@@ -36,6 +36,7 @@ from coster_sumo.batch.generator_summary import (
     read_method_part,
     read_scene_part,
 )
+from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -93,7 +94,10 @@ def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.targets import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
-    scene, _, path = nominal_for(spec, Path(payload["scenes_dir"]))
+    if payload.get(PASS_FILE):  # a pass shared with the configuration's other targets (batch.shared_pass)
+        scene, _, path = shared_nominal(spec, Path(payload["scenes_dir"]), payload[PASS_FILE])
+    else:
+        scene, _, path = nominal_for(spec, Path(payload["scenes_dir"]))
     choose_target(scene, spec.target, spec.config)
     t = scene.tracks
     v, a = speeds_and_accels(t.xy, t.valid, scene.dt)
@@ -182,6 +186,16 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
             "speed_hist": _hist(sv, SPEED_BINS, 0, 50), "accel_hist": _hist(sa, ACCEL_BINS, -10, 10)}
 
 
+def _scene_task_for(key: str, spec: ScenarioSpec, scenes_dir: Path, pass_file: str | None) -> Task:
+    """The task of one scene's nominal pass (``pass_file``: the pass it shares, in ``scenes_dir``)."""
+    payload: dict[str, Any] = {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir), "scene_key": key,
+                               CONFIG_DIR: config_dir(spec)}
+    if pass_file:
+        payload[PASS_FILE] = pass_file
+    return Task(f"{key}__scene", scene_task, payload, kind="scene",
+                folders=task_folders(spec, scenes_dir=(pass_file or f"{key}.npz",)))
+
+
 def evaluate_generators(opts: EvalOptions) -> EvalSummary:
     """``coster-sumo eval scenarios``: every generator on every scene; metrics table (JSON, Markdown, PNG)."""
     t_start = time.perf_counter()
@@ -249,17 +263,22 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
                 folders=folders))
         return tasks
 
+    shared = SharedPasses(keys, scenes_dir)  # the targets of a configuration, window and seed share its pass
     initial = []
-    for key, spec in keys.items():
+    for key in keys:
         sp = read_scene_part(parts_dir / f"{key}__scene.json")
         if sp is not None and sp.ok:
             initial.extend(method_tasks(key, sp.scene_file))
-        elif not _done(sp):
-            initial.append(Task(f"{key}__scene", scene_task, {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir),
-                                                              "scene_key": key, CONFIG_DIR: config_dir(spec)},
-                                kind="scene", folders=task_folders(spec, scenes_dir=(f"{key}.npz",))))
+        elif not _done(sp) and not shared.wait(key):
+            initial.append(_scene_task_for(key, keys[key], scenes_dir, shared.pass_file(key)))
+    initial += shared.tasks()
 
     def on_done(task: Task, outcome: Outcome) -> list[Task]:
+        if task.kind == "pass":  # the shared pass is there: its scenes go on (or all fail with it)
+            for k in [] if outcome.ok else shared.released(task):
+                write_json(parts_dir / f"{k}__scene.json", {"status": "failed", "reason": outcome.reason})
+            return [_scene_task_for(k, keys[k], scenes_dir, shared.pass_file(k))
+                    for k in shared.released(task)] if outcome.ok else []
         key = task.payload["scene_key"]
         if task.kind == "scene":
             doc = {"status": "ok", **outcome.value} if outcome.ok else {"status": "failed", "reason": outcome.reason}
@@ -271,7 +290,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
         return []
 
     # what is left: a resumed batch's bar counts the tasks still to run, not those done before
-    todo = sum(1 + len(active) if t.kind == "scene" else 1 for t in initial)
+    todo = sum(1 + len(active) if t.kind == "scene" else 1 for t in initial) + shared.waiting_scenes * (1 + len(active))
     if not opts.quiet and todo < len(keys) * (1 + len(active)):
         print(f"resuming {out}: {len(keys) * (1 + len(active)) - todo} of {len(keys) * (1 + len(active))} tasks "
               "done before", flush=True)

@@ -24,6 +24,7 @@ import numpy as np
 from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.scene_plans import ScenePlans, read_plans
+from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
 from coster_sumo.batch.sources import (
     CONFIG_DIR,
     BatchOptions,
@@ -72,7 +73,10 @@ def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     gen = GenerationConfig.from_dict(payload["generation"])
     if payload.get("models_dir"):  # where the weights are for this task (a private copy on a Ray worker)
         gen = dataclasses.replace(gen, models_dir=Path(payload["models_dir"]))
-    scene, converted, scene_file = nominal_for(spec, plans_dir)
+    if payload.get(PASS_FILE):  # a pass shared with the configuration's other targets (batch.shared_pass)
+        scene, converted, scene_file = shared_nominal(spec, plans_dir, payload[PASS_FILE])
+    else:
+        scene, converted, scene_file = nominal_for(spec, plans_dir)
     target = choose_target(scene, spec.target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
     t1 = time.perf_counter()
@@ -207,6 +211,8 @@ class RegressOptions(BatchOptions):
     reaction_time: float = 1.0  # [s] the avoidability labels' reaction time (coster_sumo.defects)
     avoidable: str = "any"  # any | only
     traffic: str = "log"  # log | reactive: converted scenes' agents (coster_sumo.sim.reactive)
+    more_targets: tuple[str, ...] = ()  # further targets of every scene with ``target`` (sharing its pass)
+    targets: int | None = None  # choose this many targets per configuration, as run --targets N does
 
 
 def check_planners(planners: Sequence[str]) -> None:
@@ -221,13 +227,16 @@ def check_planners(planners: Sequence[str]) -> None:
 
 
 def generation_task_for(key: str, spec: ScenarioSpec, plans_dir: Path, gen: dict[str, Any],
-                        models_dir: Path | None, labels: dict[str, Any]) -> Task:
+                        models_dir: Path | None, labels: dict[str, Any], pass_file: str | None = None) -> Task:
     """The task that generates one scene's variants; with the folders it reads (the configuration,
     a cached nominal scene, the weights given by ``--models``) named, so that it runs on a Ray worker
-    without a disk shared with OUT. ``labels``: the avoidability settings (reaction time, any|only)."""
+    without a disk shared with OUT. ``labels``: the avoidability settings (reaction time, any|only);
+    ``pass_file``: the nominal pass it shares with other targets (in ``plans_dir``; None: its own)."""
     payload: dict[str, Any] = {"scene_key": key, "spec": spec.to_dict(), "plans_dir": str(plans_dir),
                                "generation": gen, CONFIG_DIR: config_dir(spec), **labels}
-    folders = task_folders(spec, plans_dir=(f"{scene_key(spec)}.npz",))
+    folders = task_folders(spec, plans_dir=(pass_file or f"{scene_key(spec)}.npz",))
+    if pass_file:
+        payload[PASS_FILE] = pass_file
     if models_dir is not None:
         payload["models_dir"] = str(models_dir)
         folders["models_dir"] = WEIGHT_FILES
@@ -241,6 +250,31 @@ def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
         return spec
     begin = spec.begin if spec.begin is not None else (read_sumocfg(spec.config).begin or 0.0)
     return dataclasses.replace(spec, end=begin + duration)
+
+
+def with_targets(specs: list[ScenarioSpec], target: str | None, more: Sequence[str],
+                 n: int | None) -> list[ScenarioSpec]:
+    """``specs`` with a scene for every further target: the ``more`` targets beside each scene of
+    ``target``, or (``n``) the ``n`` targets :func:`~coster_sumo.targets.choose_targets` picks for each
+    scene without one, as ``run --targets N`` picks them. The targets of a configuration, window and
+    seed share one nominal pass (:mod:`coster_sumo.batch.shared_pass`)."""
+    from coster_sumo.targets import choose_targets
+
+    if n is not None and n < 1:
+        raise InputError(f"--targets must be >= 1, not {n}")
+    out: list[ScenarioSpec] = []
+    chosen: dict[tuple[str, float | None, float | None], list[str]] = {}
+    for s in specs:
+        if n is not None and s.target is None:
+            where = (str(s.config.resolve()), s.begin, s.end)
+            if where not in chosen:
+                chosen[where] = [c.vehicle_id for c in choose_targets(s.config, n, s.begin, s.end)]
+            out += [dataclasses.replace(s, target=t) for t in chosen[where]]
+        else:
+            out.append(s)
+            if more and s.target == target:
+                out += [dataclasses.replace(s, target=t) for t in more if t != target]
+    return list(dict.fromkeys(out))
 
 
 def run_key(scene: str, variant: int, planner: str, traffic: str = "log") -> str:
@@ -264,6 +298,7 @@ def regress(opts: RegressOptions) -> RegressionSummary:
                           target=opts.target)
     if opts.duration is not None:
         specs = [with_duration(s, opts.duration) for s in specs]
+    specs = with_targets(specs, opts.target, opts.more_targets, opts.targets)
     out = Path(opts.out)
     check_output(out, kind="regress", inputs=[Path(s.config) for s in specs], reusable=True,
                  signature="regress.json")
@@ -288,39 +323,40 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
     n_runs_expected = len(keys) * opts.variants * len(opts.planners)
 
     def run_tasks_for(key: str, doc: ScenePlans) -> list[Task]:
-        spec = keys[key]
-        tasks = []
-        for i in range(len(doc.variants)):
-            for p in opts.planners:
-                rk = run_key(key, i, p, opts.traffic)
-                if rk not in done:
-                    tasks.append(Task(rk, run_task, {"run_key": rk, "scene_key": key, "variant": i, "planner": p,
-                                                     "traffic": opts.traffic,
-                                                     "plans_dir": str(plans_dir), "config": str(spec.config),
-                                                     "seed": spec.seed, CONFIG_DIR: config_dir(spec)}, kind="run",
-                                      folders=task_folders(spec, plans_dir=(f"{key}.json", doc.scene_file))))
-        return tasks
+        return _run_tasks(key, keys[key], doc, opts.planners, done, plans_dir, opts.traffic)
+
+    shared = SharedPasses(keys, plans_dir)  # the targets of a configuration, window and seed share its pass
+    labels = {"reaction_time": opts.reaction_time, "avoidable": opts.avoidable}
+
+    def generation_for(key: str) -> Task:
+        return generation_task_for(key, keys[key], plans_dir, gen, generation.models_dir, labels,
+                                   shared.pass_file(key))
 
     initial: list[Task] = []
-    for key, spec in keys.items():
-        pf = plans_dir / f"{key}.json"
-        doc = read_plans(pf)
+    for key in keys:
+        doc = read_plans(plans_dir / f"{key}.json")
         retry = opts.retry_failed or is_transient(str(doc.reason if doc else "") or "")
         if doc is not None and (doc.ok or not retry):
             if doc.ok:
                 initial.extend(run_tasks_for(key, doc))
-            continue
-        initial.append(generation_task_for(key, spec, plans_dir, gen, generation.models_dir,
-                                           {"reaction_time": opts.reaction_time, "avoidable": opts.avoidable}))
+        elif not shared.wait(key):
+            initial.append(generation_for(key))
+    initial += shared.tasks()
 
     def on_done(task: Task, outcome: Outcome) -> list[Task]:
+        if task.kind == "pass":  # the shared pass is there: its scenes generate (or all fail with it)
+            if outcome.ok:
+                return [generation_for(k) for k in shared.released(task)]
+            for k in shared.released(task):
+                _failed_plans(plans_dir, k, outcome.reason, keys[k].to_dict(), gen)
+            _append_log(logs_dir / f"{task.key}.log", outcome)
+            return []
         key = task.payload["scene_key"]
         if task.kind == "plan":
             if outcome.ok:
                 doc = read_plans(plans_dir / f"{key}.json")
                 return run_tasks_for(key, doc) if doc else []
-            write_json(plans_dir / f"{key}.json", ScenePlans(scene_key=key, status="failed", reason=outcome.reason,
-                                                             spec=task.payload["spec"], generation=gen).to_json())
+            _failed_plans(plans_dir, key, outcome.reason, task.payload["spec"], gen)
             _append_log(logs_dir / f"{task.key}.log", outcome)
             return []
         if outcome.ok:
@@ -332,14 +368,20 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         store.write(row)
         return []
 
-    generations = sum(t.key.startswith("plan__") for t in initial)
+    generations = sum(t.key.startswith("plan__") for t in initial) + shared.waiting_scenes
     execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
             # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
             quiet=opts.quiet, desc=f"regress (first {generations} scene generation{'s' if generations != 1 else ''})"
             if generations else "regress",
-            expected_total=len(initial) + n_runs_expected - len(done),
+            expected_total=len(initial) + shared.waiting_scenes + n_runs_expected - len(done),
             start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
             ray_address=opts.ray_address, preload=GENERATION_TASK_MODULES)
+    return _write_summary(opts, out, keys, generation, store, t_start)
+
+
+def _write_summary(opts: RegressOptions, out: Path, keys: dict[str, ScenarioSpec], generation: GenerationConfig,
+                   store: ResultStore, t_start: float) -> RegressionSummary:
+    """OUT/summary.json (and the report) of a finished batch; returns the summary."""
     summary = dataclasses.replace(
         summarize_regression(out, keys, opts.planners), wall_time_s=round(time.perf_counter() - t_start, 3),
         options=RegressionRunOptions(variants=generation.variants, workers=opts.workers, executor=opts.executor,
@@ -367,6 +409,28 @@ def _start_folder(out: Path, opts: RegressOptions, keys: dict[str, ScenarioSpec]
                                                     for k, v in dataclasses.asdict(opts).items()},
                                         "scenes": {k: s.label() for k, s in keys.items()}})
     return store
+
+
+def _run_tasks(key: str, spec: ScenarioSpec, doc: ScenePlans, planners: Sequence[str], done: set[str],
+               plans_dir: Path, traffic: str = "log") -> list[Task]:
+    """Every planner's run on every variant of the scene ``key`` that is not ``done`` yet."""
+    tasks = []
+    for i in range(len(doc.variants)):
+        for p in planners:
+            rk = run_key(key, i, p, traffic)
+            if rk not in done:
+                tasks.append(Task(rk, run_task, {"run_key": rk, "scene_key": key, "variant": i, "planner": p,
+                                                 "traffic": traffic,
+                                                 "plans_dir": str(plans_dir), "config": str(spec.config),
+                                                 "seed": spec.seed, CONFIG_DIR: config_dir(spec)}, kind="run",
+                                  folders=task_folders(spec, plans_dir=(f"{key}.json", doc.scene_file))))
+    return tasks
+
+
+def _failed_plans(plans_dir: Path, key: str, reason: str | None, spec: dict[str, Any], gen: dict[str, Any]) -> None:
+    """A scene's plans file that says why it has no variants."""
+    write_json(plans_dir / f"{key}.json", ScenePlans(scene_key=key, status="failed", reason=reason, spec=spec,
+                                                     generation=gen).to_json())
 
 
 def _append_log(path: Path, outcome: Outcome) -> None:

@@ -10,8 +10,9 @@ from coster_sumo.errors import not_found
 from coster_sumo.spec import GenerationConfig
 
 
-def add_scene_source_arguments(p: argparse.ArgumentParser, duration: bool = False) -> None:
-    """Scene-source arguments shared with ``eval scenarios`` (``duration``: offer --duration)."""
+def add_scene_source_arguments(p: argparse.ArgumentParser, duration: bool = False, several: bool = False) -> None:
+    """Scene-source arguments shared with ``eval scenarios`` (``duration``: offer --duration;
+    ``several``: --target repeated and --targets N, the targets of a configuration sharing its pass)."""
     p.add_argument("sources", nargs="+", metavar="SOURCE",
                    help="scene sources: CFG.sumocfg[@seed=N,begin=S,end=S,target=ID], a folder (every .sumocfg "
                         "below, e.g. converted WOMD scenes) or a text file listing sources")
@@ -23,7 +24,15 @@ def add_scene_source_arguments(p: argparse.ArgumentParser, duration: bool = Fals
     if duration:
         window.add_argument("--duration", type=float,
                             help="[s] every scene's window from its begin (instead of --end), as in run")
-    p.add_argument("--target", help="target vehicle id (default: the SDC of a converted scene, else 'ego')")
+    if several:
+        who = p.add_mutually_exclusive_group()
+        who.add_argument("--target", action="append",
+                         help="target vehicle id (default: the SDC of a converted scene, else 'ego'); repeat it for "
+                              "several: the targets of a configuration share one nominal pass")
+        who.add_argument("--targets", type=int, metavar="N",
+                         help="choose N targets per configuration as run --targets N does (they share its pass)")
+    else:
+        p.add_argument("--target", help="target vehicle id (default: the SDC of a converted scene, else 'ego')")
     p.add_argument("--workers", type=int, default=1, help="runs at a time, one process each (default 1)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local processes, or a Ray cluster (pip install ray)")
@@ -42,7 +51,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                     "target on the same variants, each run in its own process with a timeout. Rows go to "
                     "OUT/results/ (Parquet, one part per run; a rerun skips what is done); OUT/summary.json, "
                     "OUT/report.md and OUT/report.html hold RCR / CR / ORR per planner with Wilson 95% intervals.")
-    add_scene_source_arguments(p, duration=True)
+    add_scene_source_arguments(p, duration=True, several=True)
     p.add_argument("--planner", action="append", required=True, dest="planners",
                    help="replay | sumo | sumo:<carFollowModel> | module:Class | path/to/file.py:Class; "
                         "repeat for several")
@@ -76,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
     opts = RegressOptions(sources=args.sources, planners=args.planners, out=args.out, variants=args.variants,
                           duration=getattr(args, "duration", None),
                           workers=args.workers, executor=args.executor, timeout=args.timeout or None,
-                          seed=args.seed, seeds=args.seeds, begin=args.begin, end=args.end, target=args.target,
+                          seed=args.seed, seeds=args.seeds, begin=args.begin, end=args.end,
+                          target=args.target[0] if args.target else None,
+                          more_targets=tuple(args.target[1:]) if args.target else (), targets=args.targets,
                           init=args.init, rollout=args.rollout, collision_time=args.collision_time,
                           samples=args.samples, models_dir=args.models, retry_failed=args.retry_failed,
                           report=not args.no_report, quiet=args.quiet, ray_address=args.ray_address,

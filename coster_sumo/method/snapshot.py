@@ -42,7 +42,7 @@ from coster_sumo.geometry import (
 )
 from coster_sumo.method.collision_time import (
     choose_collision_time,
-    entropy_curve,
+    entropy_search,
     in_ellipse,
     search_window,
     target_pose,
@@ -173,13 +173,16 @@ SIDE_START_M = 12.0  # [m] the four-side candidates start this far from the targ
 MAX_REGIONS_TRIED = 24
 
 
-def scene_adaptation(model: Any, data: Any, scene: Scene, target: int) -> Any:
+def scene_adaptation(model: Any, data: Any, scene: Scene, target: int, steps: np.ndarray | None = None) -> Any:
     """What the traffic around the target says (the prior adapted to the scene's visible traffic,
-    docs/method.md step 2), fitted over the whole search window: one step sees little."""
+    docs/method.md step 2), fitted over the whole search window (one step sees little), or over
+    ``steps`` of it: those the entropy curve was computed at (every step of a window up to
+    :data:`~coster_sumo.method.collision_time.LONG_WINDOW_STEPS`, the coarse grid and the
+    neighbourhoods of the candidate times of a longer one: :func:`entropy_search`)."""
     from coster_sumo.prior.data import scene_tokens
     from coster_sumo.prior.infer import fit_scene_adaptation
 
-    full = search_window(scene, target)
+    full = search_window(scene, target) if steps is None else steps
     full_pose = target_pose(scene, target, full)
     context = scene_tokens(data, full, full_pose, model.config.bins(), model.config.radius,
                            model.config.max_regions, visible="context", hide_radius=model.config.hide_radius)
@@ -219,8 +222,8 @@ def _scene_prior(model: Any, scene: Scene, target: int, memo: PriorMemo) -> tupl
     if len(data.regions.centre) == 0:
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
     if memo.entropy is None:
-        memo.entropy = entropy_curve(model, data, scene, target)
-        memo.adaptation = scene_adaptation(model, data, scene, target)
+        memo.entropy, searched = entropy_search(model, data, scene, target)
+        memo.adaptation = scene_adaptation(model, data, scene, target, searched)
     return data, memo.entropy
 
 
