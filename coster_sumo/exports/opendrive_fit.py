@@ -171,6 +171,8 @@ def _write_sections(lanes_el: ET.Element, lane_els: list[ET.Element], s: np.ndar
                 here.append((("lane", k), records(s[i:j + 1] - s[i], width[i:j + 1, k], [(0, j - i)])))
             if filler is not None and k < n - 1 and float(filler[i:j + 1, k].max()) > 0.0:
                 here.append((("filler", k), records(s[i:j + 1] - s[i], filler[i:j + 1, k], [(0, j - i)])))
+        if not here:  # no lane at all here (one ends before the next begins): the schema wants one
+            here.append((("filler", -1), _gap_records(s, width * present, i, j)))
         sec = copy.deepcopy(template)
         sec.set("s", fmt(float(s[i])))
         right = sec.find("right")
@@ -206,6 +208,15 @@ def _write_sections(lanes_el: ET.Element, lane_els: list[ET.Element], s: np.ndar
     for name, (_, here, els, _) in (("start", sections[0]), ("end", sections[-1])):
         ends[name] = {-(key[1] + 1): int(els[key].get("id", "0")) for key, _ in here if key[0] == "lane"}
     return ends
+
+
+def _gap_records(s: np.ndarray, width: np.ndarray, i: int, j: int) -> list[tuple[float, float, float]]:
+    """The width record of a filler over stations ``i..j`` where no lane is present: from the
+    lanes' total width before to their total after (``width`` (S, n) [m], 0 where absent)."""
+    a = float(width[i - 1].sum()) if i > 0 else float(width[min(j + 1, len(s) - 1)].sum())
+    b = float(width[j + 1].sum()) if j + 1 < len(s) else a
+    span = float(s[min(j + 1, len(s) - 1)] - s[i])
+    return [(0.0, a, (b - a) / span if span > 0 else 0.0)]
 
 
 def _inner_borders(here: list[tuple[tuple[str, int], list[tuple[float, float, float]]]], at: float
