@@ -1,7 +1,8 @@
 """ASAM's OpenDRIVE checker, commonroad and pyxodr over many generated scenes (issue 64).
 
     python bench/bench_xodr_checker.py [--work DIR] [--seed 0] [--per-sample 15] [--per-net 2]
-                                       [--only NAME ...] [--readers asam commonroad pyxodr] [--reuse]
+                                       [--only NAME ...] [--readers asam commonroad pyxodr] [--jobs 1]
+                                       [--reuse-nets | --reuse]
 
 Generates the scenes of ``bench/xodr_scenes.py`` (WOMD crops and transforms, cuts of every corpus
 network and of extra netgenerate nets, and those cuts converted by the project's converter),
@@ -21,6 +22,7 @@ import shutil
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from defusedxml import ElementTree as SafeET
@@ -33,6 +35,7 @@ from coster_sumo.exports.opendrive import write_xodr  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 PROBE = REPO / "tests" / "xodr_reader_probe.py"
 ENVS = {"asam": ".venv-xodr-asam", "commonroad": ".venv-xodr-readers", "pyxodr": ".venv-xodr-readers"}
+CHUNK = 20  # files per reader process (memory stays bounded)
 VERSION_SKIPPED = {"check_asam_xodr_junctions_connection_one_connection_element"}  # OpenDRIVE <= 1.7 only
 
 
@@ -64,20 +67,27 @@ def export_all(work: Path, nets: list[dict]) -> list[str]:
     return failed
 
 
-def probe(reader: str, files: list[Path]) -> dict[str, dict]:
+def probe(reader: str, files: list[Path], jobs: int = 1) -> dict[str, dict]:
+    """Run one reader over ``files`` in chunks of :data:`CHUNK`, ``jobs`` reader processes at a time."""
     python = REPO / ENVS[reader] / "bin" / "python"
     if not python.is_file():
         raise SystemExit(f"{python} not found: run `make xodr-readers`")
-    rows: dict[str, dict] = {}
-    for k in range(0, len(files), 40):  # a reader process per 40 files: memory stays bounded
-        proc = subprocess.run([str(python), str(PROBE), reader, *map(str, files[k:k + 40])],
+
+    def run(chunk: list[Path]) -> str:
+        proc = subprocess.run([str(python), str(PROBE), reader, *map(str, chunk)],
                               capture_output=True, text=True, timeout=7200)
         if proc.returncode != 0:
             raise SystemExit(f"{reader} probe failed: {proc.stderr[-2000:]}")
-        for line in proc.stdout.splitlines():
-            if line.startswith("{"):
-                row = json.loads(line)
-                rows[Path(row["file"]).stem] = row
+        return proc.stdout
+
+    chunks = [files[k:k + CHUNK] for k in range(0, len(files), CHUNK)]
+    rows: dict[str, dict] = {}
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        for out in pool.map(run, chunks):
+            for line in out.splitlines():
+                if line.startswith("{"):
+                    row = json.loads(line)
+                    rows[Path(row["file"]).stem] = row
     return rows
 
 
@@ -107,6 +117,7 @@ def main() -> int:
     ap.add_argument("--per-net", type=int, default=2)
     ap.add_argument("--only", nargs="*", default=None, help="'womd' and/or source net names")
     ap.add_argument("--readers", nargs="*", default=list(ENVS), choices=list(ENVS))
+    ap.add_argument("--jobs", type=int, default=1, help="reader processes at a time")
     ap.add_argument("--reuse-nets", action="store_true", help="export the nets WORK/nets.json lists again")
     ap.add_argument("--reuse", action="store_true", help="check the .xodr files in WORK/xodr/ as they are")
     args = ap.parse_args()
@@ -127,7 +138,7 @@ def main() -> int:
     ok = not failed
     for reader in args.readers:
         t1 = time.perf_counter()
-        rows = probe(reader, files)
+        rows = probe(reader, files, args.jobs)
         bad = {name: f for name in sorted(rows) if (f := findings(reader, rows[name], work / "xodr" / f"{name}.xodr"))}
         missing = sorted({p.stem for p in files} - set(rows))
         totals: dict[str, int] = {}

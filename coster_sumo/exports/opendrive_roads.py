@@ -312,7 +312,9 @@ def _connecting(road: ET.Element, roads: dict[str, ET.Element], sample: Sampler)
         return None
     lp, ls = lanes[0].find("link/predecessor"), lanes[0].find("link/successor")
     a, b = roads.get(pred.get("elementId", "")), roads.get(succ.get("elementId", ""))
-    if lp is None or ls is None or a is None or b is None:
+    # a lane link is gone where the linked lane is not there at that road end (opendrive_fit's
+    # renumbering): that end stays on the SUMO lane, the other still joins its lane
+    if (lp is None or a is None) and (ls is None or b is None):
         return None
     plan = road.find("planView")
     if plan is None:
@@ -322,11 +324,12 @@ def _connecting(road: ET.Element, roads: dict[str, ET.Element], sample: Sampler)
     x, y, h = sample(plan, s)
     path = np.column_stack([x, y])
     own = _records_at(lanes[0].findall("width"), "sOffset", 0.0)
-    start = lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")), sample)
-    end = lane_at(b, 0.0, int(ls.get("id", "0")), sample)
+    start = None if lp is None or a is None else lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")),
+                                                         sample)
+    end = None if ls is None or b is None else lane_at(b, 0.0, int(ls.get("id", "0")), sample)
     # a lane that has not begun yet at the contact (width 0: a logged lane that starts later
-    # than its edge's others where the road's end could not move) is no place to join: that
-    # end stays on the SUMO lane
+    # than its edge's others where the road's end could not move), or no linked lane, is no
+    # place to join: that end stays on the SUMO lane
     if start is None or start[1] < MIN_JOIN_WIDTH_M:
         start = (path[0].copy(), own, float(h[0]))
     if end is None or end[1] < MIN_JOIN_WIDTH_M:
