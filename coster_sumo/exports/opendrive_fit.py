@@ -38,6 +38,7 @@ smallest error over the lanes involved.
 from __future__ import annotations
 
 import copy
+import functools
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -50,6 +51,7 @@ from coster_sumo.exports.opendrive_net import DEFAULT_LANE_WIDTH_M, NetLanes
 from coster_sumo.exports.opendrive_readers import link_lane
 from coster_sumo.exports.opendrive_roads import (
     Sampler,
+    drop_outer_walkways,
     extend_reference,
     fmt,
     join_connecting_roads,
@@ -283,6 +285,9 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     roads = sorted(root.findall("road"), key=lambda r: r.get("junction", "-1") != "-1")
     for road in roads:
         connecting = road.get("junction", "-1") != "-1"
+        if connecting:  # sidewalks of a connecting road: SUMO has no internal lane for them
+            counts["walkways_dropped"] = counts.get("walkways_dropped", 0) + drop_outer_walkways(
+                root, road, functools.partial(_served, road, net=net, edge_of=edge_of))
         targets, widths = _targets(road, net, edge_of, connecting)
         if targets is None:
             counts["connecting_kept" if connecting else "roads_kept"] += 1
@@ -393,6 +398,18 @@ def _remove_connecting(root: ET.Element, road: ET.Element) -> None:
         if junction.find("connection") is None:
             root.remove(junction)
     root.remove(road)
+
+
+def _served(road: ET.Element, lane: ET.Element, *, net: NetLanes, edge_of: dict[str, str]) -> bool:
+    """Whether a SUMO connection runs where a connecting road's lane does (or it is unknown)."""
+    pred, succ = road.find("link/predecessor"), road.find("link/successor")
+    p, q = lane.find("link/predecessor"), lane.find("link/successor")
+    if pred is None or succ is None or p is None or q is None:
+        return True
+    frm, to = edge_of.get(pred.get("elementId", ""), ""), edge_of.get(succ.get("elementId", ""), "")
+    key = (frm, len(net.edge_lanes.get(frm, [])) + int(p.get("id", "0")), to,
+           len(net.edge_lanes.get(to, [])) + int(q.get("id", "0")))
+    return net.connection_shape(*key) is not None
 
 
 def _targets(road: ET.Element, net: NetLanes, edge_of: dict[str, str], connecting: bool

@@ -418,3 +418,32 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
         folded += folds
         joined += _write_joined(c, pieces, half)
     return joined, folded
+
+
+# lane types ASAM's checker does not take for drivable (its gap rule skips them)
+NOT_DRIVABLE = {"sidewalk", "median", "shoulder", "curb", "none", "walking", "bidirectional", "tram", "rail"}
+
+
+def drop_outer_walkways(root: ET.Element, road: ET.Element, served: Callable[[ET.Element], bool]) -> int:
+    """Remove a connecting road's outermost right lanes that are not drivable and that no SUMO
+    internal lane serves (``served(lane)`` False: a sidewalk, which SUMO crosses by walking areas
+    instead), with the junction's lane links into them, so that the road's drivable lanes can be
+    fitted; returns how many lanes went."""
+    right = road.find("lanes/laneSection/right")
+    if right is None or len(road.findall("lanes/laneSection")) != 1:
+        return 0
+    lanes = sorted(right.findall("lane"), key=lambda e: int(e.get("id", "0")))  # outermost first
+    gone: set[str] = set()
+    for lane in lanes[:-1]:  # at least one lane stays
+        if lane.get("type") not in NOT_DRIVABLE or served(lane):
+            break
+        right.remove(lane)
+        gone.add(lane.get("id", ""))
+    if gone:
+        rid = road.get("id", "")
+        for conn in root.iter("connection"):
+            if conn.get("connectingRoad") == rid:
+                for link in conn.findall("laneLink"):
+                    if link.get("to") in gone:
+                        conn.remove(link)
+    return len(gone)
