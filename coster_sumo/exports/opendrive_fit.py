@@ -286,8 +286,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     for road in roads:
         connecting = road.get("junction", "-1") != "-1"
         if connecting:  # sidewalks of a connecting road: SUMO has no internal lane for them
-            counts["walkways_dropped"] = counts.get("walkways_dropped", 0) + drop_outer_walkways(
-                root, road, functools.partial(_served, road, net=net, edge_of=edge_of))
+            drop_outer_walkways(root, road, functools.partial(_served, road, net=net, edge_of=edge_of))
         targets, widths = _targets(road, net, edge_of, connecting)
         if targets is None:
             counts["connecting_kept" if connecting else "roads_kept"] += 1
