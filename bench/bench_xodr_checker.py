@@ -22,7 +22,7 @@ import shutil
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 
 from defusedxml import ElementTree as SafeET
@@ -49,21 +49,29 @@ def generate(work: Path, args: argparse.Namespace) -> list[dict]:
     return nets
 
 
-def export_all(work: Path, nets: list[dict]) -> list[str]:
-    """Export every net into ``WORK/xodr/``; returns the scenes whose export failed."""
+def export_one(name: str, net: str, out: Path) -> tuple[str, str, float]:
+    """Export one net to ``out/<name>.xodr``: (name, the error or "", seconds)."""
+    t0 = time.perf_counter()
+    try:
+        write_xodr(Path(net), out / f"{name}.xodr")
+    except Exception as exc:  # noqa: BLE001 - a failed export is a finding
+        return name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0
+    return name, "", time.perf_counter() - t0
+
+
+def export_all(work: Path, nets: list[dict], jobs: int = 1) -> list[str]:
+    """Export every net into ``WORK/xodr/`` (``jobs`` processes); returns the scenes whose export failed."""
     out = work / "xodr"
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
     failed = []
-    for test in nets:
-        t0 = time.perf_counter()
-        try:
-            write_xodr(Path(test["net"]), out / f"{test['name']}.xodr")
-        except Exception as exc:  # noqa: BLE001 - a failed export is a finding
-            failed.append(f"{test['name']}: {type(exc).__name__}: {exc}")
-            continue
-        print(f"exported {test['name']} in {time.perf_counter() - t0:.1f} s", flush=True)
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for name, error, secs in pool.map(export_one, [n["name"] for n in nets], [n["net"] for n in nets],
+                                          [out] * len(nets)):
+            if error:
+                failed.append(f"{name}: {error}")
+            print(f"exported {name} in {secs:.1f} s{' FAILED ' + error if error else ''}", flush=True)
     return failed
 
 
@@ -117,7 +125,7 @@ def main() -> int:
     ap.add_argument("--per-net", type=int, default=2)
     ap.add_argument("--only", nargs="*", default=None, help="'womd' and/or source net names")
     ap.add_argument("--readers", nargs="*", default=list(ENVS), choices=list(ENVS))
-    ap.add_argument("--jobs", type=int, default=1, help="reader processes at a time")
+    ap.add_argument("--jobs", type=int, default=1, help="export and reader processes at a time")
     ap.add_argument("--reuse-nets", action="store_true", help="export the nets WORK/nets.json lists again")
     ap.add_argument("--reuse", action="store_true", help="check the .xodr files in WORK/xodr/ as they are")
     args = ap.parse_args()
@@ -127,7 +135,7 @@ def main() -> int:
         nets = json.loads((work / "nets.json").read_text())
     else:
         nets = generate(work, args)
-    failed = [] if args.reuse else export_all(work, nets)
+    failed = [] if args.reuse else export_all(work, nets, args.jobs)
     families = {n["name"]: n["family"] for n in nets}
     files = sorted((work / "xodr").glob("*.xodr"))
     summary: dict = {"scenes": len(files), "export_failed": failed, "export_s": round(time.perf_counter() - t0, 1),
