@@ -38,6 +38,7 @@ smallest error over the lanes involved.
 from __future__ import annotations
 
 import copy
+import functools
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -50,6 +51,7 @@ from coster_sumo.exports.opendrive_net import DEFAULT_LANE_WIDTH_M, NetLanes
 from coster_sumo.exports.opendrive_readers import link_lane
 from coster_sumo.exports.opendrive_roads import (
     Sampler,
+    drop_outer_walkways,
     extend_reference,
     fmt,
     join_connecting_roads,
@@ -171,6 +173,8 @@ def _write_sections(lanes_el: ET.Element, lane_els: list[ET.Element], s: np.ndar
                 here.append((("lane", k), records(s[i:j + 1] - s[i], width[i:j + 1, k], [(0, j - i)])))
             if filler is not None and k < n - 1 and float(filler[i:j + 1, k].max()) > 0.0:
                 here.append((("filler", k), records(s[i:j + 1] - s[i], filler[i:j + 1, k], [(0, j - i)])))
+        if not here:  # no lane at all here (one ends before the next begins): the schema wants one
+            here.append((("filler", -1), _gap_records(s, width * present, i, j)))
         sec = copy.deepcopy(template)
         sec.set("s", fmt(float(s[i])))
         right = sec.find("right")
@@ -206,6 +210,15 @@ def _write_sections(lanes_el: ET.Element, lane_els: list[ET.Element], s: np.ndar
     for name, (_, here, els, _) in (("start", sections[0]), ("end", sections[-1])):
         ends[name] = {-(key[1] + 1): int(els[key].get("id", "0")) for key, _ in here if key[0] == "lane"}
     return ends
+
+
+def _gap_records(s: np.ndarray, width: np.ndarray, i: int, j: int) -> list[tuple[float, float, float]]:
+    """The width record of a filler over stations ``i..j`` where no lane is present: from the
+    lanes' total width before to their total after (``width`` (S, n) [m], 0 where absent)."""
+    a = float(width[i - 1].sum()) if i > 0 else float(width[min(j + 1, len(s) - 1)].sum())
+    b = float(width[j + 1].sum()) if j + 1 < len(s) else a
+    span = float(s[min(j + 1, len(s) - 1)] - s[i])
+    return [(0.0, a, (b - a) / span if span > 0 else 0.0)]
 
 
 def _inner_borders(here: list[tuple[tuple[str, int], list[tuple[float, float, float]]]], at: float
@@ -272,6 +285,8 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     roads = sorted(root.findall("road"), key=lambda r: r.get("junction", "-1") != "-1")
     for road in roads:
         connecting = road.get("junction", "-1") != "-1"
+        if connecting:  # sidewalks of a connecting road: SUMO has no internal lane for them
+            drop_outer_walkways(root, road, functools.partial(_served, road, net=net, edge_of=edge_of))
         targets, widths = _targets(road, net, edge_of, connecting)
         if targets is None:
             counts["connecting_kept" if connecting else "roads_kept"] += 1
@@ -382,6 +397,18 @@ def _remove_connecting(root: ET.Element, road: ET.Element) -> None:
         if junction.find("connection") is None:
             root.remove(junction)
     root.remove(road)
+
+
+def _served(road: ET.Element, lane: ET.Element, *, net: NetLanes, edge_of: dict[str, str]) -> bool:
+    """Whether a SUMO connection runs where a connecting road's lane does (or it is unknown)."""
+    pred, succ = road.find("link/predecessor"), road.find("link/successor")
+    p, q = lane.find("link/predecessor"), lane.find("link/successor")
+    if pred is None or succ is None or p is None or q is None:
+        return True
+    frm, to = edge_of.get(pred.get("elementId", ""), ""), edge_of.get(succ.get("elementId", ""), "")
+    key = (frm, len(net.edge_lanes.get(frm, [])) + int(p.get("id", "0")), to,
+           len(net.edge_lanes.get(to, [])) + int(q.get("id", "0")))
+    return net.connection_shape(*key) is not None
 
 
 def _targets(road: ET.Element, net: NetLanes, edge_of: dict[str, str], connecting: bool

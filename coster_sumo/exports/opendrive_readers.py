@@ -13,6 +13,10 @@ OpenDRIVE conversion and pyxodr (``docs/sumo.md §12a``). :func:`make_readable` 
 - **links to junctions that exist**: netconvert links a road to the junction at its end node
   even where it writes no ``<junction>`` for that node (a dead end, a node without connecting
   roads); such links are dropped.
+- **no redundant line geometries**: ASAM's checker warns about two consecutive ``<line>`` pieces of
+  a reference line whose headings agree to 1e-6 rad (one line says the same); netconvert writes one
+  line per collinear SUMO shape segment, and a straight end piece may continue a straight line.
+  Such pieces are merged into one (:func:`merge_collinear_lines`).
 - **no roads of (almost) no length**: a junction whose connecting roads are all shorter than
   :data:`MIN_ROAD_M` (SUMO internal lanes of length 0 where two edges meet end to end) is
   replaced by direct road-to-road links; its lane links carry over.
@@ -20,10 +24,13 @@ OpenDRIVE conversion and pyxodr (``docs/sumo.md §12a``). :func:`make_readable` 
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 
 OPENDRIVE_REV_MINOR = 8  # OpenDRIVE 1.8
 MIN_ROAD_M = 0.05  # [m] shorter connecting roads are bypassed (readers choke on 1 cm roads)
+LINE_HEADING_TOL = 1e-6  # [rad] ASAM's checker takes two lines this close in heading for one
+LINE_MERGE_M = 1e-4  # [m] two lines are merged where one line through both stays this close to them
 
 
 def make_readable(root: ET.Element) -> dict[str, int]:
@@ -34,6 +41,7 @@ def make_readable(root: ET.Element) -> dict[str, int]:
         header.set("revMinor", str(OPENDRIVE_REV_MINOR))
     counts = {"signals_renumbered": _integer_signal_ids(root)}
     counts["junctions_bypassed"] = _bypass_short_junctions(root)
+    counts["lines_merged"] = sum(merge_collinear_lines(road) for road in root.findall("road"))
     counts["dangling_links_dropped"] = _drop_dangling_junction_links(root)
     return counts
 
@@ -62,6 +70,41 @@ def _integer_signal_ids(root: ET.Element) -> int:
         for control in junction.findall("controller"):
             control.set("id", controller_ids.get(control.get("id", ""), control.get("id", "")))
     return len(signal_ids)
+
+
+def merge_collinear_lines(road: ET.Element) -> int:
+    """Merge consecutive ``<line>`` geometries of a road's planView that continue each other (headings
+    within :data:`LINE_HEADING_TOL`, or the second's ends within :data:`LINE_MERGE_M` of the first's
+    line); returns how many pieces were merged away."""
+    plan = road.find("planView")
+    if plan is None:
+        return 0
+    merged = 0
+    geos = plan.findall("geometry")
+    keep = geos[:1]
+    for g in geos[1:]:
+        prev = keep[-1]
+        if prev.find("line") is None or g.find("line") is None or not _continues(prev, g):
+            keep.append(g)
+            continue
+        prev.set("length", f"{float(prev.get('length', '0')) + float(g.get('length', '0')):.8f}")
+        plan.remove(g)
+        merged += 1
+    return merged
+
+
+def _continues(a: ET.Element, b: ET.Element) -> bool:
+    """Whether line ``b`` lies on line ``a`` extended (see :func:`merge_collinear_lines`)."""
+    ha, hb = float(a.get("hdg", "0")), float(b.get("hdg", "0"))
+    la, lb = float(a.get("length", "0")), float(b.get("length", "0"))
+    ax, ay = float(a.get("x", "0")), float(a.get("y", "0"))
+    ux, uy = math.cos(ha), math.sin(ha)
+    bx, by = float(b.get("x", "0")), float(b.get("y", "0"))
+    ex, ey = bx + lb * math.cos(hb), by + lb * math.sin(hb)
+    start_gap = math.hypot(ax + la * ux - bx, ay + la * uy - by)
+    off_line = abs((ex - ax) * uy - (ey - ay) * ux)  # the second's end from the first's line
+    turn = abs(math.remainder(hb - ha, math.tau))
+    return start_gap <= LINE_MERGE_M and (turn < LINE_HEADING_TOL or off_line <= LINE_MERGE_M)
 
 
 def _drop_dangling_junction_links(root: ET.Element) -> int:

@@ -312,7 +312,9 @@ def _connecting(road: ET.Element, roads: dict[str, ET.Element], sample: Sampler)
         return None
     lp, ls = lanes[0].find("link/predecessor"), lanes[0].find("link/successor")
     a, b = roads.get(pred.get("elementId", "")), roads.get(succ.get("elementId", ""))
-    if lp is None or ls is None or a is None or b is None:
+    # a lane link is gone where the linked lane is not there at that road end (opendrive_fit's
+    # renumbering): that end stays on the SUMO lane, the other still joins its lane
+    if (lp is None or a is None) and (ls is None or b is None):
         return None
     plan = road.find("planView")
     if plan is None:
@@ -322,11 +324,12 @@ def _connecting(road: ET.Element, roads: dict[str, ET.Element], sample: Sampler)
     x, y, h = sample(plan, s)
     path = np.column_stack([x, y])
     own = _records_at(lanes[0].findall("width"), "sOffset", 0.0)
-    start = lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")), sample)
-    end = lane_at(b, 0.0, int(ls.get("id", "0")), sample)
+    start = None if lp is None or a is None else lane_at(a, float(a.get("length", "0")), int(lp.get("id", "0")),
+                                                         sample)
+    end = None if ls is None or b is None else lane_at(b, 0.0, int(ls.get("id", "0")), sample)
     # a lane that has not begun yet at the contact (width 0: a logged lane that starts later
-    # than its edge's others where the road's end could not move) is no place to join: that
-    # end stays on the SUMO lane
+    # than its edge's others where the road's end could not move), or no linked lane, is no
+    # place to join: that end stays on the SUMO lane
     if start is None or start[1] < MIN_JOIN_WIDTH_M:
         start = (path[0].copy(), own, float(h[0]))
     if end is None or end[1] < MIN_JOIN_WIDTH_M:
@@ -415,3 +418,32 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
         folded += folds
         joined += _write_joined(c, pieces, half)
     return joined, folded
+
+
+# lane types ASAM's checker does not take for drivable (its gap rule skips them)
+NOT_DRIVABLE = {"sidewalk", "median", "shoulder", "curb", "none", "walking", "bidirectional", "tram", "rail"}
+
+
+def drop_outer_walkways(root: ET.Element, road: ET.Element, served: Callable[[ET.Element], bool]) -> int:
+    """Remove a connecting road's outermost right lanes that are not drivable and that no SUMO
+    internal lane serves (``served(lane)`` False: a sidewalk, which SUMO crosses by walking areas
+    instead), with the junction's lane links into them, so that the road's drivable lanes can be
+    fitted; returns how many lanes went."""
+    right = road.find("lanes/laneSection/right")
+    if right is None or len(road.findall("lanes/laneSection")) != 1:
+        return 0
+    lanes = sorted(right.findall("lane"), key=lambda e: int(e.get("id", "0")))  # outermost first
+    gone: set[str] = set()
+    for lane in lanes[:-1]:  # at least one lane stays
+        if lane.get("type") not in NOT_DRIVABLE or served(lane):
+            break
+        right.remove(lane)
+        gone.add(lane.get("id", ""))
+    if gone:
+        rid = road.get("id", "")
+        for conn in root.iter("connection"):
+            if conn.get("connectingRoad") == rid:
+                for link in conn.findall("laneLink"):
+                    if link.get("to") in gone:
+                        conn.remove(link)
+    return len(gone)
