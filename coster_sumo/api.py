@@ -23,15 +23,15 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.defects import label_plans
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.avoidability.labels import label_plans
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.spec import GenerationConfig, LabelOptions, ScenarioSpec
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import DrawMemo, PlannedScenario, keep_avoidable, plan_scenarios
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.scenario import nominal_scene
+from coster_sumo.pipeline.scenario import nominal_scene
+from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
-from coster_sumo.spec import GenerationConfig, LabelOptions, ScenarioSpec
-from coster_sumo.targets import choose_target
 
 __all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
            "SumoSession", "inject_variant", "plan_adversaries", "run_injection"]
@@ -45,7 +45,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
 
     Returns the :class:`~coster_sumo.method.generation.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
-    :class:`~coster_sumo.plan.AdversaryPlan` per kept variant, sim times in seconds). Inject one
+    :class:`~coster_sumo.core.plan.AdversaryPlan` per kept variant, sim times in seconds). Inject one
     with :func:`~coster_sumo.sim.inject.inject_variant` or drive it in your own loop.
 
     Fewer plans than ``variants`` is possible (a cluster of the oversampled trajectories had no

@@ -671,7 +671,7 @@ def run_measured(argv: list[str], timeout: float, cwd: Path, stdin: str | None =
 
 DRIVER = r"""
 import contextlib, io, json, sys, traceback
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 results = []
 for argv in json.loads(sys.stdin.read()):
     err = io.StringIO()

@@ -1,16 +1,17 @@
 """Avoidability labels on hand-built scenes: what no escape can avoid, and what braking or a lane
-change does avoid (coster_sumo.avoid)."""
+change does avoid (coster_sumo.avoidability.search)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from coster_sumo import avoid, evasion, synthetic
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.geometry import box_signed_distance, make_boxes
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.scene import Scene, SignalStates
+from coster_sumo.avoidability import evasion, search
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.scene import Scene, SignalStates
+from coster_sumo.data import synthetic
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
+from coster_sumo.geometry.drivable import DrivableArea
 
 STEPS = 140  # 14 s at 10 Hz
 T_COL = 8.0  # [s]
@@ -42,7 +43,7 @@ def straight_plan(x_col: float, y_col: float, yaw: float, speed: float, horizon_
 
 
 def _assess(scene: Scene, plan: AdversaryPlan) -> evasion.Avoidability:
-    return avoid.assess(scene, 0, plan, DrivableArea.from_road_map(scene.road_map))
+    return search.assess(scene, 0, plan, DrivableArea.from_road_map(scene.road_map))
 
 
 def test_an_adversary_from_behind_faster_than_any_acceleration_is_unavoidable_on_one_lane():
@@ -52,7 +53,7 @@ def test_an_adversary_from_behind_faster_than_any_acceleration_is_unavoidable_on
     res = _assess(scene, plan)
     assert res.contact_kind == "rear_end_by_adversary"
     assert not res.avoidable
-    assert not any(res.avoidable_at(r) for r in avoid.REACTION_TIMES_S)
+    assert not any(res.avoidable_at(r) for r in search.REACTION_TIMES_S)
     assert res.escape is None
 
 
@@ -78,13 +79,13 @@ def test_a_stopped_vehicle_ahead_is_avoidable_by_braking():
     e = res.escape
     assert e is not None and e.manoeuvre.longitudinal == "brake" and e.manoeuvre.lateral_m == 0.0
     assert e.t_act >= res.t_threat + evasion.DEFAULT_REACTION_S - 1e-6
-    assert e.clearance_m >= avoid.MIN_CLEARANCE_M
+    assert e.clearance_m >= search.MIN_CLEARANCE_M
     assert e.peak_decel <= evasion.CLASS_LIMITS["passenger"].emergency_decel + 1e-6
     assert res.last_moment_s is not None and res.last_moment_s > 0.5
     # the escape really keeps clear of the adversary's boxes, step by step
     ax, ay, ayaw, _ = plan.sample(e.times)
     gap = box_signed_distance(make_boxes(e.x, e.y, e.yaw, LENGTH, WIDTH), make_boxes(ax, ay, ayaw, LENGTH, WIDTH))
-    assert gap.min() >= avoid.MIN_CLEARANCE_M - 1e-6
+    assert gap.min() >= search.MIN_CLEARANCE_M - 1e-6
 
 
 def test_an_adversary_from_behind_is_avoidable_by_a_lane_change_when_the_next_lane_is_free():

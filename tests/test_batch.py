@@ -19,9 +19,9 @@ from coster_sumo.batch.executor import Outcome, Task, execute, probe_task
 from coster_sumo.batch.regress import run_key
 from coster_sumo.batch.sources import parse_sources, scene_key
 from coster_sumo.batch.store import RESULT_FIELDS, ResultRow, ResultStore, result_row
+from coster_sumo.core.spec import ScenarioSpec as SceneSpec
 from coster_sumo.errors import InputError
 from coster_sumo.metrics import rate_with_ci, wilson_interval
-from coster_sumo.spec import ScenarioSpec as SceneSpec
 
 REPO = Path(__file__).resolve().parents[1]
 INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from coster_sumo.cli import _subcommands, build_parser, main
-from coster_sumo.spec import GenerationConfig
+from coster_sumo.cli.command_line import _subcommands, build_parser, main
+from coster_sumo.core.spec import GenerationConfig
 
 REPO = Path(__file__).resolve().parents[1]
 MARKUP = re.compile(r"``|:(func|mod|class|data|meth|attr):`")

@@ -7,15 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.spec import GenerationConfig
+from coster_sumo.data.synthetic import two_lane_road
 from coster_sumo.errors import NoSnapshot
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method import snapshot as placement
 from coster_sumo.method.collision_time import COLLISION_TIMES, SNAPSHOT_SEPARATION_STEPS
 from coster_sumo.method.generation import plan_scenario
 from coster_sumo.method.snapshot import ATTEMPTS_PER_TIME, SNAPSHOT_INITS
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.spec import GenerationConfig
-from coster_sumo.synthetic import two_lane_road
 
 GEN = GenerationConfig(init="random", rollout="cv", collision_time="last")
 

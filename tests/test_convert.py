@@ -15,12 +15,12 @@ from coster_sumo.converters.to_sumo import STAGING_EDGE, convert_scene
 from coster_sumo.converters.to_sumo_net import build_plain_net, lane_width, turn_width_cap
 from coster_sumo.converters.womd import scene_to_scenario
 
-from coster_sumo import synthetic
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.core.scene import Lanes, ObjectType, Ragged, RoadMap, Scene, SignalStates
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import is_converted_scene
-from coster_sumo.scene import Lanes, ObjectType, Ragged, RoadMap, Scene, SignalStates
 from coster_sumo.sim.session import SumoSession
 from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 from tests.drive_connections import drive_every_connection

@@ -7,16 +7,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo.cli import build_parser
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.cli.command_line import build_parser
+from coster_sumo.core.scene import resample
+from coster_sumo.core.spec import GenerationConfig
 from coster_sumo.errors import InputError
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES, choose_collision_time
 from coster_sumo.method.generation import check_generation, generate_variants, missing_weights, plan_scenario
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.scene import resample
 from coster_sumo.sim.planners import PLANNERS, check_planner
-from coster_sumo.spec import GenerationConfig
 
 BASELINES = GenerationConfig(init="random", rollout="cv", collision_time="last")
 

@@ -8,10 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo import dataset, save_scene, synthetic
+from coster_sumo import save_scene
 from coster_sumo.batch import corpus
 from coster_sumo.batch.corpus import CorpusConfig, catalogue, plan_corpus, vtypes_xml
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.data import dataset, synthetic
 
 
 def _plan(tmp_path: Path, runs: int = 2) -> tuple[list[corpus.Network], list]:

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 
 
 def test_curves_of_a_rollout_and_a_prior_run(tmp_path, capsys):
@@ -34,7 +34,7 @@ def test_a_file_without_epochs_is_one_line(tmp_path, capsys):
 
 def test_the_priors_nested_held_out_loss_is_read():
     """`train prior` writes its held-out numbers as {"val": {"loss": ...}}; the curve must show them."""
-    from coster_sumo.viz import training_history
+    from coster_sumo.pipeline.viz import training_history
 
     rows = training_history({"history": [{"epoch": 1, "train_loss": 0.79, "val": {"loss": 0.69, "speed_ce": 3.1}}]})
     assert rows[0]["val_loss"] == 0.69 and rows[0]["train_loss"] == 0.79 and rows[0]["val_speed_ce"] == 3.1
@@ -43,7 +43,7 @@ def test_the_priors_nested_held_out_loss_is_read():
 @pytest.fixture()
 def marks_drawn(monkeypatch):
     """The marks ``eval curves`` hands to the picture (it is still drawn)."""
-    from coster_sumo import viz
+    from coster_sumo.pipeline import viz
 
     seen: dict = {}
     real = viz.training_curves

@@ -7,8 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import InputError, dataset, save_scene, synthetic
-from coster_sumo.scene import Lanes, Ragged, RoadMap, Scene, SignalStates
+from coster_sumo import InputError, save_scene
+from coster_sumo.core.scene import Lanes, Ragged, RoadMap, Scene, SignalStates
+from coster_sumo.data import dataset, synthetic
 
 
 def _long_scene(num_steps: int = 300) -> Scene:
@@ -145,7 +146,7 @@ def test_manifest_totals(tmp_path):
 
 def test_near_items_equals_brute_force_on_random_polylines():
     """The blocked search keeps exactly the polylines a distance to every point and segment keeps."""
-    from coster_sumo.scene import Ragged
+    from coster_sumo.core.scene import Ragged
 
     rng = np.random.default_rng(4)
     polys = [np.cumsum(rng.normal(0, 40, (int(rng.integers(1, 6)), 2)), axis=0) + rng.uniform(-500, 500, 2)

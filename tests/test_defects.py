@@ -1,5 +1,5 @@
 """Defects in a batch: labels proven in SUMO, the escape planner scores no defect, the report leads
-with the defect rate (coster_sumo.defects, regress, run)."""
+with the defect rate (coster_sumo.avoidability.labels, regress, run)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
+from coster_sumo.avoidability.evasion import Avoidability
+from coster_sumo.avoidability.labels import label_line
 from coster_sumo.batch.store import ResultStore
 from coster_sumo.batch.summaries import defect_rates
-from coster_sumo.cli import main
-from coster_sumo.defects import label_line
-from coster_sumo.evasion import Avoidability
+from coster_sumo.cli.command_line import main
 from coster_sumo.metrics import RunOutcome
 
 REPO = Path(__file__).resolve().parents[1]

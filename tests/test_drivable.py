@@ -2,8 +2,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from coster_sumo import synthetic
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.data import synthetic
+from coster_sumo.geometry.drivable import DrivableArea
 
 
 def test_vehicles_of_synthetic_scenes_are_on_road(synthetic_scene):
@@ -35,7 +35,7 @@ def test_junction_interior_is_drivable():
 def test_area_outside_from_pieces_equals_the_whole_area(monkeypatch):
     import shapely
 
-    import coster_sumo.drivable as drivable_mod
+    import coster_sumo.geometry.drivable as drivable_mod
 
     for scene, min_pieces in ((synthetic.two_lane_road(), 1), (synthetic.four_way_junction(), 4)):
         monkeypatch.setattr(drivable_mod, "PIECE_VERTICES", 12)  # force a deep split
@@ -75,10 +75,10 @@ def test_osm_network_whose_closed_area_self_intersects_still_answers():
     there, and every area query failed with a GEOS TopologyException before it was repaired."""
     import shapely
 
-    from coster_sumo import sumo_env
     from coster_sumo.formats.sumo_net import read_sumolib_net, sumo_net_to_road_map
+    from coster_sumo.infra import sumo_install
 
-    net = sumo_env.sumo_home() / "tools" / "game" / "DRT" / "osm.net.xml"
+    net = sumo_install.sumo_home() / "tools" / "game" / "DRT" / "osm.net.xml"
     road_map, _ = sumo_net_to_road_map(read_sumolib_net(net))
     area = DrivableArea.from_road_map(road_map)
     assert shapely.is_valid(area.geometry)

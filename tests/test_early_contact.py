@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import synthetic
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.data import synthetic
 from coster_sumo.method.filters import bystander_contact, early_contact
-from coster_sumo.plan import AdversaryPlan
 
 K_COL = 60  # t_col's step in the scene
 

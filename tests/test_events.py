@@ -3,8 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coster_sumo import synthetic
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.data import synthetic
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.sim.events import EventDetector, VehicleStates
 
 
@@ -55,7 +55,7 @@ def test_off_road_and_sumo_collision_events():
 
 
 def test_sat_gap_bounds_the_exact_distance_and_agrees_on_overlap():
-    from coster_sumo.geometry import box_signed_distance, make_boxes
+    from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
     from coster_sumo.sim.events import _sat_gap
 
     rng = np.random.default_rng(3)

@@ -18,8 +18,7 @@ from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 from defusedxml import ElementTree as SafeET
 from test_export_openscenario import LANE_END_TOLERANCE_M, XODR_TOLERANCE_M, assert_xodr_on_lanes
 
-from coster_sumo import sumo_env
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 from coster_sumo.exports import opendrive as odr
 from coster_sumo.exports.opendrive_bend import bend, crossings, fold_ratio, outline, smooth_path, untangle
 from coster_sumo.exports.opendrive_fit import FILLER_CODE
@@ -32,6 +31,7 @@ from coster_sumo.exports.opendrive_solve import (
     smooth_polyline,
     solve_borders,
 )
+from coster_sumo.infra import sumo_install
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -178,9 +178,10 @@ def test_lanes_that_run_apart_and_open_late_land_on_their_sumo_shapes(tmp_path):
     (tmp_path / "n.nod.xml").write_text(NODES)
     (tmp_path / "e.edg.xml").write_text(EDGES.format(bay=_bay()))
     net = tmp_path / "t.net.xml"
-    subprocess.run([sumo_env.binary("netconvert"), "-n", str(tmp_path / "n.nod.xml"), "-e", str(tmp_path / "e.edg.xml"),
+    subprocess.run([sumo_install.binary("netconvert"), "-n", str(tmp_path / "n.nod.xml"),
+                    "-e", str(tmp_path / "e.edg.xml"),
                     "-o", str(net), "--offset.disable-normalization", "true", "--no-warnings", "true"],
-                   check=True, capture_output=True, env=sumo_env.subprocess_env())
+                   check=True, capture_output=True, env=sumo_install.subprocess_env())
     raw = odr.write_xodr(net, tmp_path / "raw.xodr", fit=False)
     before = odr.compare_with_net(raw, net)
     assert before["roads"]["net_to_xodr_max"] > 1.0  # netconvert alone: metres off the bay
@@ -196,7 +197,7 @@ def test_demo_and_sumo_game_nets(name):
     if name in ("intersection", "arterial"):
         net = REPO / "networks" / name / f"{name}.net.xml"
     else:
-        net = sumo_env.sumo_home() / "tools" / "game" / name / f"{name}.net.xml"
+        net = sumo_install.sumo_home() / "tools" / "game" / name / f"{name}.net.xml"
         if not net.is_file():
             pytest.skip(f"{net} not in this SUMO build")
     import tempfile
@@ -273,7 +274,7 @@ def test_all_womd_samples(tmp_path):
 def test_converted_scene_xodr_has_no_staging_road(tmp_path):
     from coster_sumo.converters.to_sumo import convert_scene
 
-    from coster_sumo import synthetic
+    from coster_sumo.data import synthetic
     from coster_sumo.formats.scene_folder import STAGING_EDGE
 
     folder = convert_scene(synthetic.four_way_junction(), tmp_path).folder
@@ -326,9 +327,10 @@ def test_a_lane_that_opens_late_is_linked_only_where_it_has_begun(tmp_path):
     (tmp_path / "n.nod.xml").write_text(STAGGERED_NODES)
     (tmp_path / "e.edg.xml").write_text(STAGGERED_EDGES)
     net = tmp_path / "t.net.xml"
-    subprocess.run([sumo_env.binary("netconvert"), "-n", str(tmp_path / "n.nod.xml"), "-e", str(tmp_path / "e.edg.xml"),
+    subprocess.run([sumo_install.binary("netconvert"), "-n", str(tmp_path / "n.nod.xml"),
+                    "-e", str(tmp_path / "e.edg.xml"),
                     "-o", str(net), "--offset.disable-normalization", "true", "--no-warnings", "true",
-                    "--no-turnarounds", "true"], check=True, capture_output=True, env=sumo_env.subprocess_env())
+                    "--no-turnarounds", "true"], check=True, capture_output=True, env=sumo_install.subprocess_env())
     xodr = odr.write_xodr(net, tmp_path / "t.xodr")
     assert_xodr_on_lanes(xodr, net)
     root = SafeET.parse(str(xodr)).getroot()

@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
-from coster_sumo import synthetic
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.data import synthetic
 from coster_sumo.exports import opendrive as odr
 from coster_sumo.exports import openscenario as osc
 from coster_sumo.exports.trajectories import (
@@ -30,7 +31,6 @@ from coster_sumo.exports.trajectories import (
     write_selection,
     write_trajectories_csv,
 )
-from coster_sumo.plan import AdversaryPlan
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"

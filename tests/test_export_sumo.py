@@ -18,14 +18,15 @@ import numpy as np
 import pytest
 from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
-from coster_sumo import frames, sumo_env
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.exports.demand import demand_ids, rewrite_demand
 from coster_sumo.exports.fcd import FCD_FILE, VTYPE_SUFFIX, VTYPES_FILE
 from coster_sumo.exports.sumo_config import source_options
-from coster_sumo.geometry import box_signed_distance, make_boxes
-from coster_sumo.outputs import sim_time_of
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.geometry import frames
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
+from coster_sumo.infra import sumo_install
+from coster_sumo.pipeline.outputs import sim_time_of
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,8 +51,8 @@ def read_fcd(path: Path) -> States:
 
 def play(cfg: Path, fcd: Path) -> States:
     """Run the plain sumo binary on ``cfg`` (no extra options but the FCD output) and read F."""
-    proc = subprocess.run([sumo_env.binary("sumo"), "-c", str(cfg), "--fcd-output", str(fcd)],
-                          capture_output=True, text=True, env=sumo_env.subprocess_env(), timeout=300)
+    proc = subprocess.run([sumo_install.binary("sumo"), "-c", str(cfg), "--fcd-output", str(fcd)],
+                          capture_output=True, text=True, env=sumo_install.subprocess_env(), timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return read_fcd(fcd)
 
@@ -213,8 +214,8 @@ def test_flows_that_begin_after_the_export_ends_leave_it(tmp_path):
     assert rewrite_demand(rou, end=17.9)["flows_after_end"] == ["late", "later"]
     assert [el.get("id") for el in ET.parse(rou).getroot()] == ["car", "early"]
     net = REPO / "networks" / "intersection" / "intersection.net.xml"
-    proc = subprocess.run([sumo_env.binary("sumo"), "-n", str(net), "-r", str(rou), "--end", "17.9",
-                           "--no-step-log", "true"], capture_output=True, text=True, env=sumo_env.subprocess_env(),
+    proc = subprocess.run([sumo_install.binary("sumo"), "-n", str(net), "-r", str(rou), "--end", "17.9",
+                           "--no-step-log", "true"], capture_output=True, text=True, env=sumo_install.subprocess_env(),
                           timeout=60)
     assert proc.returncode == 0, proc.stderr[-500:]
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from coster_sumo.batch.store import ResultRow
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 
 REPO = Path(__file__).resolve().parents[1]
 CFG = REPO / "networks" / "intersection" / "intersection.sumocfg"
@@ -88,7 +88,7 @@ def finished(tmp_path_factory) -> tuple[Path, float]:
 @pytest.mark.parametrize(("how", "share"), [("SIGKILL", 0.2), ("SIGKILL", 0.6), ("SIGKILL", 0.9),
                                             ("SIGINT", 0.2), ("SIGINT", 0.6), ("SIGINT", 0.9), ("SIGTERM", 0.5)])
 def test_run_stopped_at_any_moment_loses_nothing_and_leaves_nothing(tmp_path, finished, how, share):
-    from coster_sumo.outdir import OutputLock, clean_leftovers
+    from coster_sumo.infra.outdir import OutputLock, clean_leftovers
 
     earlier, seconds = finished
     out = tmp_path / "o"
@@ -164,7 +164,7 @@ def test_convert_killed_before_its_rename_counts_no_scene_twice(tmp_path):
     assert _hidden(scenes) == [".coster-sumo.json"]
 
 
-@pytest.mark.parametrize("where", ["coster_sumo.outputs.write_json", "coster_sumo.outdir.publish"])
+@pytest.mark.parametrize("where", ["coster_sumo.pipeline.outputs.write_json", "coster_sumo.infra.outdir.publish"])
 def test_a_full_disk_is_one_line_and_leaves_no_half_output(tmp_path, capfd, monkeypatch, where):
     """ENOSPC injected where the run writes its summary, and where it renames its output into place."""
     def full(*args, **kwargs):
@@ -178,7 +178,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_half_output(tmp_path, capfd, monk
 
 
 def test_a_folder_it_may_not_write_is_one_line(tmp_path, capfd, monkeypatch):
-    import coster_sumo.outdir as outdir_module
+    import coster_sumo.infra.outdir as outdir_module
 
     def read_only(out):
         raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(out.parent))

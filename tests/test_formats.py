@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo.atomic import atomic_path, write_json
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file, is_converted_scene
 from coster_sumo.formats.sumocfg import parse_time, read_sumocfg
+from coster_sumo.infra.atomic import atomic_path, write_json
 
 REPO = Path(__file__).resolve().parents[1]
 

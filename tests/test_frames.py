@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coster_sumo import frames
+from coster_sumo.geometry import frames
 
 
 @pytest.mark.parametrize(("yaw", "angle"), [(0.0, 90.0), (np.pi / 2, 0.0), (np.pi, 270.0),

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import shapely
 
-from coster_sumo import geometry as g
+from coster_sumo.geometry import boxes as g
 
 
 def _random_boxes(rng: np.random.Generator, n: int, spread: float = 8.0) -> np.ndarray:

@@ -225,7 +225,7 @@ def test_a_trained_policy_is_a_planner_for_run(nominal_set, tmp_path):
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import Logger
 
-    from coster_sumo.cli import main
+    from coster_sumo.cli.command_line import main
 
     env = ScenarioEnv(nominal_set, split="train")
     model = PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
@@ -272,7 +272,7 @@ def test_hard_set_leader_braking_hits_a_target_that_keeps_its_speed(tmp_path):
 
 
 def test_hard_set_red_light_runner_crosses_on_red_into_a_target_that_keeps_its_nominal_speed(tmp_path):
-    from coster_sumo.scene import SignalState
+    from coster_sumo.core.scene import SignalState
 
     out = tmp_path / "hard"
     build_set(BuildOptions(sources=CONFIGS[2:], out=out, method="hard"))

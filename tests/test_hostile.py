@@ -24,12 +24,12 @@ from coster_sumo.converters.tf_example import example_keys
 from coster_sumo.converters.tfrecord import masked_crc32c, write_tfrecord
 from coster_sumo.converters.womd import scene_to_scenario
 
-from coster_sumo import synthetic
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.core.scene import Ragged
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError, one_line
 from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.formats.scene_folder import folder_name
-from coster_sumo.scene import Ragged
 from tests.conftest import REPO, WOMD_PKL, requires_womd
 from tests.test_womd_reader import _description
 

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
-from coster_sumo.scenario import nominal_scene
+from coster_sumo.pipeline.scenario import nominal_scene
+from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import nominal_replay as replay_planner_for
 from coster_sumo.sim.inject import run_injection
 from coster_sumo.sim.planners import make_planner
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
-from coster_sumo.targets import choose_target
 
 REPO = Path(__file__).resolve().parents[1]
 CFG = REPO / "networks/intersection/intersection.sumocfg"

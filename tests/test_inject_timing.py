@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.sim.inject import AdversaryController
 
 

@@ -36,3 +36,18 @@ def test_no_function_over_80_lines() -> None:
                     long[f"{path.relative_to(REPO)}:{node.lineno}:{node.name}"] = n
     assert not long, f"functions over {MAX_FUNCTION_LINES} lines: {long}"
 
+
+
+def test_package_root_holds_at_most_five_modules() -> None:
+    """The floors are folders (README, Layout): the root keeps the entry points, the API and the errors."""
+    root = sorted(p.stem for p in (REPO / "coster_sumo").glob("*.py"))
+    assert len(root) <= 5, f"modules at coster_sumo/'s root: {root}"
+
+
+def test_every_package_is_installed() -> None:
+    """pyproject.toml lists the packages one by one: a new folder missing there would not be in the wheel."""
+    import tomllib
+
+    listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "coster_sumo").rglob("__init__.py")}
+    assert found <= listed, f"packages not in pyproject.toml: {sorted(found - listed)}"

@@ -14,10 +14,10 @@ from coster_sumo.batch.evaluate import GeneratorMethod, aggregate_generator_metr
 from coster_sumo.batch.generator_summary import GeneratorResult
 from coster_sumo.batch.regress import summarize_regression
 from coster_sumo.batch.store import ResultStore, result_row
+from coster_sumo.core.results import VariantOutcome
+from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.metrics import Metric, MetricSample, MetricValue, RunOutcome
-from coster_sumo.outputs import run_metrics
-from coster_sumo.results import VariantOutcome
-from coster_sumo.spec import ScenarioSpec
+from coster_sumo.pipeline.outputs import run_metrics
 
 
 def _contact(scene: str, speed: float, angle: float) -> RunOutcome:

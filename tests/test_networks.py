@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 
 REPO = Path(__file__).resolve().parents[1]
 NETWORKS = REPO / "networks"
@@ -101,7 +101,7 @@ def test_scenario_runs_with_traffic_around_ego(name):
     assert depart is not None and depart <= EGO_LATEST_DEPART_S
     assert passed_at is not None, f"ego did not reach {EGO_PASSES[name]} within 80 s"
     assert np.mean(near) >= 2.0, "ego drives alone"
-    env = sumo_env.subprocess_env()  # the sumo binary loads the configuration without errors too
-    out = subprocess.run([sumo_env.binary("sumo"), "-c", str(_cfg(name)), "--end", "5"],
+    env = sumo_install.subprocess_env()  # the sumo binary loads the configuration without errors too
+    out = subprocess.run([sumo_install.binary("sumo"), "-c", str(_cfg(name)), "--end", "5"],
                          capture_output=True, text=True, env=env)
     assert out.returncode == 0 and "Error" not in out.stderr, out.stderr

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo import outputs
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 from coster_sumo.method.generation import PlannedScenario
+from coster_sumo.pipeline import outputs
 
 pytestmark = pytest.mark.sumo
 
@@ -182,8 +182,9 @@ def test_quiet_keeps_the_one_line_result_of_replay(tmp_path, capsys):
 def test_overview_has_a_legend_for_every_mark_and_paths_above_the_boxes(tmp_path, monkeypatch):
     """The demo's overview had no legend for its heat map, dashed ellipse and boxes, and two
     variants' short paths were hidden under the boxes."""
-    from coster_sumo import synthetic, viz
-    from coster_sumo.snapshot_state import AgentState
+    from coster_sumo.core.snapshot import AgentState
+    from coster_sumo.data import synthetic
+    from coster_sumo.pipeline import viz
 
     scene = synthetic.two_lane_road()
     tr = scene.tracks

@@ -1,7 +1,7 @@
 """Nothing lost, nothing counted twice, nothing left running: output folders and faults.
 
 One test per finding of the fault review (numbered as there): each failed on the code before
-coster_sumo.outdir existed and passes now. The slow harness that kills commands at chosen moments
+coster_sumo.infra.outdir existed and passes now. The slow harness that kills commands at chosen moments
 is tests/test_faults.py.
 """
 
@@ -18,9 +18,10 @@ import pytest
 
 from coster_sumo.batch.executor import is_transient
 from coster_sumo.batch.sources import parse_sources, scene_key
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError
-from coster_sumo.outdir import (
+from coster_sumo.infra.outdir import (
     MARKER,
     OutputLock,
     check_output,
@@ -30,7 +31,6 @@ from coster_sumo.outdir import (
     publish,
     read_marker,
 )
-from coster_sumo.spec import ScenarioSpec
 
 REPO = Path(__file__).resolve().parents[1]
 NET = REPO / "networks" / "intersection"
@@ -294,13 +294,13 @@ def test_a_second_batch_on_one_folder_refuses_in_one_line(tmp_path, capsys):
 # ---------------------------------------------------------------- 5. a SUMO crash is one line, not a dead command
 
 @pytest.mark.parametrize(("command", "where"), [("replay", "coster_sumo.sim.replay.replay"),
-                                                ("run", "coster_sumo.run.nominal_pass")])
+                                                ("run", "coster_sumo.pipeline.run.nominal_pass")])
 def test_a_sumo_crash_outside_the_variants_is_one_line(tmp_path, command, where):
     """The command as a user starts it, with a libsumo crash (SIGABRT, as a segfault takes its
     process down) injected where it simulates outside the variants."""
     module, name = where.rsplit(".", 1)
     code = (f"import importlib, os, sys; setattr(importlib.import_module({module!r}), {name!r}, "
-            "lambda *a, **k: os.abort()); from coster_sumo.cli import main; sys.exit(main(sys.argv[1:]))")
+            "lambda *a, **k: os.abort()); from coster_sumo.cli.command_line import main; sys.exit(main(sys.argv[1:]))")
     args = ["-q", command, str(CFG), *(FAST if command == "run" else []), "-o", str(tmp_path / "o")]
     done = subprocess.run([sys.executable, "-c", code, *args], cwd=REPO, capture_output=True, text=True,
                           timeout=600)

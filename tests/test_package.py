@@ -64,7 +64,7 @@ def test_installed_wheel_runs_the_demo_from_an_empty_folder(wheel: Path, tmp_pat
     summary = empty / "out" / "summary.json"
     assert summary.is_file() and (empty / "out" / "overview.png").is_file()
     assert (empty / "out" / "variants" / "0" / "render.png").is_file()
-    where = subprocess.run([str(py), "-c", "import coster_sumo, coster_sumo.weights as w; "
+    where = subprocess.run([str(py), "-c", "import coster_sumo, coster_sumo.infra.weights as w; "
                                            "print(coster_sumo.__file__); print(w.shipped_models_dir())"],
                            cwd=empty, env=env, capture_output=True, text=True, check=True).stdout.split()
     assert all(str(env_dir) in p for p in where), where  # the installed copy, not the checkout

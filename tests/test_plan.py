@@ -3,8 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.snapshot_state import AgentState
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.snapshot import AgentState
 
 
 def _plan():

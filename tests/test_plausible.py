@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import synthetic
+from coster_sumo.data import synthetic
 from coster_sumo.method.plausible import (
     CONGESTED_SPEED_MPS,
     VEHICLE_CLASSES,
@@ -67,8 +67,8 @@ def test_moving_speed_never_draws_the_stopped_class_nor_outruns_the_traffic():
 
 def test_a_cyclist_target_gets_a_snapshot():
     """The prior's regions follow the target's own pose, whatever its object type (fkk_in's target is a bicycle)."""
+    from coster_sumo.core.scene import ObjectType, resample
     from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest
-    from coster_sumo.scene import ObjectType, resample
 
     scene = synthetic.two_lane_road()
     kinds = scene.tracks.object_type.copy()
@@ -80,7 +80,7 @@ def test_a_cyclist_target_gets_a_snapshot():
 
 
 def _unsignalised_junction(lane_type):
-    from coster_sumo.scene import SignalStates
+    from coster_sumo.core.scene import SignalStates
 
     scene = synthetic.four_way_junction()
     lanes = dataclasses.replace(scene.road_map.lanes,
@@ -94,7 +94,7 @@ def test_standstill_where_a_street_lane_enters_a_junction_not_on_a_freeway():
     """Vehicles yield at priority junctions and roundabout entries with no signal: a standstill is
     plausible near the end of a street lane that enters a junction, and inside the junction; not
     far from it, and not on a freeway lane whatever it enters."""
-    from coster_sumo.scene import LaneType
+    from coster_sumo.core.scene import LaneType
 
     street, freeway = _unsignalised_junction(LaneType.SURFACE_STREET), _unsignalised_junction(LaneType.FREEWAY)
     target = 0

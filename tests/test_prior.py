@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from coster_sumo import synthetic
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins

@@ -1,5 +1,5 @@
 """The SUMO proof of escapes: one pass for every escape of a converted scene gives the verdicts of
-one pass per escape (coster_sumo.sim.proof)."""
+one pass per escape (coster_sumo.avoidability.proof)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from coster_sumo.cli import main
-from coster_sumo.progress import bars
-from coster_sumo.run import RunOptions, run
-from coster_sumo.sim import proof
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.avoidability import proof
+from coster_sumo.cli.command_line import main
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.infra.progress import bars
+from coster_sumo.pipeline.run import RunOptions, run
 from tests.conftest import WOMD_PKL, requires_womd
 
 pytestmark = [pytest.mark.sumo, pytest.mark.slow, pytest.mark.realdata, requires_womd()]

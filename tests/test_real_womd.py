@@ -10,7 +10,7 @@ import pytest
 from conftest import WOMD_PKL, WOMD_PROTO, requires_womd
 from coster_sumo.converters.read import read_scenes
 
-from coster_sumo.scene import ObjectType, Scene, SignalState
+from coster_sumo.core.scene import ObjectType, Scene, SignalState
 
 pytestmark = [pytest.mark.realdata, requires_womd()]
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo import sumo_env
+from coster_sumo.core.scene import ObjectType, SignalState
 from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.formats.sumo_net import load_sumo_net
-from coster_sumo.scene import ObjectType, SignalState
+from coster_sumo.infra import sumo_install
 from coster_sumo.sim.record import record, record_config
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.signals import LINK_STATE, SignalTable, link_state_to_signal
@@ -33,10 +33,10 @@ ROUTES = """<routes>
 @pytest.fixture(scope="module")
 def grid_cfg(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("rec")
-    subprocess.run([sumo_env.binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "100",
+    subprocess.run([sumo_install.binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "100",
                     "-L", "2", "--default-junction-type", "traffic_light",
                     "-o", str(folder / "grid.net.xml")],
-                   check=True, capture_output=True, env=sumo_env.subprocess_env())
+                   check=True, capture_output=True, env=sumo_install.subprocess_env())
     (folder / "grid.rou.xml").write_text(ROUTES)
     cfg = folder / "grid.sumocfg"
     cfg.write_text('<configuration><input><net-file value="grid.net.xml"/>'
@@ -171,9 +171,9 @@ def test_run_to_the_end_of_the_demand(grid_cfg):
 @pytest.mark.sumo
 def test_net_without_traffic_lights(tmp_path):
     net = tmp_path / "plain.net.xml"
-    subprocess.run([sumo_env.binary("netgenerate"), "--grid", "--grid.number", "2", "--grid.length", "100",
+    subprocess.run([sumo_install.binary("netgenerate"), "--grid", "--grid.number", "2", "--grid.length", "100",
                     "--default-junction-type", "priority", "-o", str(net)],
-                   check=True, capture_output=True, env=sumo_env.subprocess_env())
+                   check=True, capture_output=True, env=sumo_install.subprocess_env())
     with SumoSession(net=net) as sim:
         scene = record(sim, max_steps=20)
     assert scene.num_steps == 20 and scene.tracks.num_agents == 0
@@ -184,7 +184,7 @@ def test_net_without_traffic_lights(tmp_path):
 def test_surroundings_at_2hz_give_the_models_exactly_what_sumo_did(network, target):
     """Focus.surroundings_hz: the 2 Hz steps the models read equal an every-step recording's; the
     target is read at every step; the steps in between are interpolated close to the truth."""
-    from coster_sumo.scene import resample
+    from coster_sumo.core.scene import resample
     from coster_sumo.sim.record import Focus
 
     cfg = Path(__file__).resolve().parents[1] / "networks" / network / f"{network}.sumocfg"

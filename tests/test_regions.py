@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import synthetic
+from coster_sumo.core.scene import ObjectType, SignalState
+from coster_sumo.data import synthetic
 from coster_sumo.prior import regions as rg
-from coster_sumo.scene import ObjectType, SignalState
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from coster_sumo.batch.store import ResultStore
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 
 REPO = Path(__file__).resolve().parents[1]
 INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"
@@ -59,7 +59,7 @@ def test_regress_two_planners_same_variants_then_rerun_skips(tmp_path):
 @pytest.mark.slow
 def test_regress_sumo_crash_or_hang_is_one_failed_row_and_the_rest_finish(tmp_path):
     out = tmp_path / "reg"
-    cmd = [sys.executable, "-m", "coster_sumo.cli", "-q", "regress", str(INTERSECTION), *SMALL,
+    cmd = [sys.executable, "-m", "coster_sumo", "-q", "regress", str(INTERSECTION), *SMALL,
            "--planner", "sumo", "--planner", "tests.misbehaving_planners:Abort",
            "--planner", "tests.misbehaving_planners:Hang", "--timeout", "30", "--workers", "2", "-o", str(out)]
     done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
@@ -80,7 +80,7 @@ def test_regress_sumo_crash_or_hang_is_one_failed_row_and_the_rest_finish(tmp_pa
 @pytest.mark.slow
 def test_regress_killed_halfway_resumes_without_duplicates(tmp_path):
     out = tmp_path / "reg"
-    cmd = [sys.executable, "-m", "coster_sumo.cli", "-q", "regress", str(INTERSECTION), *SMALL, "--variants", "3",
+    cmd = [sys.executable, "-m", "coster_sumo", "-q", "regress", str(INTERSECTION), *SMALL, "--variants", "3",
            "--planner", "replay", "--planner", "sumo", "--workers", "2", "-o", str(out)]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120

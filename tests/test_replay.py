@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from coster_sumo.converters.to_sumo import convert_scene
 
-from coster_sumo import frames, synthetic
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.data import synthetic
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import tls_state_strings
+from coster_sumo.geometry import frames
 from coster_sumo.sim.record import record
 from coster_sumo.sim.replay import LogReplayer, ReplayOptions, replay
 from coster_sumo.sim.session import SumoSession

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from coster_sumo.core.results import RunSummary, TargetEntry, TargetResult, VariantOutcome, read_run
 from coster_sumo.errors import InputError
-from coster_sumo.results import RunSummary, TargetEntry, TargetResult, VariantOutcome, read_run
 
 
 def _variant(i: int, collision: bool) -> dict:

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from coster_sumo import synthetic
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene, save_scene
-from coster_sumo.prefetch import prefetch
+from coster_sumo.infra.prefetch import prefetch
 from coster_sumo.rollout import cache as C
 from coster_sumo.rollout.checkpoint import load_model
 from coster_sumo.rollout.config import RolloutConfig

@@ -7,9 +7,10 @@ import json
 import pytest
 import torch
 
-from coster_sumo import devices, synthetic
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.data import synthetic
 from coster_sumo.formats.scene_file import save_scene
+from coster_sumo.infra import devices
 from coster_sumo.rollout.checkpoint import load_model
 from coster_sumo.rollout.vocab import MotionVocab
 

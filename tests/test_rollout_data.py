@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coster_sumo import synthetic
+from coster_sumo.core.scene import resample
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
 from coster_sumo.rollout import data as D
 from coster_sumo.rollout.model import RolloutConfig
-from coster_sumo.scene import resample
 
 CFG = RolloutConfig()
 

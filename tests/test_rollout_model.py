@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from coster_sumo import synthetic
+from coster_sumo.core.scene import resample
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
 from coster_sumo.rollout import data as D
 from coster_sumo.rollout.checkpoint import load_model, save_checkpoint
 from coster_sumo.rollout.model import RelativeAttention, RolloutConfig, RolloutCVAE, true_displacements
-from coster_sumo.scene import resample
 
 
 @pytest.fixture(autouse=True)

@@ -6,16 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from coster_sumo import synthetic, weights
+from coster_sumo.core.scene import resample
+from coster_sumo.core.snapshot import AgentState, CollisionSnapshot
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
-from coster_sumo.geometry import box_corners
+from coster_sumo.geometry.boxes import box_corners
+from coster_sumo.infra import weights
 from coster_sumo.rollout import sample as S
 from coster_sumo.rollout import vocab as V
 from coster_sumo.rollout.baselines import constant_lane_backward, constant_velocity_backward
 from coster_sumo.rollout.checkpoint import save_checkpoint
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
-from coster_sumo.scene import resample
-from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
 TINY = RolloutConfig(hidden=32, heads=4, latent=8, posterior_hidden=16, max_map_chunks=32, max_neighbors=8)
 
@@ -264,7 +265,7 @@ def test_crossing_between_two_steps_counts_as_a_hit():
 
 def test_hits_others_equals_testing_every_pair():
     """The reach pre-filter only skips pairs that cannot overlap."""
-    from coster_sumo.geometry import boxes_overlap, make_boxes
+    from coster_sumo.geometry.boxes import boxes_overlap, make_boxes
 
     rng = np.random.default_rng(5)
     poses = np.concatenate([rng.uniform(-150, 150, (300, 6, 2)), rng.uniform(-np.pi, np.pi, (300, 6, 1))], -1)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from conftest import visible_lines
 
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 REPO = Path(__file__).resolve().parents[1]
@@ -262,7 +262,7 @@ def test_no_lanes_near_the_target_is_one_line_exit_2_and_no_output(tmp_path, cap
     """A converted scene whose map lies 2 km from the target: nothing to place an adversary on."""
     from coster_sumo.converters.to_sumo import convert_scene
 
-    from coster_sumo import synthetic
+    from coster_sumo.data import synthetic
     from coster_sumo.formats.scene_file import load_scene, save_scene
 
     folder = convert_scene(synthetic.two_lane_road(), tmp_path).folder
@@ -302,9 +302,9 @@ def test_several_targets_share_one_pass(tmp_path, capsys):
 
 
 def test_several_targets_need_ids(tmp_path, capsys):
+    from coster_sumo.core.spec import ScenarioSpec
     from coster_sumo.errors import InputError
-    from coster_sumo.run import RunOptions, run
-    from coster_sumo.spec import ScenarioSpec
+    from coster_sumo.pipeline.run import RunOptions, run
 
     spec = ScenarioSpec(REPO / "networks/intersection/intersection.sumocfg", seed=0, end=45.0)
     with pytest.raises(InputError, match="every one needs an id"):
@@ -312,7 +312,7 @@ def test_several_targets_need_ids(tmp_path, capsys):
 
 
 def test_target_folders_are_distinct_and_file_name_safe():
-    from coster_sumo.run import target_folder
+    from coster_sumo.pipeline.run import target_folder
 
     taken = {"summary.json"}
     names = [target_folder(t, taken) for t in ("a/b", "a_b", "summary.json", "..", "veh 1")]

@@ -5,8 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from coster_sumo import InputError, load_scene, resample, save_scene, synthetic
-from coster_sumo.scene import Ragged
+from coster_sumo import InputError, load_scene, resample, save_scene
+from coster_sumo.core.scene import Ragged
+from coster_sumo.data import synthetic
 
 
 def test_synthetic_scenes_validate(synthetic_scene):
@@ -59,7 +60,7 @@ def test_ragged_round_trip():
 
 
 def test_collision_snapshot_json_is_lossless(tmp_path):
-    from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
+    from coster_sumo.core.snapshot import AgentState, CollisionSnapshot
 
     snap = CollisionSnapshot(
         scenario_id="s", target_id="ego", t_index=7, time=3.5,
@@ -74,7 +75,7 @@ def test_collision_snapshot_json_is_lossless(tmp_path):
 
 
 def test_lane_type_at_takes_the_nearest_centreline_whatever_its_point_count():
-    from coster_sumo.scene import Lanes, LaneType, RoadMap
+    from coster_sumo.core.scene import Lanes, LaneType, RoadMap
 
     shapes = [np.array([[0.0, 0.0], [100.0, 0.0]]),  # a long straight lane of two points
               np.array([[50.0, 3.0]]),  # a degenerate one-point lane: never chosen

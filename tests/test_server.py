@@ -11,12 +11,12 @@ from pathlib import Path
 
 import pytest
 
-from coster_sumo import server
+from coster_sumo.cli import server
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from behaviour import outcomes_of_run  # noqa: E402
 
-CLIENT = [sys.executable, "-m", "coster_sumo.client"]
+CLIENT = [sys.executable, "-m", "coster_sumo.cli.client"]
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -113,8 +113,8 @@ def test_a_sumo_crash_in_a_served_run_is_one_line(tmp_path: Path) -> None:
     sock = tmp_path / "sock" / "s.sock"
     env = {**os.environ, server.SOCKET_ENV: str(sock)}
     env.pop("COSTER_SUMO_SERVER", None)
-    code = ("import os, sys, coster_sumo.run as r; r.nominal_pass = lambda *a, **k: os.abort(); "
-            "from coster_sumo.client import main; sys.exit(main(['serve']))")
+    code = ("import os, sys, coster_sumo.pipeline.run as r; r.nominal_pass = lambda *a, **k: os.abort(); "
+            "from coster_sumo.cli.client import main; sys.exit(main(['serve']))")
     proc = subprocess.Popen([sys.executable, "-c", code], env=env, stderr=subprocess.PIPE, text=True)
     try:
         while not server._alive(sock):

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo import frames, sumo_env
 from coster_sumo.errors import InputError, SumoError
+from coster_sumo.geometry import frames
+from coster_sumo.infra import sumo_install
 from coster_sumo.sim.session import RECOMMENDED_OPTIONS, SumoSession
 
 REPO = Path(__file__).resolve().parents[1]
@@ -34,9 +35,9 @@ def make_grid(folder: Path) -> Path:
     """A 3x3 traffic-light grid with three vehicles; returns the .sumocfg."""
     folder.mkdir(parents=True, exist_ok=True)
     net = folder / "grid.net.xml"
-    subprocess.run([sumo_env.binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "100",
+    subprocess.run([sumo_install.binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "100",
                     "-L", "2", "--default-junction-type", "traffic_light", "-o", str(net)],
-                   check=True, capture_output=True, env=sumo_env.subprocess_env())
+                   check=True, capture_output=True, env=sumo_install.subprocess_env())
     (folder / "grid.rou.xml").write_text(ROUTES)
     cfg = folder / "grid.sumocfg"
     cfg.write_text('<configuration><input><net-file value="grid.net.xml"/>'
@@ -221,11 +222,11 @@ def test_traci_matches_libsumo(grid_cfg):
 
 
 def test_attach_to_an_external_server(grid_cfg):
-    sumolib = sumo_env.import_sumolib()
+    sumolib = sumo_install.import_sumolib()
     port = sumolib.miscutils.getFreeSocketPort()
-    server = subprocess.Popen([sumo_env.binary("sumo"), "-c", str(grid_cfg), "--remote-port", str(port),
+    server = subprocess.Popen([sumo_install.binary("sumo"), "-c", str(grid_cfg), "--remote-port", str(port),
                                "--step-length", "0.1", "--no-step-log", "true"],
-                              stdout=subprocess.DEVNULL, env=sumo_env.subprocess_env())
+                              stdout=subprocess.DEVNULL, env=sumo_install.subprocess_env())
     try:
         with SumoSession(port=port) as sim:
             assert sim.backend == "traci"

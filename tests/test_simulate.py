@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo import dataset
 from coster_sumo.batch.nets import netgenerate_options
 from coster_sumo.batch.simulate import SimulateConfig, plan_runs, resolve_sources
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
+from coster_sumo.data import dataset
 
 REPO = Path(__file__).resolve().parents[1]
 INTERSECTION = REPO / "networks" / "intersection" / "intersection.sumocfg"

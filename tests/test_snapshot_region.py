@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.scene import resample
 from coster_sumo.errors import NoSnapshot
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.snapshot import PriorMemo, prior_snapshot
-from coster_sumo.scene import resample
 
 
 def test_the_adversary_never_comes_from_the_targets_own_region(synthetic_scene):

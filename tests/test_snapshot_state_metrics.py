@@ -9,8 +9,8 @@ import pytest
 
 from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
 from coster_sumo.batch.generator_summary import VariantRecord
+from coster_sumo.data.synthetic import two_lane_road
 from coster_sumo.metrics import SPEED_BINS
-from coster_sumo.synthetic import two_lane_road
 
 
 def _hist(speeds):

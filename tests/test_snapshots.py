@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo import sumo_env
+from coster_sumo.core.scene import LaneType
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumo_net import (
     ROAD_LINE_SOLID_DOUBLE_YELLOW,
@@ -16,7 +16,7 @@ from coster_sumo.formats.sumo_net import (
     offset_polyline,
     read_sumo_net,
 )
-from coster_sumo.scene import LaneType
+from coster_sumo.infra import sumo_install
 
 NETGENERATE = {
     "grid_tls": ["--grid", "--grid.number", "3", "--grid.length", "100", "-L", "2",
@@ -37,8 +37,8 @@ def nets(tmp_path_factory) -> dict[str, Path]:
     out = {}
     for name, args in NETGENERATE.items():
         path = folder / f"{name}.net.xml"
-        subprocess.run([sumo_env.binary("netgenerate"), *args, "-o", str(path)], check=True,
-                       capture_output=True, env=sumo_env.subprocess_env())
+        subprocess.run([sumo_install.binary("netgenerate"), *args, "-o", str(path)], check=True,
+                       capture_output=True, env=sumo_install.subprocess_env())
         out[name] = path
     return out
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from coster_sumo.commands.run import target_lines
-from coster_sumo.outputs import target_motion
-from coster_sumo.results import TargetResult
-from coster_sumo.synthetic import DT, NUM_STEPS, two_lane_road
+from coster_sumo.core.results import TargetResult
+from coster_sumo.data.synthetic import DT, NUM_STEPS, two_lane_road
+from coster_sumo.pipeline.outputs import target_motion
 
 
 def test_target_motion_counts_time_standing_and_distance() -> None:

@@ -1,4 +1,4 @@
-"""Choosing targets from the demand (``run --targets N``, coster_sumo/targets.py)."""
+"""Choosing targets from the demand (``run --targets N``, coster_sumo/pipeline/targets.py)."""
 
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ from pathlib import Path
 
 import pytest
 
+from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError
-from coster_sumo.scenario import nominal_scene
+from coster_sumo.infra.sumo_install import sumo_home
+from coster_sumo.pipeline.scenario import nominal_scene
+from coster_sumo.pipeline.targets import MIN_IN_WINDOW_S, choose_targets, config_demand, long_lived
 from coster_sumo.sim import session
-from coster_sumo.spec import ScenarioSpec
-from coster_sumo.sumo_env import sumo_home
-from coster_sumo.targets import MIN_IN_WINDOW_S, choose_targets, config_demand, long_lived
 
 ROOT = Path(__file__).resolve().parents[1]
 NET = ROOT / "networks" / "intersection" / "intersection.net.xml"
@@ -158,7 +158,7 @@ def test_a_target_that_never_runs_is_named_after_one_pass(tmp_path: Path, monkey
     with pytest.raises(InputError, match="no vehicle 'ego' in its demand"):
         nominal_scene(ScenarioSpec(cfg, end=40.0))
     # candidates: names like the one asked for, else those that ran (for the default, longest first)
-    from coster_sumo.targets import missing_target
+    from coster_sumo.pipeline.targets import missing_target
 
     ran = {"short": 12.0, "long": 30.0, "longer": 31.0}
     assert str(missing_target(cfg, ["x"], "w", ran)).endswith("candidates: short, long, longer")
@@ -175,7 +175,7 @@ def test_long_lived_on_scenarios_we_did_not_write(name: str) -> None:
 
 
 def test_run_with_chosen_targets(tmp_path: Path) -> None:
-    from coster_sumo.cli import main
+    from coster_sumo.cli.command_line import main
 
     cfg_dir = tmp_path / "net"
     shutil.copytree(ROOT / "networks" / "intersection", cfg_dir)

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from conftest import visible_lines
 
-from coster_sumo.cli import main
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.cli.command_line import main
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.errors import InputError
+from coster_sumo.formats.source import simulation_window
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
-from coster_sumo.scenario import nominal_scene
-from coster_sumo.source import simulation_window
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
-from coster_sumo.targets import choose_target
+from coster_sumo.pipeline.scenario import nominal_scene
+from coster_sumo.pipeline.targets import choose_target
 
 REPO = Path(__file__).resolve().parents[1]
 NET = REPO / "networks" / "intersection" / "intersection.net.xml"

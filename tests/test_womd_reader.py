@@ -16,9 +16,10 @@ from coster_sumo.converters.womd import (
 )
 from coster_sumo.converters.womd_schema import Scenario
 
-from coster_sumo import save_scene, synthetic
+from coster_sumo import save_scene
+from coster_sumo.core.scene import Scene, SignalState
+from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
-from coster_sumo.scene import Scene, SignalState
 
 
 def _numeric_ids(scene: Scene) -> Scene:

@@ -18,9 +18,9 @@ import pytest
 from conftest import WOMD_PKL, WOMD_PROTO
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo import sumo_env
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 from coster_sumo.exports import opendrive as odr
+from coster_sumo.infra import sumo_install
 
 pytestmark = [pytest.mark.sumo, pytest.mark.slow]
 
@@ -55,7 +55,7 @@ def exports(tmp_path_factory) -> dict[str, Path]:
     out = tmp_path_factory.mktemp("xodr")
     nets = {name: REPO / "networks" / name / f"{name}.net.xml" for name in DEMO}
     for name in GAME:
-        net = sumo_env.sumo_home() / "tools" / "game" / name / f"{name}.net.xml"
+        net = sumo_install.sumo_home() / "tools" / "game" / name / f"{name}.net.xml"
         if net.is_file():
             nets[name] = net
     samples = [*WOMD_PROTO, *WOMD_PKL]

@@ -259,7 +259,7 @@ def defect_rates(outcomes: Sequence[RunOutcome]) -> DefectRates:
     rate, and :data:`PLANNER_RATES` split by the label, of one planner's finished runs, all from the
     metrics' registry.
 
-    A contact counts up to the label's horizon (:data:`~coster_sumo.avoid.HORIZON_AFTER_TCOL_S` after
+    A contact counts up to the label's horizon (:data:`~coster_sumo.avoidability.search.HORIZON_AFTER_TCOL_S` after
     t_col): that is what an escape is proven for; what happens later (the pass goes on until the
     target arrives) stays in the plain collision rate.
     """

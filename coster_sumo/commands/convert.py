@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import write_json
 from coster_sumo.errors import CosterError, not_found, one_line
-from coster_sumo.outdir import MARKER, OutputLock, check_output, clean_leftovers_in, write_marker
+from coster_sumo.infra.atomic import write_json
+from coster_sumo.infra.outdir import MARKER, OutputLock, check_output, clean_leftovers_in, write_marker
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]

@@ -24,7 +24,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    from coster_sumo import viz
+    from coster_sumo.pipeline import viz
 
     runs = {}
     marks: dict[int, str] = {}

@@ -30,7 +30,7 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    from coster_sumo.progress import progress_bar
+    from coster_sumo.infra.progress import progress_bar
 
     if not args.run_out.is_dir():
         raise not_found(args.run_out, "folder")

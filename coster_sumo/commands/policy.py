@@ -27,8 +27,8 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from coster_sumo.atomic import write_json
     from coster_sumo.gym.train import evaluate
+    from coster_sumo.infra.atomic import write_json
 
     policy = None if args.policy == "none" else args.policy
     result, rows = evaluate(policy, args.scenarios, split=None if args.split == "all" else args.split,

@@ -9,8 +9,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.infra.atomic import write_json
 
 if TYPE_CHECKING:
     from coster_sumo.prior.records import MethodMmd, PriorEvaluation
@@ -89,7 +89,7 @@ def _log(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 
 def run_train(args: argparse.Namespace) -> int:
-    from coster_sumo.devices import training_device
+    from coster_sumo.infra.devices import training_device
     from coster_sumo.prior.data import load_prepared, split_files
     from coster_sumo.prior.model import PriorConfig
     from coster_sumo.prior.train import TrainConfig, train_prior

@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 
 from coster_sumo.commands.run import add_avoidability_arguments, add_method_arguments
+from coster_sumo.core.spec import GenerationConfig
 from coster_sumo.errors import not_found
-from coster_sumo.spec import GenerationConfig
 
 
 def add_scene_source_arguments(p: argparse.ArgumentParser, duration: bool = False) -> None:

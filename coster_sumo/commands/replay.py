@@ -15,9 +15,9 @@ import functools
 import sys
 from pathlib import Path
 
-from coster_sumo.atomic import write_json
 from coster_sumo.errors import not_found
-from coster_sumo.procs import run_supervised
+from coster_sumo.infra.atomic import write_json
+from coster_sumo.infra.procs import run_supervised
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]

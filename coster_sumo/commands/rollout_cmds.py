@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.infra.atomic import write_json
 from coster_sumo.rollout.config import RolloutConfig
 
 DEFAULT_CHECKPOINT = "models/rollout.pt"
@@ -217,7 +217,7 @@ def run_vocab(args: argparse.Namespace) -> int:
 
 def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
     from coster_sumo.converters.read import iter_scenes
-    from coster_sumo.dataset import list_scenes, split
+    from coster_sumo.data.dataset import list_scenes, split
     from coster_sumo.formats.scene_file import load_scene
 
     scenes = []
@@ -238,7 +238,7 @@ def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
 def run_eval(args: argparse.Namespace) -> int:
     import torch
 
-    from coster_sumo.devices import training_device
+    from coster_sumo.infra.devices import training_device
     from coster_sumo.rollout.checkpoint import load_model
     from coster_sumo.rollout.data import build_examples
     from coster_sumo.rollout.evaluate import LANE_NEIGHBOUR_ALONG_M, evaluate_rollout

@@ -9,17 +9,17 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from coster_sumo import procs, progress
+from coster_sumo.core.results import RunResult, RunSummary, TargetEntry, TargetResult, VariantOutcome
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.infra import procs, progress
+from coster_sumo.infra.progress import Bars
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
-from coster_sumo.progress import Bars
-from coster_sumo.results import RunResult, RunSummary, TargetEntry, TargetResult, VariantOutcome
+from coster_sumo.pipeline.run import RunOptions
+from coster_sumo.pipeline.run import run as run_scenario
 from coster_sumo.rollout.methods import ROLLOUTS
-from coster_sumo.run import RunOptions
-from coster_sumo.run import run as run_scenario
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -101,7 +101,7 @@ def add_method_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_avoidability_arguments(p: argparse.ArgumentParser) -> None:
-    """--reaction-time and --avoidable (coster_sumo.defects)."""
+    """--reaction-time and --avoidable (coster_sumo.avoidability.labels)."""
     p.add_argument("--reaction-time", type=float, default=1.0, metavar="S",
                    help="[s] reaction time after the adversary becomes a threat that each variant's avoidable / "
                         "unavoidable label is stated for (default 1.0; 0.5 and 1.5 are reported too)")
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     lines: list[str] = []
     failed: list[tuple[str, dict[str, Any]]] = []
     if getattr(args, "targets", None) is not None:
-        from coster_sumo.targets import choose_targets, iter_lines
+        from coster_sumo.pipeline.targets import choose_targets, iter_lines
 
         picked = choose_targets(args.config, args.targets, args.begin, end)
         targets = [c.vehicle_id for c in picked]
@@ -184,15 +184,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _supervised_run(opts: RunOptions, bars: Bars) -> RunResult:
-    """:func:`coster_sumo.run.run` in a child process: a SUMO crash is one line, and whatever stops
+    """:func:`coster_sumo.pipeline.run.run` in a child process: a SUMO crash is one line, and whatever stops
     the run (a crash, Ctrl-C) leaves nothing beside OUT (the old OUT, if any, stays as it was).
 
     Only where this process has not loaded torch yet (the command line): a process that has run
     torch cannot fork a child that runs it again (its thread pools' locks stay taken in the child:
     a test calling ``main`` after others hung in the CVAE), so such a caller runs in-process.
     """
-    from coster_sumo.outdir import OutputLock, clean_leftovers
-    from coster_sumo.procs import run_supervised
+    from coster_sumo.infra.outdir import OutputLock, clean_leftovers
+    from coster_sumo.infra.procs import run_supervised
 
     if "torch" in sys.modules and not procs.imports_only():
         return run_scenario(opts, bars)

@@ -1,11 +1,11 @@
-"""``coster-sumo serve``: keep the heavy imports loaded for the next commands (:mod:`coster_sumo.server`)."""
+"""``coster-sumo serve``: keep the heavy imports loaded for the next commands (:mod:`coster_sumo.cli.server`)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from coster_sumo import server
+from coster_sumo.cli import server
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]

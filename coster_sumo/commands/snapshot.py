@@ -31,8 +31,8 @@ def register(cli: Any) -> None:
 
 
 def _scene(args: argparse.Namespace) -> Any:
-    from coster_sumo.scenario import nominal_scene
-    from coster_sumo.spec import ScenarioSpec
+    from coster_sumo.core.spec import ScenarioSpec
+    from coster_sumo.pipeline.scenario import nominal_scene
 
     src: Path = args.source
     if src.suffix == ".sumocfg":
@@ -47,12 +47,12 @@ def _scene(args: argparse.Namespace) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    from coster_sumo import viz
-    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.core.scene import resample
     from coster_sumo.errors import InputError, NoSnapshot
+    from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.snapshot import prior_snapshot
-    from coster_sumo.scene import resample
-    from coster_sumo.targets import choose_target
+    from coster_sumo.pipeline import viz
+    from coster_sumo.pipeline.targets import choose_target
 
     scene = _scene(args)
     target = choose_target(scene, args.target, args.source)

@@ -60,9 +60,9 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.scene import Scene
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
-from coster_sumo.scene import Scene
 from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, OBS_SIZE, STEP_S, Driver, Route
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
 from coster_sumo.sim.states import concat_states

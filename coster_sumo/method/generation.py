@@ -13,7 +13,7 @@ the environment and the Python API all draw through :func:`draw_scenarios`:
    variants) and :func:`generate_variants` (``regress``, ``eval scenarios``: up to K variants, more
    draws when a rollout gives one trajectory per snapshot) stop that loop each their own way.
 
-The nominal scene and the target come from :mod:`coster_sumo.scenario`; injection of a plan is
+The nominal scene and the target come from :mod:`coster_sumo.pipeline.scenario`; injection of a plan is
 :func:`coster_sumo.sim.inject.inject_variant`.
 """
 
@@ -27,10 +27,15 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import weights
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.avoidability.evasion import Avoidability
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.results import AvoidableOnly
+from coster_sumo.core.scene import Scene, resample
+from coster_sumo.core.snapshot import CollisionSnapshot
+from coster_sumo.core.spec import GenerationConfig
 from coster_sumo.errors import InputError, NoSnapshot
-from coster_sumo.evasion import Avoidability
+from coster_sumo.geometry.drivable import DrivableArea
+from coster_sumo.infra import weights
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES, COLLISION_TIMES, PRIOR_RATE_HZ, around
 from coster_sumo.method.filters import keep_clear_plans
 from coster_sumo.method.snapshot import (
@@ -41,12 +46,7 @@ from coster_sumo.method.snapshot import (
     PriorMemo,
     place_closing_first,
 )
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.results import AvoidableOnly
 from coster_sumo.rollout.methods import ROLLOUTS, RolloutRequest
-from coster_sumo.scene import Scene, resample
-from coster_sumo.snapshot_state import CollisionSnapshot
-from coster_sumo.spec import GenerationConfig
 
 
 @dataclass
@@ -124,7 +124,7 @@ class DrawMemo:
     2 Hz and what the prior computes once (:class:`PriorMemo`).
 
     The 2 Hz scene comes with the memo: a run resamples its nominal scene once for all its targets
-    (:class:`coster_sumo.scenario.NominalPass`); :meth:`of` resamples a scene.
+    (:class:`coster_sumo.pipeline.scenario.NominalPass`); :meth:`of` resamples a scene.
     """
 
     low: Scene

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from coster_sumo.core.scene import Scene, Tracks
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import (
@@ -43,7 +44,6 @@ from coster_sumo.formats.scene_folder import (
     vtype_for,
 )
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.scene import Scene, Tracks
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates, empty_states
 

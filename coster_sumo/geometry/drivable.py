@@ -29,7 +29,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from coster_sumo.scene import RoadMap
+from coster_sumo.core.scene import RoadMap
 
 OFF_ROAD_TOLERANCE_M2 = 0.5  # [m^2] footprint area allowed outside the drivable area
 GAP_CLOSED_M = 1.0  # [m] narrower gaps between lane strips and junctions count as road

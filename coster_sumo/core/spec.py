@@ -123,7 +123,7 @@ class LabelOptions:
 @dataclass(frozen=True)
 class InjectionSettings:
     """How the variants of a run are injected (:func:`coster_sumo.sim.inject.inject_variants`),
-    settled once where the run's options are made (:class:`coster_sumo.run.RunOptions`).
+    settled once where the run's options are made (:class:`coster_sumo.pipeline.run.RunOptions`).
 
     Attributes:
         planner: who drives the target (see ``coster-sumo run --planner``), already chosen.

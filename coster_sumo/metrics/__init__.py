@@ -304,7 +304,7 @@ class RunOutcome:
         min_ttc: [s] the smallest time to collision before the contact (None: never closing).
         avoidable: the variant's avoidability label (None: unlabelled); contact_in_horizon: the
             target was hit within the label's horizon (None: not recorded, the collision counts).
-        adversary_speed: [m/s] at t_col; adversary_lane_type: the :class:`~coster_sumo.scene.LaneType`
+        adversary_speed: [m/s] at t_col; adversary_lane_type: the :class:`~coster_sumo.core.scene.LaneType`
             name under it then; adversary_size_in_class: its length and width fit one vehicle class
             of the corpus; snapshot: the key of its collision snapshot (a scene's variants share one).
     """

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
+from coster_sumo.core.scene import Lanes, ObjectType, Polylines, Ragged, RoadMap, Scene, SignalStates, Tracks
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_file import load_scene
-from coster_sumo.scene import Lanes, ObjectType, Polylines, Ragged, RoadMap, Scene, SignalStates, Tracks
+from coster_sumo.infra.atomic import write_json
 
 CLIP_HZ = 10.0  # [1/s]
 CLIP_STEPS = 91  # 9.1 s like WOMD

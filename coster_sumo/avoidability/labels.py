@@ -1,7 +1,7 @@
 """Defects, not crashes: every variant's avoidability label, proven in SUMO, and what a planner did.
 
-Generation calls :func:`label_plans` for its kept plans: :func:`coster_sumo.avoid.assess` searches
-the target's escapes, :func:`coster_sumo.sim.proof.prove_labels` replays each one in the variant's
+Generation calls :func:`label_plans` for its kept plans: :func:`coster_sumo.avoidability.search.assess` searches
+the target's escapes, :func:`coster_sumo.avoidability.proof.prove_labels` replays each one in the variant's
 own pass, and an escape that SUMO refutes no longer counts (docs/method.md, step 8). The rest of
 this module turns labels and a planner's pass into what users read: the summary entries, the
 outcome lines ("avoided: braked to 3.1 m/s, clearance 1.2 m"; "hit, unavoidable") and the label
@@ -19,18 +19,18 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.avoid import HORIZON_AFTER_TCOL_S, assess
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.evasion import DEFAULT_REACTION_S, Avoidability, Escape
-from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.avoidability.evasion import DEFAULT_REACTION_S, Avoidability, Escape
+from coster_sumo.avoidability.proof import prove_labels
+from coster_sumo.avoidability.search import HORIZON_AFTER_TCOL_S, assess
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.results import LabelCounts, TargetResult
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.spec import ScenarioSpec
+from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.metrics import MetricSample, RunOutcome, compute, rate_with_ci
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.results import LabelCounts, TargetResult
-from coster_sumo.scene import Scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.sim.proof import prove_labels
-from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import ScenarioSpec
 
 ESCAPE_FILE = "escape.csv"
 

@@ -57,7 +57,7 @@ class VariantOutcome:
         wall_time_s: [s] the pass's wall clock.
         export_error: why its plain-SUMO export is missing (None: it was written).
         avoidability: its label as summary.json holds it (``Avoidability.summary`` of
-            :mod:`coster_sumo.evasion`, plus ``escape_file``); label: the label in words;
+            :mod:`coster_sumo.avoidability.evasion`, plus ``escape_file``); label: the label in words;
             outcome: how the target's planner fared, in words (None until labelled).
         extra: keys this version does not know.
     """

@@ -11,14 +11,14 @@ OUTDIR/
   variants/<i>/trajectories.csv every vehicle of the pass (coster_sumo/exports/trajectories.py)
   variants/<i>/render.png       the variant
   variants/<i>/escape.csv       the target's escape, where its avoidability label has one (10 Hz;
-                                coster_sumo/defects.py)
+                                coster_sumo/avoidability/labels.py)
   variants/<i>/export/          standalone: net, routes, variant.json (the plan), <name>.sumocfg and
                                 traj.fcd.xml: `sumo -c` (or `coster-sumo replay`) plays it, adversary
                                 included (coster_sumo/exports/sumo.py)
 ```
 
 A run with several targets writes this layout into ``OUTDIR/<target>/`` for each and lists them
-in ``OUTDIR/summary.json`` (see :func:`coster_sumo.run.run`).
+in ``OUTDIR/summary.json`` (see :func:`coster_sumo.pipeline.run.run`).
 """
 
 from __future__ import annotations
@@ -35,22 +35,23 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import metrics, viz
-from coster_sumo.atomic import json_default, write_json
-from coster_sumo.defects import ESCAPE_FILE, attach_labels
+from coster_sumo import metrics
+from coster_sumo.avoidability.evasion import Avoidability, Escape
+from coster_sumo.avoidability.labels import ESCAPE_FILE, attach_labels
+from coster_sumo.core.plan import AdversaryPlan, sim_time_of
+from coster_sumo.core.results import AvoidableOnly, SnapshotRecord, TargetMotion, TargetResult, VariantOutcome
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.snapshot import AgentState
+from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError, SumoError
-from coster_sumo.evasion import Avoidability, Escape
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
-from coster_sumo.geometry import box_signed_distance, make_boxes
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
+from coster_sumo.infra.atomic import json_default, write_json
+from coster_sumo.infra.procs import die_with_parent
 from coster_sumo.method.generation import PlannedScenario
-from coster_sumo.plan import AdversaryPlan, sim_time_of
-from coster_sumo.procs import die_with_parent
-from coster_sumo.results import AvoidableOnly, SnapshotRecord, TargetMotion, TargetResult, VariantOutcome
+from coster_sumo.pipeline import viz
 from coster_sumo.rollout.data import STOPPED_MPS
-from coster_sumo.scene import Scene
 from coster_sumo.sim.inject import InjectionResult
-from coster_sumo.snapshot_state import AgentState
-from coster_sumo.spec import ScenarioSpec
 
 VARIANT_FILE = "variant.json"
 

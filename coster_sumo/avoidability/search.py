@@ -6,7 +6,7 @@ generation already knows, before any planner runs:
 
 - the adversary follows its plan to t_col and then goes on at constant velocity along its final
   heading (what the injection pass does with an adversary whose contact was avoided,
-  :meth:`coster_sumo.plan.AdversaryPlan.sample`);
+  :meth:`coster_sumo.core.plan.AdversaryPlan.sample`);
 - every other vehicle follows its nominal trajectory (the scene at 10 Hz);
 - the target follows its nominal trajectory until it acts at ``t_act``; from then on it keeps to
   its nominal path, shifted sideways by a lateral profile (none, a swerve inside its lane, a lane
@@ -21,8 +21,8 @@ generation already knows, before any planner runs:
 All candidate plans of a variant (every moment to act x every manoeuvre) are built and checked as
 one batch of arrays; there is no Python loop over candidates or time steps.
 
-The limits, manoeuvres and profiles it combines, and the :class:`~coster_sumo.evasion.Escape` and
-:class:`~coster_sumo.evasion.Avoidability` it returns, are in :mod:`coster_sumo.evasion`.
+The limits, manoeuvres and profiles it combines, and the :class:`~coster_sumo.avoidability.evasion.Escape` and
+:class:`~coster_sumo.avoidability.evasion.Avoidability` it returns, are in :mod:`coster_sumo.avoidability.evasion`.
 
 Times are simulation seconds, distances metres, accelerations m/s^2.
 """
@@ -33,8 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.evasion import (
+from coster_sumo.avoidability.evasion import (
     DEFAULT_REACTION_S,
     DT_S,
     Avoidability,
@@ -48,15 +47,16 @@ from coster_sumo.evasion import (
     threat_time,
     vehicle_class,
 )
-from coster_sumo.geometry import (
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.scene import Scene
+from coster_sumo.geometry.boxes import (
     box_signed_distance,
     make_boxes,
     point_at_arc_length,
     project_points,
     sat_overlap_depth,
 )
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.scene import Scene
+from coster_sumo.geometry.drivable import DrivableArea
 
 HORIZON_AFTER_TCOL_S = 3.0  # [s] an escape must stay clear and on the road this long after t_col
 MIN_CLEARANCE_M = 0.3  # [m] smallest gap an escape keeps to every box (the SUMO replay is the arbiter)
@@ -93,7 +93,7 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
            reaction_times: tuple[float, ...] = REACTION_TIMES_S, reaction_time_s: float = DEFAULT_REACTION_S
            ) -> Avoidability:
     """Search the target's escapes from ``plan`` in ``scene`` (module docstring); kinematic only
-    (the SUMO replay, :mod:`coster_sumo.sim.proof`, confirms or refutes each escape)."""
+    (the SUMO replay, :mod:`coster_sumo.avoidability.proof`, confirms or refutes each escape)."""
     tr = scene.tracks
     ts = scene.timestamps
     valid_t = tr.valid[target]

@@ -1,13 +1,13 @@
 """The nominal scenario: the traffic a generation works on, and its target.
 
-1. :class:`~coster_sumo.source.ScenarioSource` (its own module, so that the simulation's layer can
+1. :class:`~coster_sumo.formats.source.ScenarioSource` (its own module, so that the simulation's layer can
    take it too): the spec resolved once (a converted WOMD scene's log, or a SUMO configuration and
    the [begin, end] of its run);
 2. :func:`nominal_scene`: the nominal traffic at 10 Hz. A converted WOMD scene is its log
    (``scene.npz``, see :mod:`coster_sumo.formats.scene_folder`); any other configuration is
    simulated with libsumo and recorded with the spec's seed (the injection passes use the same);
 3. :func:`nominal_pass`: for ``coster-sumo run``, the scene, its drivable area and each requested
-   target chosen once (:func:`coster_sumo.targets.choose_target`: the spec's target, else the SDC
+   target chosen once (:func:`coster_sumo.pipeline.targets.choose_target`: the spec's target, else the SDC
    of a converted scene, else ``ego``), in one :class:`NominalPass` that the targets of a run share.
 
 The generation itself is :mod:`coster_sumo.method.generation`.
@@ -23,16 +23,16 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.dataset import crop_scene
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.scene import Scene, resample
+from coster_sumo.core.spec import ScenarioSpec
+from coster_sumo.data.dataset import crop_scene
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
+from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
-from coster_sumo.scene import Scene, resample
+from coster_sumo.pipeline.targets import OFF_ROAD_CLASSES, choose_target, config_demand, missing_target
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import ScenarioSpec
-from coster_sumo.targets import OFF_ROAD_CLASSES, choose_target, config_demand, missing_target
 
 MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)
 

@@ -2,8 +2,8 @@
 
 Whether the configuration is a converted WOMD scene (its log is the traffic) and the [begin, end]
 of a SUMO configuration's run are worked out here once and handed down: to the nominal pass
-(:func:`coster_sumo.scenario.nominal_scene`), the variants' injection passes
-(:mod:`coster_sumo.sim.inject`) and the proof of the escapes (:mod:`coster_sumo.sim.proof`).
+(:func:`coster_sumo.pipeline.scenario.nominal_scene`), the variants' injection passes
+(:mod:`coster_sumo.sim.inject`) and the proof of the escapes (:mod:`coster_sumo.avoidability.proof`).
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_folder import converted_scene_file
 from coster_sumo.formats.sumocfg import config_files, read_sumocfg
-from coster_sumo.spec import ScenarioSpec
 
 DEFAULT_DURATION_S = 60.0  # [s] recorded when neither --end nor the configuration bounds the run
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
+from coster_sumo.core.scene import Tracks
 from coster_sumo.errors import InputError
-from coster_sumo.scene import Tracks
+from coster_sumo.infra.atomic import write_json
 
 
 @dataclass(frozen=True, slots=True)

@@ -3,7 +3,7 @@
 Conventions (internal, everywhere in the library):
 - positions are the **box centre** in metres, in the source's own coordinates (WOMD scenes keep
   their absolute WOMD coordinates; SUMO scenes keep the network's coordinates);
-- headings are radians, counter-clockwise from +x; see :mod:`coster_sumo.frames` for SUMO's
+- headings are radians, counter-clockwise from +x; see :mod:`coster_sumo.geometry.frames` for SUMO's
   front-bumper / degrees / clockwise-from-north convention;
 - invalid states are arbitrary (WOMD zero-fills them): always mask with ``Tracks.valid``.
 

@@ -20,9 +20,9 @@ from matplotlib.colors import to_rgba  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 
-from coster_sumo.drivable import _corners  # noqa: E402
-from coster_sumo.scene import RoadMap, Scene  # noqa: E402
-from coster_sumo.snapshot_state import AgentState  # noqa: E402
+from coster_sumo.core.scene import RoadMap, Scene  # noqa: E402
+from coster_sumo.core.snapshot import AgentState  # noqa: E402
+from coster_sumo.geometry.drivable import _corners  # noqa: E402
 
 TARGET_COLOR = "#1f77b4"
 ADVERSARY_COLOR = "#d62728"

@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 
-from coster_sumo.scene import (
+from coster_sumo.core.scene import (
     Lanes,
     LaneType,
     ObjectType,

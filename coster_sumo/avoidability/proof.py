@@ -1,6 +1,6 @@
 """Proof of an escape in SUMO: the target replays its escape plan in the variant's own pass.
 
-An escape found by :mod:`coster_sumo.avoid` is kinematic: the other vehicles follow their nominal
+An escape found by :mod:`coster_sumo.avoidability.search` is kinematic: the other vehicles follow their nominal
 paths there, while in SUMO they react (to the adversary, and to a target that brakes or changes
 lane). So every escape is replayed as the target's trajectory (moveToXY every step, the ``replay``
 planner's mechanism) in the same injection pass as the variant: the same held moment of the
@@ -18,11 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.evasion import Avoidability, Escape, Manoeuvre
-from coster_sumo.geometry import box_signed_distance, make_boxes
-from coster_sumo.plan import AdversaryPlan, sim_time_of
-from coster_sumo.scene import Scene
+from coster_sumo.avoidability.evasion import Avoidability, Escape, Manoeuvre
+from coster_sumo.core.plan import AdversaryPlan, sim_time_of
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.spec import ScenarioSpec
+from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import (
@@ -38,8 +40,6 @@ from coster_sumo.sim.planners import ReplayPlanner
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, record
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates
-from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import ScenarioSpec
 
 
 @dataclass(frozen=True)

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import CubicSpline, PchipInterpolator
 
-from coster_sumo.atomic import write_json
+from coster_sumo.core.snapshot import AgentState
 from coster_sumo.errors import InputError
-from coster_sumo.snapshot_state import AgentState
+from coster_sumo.infra.atomic import write_json
 
 
 def sim_time_of(t: float, step_length: float) -> float:

@@ -2,7 +2,7 @@
 
 A command of ``coster-sumo`` pays about 3 s of imports before it does any work (torch, SciPy,
 scikit-learn, matplotlib, libsumo; bench/RESULTS.md, "The demo ... what 3 s would take"). While a
-server runs, the ``coster-sumo`` command (:mod:`coster_sumo.client`) hands its command line, its
+server runs, the ``coster-sumo`` command (:mod:`coster_sumo.cli.client`) hands its command line, its
 folder, its environment and its terminal (standard input, output and error, as open file
 descriptors) to the server over a Unix socket; the server forks, and the child runs the command as
 the command line would, with everything already imported, writing straight to the user's terminal.
@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from coster_sumo import procs
+from coster_sumo.infra import procs
 
 IDLE_EXIT_S = 1800.0  # [s] the server exits after this long without a command
 MAX_HEADER = 1 << 20  # [bytes] a command's header (argv, folder, environment)
@@ -126,8 +126,8 @@ def _changed(files: dict[str, int]) -> str | None:
 def preload() -> None:
     """Import what commands need, once: the simulation, the models and generation, the renders."""
     import coster_sumo.batch.task_imports  # noqa: F401 - libsumo, torch, scikit-learn, generation
-    import coster_sumo.viz  # noqa: F401 - matplotlib
-    from coster_sumo.viz import plt
+    import coster_sumo.pipeline.viz  # noqa: F401 - matplotlib
+    from coster_sumo.pipeline.viz import plt
 
     fig = plt.figure(figsize=(2, 2))  # matplotlib's first drawing loads fonts and caches: once, here
     fig.add_subplot().plot([0, 1], [0, 1], label="x")
@@ -297,7 +297,7 @@ def serving(path: Path) -> Iterator[dict[str, str]]:
     the environment whose ``coster-sumo`` commands reach it."""
     env = {**os.environ, SOCKET_ENV: str(path)}
     env.pop("COSTER_SUMO_SERVER", None)
-    proc = subprocess.Popen([sys.executable, "-m", "coster_sumo.client", "--quiet", "serve"], env=env)
+    proc = subprocess.Popen([sys.executable, "-m", "coster_sumo.cli.client", "--quiet", "serve"], env=env)
     try:
         while not _alive(path):
             if proc.poll() is not None:

@@ -30,8 +30,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import SumoError
+from coster_sumo.infra.atomic import atomic_path
 
 POLL_S = 0.01  # [s] how often a waiting parent looks at its children and their clocks
 
@@ -44,7 +44,7 @@ _IMPORTS_ONLY = False  # True in a process coster-sumo serve forked for a comman
 
 
 def mark_imports_only() -> None:
-    """Say that this process (a fork of ``coster-sumo serve``, :mod:`coster_sumo.server`) has torch
+    """Say that this process (a fork of ``coster-sumo serve``, :mod:`coster_sumo.cli.server`) has torch
     and scikit-learn imported but never ran their thread pools."""
     global _IMPORTS_ONLY
     _IMPORTS_ONLY = True

@@ -5,7 +5,7 @@ their jerk-limited speed and smooth lateral profiles, the kind of a contact and 
 becomes a threat, and the search's
 results: an :class:`Escape` plan and a variant's :class:`Avoidability` (docs/method.md, "Step 8
 Avoidability"). The search itself, which builds every candidate plan from these and checks it
-against the scene, is :func:`coster_sumo.avoid.assess`.
+against the scene, is :func:`coster_sumo.avoidability.search.assess`.
 
 Times are simulation seconds, distances metres, accelerations m/s^2.
 """
@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.geometry import box_signed_distance, make_boxes
-from coster_sumo.scene import ObjectType
+from coster_sumo.core.scene import ObjectType
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
 
 DT_S = 0.1  # [s] the plans' step (SUMO's step in the injection pass)
 DEFAULT_REACTION_S = 1.0  # [s] a careful driver's reaction time: the one ``avoidable`` is stated for

@@ -20,7 +20,7 @@ and < 0 for the penetration depth (minimum translation distance) of overlapping 
 
 Polylines
 ---------
-A polyline is an ``(n, 2)`` array of points; a set of polylines is a :class:`~coster_sumo.scene.Ragged`
+A polyline is an ``(n, 2)`` array of points; a set of polylines is a :class:`~coster_sumo.core.scene.Ragged`
 (or a list of arrays). :func:`resample_polyline` / :func:`resample_polylines` place points at a
 fixed arc-length spacing; :func:`project_points` gives arc length and signed lateral offset (left
 of the driving direction is positive) of query points on one polyline.
@@ -32,7 +32,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from coster_sumo.scene import Ragged
+from coster_sumo.core.scene import Ragged
 
 ArrayLike = np.ndarray | float
 

@@ -1,11 +1,11 @@
 """``coster-sumo run``: the generation core, one injection pass per variant, and the outputs.
 
-1. the nominal scene and the target come from :mod:`coster_sumo.scenario`, the plans from
+1. the nominal scene and the target come from :mod:`coster_sumo.pipeline.scenario`, the plans from
    :mod:`coster_sumo.method.generation`;
 2. every plan is injected with :func:`coster_sumo.sim.inject.inject_variant` (same seed, so the
    traffic is the nominal one until the adversary appears);
 3. everything is written into a hidden staging folder beside OUT and renamed into place at the
-   end (:mod:`coster_sumo.outdir`): an interrupted or failed run leaves no half-written OUT, an
+   end (:mod:`coster_sumo.infra.outdir`): an interrupted or failed run leaves no half-written OUT, an
    existing OUT is replaced only when coster-sumo wrote it and ``overwrite`` is set, and the OUT
    is locked while the run writes it.
 """
@@ -21,19 +21,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import write_json
-from coster_sumo.defects import label_plans
+from coster_sumo.avoidability.labels import label_plans
+from coster_sumo.core.results import AvoidableOnly, RunResult, RunSummary, TargetEntry, TargetResult
+from coster_sumo.core.snapshot import CollisionSnapshot
+from coster_sumo.core.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
+from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.infra.atomic import write_json
+from coster_sumo.infra.outdir import staged_output
+from coster_sumo.infra.procs import torch_threads, usable_cores
+from coster_sumo.infra.progress import Bars, progress_bar
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import DrawMemo, check_generation, keep_avoidable, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
-from coster_sumo.outdir import staged_output
-from coster_sumo.outputs import OverviewRenders, write_run_outputs
-from coster_sumo.procs import torch_threads, usable_cores
-from coster_sumo.progress import Bars, progress_bar
-from coster_sumo.results import AvoidableOnly, RunResult, RunSummary, TargetEntry, TargetResult
+from coster_sumo.pipeline.outputs import OverviewRenders, write_run_outputs
+from coster_sumo.pipeline.scenario import NominalPass, nominal_pass
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
-from coster_sumo.scenario import NominalPass, nominal_pass
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import (
     default_planner,
@@ -41,9 +44,6 @@ from coster_sumo.sim.inject import (
 )
 from coster_sumo.sim.outcomes import drop_bystander_wrecks, drop_failed_variants
 from coster_sumo.sim.planners import check_planner, make_planner
-from coster_sumo.snapshot_state import CollisionSnapshot
-from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
 
 ADVANCE_MARGIN_S = 0.5  # [s] a held copy advances to this long before the earliest adversary start
 
@@ -72,7 +72,7 @@ class RunOptions:
     timeout: float | None = None  # [s] wall clock per variant's injection pass (None: no limit)
     copy_outside: bool = False  # exports also copy the files the configuration names outside its folder
     reaction_time: float = 1.0  # [s] the reaction time each variant's avoidability label is stated for
-    avoidable: str = "any"  # any | only: keep only variants the target could have avoided (coster_sumo.defects)
+    avoidable: str = "any"  # any | only: keep only variants the target could have avoided (avoidability.labels)
     source: ScenarioSource = field(init=False, repr=False, compare=False)  # ``spec`` resolved once
     labels: LabelOptions = field(init=False, repr=False, compare=False)  # reaction_time and avoidable, checked
     injection: InjectionSettings = field(init=False, repr=False, compare=False)  # how the variants are injected
@@ -112,13 +112,13 @@ def run(opts: RunOptions, bars: Bars = progress_bar) -> RunResult:
     r"""Run the whole pipeline; returns its result (summary.json in OUT is its JSON).
 
     ``bars`` shows the progress of the nominal pass, the generation and the variants
-    (:func:`coster_sumo.progress.bars`: ``bars(quiet=True)`` shows none).
+    (:func:`coster_sumo.infra.progress.bars`: ``bars(quiet=True)`` shows none).
 
     With several targets (``more_targets``) they share the nominal pass and its held copies; each
     gets its own folder ``OUT/<target>/`` laid out as a one-target OUT, and ``OUT/summary.json``
     lists them (a target without a scenario is listed with its reason; the others go on): the
-    result is then a :class:`~coster_sumo.results.RunSummary` of their
-    :class:`~coster_sumo.results.TargetResult`\ s.
+    result is then a :class:`~coster_sumo.core.results.RunSummary` of their
+    :class:`~coster_sumo.core.results.TargetResult`\ s.
     """
     source, spec, planner = opts.source, opts.spec, opts.injection.planner
     named = [str(t) for t in opts.targets if t is not None]
@@ -272,7 +272,7 @@ def _advance_held(held: HeldStates | None, threads: int | None = None
     """Once a collision time is drawn, a held copy starts simulating up to shortly before any of its
     adversaries can appear (in its own process, while this one generates them); torch then computes
     on ``threads`` (None: as it does), leaving that copy a core (torch's pool spin-waits for every
-    thread, :func:`coster_sumo.procs.torch_threads`)."""
+    thread, :func:`coster_sumo.infra.procs.torch_threads`)."""
     if held is None:
         return None
 

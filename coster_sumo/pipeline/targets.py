@@ -46,7 +46,7 @@ from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import check_xml, open_maybe_gzip, parse_time, read_sumocfg
 
 if TYPE_CHECKING:
-    from coster_sumo.scene import Scene
+    from coster_sumo.core.scene import Scene
 
 # vehicle classes that use no road lanes: the prior places road vehicles, so none is a target
 # (trams stay: their tracks often run in the street)
@@ -384,8 +384,8 @@ def choose_targets(config: str | Path, n: int, begin: float | None = None,
         raise InputError(f"--targets must be >= 1, not {n}")
     import numpy as np
 
+    from coster_sumo.core.scene import ObjectType
     from coster_sumo.formats.scene_file import load_scene
-    from coster_sumo.scene import ObjectType
 
     scene = load_scene(log)
     tr, ts = scene.tracks, scene.timestamps

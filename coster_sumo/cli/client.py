@@ -1,6 +1,6 @@
-"""The ``coster-sumo`` command: hands the command to a running server (:mod:`coster_sumo.server`), or runs it.
+"""The ``coster-sumo`` command: hands the command to a running server (:mod:`coster_sumo.cli.server`), or runs it.
 
-Without a server (the usual case) this is :func:`coster_sumo.cli.main`. With one listening
+Without a server (the usual case) this is :func:`coster_sumo.cli.command_line.main`. With one listening
 (``coster-sumo serve``), the command line, the current folder, the environment and the terminal
 go to the server, which runs the command in a fork that has torch, SciPy, scikit-learn, matplotlib
 and libsumo loaded already; this process waits, passes Ctrl-C on, and exits with the command's
@@ -18,7 +18,7 @@ import socket
 import sys
 from collections.abc import Sequence
 
-from coster_sumo.server import recv_message, send_message, socket_path
+from coster_sumo.cli.server import recv_message, send_message, socket_path
 
 FORWARDED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -69,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rc = via_server(args)
         if rc is not None:
             return rc
-    from coster_sumo.cli import main as cli_main
+    from coster_sumo.cli.command_line import main as cli_main
 
     return cli_main(args)
 
