@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coster_sumo.commands.run import target_lines
+from coster_sumo.cli.commands.run import target_lines
 from coster_sumo.core.results import TargetResult
 from coster_sumo.data.synthetic import DT, NUM_STEPS, two_lane_road
 from coster_sumo.pipeline.outputs import target_motion

@@ -1,6 +1,6 @@
 """The ``coster-sumo`` command line: thin parsing, then a call into the library.
 
-Every module in :mod:`coster_sumo.commands` exposes ``register(cli: CommandLine)``, which adds its
+Every module in :mod:`coster_sumo.cli.commands` exposes ``register(cli: CommandLine)``, which adds its
 subcommand(s) with ``set_defaults(func=...)``; ``func(args) -> int`` returns the exit code.
 Nested groups (``train prior``, ``eval rollout``) come from :meth:`CommandLine.group`.
 
@@ -20,6 +20,7 @@ import sys
 from collections.abc import Sequence
 
 from coster_sumo.errors import CosterError, one_line
+from coster_sumo.infra.outdir import version
 
 # old spellings of -o/--out that still parse but are not shown (`simulate --output`, `eval prior --json`)
 HIDDEN_ALIASES = ("--output", "--json")
@@ -48,17 +49,6 @@ class HelpFormatter(argparse.HelpFormatter):
 
     def _expand_help(self, action: argparse.Action) -> str:
         return plain_text(super()._expand_help(action))
-
-
-def version() -> str:
-    """The installed distribution's version (``unknown`` from a source tree that was never installed)."""
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as dist_version
-
-    try:
-        return dist_version("coster-sumo")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 class CommandLine:
@@ -106,11 +96,11 @@ def _subcommands(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParse
 
 
 def build_parser() -> argparse.ArgumentParser:
-    import coster_sumo.commands as commands
+    import coster_sumo.cli.commands as commands
 
     cli = CommandLine()
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"coster_sumo.commands.{info.name}")
+        module = importlib.import_module(f"coster_sumo.cli.commands.{info.name}")
         register = getattr(module, "register", None)
         if register is not None:
             register(cli)

@@ -67,11 +67,20 @@ def _files_below(folder: Path) -> set[str]:
     return {p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir()} - {MARKER, LOCK_NAME}
 
 
+def version() -> str:
+    """The installed distribution's version (``unknown`` from a source tree that was never installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("coster-sumo")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def write_marker(folder: Path, kind: str) -> None:
     """Write :data:`MARKER` into ``folder``: who wrote it and every file it holds now."""
-    from coster_sumo import __version__
-
-    doc = {"tool": "coster-sumo", "kind": kind, "version": __version__,
+    doc = {"tool": "coster-sumo", "kind": kind, "version": version(),
            "written_at": time.strftime("%Y-%m-%dT%H:%M:%S"), "files": sorted(_files_below(folder))}
     (folder / MARKER).write_text(json.dumps(doc, indent=1))
 

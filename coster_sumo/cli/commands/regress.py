@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from coster_sumo.commands.run import add_avoidability_arguments, add_method_arguments
+from coster_sumo.cli.commands.run import add_avoidability_arguments, add_method_arguments
 from coster_sumo.core.spec import GenerationConfig
 from coster_sumo.errors import not_found
 

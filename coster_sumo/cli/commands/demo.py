@@ -6,7 +6,7 @@ import argparse
 from importlib import resources
 from pathlib import Path
 
-from coster_sumo.commands import run as run_command
+from coster_sumo.cli.commands import run as run_command
 
 DEMO_NETWORKS = ("intersection", "merge", "arterial")
 

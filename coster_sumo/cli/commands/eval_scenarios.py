@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from coster_sumo.commands.regress import add_scene_source_arguments
+from coster_sumo.cli.commands.regress import add_scene_source_arguments
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
