@@ -23,11 +23,12 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.avoidability.keep import label_and_keep
 from coster_sumo.avoidability.labels import label_plans
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.spec import GenerationConfig, LabelOptions, ScenarioSpec
 from coster_sumo.geometry.drivable import DrivableArea
-from coster_sumo.method.generation import DrawMemo, PlannedScenario, keep_avoidable, plan_scenarios
+from coster_sumo.method.generation import DrawMemo, PlannedScenario, plan_scenarios
 from coster_sumo.pipeline.scenario import nominal_scene
 from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
@@ -72,10 +73,9 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     def label(plans: list[AdversaryPlan]) -> list[Any]:
         return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=wanted.reaction_time)
 
-    labels = dict(zip((p.vehicle_id for p in planned.plans), label(planned.plans), strict=True))
-    if wanted.avoidable == "only":
-        kept, tried = keep_avoidable([planned], labels, label, variants, seed=seed, gen=gen, drivable=drivable,
-                                     memo=shared)
+    kept, labels, tried = label_and_keep([planned], label, wanted, variants, seed=seed, gen=gen, drivable=drivable,
+                                         memo=shared)
+    if tried is not None:
         planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable
         planned.info["avoidable_only"] = tried.to_json()
     planned.info["avoidability"] = {p.vehicle_id: labels[p.vehicle_id].summary() for p in planned.plans}

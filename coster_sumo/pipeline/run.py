@@ -21,8 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.avoidability.keep import label_and_keep
 from coster_sumo.avoidability.labels import label_plans
-from coster_sumo.core.results import AvoidableOnly, RunResult, RunSummary, TargetEntry, TargetResult
+from coster_sumo.core.results import RunResult, RunSummary, TargetEntry, TargetResult
 from coster_sumo.core.snapshot import CollisionSnapshot
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
@@ -32,7 +33,7 @@ from coster_sumo.infra.outdir import staged_output
 from coster_sumo.infra.procs import torch_threads, usable_cores
 from coster_sumo.infra.progress import Bars, progress_bar
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
-from coster_sumo.method.generation import DrawMemo, check_generation, keep_avoidable, plan_scenarios
+from coster_sumo.method.generation import DrawMemo, check_generation, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.pipeline.outputs import OverviewRenders, write_run_outputs
 from coster_sumo.pipeline.scenario import NominalPass, nominal_pass
@@ -228,12 +229,9 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
         return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
                            traci=how.traci, reaction_time_s=wanted.reaction_time, timings=timings)
 
-    labels = dict(zip((pl.vehicle_id for p in planned for pl in p.plans),
-                      label([pl for p in planned for pl in p.plans]), strict=True))
-    tried: AvoidableOnly | None = None
-    if wanted.avoidable == "only":
-        planned, tried = keep_avoidable(planned, labels, label, opts.generation.variants * opts.snapshots,
-                                        seed=spec.seed, gen=opts.generation, drivable=drivable, memo=shared)
+    planned, labels, tried = label_and_keep(planned, label, wanted, opts.generation.variants * opts.snapshots,
+                                            seed=spec.seed, gen=opts.generation, drivable=drivable, memo=shared)
+    if tried is not None:
         if not any(p.plans for p in planned):
             raise InputError(f"{spec.config}: none of the {tried.tried} variants for target {target_id!r} "
                              f"was avoidable at a reaction time of {wanted.reaction_time:g} s (--avoidable only)")
