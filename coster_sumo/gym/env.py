@@ -101,7 +101,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
             ``s mod n``). ``reset(options={"scenario": ID})`` starts that scenario.
         traffic: ``log`` (default: the other vehicles' states read from the recorded pass; SUMO
             holds the target and runs the signals) or ``sumo`` (every vehicle put into SUMO and
-            moved there by moveToXY each step). Both give the same episodes (``tests/test_gym.py``);
+            moved there by moveToXY each step). Both give the same episodes (``tests/gym/test_gym.py``);
             ``log`` costs no moveToXY per vehicle.
     """
 
