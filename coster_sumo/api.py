@@ -28,7 +28,7 @@ from coster_sumo.avoidability.labels import label_plans
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.spec import GenerationConfig, LabelOptions, ScenarioSpec
 from coster_sumo.geometry.drivable import DrivableArea
-from coster_sumo.method.generation import DrawMemo, PlannedScenario, plan_scenarios
+from coster_sumo.method.generation import DrawMemo, PlannedScenario, check_generation, plan_scenarios
 from coster_sumo.pipeline.scenario import nominal_scene
 from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
@@ -64,6 +64,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
                            variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
     wanted = LabelOptions(reaction_time, avoidable)  # a bad one is one line before any work
+    check_generation(gen)  # the method names and their weights, before the nominal pass
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)

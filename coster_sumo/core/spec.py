@@ -72,6 +72,15 @@ class GenerationConfig:
     variants: int = 5
     models_dir: Path | None = None
 
+    def __post_init__(self) -> None:
+        """The counts, checked when made. The method names and the weights they need are checked against
+        the registries (:func:`coster_sumo.method.generation.check_generation`), which sit above this layer
+        and take new methods at run time."""
+        if self.variants < 1:
+            raise InputError(f"--variants must be >= 1, not {self.variants}")
+        if self.samples < 1:
+            raise InputError(f"--samples must be >= 1, not {self.samples}")
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["models_dir"] = str(self.models_dir) if self.models_dir is not None else None

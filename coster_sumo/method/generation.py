@@ -84,16 +84,13 @@ def _candidate_name(candidate: object) -> str:
 # ----------------------------------------------------------------------------- checks
 
 def check_generation(gen: GenerationConfig) -> None:
-    """Method names against the registries, counts, and the weights the methods need (exit 2 before work)."""
+    """Method names against the registries and the weights the methods need (exit 2 before work; the
+    counts are checked when ``gen`` is made)."""
     for flag, value, registry in (("--init", gen.init, SNAPSHOT_INITS),
                                   ("--collision-time", gen.collision_time, COLLISION_TIME_RULES),
                                   ("--rollout", gen.rollout, ROLLOUTS)):
         if value not in registry:
             raise InputError(f"{flag} must be one of {', '.join(registry)}, not {value!r}")
-    if gen.variants < 1:
-        raise InputError(f"--variants must be >= 1, not {gen.variants}")
-    if gen.samples < 1:
-        raise InputError(f"--samples must be >= 1, not {gen.samples}")
     reason = missing_weights(gen)
     if reason:
         raise InputError(reason)
