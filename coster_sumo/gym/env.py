@@ -61,6 +61,7 @@ import numpy as np
 from gymnasium import spaces
 
 from coster_sumo.core.scene import Scene
+from coster_sumo.errors import InputError
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
 from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, OBS_SIZE, STEP_S, Driver, Route
@@ -119,11 +120,11 @@ class ScenarioEnv(gymnasium.Env, Driver):
         else:
             self.entries = self.set.select(split, kind, tuple(networks) if networks is not None else None)
         if not self.entries:
-            raise ValueError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
+            raise InputError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
         if order not in ("random", "cycle"):
-            raise ValueError(f"order must be 'random' or 'cycle', not {order!r}")
+            raise InputError(f"order must be 'random' or 'cycle', not {order!r}")
         if traffic not in ("log", "sumo"):
-            raise ValueError(f"traffic must be 'log' or 'sumo', not {traffic!r}")
+            raise InputError(f"traffic must be 'log' or 'sumo', not {traffic!r}")
         self.traffic = traffic
         self.order = order
         self.substeps = max(1, int(round(control_period_s / STEP_S)))

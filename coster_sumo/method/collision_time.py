@@ -30,7 +30,7 @@ import numpy as np
 
 from coster_sumo.core.scene import Scene
 from coster_sumo.core.snapshot import AgentState
-from coster_sumo.errors import NoSnapshot
+from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.rollout.methods import HORIZON_STEPS
 
 PRIOR_RATE_HZ = 2.0  # [1/s] the prior and the rollout work at 2 Hz
@@ -117,7 +117,7 @@ def choose_collision_time(window: np.ndarray, method: str, rng: np.random.Genera
         raise NoSnapshot("the target is not valid inside the collision-time search window")
     rule = COLLISION_TIME_RULES.get(method)
     if rule is None:
-        raise ValueError(f"unknown collision-time method {method!r}; use one of {', '.join(COLLISION_TIME_RULES)}")
+        raise InputError(f"unknown collision-time method {method!r}; use one of {', '.join(COLLISION_TIME_RULES)}")
     return rule(CollisionTimeRequest(window, rng, entropy))
 
 

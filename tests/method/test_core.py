@@ -41,6 +41,11 @@ def test_a_new_collision_time_rule_is_one_function_and_one_line(monkeypatch):
     check_generation(GenerationConfig(init="random", rollout="cv", collision_time="first"))
 
 
+def test_an_unknown_collision_time_rule_is_one_input_error_line():
+    with pytest.raises(InputError, match="unknown collision-time method 'soon'; use one of entropy, last, random"):
+        choose_collision_time(np.array([4, 5, 6]), "soon", np.random.default_rng(0))
+
+
 @pytest.mark.parametrize(("field", "value", "flag"), [("init", "prior", "--init"), ("rollout", "gan", "--rollout"),
                                                       ("collision_time", "soon", "--collision-time")])
 def test_unknown_methods_are_refused_before_work(field, value, flag):
