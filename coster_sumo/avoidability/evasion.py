@@ -76,9 +76,21 @@ def vehicle_class(object_type: int, length_m: float, width_m: float) -> ClassLim
 CONTACT_KINDS = ("rear_end_by_adversary", "into_vehicle_ahead", "side_swipe", "crossing", "head_on")
 
 
-def contact_kind(tx: float, ty: float, tyaw: float, tl: float, tw: float, tspeed: float,
-                 ax: float, ay: float, ayaw: float, al: float, aw: float, aspeed: float) -> str:
-    """The kind of contact between the target (t*) and the adversary (a*) at t_col.
+@dataclass(frozen=True)
+class Motion:
+    """A vehicle's box centre ``x``, ``y`` [m], heading ``yaw`` [rad] and ``speed`` [m/s], each a float
+    (one moment) or a (K,) array (K moments), and its ``length`` and ``width`` [m]."""
+
+    x: Any
+    y: Any
+    yaw: Any
+    speed: Any
+    length: float
+    width: float
+
+
+def contact_kind(target: Motion, adversary: Motion) -> str:
+    """The kind of contact between the target and the adversary at t_col (both at that moment).
 
     By the angle between their headings: over 135 deg head-on, 45-135 deg crossing; under 45 deg
     (the same direction) by the side of the target the adversary touches, judged by which gap of
@@ -86,6 +98,8 @@ def contact_kind(tx: float, ty: float, tyaw: float, tl: float, tw: float, tspeed
     target runs into a vehicle ahead), back (the adversary runs into the target) or side
     (side-swipe).
     """
+    tx, ty, tyaw, tl, tw = target.x, target.y, target.yaw, target.length, target.width
+    ax, ay, ayaw, al, aw = adversary.x, adversary.y, adversary.yaw, adversary.length, adversary.width
     rel = abs((ayaw - tyaw + np.pi) % (2 * np.pi) - np.pi)
     if rel > np.radians(135.0):
         return "head_on"
@@ -104,17 +118,17 @@ def contact_kind(tx: float, ty: float, tyaw: float, tl: float, tw: float, tspeed
 THREAT_LOOKAHEAD_S = 3.0  # [s] constant-velocity look-ahead that makes the adversary a threat
 
 
-def threat_time(times: np.ndarray, tx: np.ndarray, ty: np.ndarray, tyaw: np.ndarray, tv: np.ndarray,
-                tl: float, tw: float, ax: np.ndarray, ay: np.ndarray, ayaw: np.ndarray, av: np.ndarray,
-                al: float, aw: float) -> float:
+def threat_time(times: np.ndarray, target: Motion, adversary: Motion) -> float:
     """The first moment from the adversary's appearance at which it is a threat: both vehicles,
     extrapolated at their current velocities, overlap within :data:`THREAT_LOOKAHEAD_S`.
 
     Args:
-        times: (K,) [s] from t_start to t_col; tx, ty, tyaw, tv: (K,) the target's nominal state
-            (box centre [m], heading [rad], speed [m/s]) then, tl, tw: its size [m]; ax, ay, ayaw,
-            av, al, aw: the same of the adversary's plan.
+        times: (K,) [s] from t_start to t_col; target: the target's nominal motion then ((K,) arrays);
+            adversary: the same of the adversary's plan.
     """
+    tx, ty, tyaw, tv, tl, tw = target.x, target.y, target.yaw, target.speed, target.length, target.width
+    ax, ay, ayaw, av = adversary.x, adversary.y, adversary.yaw, adversary.speed
+    al, aw = adversary.length, adversary.width
     tau = np.arange(0.0, THREAT_LOOKAHEAD_S + 1e-9, DT_S)  # (L,)
     t_box = make_boxes(tx[:, None] + tv[:, None] * np.cos(tyaw)[:, None] * tau,
                        ty[:, None] + tv[:, None] * np.sin(tyaw)[:, None] * tau, tyaw[:, None], tl, tw)

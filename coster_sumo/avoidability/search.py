@@ -40,6 +40,7 @@ from coster_sumo.avoidability.evasion import (
     ClassLimits,
     Escape,
     Manoeuvre,
+    Motion,
     contact_kind,
     lateral_profile,
     manoeuvres,
@@ -124,11 +125,11 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     tcol_k = int(np.argmin(np.abs(times - t_col)))
     # the kind of contact, from both states at t_col
     ax_c, ay_c, ayaw_c, av_c = (float(v[0]) for v in plan.sample(np.array([t_col])))
-    kind = contact_kind(float(nx[tcol_k]), float(ny[tcol_k]), float(nyaw[tcol_k]), length, width, float(nv[tcol_k]),
-                        ax_c, ay_c, ayaw_c, plan.length, plan.width, av_c)
+    kind = contact_kind(Motion(float(nx[tcol_k]), float(ny[tcol_k]), float(nyaw[tcol_k]), float(nv[tcol_k]), length,
+                               width), Motion(ax_c, ay_c, ayaw_c, av_c, plan.length, plan.width))
     upto = slice(0, tcol_k + 1)
-    t_threat = threat_time(times[upto], nx[upto], ny[upto], nyaw[upto], nv[upto], length, width,
-                           *plan.sample(times[upto]), plan.length, plan.width)
+    t_threat = threat_time(times[upto], Motion(nx[upto], ny[upto], nyaw[upto], nv[upto], length, width),
+                           Motion(*plan.sample(times[upto]), plan.length, plan.width))
     # moments to act: a grid from the appearance to t_col plus each reaction moment
     grid = np.arange(plan.t_start, t_col + 1e-9, ACT_SPACING_S)
     react = np.array([t_threat + r for r in reaction_times])

@@ -123,8 +123,8 @@ def test_braking_into_a_follower_does_not_count_as_an_escape():
     (0.0, (-LENGTH, 0.0), "rear_end_by_adversary"),
 ])
 def test_contact_kinds(yaw, offset, kind):
-    assert evasion.contact_kind(0.0, 0.0, 0.0, LENGTH, WIDTH, 10.0, offset[0], offset[1], yaw, LENGTH, WIDTH,
-                              5.0) == kind
+    target = evasion.Motion(0.0, 0.0, 0.0, 10.0, LENGTH, WIDTH)
+    assert evasion.contact_kind(target, evasion.Motion(offset[0], offset[1], yaw, 5.0, LENGTH, WIDTH)) == kind
 
 
 def test_braking_profiles_are_jerk_limited_and_stop_at_zero():
