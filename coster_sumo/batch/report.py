@@ -256,7 +256,7 @@ def render_example(path: Path, out: Path, row: ResultRow, cache: dict[str, Any])
     if escape:  # the variant was avoidable: the escape proven in SUMO
         ax.plot(escape["x"], escape["y"], ":", color="#9467bd", lw=1.8, label="escape (proven in SUMO)", zorder=5)
     s = variant.snapshot.adversary
-    viz.draw_box(ax, s.x, s.y, s.yaw, s.length, s.width, viz.ADVERSARY_COLOR, label="adversary at t_col")
+    viz.draw_box(ax, s, viz.ADVERSARY_COLOR, label="adversary at t_col")
     if row.contact_time is not None:
         cx, cy, _, _ = plan.sample(np.array([row.contact_time]))
         ax.plot(cx[0], cy[0], marker="*", ms=14, color="gold", mec="black", zorder=8, label="first contact")

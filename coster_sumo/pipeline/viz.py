@@ -60,8 +60,10 @@ def draw_map(ax: Axes, road_map: RoadMap, window: tuple[float, float, float, flo
                                          joinstyle="round", zorder=1))
 
 
-def draw_box(ax: Axes, x: float, y: float, yaw: float, length: float, width: float, color: str,
-             alpha: float = 0.9, label: str | None = None, zorder: int = 5) -> None:
+def draw_box(ax: Axes, state: AgentState, color: str, alpha: float = 0.9, label: str | None = None,
+             zorder: int = 5) -> None:
+    """The box of ``state`` (its centre, heading and size) with a tick along its heading."""
+    x, y, yaw, length, width = state.x, state.y, state.yaw, state.length, state.width
     c = _corners(np.array(x), np.array(y), np.array(yaw), np.array(length), np.array(width))
     ax.add_patch(Polygon(c, closed=True, facecolor=color, edgecolor="black", lw=0.5, alpha=alpha,
                          label=label, zorder=zorder))
@@ -158,7 +160,7 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
                    label="adversary's plan" if labels else None)
         a.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, zorder=3,
                label="adversary path" if labels else None)
-        draw_box(a, s.x, s.y, s.yaw, s.length, s.width, ADVERSARY_COLOR, label=box_label if labels else None)
+        draw_box(a, s, ADVERSARY_COLOR, label=box_label if labels else None)
         if contact_xy is not None:  # hollow in the close-up, so the boxes under it stay visible
             a.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8,
                    mfc="gold" if labels else "none", label="first contact" if labels else None)
@@ -215,8 +217,7 @@ def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, targ
                         vmin=0.0, vmax=max(float(np.max(region_presence)), 1e-3))
         ax.figure.colorbar(sc, ax=ax, fraction=0.04, label="predicted presence probability")
     if adversary is not None:
-        draw_box(ax, adversary.x, adversary.y, adversary.yaw, adversary.length, adversary.width, ADVERSARY_COLOR,
-                 label="adversary at t_col", zorder=7)
+        draw_box(ax, adversary, ADVERSARY_COLOR, label="adversary at t_col", zorder=7)
     cmap = plt.get_cmap("tab10")
     for i, r in enumerate(representatives):  # above the boxes: a short path is not hidden under them
         ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=9)
