@@ -254,8 +254,9 @@ def _render_overview(out: Path, k: int, p: PlannedScenario, plans: Sequence[Adve
     scene, snap = p.scene, p.snapshot
     t_col_step = int(np.argmin(np.abs(scene.timestamps - snap.time)))
     reps = [np.stack([q.x, q.y], 1) for q in plans]
-    viz.render_overview(out / _overview_name(k), scene, p.target_index, t_col_step, snap.target, reps, p.samples_xy,
-                        snap.entropy or None, p.scene_2hz.timestamps, snap.time)
+    moment = viz.CollisionMoment(snap.time, t_col_step, snap.target, entropy=snap.entropy or None,
+                                 times=p.scene_2hz.timestamps)
+    viz.render_overview(out / _overview_name(k), scene, p.target_index, moment, reps, p.samples_xy)
 
 
 class _Drawing:

@@ -7,6 +7,7 @@ writes a PNG, and crops to a window around the scene's region of interest.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -195,12 +196,33 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
     return path
 
 
-def render_overview(path: Path, scene: Scene, target: int, t_col_step: int, target_state: AgentState,
-                    representatives: Sequence[np.ndarray], samples_xy: np.ndarray | None,
-                    entropy: Sequence[float] | None, times: np.ndarray | None, t_col: float,
-                    adversary: AgentState | None = None, region_xy: np.ndarray | None = None,
-                    region_presence: np.ndarray | None = None) -> Path:
+@dataclass(frozen=True)
+class CollisionMoment:
+    """What an overview shows of a collision snapshot.
+
+    Attributes:
+        t_col: [s] the collision time; step: its step in the scene drawn.
+        target: the target's state at t_col; adversary: the adversary's (None: not drawn).
+        entropy, times: the entropy curve over ``times`` [s] (None: no curve is drawn).
+        region_xy, region_presence: (R, 2) region centres and the prior's presence at each (None: not drawn).
+    """
+
+    t_col: float
+    step: int
+    target: AgentState
+    adversary: AgentState | None = None
+    entropy: Sequence[float] | None = None
+    times: np.ndarray | None = None
+    region_xy: np.ndarray | None = None
+    region_presence: np.ndarray | None = None
+
+
+def render_overview(path: Path, scene: Scene, target: int, moment: CollisionMoment,
+                    representatives: Sequence[np.ndarray], samples_xy: np.ndarray | None = None) -> Path:
     """Map, agents at t_col, the ellipse, all representatives, heatmap of samples, entropy curve."""
+    t_col_step, target_state, t_col = moment.step, moment.target, moment.t_col
+    entropy, times, adversary = moment.entropy, moment.times, moment.adversary
+    region_xy, region_presence = moment.region_xy, moment.region_presence
     pts = [np.array([[target_state.x, target_state.y]])] + [r[:, :2] for r in representatives]
     window = window_around(np.concatenate(pts), margin=25.0)
     has_curve = entropy is not None and times is not None and np.isfinite(np.asarray(entropy, float)).any()

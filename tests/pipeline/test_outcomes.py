@@ -193,7 +193,7 @@ def test_overview_has_a_legend_for_every_mark_and_paths_above_the_boxes(tmp_path
     samples = np.stack([r for r in reps for _ in range(5)])
     figures = []
     monkeypatch.setattr(viz.plt, "close", figures.append)
-    viz.render_overview(tmp_path / "o.png", scene, 0, 10, target_state, reps, samples, None, None, 1.0)
+    viz.render_overview(tmp_path / "o.png", scene, 0, viz.CollisionMoment(1.0, 10, target_state), reps, samples)
     ax = figures[0].axes[0]
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert {"variant 0", "variant 1", "target at t_col", "other vehicles at t_col",

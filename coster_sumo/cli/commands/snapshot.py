@@ -72,10 +72,10 @@ def run(args: argparse.Namespace) -> int:
                          f"{str(scene.tracks.ids[target])!r}: {exc}") from None
     args.out.mkdir(parents=True, exist_ok=True)
     snap.save(args.out / "snapshot.json")
-    viz.render_overview(args.out / "snapshot.png", low, target, snap.t_index, snap.target,
-                        [np.array([[snap.adversary.x, snap.adversary.y, snap.adversary.yaw]])], None,
-                        snap.entropy or None, low.timestamps, snap.time, adversary=snap.adversary,
-                        region_xy=regions.get("xy"), region_presence=regions.get("presence"))
+    moment = viz.CollisionMoment(snap.time, snap.t_index, snap.target, snap.adversary, snap.entropy or None,
+                                 low.timestamps, regions.get("xy"), regions.get("presence"))
+    viz.render_overview(args.out / "snapshot.png", low, target, moment,
+                        [np.array([[snap.adversary.x, snap.adversary.y, snap.adversary.yaw]])])
     if not args.quiet:
         print(f"t_col {snap.time:.2f} s ({snap.collision_time_method}), adversary at ({snap.adversary.x:.2f}, "
               f"{snap.adversary.y:.2f}) heading {np.degrees(snap.adversary.yaw):.0f} deg, "
