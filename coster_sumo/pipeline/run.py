@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.avoidability.keep import label_and_keep
 from coster_sumo.avoidability.labels import label_plans
 from coster_sumo.core.results import RunResult, RunSummary, TargetEntry, TargetResult
 from coster_sumo.core.snapshot import CollisionSnapshot
@@ -33,7 +32,7 @@ from coster_sumo.infra.outdir import staged_output
 from coster_sumo.infra.procs import torch_threads, usable_cores
 from coster_sumo.infra.progress import Bars, progress_bar
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
-from coster_sumo.method.generation import DrawMemo, check_generation, plan_scenarios
+from coster_sumo.method.generation import DrawMemo, check_generation, label_and_keep, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
 from coster_sumo.pipeline.outputs import OverviewRenders, write_run_outputs
 from coster_sumo.pipeline.scenario import NominalPass, nominal_pass
