@@ -32,7 +32,7 @@ test-slow: setup
 	$(BIN)/python -m pytest -q -m "slow" || [ $$? -eq 5 ]  # 5 = no slow tests collected
 
 # the third-party OpenDRIVE readers, each in its own environment, at the versions pyproject.toml's
-# extras xodr-asam and xodr-readers pin (tests/test_xodr_readers.py skips without them)
+# extras xodr-asam and xodr-readers pin (tests/exports/test_xodr_readers.py skips without them)
 xodr-readers: setup
 	for extra in xodr-asam xodr-readers; do \
 	  test -x .venv-$$extra/bin/python || $(PYTHON) -m venv .venv-$$extra; \

@@ -32,18 +32,19 @@ from pathlib import Path
 import numpy as np
 from coster_sumo.converters.read import iter_scenes
 
-from coster_sumo import metrics, weights
+from coster_sumo import metrics
 from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
 from coster_sumo.batch.generator_summary import VariantRecord
-from coster_sumo.dataset import list_scenes, split
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.scene import LaneType, Scene, resample
+from coster_sumo.core.snapshot import AgentState
+from coster_sumo.data.dataset import list_scenes, split
 from coster_sumo.errors import NoSnapshot
 from coster_sumo.formats.scene_file import load_scene
+from coster_sumo.geometry.drivable import DrivableArea
+from coster_sumo.infra import weights
 from coster_sumo.method.collision_time import in_ellipse
 from coster_sumo.method.snapshot import PriorMemo, prior_snapshot
 from coster_sumo.prior.infer import load_prior, predict_scene
-from coster_sumo.scene import LaneType, Scene, resample
-from coster_sumo.snapshot_state import AgentState
 
 BOOTSTRAP = 500
 

@@ -16,9 +16,9 @@ import json
 import tempfile
 from pathlib import Path
 
-from coster_sumo.progress import bars
-from coster_sumo.run import RunOptions, run
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.infra.progress import bars
+from coster_sumo.pipeline.run import RunOptions, run
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT = [REPO / "networks" / n / f"{n}.sumocfg" for n in ("intersection", "merge", "arterial")]

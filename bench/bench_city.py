@@ -29,9 +29,10 @@ import sys
 import time
 from pathlib import Path
 
-from coster_sumo import server, sumo_env
+from coster_sumo.cli import server
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.targets import config_demand
+from coster_sumo.infra import sumo_install
+from coster_sumo.pipeline.targets import config_demand
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -42,13 +43,13 @@ def build_city(work: Path, vehicles_per_s: float, duration_s: float, seed: int =
     if cfg.is_file():
         return cfg
     work.mkdir(parents=True, exist_ok=True)
-    net = sumo_env.sumo_home() / "tools" / "game" / "DRT" / "osm.net.xml"
+    net = sumo_install.sumo_home() / "tools" / "game" / "DRT" / "osm.net.xml"
     shutil.copy(net, work / "city.net.xml")
-    subprocess.run([sys.executable, sumo_env.tool("randomTrips.py"), "-n", str(work / "city.net.xml"),
+    subprocess.run([sys.executable, sumo_install.tool("randomTrips.py"), "-n", str(work / "city.net.xml"),
                     "-o", str(work / "city.trips.xml"), "-r", str(work / "city.rou.xml"), "-b", "0",
                     "-e", str(duration_s), "-p", str(1.0 / vehicles_per_s), "--seed", str(seed),
                     "--fringe-factor", "5", "--min-distance", "300", "--validate", "--vehicle-class", "passenger"],
-                   check=True, capture_output=True, env=sumo_env.subprocess_env())
+                   check=True, capture_output=True, env=sumo_install.subprocess_env())
     cfg.write_text('<configuration>\n  <input>\n    <net-file value="city.net.xml"/>\n'
                    '    <route-files value="city.rou.xml"/>\n  </input>\n'
                    f'  <time>\n    <begin value="0"/>\n    <end value="{duration_s:g}"/>\n  </time>\n'
@@ -110,13 +111,13 @@ def bench(args: argparse.Namespace, env: dict[str, str] | None) -> None:
     vehicles = "?" if demand is None else f"{len(demand.vehicles)} vehicles and {len(demand.flows)} flows"
     out = args.work / "run"
     shutil.rmtree(out, ignore_errors=True)
-    entry = "coster_sumo" if env is None else "coster_sumo.client"  # the client hands the run to the server
+    entry = "coster_sumo" if env is None else "coster_sumo.cli.client"  # the client hands the run to the server
     run_cmd = [sys.executable, "-m", entry, "--quiet", "run", str(cfg), "--target", target,
                "--planner", "replay", "-o", str(out), "--overwrite"]
     t_run = timed(run_cmd, env)
     summary = json.loads((out / "summary.json").read_text())
     until = summary["nominal_until_s"]
-    sumo_cmd = [sumo_env.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
+    sumo_cmd = [sumo_install.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
                 "--no-step-log", "true", "--no-warnings", "true"]
     runs, t_sumo = [t_run], [timed(sumo_cmd)]
     n_pairs = max(2, args.repeats)

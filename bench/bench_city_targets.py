@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 
 
 def timed(cmd: list[str]) -> float:
@@ -50,7 +50,7 @@ def one(cfg: Path, n: int, variants: int, work: Path) -> dict[str, Any]:
     t_run = timed(run_cmd)
     top = json.loads((out / "summary.json").read_text())
     until = float(top["nominal_until_s"])
-    t_sumo = timed([sumo_env.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
+    t_sumo = timed([sumo_install.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end", f"{until:.1f}",
                     "--no-step-log", "true", "--no-warnings", "true"])
     per = target_summaries(out)
     scenarios = sum(len(s["variants"]) for s in per)
@@ -70,7 +70,7 @@ def main() -> None:
     ap.add_argument("--variants", type=int, default=5)
     ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-city-targets"))
     args = ap.parse_args()
-    cfg = args.config or sumo_env.sumo_home() / "tools" / "game" / "A10KW.sumocfg"
+    cfg = args.config or sumo_install.sumo_home() / "tools" / "game" / "A10KW.sumocfg"
     args.work.mkdir(parents=True, exist_ok=True)
     for n in args.targets:
         r = one(cfg, n, args.variants, args.work)

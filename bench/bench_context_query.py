@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 
 
 def main() -> None:
@@ -23,10 +23,10 @@ def main() -> None:
     ap.add_argument("--target", default="veh400")
     ap.add_argument("--radius", type=float, default=200.0)
     args = ap.parse_args()
-    ls = sumo_env.import_libsumo()
+    ls = sumo_install.import_libsumo()
     tc = ls.constants
-    cfg = sumo_env.sumo_home() / "tools" / "game" / "A10KW.sumocfg"
-    ls.start([sumo_env.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--no-step-log", "true",
+    cfg = sumo_install.sumo_home() / "tools" / "game" / "A10KW.sumocfg"
+    ls.start([sumo_install.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--no-step-log", "true",
               "--no-warnings", "true"])
     ls.simulationStep(args.at)
     dom, var = tc.CMD_GET_VEHICLE_VARIABLE, [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED]

@@ -60,7 +60,8 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-demo-") as tmp:
         root = extract_ref(args.baseline_ref, Path(tmp) / "tree", extra=PACKAGE_DATA)
-        launcher = "import sys; sys.path.insert(0, sys.argv.pop(1)); from coster_sumo.cli import main; sys.exit(main())"
+        launcher = ("import sys; sys.path.insert(0, sys.argv.pop(1)); "
+                    "from coster_sumo.cli.command_line import main; sys.exit(main())")
         cmds = {"baseline": [sys.executable, "-c", launcher, str(root)],
                 "current": [str(Path(sys.executable).parent / "coster-sumo")]}
         outs = {k: Path(tmp) / f"out_{k}" for k in cmds}

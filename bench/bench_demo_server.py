@@ -2,7 +2,7 @@
 
     python bench/bench_demo_server.py [--repeats 5] [--network intersection]
 
-Starts a server on a socket of its own (:mod:`coster_sumo.server`), then alternates ``--repeats``
+Starts a server on a socket of its own (:mod:`coster_sumo.cli.server`), then alternates ``--repeats``
 times: the demo alone (``COSTER_SUMO_SERVER=off``: a fresh process that imports everything) and the
 demo handed to the server (the client process, a fork of the server runs it). One unmeasured run of
 each first (files in the page cache). Every run is the whole command (renders on, a fresh OUT).
@@ -25,9 +25,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 from behaviour import outcomes_of_run  # noqa: E402
 
-from coster_sumo import server  # noqa: E402
+from coster_sumo.cli import server  # noqa: E402
 
-CLIENT = [sys.executable, "-m", "coster_sumo.client"]
+CLIENT = [sys.executable, "-m", "coster_sumo.cli.client"]
 
 
 def demo(env: dict[str, str], out: Path, network: str) -> float:

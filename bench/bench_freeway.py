@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 
 CONFIG = """<configuration>
     <input>
@@ -56,7 +56,7 @@ def build(work: Path) -> Path:
     folder = work / "cfg"
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True)
-    ramp = sumo_env.sumo_home() / "tools" / "game" / "ramp"
+    ramp = sumo_install.sumo_home() / "tools" / "game" / "ramp"
     for name in ("ramp.net.xml", "ramp.rou.xml"):
         shutil.copy(ramp / name, folder / name)
     (folder / "fw.sumocfg").write_text(CONFIG)
@@ -95,7 +95,7 @@ def main() -> None:
     plain = args.work / "plain"  # plain sumo writes the configuration's outputs: into a copy
     shutil.rmtree(plain, ignore_errors=True)
     shutil.copytree(cfg.parent, plain)
-    t_sumo = timed([sumo_env.binary("sumo"), "-c", str(plain / cfg.name), "--step-length", "0.1", "--end",
+    t_sumo = timed([sumo_install.binary("sumo"), "-c", str(plain / cfg.name), "--step-length", "0.1", "--end",
                     f"{until:.1f}", "--no-step-log", "true", "--no-warnings", "true"])
     timings = summary["timings_s"]
     covered = sum(timings.values())

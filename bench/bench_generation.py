@@ -53,23 +53,23 @@ SERVER = r'''
 import json, os, sys, time
 sys.path.insert(0, sys.argv[1])
 import libsumo, pyarrow.parquet  # noqa: F401
-import coster_sumo.batch.evaluate, coster_sumo.outputs  # noqa: F401
+import coster_sumo.batch.evaluate, coster_sumo.pipeline.outputs  # noqa: F401
 # where generation lives: coster_sumo.method (issue 43) or coster_sumo.core (before it); asked of the
 # files, since an editable install of the current tree would answer any missing module from there
 NEW = os.path.isdir(os.path.join(sys.argv[1], "coster_sumo", "method"))
 if NEW:
     from coster_sumo.method.generation import generate_variants
     try:
-        from coster_sumo.targets import choose_target
+        from coster_sumo.pipeline.targets import choose_target
     except ImportError:  # before it moved beside the other ways of choosing targets
-        from coster_sumo.scenario import choose_target
+        from coster_sumo.pipeline.scenario import choose_target
 else:
     from coster_sumo.core import choose_target, generate_variants
 if os.path.isfile(os.path.join(sys.argv[1], "coster_sumo", "formats", "scene_file.py")):
     from coster_sumo.formats.scene_file import load_scene
 else:  # before the scene file had a module of its own
-    from coster_sumo.scene import load_scene
-import coster_sumo.drivable  # noqa: F401
+    from coster_sumo.core.scene import load_scene
+import coster_sumo.geometry.drivable  # noqa: F401
 import coster_sumo.sim.inject  # noqa: F401
 from coster_sumo.batch import executor
 preload = getattr(executor, "GENERATION_TASK_MODULES", ())
@@ -86,8 +86,8 @@ for line in sys.stdin:
         out = {}
         try:
             from pathlib import Path
-            from coster_sumo.drivable import DrivableArea
-            from coster_sumo.spec import GenerationConfig
+            from coster_sumo.geometry.drivable import DrivableArea
+            from coster_sumo.core.spec import GenerationConfig
             scene = load_scene(req["scene"])
             target = choose_target(scene, None, req["scene"])
             drivable = DrivableArea.from_road_map(scene.road_map)

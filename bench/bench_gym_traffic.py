@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.geometry import resample_polyline
+from coster_sumo.geometry.boxes import resample_polyline
 from coster_sumo.sim.record import record_config
 from coster_sumo.sim.session import SumoSession
 

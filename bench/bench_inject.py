@@ -14,13 +14,13 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
-from coster_sumo.scenario import nominal_scene
+from coster_sumo.pipeline.scenario import nominal_scene
+from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import InjectionResult, run_injection
 from coster_sumo.sim.planners import make_planner
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
-from coster_sumo.targets import choose_target
 
 REPO = Path(__file__).resolve().parents[1]
 

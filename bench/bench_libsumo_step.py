@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 from coster_sumo.sim.sumo_options import RECOMMENDED_OPTIONS
 
 _LOOP = """
@@ -36,7 +36,7 @@ def timed(cmd: list[str]) -> tuple[float, float]:
     """Wall time and CPU time (user + system) [s] of one child process."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    subprocess.run(cmd, check=True, capture_output=True, env=sumo_env.subprocess_env())
+    subprocess.run(cmd, check=True, capture_output=True, env=sumo_install.subprocess_env())
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -47,7 +47,7 @@ def main() -> None:
     ap.add_argument("--config", type=Path, required=True)
     ap.add_argument("--end", type=float, required=True, help="[s] absolute simulation end")
     args = ap.parse_args()
-    base = [sumo_env.binary("sumo"), "-c", str(args.config), "--end", f"{args.end:g}", "--step-length", "0.1",
+    base = [sumo_install.binary("sumo"), "-c", str(args.config), "--end", f"{args.end:g}", "--step-length", "0.1",
             "--no-step-log", "true", "--no-warnings", "true"]
     ours = [v for kv in RECOMMENDED_OPTIONS.items() for v in kv if kv[0] not in base]  # SUMO refuses repeats
     plain = timed(base)

@@ -24,9 +24,9 @@ import numpy as np
 
 
 def nominal(config: Path, target: str, path: Path) -> None:
+    from coster_sumo.core.spec import ScenarioSpec
     from coster_sumo.formats.scene_file import save_scene
-    from coster_sumo.scenario import nominal_scene
-    from coster_sumo.spec import ScenarioSpec
+    from coster_sumo.pipeline.scenario import nominal_scene
 
     if path.exists():
         return
@@ -38,10 +38,10 @@ def nominal(config: Path, target: str, path: Path) -> None:
 
 
 def one_round(scene, target: int, exact: bool) -> dict[str, float]:  # type: ignore[no-untyped-def]
-    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.core.spec import GenerationConfig
+    from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method import collision_time as ct
     from coster_sumo.method.generation import DrawMemo, plan_scenarios
-    from coster_sumo.spec import GenerationConfig
 
     saved = ct.LONG_WINDOW_STEPS
     ct.LONG_WINDOW_STEPS = 10**9 if exact else saved
@@ -72,8 +72,8 @@ def main() -> None:
     path = args.scene or args.work / f"{args.config.stem}_{args.target}.npz"
     nominal(args.config, args.target, path)
 
-    from coster_sumo import weights
     from coster_sumo.formats.scene_file import load_scene
+    from coster_sumo.infra import weights
     from coster_sumo.prior.infer import load_prior
 
     weights.load_cached(weights.weights_path(weights.PRIOR, None), load_prior)  # loaded, as in a server

@@ -23,11 +23,11 @@ import time
 import numpy as np
 import torch
 
-from coster_sumo import synthetic
+from coster_sumo.core.scene import Scene
+from coster_sumo.data import synthetic
 from coster_sumo.prior.data import at_prior_rate, prepare_scene, scene_tokens
 from coster_sumo.prior.infer import load_prior, predict_scene, predict_tokens
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
-from coster_sumo.scene import Scene
 
 GOAL_S = 0.2
 

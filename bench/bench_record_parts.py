@@ -7,7 +7,7 @@ child process:
 
 - ``sumo``: the ``sumo`` binary with the options every coster-sumo simulation uses;
 - ``libsumo``: libsumo started with the same options, ``simulationStep()`` in a bare loop;
-- ``record``: the nominal pass of ``coster-sumo run`` (:func:`coster_sumo.scenario.nominal_scene`:
+- ``record``: the nominal pass of ``coster-sumo run`` (:func:`coster_sumo.pipeline.scenario.nominal_scene`:
   the target every step, its surroundings at 2 Hz, the signals, the arrays), no held copies;
 - ``record+hold``: the same with the held copies a run makes (:class:`coster_sumo.sim.hold.HeldStates`).
 
@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 from coster_sumo.sim.sumo_options import RECOMMENDED_OPTIONS
 
 _OPTIONS = [x for kv in RECOMMENDED_OPTIONS.items() for x in kv]
@@ -45,9 +45,9 @@ import sys
 from pathlib import Path
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.rollout.methods import HORIZON_STEPS
-from coster_sumo.scenario import nominal_scene
+from coster_sumo.pipeline.scenario import nominal_scene
 from coster_sumo.sim.hold import HeldStates
-from coster_sumo.spec import ScenarioSpec
+from coster_sumo.core.spec import ScenarioSpec
 
 cfg, target, end, mode = Path(sys.argv[1]), sys.argv[2], float(sys.argv[3]), sys.argv[4]
 spec = ScenarioSpec(cfg, seed=0, end=end, target=target)
@@ -65,7 +65,7 @@ def timed(cmd: list[str]) -> tuple[float, float]:
     """Wall and CPU time (user + system) [s] of one child process and its descendants."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env())
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_install.subprocess_env())
     wall = time.perf_counter() - t
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd[:3])} ... failed ({proc.returncode}): {proc.stderr.strip()[-400:]}")
@@ -76,7 +76,7 @@ def timed(cmd: list[str]) -> tuple[float, float]:
 def commands(cfg: Path, target: str, end: float) -> dict[str, list[str]]:
     py = sys.executable
     return {
-        "sumo": [str(sumo_env.binary("sumo")), "-c", str(cfg), "--seed", "0", "--end", f"{end:g}", *_OPTIONS],
+        "sumo": [str(sumo_install.binary("sumo")), "-c", str(cfg), "--seed", "0", "--end", f"{end:g}", *_OPTIONS],
         "libsumo": [py, "-c", _BARE, str(cfg), f"{end:g}", *_OPTIONS],
         "record": [py, "-c", _RECORD, str(cfg), target, f"{end:g}", "record"],
         "record+hold": [py, "-c", _RECORD, str(cfg), target, f"{end:g}", "hold"],

@@ -30,13 +30,13 @@ import time
 import numpy as np
 import torch
 
-from coster_sumo import synthetic
+from coster_sumo.core.scene import Scene, Tracks, resample
+from coster_sumo.core.snapshot import AgentState
+from coster_sumo.data import synthetic
 from coster_sumo.rollout import sample as S
 from coster_sumo.rollout.data import build_cache
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
 from coster_sumo.rollout.vocab import MotionVocab, build_vocab
-from coster_sumo.scene import Scene, Tracks, resample
-from coster_sumo.snapshot_state import AgentState
 
 
 def busy_junction(extra: int = 40, seed: int = 0) -> Scene:

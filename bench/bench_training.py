@@ -19,7 +19,7 @@ timing and are reported separately.
 
 The traffic prior (``coster-sumo train prior``, unchanged) is timed the same way unless
 ``--no-prior``, as an experiment: **in-line** builds the tokens of each batch in the loop (what its
-training does), **background** in the background thread (:func:`coster_sumo.prefetch.prefetch`);
+training does), **background** in the background thread (:func:`coster_sumo.infra.prefetch.prefetch`);
 both at its training defaults (batch 32, one thread, default model) on up to 40 training scenes.
 
 Usage:
@@ -55,9 +55,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from coster_sumo import weights
-from coster_sumo.devices import cpu_description
-from coster_sumo.prefetch import prefetch
+from coster_sumo.infra import weights
+from coster_sumo.infra.devices import cpu_description
+from coster_sumo.infra.prefetch import prefetch
 from coster_sumo.rollout import model as current_model
 from coster_sumo.rollout.cache import cached_examples
 from coster_sumo.rollout.checkpoint import load_model

@@ -29,7 +29,7 @@ python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --tar
 python3 -m pip install -q --no-index --no-deps --no-build-isolation -e . >> $L/pip.log 2>&1
 (nvidia-smi; python3 -c "import torch; print(torch.__version__, torch.cuda.is_available())"; nproc) > $L/machine.txt 2>&1
 (nvidia-smi dmon -s u -d 10 > $L/dmon.log 2>&1 &)
-(timeout 200 python3 -m pytest -q -p no:cacheprovider -m gpu tests/test_rollout_cli.py tests/test_prior.py \
+(timeout 200 python3 -m pytest -q -p no:cacheprovider -m gpu tests/rollout/test_rollout_cli.py tests/prior/test_prior.py \
   > $L/pytest_gpu.log 2>&1; echo "rc=$?" >> $L/pytest_gpu.log) &
 python3 -c "
 from coster_sumo.rollout.train import split_scene_files as s, load_cached_examples as l

@@ -5,7 +5,7 @@ Usage: python bench/pack_for_device.py CORPUS [--out .device] [--max-mb 36] [--s
 The device machine (``device`` tool) receives only the working tree, at most 64 MiB with what is
 carried, and reaches no package index. The corpus is ten times that (its clips hold 91 steps at
 10 Hz; the rollout trains at 2 Hz), so this script writes a seeded share of ``CORPUS/scenes`` at
-2 Hz (:func:`coster_sumo.scene.resample`, the same steps the training keeps: the features are
+2 Hz (:func:`coster_sumo.core.scene.resample`, the same steps the training keeps: the features are
 those of the full clips) into ``OUT/scenes`` until ``--max-mb`` is reached. Training and
 validation files keep their split (it hashes the file name). It also downloads the wheels of the
 packages the CLI imports that the machine's Python 3.12 image lacks (shapely, defusedxml, and
@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.dataset import list_scenes
+from coster_sumo.core.scene import resample
+from coster_sumo.data.dataset import list_scenes
 from coster_sumo.formats.scene_file import load_scene, save_scene
 from coster_sumo.rollout.data import ROLLOUT_HZ
-from coster_sumo.scene import resample
 
 REPO = Path(__file__).resolve().parents[1]
 # what the device's image lacks among the CLI's imports (its torch, numpy, scipy, matplotlib and

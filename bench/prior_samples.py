@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo import weights
-from coster_sumo.commands.prior_cmds import _subset
+from coster_sumo.cli.commands.prior_cmds import _subset
+from coster_sumo.infra import weights
 from coster_sumo.prior.data import batch_tokens, epoch_samples, load_prepared, scene_tokens, split_files
 from coster_sumo.prior.evaluate import _sample_model, evaluation_centres
 from coster_sumo.prior.infer import load_prior, predict_tokens, width_table

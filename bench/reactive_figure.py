@@ -7,7 +7,7 @@ target (from a seeded random time in the clip) braking at 4 m/s^2 in ``traffic="
 ``traffic="reactive"`` (Krauss and IDM), and plots, against time, the target's and each of its
 followers' positions along the target's route (the follower that runs into it in the log; the
 same vehicle in reactive traffic, where SUMO drives it from the moment the target's deviation
-reaches it). The same runs are the test ``tests/test_reactive.py``.
+reaches it). The same runs are the test ``tests/sim/test_reactive.py``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ START_SEED = 0  # the episode starts at a random time in the clip (seeded): the 
 def drive(scenarios: Path, traffic: str, car_following: str = "Krauss") -> tuple[dict, str, dict[str, list]]:
     """One braking episode: the last info, the target's id, and per vehicle in the target's route
     corridor its (time, arc length) samples."""
-    from coster_sumo.geometry import project_points
+    from coster_sumo.geometry.boxes import project_points
     from coster_sumo.gym.env import ScenarioEnv
     from coster_sumo.sim.driver import MAX_DECEL
 

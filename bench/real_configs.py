@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 
 # name: (configuration under tools/game, target vehicle, what it is)
 CONFIGS = {
@@ -34,7 +34,7 @@ def main() -> None:
     ap.add_argument("names", nargs="*", default=list(CONFIGS))
     ap.add_argument("--out", type=Path, default=Path("/tmp/coster-real-configs"))
     args = ap.parse_args()
-    game = sumo_env.sumo_home() / "tools" / "game"
+    game = sumo_install.sumo_home() / "tools" / "game"
     print("| configuration | what | target | exit | wall [s] | t_col [s] | contact offsets [s] |")
     print("|---|---|---|---|---|---|---|")
     for name in args.names:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from coster_sumo.converters.read import iter_scenes
 
-from coster_sumo import weights
+from coster_sumo.infra import weights
 from coster_sumo.prior.bins import ATTRIBUTES
 from coster_sumo.prior.data import at_prior_rate, load_prepared, prepare_scene, scene_tokens, split_files
 from coster_sumo.prior.evaluate import evaluation_centres

@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 from defusedxml.ElementTree import iterparse
 
-from coster_sumo import sumo_env
-from coster_sumo.dataset import crop_map
+from coster_sumo.core.scene import Lanes, ObjectType, Polylines, Ragged, RoadMap, Scene, SignalStates, Tracks
+from coster_sumo.data.dataset import crop_map
 from coster_sumo.formats.sumo_net import read_sumo_net
-from coster_sumo.scene import Lanes, ObjectType, Polylines, Ragged, RoadMap, Scene, SignalStates, Tracks
+from coster_sumo.infra import sumo_install
 
 REPO = Path(__file__).resolve().parents[1]
 WOMD = REPO.parent / "shared" / "data" / "womd"
@@ -232,10 +232,10 @@ def clip_net(net: Path, centre: np.ndarray, half: float, out: Path) -> Path | No
     """``out``: netconvert's cut of ``net`` to the box of half side ``half`` [m] around ``centre``
     (edges wholly inside), in the net's own frame; None when nothing is left."""
     x, y = centre
-    cmd = [sumo_env.binary("netconvert"), "-s", str(net), "-o", str(out), "--no-warnings", "true",
+    cmd = [sumo_install.binary("netconvert"), "-s", str(net), "-o", str(out), "--no-warnings", "true",
            "--keep-edges.in-boundary", f"{x - half},{y - half},{x + half},{y + half}",
            "--offset.disable-normalization", "true", "--ignore-errors", "true"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(), timeout=600)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_install.subprocess_env(), timeout=600)
     if proc.returncode != 0 or not out.is_file() or re.search(rb'<edge id="[^:]', out.read_bytes()) is None:
         return None
     return out

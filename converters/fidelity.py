@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coster_sumo.geometry import project_points
-from coster_sumo.scene import Lanes, Scene
+from coster_sumo.core.scene import Lanes, Scene
+from coster_sumo.geometry.boxes import project_points
 
 from .netconvert import NetInfo
 from .to_sumo_net import PlainNet

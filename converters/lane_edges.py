@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.geometry import polyline_arc_length, project_points
-from coster_sumo.scene import Lanes
+from coster_sumo.core.scene import Lanes
+from coster_sumo.geometry.boxes import polyline_arc_length, project_points
 
 from .lane_graph import UnionFind
 from .polyline import cut_polyline

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.scene import Lanes
+from coster_sumo.core.scene import Lanes
 
 MAX_CONNECTOR_DEPTH = 6  # interior lanes chained in one connection
 

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo import sumo_env
 from coster_sumo.errors import CosterError
-from coster_sumo.outdir import raise_if_disk_full
+from coster_sumo.infra import sumo_install
+from coster_sumo.infra.outdir import raise_if_disk_full
 
 NETCONVERT_OPTIONS = [
     "--offset.disable-normalization", "true",  # keep WOMD coordinates (no shift to the origin)
@@ -44,9 +44,9 @@ class ConversionError(CosterError):
 
 def run_netconvert(nod: Path, edg: Path, con: Path, net: Path) -> None:
     """Run netconvert on the plain files; raise :class:`ConversionError` with SUMO's message."""
-    cmd = [sumo_env.binary("netconvert"), "-n", str(nod), "-e", str(edg), "-x", str(con), "-o", str(net),
+    cmd = [sumo_install.binary("netconvert"), "-n", str(nod), "-e", str(edg), "-x", str(con), "-o", str(net),
            *NETCONVERT_OPTIONS]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env())
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_install.subprocess_env())
     if proc.returncode != 0 or not net.exists():
         err = [ln for ln in (proc.stderr + proc.stdout).splitlines() if ln.startswith("Error")]
         msg = " ".join(err[:2]) or (proc.stderr.strip().splitlines() or ["no message"])[-1]

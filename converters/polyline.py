@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from coster_sumo.geometry import polyline_arc_length
+from coster_sumo.geometry.boxes import polyline_arc_length
 
 DUPLICATE_POINT_M = 1e-3  # [m] consecutive points closer than this are one point
 

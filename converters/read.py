@@ -16,9 +16,9 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+from coster_sumo.core.scene import Scene
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
-from coster_sumo.scene import Scene
 
 from .scenarionet import iter_pickle_scenes
 from .scenarionet_pickle import PICKLE_MAGIC

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.geometry import polyline_arc_length
+from coster_sumo.geometry.boxes import polyline_arc_length
 
 from .netconvert import NetInfo, _parse_xml
 from .polyline import clean_polyline, cut_polyline

@@ -1,4 +1,4 @@
-"""ScenarioNet / MetaDrive "scenario description" pickles -> :class:`~coster_sumo.scene.Scene`.
+"""ScenarioNet / MetaDrive "scenario description" pickles -> :class:`~coster_sumo.core.scene.Scene`.
 
 **Security**: the pickle is loaded with the restricted unpickler of
 :mod:`converters.scenarionet_pickle`, so no file can make the loader run code. Everything read is
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.core.scene import LaneType, ObjectType, Ragged, RoadMap, Scene, SignalState, SignalStates, Tracks
 from coster_sumo.errors import InputError
-from coster_sumo.scene import LaneType, ObjectType, Ragged, RoadMap, Scene, SignalState, SignalStates, Tracks
 
 from .scenarionet_pickle import ALLOWED_GLOBALS as ALLOWED_GLOBALS  # where the tests look for them
 from .scenarionet_pickle import RestrictedUnpickler as RestrictedUnpickler

@@ -38,6 +38,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.errors import InputError
 from coster_sumo.formats.net_joints import measure_joints
 from coster_sumo.formats.scene_file import save_scene
@@ -48,8 +49,7 @@ from coster_sumo.formats.scene_folder import (
     tls_state_strings,
     vtype_for,
 )
-from coster_sumo.outdir import check_output, new_staging, publish
-from coster_sumo.scene import ObjectType, Scene
+from coster_sumo.infra.outdir import check_output, new_staging, publish
 
 from .fidelity import measure_fidelity
 from .netconvert import ConversionError, NetInfo, read_net, run_netconvert
@@ -221,7 +221,7 @@ def _type_name(object_type: int) -> str:
         return f"type_{int(object_type)}"
 
 
-SCENE_KIND = "scene"  # the marker kind of a converted scene folder (coster_sumo.outdir)
+SCENE_KIND = "scene"  # the marker kind of a converted scene folder (coster_sumo.infra.outdir)
 
 
 @dataclass(slots=True)
@@ -241,7 +241,7 @@ def convert_scene(scene: Scene, outdir: str | Path, *, overwrite: bool = True, n
     """Convert one scene into ``outdir/<name>/`` (atomically); see the module docstring.
 
     An existing ``outdir/<name>/`` is replaced only with ``overwrite`` and only when it is a scene
-    folder coster-sumo wrote (:mod:`coster_sumo.outdir`); otherwise :class:`InputError`.
+    folder coster-sumo wrote (:mod:`coster_sumo.infra.outdir`); otherwise :class:`InputError`.
 
     ``name`` (folder and file stem) defaults to :func:`~coster_sumo.formats.scene_folder.folder_name`
     of the scenario id: never a path, never empty, whatever the input file says.

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coster_sumo.geometry import polyline_arc_length
-from coster_sumo.scene import Lanes, LaneType, RoadMap, SignalStates
+from coster_sumo.core.scene import Lanes, LaneType, RoadMap, SignalStates
+from coster_sumo.geometry.boxes import polyline_arc_length
 
 from .lane_edges import Piece, alongside_neighbours, cut_into_pieces, group_into_edges
 from .lane_graph import LinkGraph, UnionFind, connector_paths, link_graph

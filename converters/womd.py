@@ -1,11 +1,11 @@
-"""WOMD ``Scenario`` protobufs <-> :class:`~coster_sumo.scene.Scene`.
+"""WOMD ``Scenario`` protobufs <-> :class:`~coster_sumo.core.scene.Scene`.
 
 - :func:`iter_tfrecord_scenes`: every scenario of a (plain or gzip) TFRecord file as a Scene.
 - :func:`scenario_to_scene`: one parsed ``Scenario`` message -> Scene (``source="womd"``).
 - :func:`scene_to_scenario`: the inverse, serialized bytes; used to write synthetic scenes as
   TFRecords for tests.
 
-Mapping (see :mod:`coster_sumo.scene` for the target fields):
+Mapping (see :mod:`coster_sumo.core.scene` for the target fields):
 
 - tracks: ``id`` -> ``str(id)``; box centre, heading, velocity, length/width per step; ``valid``.
   Invalid states stay as WOMD wrote them (zero-filled): mask with ``valid``.
@@ -32,15 +32,15 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.errors import InputError
-from coster_sumo.frames import MPH_TO_MPS
-from coster_sumo.scene import (
+from coster_sumo.core.scene import (
     Ragged,
     RoadMap,
     Scene,
     SignalStates,
     Tracks,
 )
+from coster_sumo.errors import InputError
+from coster_sumo.geometry.frames import MPH_TO_MPS
 
 from . import womd_schema
 from .tf_example import describe_example, example_keys

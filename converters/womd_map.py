@@ -1,5 +1,5 @@
 """The map part both WOMD readers share (:mod:`converters.womd` for ``Scenario`` protobufs,
-:mod:`converters.scenarionet` for ScenarioNet pickles): raw lanes -> :class:`~coster_sumo.scene.Lanes`,
+:mod:`converters.scenarionet` for ScenarioNet pickles): raw lanes -> :class:`~coster_sumo.core.scene.Lanes`,
 the checks of map geometry, polylines, and the feature types counted in ``scene.meta``.
 
 Lane widths and junction flags are estimated here, the same way for both containers:
@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from coster_sumo.core.scene import Lanes, Polylines, Ragged
 from coster_sumo.errors import InputError
-from coster_sumo.frames import MPH_TO_MPS
-from coster_sumo.scene import Lanes, Polylines, Ragged
+from coster_sumo.geometry.frames import MPH_TO_MPS
 
 DEFAULT_LANE_WIDTH = 3.7  # [m]
 LANE_WIDTH_RANGE = (2.5, 5.5)  # [m]

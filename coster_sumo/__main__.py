@@ -1,5 +1,5 @@
 import sys
 
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 
 sys.exit(main())

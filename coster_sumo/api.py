@@ -23,15 +23,15 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.defects import label_plans
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.method.generation import DrawMemo, PlannedScenario, keep_avoidable, plan_scenarios
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.scenario import nominal_scene
+from coster_sumo.avoidability.labels import label_plans
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.spec import GenerationConfig, LabelOptions, ScenarioSpec
+from coster_sumo.geometry.drivable import DrivableArea
+from coster_sumo.method.generation import DrawMemo, PlannedScenario, check_generation, label_and_keep, plan_scenarios
+from coster_sumo.pipeline.scenario import nominal_scene
+from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
-from coster_sumo.spec import GenerationConfig, LabelOptions, ScenarioSpec
-from coster_sumo.targets import choose_target
 
 __all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
            "SumoSession", "inject_variant", "plan_adversaries", "run_injection"]
@@ -45,7 +45,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
 
     Returns the :class:`~coster_sumo.method.generation.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
-    :class:`~coster_sumo.plan.AdversaryPlan` per kept variant, sim times in seconds). Inject one
+    :class:`~coster_sumo.core.plan.AdversaryPlan` per kept variant, sim times in seconds). Inject one
     with :func:`~coster_sumo.sim.inject.inject_variant` or drive it in your own loop.
 
     Fewer plans than ``variants`` is possible (a cluster of the oversampled trajectories had no
@@ -63,6 +63,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
                            variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
     wanted = LabelOptions(reaction_time, avoidable)  # a bad one is one line before any work
+    check_generation(gen)  # the method names and their weights, before the nominal pass
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
     drivable = DrivableArea.from_road_map(scene.road_map)
@@ -72,10 +73,9 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     def label(plans: list[AdversaryPlan]) -> list[Any]:
         return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=wanted.reaction_time)
 
-    labels = dict(zip((p.vehicle_id for p in planned.plans), label(planned.plans), strict=True))
-    if wanted.avoidable == "only":
-        kept, tried = keep_avoidable([planned], labels, label, variants, seed=seed, gen=gen, drivable=drivable,
-                                     memo=shared)
+    kept, labels, tried = label_and_keep([planned], label, wanted, variants, seed=seed, gen=gen, drivable=drivable,
+                                         memo=shared)
+    if tried is not None:
         planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable
         planned.info["avoidable_only"] = tried.to_json()
     planned.info["avoidability"] = {p.vehicle_id: labels[p.vehicle_id].summary() for p in planned.plans}

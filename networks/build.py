@@ -46,7 +46,7 @@ REPO = HERE.parent
 if str(REPO) not in sys.path:  # run as a script from a checkout: import the package beside it
     sys.path.insert(0, str(REPO))
 
-from coster_sumo import sumo_env  # noqa: E402
+from coster_sumo.infra import sumo_install  # noqa: E402
 
 DEMAND_END_S = 3600.0  # [s] background flows last an hour, so longer runs (simulate --duration) work
 EGO_DEPART_S = 2.0  # [s]
@@ -349,8 +349,8 @@ def _sumocfg(sc: Scenario) -> str:
 
 
 def _sumo_version() -> str:
-    out = subprocess.run([sumo_env.binary("netconvert"), "--version"], capture_output=True, text=True,
-                         env=sumo_env.subprocess_env()).stdout
+    out = subprocess.run([sumo_install.binary("netconvert"), "--version"], capture_output=True, text=True,
+                         env=sumo_install.subprocess_env()).stdout
     m = re.search(r"netconvert (?:Version )?v?([0-9][\w.]*)", out)
     return m.group(1) if m else "unknown"
 
@@ -381,14 +381,14 @@ def build(sc: Scenario, out_dir: Path, version: str) -> Path:
         (folder / f"{sc.name}.tll.xml").unlink(missing_ok=True)
     for name, text in files.items():
         (folder / name).write_text(text)
-    cmd = [sumo_env.binary("netconvert"), "--node-files", f"{sc.name}.nod.xml",
+    cmd = [sumo_install.binary("netconvert"), "--node-files", f"{sc.name}.nod.xml",
            "--edge-files", f"{sc.name}.edg.xml", "--connection-files", f"{sc.name}.con.xml"]
     if sc.signals:
         cmd += ["--tllogic-files", f"{sc.name}.tll.xml"]
     net = folder / f"{sc.name}.net.xml"
     tmp = folder / f"{sc.name}.tmp.net.xml"
     cmd += [*NETCONVERT_OPTIONS, "--output-file", tmp.name]
-    proc = subprocess.run(cmd, cwd=folder, capture_output=True, text=True, env=sumo_env.subprocess_env())
+    proc = subprocess.run(cmd, cwd=folder, capture_output=True, text=True, env=sumo_install.subprocess_env())
     if proc.returncode != 0 or not tmp.exists():
         tmp.unlink(missing_ok=True)
         raise RuntimeError(f"netconvert failed for {sc.name}:\n{proc.stderr.strip()}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from coster_sumo import synthetic
+from coster_sumo.data import synthetic
 
 REPO = Path(__file__).resolve().parents[1]
 WOMD_DIR = REPO.parent / "shared" / "data" / "womd"

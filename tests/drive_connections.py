@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo import sumo_env
+from coster_sumo.infra import sumo_install
 
 HEADWAY_S = 6.0  # [s] between departures from one edge
 STEP_S = 0.1  # [s]
@@ -64,10 +64,10 @@ def drive_every_connection(net: Path, work: Path, skip_edges: frozenset[str] = f
             *(row for _, row in sorted(vehicles, key=lambda v: v[0])), "</routes>"]
     (work / "every.rou.xml").write_text("\n".join(rows) + "\n")
     fcd, trips = work / "every.fcd.xml", work / "every.trips.xml"
-    cmd = [sumo_env.binary("sumo"), "-n", str(net), "-r", str(work / "every.rou.xml"), "--step-length", str(STEP_S),
+    cmd = [sumo_install.binary("sumo"), "-n", str(net), "-r", str(work / "every.rou.xml"), "--step-length", str(STEP_S),
            "--fcd-output", str(fcd), "--tripinfo-output", str(trips), "--no-step-log", "true",
            "--time-to-teleport", "60", "--tls.all-off", "true", "--end", "3600"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(), timeout=600)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_install.subprocess_env(), timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     arrived = sum(1 for _ in SafeET.parse(str(trips)).getroot().iter("tripinfo"))
     last: dict[str, tuple[float, float, float, str]] = {}

@@ -1,6 +1,6 @@
 """Seeded fuzzing of coster-sumo's input boundary (docs/womd.md, "Hostile inputs").
 
-Library (used by tests/test_fuzz.py) and command line::
+Library (used by tests/contract/test_fuzz.py) and command line::
 
     python tests/fuzz.py --count 3000 --seed 0            # 3,000 damaged inputs, report per kind
     python tests/fuzz.py --count 300 --seed 1 --keep DIR  # keep the inputs and outputs in DIR
@@ -671,7 +671,7 @@ def run_measured(argv: list[str], timeout: float, cwd: Path, stdin: str | None =
 
 DRIVER = r"""
 import contextlib, io, json, sys, traceback
-from coster_sumo.cli import main
+from coster_sumo.cli.command_line import main
 results = []
 for argv in json.loads(sys.stdin.read()):
     err = io.StringIO()

@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import dataset as ds
-from coster_sumo.atomic import atomic_path, write_text
 from coster_sumo.batch import corpus
 from coster_sumo.batch.records import CorpusManifest, NetworkRecord, RunRecord
 from coster_sumo.batch.simulate import STATS_DIR
+from coster_sumo.data import dataset as ds
 from coster_sumo.errors import InputError
+from coster_sumo.infra.atomic import atomic_path, write_text
 
 ROAD_CLASSES = ((0.0, 40.0, "<= 40 km/h"), (40.0, 60.0, "40-60 km/h"), (60.0, 90.0, "60-90 km/h"),
                 (90.0, 1e9, "> 90 km/h"))

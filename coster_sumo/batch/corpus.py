@@ -17,7 +17,7 @@ takes a demand level (free, moderate, heavy, jammed: random-trip insertion densi
 ``--lateral-resolution``; the others continuous lane changes, ``--lanechange.duration``), and a
 vType mix whose car-following models (Krauss, IDM, EIDM) and imperfection (sigma) are drawn per
 type. Held-out networks (:data:`HELDOUT`) write their clips to ``DATASET/heldout/``, which no
-training split ever lists (:func:`coster_sumo.dataset.list_scenes`).
+training split ever lists (:func:`coster_sumo.data.dataset.list_scenes`).
 """
 
 from __future__ import annotations
@@ -33,13 +33,13 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import dataset as ds
-from coster_sumo.atomic import write_json
 from coster_sumo.batch import nets
 from coster_sumo.batch.records import BatchCounts, CorpusSummary, NetworkRecord
 from coster_sumo.batch.simulate import DEFAULT_TIMEOUT_S, RunTask, Source, run_batch
+from coster_sumo.data import dataset as ds
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.infra.atomic import write_json
 
 REPO_NETWORKS = Path(__file__).resolve().parents[2] / "networks"
 RUN_DURATION_S = 300.0  # [s] simulated per run
@@ -143,9 +143,9 @@ def catalogue(dataset: Path, seed: int = 0, build: bool = True, only: list[str] 
     with ``only``, just those are built; ``build=False`` builds none).
 
     Returns the networks and one line per network that could not be built (left out)."""
-    from coster_sumo import sumo_env
+    from coster_sumo.infra import sumo_install
 
-    game = sumo_env.sumo_home() / "tools" / "game"
+    game = sumo_install.sumo_home() / "tools" / "game"
     out: list[Network] = []
     errors: list[str] = []
     for name, (fam, net, routes, adds, window) in _WHEEL.items():

@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.generator_summary import (
     AvoidabilityStats,
@@ -48,7 +47,11 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.errors import InputError
+from coster_sumo.infra.atomic import write_json
+from coster_sumo.infra.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
+from coster_sumo.infra.weights import WEIGHT_FILES, weights_digest
 from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
     MetricSample,
@@ -59,10 +62,7 @@ from coster_sumo.metrics import (
     compute,
     scene_bootstrap,
 )
-from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
-from coster_sumo.weights import WEIGHT_FILES, weights_digest
 
 GENERATOR_METHODS: tuple[GeneratorMethod, ...] = (
     GeneratorMethod("COSTER", "snapshot", "cvae", "entropy"),
@@ -91,7 +91,7 @@ def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[in
 def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: nominal pass of one scene (cached .npz) and its speed/acceleration histograms."""
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.targets import choose_target
+    from coster_sumo.pipeline.targets import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     if payload.get(PASS_FILE):  # a pass shared with the configuration's other targets (batch.shared_pass)
@@ -108,10 +108,10 @@ def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
 
 def nominal_speeds_by_lane_type(scene: Any) -> dict[str, list[int]]:
     """Speed histograms (:data:`~coster_sumo.metrics.SPEED_BINS`) of the scene's vehicles at 2 Hz,
-    one per :class:`~coster_sumo.scene.LaneType` name of the lane nearest to each vehicle: the
+    one per :class:`~coster_sumo.core.scene.LaneType` name of the lane nearest to each vehicle: the
     reference the adversaries' speeds at t_col are compared with, class by class."""
+    from coster_sumo.core.scene import LaneType, ObjectType, resample
     from coster_sumo.metrics import SPEED_BINS
-    from coster_sumo.scene import LaneType, ObjectType, resample
 
     low = resample(scene, 2.0)
     t = low.tracks
@@ -123,14 +123,14 @@ def nominal_speeds_by_lane_type(scene: Any) -> dict[str, list[int]]:
 
 def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: one generator on one scene; every variant injected; per-variant records + histograms."""
-    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.core.scene import LaneType
     from coster_sumo.errors import NoSnapshot
     from coster_sumo.formats.scene_file import load_scene
+    from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants, missing_weights
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.scene import LaneType
+    from coster_sumo.pipeline.targets import choose_target
     from coster_sumo.sim.inject import inject_variant
-    from coster_sumo.targets import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scenes_dir = Path(payload["scenes_dir"])
@@ -151,7 +151,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
         return {"status": "no_scenario", "reason": str(exc), "generation_s": time.perf_counter() - t0,
                 "records": []}
     gen_s = time.perf_counter() - t0
-    from coster_sumo.defects import label_plans, label_record
+    from coster_sumo.avoidability.labels import label_plans, label_record
 
     t1 = time.perf_counter()
     labels = label_plans(spec, scene, target, [v.plan for v in variants], drivable=drivable)
@@ -474,8 +474,8 @@ def snapshot_state_metrics(records: Sequence[VariantRecord], nominal_by_type: Ma
 
 
 def avoidability_summary(records: Sequence[VariantRecord]) -> AvoidabilityStats:
-    """The labels of a method's variants (:func:`coster_sumo.defects.avoidability_table`)."""
-    from coster_sumo.defects import avoidability_table
+    """The labels of a method's variants (:func:`coster_sumo.avoidability.labels.avoidability_table`)."""
+    from coster_sumo.avoidability.labels import avoidability_table
 
     return AvoidabilityStats.from_json(avoidability_table([r.to_json() for r in records]))
 

@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 from coster_sumo.batch.summaries import rate_from_json
+from coster_sumo.core.results import split_known
 from coster_sumo.metrics import MetricValue
-from coster_sumo.results import split_known
 
 
 @dataclass(frozen=True)
@@ -55,10 +55,10 @@ class VariantRecord:
         collision: the adversary touched the target; relative_speed: [m/s], impact_angle: [deg] then.
         adversary_off_road: the adversary left the drivable area.
         adversary_speed: [m/s], adversary_length, adversary_width: [m] the adversary at t_col;
-            adversary_lane_type: the :class:`~coster_sumo.scene.LaneType` name under it then (None:
+            adversary_lane_type: the :class:`~coster_sumo.core.scene.LaneType` name under it then (None:
             not recorded).
         avoidable: its avoidability label (None: unlabelled).
-        extra: the label's other fields as :func:`coster_sumo.defects.label_record` writes them, and
+        extra: the label's other fields as :func:`coster_sumo.avoidability.labels.label_record` writes them, and
             keys this version does not know.
         snapshot: the key of its collision snapshot (set by the aggregation, not stored).
     """
@@ -199,7 +199,7 @@ class ContactKindShares:
 
 @dataclass(frozen=True)
 class AvoidabilityStats:
-    """The labels of one generator's variants (:func:`coster_sumo.defects.avoidability_table`).
+    """The labels of one generator's variants (:func:`coster_sumo.avoidability.labels.avoidability_table`).
 
     Attributes:
         variants: the labelled variants; avoidable_share: per reaction time (its ``{:g}`` [s]) the
@@ -210,7 +210,7 @@ class AvoidabilityStats:
             last_moment_percentiles: [s] ``p10`` .. ``p90`` of it (empty without one).
         escapes_found: kinematic escapes per reaction time; escapes_replayed, escapes_refuted_in_sumo:
             how many SUMO replayed and refuted.
-        labels_moved: what each change to the labels moved (:func:`coster_sumo.defects.labels_moved`;
+        labels_moved: what each change to the labels moved (:func:`coster_sumo.avoidability.labels.labels_moved`;
             empty: not recorded).
     """
 

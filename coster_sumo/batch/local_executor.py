@@ -20,12 +20,13 @@ from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.procs import die_with_parent, imports_only, one_openmp_thread_after_fork, signal_name
+from coster_sumo.infra.procs import die_with_parent, imports_only, one_openmp_thread_after_fork, signal_name
 
 # modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
-SUMO_TASK_MODULES = ("libsumo", "coster_sumo.scenario", "coster_sumo.method.generation", "coster_sumo.sim.inject",
-                     "coster_sumo.outputs",
-                     "coster_sumo.drivable", "pyarrow.parquet")
+SUMO_TASK_MODULES = ("libsumo", "coster_sumo.pipeline.scenario",
+                     "coster_sumo.method.generation", "coster_sumo.sim.inject",
+                     "coster_sumo.pipeline.outputs",
+                     "coster_sumo.geometry.drivable", "pyarrow.parquet")
 # the preload of tasks that generate scenarios: SUMO, torch and the models' code, imported by a fork
 # server (coster_sumo/batch/task_imports.py) so that no task imports them again and this process
 # stays free of torch
@@ -234,7 +235,7 @@ def _driver_has_run_threads() -> bool:
     torch's and scikit-learn's OpenMP pools (a child that runs them on more than one thread hangs)
     and the locks other threads may hold at the moment of the fork. The command line forks its tasks
     before it loads either; a test or a Python API user may have run both. A command that
-    ``coster-sumo serve`` runs has them imported but never run (:func:`coster_sumo.procs.imports_only`)."""
+    ``coster-sumo serve`` runs has them imported but never run (:func:`coster_sumo.infra.procs.imports_only`)."""
     return ("torch" in sys.modules or "sklearn" in sys.modules) and not imports_only()
 
 

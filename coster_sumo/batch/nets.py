@@ -2,7 +2,7 @@
 
 Every builder is deterministic in its index and seed (a numpy generator seeded with both), writes
 its plain XML (nodes, edges) next to the net, and runs ``netconvert`` / ``netgenerate`` from the
-``sumo`` package (:mod:`coster_sumo.sumo_env`). Each returns the options it drew, which the corpus
+``sumo`` package (:mod:`coster_sumo.infra.sumo_install`). Each returns the options it drew, which the corpus
 manifest records as the network's provenance. What the freeway layout means in traffic terms
 (merges, diverges, weaving) is described in docs/corpus.md.
 """
@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import dataset as ds
-from coster_sumo.atomic import atomic_path, write_text
+from coster_sumo.data import dataset as ds
+from coster_sumo.infra.atomic import atomic_path, write_text
 
 KMH = 1.0 / 3.6  # [m/s] per km/h
 NO_BIKES = 'disallow="pedestrian bicycle"'
@@ -95,9 +95,9 @@ def netgenerate_options(k: int, seed: int, speeds: tuple[float, ...] = _SPEEDS_M
 
 def run_tool(cmd: list[str], what: str, cwd: Path | None = None) -> None:
     """Run a SUMO binary or tool; :class:`RuntimeError` with the tail of its output when it fails."""
-    from coster_sumo import sumo_env
+    from coster_sumo.infra import sumo_install
 
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, env=sumo_env.subprocess_env())
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, env=sumo_install.subprocess_env())
     if proc.returncode != 0:
         msg = " ".join((proc.stderr or proc.stdout).split())[-300:]
         raise RuntimeError(f"{what} failed: {msg or f'exit code {proc.returncode}'}")
@@ -105,10 +105,10 @@ def run_tool(cmd: list[str], what: str, cwd: Path | None = None) -> None:
 
 def netgenerate(path: Path, opts: list[str]) -> None:
     """Write ``path`` with ``netgenerate opts`` (atomically: kept only when netgenerate succeeded)."""
-    from coster_sumo import sumo_env
+    from coster_sumo.infra import sumo_install
 
     with atomic_path(path) as tmp:
-        run_tool([sumo_env.binary("netgenerate"), *opts, "--output-file", str(tmp)], "netgenerate")
+        run_tool([sumo_install.binary("netgenerate"), *opts, "--output-file", str(tmp)], "netgenerate")
         if not tmp.exists():
             raise RuntimeError("netgenerate wrote no network")
 
@@ -140,10 +140,10 @@ def generate_nets(dataset: Path, count: int, seed: int) -> tuple[list[Any], list
 
 
 def _netconvert(folder: Path, stem: str, net: Path, extra: list[str]) -> None:
-    from coster_sumo import sumo_env
+    from coster_sumo.infra import sumo_install
 
     with atomic_path(net) as tmp:
-        run_tool([sumo_env.binary("netconvert"), "--node-files", str(folder / f"{stem}.nod.xml"),
+        run_tool([sumo_install.binary("netconvert"), "--node-files", str(folder / f"{stem}.nod.xml"),
                   "--edge-files", str(folder / f"{stem}.edg.xml"), "--no-turnarounds", "true",
                   "--output-file", str(tmp), *extra], "netconvert")
 

@@ -104,7 +104,7 @@ class _Shipper:
 
     @staticmethod
     def land(task: Task, back: dict[str, dict[str, bytes]]) -> None:
-        from coster_sumo.atomic import atomic_path
+        from coster_sumo.infra.atomic import atomic_path
 
         for key, files in back.items():
             folder = Path(task.payload[key])

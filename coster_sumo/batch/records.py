@@ -1,6 +1,6 @@
 """The records a dataset's ``manifest.json`` holds about its runs and networks, as types.
 
-``manifest.json`` itself is read and written by :mod:`coster_sumo.dataset` (a JSON object: the
+``manifest.json`` itself is read and written by :mod:`coster_sumo.data.dataset` (a JSON object: the
 totals it recomputes, the runs, and for a corpus its catalogue). The batch modules build and read
 its parts through these classes: what a run reports (:class:`RunOutcome`), what the card reads of
 a recorded run (:class:`RunRecord`) and of a catalogued network (:class:`NetworkRecord`), and the

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
+from coster_sumo.avoidability.labels import escape_dict
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
 from coster_sumo.batch.scene_plans import ScenePlans, read_plans
 from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
@@ -48,24 +48,24 @@ from coster_sumo.batch.summaries import (
     SceneCounts,
     defect_rates,
 )
-from coster_sumo.defects import escape_dict
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
 from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.infra.atomic import write_json
+from coster_sumo.infra.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
+from coster_sumo.infra.weights import WEIGHT_FILES
 from coster_sumo.method.generation import Variant, check_generation
 from coster_sumo.metrics import MetricSample, compute
-from coster_sumo.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.sim.planners import check_planner
-from coster_sumo.spec import GenerationConfig, ScenarioSpec, check_avoidable, check_reaction_time
-from coster_sumo.weights import WEIGHT_FILES
 
 ESCAPE_PLANNER = "escape"  # the reference planner: the target drives the variant's proven escape (replay without one)
 
 
 def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Task: nominal pass + variants of one scene -> ``plans/<scene_key>.json`` (+ the scene's .npz)."""
-    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants
-    from coster_sumo.targets import choose_target
+    from coster_sumo.pipeline.targets import choose_target
 
     t0 = time.perf_counter()
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
@@ -99,10 +99,10 @@ def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
 
 def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[Variant], gen: GenerationConfig,
                    drivable: Any, payload: dict[str, Any]) -> tuple[list[Variant], list[Any], dict[str, int] | None]:
-    """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.defects`);
+    """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.avoidability.labels`);
     with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws (and
     the counts of variants tried, kept and extra draws are returned; None without)."""
-    from coster_sumo.defects import label_plans
+    from coster_sumo.avoidability.labels import label_plans
     from coster_sumo.method.generation import EXTRA_DRAWS, derived_seed, generate_variants
 
     reaction = float(payload.get("reaction_time", 1.0))
@@ -146,11 +146,11 @@ def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
 
 def run_task(payload: dict[str, Any]) -> ResultRow:
     """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
-    from coster_sumo.avoid import HORIZON_AFTER_TCOL_S
-    from coster_sumo.defects import escape_replay, planner_outcome
-    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.avoidability.labels import escape_replay, planner_outcome
+    from coster_sumo.avoidability.search import HORIZON_AFTER_TCOL_S
     from coster_sumo.formats.scene_file import load_scene
-    from coster_sumo.outputs import variant_outcome
+    from coster_sumo.geometry.drivable import DrivableArea
+    from coster_sumo.pipeline.outputs import variant_outcome
     from coster_sumo.sim.inject import inject_variant
 
     plans_dir = Path(payload["plans_dir"])
@@ -208,7 +208,7 @@ class RegressOptions(BatchOptions):
     retry_failed: bool = False
     report: bool = True
     start_method: str | None = None
-    reaction_time: float = 1.0  # [s] the avoidability labels' reaction time (coster_sumo.defects)
+    reaction_time: float = 1.0  # [s] the avoidability labels' reaction time (coster_sumo.avoidability.labels)
     avoidable: str = "any"  # any | only
     traffic: str = "log"  # log | reactive: converted scenes' agents (coster_sumo.sim.reactive)
     more_targets: tuple[str, ...] = ()  # further targets of every scene with ``target`` (sharing its pass)
@@ -255,10 +255,10 @@ def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
 def with_targets(specs: list[ScenarioSpec], target: str | None, more: Sequence[str],
                  n: int | None) -> list[ScenarioSpec]:
     """``specs`` with a scene for every further target: the ``more`` targets beside each scene of
-    ``target``, or (``n``) the ``n`` targets :func:`~coster_sumo.targets.choose_targets` picks for each
+    ``target``, or (``n``) the ``n`` targets :func:`~coster_sumo.pipeline.targets.choose_targets` picks for each
     scene without one, as ``run --targets N`` picks them. The targets of a configuration, window and
     seed share one nominal pass (:mod:`coster_sumo.batch.shared_pass`)."""
-    from coster_sumo.targets import choose_targets
+    from coster_sumo.pipeline.targets import choose_targets
 
     if n is not None and n < 1:
         raise InputError(f"--targets must be >= 1, not {n}")
@@ -452,7 +452,7 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
     the command's wall time, options and report."""
     plans_dir = out / "plans"
     rows = [r for r in ResultStore(out / "results").read() if r.scene_key in keys and r.planner in planners]
-    from coster_sumo.defects import labels_moved
+    from coster_sumo.avoidability.labels import labels_moved
 
     scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
     labels: list[dict[str, Any]] = []
@@ -476,7 +476,8 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
 
 
 def _moved_fields(label: Mapping[str, Any]) -> dict[str, Any]:
-    """A stored label (``Avoidability.summary``) in the fields :func:`~coster_sumo.defects.labels_moved` reads."""
+    """A stored label (``Avoidability.summary``) in the fields
+    :func:`~coster_sumo.avoidability.labels.labels_moved` reads."""
     return {"blocked_tried": label.get("blocked_escapes_tried_in_sumo", 0),
             "blocked_cleared": label.get("blocked_escapes_cleared_in_sumo", 0),
             "flipped_by_reacting_traffic": label.get("flipped_by_reacting_traffic", False)}

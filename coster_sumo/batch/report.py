@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.atomic import write_text
 from coster_sumo.batch.generator_summary import EvalSummary, GeneratorResult, SkippedGenerator
 from coster_sumo.batch.store import ResultRow
 from coster_sumo.batch.summaries import RegressionSummary
+from coster_sumo.infra.atomic import write_text
 from coster_sumo.metrics import MetricValue
 
 EXAMPLES_PER_PLANNER = 3
@@ -221,9 +221,9 @@ def failure_examples(rows: Sequence[ResultRow], planners: Sequence[str],
 
 def render_example(path: Path, out: Path, row: ResultRow, cache: dict[str, Any]) -> Path | None:
     """The scene at t_col, the target's nominal (dashed) and driven path, the adversary's plan and contact."""
-    from coster_sumo import viz
     from coster_sumo.batch.scene_plans import ScenePlans
     from coster_sumo.formats.scene_file import load_scene
+    from coster_sumo.pipeline import viz
 
     plans_dir = out / "plans"
     key = row.scene_key
@@ -256,7 +256,7 @@ def render_example(path: Path, out: Path, row: ResultRow, cache: dict[str, Any])
     if escape:  # the variant was avoidable: the escape proven in SUMO
         ax.plot(escape["x"], escape["y"], ":", color="#9467bd", lw=1.8, label="escape (proven in SUMO)", zorder=5)
     s = variant.snapshot.adversary
-    viz.draw_box(ax, s.x, s.y, s.yaw, s.length, s.width, viz.ADVERSARY_COLOR, label="adversary at t_col")
+    viz.draw_box(ax, s, viz.ADVERSARY_COLOR, label="adversary at t_col")
     if row.contact_time is not None:
         cx, cy, _, _ = plan.sample(np.array([row.contact_time]))
         ax.plot(cx[0], cy[0], marker="*", ms=14, color="gold", mec="black", zorder=8, label="first contact")

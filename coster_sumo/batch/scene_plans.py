@@ -21,14 +21,14 @@ class ScenePlans:
 
     Attributes:
         scene_key: the scene's key; status: "ok", or "failed" with ``reason``.
-        spec: the scene (:meth:`~coster_sumo.spec.ScenarioSpec.to_dict`); generation: the generation's
-            settings (:meth:`~coster_sumo.spec.GenerationConfig.to_dict`), as the task was given them.
+        spec: the scene (:meth:`~coster_sumo.core.spec.ScenarioSpec.to_dict`); generation: the generation's
+            settings (:meth:`~coster_sumo.core.spec.GenerationConfig.to_dict`), as the task was given them.
         converted: the configuration was converted; scene_file: the nominal scene's ``.npz`` beside
             this file; target_id: the target's vehicle id; end: [s] the nominal scene's last time.
         variants: each :meth:`~coster_sumo.method.generation.Variant.to_dict`; info: what the
             generation reports of itself.
-        avoidability: per variant its label (:meth:`~coster_sumo.evasion.Avoidability.summary`);
-            escapes: per variant its proven escape at 10 Hz (:func:`coster_sumo.defects.escape_dict`,
+        avoidability: per variant its label (:meth:`~coster_sumo.avoidability.evasion.Avoidability.summary`);
+            escapes: per variant its proven escape at 10 Hz (:func:`coster_sumo.avoidability.labels.escape_dict`,
             None: unavoidable).
         avoidable_only: with ``--avoidable only``: variants tried, kept and extra draws (None: not asked).
         timings_s: [s] nominal pass, generation and avoidability.

@@ -3,7 +3,7 @@
 A scene's key holds its target (:func:`~coster_sumo.batch.sources.scene_key`), so each target of a
 configuration would record a nominal pass of its own. Where a batch has two or more named targets
 of one configuration, window and seed, they share one pass instead, recorded as ``coster-sumo run
---target A --target B`` records it (:func:`coster_sumo.scenario.nominal_scene` with the first
+--target A --target B`` records it (:func:`coster_sumo.pipeline.scenario.nominal_scene` with the first
 target leading and the others as ``more_targets``: the union of their surroundings). A pass task
 writes it as ``<plans>/<pass key>.npz`` before any of the group's generation tasks starts; each of
 them reads it (on Ray the file travels through the object store with the task, as every file a
@@ -19,12 +19,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import atomic_path, write_json
 from coster_sumo.batch.executor import Task
 from coster_sumo.batch.sources import CONFIG_DIR, _short_hash, config_dir, located, slug, task_folders
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.formats.scene_folder import converted_scene_file
-from coster_sumo.scene import Scene
-from coster_sumo.spec import ScenarioSpec
+from coster_sumo.infra.atomic import atomic_path, write_json
 
 PASS_FILE = "pass_file"  # the payload key of a generation task that reads a shared pass
 
@@ -59,7 +59,7 @@ def pass_task(payload: dict[str, Any]) -> dict[str, Any]:
     and beside it ``<pass key>.json`` (its targets and how long it took). Records nothing when the
     ``.npz`` is there already."""
     from coster_sumo.formats.scene_file import save_scene
-    from coster_sumo.scenario import nominal_scene
+    from coster_sumo.pipeline.scenario import nominal_scene
 
     plans_dir, key = Path(payload["plans_dir"]), payload["pass_key"]
     path = plans_dir / f"{key}.npz"

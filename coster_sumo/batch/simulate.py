@@ -8,7 +8,7 @@ scale (SUMO's ``--scale``) and, for nets without demand, seeded random trips (SU
 per process, docs/sumo.md §6; a timeout per run; a progress bar).
 
 A run records at 10 Hz (:mod:`coster_sumo.sim.record`) in chunks and cuts clips from each chunk
-(:func:`coster_sumo.dataset.plan_clips`), written to ``DATASET/scenes/`` (or ``DATASET/heldout/``
+(:func:`coster_sumo.data.dataset.plan_clips`), written to ``DATASET/scenes/`` (or ``DATASET/heldout/``
 for runs on held-out networks, which training never lists). With ``stats`` it also samples every
 vehicle once per simulated second (speed, acceleration, lateral speed, lane speed limit, class,
 size) and summarises every clip, into ``DATASET/stats/<run>.npz`` for the corpus card.
@@ -31,14 +31,14 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import dataset as ds
-from coster_sumo.atomic import atomic_path, write_json, write_text
 from coster_sumo.batch.executor import Outcome, Task, execute
 from coster_sumo.batch.nets import Source, generate_nets, run_tool
 from coster_sumo.batch.records import BatchCounts, RunOutcome, SimulateSummary
+from coster_sumo.data import dataset as ds
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.outdir import MARKER, OutputLock, check_output, write_marker
+from coster_sumo.infra.atomic import atomic_path, write_json, write_text
+from coster_sumo.infra.outdir import MARKER, OutputLock, check_output, write_marker
 
 DEFAULT_DURATION_S = 300.0  # [s] per run when neither --duration nor the configuration says
 DEFAULT_TIMEOUT_S = 1800.0  # [s] wall clock per run
@@ -153,7 +153,7 @@ def _random_trips(task: RunTask) -> list[Path]:
     Vehicles of the ``mix`` distribution on passenger roads; with ``bike_density`` also bicycles
     on the roads that allow them (a second trip set: they route over their own permissions).
     """
-    from coster_sumo import sumo_env
+    from coster_sumo.infra import sumo_install
 
     work = task.work
     types = write_text(work / "vtypes.add.xml", task.vtypes)
@@ -164,7 +164,7 @@ def _random_trips(task: RunTask) -> list[Path]:
     out = []
     for stem, vclass, density, vtype, prefix in sets:
         routes = work / f"{stem}.rou.xml"
-        cmd = [sys.executable, sumo_env.tool("randomTrips.py"), "-n", str(task.source.path.resolve()),
+        cmd = [sys.executable, sumo_install.tool("randomTrips.py"), "-n", str(task.source.path.resolve()),
                "-o", str(work / f"{stem}.trips.xml"), "-r", str(routes), "-a", str(types),
                "-b", f"{begin:g}", "-e", f"{begin + task.duration_s:g}", "--seed", str(task.seed),
                "--insertion-density", f"{density:g}", "--fringe-factor", "5",

@@ -2,7 +2,7 @@
 
 A source is a ``.sumocfg`` (``CFG@seed=3,begin=20,end=50,target=veh`` overrides; ``seeds`` makes
 several scenes from one configuration), a folder (every ``.sumocfg`` below it, e.g. converted WOMD
-scenes), or a text file listing sources. Each becomes a :class:`~coster_sumo.spec.ScenarioSpec`
+scenes), or a text file listing sources. Each becomes a :class:`~coster_sumo.core.spec.ScenarioSpec`
 with a readable, stable key; its nominal scene is recorded once and cached under that key.
 """
 
@@ -19,12 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import atomic_path
 from coster_sumo.batch.executor import DEFAULT_TIMEOUT_S
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import converted_scene_file
-from coster_sumo.scene import Scene
-from coster_sumo.spec import ScenarioSpec
+from coster_sumo.infra.atomic import atomic_path
 
 
 @dataclass(kw_only=True)
@@ -56,7 +56,7 @@ def _short_hash(obj: Any) -> str:
 
 def generation_identity(generation: dict[str, Any]) -> dict[str, Any]:
     """What a generation config is, for a key: the weights by their contents, not by the path given."""
-    from coster_sumo.weights import weights_digest
+    from coster_sumo.infra.weights import weights_digest
 
     ident = dict(generation)
     if "models_dir" in ident:
@@ -195,7 +195,7 @@ def located(spec: ScenarioSpec, payload: dict[str, Any]) -> ScenarioSpec:
 def nominal_for(spec: ScenarioSpec, cache_dir: Path) -> tuple[Scene, bool, Path]:
     """The nominal 10 Hz scene of ``spec`` (recorded once, cached as ``cache_dir/<key>.npz``)."""
     from coster_sumo.formats.scene_file import load_scene, save_scene
-    from coster_sumo.scenario import nominal_scene
+    from coster_sumo.pipeline.scenario import nominal_scene
 
     key = scene_key(spec)
     path = cache_dir / f"{key}.npz"

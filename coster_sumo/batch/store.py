@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.atomic import atomic_path
+from coster_sumo.infra.atomic import atomic_path
 from coster_sumo.metrics import RunOutcome
 
 RESULT_FIELDS: dict[str, str] = {

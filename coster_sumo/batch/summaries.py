@@ -211,7 +211,7 @@ class RegressionSummary:
         wall_time_s: [s] the whole command; options: what it ran with (None: not recorded, as for a
             summary computed outside the command).
         report: the report's files relative to OUT (None: ``--no-report``).
-        labels_moved: what each change to the labels moved (:func:`coster_sumo.defects.labels_moved`
+        labels_moved: what each change to the labels moved (:func:`coster_sumo.avoidability.labels.labels_moved`
             over the variants' labels; empty: not recorded).
     """
 
@@ -274,7 +274,7 @@ def defect_rates(outcomes: Sequence[RunOutcome]) -> DefectRates:
     rate, and :data:`PLANNER_RATES` split by the label, of one planner's finished runs, all from the
     metrics' registry.
 
-    A contact counts up to the label's horizon (:data:`~coster_sumo.avoid.HORIZON_AFTER_TCOL_S` after
+    A contact counts up to the label's horizon (:data:`~coster_sumo.avoidability.search.HORIZON_AFTER_TCOL_S` after
     t_col): that is what an escape is proven for; what happens later (the pass goes on until the
     target arrives) stays in the plain collision rate.
     """

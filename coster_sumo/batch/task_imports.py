@@ -20,12 +20,12 @@ import pyarrow.parquet  # noqa: F401, E402
 import sklearn.cluster  # noqa: F401, E402 - the K-means of the selection (0.08 s a task imported again)
 import torch  # noqa: F401, E402
 
-import coster_sumo.drivable  # noqa: F401, E402
+import coster_sumo.geometry.drivable  # noqa: F401, E402
 import coster_sumo.method.generation  # noqa: F401, E402
 import coster_sumo.method.snapshot  # noqa: F401, E402
-import coster_sumo.outputs  # noqa: F401, E402
+import coster_sumo.pipeline.outputs  # noqa: F401, E402
+import coster_sumo.pipeline.scenario  # noqa: F401, E402
 import coster_sumo.prior.infer  # noqa: F401, E402
 import coster_sumo.rollout.checkpoint  # noqa: F401, E402
 import coster_sumo.rollout.sample  # noqa: F401, E402
-import coster_sumo.scenario  # noqa: F401, E402
 import coster_sumo.sim.inject  # noqa: F401, E402

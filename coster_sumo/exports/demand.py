@@ -38,9 +38,9 @@ from typing import Any
 
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.formats.sumocfg import config_files, open_maybe_gzip, parse_time
+from coster_sumo.infra import sumo_install
 from coster_sumo.sim.sumo_outputs import sandbox
 
 DEMAND_TAGS = ("vehicle", "trip", "flow")
@@ -208,12 +208,12 @@ def _expand(config: Path, flows: set[str], leave_out: frozenset[str], out: Path,
     """:func:`expand_flows` by running SUMO."""
     tmp = out.with_name(f".{out.name}.vehroute.xml")
     quiet = sandbox(config).config or config  # without the configuration's own outputs (none beside it)
-    cmd = [sumo_env.binary("sumo"), "-c", str(quiet), "--device.fcd-replay.files", "",
+    cmd = [sumo_install.binary("sumo"), "-c", str(quiet), "--device.fcd-replay.files", "",
            "--vehroute-output", str(tmp), "--vehroute-output.sorted", "true",
            "--vehroute-output.intended-depart", "true", "--vehroute-output.write-unfinished", "true",
            "--vehroute-output.speedfactor", "true", "--no-warnings", "true", "--no-step-log", "true"]
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(),
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_install.subprocess_env(),
                               timeout=timeout_s, cwd=config.parent)
         if proc.returncode != 0 or not tmp.is_file():
             lines = (proc.stderr or proc.stdout).strip().splitlines()

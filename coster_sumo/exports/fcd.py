@@ -8,7 +8,7 @@ step; box centre, heading, speed, size). It is what the pass did: the adversary 
 its first contact and frozen as a wreck at the contact pose after it
 (:class:`~coster_sumo.sim.inject.AdversaryController`), the replayed target, and only what the pass
 showed (agents parked on a converted net's staging lane are never recorded). Frames are converted
-with :mod:`coster_sumo.frames`.
+with :mod:`coster_sumo.geometry.frames`.
 
 Device behaviour that shapes the file (measured on SUMO 1.28, see ``docs/sumo.md §11``):
 
@@ -49,11 +49,11 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from coster_sumo import frames
+from coster_sumo.core.scene import Scene
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_folder import MIN_SIZE_M, vtype_for
 from coster_sumo.formats.sumo_net import read_sumolib_net
-from coster_sumo.scene import Scene
+from coster_sumo.geometry import frames
 from coster_sumo.sim.replay import STAGING_SPACING_M
 
 FCD_FILE = "traj.fcd.xml"

@@ -27,12 +27,12 @@ import numpy as np
 import shapely
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo import sumo_env
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.opendrive_fit import FILLER_CODE, fit_lanes
 from coster_sumo.exports.opendrive_net import NetLanes
 from coster_sumo.exports.opendrive_readers import MIN_ROAD_M, make_readable
 from coster_sumo.formats.scene_folder import STAGING_EDGE
+from coster_sumo.infra import sumo_install
 
 SAMPLE_STEP_M = 0.5  # [m] spacing of the xodr samples in compare_with_net
 MIN_WIDTH_M = 1e-3  # [m] a lane narrower than this is no lane there (it starts or ends)
@@ -43,11 +43,11 @@ def write_xodr(net_file: Path, out: Path, fit: bool = True) -> Path:
     the SUMO lane shapes and what readers need rewritten
     (:func:`~coster_sumo.exports.opendrive_readers.make_readable`; ``fit=False``: netconvert's file
     as it is)."""
-    cmd = [sumo_env.binary("netconvert"), "--sumo-net-file", str(net_file), "--opendrive-output", str(out),
+    cmd = [sumo_install.binary("netconvert"), "--sumo-net-file", str(net_file), "--opendrive-output", str(out),
            "--offset.disable-normalization", "true", "--output.original-names", "true", "--no-warnings", "true",
            # a converted scene's staging edge is no road (netconvert ignores the name in other nets)
            "--remove-edges.explicit", STAGING_EDGE]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env.subprocess_env(), timeout=600)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_install.subprocess_env(), timeout=600)
     if proc.returncode != 0 or not out.is_file():
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
         raise SumoError(f"netconvert --opendrive-output failed on {net_file}: {tail[0]}")

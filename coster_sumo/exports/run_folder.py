@@ -18,12 +18,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.core.results import RunResult, RunSummary, TargetResult, read_run
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.exports.fcd import FCD_FILE, VTYPES_FILE
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, read_trajectories_csv, select_near, write_selection
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.outdir import refresh_marker
-from coster_sumo.results import RunResult, RunSummary, TargetResult, read_run
+from coster_sumo.infra.outdir import refresh_marker
 
 FORMATS = ("sumo", "openscenario", "all")
 OSC_DIR = "openscenario"
@@ -128,7 +128,7 @@ def export_run(run: Path | RunResult, fmt: str = "all", radius: float | None = N
     """Export every variant of a run in ``fmt`` (sumo | openscenario | all); one dict per variant
     (``skipped``: why a variant has no export, where the run could not write its SUMO folder).
 
-    ``run``: the result :func:`coster_sumo.run.run` returned, or the output folder of an earlier run
+    ``run``: the result :func:`coster_sumo.pipeline.run.run` returned, or the output folder of an earlier run
     (its summary.json is read). ``progress(done, total)`` is called after every variant."""
     if fmt not in FORMATS:
         raise InputError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")

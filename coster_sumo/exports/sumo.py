@@ -30,6 +30,7 @@ from typing import Any
 
 import shapely
 
+from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.errors import InputError
 from coster_sumo.exports.demand import EXPANDED_FILE, demand_ids, expand_flows, rewrite_demand
 from coster_sumo.exports.fcd import (
@@ -44,7 +45,6 @@ from coster_sumo.exports.fcd import (
 from coster_sumo.exports.sumo_config import GUI_SETTINGS_FILE, source_option, write_export_config, write_gui_settings
 from coster_sumo.formats.scene_folder import LANE_MAP_FILE, converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.plan import AdversaryPlan
 from coster_sumo.sim.inject import ADVERSARY_COLOR, InjectionResult
 
 FCD_FILTER_FILE = "fcd_filter.txt"  # edge selection without the staging edge (fcd-output filter)

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.errors import InputError
-from coster_sumo.scene import ObjectType, Scene
 
 TRAJECTORIES_FILE = "trajectories.csv"
 TRAJECTORIES_JSON = "trajectories.json"

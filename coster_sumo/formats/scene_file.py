@@ -1,4 +1,4 @@
-"""The scene's own file: a :class:`~coster_sumo.scene.Scene` as one ``.npz``.
+"""The scene's own file: a :class:`~coster_sumo.core.scene.Scene` as one ``.npz``.
 
 Every array of the scene's dataclasses is stored under its path of field names (``tracks/x``,
 ``road_map/lanes/centerline/values``); strings as fixed-width unicode, never pickled objects; the
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.atomic import atomic_path
+from coster_sumo.core.scene import Lanes, Polylines, Ragged, RoadMap, Scene, SignalStates, Tracks
 from coster_sumo.errors import InputError
-from coster_sumo.scene import Lanes, Polylines, Ragged, RoadMap, Scene, SignalStates, Tracks
+from coster_sumo.infra.atomic import atomic_path
 
 _FORMAT_VERSION = 1
 

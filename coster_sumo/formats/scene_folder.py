@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.scene import ObjectType, Scene, SignalState
+from coster_sumo.core.scene import ObjectType, Scene, SignalState
 
 SCENE_FILE = "scene.npz"
 LANE_MAP_FILE = "lane_map.json"

@@ -1,4 +1,4 @@
-"""Any SUMO ``.net.xml`` -> :class:`coster_sumo.scene.RoadMap`, plus the traffic-light links.
+"""Any SUMO ``.net.xml`` -> :class:`coster_sumo.core.scene.RoadMap`, plus the traffic-light links.
 
 ``sumolib.net.readNet(withInternal=True)`` is used at the boundary only; everything it returns is
 converted to our arrays here. Coordinates are the network's own (``netOffset`` already applied by
@@ -44,10 +44,10 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.core.scene import Lanes, LaneType, Polylines, Ragged, RoadMap
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.sumocfg import check_xml
-from coster_sumo.scene import Lanes, LaneType, Polylines, Ragged, RoadMap
-from coster_sumo.sumo_env import import_sumolib
+from coster_sumo.infra.sumo_install import import_sumolib
 
 FREEWAY_MIN_SPEED_MPS = 80.0 / 3.6  # [m/s] lanes at least this fast count as freeway
 _FREEWAY_TYPE = re.compile(r"motorway|freeway|expressway|autobahn", re.IGNORECASE)

@@ -1,7 +1,7 @@
 """``coster-sumo scenarios build``: nominal scenes and generated variants into a scenario set.
 
 For every source (a SUMO configuration or a converted WOMD scene) the nominal pass is recorded
-once (:func:`coster_sumo.scenario.nominal_scene`); its scene is a nominal scenario (the episode starts
+once (:func:`coster_sumo.pipeline.scenario.nominal_scene`); its scene is a nominal scenario (the episode starts
 at the target's departure). Unless the method is ``nominal``, the generator then plans adversaries
 against the target (:func:`coster_sumo.method.generation.plan_scenarios`), and each kept plan becomes a variant:
 the same recorded pass with the adversary's plan sampled at 10 Hz as one more agent, the episode
@@ -25,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.core.scene import ObjectType, Scene, SignalState, Tracks
+from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import save_scene
-from coster_sumo.geometry import make_boxes, sat_overlap_depth
+from coster_sumo.geometry.boxes import make_boxes, sat_overlap_depth
 from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, SetNetwork, write_manifest, write_vtypes
-from coster_sumo.scene import ObjectType, Scene, SignalState, Tracks
-from coster_sumo.spec import GenerationConfig, ScenarioSpec
 
 
 @dataclass(frozen=True)
@@ -224,9 +224,9 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
                        failed: list[dict[str, str]]) -> list[ScenarioEntry]:
     """The generator's variants of the source (none, and a line in ``failed``, without a snapshot): each
     the nominal pass with the adversary's plan as one more agent."""
-    from coster_sumo.defects import label_plans
-    from coster_sumo.drivable import DrivableArea
+    from coster_sumo.avoidability.labels import label_plans
     from coster_sumo.errors import NoSnapshot
+    from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import DrawMemo, plan_scenarios
 
     drivable = DrivableArea.from_road_map(src.scene.road_map)
@@ -262,8 +262,8 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
     """Build (or resume) the scenario set ``opts.out``; returns the manifest's counts."""
     from coster_sumo.batch.sources import parse_sources
     from coster_sumo.method.generation import check_generation
-    from coster_sumo.scenario import nominal_scene
-    from coster_sumo.targets import choose_target
+    from coster_sumo.pipeline.scenario import nominal_scene
+    from coster_sumo.pipeline.targets import choose_target
 
     if opts.method not in METHODS or opts.traffic not in ("log", "reactive"):
         raise InputError(f"--method must be one of {', '.join(METHODS)} and --traffic log or reactive, not "

@@ -60,9 +60,10 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.scene import Scene
+from coster_sumo.errors import InputError
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
-from coster_sumo.scene import Scene
 from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, STEP_S, Driver, Route
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
 from coster_sumo.sim.states import concat_states
@@ -103,7 +104,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
             ``s mod n``). ``reset(options={"scenario": ID})`` starts that scenario.
         traffic: ``log`` (default: the other vehicles' states read from the recorded pass; SUMO
             holds the target and runs the signals) or ``sumo`` (every vehicle put into SUMO and
-            moved there by moveToXY each step). Both give the same episodes (``tests/test_gym.py``);
+            moved there by moveToXY each step). Both give the same episodes (``tests/gym/test_gym.py``);
             ``log`` costs no moveToXY per vehicle. ``reactive``: each agent follows its log until
             the target's deviation from its nominal motion reaches it, then SUMO drives it
             (:mod:`coster_sumo.sim.reactive`; the adversary never reacts).
@@ -131,11 +132,11 @@ class ScenarioEnv(gymnasium.Env, Driver):
         else:
             self.entries = self.set.select(split, kind, tuple(networks) if networks is not None else None)
         if not self.entries:
-            raise ValueError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
+            raise InputError(f"{scenarios}: no scenario with split={split!r}, kind={kind!r}, networks={networks!r}")
         if order not in ("random", "cycle"):
-            raise ValueError(f"order must be 'random' or 'cycle', not {order!r}")
+            raise InputError(f"order must be 'random' or 'cycle', not {order!r}")
         if traffic not in TRAFFIC_MODES:
-            raise ValueError(f"traffic must be one of {TRAFFIC_MODES}, not {traffic!r}")
+            raise InputError(f"traffic must be one of {TRAFFIC_MODES}, not {traffic!r}")
         from coster_sumo.sim.reactive import car_following_types
 
         self.traffic = traffic

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from coster_sumo.geometry import project_points
+from coster_sumo.geometry.boxes import project_points
 from coster_sumo.sim.driver import EGO_FEATURES, NEIGHBOUR_RADIUS_M, OBS_SIZE
 
 if TYPE_CHECKING:

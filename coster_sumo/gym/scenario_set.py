@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.core.scene import Scene
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
-from coster_sumo.scene import Scene
 
 SET_FORMAT = 1
 MANIFEST = "manifest.json"
@@ -160,7 +160,7 @@ def write_vtypes(root: Path) -> None:
 def write_manifest(root: Path, method: str, seed: int, entries: list[ScenarioEntry],
                    networks: dict[str, SetNetwork], options: dict[str, Any]) -> None:
     """Write ``manifest.json`` atomically (the build rewrites it after every source: resumable)."""
-    from coster_sumo.atomic import write_json
+    from coster_sumo.infra.atomic import write_json
 
     splits: dict[str, list[str]] = {s: sorted(n for n, v in networks.items() if v.split == s) for s in SPLITS}
     counts = {s: {k: sum(1 for e in entries if e.split == s and e.kind == k) for k in ("nominal", "variant")}

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
+from coster_sumo.infra.atomic import write_json
 
 POLICY_LAYERS = (64, 64)  # hidden units of the policy and value MLPs (the same for every arm)
 # log of the initial standard deviation of the Gaussian actions: SB3's default (0, std 1 on actions

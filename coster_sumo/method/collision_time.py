@@ -1,6 +1,6 @@
 """Collision time (docs/method.md step 3): the search window, the rules, and the entropy curve.
 
-Everything works on a 2 Hz scene (:func:`coster_sumo.scene.resample`).
+Everything works on a 2 Hz scene (:func:`coster_sumo.core.scene.resample`).
 
 **Search window.** The collision step t_col is searched in [MARGIN_START, T - 1 - MARGIN_END]
 (2 Hz steps, both edges excluded): the first ``MARGIN_START`` = 5 steps (2.5 s) are skipped so that
@@ -28,10 +28,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from coster_sumo.errors import NoSnapshot
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.snapshot import AgentState
+from coster_sumo.errors import InputError, NoSnapshot
 from coster_sumo.rollout.methods import HORIZON_STEPS
-from coster_sumo.scene import Scene
-from coster_sumo.snapshot_state import AgentState
 
 PRIOR_RATE_HZ = 2.0  # [1/s] the prior and the rollout work at 2 Hz
 MARGIN_START = 5  # [2 Hz steps] skipped at the start of the window (a rollout must fit)
@@ -123,7 +123,7 @@ def choose_collision_time(window: np.ndarray, method: str, rng: np.random.Genera
         raise NoSnapshot("the target is not valid inside the collision-time search window")
     rule = COLLISION_TIME_RULES.get(method)
     if rule is None:
-        raise ValueError(f"unknown collision-time method {method!r}; use one of {', '.join(COLLISION_TIME_RULES)}")
+        raise InputError(f"unknown collision-time method {method!r}; use one of {', '.join(COLLISION_TIME_RULES)}")
     return rule(CollisionTimeRequest(window, rng, entropy))
 
 

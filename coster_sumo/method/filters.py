@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.geometry import CONTACT_TOLERANCE_M, box_signed_distance, make_boxes
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.scene import Scene
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.scene import Scene
+from coster_sumo.geometry.boxes import CONTACT_TOLERANCE_M, box_signed_distance, make_boxes
 
 
 def _checked_steps(plan: AdversaryPlan, times: np.ndarray, tolerance_s: float) -> np.ndarray:

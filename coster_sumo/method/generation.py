@@ -13,7 +13,7 @@ the environment and the Python API all draw through :func:`draw_scenarios`:
    variants) and :func:`generate_variants` (``regress``, ``eval scenarios``: up to K variants, more
    draws when a rollout gives one trajectory per snapshot) stop that loop each their own way.
 
-The nominal scene and the target come from :mod:`coster_sumo.scenario`; injection of a plan is
+The nominal scene and the target come from :mod:`coster_sumo.pipeline.scenario`; injection of a plan is
 :func:`coster_sumo.sim.inject.inject_variant`.
 """
 
@@ -27,10 +27,16 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo import weights
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.avoidability.evasion import Avoidability
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.results import AvoidableOnly
+from coster_sumo.core.scene import Scene, resample
+from coster_sumo.core.snapshot import CollisionSnapshot
+from coster_sumo.core.spec import GenerationConfig, LabelOptions
 from coster_sumo.errors import InputError, NoSnapshot
-from coster_sumo.evasion import Avoidability
+from coster_sumo.geometry.drivable import DrivableArea
+from coster_sumo.geometry.road_follow import follow_road
+from coster_sumo.infra import weights
 from coster_sumo.method.collision_time import COLLISION_TIME_RULES, COLLISION_TIMES, PRIOR_RATE_HZ, around
 from coster_sumo.method.filters import keep_clear_plans
 from coster_sumo.method.snapshot import (
@@ -41,13 +47,7 @@ from coster_sumo.method.snapshot import (
     PriorMemo,
     place_closing_first,
 )
-from coster_sumo.plan import AdversaryPlan
-from coster_sumo.results import AvoidableOnly
-from coster_sumo.road_follow import follow_road
 from coster_sumo.rollout.methods import ROLLOUTS, RolloutRequest
-from coster_sumo.scene import Scene, resample
-from coster_sumo.snapshot_state import CollisionSnapshot
-from coster_sumo.spec import GenerationConfig
 
 
 @dataclass
@@ -87,16 +87,13 @@ def _candidate_name(candidate: object) -> str:
 # ----------------------------------------------------------------------------- checks
 
 def check_generation(gen: GenerationConfig) -> None:
-    """Method names against the registries, counts, and the weights the methods need (exit 2 before work)."""
+    """Method names against the registries and the weights the methods need (exit 2 before work; the
+    counts are checked when ``gen`` is made)."""
     for flag, value, registry in (("--init", gen.init, SNAPSHOT_INITS),
                                   ("--collision-time", gen.collision_time, COLLISION_TIME_RULES),
                                   ("--rollout", gen.rollout, ROLLOUTS)):
         if value not in registry:
             raise InputError(f"{flag} must be one of {', '.join(registry)}, not {value!r}")
-    if gen.variants < 1:
-        raise InputError(f"--variants must be >= 1, not {gen.variants}")
-    if gen.samples < 1:
-        raise InputError(f"--samples must be >= 1, not {gen.samples}")
     reason = missing_weights(gen)
     if reason:
         raise InputError(reason)
@@ -121,11 +118,11 @@ def generation_rng(seed: int, scene: Scene) -> np.random.Generator:
 @dataclass
 class DrawMemo:
     """What the draws for one scene, target and generation config share (the draws of
-    :func:`draw_scenarios`, and :func:`keep_avoidable`'s further draws): the scene at the models'
-    2 Hz and what the prior computes once (:class:`PriorMemo`).
+    :func:`draw_scenarios`, and the further draws of :func:`keep_avoidable`):
+    the scene at the models' 2 Hz and what the prior computes once (:class:`PriorMemo`).
 
     The 2 Hz scene comes with the memo: a run resamples its nominal scene once for all its targets
-    (:class:`coster_sumo.scenario.NominalPass`); :meth:`of` resamples a scene.
+    (:class:`coster_sumo.pipeline.scenario.NominalPass`); :meth:`of` resamples a scene.
     """
 
     low: Scene
@@ -314,9 +311,30 @@ def further_draw(scene: Scene, target: int, seed: int, gen: GenerationConfig, dr
 EXTRA_DRAWS = 3  # further snapshots drawn to replace unavoidable variants under --avoidable only
 
 
-def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidability],
-                   label: Callable[[list[AdversaryPlan]], list[Avoidability]], wanted: int, *, seed: int,
-                   gen: GenerationConfig, drivable: DrivableArea, memo: DrawMemo
+# labels the plans it is given (the avoidability labels, proven in SUMO: coster_sumo.avoidability.labels)
+Label = Callable[[list[AdversaryPlan]], list[Avoidability]]
+
+
+def label_and_keep(planned: list[PlannedScenario], label: Label, wanted: LabelOptions, variants: int, *,
+                   seed: int, gen: GenerationConfig, drivable: DrivableArea, memo: DrawMemo
+                   ) -> tuple[list[PlannedScenario], dict[str, Avoidability], AvoidableOnly | None]:
+    """Label every plan of ``planned`` with ``label``; with ``wanted.avoidable == "only"`` keep the
+    avoidable ones, up to ``variants``, drawing again for the others (:func:`keep_avoidable`).
+
+    Returns the scenarios kept (``planned`` itself without ``only``), every label by adversary id (the
+    dropped ones too) and, with ``only``, what was tried (None without).
+    """
+    plans = [pl for p in planned for pl in p.plans]
+    labels = dict(zip((pl.vehicle_id for pl in plans), label(plans), strict=True))
+    if wanted.avoidable != "only":
+        return planned, labels, None
+    kept, tried = keep_avoidable(planned, labels, label, variants, seed=seed, gen=gen, drivable=drivable,
+                                 memo=memo)
+    return kept, labels, tried
+
+
+def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidability], label: Label, wanted: int, *,
+                   seed: int, gen: GenerationConfig, drivable: DrivableArea, memo: DrawMemo
                    ) -> tuple[list[PlannedScenario], AvoidableOnly]:
     """``--avoidable only``: drop the unavoidable plans of ``planned`` (``labels`` by adversary id,
     of the scene and target of ``planned``) and replace them by plans of :func:`further_draw` (with

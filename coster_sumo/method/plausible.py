@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from coster_sumo.scene import LaneType, ObjectType, Scene
+from coster_sumo.core.scene import LaneType, ObjectType, Scene
 
 # class: ((shortest, longest) length [m], (narrowest, widest) width [m]) as the corpus saw them
 VEHICLE_CLASSES: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {

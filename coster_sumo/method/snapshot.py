@@ -1,7 +1,7 @@
 """Collision snapshot (docs/method.md step 4): placing the adversary at t_col, and the random-offset
 baseline. The collision time itself comes from :mod:`coster_sumo.method.collision_time`.
 
-Everything works on a 2 Hz scene (:func:`coster_sumo.scene.resample`).
+Everything works on a 2 Hz scene (:func:`coster_sumo.core.scene.resample`).
 
 **Placement** (``--init snapshot``): in the ellipse at t_col, the region with the highest presence
 probability, leaving out the one the target itself fills (the most likely region of all, whose
@@ -31,15 +31,17 @@ from typing import Any, Protocol
 import numpy as np
 import shapely
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.snapshot import AgentState, CollisionSnapshot
 from coster_sumo.errors import NoSnapshot
-from coster_sumo.geometry import (
+from coster_sumo.geometry.boxes import (
     box_signed_distance,
     boxes_overlap,
     make_boxes,
     touch_translation,
     translate_boxes,
 )
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.collision_time import (
     choose_collision_time,
     entropy_search,
@@ -48,8 +50,6 @@ from coster_sumo.method.collision_time import (
     target_pose,
 )
 from coster_sumo.method.plausible import local_speeds, moving_speed_class, stop_plausible, vehicle_size
-from coster_sumo.scene import Scene
-from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
 RANDOM_TRIES = 200
 START_DISTANCE_M = 30.0  # [m] candidates start this far out and are translated towards the target
@@ -257,7 +257,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     entropy curve and the prior's adaptation to the traffic around (fitted over the whole search
     window) are computed once in it (:class:`PriorMemo`; they depend on nothing else).
     """
-    from coster_sumo import weights
+    from coster_sumo.infra import weights
     from coster_sumo.prior.infer import load_prior, predict_scene
 
     if model is None:

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo import dataset as ds
+from coster_sumo.core.scene import ObjectType, Scene, resample
+from coster_sumo.data import dataset as ds
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.prior.bins import AttributeBins
@@ -40,7 +41,6 @@ from coster_sumo.prior.regions import (
     region_signals,
     regions_near,
 )
-from coster_sumo.scene import ObjectType, Scene, resample
 
 PRIOR_HZ = 2.0  # the prior works on scenes downsampled to 2 Hz
 
@@ -240,7 +240,7 @@ def batch_tokens(scenes: Sequence[ScenePriorData], samples: np.ndarray, bins: At
 
 
 def scene_files(data: str | Path) -> list[Path]:
-    """The scene files of a dataset (``DATASET/scenes/*.npz``, see :mod:`coster_sumo.dataset`),
+    """The scene files of a dataset (``DATASET/scenes/*.npz``, see :mod:`coster_sumo.data.dataset`),
     a plain folder of ``.npz`` scenes, or one scene file."""
     p = Path(data)
     if p.is_file():
@@ -252,7 +252,7 @@ def scene_files(data: str | Path) -> list[Path]:
 
 
 def split_files(data: str | Path, val_fraction: float = 0.1, seed: int = 0) -> tuple[list[Path], list[Path]]:
-    """Train / held-out split of a dataset: :func:`coster_sumo.dataset.split` (by file name hash)."""
+    """Train / held-out split of a dataset: :func:`coster_sumo.data.dataset.split` (by file name hash)."""
     return ds.split(scene_files(data), val_fraction, seed=seed)
 
 

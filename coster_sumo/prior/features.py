@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.geometry import to_local
+from coster_sumo.geometry.boxes import to_local
 from coster_sumo.prior.bins import AttributeBins
 from coster_sumo.prior.regions import REGION_SPACING, Regions
 

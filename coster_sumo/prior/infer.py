@@ -31,14 +31,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from coster_sumo.atomic import atomic_path
+from coster_sumo.core.scene import Scene
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.infra.atomic import atomic_path
 from coster_sumo.prior.bins import ATTRIBUTES, AttributeBins
 from coster_sumo.prior.data import ScenePriorData, at_prior_rate, prepare_scene, scene_tokens
 from coster_sumo.prior.features import Tokens
 from coster_sumo.prior.model import PriorConfig, TrafficPrior
 from coster_sumo.prior.regions import Regions
-from coster_sumo.scene import Scene
 
 CHECKPOINT_FORMAT = "coster-sumo-prior"
 # Pseudo-counts added to both sides of an observed / predicted ratio (presence: per fitted step, since

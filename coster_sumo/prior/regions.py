@@ -2,7 +2,7 @@
 
 Construction
 ------------
-Every lane centreline is resampled with :func:`coster_sumo.geometry.resample_polylines` in ``even``
+Every lane centreline is resampled with :func:`coster_sumo.geometry.boxes.resample_polylines` in ``even``
 mode: ``n = max(1, round(L / spacing))`` equal gaps from the lane's start to its end, so the whole
 lane is covered and every gap lies within [2/3, 3/2] of ``spacing`` (default 5 m; only lanes
 shorter than ``spacing / 2`` have shorter regions). Each pair of adjacent points (q1, q2) spans a
@@ -35,9 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 from sklearn.neighbors import KDTree
 
-from coster_sumo.frames import wrap_angle
-from coster_sumo.geometry import resample_polylines, to_local
-from coster_sumo.scene import ObjectType, RoadMap, SignalState, SignalStates, Tracks
+from coster_sumo.core.scene import ObjectType, RoadMap, SignalState, SignalStates, Tracks
+from coster_sumo.geometry.boxes import resample_polylines, to_local
+from coster_sumo.geometry.frames import wrap_angle
 
 REGION_SPACING = 5.0  # [m] target distance between sample points along a lane = region height
 REGION_WIDTH = 5.0  # [m] region extent across the lane (half-width 2.5 m, as in the authors' code)
@@ -54,7 +54,7 @@ class Regions:
         q1: (num_regions, 2) float64 [m] region origin (earlier point along the lane).
         q2: (num_regions, 2) float64 [m] the next point; the region's y-axis points from q1 to q2.
         lane_index: (num_regions,) int64 index into ``RoadMap.lanes``.
-        lane_type: (num_regions,) int8 :class:`~coster_sumo.scene.LaneType` of the lane.
+        lane_type: (num_regions,) int8 :class:`~coster_sumo.core.scene.LaneType` of the lane.
         is_junction: (num_regions,) bool, the lane lies inside a junction.
         width: region width [m] (across the lane).
         speed_limit: (num_regions,) float64 [m/s] of the lane, 0 where unknown (None: not known for

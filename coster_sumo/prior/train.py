@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from coster_sumo.atomic import atomic_path, write_json
-from coster_sumo.devices import cpu_description, device_name, training_device
 from coster_sumo.errors import InputError
+from coster_sumo.infra.atomic import atomic_path, write_json
+from coster_sumo.infra.devices import cpu_description, device_name, training_device
 from coster_sumo.prior.bins import ATTRIBUTES
 from coster_sumo.prior.data import ScenePriorData, batch_tokens, epoch_samples
 from coster_sumo.prior.features import Tokens
@@ -195,7 +195,7 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
     """Train the prior; write the best held-out checkpoint to ``output`` and metrics beside it
     (``output`` with suffix ``.json``). Returns the metrics.
 
-    ``device``: where the model trains (:func:`coster_sumo.devices.training_device`); the tokens are
+    ``device``: where the model trains (:func:`coster_sumo.infra.devices.training_device`); the tokens are
     built on the CPU and moved there, the checkpoint is written for the CPU and the state is read
     onto it, so a run resumes on either device (the same numbers only on the same device)."""
     mcfg = model_config or PriorConfig()

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.geometry import polyline_arc_length
-from coster_sumo.scene import RoadMap
-from coster_sumo.snapshot_state import AgentState
+from coster_sumo.core.scene import RoadMap
+from coster_sumo.core.snapshot import AgentState
+from coster_sumo.geometry.boxes import polyline_arc_length
 
 MAX_LANE_DISTANCE_M = 5.0  # [m] a lane farther than this from the vehicle is not "its" lane
 MAX_HEADING_DIFF_RAD = np.pi / 4  # [rad] lane direction vs vehicle heading

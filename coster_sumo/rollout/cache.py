@@ -44,8 +44,8 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.atomic import write_json
 from coster_sumo.errors import InputError
+from coster_sumo.infra.atomic import write_json
 from coster_sumo.rollout.config import RolloutConfig
 from coster_sumo.rollout.data import (
     ROLLOUT_HZ,
@@ -136,8 +136,8 @@ def default_cache_root(paths: Sequence[Path]) -> Path:
 def encode_scene_file(path: Path, cfg: RolloutConfig, min_steps: int) -> dict[str, np.ndarray] | None:
     """Every example of one scene file, in the stored layout (None: the scene has no example).
     ``index[:, 0]`` is 0; the caller numbers the scenes."""
+    from coster_sumo.core.scene import resample
     from coster_sumo.formats.scene_file import load_scene
-    from coster_sumo.scene import resample
 
     low = resample(load_scene(path), ROLLOUT_HZ)
     examples = enumerate_examples(low, cfg, min_steps=min_steps)

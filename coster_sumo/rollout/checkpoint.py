@@ -12,8 +12,8 @@ from typing import Any
 
 import torch
 
-from coster_sumo.atomic import atomic_path
 from coster_sumo.errors import InputError, not_found
+from coster_sumo.infra.atomic import atomic_path
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
 
 FORMAT_NAME = "coster-sumo-rollout"

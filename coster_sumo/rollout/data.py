@@ -34,10 +34,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from coster_sumo.core.scene import ObjectType, Scene, SignalState
 from coster_sumo.errors import InputError
-from coster_sumo.geometry import resample_polylines
+from coster_sumo.geometry.boxes import resample_polylines
 from coster_sumo.rollout.config import RolloutConfig
-from coster_sumo.scene import ObjectType, Scene, SignalState
 
 if TYPE_CHECKING:
     import torch
@@ -88,7 +88,7 @@ def check_rate(scene: Scene) -> None:
     """Raise InputError unless ``scene`` is at the rollout's 2 Hz."""
     if scene.num_steps >= 2 and abs(scene.dt - 1.0 / ROLLOUT_HZ) > 0.05:  # WOMD timestamps jitter
         raise InputError(f"scene {scene.scenario_id}: the rollout needs a 2 Hz scene (dt 0.5 s), "
-                         f"got dt {scene.dt:.3f} s; use coster_sumo.scene.resample(scene, 2.0)")
+                         f"got dt {scene.dt:.3f} s; use coster_sumo.core.scene.resample(scene, 2.0)")
 
 
 @dataclass(frozen=True)
@@ -425,7 +425,7 @@ class ExampleSet:
 def build_examples(scenes: Iterable[Scene], cfg: RolloutConfig, **kwargs: Any) -> ExampleSet:
     """Resample every scene to 2 Hz, cache it and enumerate its examples (``kwargs`` go to
     :func:`enumerate_examples`)."""
-    from coster_sumo.scene import resample
+    from coster_sumo.core.scene import resample
 
     caches: list[SceneCache] = []
     rows: list[tuple[int, int, int, int]] = []

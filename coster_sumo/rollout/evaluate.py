@@ -22,12 +22,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from coster_sumo.core.snapshot import AgentState
 from coster_sumo.errors import InputError
 from coster_sumo.metrics import ade_fde
 from coster_sumo.rollout.baselines import LaneIndex, constant_lane_backward, constant_velocity_backward
 from coster_sumo.rollout.data import ExampleSet, to_frame, to_tensors
 from coster_sumo.rollout.records import DisplacementErrors, GroupErrors, MethodErrors, RolloutEvaluation
-from coster_sumo.snapshot_state import AgentState
 
 if TYPE_CHECKING:
     from coster_sumo.rollout.cache import CachedExamples

@@ -13,11 +13,11 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.snapshot import CollisionSnapshot
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.rollout.baselines import constant_velocity_backward
-from coster_sumo.scene import Scene
-from coster_sumo.snapshot_state import CollisionSnapshot
 
 HORIZON_STEPS = 10  # [2 Hz steps] 5 s of approach at most
 

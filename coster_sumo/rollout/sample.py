@@ -11,7 +11,7 @@ The injection pipeline calls, for one collision snapshot:
    t_col, falling back to the next member of the cluster;
 
 or both at once through :func:`plan_variants`, which loads the shipped models and returns
-:class:`~coster_sumo.plan.AdversaryPlan` objects.
+:class:`~coster_sumo.core.plan.AdversaryPlan` objects.
 """
 
 from __future__ import annotations
@@ -24,9 +24,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from coster_sumo.drivable import DrivableArea
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.snapshot import AgentState, CollisionSnapshot
 from coster_sumo.errors import InputError
-from coster_sumo.geometry import boxes_overlap, make_boxes
+from coster_sumo.geometry.boxes import boxes_overlap, make_boxes
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.rollout.data import (
     SceneCache,
     build_cache,
@@ -37,11 +39,9 @@ from coster_sumo.rollout.data import (
     to_tensors,
 )
 from coster_sumo.rollout.vocab import MotionVocab, project_backward
-from coster_sumo.scene import Scene
-from coster_sumo.snapshot_state import AgentState, CollisionSnapshot
 
 if TYPE_CHECKING:
-    from coster_sumo.plan import AdversaryPlan
+    from coster_sumo.core.plan import AdversaryPlan
     from coster_sumo.rollout.model import RolloutCVAE
 
 DEFAULT_SAMPLES = 1000
@@ -81,9 +81,9 @@ def sample_trajectories(model: RolloutCVAE, scene_2hz: Scene, snapshot: Collisio
     Args:
         model: a trained :class:`~coster_sumo.rollout.model.RolloutCVAE` (see
             :func:`coster_sumo.rollout.checkpoint.load_model`).
-        scene_2hz: the nominal scene at 2 Hz (:func:`coster_sumo.scene.resample`); its agents over
+        scene_2hz: the nominal scene at 2 Hz (:func:`coster_sumo.core.scene.resample`); its agents over
             time are the neighbours, its map the map. The adversary is not one of its agents.
-        snapshot: the :class:`~coster_sumo.scene.CollisionSnapshot` (its ``adversary`` state and
+        snapshot: the :class:`~coster_sumo.core.scene.CollisionSnapshot` (its ``adversary`` state and
             ``t_index``), or ``(AgentState, t_index)``: centre x, y [m], yaw [rad], speed [m/s],
             length, width [m] at step ``t_index`` (= t_col) of ``scene_2hz``.
         n: number of trajectories N.
@@ -172,7 +172,7 @@ class OtherAgents:
     """Other agents' boxes at the trajectory's times.
 
     Attributes:
-        boxes: (A, T, 5) float64 (cx, cy, heading, length, width), see :mod:`coster_sumo.geometry`.
+        boxes: (A, T, 5) float64 (cx, cy, heading, length, width), see :mod:`coster_sumo.geometry.boxes`.
         valid: (A, T) bool.
         ids: (A,) str.
     """
@@ -387,7 +387,7 @@ def select_representatives(trajs: np.ndarray, k: int = DEFAULT_CLUSTERS, seed: i
         seed: seeds the farthest-point initialisation (deterministic per seed).
         vocab: motion vocabulary; every transition is snapped to it (:func:`project_backward`),
             keeping the last pose exactly. None: no refinement.
-        drivable: :class:`~coster_sumo.drivable.DrivableArea` or a function
+        drivable: :class:`~coster_sumo.geometry.drivable.DrivableArea` or a function
             ``(x, y, yaw, length, width) -> bool off-road`` on arrays; None: no off-road check.
         others: other agents' boxes at the same T times (:func:`others_from_scene`); None: none.
         size: (length, width) [m] of the adversary.
@@ -463,12 +463,12 @@ def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
 
     Returns:
         (plans, samples_xy (N, T, 2) of all samples, info) with one
-        :class:`~coster_sumo.plan.AdversaryPlan` per accepted representative (possibly none).
+        :class:`~coster_sumo.core.plan.AdversaryPlan` per accepted representative (possibly none).
     """
-    from coster_sumo.plan import AdversaryPlan
+    from coster_sumo.core.plan import AdversaryPlan
 
     t0 = time.perf_counter()
-    from coster_sumo import weights
+    from coster_sumo.infra import weights
     from coster_sumo.rollout.checkpoint import load_model
     from coster_sumo.rollout.vocab import MotionVocab
 

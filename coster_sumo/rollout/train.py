@@ -3,7 +3,7 @@
 Examples: every vehicle of every scene (resampled to 2 Hz) at every t_rev with at least
 ``min_steps`` valid steps before it, the horizon ``min(max_horizon, t_rev)`` (shorter segments are
 masked: the model learns the adaptive horizon). Scenes are split into training and held-out sets
-by :func:`coster_sumo.dataset.split` (hash of the file name), never examples of one scene across
+by :func:`coster_sumo.data.dataset.split` (hash of the file name), never examples of one scene across
 both.
 
 Deterministic per seed (same thread count): the model initialisation, the example order and the
@@ -26,7 +26,7 @@ next batch is assembled by a background thread while the current one trains, tor
 AVX-512 BF16 or AMX matrix products run several times faster, while the weights, the gradients,
 the optimiser state, the integrated pose, the latent statistics and the KL stay float32, and
 validation runs in float32. On a CPU without them bfloat16 runs in software, several times slower
-than float32: the run prints a warning line (:func:`coster_sumo.devices.slow_bf16_warning`) and
+than float32: the run prints a warning line (:func:`coster_sumo.infra.devices.slow_bf16_warning`) and
 trains anyway. Not the default: the shipped checkpoints were trained in float32, and a run resumes
 only in the precision it started in. The metrics record the CPU (``cpu``) next to the device.
 """
@@ -50,11 +50,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from coster_sumo.atomic import write_json
-from coster_sumo.devices import cpu_description, device_name, slow_bf16_warning, training_device
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
-from coster_sumo.prefetch import prefetch
+from coster_sumo.infra.atomic import write_json
+from coster_sumo.infra.devices import cpu_description, device_name, slow_bf16_warning, training_device
+from coster_sumo.infra.prefetch import prefetch
 from coster_sumo.rollout.cache import CachedExamples, cached_examples
 from coster_sumo.rollout.checkpoint import atomic_torch_save, load_checkpoint, read_torch_file, save_checkpoint
 from coster_sumo.rollout.config import FREE_ON_INIT
@@ -121,8 +121,8 @@ class TrainConfig:
 
 
 def split_scene_files(data: str | Path, val_fraction: float, seed: int) -> tuple[list[Path], list[Path]]:
-    """Training and held-out scene files of a dataset folder (see :mod:`coster_sumo.dataset`)."""
-    from coster_sumo.dataset import list_scenes, split
+    """Training and held-out scene files of a dataset folder (see :mod:`coster_sumo.data.dataset`)."""
+    from coster_sumo.data.dataset import list_scenes, split
 
     paths = list_scenes(data)
     if not paths:
@@ -415,7 +415,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     be ``cfg`` but for the settings in :data:`~coster_sumo.rollout.config.FREE_ON_INIT` (checked
     before any data is read). Its sha256 goes into ``tcfg.init``, so that a
     training state resumes only with the same starting weights.
-    ``device``: where the model trains (:func:`coster_sumo.devices.training_device`: "cpu", "cuda", "cuda:N" or
+    ``device``: where the model trains (:func:`coster_sumo.infra.devices.training_device`: "cpu", "cuda", "cuda:N" or
     "auto"); batches are assembled on the CPU and moved there. Checkpoints hold CPU tensors and
     training states are read onto the CPU, so a run started on one device resumes on another
     (with the same numbers only on the same device). Not part of ``tcfg``: it does not change the

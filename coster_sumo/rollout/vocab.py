@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.atomic import atomic_path
+from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.errors import InputError
-from coster_sumo.geometry import box_corners
-from coster_sumo.scene import ObjectType, Scene
+from coster_sumo.geometry.boxes import box_corners
+from coster_sumo.infra.atomic import atomic_path
 
 VOCAB_SIZE = 384
 REF_LENGTH_M = 4.8  # [m] reference box of the corner error
@@ -133,7 +133,7 @@ def scene_transitions(scene: Scene, vehicles_only: bool = True) -> np.ndarray:
 
 def collect_transitions(scenes: Iterable[Scene], hz: float = 2.0) -> np.ndarray:
     """Transitions of all vehicles of ``scenes`` resampled to ``hz``: (n, 3)."""
-    from coster_sumo.scene import resample
+    from coster_sumo.core.scene import resample
 
     parts = [scene_transitions(resample(s, hz)) for s in scenes]
     return np.concatenate(parts) if parts else np.zeros((0, 3))

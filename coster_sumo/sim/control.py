@@ -5,7 +5,7 @@ release and remove vehicles, and force signals.
 and its state (the vehicles' cached sizes, the vehicles driven with moveToXY, the types and routes
 made for added vehicles) is the session's. It lives apart from the session's life cycle, stepping
 and reads so that each reads on its own. Frames as in the session: box centre, heading in radians
-counter-clockwise from +x; SUMO's front bumper and compass angle stay inside :mod:`coster_sumo.frames`.
+counter-clockwise from +x; SUMO's front bumper and compass angle stay inside :mod:`coster_sumo.geometry.frames`.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import contextlib
 from collections.abc import Sequence
 from typing import Any
 
-from coster_sumo import frames
 from coster_sumo.errors import SumoError
+from coster_sumo.geometry import frames
 from coster_sumo.sim.sumo_options import (
     KEEP_ROUTE_EXACT_ANYWHERE,
     LANE_CHANGE_MODE_NO_AUTONOMOUS,

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.geometry import polyline_arc_length, resample_polyline
+from coster_sumo.geometry.boxes import polyline_arc_length, resample_polyline
 
 STEP_S = 0.1  # [s] SUMO's step (the replay scenes' rate)
 MAX_ACCEL = 3.0  # [m/s^2]

@@ -4,14 +4,14 @@ Our oriented-box check is the ground truth: SUMO's own check is lane-based and m
 cross-edge overlaps (docs/sumo.md §4). SUMO's list is logged beside it as ``sumo_collision`` events.
 Only pairs that involve the adversary or the target are checked (two rows of the pairwise matrix):
 a bounding-circle prefilter over all other vehicles, the separating-axis gap of the pairs left (a
-lower bound of their distance, exact for overlaps; :mod:`coster_sumo.geometry`, or a scalar copy
+lower bound of their distance, exact for overlaps; :mod:`coster_sumo.geometry.boxes`, or a scalar copy
 for the one pair of a live step), and the exact distance for the few within the contact tolerance.
 
 Two boxes are in contact when their signed distance is at most ``CONTACT_TOLERANCE_M`` (5 cm, the
 tolerance a collision snapshot is placed with), so touching at t_col counts. An event is reported
 once when it starts; a pair that separates and overlaps again is a new
 event. Off-road is checked for the adversary and the target only (footprint against the drivable
-area, :class:`coster_sumo.drivable.DrivableArea`).
+area, :class:`coster_sumo.geometry.drivable.DrivableArea`).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.geometry import CONTACT_TOLERANCE_M, box_signed_distance, make_boxes, sat_overlap_depth
+from coster_sumo.geometry.boxes import CONTACT_TOLERANCE_M, box_signed_distance, make_boxes, sat_overlap_depth
+from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.metrics import impact_angle_deg
 from coster_sumo.sim.session import VehicleStates
 

@@ -1,7 +1,7 @@
 """SUMO's driver takes over an adversary that missed, once the labels' horizon has passed.
 
-Up to :data:`~coster_sumo.plan.HORIZON_AFTER_TCOL_S` after t_col an adversary whose contact did not
-happen drives its plan's road continuation (:mod:`coster_sumo.road_follow`), exactly what the
+Up to :data:`~coster_sumo.core.plan.HORIZON_AFTER_TCOL_S` after t_col an adversary whose contact did not
+happen drives its plan's road continuation (:mod:`coster_sumo.geometry.road_follow`), exactly what the
 avoidability search assumed. After that nothing is promised about it, and a vehicle that drives a
 fixed path through traffic for the rest of a pass is no driver: SUMO's car-following and
 lane-change models take it over, with a route towards the end of its road path.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from coster_sumo.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan
+from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan
 from coster_sumo.sim.session import SumoSession
 
 TIME_EPS = 1e-6  # [s]

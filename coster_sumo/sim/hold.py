@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.errors import SumoError
-from coster_sumo.procs import die_with_parent, fork_and_wait
+from coster_sumo.infra.procs import die_with_parent, fork_and_wait
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.sumo_outputs import detach_outputs
 

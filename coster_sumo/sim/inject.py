@@ -12,7 +12,7 @@ as a private vehicle type, on the edge under its first position (docs/sumo.md §
 off every lane can crash libsumo). It follows the plan exactly, arriving in the snapshot state at
 t_col. After its first contact with any vehicle it is **frozen**: it stays at the contact pose at
 zero speed until the end of the pass (a wreck, not a vehicle that drives on). If no contact
-happens (the planner avoided it), it drives on along its lane (:class:`~coster_sumo.plan.AdversaryPlan`)
+happens (the planner avoided it), it drives on along its lane (:class:`~coster_sumo.core.plan.AdversaryPlan`)
 up to the labels' horizon, then SUMO's driver takes it over (:mod:`coster_sumo.sim.handover`).
 """
 
@@ -29,11 +29,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from coster_sumo.drivable import DrivableArea
-from coster_sumo.frames import centre_to_front
-from coster_sumo.plan import AdversaryPlan, sim_time_of
-from coster_sumo.procs import ChildFailed, run_forked
-from coster_sumo.scene import Scene
+from coster_sumo.core.plan import AdversaryPlan, sim_time_of
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.spec import InjectionSettings, ScenarioSpec
+from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.geometry.drivable import DrivableArea
+from coster_sumo.geometry.frames import centre_to_front
+from coster_sumo.infra.procs import ChildFailed, run_forked
 from coster_sumo.sim import handover
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
@@ -41,8 +43,6 @@ from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make
 from coster_sumo.sim.reactive import replayer_for
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
 from coster_sumo.sim.session import SumoSession, VehicleStates
-from coster_sumo.source import ScenarioSource
-from coster_sumo.spec import InjectionSettings, ScenarioSpec
 
 ADVERSARY_COLOR = (220, 30, 30, 255)  # RGBA: red in sumo-gui
 POST_CONTACT_S = 5.0  # [s] a pass goes on this long after the contact (the wreck, the target's reaction)
@@ -385,7 +385,7 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
     - Any SUMO configuration: the configuration's own traffic runs; ``replay`` moves the target
       along its nominal trajectory (:func:`nominal_replay`), ``sumo[:<model>]`` leaves it to SUMO's
       driver, ``module:Class`` to your planner.
-    - A converted WOMD scene (:attr:`coster_sumo.source.ScenarioSource.converted`): the log
+    - A converted WOMD scene (:attr:`coster_sumo.formats.source.ScenarioSource.converted`): the log
       is the traffic, so the log replayer drives every logged agent. With ``replay`` it drives the
       target too, for the whole pass. With any other planner it drives the target until the
       adversary's plan starts and then hands it over: the planner commands it from then on, and

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol, TypeVar
 
-from coster_sumo.plan import AdversaryPlan
+from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.sim.inject import InjectionResult, VariantFailure
 
 

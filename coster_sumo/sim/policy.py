@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from coster_sumo.errors import InputError
-from coster_sumo.extras import require
-from coster_sumo.geometry import project_points
+from coster_sumo.geometry.boxes import project_points
+from coster_sumo.infra.extras import require
 from coster_sumo.sim.driver import STEP_S, Driver, Route
 
 if TYPE_CHECKING:

@@ -19,7 +19,7 @@ vehicle deviates):
   within :data:`HORIZON_S`.
 
 A target that holds its nominal motion never deviates, so nobody reacts and the episode is the
-log's (``tests/test_reactive.py``).
+log's (``tests/sim/test_reactive.py``).
 
 Where the agents live (:class:`ReactiveTraffic`): an agent is read from the log (no SUMO vehicle,
 as :class:`~coster_sumo.sim.replay.LogTraffic`) until it has to be in SUMO: when it reacts, or when
@@ -40,13 +40,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.formats.scene_folder import VTYPES, agent_sizes, vtype_for
-from coster_sumo.geometry import project_points
-from coster_sumo.scene import ObjectType, Scene
+from coster_sumo.geometry.boxes import project_points
 from coster_sumo.sim.states import VehicleStates, empty_states
 
 if TYPE_CHECKING:
-    from coster_sumo.scene import Tracks
+    from coster_sumo.core.scene import Tracks
     from coster_sumo.sim.replay import LogReplayer as LogReplayerLike
     from coster_sumo.sim.session import SumoSession
 

@@ -20,10 +20,10 @@ from typing import Any, cast
 
 import numpy as np
 
+from coster_sumo.core.scene import ObjectType, Scene, SignalStates, Tracks
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumo_net import SumoNet, load_sumo_net
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.scene import ObjectType, Scene, SignalStates, Tracks
 from coster_sumo.sim.session import SumoSession, VehicleStates
 from coster_sumo.sim.signals import SignalReader, SignalTable
 from coster_sumo.sim.states import empty_states

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from coster_sumo.core.scene import Scene, Tracks
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.scene_folder import (
@@ -43,7 +44,6 @@ from coster_sumo.formats.scene_folder import (
     vtype_for,
 )
 from coster_sumo.formats.sumocfg import read_sumocfg
-from coster_sumo.scene import Scene, Tracks
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates, empty_states
 
@@ -242,7 +242,7 @@ class LogTraffic:
 
     Where nothing in SUMO reacts to them (every agent driven by moveToXY, as in a replay), SUMO
     would report exactly the logged poses, sizes and speeds that :class:`LogReplayer` gives it
-    (``tests/test_gym.py`` compares the two); reading them here skips a moveToXY per agent and
+    (``tests/gym/test_gym.py`` compares the two); reading them here skips a moveToXY per agent and
     step (about 50 us each on a converted network). An agent is present at the steps where the log
     has it valid, under its log id, with :func:`agent_sizes`' length and width.
 

@@ -11,7 +11,7 @@ libsumo or traci. Two back ends share one API:
   to a server somebody else started (``port=...``). Any number of TraCI sessions may be open.
 
 Frames: every array this class returns or takes is in **our** frame (box centre, heading in radians
-counter-clockwise from +x, see :mod:`coster_sumo.frames`); SUMO's front-bumper / degrees clockwise
+counter-clockwise from +x, see :mod:`coster_sumo.geometry.frames`); SUMO's front-bumper / degrees clockwise
 from north convention stays inside this module.
 
 The commands that change the simulation (add, place, release, remove vehicles; force signals)
@@ -32,9 +32,10 @@ from typing import IO, Any
 
 import numpy as np
 
-from coster_sumo import frames, sumo_env
 from coster_sumo.errors import CosterError, InputError, SumoError
 from coster_sumo.formats.sumocfg import check_xml, read_sumocfg, runnable_config
+from coster_sumo.geometry import frames
+from coster_sumo.infra import sumo_install
 from coster_sumo.sim import sumo_outputs as sumo_outputs_mod
 from coster_sumo.sim.control import SessionControl, sumo_message
 from coster_sumo.sim.states import VehicleStates, empty_states
@@ -161,7 +162,7 @@ class SumoSession(SessionControl):
 
     def command(self) -> list[str]:
         """The SUMO command line this session starts (binary first)."""
-        binary = sumo_env.binary("sumo-gui" if self.gui else "sumo")
+        binary = sumo_install.binary("sumo-gui" if self.gui else "sumo")
         cmd = [binary]
         # the outputs the configuration declares: into self.sumo_outputs, or discarded (a quiet copy)
         box = sumo_outputs_mod.sandbox(self.config, self.additional, self.sumo_outputs)
@@ -229,14 +230,14 @@ class SumoSession(SessionControl):
                     f"{self.name}: libsumo runs one simulation per process and {_LIBSUMO_OWNER.name} is "
                     "still running; close it first, use traci=True, or use another process")
             with contextlib.redirect_stdout(io.StringIO()):  # libsumo prints a pyarrow version notice
-                api = sumo_env.import_libsumo()
+                api = sumo_install.import_libsumo()
             try:
                 api.start(self.command())
             except Exception as exc:  # libsumo.TraCIException: SUMO refused the inputs
                 raise InputError(f"{self.name}: SUMO could not load it: {sumo_message(exc)}") from None
             _LIBSUMO_OWNER = self
         else:
-            traci = sumo_env.import_traci()
+            traci = sumo_install.import_traci()
             self._label = f"coster{next(_LABELS)}"
             try:
                 if self.port is not None:
@@ -491,7 +492,7 @@ class SumoSession(SessionControl):
     # ------------------------------------------------------------------------- TraCI plumbing
 
     def _tc(self) -> Any:
-        return sumo_env.import_traci().constants
+        return sumo_install.import_traci().constants
 
     def _subscribe_vehicle(self, veh_id: str) -> None:
         subscribe_vehicle(self._api, self._tc(), veh_id)

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coster_sumo.core.scene import SignalState
 from coster_sumo.formats.sumo_net import SumoNet
-from coster_sumo.scene import SignalState
 from coster_sumo.sim.session import SumoSession
 
 # SUMO link state letter -> SignalState (see the module docstring)

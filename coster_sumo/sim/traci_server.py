@@ -8,8 +8,8 @@ import tempfile
 import time
 from typing import IO, Any
 
-from coster_sumo import sumo_env
 from coster_sumo.errors import InputError
+from coster_sumo.infra import sumo_install
 from coster_sumo.sim.sumo_options import TRACI_CONNECT_TIMEOUT_S
 
 
@@ -19,11 +19,11 @@ def start_traci_server(traci: Any, command: list[str], label: str, name: str) ->
     ``traci.start`` would sleep a whole second before its first retry and print about it. SUMO's
     stderr goes to a temporary file (returned; the caller closes it) so that a failed start can say why.
     """
-    sumolib = sumo_env.import_sumolib()
+    sumolib = sumo_install.import_sumolib()
     port = sumolib.miscutils.getFreeSocketPort()
     stderr = tempfile.TemporaryFile()
     proc = subprocess.Popen(command + ["--remote-port", str(port)], stdout=subprocess.DEVNULL,
-                            stderr=stderr, env=sumo_env.subprocess_env())
+                            stderr=stderr, env=sumo_install.subprocess_env())
     deadline = time.monotonic() + TRACI_CONNECT_TIMEOUT_S
     while True:
         try:

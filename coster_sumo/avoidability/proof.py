@@ -1,0 +1,345 @@
+"""Proof of an escape in SUMO: the target replays its escape plan in the variant's own pass.
+
+An escape found by :mod:`coster_sumo.avoidability.search` is kinematic: the other vehicles follow their nominal
+paths there, while in SUMO they react (to the adversary, and to a target that brakes or changes
+lane). So every escape is replayed as the target's trajectory (moveToXY every step, the ``replay``
+planner's mechanism) in the same injection pass as the variant: the same held moment of the
+nominal pass, the same traffic, the adversary driven along its plan (frozen at a first contact, at
+constant velocity after t_col), up to the escape's horizon after t_col. The escape is proven when
+the target touches nobody (our box check, the ground truth of every pass) and stays on the road.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.avoidability.evasion import Avoidability, Escape, Manoeuvre
+from coster_sumo.core.plan import AdversaryPlan, sim_time_of
+from coster_sumo.core.scene import Scene
+from coster_sumo.core.spec import ScenarioSpec
+from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
+from coster_sumo.geometry.drivable import DrivableArea
+from coster_sumo.sim.events import Event, EventDetector
+from coster_sumo.sim.hold import HeldStates
+from coster_sumo.sim.inject import (
+    TIME_EPS,
+    AdversaryController,
+    InjectionResult,
+    StepActor,
+    continue_injection,
+    edge_under,
+    run_injection,
+)
+from coster_sumo.sim.planners import ReplayPlanner
+from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, record
+from coster_sumo.sim.session import SumoSession
+from coster_sumo.sim.states import VehicleStates
+
+
+@dataclass(frozen=True)
+class EscapeJob:
+    """One escape to prove: the variant's adversary plan and the target's escape."""
+
+    plan: AdversaryPlan
+    escape: Escape
+
+
+def escape_planner(escape: Escape, length_m: float) -> ReplayPlanner:
+    """The target's planner that drives the escape (box centres, 10 Hz) with moveToXY."""
+    return ReplayPlanner(escape.times, escape.x, escape.y, escape.yaw, escape.speed,
+                         np.ones(len(escape.times), bool), length_m)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What SUMO's replay of one escape showed.
+
+    Attributes:
+        ok: no contact of the target and no off-road after the adversary appeared.
+        reason: one line (``no contact, on road``, ``touched X at T s``, ``left the road at T s``).
+        min_gap_to_adversary_m: [m] the smallest gap of the two boxes (None: never in the pass together).
+        max_deviation_m: [m] how far SUMO's target strayed from the escape; max_deviation_at_s: [s] when.
+    """
+
+    ok: bool
+    reason: str
+    min_gap_to_adversary_m: float | None = None
+    max_deviation_m: float | None = None
+    max_deviation_at_s: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The verdict as an escape's ``proof`` in summary.json."""
+        return dataclasses.asdict(self)
+
+
+def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> Verdict:
+    """What the replay shows: contacts of the target, off-road, the smallest gap to the adversary
+    and how far SUMO's target strayed from the escape (moveToXY places it exactly)."""
+    return _verdict(res.events, res.scene, target_id, job.plan.vehicle_id, job)
+
+
+def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: str, job: EscapeJob) -> Verdict:
+    """:func:`verdict` from a pass's events and recording, the target and adversary by their ids there."""
+    plan, esc = job.plan, job.escape
+    t0 = plan.t_start - TIME_EPS
+    contacts = [e for e in events if e.kind == "collision" and target_id in e.vehicles and e.time >= t0]
+    off = [e for e in events if e.kind == "off_road" and e.vehicles == [target_id] and e.time >= t0]
+    tr = scene.tracks
+    ids = tr.ids.tolist()
+    gap = deviation = dev_at = None
+    if target_id in ids:
+        a = tr.index_of(target_id)
+        ts_all = scene.timestamps
+        steps = np.flatnonzero(tr.valid[a] & (ts_all >= t0) & (ts_all <= esc.times[-1] + TIME_EPS))
+        if len(steps):
+            ts = ts_all[steps]
+            k = np.clip(np.round((ts - esc.times[0]) / 0.1).astype(int), 0, len(esc.times) - 1)
+            dev = np.hypot(tr.x[a, steps] - esc.x[k], tr.y[a, steps] - esc.y[k])
+            deviation = float(dev.max())
+            dev_at = float(ts[int(np.argmax(dev))])
+            if adversary_id in ids:
+                b = tr.index_of(adversary_id)
+                both = steps[tr.valid[b, steps]]
+                if len(both):
+                    gap = float(box_signed_distance(
+                        make_boxes(tr.x[a, both], tr.y[a, both], tr.heading[a, both], tr.length[a, both],
+                                   tr.width[a, both]),
+                        make_boxes(tr.x[b, both], tr.y[b, both], tr.heading[b, both], tr.length[b, both],
+                                   tr.width[b, both])).min())
+    ok = not contacts and not off
+    if ok:
+        reason = "no contact, on road"
+    elif contacts:
+        first = contacts[0]
+        other = next((v for v in first.vehicles if v != target_id), "?")
+        reason = f"touched {other} at {first.time:.1f} s"
+    else:
+        reason = f"left the road at {off[0].time:.1f} s"
+    return Verdict(ok, reason, min_gap_to_adversary_m=None if gap is None else round(gap, 3),
+                   max_deviation_m=None if deviation is None else round(deviation, 4), max_deviation_at_s=dev_at)
+
+
+@dataclass(frozen=True)
+class HeldEscape:
+    """What a forked copy of the nominal pass needs to replay one escape (:func:`_prove_held`).
+
+    Attributes:
+        job: the escape and its adversary's plan; target_id: the target; length_m: [m] its length.
+        drivable: the drivable area (off-road events); end: [s] when the pass ends.
+    """
+
+    job: EscapeJob
+    target_id: str
+    length_m: float
+    drivable: DrivableArea | None
+    end: float
+
+
+def _prove_held(session: Any, held: HeldEscape) -> Verdict:
+    """One escape's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
+    job = held.job
+    res = continue_injection(session, held.target_id, job.plan, escape_planner(job.escape, held.length_m),
+                             end=held.end, drivable=held.drivable, surroundings_m=SURROUNDINGS_RADIUS_M,
+                             post_contact_s=None)
+    return verdict(res, held.target_id, job)
+
+
+def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, jobs: list[EscapeJob], *,
+                  drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
+                  traci: bool = False, horizon_s: float = 3.0, together: bool = True,
+                  traffic: str = "log") -> list[Verdict]:
+    """Replay every escape in SUMO; one verdict (:func:`verdict`) per job, in order.
+
+    From the held copy of the nominal pass before the adversary appears where there is one (as the
+    variant's own pass), else from the configuration's begin with its seed; a converted WOMD scene's
+    log drives every other agent and hands the target over to the escape when the adversary
+    appears. Each pass ends ``horizon_s`` after t_col.
+
+    On a converted scene nothing in SUMO reacts (the log moves every other agent, the plans move
+    the adversary and the target), so with ``together`` every escape is replayed in one pass
+    (:class:`_JointProof`), each by a copy of the target facing its own copy of the adversary; the
+    verdicts are those of one pass per escape (``together=False``). ``traffic="reactive"``: the
+    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape.
+    """
+    tr = scene.tracks
+    target_id = str(tr.ids[target])
+    length = float(np.median(tr.length[target][tr.valid[target]]))
+    source = ScenarioSource.of(scenario)
+    spec, converted = source.spec, source.converted
+    out: list[Verdict | None] = [None] * len(jobs)
+    groups: dict[int, list[int]] = {}
+    if held is not None and not converted and not traci:
+        for i, job in enumerate(jobs):
+            h = held.holder_before(job.plan.t_start - TIME_EPS)
+            if h is not None:
+                groups.setdefault(held.holders.index(h), []).append(i)
+    for h_index, members in groups.items():
+        assert held is not None
+        payloads = [(_prove_held, HeldEscape(jobs[i], target_id, length, drivable,
+                                             end=jobs[i].plan.t_col + horizon_s + 1e-6)) for i in members]
+        for i, v in zip(members, held.run(held.holders[h_index], payloads, workers), strict=True):
+            out[i] = v
+    if converted and together and not traci and jobs and traffic == "log":
+        return _JointProof(spec, scene, target, jobs, drivable, horizon_s).run()
+    for i, job in enumerate(jobs):
+        if out[i] is not None:
+            continue
+        actors: tuple[StepActor, ...] = ()
+        if converted:
+            from coster_sumo.sim.reactive import replayer_for
+            from coster_sumo.sim.replay import far_agents
+
+            # logged agents that never come near the escape are left out: they are replayed, so they
+            # react to nothing, and the verdict is about the target's contacts
+            far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
+            actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, traffic, far),)
+        res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), seed=spec.seed,
+                            end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
+                            actors=actors, traci=traci,
+                            surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=None)
+        out[i] = verdict(res, target_id, job)
+    return [v for v in out if v is not None]
+
+
+class _JointProof:
+    """Every escape of a converted scene in one SUMO pass from the configuration's begin.
+
+    Job k adds two vehicles when its adversary appears: ``<target>#escape<k>``, which drives the
+    escape (moveToXY, as the ``replay`` planner), and ``<adversary>#escape<k>``, driven by the
+    injection's own :class:`~coster_sumo.sim.inject.AdversaryController` (frozen at a first contact).
+    The log replays every other agent that comes near any escape, as in a pass of its own. Each job
+    has its own :class:`~coster_sumo.sim.events.EventDetector`, which sees the logged agents and its
+    two vehicles only: the copies of other jobs do not exist for it. Its two vehicles leave the
+    network when its horizon ends.
+    """
+
+    def __init__(self, spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
+                 drivable: DrivableArea | None, horizon_s: float) -> None:
+        from coster_sumo.sim.replay import LogReplayer, far_agents
+
+        self.spec, self.scene, self.jobs = spec, scene, jobs
+        tr = scene.tracks
+        self.target_id = str(tr.ids[target])
+        self.length = float(np.median(tr.length[target][tr.valid[target]]))
+        self.drivers = [escape_planner(j.escape, self.length) for j in jobs]
+        self.target = target
+        self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
+        self.adversaries = [AdversaryController(j.plan, vehicle_id=a) for j, (_, a) in zip(jobs, self.ids, strict=True)]
+        self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
+        paths = np.concatenate([np.stack([j.escape.x, j.escape.y], -1) for j in jobs])
+        far = far_agents(scene.tracks, paths, PROOF_RADIUS_M)
+        self.replayer = LogReplayer.for_config(spec.config, scene, exclude=far | {self.target_id})
+        step = round(scene.dt, 6)  # SUMO runs a converted scene at its log's step
+        self.starts = [sim_time_of(j.plan.t_start, step) for j in jobs]
+        self.ends = [j.plan.t_col + horizon_s + 1e-6 for j in jobs]
+        self.copies = {v for pair in self.ids for v in pair}
+        self.added: set[int] = set()
+        self.removed: set[int] = set()
+
+    def _live(self, k: int, t: float) -> bool:
+        return self.starts[k] - TIME_EPS <= t <= self.ends[k] and k not in self.removed
+
+    def before(self, session: SumoSession) -> None:
+        t_next = round(session.time + session.step_length, 9)
+        self.replayer.before_step(session, t_next)
+        for k, (tid, aid) in enumerate(self.ids):
+            if k in self.added and k not in self.removed and t_next > self.ends[k]:
+                for vid in (tid, aid):
+                    if vid in session.vehicle_ids():
+                        session.remove_vehicle(vid)
+                self.removed.add(k)
+            if not self._live(k, t_next):
+                continue
+            if k not in self.added:
+                esc = self.jobs[k].escape
+                # the target's copy as the log's target is added (size, vType)
+                self.replayer.add_as(session, self.target, tid, route_edges=edge_under(
+                    session, float(esc.x[0]), float(esc.y[0]), float(esc.yaw[0]), self.length))
+                self.added.add(k)
+            self.drivers[k].before_step(session, tid, t_next, True)
+            self.adversaries[k].before_step(session, t_next)
+
+    def after(self, session: SumoSession, states: VehicleStates) -> bool:
+        t = session.time
+        names = states.id_list()
+        rows = {v: i for i, v in enumerate(names) if v in self.copies}
+        base = [i for i, v in enumerate(names) if v not in self.copies]
+        for k, (tid, aid) in enumerate(self.ids):
+            if not self._live(k, t):
+                continue
+            own = sorted(base + [rows[v] for v in (tid, aid) if v in rows])
+            sub = _take(states, own)
+            new = self.detectors[k].check(t, sub)
+            adversary = self.adversaries[k]
+            if new and adversary.frozen_pose is None:
+                adversary.on_events(sub, new)
+                if adversary.frozen_pose is not None:
+                    self.detectors[k].settle_adversary()
+        return False
+
+    def run(self) -> list[Verdict]:
+        end = max(self.ends)
+        with SumoSession(self.spec.config, seed=self.spec.seed, begin=self.spec.begin, end=end) as session:
+            rec = record(session, begin=self.spec.begin, end=end, before_step=self.before, after_step=self.after)
+        out = []
+        for det, (tid, aid), job in zip(self.detectors, self.ids, self.jobs, strict=True):
+            det.flush()
+            out.append(_verdict(det.events, rec, tid, aid, job))
+        return out
+
+
+def _take(states: VehicleStates, rows: list[int]) -> VehicleStates:
+    """The vehicles of ``states`` at ``rows``, in that order."""
+    idx = np.asarray(rows, np.int64)
+    names = states.id_list()
+    return VehicleStates(ids=states.ids[idx], x=states.x[idx], y=states.y[idx], yaw=states.yaw[idx],
+                         speed=states.speed[idx], length=states.length[idx], width=states.width[idx],
+                         vclass=states.vclass[idx], type_id=states.type_id[idx], names=[names[i] for i in rows])
+
+
+# [m] a logged agent never this close to an escape's path cannot touch the target: the largest
+# vehicles are under 25 m long, so two boxes in contact have centres under 15 m apart, and the path's
+# points are at most a few metres apart
+PROOF_RADIUS_M = 30.0
+
+
+def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],
+                 labels: Sequence[Avoidability], *, drivable: DrivableArea | None, held: HeldStates | None = None,
+                 workers: int = 1, traci: bool = False, horizon_s: float = 3.0, traffic: str = "log") -> None:
+    """Replay every escape of ``labels`` (one per plan of ``plans``) with :func:`prove_escapes` and
+    mark it proven or refuted (``Escape.proven``, ``Escape.proof``). Equal escapes of one plan (the
+    same act and manoeuvre at several reaction times) are replayed once and share the verdict. The
+    blocked plans of a label (``Avoidability.blocked``) are replayed in the same batch, and one SUMO
+    clears becomes an escape (:meth:`~coster_sumo.avoidability.evasion.Avoidability.adopt_cleared`)."""
+    jobs: list[EscapeJob] = []
+    owners: list[Escape] = []
+    for plan, lab in zip(plans, labels, strict=True):
+        seen: set[tuple[float, Manoeuvre]] = set()  # one object may stand at several reaction times too
+        for e in [*lab.escapes.values(), *lab.blocked]:
+            if e is None or (key := _same_escape(e)) in seen:
+                continue
+            seen.add(key)
+            jobs.append(EscapeJob(plan, e))
+            owners.append(e)
+    if jobs:
+        verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
+                                 traci=traci, horizon_s=horizon_s, traffic=traffic)
+        for e, v in zip(owners, verdicts, strict=True):
+            e.proven, e.proof = v.ok, v.to_json()
+    for lab in labels:  # an escape's equals at other reaction times share its verdict
+        lab.adopt_cleared()
+        by_key = {_same_escape(e): e for e in lab.escapes.values() if e is not None and e.proven is not None}
+        for e in lab.escapes.values():
+            if e is not None and e.proven is None and (twin := by_key.get(_same_escape(e))) is not None:
+                e.proven, e.proof = twin.proven, twin.proof
+
+
+def _same_escape(e: Escape) -> tuple[float, Manoeuvre]:
+    """What makes two escapes of one plan the same: when the target acts, and how."""
+    return round(e.t_act, 3), e.manoeuvre

@@ -1,0 +1,1 @@
+"""Subcommands of ``coster-sumo``: each module here has ``register(cli)`` (see coster_sumo.cli.command_line)."""

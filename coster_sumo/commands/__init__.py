@@ -1,1 +1,0 @@
-"""Subcommands of ``coster-sumo``: each module here has ``register(cli)`` (see coster_sumo.cli)."""

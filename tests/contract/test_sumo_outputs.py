@@ -1,0 +1,175 @@
+"""SUMO's own outputs never land in the user's folders (issue 59).
+
+A configuration whose FCD, tripinfo, detector and edge-data outputs point into its own folder
+(relative) and into another folder (absolute), each beside a file of the user's of the same name:
+after every command that simulates it, both folders are byte-identical to before, and ``run`` keeps
+the nominal pass's outputs under ``OUT/sumo-outputs`` with a listing of them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from coster_sumo.cli.command_line import main
+from coster_sumo.sim.session import SumoSession
+from coster_sumo.sim.sumo_outputs import OUTPUT_ATTRIBUTES, sandbox
+
+REPO = Path(__file__).resolve().parents[2]
+NET = REPO / "networks" / "intersection"
+FAST = ["--init", "random", "--rollout", "cv", "--end", "45", "--variants", "2", "--samples", "50"]
+USERS = b"<users-own-data/>\n"  # what the user keeps under each declared output's name
+
+
+def _lane(net: Path) -> str:
+    edge = re.search(r'<edge id="([^:"][^"]*)"', net.read_text())
+    assert edge is not None
+    return f"{edge.group(1)}_0"
+
+
+def _config(tmp: Path) -> tuple[Path, list[Path]]:
+    """The configuration and the folders it writes into as declared (its own, another one)."""
+    cfg_dir, elsewhere = tmp / "cfg", tmp / "elsewhere"
+    shutil.copytree(NET, cfg_dir)
+    elsewhere.mkdir()
+    lane = _lane(cfg_dir / "intersection.net.xml")
+    (cfg_dir / "det.add.xml").write_text(f"""<additional>
+    <inductionLoop id="rel" lane="{lane}" pos="5" period="10" file="out.xml"/>
+    <inductionLoop id="abs" lane="{lane}" pos="6" period="10" file="{elsewhere / 'loop.xml'}"/>
+    <laneAreaDetector id="e2" lane="{lane}" pos="1" length="20" period="10" file="sub/e2.xml"/>
+    <edgeData id="ed" period="30" file="edges.xml"/>
+    <laneData id="ld" period="30" file="{elsewhere / 'lanes.xml'}"/>
+</additional>
+""")
+    (cfg_dir / "sub").mkdir()
+    text = (cfg_dir / "intersection.sumocfg").read_text()
+    text = text.replace("</input>", '    <additional-files value="det.add.xml"/>\n    </input>\n    <output>\n'
+                        '        <fcd-output value="fcd.xml"/>\n'
+                        f'        <tripinfo-output value="{elsewhere / "trips.xml"}"/>\n'
+                        '        <summary-output value="sub/summary.xml"/>\n    </output>')
+    (cfg_dir / "intersection.sumocfg").write_text(text)
+    for f in (cfg_dir / "out.xml", cfg_dir / "fcd.xml", cfg_dir / "edges.xml", cfg_dir / "sub" / "e2.xml",
+              elsewhere / "loop.xml", elsewhere / "trips.xml"):
+        f.write_bytes(USERS)
+    return cfg_dir / "intersection.sumocfg", [cfg_dir, elsewhere]
+
+
+def _hashes(folders: list[Path]) -> dict[str, str]:
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest()
+            for f in folders for p in sorted(f.rglob("*")) if p.is_file()}
+
+
+def test_a_session_writes_every_declared_output_into_its_folder(tmp_path):
+    cfg, folders = _config(tmp_path)
+    before = _hashes(folders)
+    kept = tmp_path / "kept"
+    with SumoSession(cfg, end=30, sumo_outputs=kept) as sim:
+        while sim.time < 30:
+            sim.step()
+    assert _hashes(folders) == before
+    declared = {Path(r.declared).name: r.written for r in sim.redirects}
+    assert set(declared) == {"fcd.xml", "trips.xml", "summary.xml", "out.xml", "loop.xml", "e2.xml", "edges.xml",
+                             "lanes.xml"}
+    assert declared.pop("fcd.xml") == os.devnull  # a per-step dump of every vehicle: never written
+    written = sorted(p.name for p in kept.iterdir())
+    assert written == sorted(declared)  # one file each, all SUMO's (none is the user's)
+    assert all(USERS not in (kept / n).read_bytes() for n in written)
+
+
+def test_a_name_declared_twice_is_kept_twice_and_nowhere_stays_nowhere(tmp_path):
+    cfg = tmp_path / "c.sumocfg"
+    shutil.copy(NET / "intersection.net.xml", tmp_path)
+    (tmp_path / "a").mkdir()
+    cfg.write_text('<configuration><input><net-file value="intersection.net.xml"/></input><output>'
+                   '<stop-output value="x.xml"/><tripinfo-output value="a/x.xml"/>'
+                   '<summary-output value="/dev/null"/></output></configuration>')
+    box = sandbox(cfg, folder=tmp_path / "k")
+    args = dict(zip(box.args[::2], box.args[1::2], strict=True))
+    assert args["--summary-output"] == "/dev/null"
+    assert sorted(Path(args[k]).name for k in ("--stop-output", "--tripinfo-output")) == ["x-2.xml", "x.xml"]
+
+
+def test_every_sumo_process_is_started_through_the_sandbox():
+    """Only the session and the flow expansion of exports start SUMO; both take the sandbox."""
+    starts = []
+    for path in sorted((REPO / "coster_sumo").rglob("*.py")):
+        text = path.read_text()
+        if re.search(r'binary\("sumo(-gui)?"|binary\("sumo-gui" if', text) or "api.start(" in text:
+            starts.append(path.relative_to(REPO).as_posix())
+    assert starts == ["coster_sumo/exports/demand.py", "coster_sumo/sim/session.py"]
+    for rel in starts:
+        assert "sandbox(" in (REPO / rel).read_text(), rel
+    assert set(OUTPUT_ATTRIBUTES) >= {"inductionLoop", "e1Detector", "laneAreaDetector", "edgeData", "laneData",
+                                      "calibrator", "routeProbe", "vTypeProbe", "timedEvent"}
+
+
+def test_run_keeps_the_nominal_outputs_and_touches_no_input_folder(tmp_path):
+    cfg, folders = _config(tmp_path)
+    before = _hashes(folders)
+    out = tmp_path / "o"
+    assert main(["-q", "run", str(cfg), *FAST, "-o", str(out)]) == 0
+    assert _hashes(folders) == before
+    timings = json.loads((out / "summary.json").read_text())["timings_s"]
+    assert {"startup_s", "nominal_s", "generation_s", "injection_s", "outputs_s"} <= set(timings)
+    listing = json.loads((out / "sumo-outputs" / "declared.json").read_text())
+    assert {Path(r["declared"]).name for r in listing} >= {"out.xml", "loop.xml", "fcd.xml", "trips.xml"}
+    for row in listing:
+        if row["kept_as"] is None:
+            assert row["declared_by"].endswith("fcd-output"), row
+            continue
+        kept = out / "sumo-outputs" / row["kept_as"]
+        assert kept.is_file() and kept.read_bytes() != USERS, row
+    # the pass's files are whole and its own: the held copies' steps went to /dev/null, not into them
+    loop = (out / "sumo-outputs" / "out.xml").read_text()
+    assert loop.rstrip().endswith("</detector>") and loop.count("<detector") == 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", [
+    ["replay", "{cfg}", "-o", "{out}"],
+    ["snapshot", "{cfg}", "--init", "random", "--end", "45", "-o", "{out}"],
+    ["regress", "{cfg}", "--end", "40", "--init", "random", "--rollout", "cv", "--variants", "2", "--samples", "50",
+     "--planner", "replay", "-o", "{out}"],
+    ["simulate", "{cfg}", "--seeds", "1", "--duration", "30", "--warmup", "10", "-o", "{out}"],
+    ["run", "{cfg}", *FAST, "--avoidable", "only", "-o", "{out}"],
+    ["run", "{cfg}", *FAST, "--export", "all", "-o", "{out}"],
+    ["scenarios", "build", "{cfg}", "--method", "nominal", "-o", "{out}"],
+], ids=lambda c: "-".join(c[:2]))
+def test_no_command_writes_into_the_configurations_folders(tmp_path, command):
+    cfg, folders = _config(tmp_path)
+    before = _hashes(folders)
+    out = tmp_path / "o"
+    rc = main(["-q", *(a.format(cfg=cfg, out=out) for a in command)])
+    assert rc in (0, 1), rc  # 1: a regression that found failures; the folders are what is checked
+    assert _hashes(folders) == before
+
+
+def test_a_flow_expansion_whose_inputs_match_an_earlier_one_is_not_simulated_again(tmp_path, monkeypatch):
+    from coster_sumo.exports import demand
+
+    calls: list[Path] = []
+    real = demand._expand
+    monkeypatch.setattr(demand, "_expand", lambda config, *a, **k: calls.append(config) or real(config, *a, **k))
+    monkeypatch.setattr(demand, "_EXPANDED", {})
+    merge = REPO / "networks" / "merge"
+    flows = set(re.findall(r'<flow id="([^"]+)"', (merge / "merge.rou.xml").read_text()))
+    outs = []
+    for k, replay_file in enumerate(("a", "b", "a")):
+        folder = tmp_path / str(k)
+        shutil.copytree(merge, folder)
+        (folder / "replay.xml").write_text(replay_file)  # stands for the FCD replay device's file
+        out = folder / "expanded.rou.xml"
+        ids = demand.expand_flows(folder / "merge.sumocfg", flows, frozenset(), out, checks="all",
+                                  same_without=frozenset({"replay.xml"}))
+        outs.append((ids, out.read_bytes()))
+    assert len(calls) == 1 and outs[0] == outs[1] == outs[2] and outs[0][0]
+    (tmp_path / "0" / "merge.rou.xml").write_text((merge / "merge.rou.xml").read_text().replace("<flow", "<flow ", 1))
+    demand.expand_flows(tmp_path / "0" / "merge.sumocfg", flows, frozenset(), tmp_path / "0" / "again.rou.xml",
+                        checks="all")
+    assert len(calls) == 2  # a changed input is simulated
