@@ -114,8 +114,8 @@ def test_further_draws_reuse_the_first_draws_prior_curves(synthetic_scene, monke
         pytest.skip("no target in this synthetic scene")
     drivable, gen = DrivableArea.from_road_map(scene.road_map), GenerationConfig()
     curves = []
-    real = snapshot.entropy_curve
-    monkeypatch.setattr(snapshot, "entropy_curve", lambda *a, **k: curves.append(1) or real(*a, **k))
+    real = snapshot.entropy_search  # the curve over the window (every step of a short one)
+    monkeypatch.setattr(snapshot, "entropy_search", lambda *a, **k: curves.append(1) or real(*a, **k))
     shared = DrawMemo.of(scene)
     try:
         plan_scenarios(scene, scene.sdc_index, 0, gen, drivable, shared)
