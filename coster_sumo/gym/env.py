@@ -104,7 +104,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
             ``s mod n``). ``reset(options={"scenario": ID})`` starts that scenario.
         traffic: ``log`` (default: the other vehicles' states read from the recorded pass; SUMO
             holds the target and runs the signals) or ``sumo`` (every vehicle put into SUMO and
-            moved there by moveToXY each step). Both give the same episodes (``tests/gym/test_gym.py``);
+            moved there by moveToXY each step). Both give the same episodes (``tests/gym_env/test_gym.py``);
             ``log`` costs no moveToXY per vehicle. ``reactive``: each agent follows its log until
             the target's deviation from its nominal motion reaches it, then SUMO drives it
             (:mod:`coster_sumo.sim.reactive`; the adversary never reacts).

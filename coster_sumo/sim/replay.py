@@ -242,7 +242,7 @@ class LogTraffic:
 
     Where nothing in SUMO reacts to them (every agent driven by moveToXY, as in a replay), SUMO
     would report exactly the logged poses, sizes and speeds that :class:`LogReplayer` gives it
-    (``tests/gym/test_gym.py`` compares the two); reading them here skips a moveToXY per agent and
+    (``tests/gym_env/test_gym.py`` compares the two); reading them here skips a moveToXY per agent and
     step (about 50 us each on a converted network). An agent is present at the steps where the log
     has it valid, under its log id, with :func:`agent_sizes`' length and width.
 
