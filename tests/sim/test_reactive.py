@@ -93,7 +93,7 @@ def _drive(scenarios: Path, scenario: str, traffic: str, policy: str, car_follow
     start). Returns the last info and the states of every step."""
     from coster_sumo.gym.env import ScenarioEnv
     from coster_sumo.sim.driver import MAX_DECEL
-    from tests.gym.test_gym import nominal_action
+    from tests.gym_env.test_gym import nominal_action
 
     env = ScenarioEnv(scenarios, scenario_ids=[scenario], traffic=traffic, car_following=car_following)
     _, info = env.reset(seed=0)
