@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.batch.executor import Task
-from coster_sumo.batch.sources import CONFIG_DIR, _short_hash, config_dir, located, slug, task_folders
+from coster_sumo.batch.sources import CONFIG_DIR, _short_hash, config_dir, located, task_folders, window_name
 from coster_sumo.core.scene import Scene
 from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.formats.scene_folder import converted_scene_file
@@ -33,11 +33,7 @@ def pass_key(specs: Sequence[ScenarioSpec]) -> str:
     """A readable, stable, file-safe key of the pass ``specs`` share (one configuration, window and
     seed; their targets in order): ``pass_<config stem>_s<seed>[_b<begin>][_e<end>]_<n>t_<hash>``."""
     s = specs[0]
-    name = f"pass_{slug(s.config.stem)}_s{s.seed}"
-    if s.begin is not None:
-        name += f"_b{s.begin:g}"
-    if s.end is not None:
-        name += f"_e{s.end:g}"
+    name = f"pass_{window_name(s)}"
     ident = {"config": str(s.config.resolve()), "seed": s.seed, "begin": s.begin, "end": s.end,
              "targets": [t.target for t in specs]}
     return f"{name}_{len(specs)}t_{_short_hash(ident)}"

@@ -64,16 +64,21 @@ def generation_identity(generation: dict[str, Any]) -> dict[str, Any]:
     return ident
 
 
-def scene_key(spec: ScenarioSpec, generation: dict[str, Any] | None = None) -> str:
-    """A readable, stable, file-safe key: ``<config stem>_s<seed>[_b<begin>][_e<end>]_<hash>``."""
+def window_name(spec: ScenarioSpec) -> str:
+    """``<config stem>_s<seed>[_b<begin>][_e<end>]``: the readable part of a scene's or a pass's key."""
     name = f"{slug(spec.config.stem)}_s{spec.seed}"
     if spec.begin is not None:
         name += f"_b{spec.begin:g}"
     if spec.end is not None:
         name += f"_e{spec.end:g}"
+    return name
+
+
+def scene_key(spec: ScenarioSpec, generation: dict[str, Any] | None = None) -> str:
+    """A readable, stable, file-safe key: ``<config stem>_s<seed>[_b<begin>][_e<end>]_<hash>``."""
     ident = {"config": str(spec.config.resolve()), "seed": spec.seed, "begin": spec.begin, "end": spec.end,
              "target": spec.target, "generation": generation_identity(generation or {})}
-    return f"{name}_{_short_hash(ident)}"
+    return f"{window_name(spec)}_{_short_hash(ident)}"
 
 
 def _staged_or_exported(relative: Path) -> bool:
