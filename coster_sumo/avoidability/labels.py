@@ -238,6 +238,7 @@ def label_record(lab: Avoidability) -> dict[str, Any]:
             "blocked_tried": sum(e.proven is not None for e in lab.blocked),
             "blocked_cleared": sum(bool(e.proven) for e in lab.blocked),
             "flipped_by_reacting_traffic": lab.flipped_by_reacting_traffic,
+            "flipped_at": {f"{r:g}": lab.flipped_at(r) for r in sorted(lab.escapes)},
             "contact_kind": lab.contact_kind, "last_moment_s": lab.last_moment_s,
             "threat_before_tcol_s": lab.t_col - lab.t_threat}
 
