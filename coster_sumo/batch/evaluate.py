@@ -280,6 +280,8 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
             return [_scene_task_for(k, keys[k], scenes_dir, shared.pass_file(k))
                     for k in shared.released(task)] if outcome.ok else []
         key = task.payload["scene_key"]
+        if opts.executor == "local":
+            outcome.append_to_log(out / "logs" / f"{task.key}.log")
         if task.kind == "scene":
             doc = {"status": "ok", **outcome.value} if outcome.ok else {"status": "failed", "reason": outcome.reason}
             write_json(parts_dir / f"{key}__scene.json", doc)

@@ -67,6 +67,15 @@ class Outcome:
     wall_time_s: float = 0.0
     detail: str = ""  # traceback or log tail, for the log file
 
+    def append_to_log(self, path: Path) -> None:
+        """Add a failed task's traceback (or log tail) to its log file, where ``--debug`` users look."""
+        if self.ok or not self.detail:
+            return
+        with contextlib.suppress(OSError):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with path.open("a") as fh:
+                fh.write("\n--- batch: task failed ---\n" + self.detail)
+
 
 OnDone = Callable[[Task, Outcome], Iterable[Task]]
 

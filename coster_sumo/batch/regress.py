@@ -9,7 +9,6 @@ skips what is done and never duplicates a row.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import tempfile
@@ -349,7 +348,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                 return [generation_for(k) for k in shared.released(task)]
             for k in shared.released(task):
                 _failed_plans(plans_dir, k, outcome.reason, keys[k].to_dict(), gen)
-            _append_log(logs_dir / f"{task.key}.log", outcome)
+            outcome.append_to_log(logs_dir / f"{task.key}.log")
             return []
         key = task.payload["scene_key"]
         if task.kind == "plan":
@@ -357,12 +356,12 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
                 doc = read_plans(plans_dir / f"{key}.json")
                 return run_tasks_for(key, doc) if doc else []
             _failed_plans(plans_dir, key, outcome.reason, task.payload["spec"], gen)
-            _append_log(logs_dir / f"{task.key}.log", outcome)
+            outcome.append_to_log(logs_dir / f"{task.key}.log")
             return []
         if outcome.ok:
             row = dataclasses.replace(outcome.value, wall_time_s=round(outcome.wall_time_s, 3))
         else:
-            _append_log(logs_dir / f"{task.key}.log", outcome)
+            outcome.append_to_log(logs_dir / f"{task.key}.log")
             row = result_row(task.payload, status="failed", reason=outcome.reason,
                              wall_time_s=round(outcome.wall_time_s, 3))
         store.write(row)
@@ -431,15 +430,6 @@ def _failed_plans(plans_dir: Path, key: str, reason: str | None, spec: dict[str,
     """A scene's plans file that says why it has no variants."""
     write_json(plans_dir / f"{key}.json", ScenePlans(scene_key=key, status="failed", reason=reason, spec=spec,
                                                      generation=gen).to_json())
-
-
-def _append_log(path: Path, outcome: Outcome) -> None:
-    if not outcome.detail:
-        return
-    with contextlib.suppress(OSError):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("a") as fh:
-            fh.write("\n--- batch: task failed ---\n" + outcome.detail)
 
 
 # a planner's figures in summary.json: key -> the metric of coster_sumo.metrics.REGISTRY

@@ -132,7 +132,8 @@ def _lane_walk(road_map: RoadMap, lane: int, s0: float, length_m: float) -> np.n
         lane = best
         seen.add(lane)
         nl = lanes.centerline[lane]
-        parts.append(nl[1:] if np.hypot(*(nl[0] - parts[-1][-1])) < 0.5 else nl)
+        tail = next(p[-1] for p in reversed(parts) if len(p))  # the adversary may stand at its lane's very end
+        parts.append(nl[1:] if np.hypot(*(nl[0] - tail)) < 0.5 else nl)
         total += float(polyline_arc_length(nl)[-1])
     path = np.concatenate([p for p in parts if len(p)])
     if len(path) < 2:  # a lane that ends where the adversary is: straight on along it

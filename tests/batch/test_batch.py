@@ -50,6 +50,11 @@ def test_segfault_and_hang_become_failed_outcomes_and_the_rest_finish(tmp_path):
     assert not out["oops"].ok and "ValueError: probe oops failed on purpose" in out["oops"].reason
     assert "Traceback" in out["oops"].detail
     assert not out["quit"].ok and "code 3" in out["quit"].reason
+    # the batch adds the traceback to the task's log, where a user of --debug looks for it
+    out["oops"].append_to_log(tmp_path / "logs" / "oops.log")
+    out["a"].append_to_log(tmp_path / "logs" / "a.log")
+    assert "ValueError: probe oops failed on purpose" in (tmp_path / "logs" / "oops.log").read_text()
+    assert "task failed" not in (tmp_path / "logs" / "a.log").read_text()
 
 
 def test_a_task_s_temporary_files_go_however_the_task_ends(tmp_path):

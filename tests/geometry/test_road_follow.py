@@ -58,3 +58,17 @@ def test_an_adversary_off_every_lane_keeps_the_constant_velocity_run_on():
     far = AdversaryPlan(times=plan.times, x=plan.x + 500.0, y=plan.y + 500.0, yaw=plan.yaw,
                         final_speed=plan.final_speed, length=plan.length, width=plan.width)
     assert follow_road(far, scene.road_map).road is None
+
+
+def test_an_adversary_at_its_lane_s_very_end_goes_on_along_the_successor():
+    # t_col exactly where the on-ramp's centreline ends (a real held-out fkk_in clip raised IndexError)
+    scene = synthetic.merge()
+    ramp_end = scene.road_map.lanes.centerline[2][-1]
+    plan = _ramp_plan(0.0)
+    plan = AdversaryPlan(times=plan.times, x=plan.x + (ramp_end[0] - plan.x[-1]), y=plan.y + (ramp_end[1] - plan.y[-1]),
+                         yaw=plan.yaw, final_speed=plan.final_speed, length=plan.length, width=plan.width)
+    on_road = follow_road(plan, scene.road_map)
+    assert on_road.road is not None
+    x, y, _, _ = on_road.sample(np.array([plan.t_col + HORIZON_AFTER_TCOL_S]))
+    _, lateral, _ = project_points(np.array([x[0], y[0]]), scene.road_map.lanes.centerline[1])
+    assert abs(float(lateral)) < 0.5
