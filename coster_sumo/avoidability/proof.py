@@ -31,6 +31,7 @@ from coster_sumo.sim.inject import (
     TIME_EPS,
     AdversaryController,
     InjectionResult,
+    PassSettings,
     StepActor,
     continue_injection,
     edge_under,
@@ -144,9 +145,8 @@ class HeldEscape:
 def _prove_held(session: Any, held: HeldEscape) -> Verdict:
     """One escape's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
     job = held.job
-    res = continue_injection(session, held.target_id, job.plan, escape_planner(job.escape, held.length_m),
-                             end=held.end, drivable=held.drivable, surroundings_m=SURROUNDINGS_RADIUS_M,
-                             post_contact_s=None)
+    settings = PassSettings(end=held.end, drivable=held.drivable, surroundings_m=SURROUNDINGS_RADIUS_M)
+    res = continue_injection(session, held.target_id, job.plan, escape_planner(job.escape, held.length_m), settings)
     return verdict(res, held.target_id, job)
 
 
@@ -199,10 +199,10 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             # react to nothing, and the verdict is about the target's contacts
             far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
             actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, traffic, far),)
-        res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), seed=spec.seed,
-                            end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
-                            actors=actors, traci=traci,
-                            surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=None)
+        settings = PassSettings(end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
+                                actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M)
+        res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), settings,
+                            seed=spec.seed, traci=traci)
         out[i] = verdict(res, target_id, job)
     return [v for v in out if v is not None]
 

@@ -206,50 +206,28 @@ class PassSettings:
     post_contact_s: float | None = None
 
 
-def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
-                  seed: int | None, end: float, begin: float | None = None,
-                  drivable: DrivableArea | None = None, actors: tuple[StepActor, ...] = (),
-                  detect_events: bool = True, freeze_at: float | None = None, traci: bool = False,
-                  workdir: Path | None = None, session_kwargs: dict[str, Any] | None = None,
-                  surroundings_m: float | None = None, post_contact_s: float | None = None) -> InjectionResult:
+def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner,
+                  settings: PassSettings, *, seed: int | None, traci: bool = False,
+                  workdir: Path | None = None) -> InjectionResult:
     """Run one pass of ``config`` from a fresh start with the adversary ``plan`` injected.
 
-    ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner). The
-    other keywords after ``seed`` but ``traci``, ``workdir`` and ``session_kwargs`` are the
-    :class:`PassSettings`.
+    ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner). A fresh
+    session of ``config`` (``seed``, libsumo or ``traci``, the planner's files written into
+    ``workdir``) runs the pass that ``settings`` describe.
     """
-    settings = PassSettings(end=end, begin=begin, drivable=drivable, actors=actors, detect_events=detect_events,
-                            freeze_at=freeze_at, surroundings_m=surroundings_m, post_contact_s=post_contact_s)
-    return run_pass(config, target_id, plan, planner, settings, seed=seed, traci=traci, workdir=workdir,
-                    session_kwargs=session_kwargs)
-
-
-def run_pass(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner,
-             settings: PassSettings, *, seed: int | None, traci: bool = False, workdir: Path | None = None,
-             session_kwargs: dict[str, Any] | None = None) -> InjectionResult:
-    """:func:`run_injection` with its settings as one object: a fresh session of ``config``
-    (``seed``, libsumo or ``traci``, the planner's files written into ``workdir``) and one pass."""
     workdir = Path(workdir) if workdir is not None else Path(".")
-    kwargs = dict(session_kwargs or {})
-    additional = planner.additional_files(workdir)
-    if additional:
-        kwargs["additional"] = [*kwargs.get("additional", []), *additional]
-    with SumoSession(config, seed=seed, begin=settings.begin, end=settings.end, traci=traci, **kwargs) as session:
+    with SumoSession(config, seed=seed, begin=settings.begin, end=settings.end, traci=traci,
+                     additional=planner.additional_files(workdir)) as session:
         return InjectionPass(session, target_id, plan, planner, settings).run()
 
 
-def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
-                       end: float, begin: float | None = None, drivable: DrivableArea | None = None,
-                       actors: tuple[StepActor, ...] = (), detect_events: bool = True,
-                       freeze_at: float | None = None, surroundings_m: float | None = None,
-                       post_contact_s: float | None = None) -> InjectionResult:
+def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan | None, planner: Planner,
+                       settings: PassSettings) -> InjectionResult:
     """The pass of :func:`run_injection` on a running session, from its current time on.
 
     The planner's additional files must already be loaded (a forked copy of a session started with
     them, see :mod:`coster_sumo.sim.hold`). Events are checked, and the pass recorded, from now on.
     """
-    settings = PassSettings(end=end, begin=begin, drivable=drivable, actors=actors, detect_events=detect_events,
-                            freeze_at=freeze_at, surroundings_m=surroundings_m, post_contact_s=post_contact_s)
     return InjectionPass(session, target_id, plan, planner, settings).run()
 
 
@@ -412,7 +390,7 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
     settings = PassSettings(end=float(scene.timestamps[-1]) + 1e-9, begin=spec.begin, drivable=drivable,
                             actors=actors, detect_events=detect_events, freeze_at=freeze_at,
                             surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=post_contact_s)
-    return run_pass(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=traci, workdir=workdir)
+    return run_injection(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=traci, workdir=workdir)
 
 
 @dataclass(frozen=True)

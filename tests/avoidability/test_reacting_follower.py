@@ -75,7 +75,7 @@ def test_sumo_drives_an_adversary_that_missed_once_the_horizon_has_passed(tmp_pa
     limit, stays on the road, and the target's driver follows it without contact)."""
     from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S
     from coster_sumo.geometry.road_follow import follow_road
-    from coster_sumo.sim.inject import run_injection
+    from coster_sumo.sim.inject import PassSettings, run_injection
     from coster_sumo.sim.planners import make_planner
 
     cfg = _one_lane_road(tmp_path)
@@ -88,8 +88,9 @@ def test_sumo_drives_an_adversary_that_missed_once_the_horizon_has_passed(tmp_pa
                                      yaw=np.zeros(len(times)), final_speed=8.0, length=5.0, width=1.8),
                        scene.road_map)
     assert plan.road is not None
-    res = run_injection(cfg, "ego", plan, make_planner("sumo"), seed=1, end=22.0,
-                        drivable=DrivableArea.from_road_map(scene.road_map), workdir=tmp_path)
+    res = run_injection(cfg, "ego", plan, make_planner("sumo"),
+                        PassSettings(end=22.0, drivable=DrivableArea.from_road_map(scene.road_map)), seed=1,
+                        workdir=tmp_path)
     assert res.contact is None
     assert not [e for e in res.events if plan.vehicle_id in e.vehicles]  # no contact, never off the road
     ts, a = res.scene.timestamps, res.scene.tracks.index_of(plan.vehicle_id)
