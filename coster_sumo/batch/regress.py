@@ -148,6 +148,7 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
     from coster_sumo.avoidability.labels import escape_replay, planner_outcome
     from coster_sumo.avoidability.search import HORIZON_AFTER_TCOL_S
+    from coster_sumo.core.spec import InjectionSettings
     from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.pipeline.outputs import variant_outcome
@@ -165,15 +166,13 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     drivable = DrivableArea.from_road_map(scene.road_map)
     label = doc.label(i)
     avoidable = None if label is None else bool(label["avoidable"])
-    driver = None
+    driver, how = None, InjectionSettings(payload["planner"], traffic=payload.get("traffic", "log"))
     if payload["planner"] == ESCAPE_PLANNER:  # the reference: the variant's own escape, where it has one
-        esc = doc.escape(i)
+        esc, how = doc.escape(i), dataclasses.replace(how, planner="replay")
         length = float(np.median(scene.tracks.length[target][scene.tracks.valid[target]]))
         driver = escape_replay(esc, length) if esc else None
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
-        res = inject_variant(spec, scene, target, plan, "replay" if payload["planner"] == ESCAPE_PLANNER
-                             else payload["planner"], drivable=drivable, workdir=Path(wd), driver=driver,
-                             traffic=payload.get("traffic", "log"))
+        res = inject_variant(spec, scene, target, plan, how, drivable=drivable, workdir=Path(wd), driver=driver)
     rec = variant_outcome(i, plan, res, target_id, t_col)
     in_horizon = any(e.kind == "collision" and target_id in e.vehicles and e.time <= t_col + HORIZON_AFTER_TCOL_S + 1e-6
                      for e in res.events)

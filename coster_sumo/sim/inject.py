@@ -352,13 +352,13 @@ def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
 
 
 def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plan: AdversaryPlan,
-                   planner: str | None = None, *, drivable: DrivableArea | None = None, traci: bool = False,
-                   workdir: Path | None = None, detect_events: bool = True, freeze_at: float | None = None,
-                   post_contact_s: float | None = POST_CONTACT_S, driver: Planner | None = None,
-                   traffic: str = "log") -> InjectionResult:
+                   planner: str | InjectionSettings | None = None, *, drivable: DrivableArea | None = None,
+                   workdir: Path | None = None, driver: Planner | None = None) -> InjectionResult:
     """Inject one variant: the one place that decides who drives whom (every command goes through it).
 
-    Who drives the target: the ``planner`` spec (default :func:`default_planner`).
+    Who drives the target: the ``planner`` spec (default :func:`default_planner`), or the
+    :class:`~coster_sumo.core.spec.InjectionSettings` that name it with the back end (``traci``) and
+    the converted scene's ``traffic``.
 
     - Any SUMO configuration: the configuration's own traffic runs; ``replay`` moves the target
       along its nominal trajectory (:func:`nominal_replay`), ``sumo[:<model>]`` leaves it to SUMO's
@@ -370,7 +370,7 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
       SUMO's driver (``sumo``) continues from the logged pose along the road the target is on.
 
     ``scenario``: the spec, or its source resolved already. The pass runs from the spec's begin with
-    its seed to the end of the nominal scene, or until the target has arrived, or ``post_contact_s``
+    its seed to the end of the nominal scene, or until the target has arrived, or :data:`POST_CONTACT_S`
     after the adversary's contact with the target (or after t_col, when the adversary hit another
     vehicle first and stays there). ``driver``: a planner object that replaces the one ``planner``
     names (a replay of another trajectory). On a SUMO configuration only the target's surroundings
@@ -378,19 +378,22 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
     """
     source = ScenarioSource.of(scenario)
     spec, converted, target_id = source.spec, source.converted, str(scene.tracks.ids[target])
-    planner_spec = planner or default_planner(converted)
+    how = planner if isinstance(planner, InjectionSettings) else InjectionSettings(
+        planner or default_planner(converted))
+    planner_spec = how.planner
     actors: tuple[StepActor, ...] = ()
     if converted:
         handover = {} if planner_spec == "replay" and driver is None else {target_id: plan.t_start}
-        actors = (replayer_for(spec.config, scene, target_id, handover, traffic),)
+        actors = (replayer_for(spec.config, scene, target_id, handover, how.traffic),)
         if driver is None:
             driver = LoggedPlanner() if planner_spec == "replay" else make_planner(planner_spec)
     elif driver is None:
         driver = make_planner(planner_spec, nominal_replay(scene, target))
     settings = PassSettings(end=float(scene.timestamps[-1]) + 1e-9, begin=spec.begin, drivable=drivable,
-                            actors=actors, detect_events=detect_events, freeze_at=freeze_at,
-                            surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=post_contact_s)
-    return run_injection(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=traci, workdir=workdir)
+                            actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M,
+                            post_contact_s=POST_CONTACT_S)
+    return run_injection(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=how.traci,
+                         workdir=workdir)
 
 
 @dataclass(frozen=True)
@@ -430,7 +433,7 @@ class VariantFailure:
 
 def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: list[AdversaryPlan],
                     how: InjectionSettings, *, drivable: DrivableArea | None = None, workdir: Path | None = None,
-                    held: HeldStates | None = None, post_contact_s: float | None = POST_CONTACT_S,
+                    held: HeldStates | None = None,
                     done: Callable[[int], None] | None = None) -> list[InjectionResult | VariantFailure]:
     """:func:`inject_variant` for every plan, each in a process of its own; from held copies of
     the nominal pass where there are.
@@ -450,7 +453,7 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
     target_id = str(scene.tracks.ids[target])
     nominal = nominal_replay(scene, target)
     settings = PassSettings(end=float(scene.timestamps[-1]) + 1e-9, drivable=drivable,
-                            surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=post_contact_s)
+                            surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=POST_CONTACT_S)
     results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
     groups: dict[int, list[int]] = {}  # the held copy each variant continues from (by its index)
     if held is not None and not source.converted and not traci:
@@ -467,8 +470,8 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
             done(len(members))
     for i, plan in enumerate(plans):
         if results[i] is None:
-            one = functools.partial(inject_variant, source, scene, target, plan, planner_spec, drivable=drivable,
-                                    traci=traci, workdir=workdir, post_contact_s=post_contact_s, traffic=how.traffic)
+            one = functools.partial(inject_variant, source, scene, target, plan, how, drivable=drivable,
+                                    workdir=workdir)
             try:
                 results[i] = run_forked(one, timeout=timeout)
             except ChildFailed as exc:
