@@ -34,7 +34,7 @@ from coster_sumo.infra.progress import Bars, progress_bar
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import DrawMemo, check_generation, label_and_keep, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
-from coster_sumo.pipeline.outputs import OverviewRenders, write_run_outputs
+from coster_sumo.pipeline.outputs import OutputSettings, OverviewRenders, write_run_outputs
 from coster_sumo.pipeline.scenario import NominalPass, nominal_pass
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.sim.hold import HeldStates
@@ -265,9 +265,9 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                          "t_col in the simulation")
     kept = [labels[pl.vehicle_id] for p in planned for pl in p.plans]
     with bars("outputs", "variant", total=sum(len(p.plans) for p in planned)) as bar:
-        return write_run_outputs(out, spec, how.planner, planned, results, kept, timings, render=opts.render,
-                                 options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews,
-                                 folder=published, avoidable_only=tried, done=bar.update)
+        settings = OutputSettings(spec, how.planner, opts.render, opts.to_json(), copy_outside=opts.copy_outside,
+                                  folder=published, avoidable_only=tried)
+        return write_run_outputs(out, planned, results, kept, timings, settings, overviews=overviews, done=bar.update)
 
 
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:
