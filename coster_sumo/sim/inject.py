@@ -37,6 +37,7 @@ from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.geometry.frames import centre_to_front
 from coster_sumo.infra.procs import ChildFailed, run_forked
 from coster_sumo.sim import handover
+from coster_sumo.sim.control import Departure
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
@@ -101,8 +102,8 @@ class AdversaryController:
             return
         x, y, yaw, speed = self._pose(t_next)
         if not self.added:
-            session.add_vehicle(vid, self.plan.length, self.plan.width, "passenger",
-                                route_edges=edge_under(session, x, y, yaw, self.plan.length), color=ADVERSARY_COLOR)
+            session.add_vehicle(vid, self.plan.length, self.plan.width, "passenger", color=ADVERSARY_COLOR,
+                                departure=Departure(edge_under(session, x, y, yaw, self.plan.length)))
             self.added = True
         session.move_to_xy(vid, x, y, yaw, self.plan.length, speed=speed)
 
