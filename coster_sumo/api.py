@@ -23,7 +23,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.avoidability.labels import label_plans
+from coster_sumo.avoidability.labels import ProofSettings, label_plans
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.spec import GenerationConfig, LabelOptions, ScenarioSpec
 from coster_sumo.geometry.drivable import DrivableArea
@@ -71,7 +71,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     planned = plan_scenarios(scene, index, seed, gen, drivable, shared)[0]  # one snapshot: the first draw
 
     def label(plans: list[AdversaryPlan]) -> list[Any]:
-        return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=wanted.reaction_time)
+        return label_plans(spec, scene, index, plans, ProofSettings(drivable), reaction_time_s=wanted.reaction_time)
 
     kept, labels, tried = label_and_keep([planned], label, wanted, variants, seed=seed, gen=gen, drivable=drivable,
                                          memo=shared)

@@ -151,10 +151,10 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
         return {"status": "no_scenario", "reason": str(exc), "generation_s": time.perf_counter() - t0,
                 "records": []}
     gen_s = time.perf_counter() - t0
-    from coster_sumo.avoidability.labels import label_plans, label_record
+    from coster_sumo.avoidability.labels import ProofSettings, label_plans, label_record
 
     t1 = time.perf_counter()
-    labels = label_plans(spec, scene, target, [v.plan for v in variants], drivable=drivable)
+    labels = label_plans(spec, scene, target, [v.plan for v in variants], ProofSettings(drivable))
     avoid_s = time.perf_counter() - t1
     records = []
     speeds, accels = [], []

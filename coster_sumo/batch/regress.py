@@ -102,13 +102,13 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
     """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.avoidability.labels`);
     with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws (and
     the counts of variants tried, kept and extra draws are returned; None without)."""
-    from coster_sumo.avoidability.labels import label_plans
+    from coster_sumo.avoidability.labels import ProofSettings, label_plans
     from coster_sumo.method.generation import EXTRA_DRAWS, derived_seed, generate_variants
 
     reaction = float(payload.get("reaction_time", 1.0))
 
     def label(vs: list[Variant]) -> list[Any]:
-        return label_plans(spec, scene, target, [v.plan for v in vs], drivable=drivable, reaction_time_s=reaction)
+        return label_plans(spec, scene, target, [v.plan for v in vs], ProofSettings(drivable), reaction_time_s=reaction)
 
     labels = label(variants)
     if payload.get("avoidable", "any") != "only":

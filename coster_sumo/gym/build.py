@@ -224,7 +224,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
                        failed: list[dict[str, str]]) -> list[ScenarioEntry]:
     """The generator's variants of the source (none, and a line in ``failed``, without a snapshot): each
     the nominal pass with the adversary's plan as one more agent."""
-    from coster_sumo.avoidability.labels import label_plans
+    from coster_sumo.avoidability.labels import ProofSettings, label_plans
     from coster_sumo.errors import NoSnapshot
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import DrawMemo, plan_scenarios
@@ -240,7 +240,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
     for k, p in enumerate(planned):
         plans = p.plans[:1] if method.one_per_snapshot else p.plans
         # whether the target could have avoided each contact (docs/method.md), for info["avoidable"]
-        labels = (label_plans(src.spec, src.scene, src.target, plans, drivable=drivable, traffic=opts.traffic)
+        labels = (label_plans(src.spec, src.scene, src.target, plans, ProofSettings(drivable, traffic=opts.traffic))
                   if plans else [])
         for j, (plan, lab) in enumerate(zip(plans, labels, strict=True)):
             t_start = max(src.t_dep, plan.t_start - opts.lead_s)

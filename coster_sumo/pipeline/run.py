@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.avoidability.labels import label_plans
+from coster_sumo.avoidability.labels import ProofSettings, label_plans
 from coster_sumo.core.results import RunResult, RunSummary, TargetEntry, TargetResult
 from coster_sumo.core.snapshot import CollisionSnapshot
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
@@ -235,9 +235,9 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     def label(plans: list[Any]) -> list[Any]:
         # one step per plan's kinematic search, one for the escapes' replays in SUMO
         with bars("labels (escapes proven in SUMO last)", "step", total=len(plans) + 1) as bar:
-            return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
-                               traci=how.traci, reaction_time_s=wanted.reaction_time, timings=timings,
-                               done=bar.update)
+            proof = ProofSettings(drivable, held, workers=how.workers, traci=how.traci)
+            return label_plans(source, scene, target, plans, proof, reaction_time_s=wanted.reaction_time,
+                               timings=timings, done=bar.update)
 
     planned, labels, tried = label_and_keep(planned, label, wanted, opts.generation.variants * opts.snapshots,
                                             seed=spec.seed, gen=opts.generation, drivable=drivable, memo=shared)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from coster_sumo.avoidability import search
-from coster_sumo.avoidability.labels import label_line, label_plans, label_record, labels_moved
+from coster_sumo.avoidability.labels import ProofSettings, label_line, label_plans, label_record, labels_moved
 from coster_sumo.batch.nets import run_tool
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.spec import ScenarioSpec
@@ -58,7 +58,7 @@ def test_a_braking_target_blocked_only_by_its_follower_is_avoidable(tmp_path):
                          yaw=np.zeros(len(times)), final_speed=0.0, length=5.0, width=1.8)
     blind = search.assess(scene, target, plan, drivable)  # the follower as recorded, reacting to nothing
     assert not blind.avoidable and not blind.blocked
-    [lab] = label_plans(spec, scene, target, [plan], drivable=drivable)
+    [lab] = label_plans(spec, scene, target, [plan], ProofSettings(drivable))
     tried = [e for e in lab.blocked if e.proven is not None]
     assert tried and all(e.blocked_by == ("follower",) for e in tried)
     assert lab.avoidable and lab.escape is not None and lab.escape.proven
