@@ -258,9 +258,10 @@ def simulate_run(task: RunTask) -> RunOutcome:
         num_chunks = max(1, math.ceil(task.duration_s / CHUNK_S - 1e-9))
         for chunk in range(num_chunks):
             chunk_end = min(end, round(begin + (chunk + 1) * CHUNK_S, 6))
-            scene = record(session, end=chunk_end, scenario_id=task.run_id, after_step=sampler,
-                           meta={"run_id": task.run_id, "scale": task.scale, "seed": task.seed,
-                                 "source": str(src.path)} | ({"network": task.network} if task.network else {}))
+            scene = record(session, end=chunk_end, after_step=sampler)
+            scene = dataclasses.replace(scene, scenario_id=task.run_id, meta=scene.meta | {
+                "run_id": task.run_id, "scale": task.scale, "seed": task.seed,
+                "source": str(src.path)} | ({"network": task.network} if task.network else {}))
             sim_end = session.time
             vehicles.update(scene.tracks.ids.tolist())
             budget = math.ceil((task.max_clips - clips) / (num_chunks - chunk))
