@@ -113,7 +113,7 @@ def sample_trajectories(model: RolloutCVAE, scene_2hz: Scene, snapshot: Collisio
     if h == 0:
         return np.broadcast_to(last, (n, 1, 3)).copy()
     cache = cache if cache is not None else build_cache(scene_2hz, model.cfg)
-    ctx = encode_context(cache, last, state.speed, state.length, state.width, t_index, h, model.cfg,
+    ctx = encode_context(cache, last, state.speed, (state.length, state.width), t_index, h, model.cfg,
                          exclude=exclude)
     arrays = stack_contexts([ctx])
     arrays.pop("origin")
