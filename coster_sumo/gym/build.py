@@ -120,8 +120,8 @@ def _net_file(config: Path) -> Path:
 
 
 def _append_agent(scene: Scene, agent_id: str, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, speed: np.ndarray,
-                  valid: np.ndarray, length: float, width: float) -> Scene:
-    """``scene`` with one more (vehicle) agent; arrays (T,) on the scene's timestamps."""
+                  valid: np.ndarray, size: tuple[float, float]) -> Scene:
+    """``scene`` with one more (vehicle) agent of ``size`` (length, width) [m]; arrays (T,) on its timestamps."""
     tr = scene.tracks
     T = tr.num_steps
 
@@ -132,7 +132,7 @@ def _append_agent(scene: Scene, agent_id: str, x: np.ndarray, y: np.ndarray, yaw
                     object_type=np.append(tr.object_type, ObjectType.VEHICLE).astype(tr.object_type.dtype),
                     x=row(tr.x, x), y=row(tr.y, y), heading=row(tr.heading, yaw),
                     vx=row(tr.vx, speed * np.cos(yaw)), vy=row(tr.vy, speed * np.sin(yaw)),
-                    length=row(tr.length, np.full(T, length)), width=row(tr.width, np.full(T, width)),
+                    length=row(tr.length, np.full(T, size[0])), width=row(tr.width, np.full(T, size[1])),
                     valid=row(tr.valid, valid))
     return dataclasses.replace(scene, tracks=tracks)
 
@@ -248,7 +248,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
             xs, ys, yaws, speeds = plan.sample(ts, lead=0.05)
             valid = (ts >= plan.t_start - 0.05) & (ts <= t_stop + 1e-6)
             with_adv = _append_agent(src.scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
-                                     float(plan.length), float(plan.width))
+                                     (float(plan.length), float(plan.width)))
             sid = f"{src.base}_{opts.method}_k{k}_v{j}"
             save_scene(_crop_steps(with_adv, t_start - 0.1, t_stop), opts.out / "scenarios" / f"{sid}.npz")
             new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start, t_end=t_stop,
@@ -400,7 +400,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
         for k in np.flatnonzero(after):
             x, y, h = route.pose(float(s_along[k]))
             xs[k], ys[k], hs[k] = x - d_off[k] * np.sin(h), y + d_off[k] * np.cos(h), h
-        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, after, 4.5, 1.9)
+        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, after, (4.5, 1.9))
         sid = f"{base}_hard_{name}"
         save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
         entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
@@ -408,7 +408,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
     runner = red_light_runner(scene, target, t0, t_stop)
     if runner is not None:
         xs, ys, hs, speed, present, t_hit, signal = runner
-        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, present, 4.5, 1.9)
+        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, present, (4.5, 1.9))
         sid = f"{base}_hard_red-light-runner"
         save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
         entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
