@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.executor import GENERATION_TASK_MODULES, ExecutorSettings, Outcome, Task, execute, is_transient
 from coster_sumo.batch.generator_summary import (
     AvoidabilityStats,
     EvalSummary,
@@ -294,10 +294,9 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
     if not opts.quiet and todo < len(keys) * (1 + len(active)):
         print(f"resuming {out}: {len(keys) * (1 + len(active)) - todo} of {len(keys) * (1 + len(active))} tasks "
               "done before", flush=True)
-    execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
-            quiet=opts.quiet, desc="eval scenarios", expected_total=todo,
-            log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
-            preload=GENERATION_TASK_MODULES)
+    how = ExecutorSettings(opts.workers, opts.executor, opts.timeout, ray_address=opts.ray_address,
+                           log_dir=out / "logs" if opts.executor == "local" else None, preload=GENERATION_TASK_MODULES)
+    execute(initial, how, on_done=on_done, quiet=opts.quiet, desc="eval scenarios", expected_total=todo)
     table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
     summary = EvalSummary(scenes={k: s.label() for k, s in keys.items()}, planner=opts.planner,
                           variants=opts.variants, samples=opts.samples, methods=table,

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.avoidability.labels import escape_dict
-from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.executor import GENERATION_TASK_MODULES, ExecutorSettings, Outcome, Task, execute, is_transient
 from coster_sumo.batch.scene_plans import ScenePlans, read_plans
 from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
 from coster_sumo.batch.sources import (
@@ -368,13 +368,12 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         return []
 
     generations = sum(t.key.startswith("plan__") for t in initial) + shared.waiting_scenes
-    execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
-            # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
-            quiet=opts.quiet, desc=f"regress (first {generations} scene generation{'s' if generations != 1 else ''})"
-            if generations else "regress",
-            expected_total=len(initial) + shared.waiting_scenes + n_runs_expected - len(done),
-            start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
-            ray_address=opts.ray_address, preload=GENERATION_TASK_MODULES)
+    how = ExecutorSettings(opts.workers, opts.executor, opts.timeout, opts.start_method, ray_address=opts.ray_address,
+                           log_dir=logs_dir if opts.executor == "local" else None, preload=GENERATION_TASK_MODULES)
+    # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
+    execute(initial, how, on_done=on_done, quiet=opts.quiet, expected_total=len(initial) + shared.waiting_scenes
+            + n_runs_expected - len(done), desc=f"regress (first {generations} scene generation"
+            f"{'s' if generations != 1 else ''})" if generations else "regress")
     return _write_summary(opts, out, keys, generation, store, t_start)
 
 

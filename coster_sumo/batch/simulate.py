@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.batch.executor import Outcome, Task, execute
+from coster_sumo.batch.executor import ExecutorSettings, Outcome, Task, execute
 from coster_sumo.batch.nets import Source, generate_nets, run_tool
 from coster_sumo.batch.records import BatchCounts, RunOutcome, SimulateSummary
 from coster_sumo.data import dataset as ds
@@ -424,9 +424,10 @@ def run_batch(tasks: list[RunTask], dataset: Path, manifest: dict[str, Any], *, 
 
     for run in todo:
         run.work.mkdir(parents=True, exist_ok=True)
-    execute([Task(key=t.run_id, fn=run_task, payload={"run": t}, kind="run") for t in todo],
-            on_done=on_done, workers=workers, timeout=timeout_s, quiet=quiet, desc=what,
-            log_dir=dataset / WORK_DIR / "logs", preload=("libsumo", "coster_sumo.sim.record"))
+    how = ExecutorSettings(workers, timeout=timeout_s, log_dir=dataset / WORK_DIR / "logs",
+                           preload=("libsumo", "coster_sumo.sim.record"))
+    execute([Task(key=t.run_id, fn=run_task, payload={"run": t}, kind="run") for t in todo], how,
+            on_done=on_done, quiet=quiet, desc=what)
     logs = dataset / WORK_DIR / "logs"
     if logs.is_dir() and not failures:
         import shutil
