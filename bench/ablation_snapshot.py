@@ -43,7 +43,7 @@ from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.infra import weights
 from coster_sumo.method.collision_time import in_ellipse
-from coster_sumo.method.snapshot import PriorMemo, prior_snapshot
+from coster_sumo.method.snapshot import PlacementRequest, PriorMemo, prior_snapshot
 from coster_sumo.prior.infer import load_prior, predict_scene
 
 BOOTSTRAP = 500
@@ -147,8 +147,8 @@ def main() -> None:
             for d in range(args.draws):
                 seed = i + d * len(scenes)
                 try:
-                    s = prior_snapshot(low, scene.sdc_index, np.random.default_rng(seed), drivable,
-                                       collision_time=method, seed=seed, model=model, memo=memo)
+                    s = prior_snapshot(PlacementRequest(low, scene.sdc_index, np.random.default_rng(seed), drivable,
+                                                        method, seed, memo=memo), model=model)
                 except NoSnapshot:
                     continue
                 if d == 0:

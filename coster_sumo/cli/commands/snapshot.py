@@ -62,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
     regions: dict[str, np.ndarray] = {}
     try:
         if args.init == "snapshot":  # the prior's placement, with its regions for the picture
-            snap = prior_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed,
-                                  models_dir=args.models, regions_out=regions)
+            snap = prior_snapshot(PlacementRequest(low, target, rng, drivable, args.collision_time, args.seed,
+                                                   args.models), regions_out=regions)
         else:
             snap = SNAPSHOT_INITS[args.init].place(PlacementRequest(low, target, rng, drivable, args.collision_time,
                                                                     args.seed, args.models))
