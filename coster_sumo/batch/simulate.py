@@ -267,8 +267,7 @@ def simulate_run(task: RunTask) -> RunOutcome:
             budget = math.ceil((task.max_clips - clips) / (num_chunks - chunk))
             warmup = max(0.0, begin + task.warmup_s - chunk_start)
             if scene.num_steps >= ds.CLIP_STEPS and budget > 0 and warmup < chunk_end - chunk_start:
-                picks = ds.plan_clips(scene, budget, rng, targets_per_window=task.targets_per_window,
-                                      warmup_s=warmup)
+                picks = ds.plan_clips(scene, budget, rng, ds.ClipRules(task.targets_per_window, warmup_s=warmup))
                 for start, target in picks:
                     t0 = float(scene.timestamps[start]) - begin
                     name = f"{task.run_id}_{t0:07.1f}_{ds.safe_name(str(scene.tracks.ids[target]))}"
