@@ -235,17 +235,17 @@ def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult,
         adv_xy = np.stack([driven.tracks.x[a, upto], driven.tracks.y[a, upto]], 1)
         if driven.tracks.valid[a, step] and len(adv_xy):
             at = f"{driven.timestamps[step]:.1f} s"
-            viz.render_variant(path, driven, ids.index(target_id), adv_xy,
-                               AgentState.from_tracks(driven.tracks, a, step), step,
-                               f"variant {i} as driven in SUMO: {what}\nvehicles at {at}",
-                               contact_xy=c.positions[1] if c else None, planned_xy=planned_xy,
-                               box_label=f"adversary at {at}")
+            marks = viz.AdversaryMarks(adv_xy, AgentState.from_tracks(driven.tracks, a, step),
+                                       contact_xy=c.positions[1] if c else None, planned_xy=planned_xy,
+                                       box_label=f"adversary at {at}")
+            viz.render_variant(path, driven, ids.index(target_id), step,
+                               f"variant {i} as driven in SUMO: {what}\nvehicles at {at}", marks)
             return
     # the pass lost the adversary or the target (it left early): the plan on the nominal scene, said so
     t_col_step = int(np.argmin(np.abs(nominal.timestamps - t_col)))
-    viz.render_variant(path, nominal, target, planned_xy, snapshot.adversary, t_col_step,
+    viz.render_variant(path, nominal, target, t_col_step,
                        f"variant {i} as planned (not in the pass at {when:.1f} s): {what}",
-                       contact_xy=c.positions[1] if c else None)
+                       viz.AdversaryMarks(planned_xy, snapshot.adversary, contact_xy=c.positions[1] if c else None))
 
 
 def _overview_name(k: int) -> str:
