@@ -162,7 +162,7 @@ def main() -> None:
                 at = (scene.sdc_index, s.t_index)
                 pose = np.array([[low.tracks.x[at], low.tracks.y[at], low.tracks.heading[at]]])
                 pred = predict_scene(model, memo.data, scene.sdc_index, steps=np.array([s.t_index]),
-                                     heads=("speed",), pose=pose, adaptation=memo.adaptation)
+                                     heads=("speed",), pose=pose, calibrate=memo.adaptation or True)
                 k = np.flatnonzero(pred.region_index[0] == s.region_id)
                 p_stop = float(pred.probs["speed"][0, k[0], 0]) if len(k) else float("nan")
                 # how much the scene's visible traffic moved the stopped class (1: not at all)

@@ -273,7 +273,7 @@ def prior_snapshot(request: PlacementRequest, *, model: Any = None,
     t_col = choose_collision_time(window, collision_time, rng, entropy)
     at_col = np.array([t_col])
     pred = predict_scene(model, data, target, steps=at_col, pose=target_pose(scene, target, at_col),
-                         adaptation=memo.adaptation)
+                         calibrate=memo.adaptation or True)
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
     centres_col = pred.regions.centre[np.maximum(pred.region_index[0], 0)]  # (K, 2)
