@@ -15,10 +15,10 @@ import tempfile
 from pathlib import Path
 
 from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import InjectionResult, PassSettings, run_injection
 from coster_sumo.sim.planners import make_planner
 

@@ -28,10 +28,10 @@ from coster_sumo.avoidability.labels import ProofSettings, label_plans
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.spec import GenerationConfig, LabelOptions, ScenarioSpec
 from coster_sumo.errors import InputError
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import DrawMemo, PlannedScenario, check_generation, label_and_keep, plan_scenarios
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
 

@@ -90,8 +90,8 @@ def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[in
 
 def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: nominal pass of one scene (cached .npz) and its speed/acceleration histograms."""
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.pipeline.targets import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     if payload.get(PASS_FILE):  # a pass shared with the configuration's other targets (batch.shared_pass)
@@ -126,10 +126,10 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.core.scene import LaneType
     from coster_sumo.errors import NoSnapshot
     from coster_sumo.formats.scene_file import load_scene
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants, missing_weights
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.pipeline.targets import choose_target
     from coster_sumo.sim.inject import inject_variant
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)

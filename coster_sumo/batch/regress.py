@@ -63,9 +63,9 @@ ESCAPE_PLANNER = "escape"  # the reference planner: the target drives the varian
 
 def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Task: nominal pass + variants of one scene -> ``plans/<scene_key>.json`` (+ the scene's .npz)."""
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants
-    from coster_sumo.pipeline.targets import choose_target
 
     t0 = time.perf_counter()
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
@@ -254,10 +254,10 @@ def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
 def with_targets(specs: list[ScenarioSpec], target: str | None, more: Sequence[str],
                  n: int | None) -> list[ScenarioSpec]:
     """``specs`` with a scene for every further target: the ``more`` targets beside each scene of
-    ``target``, or (``n``) the ``n`` targets :func:`~coster_sumo.pipeline.targets.choose_targets` picks for each
+    ``target``, or (``n``) the ``n`` targets :func:`~coster_sumo.formats.targets.choose_targets` picks for each
     scene without one, as ``run --targets N`` picks them. The targets of a configuration, window and
     seed share one nominal pass (:mod:`coster_sumo.batch.shared_pass`)."""
-    from coster_sumo.pipeline.targets import choose_targets
+    from coster_sumo.formats.targets import choose_targets
 
     if n is not None and n < 1:
         raise InputError(f"--targets must be >= 1, not {n}")

@@ -261,9 +261,9 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
 def build_set(opts: BuildOptions) -> dict[str, Any]:
     """Build (or resume) the scenario set ``opts.out``; returns the manifest's counts."""
     from coster_sumo.batch.sources import parse_sources
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.method.generation import check_generation
     from coster_sumo.pipeline.scenario import nominal_scene
-    from coster_sumo.pipeline.targets import choose_target
 
     if opts.method not in METHODS or opts.traffic not in ("log", "reactive"):
         raise InputError(f"--method must be one of {', '.join(METHODS)} and --traffic log or reactive, not "

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, ScenarioSpec
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import generate_variants
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import inject_variants
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import PassSettings, run_injection
 from coster_sumo.sim.inject import nominal_replay as replay_planner_for
 from coster_sumo.sim.planners import make_planner

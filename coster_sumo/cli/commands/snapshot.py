@@ -49,10 +49,10 @@ def _scene(args: argparse.Namespace) -> Any:
 def run(args: argparse.Namespace) -> int:
     from coster_sumo.core.scene import resample
     from coster_sumo.errors import InputError, NoSnapshot
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.snapshot import prior_snapshot
     from coster_sumo.pipeline import viz
-    from coster_sumo.pipeline.targets import choose_target
 
     scene = _scene(args)
     target = choose_target(scene, args.target, args.source)
