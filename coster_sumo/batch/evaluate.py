@@ -47,7 +47,7 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.core.spec import GenerationConfig, InjectionSettings, ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.infra.atomic import write_json
 from coster_sumo.infra.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
@@ -163,7 +163,8 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     for i, v in enumerate(variants):
         plan = v.plan
         with tempfile.TemporaryDirectory(prefix="coster-eval-") as wd:
-            res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
+            how = InjectionSettings(payload["planner"], workdir=Path(wd))
+            res = inject_variant(spec, scene, target, plan, how, drivable=drivable)
         c = res.contact
         adv = v.snapshot.adversary
         label = label_record(labels[i])

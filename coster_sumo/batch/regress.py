@@ -172,7 +172,8 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
         length = float(np.median(scene.tracks.length[target][scene.tracks.valid[target]]))
         driver = escape_replay(esc, length) if esc else None
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
-        res = inject_variant(spec, scene, target, plan, how, drivable=drivable, workdir=Path(wd), driver=driver)
+        res = inject_variant(spec, scene, target, plan, dataclasses.replace(how, workdir=Path(wd)), drivable=drivable,
+                             driver=driver)
     rec = variant_outcome(i, plan, res, target_id, t_col)
     in_horizon = any(e.kind == "collision" and target_id in e.vehicles and e.time <= t_col + HORIZON_AFTER_TCOL_S + 1e-6
                      for e in res.events)

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import shutil
@@ -251,8 +252,8 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with bars("variants", "variant", total=len(plans)) as bar:
-        outcomes = inject_variants(source, scene, target, plans, how, drivable=drivable, workdir=out, held=held,
-                                   done=bar.update)
+        outcomes = inject_variants(source, scene, target, plans, dataclasses.replace(how, workdir=out),
+                                   drivable=drivable, held=held, done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0
     planned, results = drop_failed_variants(planned, outcomes)
     planned, results = drop_bystander_wrecks(planned, results, target_id)

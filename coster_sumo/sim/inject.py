@@ -354,12 +354,12 @@ def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
 
 def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plan: AdversaryPlan,
                    planner: str | InjectionSettings | None = None, *, drivable: DrivableArea | None = None,
-                   workdir: Path | None = None, driver: Planner | None = None) -> InjectionResult:
+                   driver: Planner | None = None) -> InjectionResult:
     """Inject one variant: the one place that decides who drives whom (every command goes through it).
 
     Who drives the target: the ``planner`` spec (default :func:`default_planner`), or the
     :class:`~coster_sumo.core.spec.InjectionSettings` that name it with the back end (``traci``) and
-    the converted scene's ``traffic``.
+    the converted scene's ``traffic`` (and the ``workdir`` its planner's files go to).
 
     - Any SUMO configuration: the configuration's own traffic runs; ``replay`` moves the target
       along its nominal trajectory (:func:`nominal_replay`), ``sumo[:<model>]`` leaves it to SUMO's
@@ -394,7 +394,7 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
                             actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M,
                             post_contact_s=POST_CONTACT_S)
     return run_injection(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=how.traci,
-                         workdir=workdir)
+                         workdir=how.workdir)
 
 
 @dataclass(frozen=True)
@@ -433,7 +433,7 @@ class VariantFailure:
 
 
 def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: list[AdversaryPlan],
-                    how: InjectionSettings, *, drivable: DrivableArea | None = None, workdir: Path | None = None,
+                    how: InjectionSettings, *, drivable: DrivableArea | None = None,
                     held: HeldStates | None = None,
                     done: Callable[[int], None] | None = None) -> list[InjectionResult | VariantFailure]:
     """:func:`inject_variant` for every plan, each in a process of its own; from held copies of
@@ -471,8 +471,7 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
             done(len(members))
     for i, plan in enumerate(plans):
         if results[i] is None:
-            one = functools.partial(inject_variant, source, scene, target, plan, how, drivable=drivable,
-                                    workdir=workdir)
+            one = functools.partial(inject_variant, source, scene, target, plan, how, drivable=drivable)
             try:
                 results[i] = run_forked(one, timeout=timeout)
             except ChildFailed as exc:
