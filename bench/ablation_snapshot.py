@@ -43,7 +43,7 @@ from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.infra import weights
 from coster_sumo.method.collision_time import in_ellipse
-from coster_sumo.method.snapshot import PriorMemo, prior_snapshot
+from coster_sumo.method.snapshot import PlacementRequest, PriorMemo, prior_snapshot
 from coster_sumo.prior.infer import load_prior, predict_scene
 
 BOOTSTRAP = 500
@@ -147,8 +147,8 @@ def main() -> None:
             for d in range(args.draws):
                 seed = i + d * len(scenes)
                 try:
-                    s = prior_snapshot(low, scene.sdc_index, np.random.default_rng(seed), drivable,
-                                       collision_time=method, seed=seed, model=model, memo=memo)
+                    s = prior_snapshot(PlacementRequest(low, scene.sdc_index, np.random.default_rng(seed), drivable,
+                                                        method, seed, memo=memo), model=model)
                 except NoSnapshot:
                     continue
                 if d == 0:
@@ -162,7 +162,7 @@ def main() -> None:
                 at = (scene.sdc_index, s.t_index)
                 pose = np.array([[low.tracks.x[at], low.tracks.y[at], low.tracks.heading[at]]])
                 pred = predict_scene(model, memo.data, scene.sdc_index, steps=np.array([s.t_index]),
-                                     heads=("speed",), pose=pose, adaptation=memo.adaptation)
+                                     heads=("speed",), pose=pose, calibrate=memo.adaptation or True)
                 k = np.flatnonzero(pred.region_index[0] == s.region_id)
                 p_stop = float(pred.probs["speed"][0, k[0], 0]) if len(k) else float("nan")
                 # how much the scene's visible traffic moved the stopped class (1: not at all)

@@ -31,8 +31,8 @@ from pathlib import Path
 
 from coster_sumo.cli import server
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.formats.targets import config_demand
 from coster_sumo.infra import sumo_install
-from coster_sumo.pipeline.targets import config_demand
 
 REPO = Path(__file__).resolve().parents[1]
 

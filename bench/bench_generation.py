@@ -60,7 +60,7 @@ NEW = os.path.isdir(os.path.join(sys.argv[1], "coster_sumo", "method"))
 if NEW:
     from coster_sumo.method.generation import generate_variants
     try:
-        from coster_sumo.pipeline.targets import choose_target
+        from coster_sumo.formats.targets import choose_target
     except ImportError:  # before it moved beside the other ways of choosing targets
         from coster_sumo.pipeline.scenario import choose_target
 else:

@@ -15,11 +15,11 @@ import tempfile
 from pathlib import Path
 
 from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
-from coster_sumo.sim.inject import InjectionResult, run_injection
+from coster_sumo.sim.inject import InjectionResult, PassSettings, run_injection
 from coster_sumo.sim.planners import make_planner
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,9 +40,10 @@ def main() -> None:
     target_id = str(scene.tracks.ids[target])
 
     def run(detect: bool, freeze_at: float | None = None) -> InjectionResult:
-        return run_injection(args.config, target_id, plan, make_planner("sumo"), seed=spec.seed,
-                             end=float(scene.timestamps[-1]) + 1e-9, drivable=drivable, detect_events=detect,
-                             freeze_at=freeze_at, workdir=Path(tempfile.mkdtemp()))
+        return run_injection(args.config, target_id, plan, make_planner("sumo"),
+                             PassSettings(end=float(scene.timestamps[-1]) + 1e-9, drivable=drivable,
+                                          detect_events=detect, freeze_at=freeze_at),
+                             seed=spec.seed, workdir=Path(tempfile.mkdtemp()))
 
     # the adversary becomes a wreck at its first contact; the pass without detection is told when,
     # so both passes play out the same and differ only by the detection and logging

@@ -19,29 +19,29 @@ For an external ``sumo`` or ``sumo-gui`` you started yourself with ``--remote-po
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.avoidability.labels import label_plans
+from coster_sumo.avoidability.labels import ProofSettings, label_plans
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.spec import GenerationConfig, LabelOptions, ScenarioSpec
+from coster_sumo.errors import InputError
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import DrawMemo, PlannedScenario, check_generation, label_and_keep, plan_scenarios
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.inject import AdversaryController, inject_variant, run_injection
 from coster_sumo.sim.session import SumoSession
 
-__all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "PlannedScenario", "ScenarioSpec",
-           "SumoSession", "inject_variant", "plan_adversaries", "run_injection"]
+__all__ = ["AdversaryController", "AdversaryPlan", "GenerationConfig", "LabelOptions", "PlannedScenario",
+           "ScenarioSpec", "SumoSession", "inject_variant", "plan_adversaries", "run_injection"]
 
 
-def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int = 0, samples: int = 1000,
-                     variants: int = 5, collision_time: str = "entropy", init: str = "snapshot",
-                     rollout: str = "cvae", begin: float | None = None, end: float | None = None,
-                     models_dir: str | Path | None = None, avoidable: str = "any",
-                     reaction_time: float = 1.0) -> PlannedScenario:
+def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int = 0, begin: float | None = None,
+                     end: float | None = None, generation: GenerationConfig | None = None,
+                     labels: LabelOptions | None = None, **settings: Any) -> PlannedScenario:
     """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
 
     Returns the :class:`~coster_sumo.method.generation.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
@@ -58,11 +58,17 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     ``avoidable="only"`` the unavoidable plans are dropped and replaced by plans of up to three
     further draws (their own collision snapshots: each label carries its ``t_col``);
     ``.info["avoidable_only"]`` says how many were tried.
+
+    How the plans are made and labelled: ``generation`` (a :class:`GenerationConfig`: ``init``,
+    ``collision_time``, ``rollout``, ``samples``, ``variants``, ``models_dir``) and ``labels`` (a
+    :class:`~coster_sumo.core.spec.LabelOptions`: ``reaction_time``, ``avoidable``), their defaults
+    ``coster-sumo run``'s; any of their fields may also be given as a keyword (``variants=3``,
+    ``avoidable="only"``) and replaces that field. A bad or unknown one is one :class:`InputError`
+    line before any work.
     """
     spec = ScenarioSpec(Path(config), seed=seed, begin=begin, end=end, target=target)
-    gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
-                           variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
-    wanted = LabelOptions(reaction_time, avoidable)  # a bad one is one line before any work
+    gen, wanted = _settings(generation or GenerationConfig(), labels or LabelOptions(), settings)
+    variants = gen.variants
     check_generation(gen)  # the method names and their weights, before the nominal pass
     scene, _ = nominal_scene(spec)
     index = choose_target(scene, target, spec.config)
@@ -71,15 +77,30 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     planned = plan_scenarios(scene, index, seed, gen, drivable, shared)[0]  # one snapshot: the first draw
 
     def label(plans: list[AdversaryPlan]) -> list[Any]:
-        return label_plans(spec, scene, index, plans, drivable=drivable, reaction_time_s=wanted.reaction_time)
+        return label_plans(spec, scene, index, plans, ProofSettings(drivable), reaction_time_s=wanted.reaction_time)
 
-    kept, labels, tried = label_and_keep([planned], label, wanted, variants, seed=seed, gen=gen, drivable=drivable,
-                                         memo=shared)
+    kept, by_plan, tried = label_and_keep([planned], label, wanted, variants, seed=seed, gen=gen, drivable=drivable,
+                                          memo=shared)
     if tried is not None:
         planned.plans = [p for q in kept for p in q.plans]  # may be empty: none was avoidable
         planned.info["avoidable_only"] = tried.to_json()
-    planned.info["avoidability"] = {p.vehicle_id: labels[p.vehicle_id].summary() for p in planned.plans}
+    planned.info["avoidability"] = {p.vehicle_id: by_plan[p.vehicle_id].summary() for p in planned.plans}
     if len(planned.plans) < variants:
         warnings.warn(f"{config}: {len(planned.plans)} of {variants} variants; "
                       + "; ".join(planned.dropped or ["the rollout gave fewer representatives"]), stacklevel=2)
     return planned
+
+
+def _settings(gen: GenerationConfig, wanted: LabelOptions, settings: dict[str, Any]
+              ) -> tuple[GenerationConfig, LabelOptions]:
+    """``gen`` and ``wanted`` with the fields that ``settings`` name replaced (each checks itself)."""
+    gen_fields = {f.name for f in dataclasses.fields(GenerationConfig)}
+    label_fields = {f.name for f in dataclasses.fields(LabelOptions)}
+    unknown = sorted(set(settings) - gen_fields - label_fields)
+    if unknown:
+        raise InputError(f"plan_adversaries: unknown setting {unknown[0]!r} (the settings are "
+                         f"{', '.join(sorted(gen_fields | label_fields))})")
+    if settings.get("models_dir") is not None:
+        settings = {**settings, "models_dir": Path(settings["models_dir"])}
+    gen = dataclasses.replace(gen, **{k: v for k, v in settings.items() if k in gen_fields})
+    return gen, dataclasses.replace(wanted, **{k: v for k, v in settings.items() if k in label_fields})

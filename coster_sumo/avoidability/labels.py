@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.avoidability.evasion import DEFAULT_REACTION_S, Avoidability, Escape
-from coster_sumo.avoidability.proof import prove_labels
+from coster_sumo.avoidability.proof import ProofSettings, prove_labels
 from coster_sumo.avoidability.search import HORIZON_AFTER_TCOL_S, assess
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.results import LabelCounts, TargetResult
@@ -28,42 +28,38 @@ from coster_sumo.core.scene import Scene
 from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.formats.source import ScenarioSource
 from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
-from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.metrics import MetricSample, RunOutcome, compute, rate_with_ci
-from coster_sumo.sim.hold import HeldStates
 
 ESCAPE_FILE = "escape.csv"
 
 
-def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan], *,
-                drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
-                traci: bool = False, reaction_time_s: float = DEFAULT_REACTION_S,
-                timings: dict[str, float] | None = None, reactive_others: bool | None = None,
-                traffic: str = "log", done: Callable[[int], object] | None = None) -> list[Avoidability]:
+def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],
+                proof: ProofSettings, *, reaction_time_s: float = DEFAULT_REACTION_S,
+                timings: dict[str, float] | None = None, done: Callable[[int], object] | None = None
+                ) -> list[Avoidability]:
     """The avoidability of every plan, each escape proven (or refuted) in SUMO (``scenario``: the
     spec, or its source resolved already).
 
-    ``traffic``: a converted scene's agents in the proof, ``log`` or ``reactive``.
-    ``reactive_others``: whether the other vehicles are SUMO's drivers in the proof, so that plans
-    blocked only by them are tried there (:func:`coster_sumo.avoidability.search.assess`); None: so on a SUMO
-    configuration, and on a converted WOMD scene only with ``traffic="reactive"`` (with ``log`` its
-    log moves every other agent).
+    ``proof``: where the escapes are replayed (the drivable area the search and the replays check,
+    the held copies, ``traffic``: a converted scene's agents in the proof, ``log`` or ``reactive``).
+    The other vehicles are SUMO's drivers in the proof on a SUMO configuration, and on a converted
+    WOMD scene only with ``traffic="reactive"`` (with ``log`` its log moves every other agent): then
+    plans blocked only by them are tried there (:func:`coster_sumo.avoidability.search.assess`).
     ``timings`` gains ``avoidability_s`` (the kinematic search) and ``proof_s`` (the replays);
     ``done(1)`` is called after each plan's search and once more after the replays.
     """
     reaction_times = tuple(sorted({0.5, 1.0, 1.5, float(reaction_time_s)}))
     source = ScenarioSource.of(scenario)
-    reactive = (not source.converted or traffic == "reactive") if reactive_others is None else reactive_others
+    reactive = not source.converted or proof.traffic == "reactive"
     t0 = time.perf_counter()
     labels = []
     for plan in plans:
-        labels.append(assess(scene, target, plan, drivable, reaction_times=reaction_times,
+        labels.append(assess(scene, target, plan, proof.drivable, reaction_times=reaction_times,
                              reaction_time_s=reaction_time_s, reactive_others=reactive))
         if done is not None:
             done(1)
     t1 = time.perf_counter()
-    prove_labels(source, scene, target, plans, labels, drivable=drivable, held=held, workers=workers, traci=traci,
-                 horizon_s=HORIZON_AFTER_TCOL_S, traffic=traffic)
+    prove_labels(source, scene, target, plans, labels, proof)
     if done is not None:
         done(1)
     if timings is not None:

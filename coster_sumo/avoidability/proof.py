@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.avoidability.evasion import Avoidability, Escape, Manoeuvre
-from coster_sumo.core.plan import AdversaryPlan, sim_time_of
+from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan, sim_time_of
 from coster_sumo.core.scene import Scene
 from coster_sumo.core.spec import ScenarioSpec
+from coster_sumo.errors import InputError
 from coster_sumo.formats.source import ScenarioSource
 from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
 from coster_sumo.geometry.drivable import DrivableArea
@@ -31,6 +32,7 @@ from coster_sumo.sim.inject import (
     TIME_EPS,
     AdversaryController,
     InjectionResult,
+    PassSettings,
     StepActor,
     continue_injection,
     edge_under,
@@ -144,16 +146,42 @@ class HeldEscape:
 def _prove_held(session: Any, held: HeldEscape) -> Verdict:
     """One escape's pass in a forked copy of the nominal pass (runs inside :mod:`coster_sumo.sim.hold`)."""
     job = held.job
-    res = continue_injection(session, held.target_id, job.plan, escape_planner(job.escape, held.length_m),
-                             end=held.end, drivable=held.drivable, surroundings_m=SURROUNDINGS_RADIUS_M,
-                             post_contact_s=None)
+    settings = PassSettings(end=held.end, drivable=held.drivable, surroundings_m=SURROUNDINGS_RADIUS_M)
+    res = continue_injection(session, held.target_id, job.plan, escape_planner(job.escape, held.length_m), settings)
     return verdict(res, held.target_id, job)
 
 
-def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, jobs: list[EscapeJob], *,
-                  drivable: DrivableArea | None, held: HeldStates | None = None, workers: int = 1,
-                  traci: bool = False, horizon_s: float = 3.0, together: bool = True,
-                  traffic: str = "log") -> list[Verdict]:
+@dataclass(frozen=True)
+class ProofSettings:
+    """Where and how the escapes are replayed in SUMO (:func:`prove_labels`).
+
+    Attributes:
+        drivable: the drivable area for the off-road events (None: none are checked).
+        held: held copies of the nominal pass to replay from (None: every replay from begin).
+        workers: replays run at a time from the held copies.
+        traci: a TraCI socket instead of libsumo.
+        traffic: a converted scene's agents in the replays, ``log`` or ``reactive``.
+        horizon_s: [s] each replay ends this long after t_col.
+    """
+
+    drivable: DrivableArea | None = None
+    held: HeldStates | None = None
+    workers: int = 1
+    traci: bool = False
+    traffic: str = "log"
+    horizon_s: float = HORIZON_AFTER_TCOL_S
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise InputError(f"workers must be >= 1, not {self.workers}")
+        if self.traffic not in ("log", "reactive"):
+            raise InputError(f"traffic must be log or reactive, not {self.traffic!r}")
+        if not self.horizon_s > 0:
+            raise InputError(f"the proof's horizon must be > 0 s, not {self.horizon_s}")
+
+
+def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, jobs: list[EscapeJob],
+                  proof: ProofSettings, *, together: bool = True) -> list[Verdict]:
     """Replay every escape in SUMO; one verdict (:func:`verdict`) per job, in order.
 
     From the held copy of the nominal pass before the adversary appears where there is one (as the
@@ -167,6 +195,7 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     verdicts are those of one pass per escape (``together=False``). ``traffic="reactive"``: the
     logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape.
     """
+    drivable, held, traci, horizon_s = proof.drivable, proof.held, proof.traci, proof.horizon_s
     tr = scene.tracks
     target_id = str(tr.ids[target])
     length = float(np.median(tr.length[target][tr.valid[target]]))
@@ -183,9 +212,9 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
         assert held is not None
         payloads = [(_prove_held, HeldEscape(jobs[i], target_id, length, drivable,
                                              end=jobs[i].plan.t_col + horizon_s + 1e-6)) for i in members]
-        for i, v in zip(members, held.run(held.holders[h_index], payloads, workers), strict=True):
+        for i, v in zip(members, held.run(held.holders[h_index], payloads, proof.workers), strict=True):
             out[i] = v
-    if converted and together and not traci and jobs and traffic == "log":
+    if converted and together and not traci and jobs and proof.traffic == "log":
         return _JointProof(spec, scene, target, jobs, drivable, horizon_s).run()
     for i, job in enumerate(jobs):
         if out[i] is not None:
@@ -198,11 +227,11 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             # logged agents that never come near the escape are left out: they are replayed, so they
             # react to nothing, and the verdict is about the target's contacts
             far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
-            actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, traffic, far),)
-        res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), seed=spec.seed,
-                            end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
-                            actors=actors, traci=traci,
-                            surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=None)
+            actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, proof.traffic, far),)
+        settings = PassSettings(end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
+                                actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M)
+        res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), settings,
+                            seed=spec.seed, traci=traci)
         out[i] = verdict(res, target_id, job)
     return [v for v in out if v is not None]
 
@@ -310,8 +339,7 @@ PROOF_RADIUS_M = 30.0
 
 
 def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],
-                 labels: Sequence[Avoidability], *, drivable: DrivableArea | None, held: HeldStates | None = None,
-                 workers: int = 1, traci: bool = False, horizon_s: float = 3.0, traffic: str = "log") -> None:
+                 labels: Sequence[Avoidability], proof: ProofSettings) -> None:
     """Replay every escape of ``labels`` (one per plan of ``plans``) with :func:`prove_escapes` and
     mark it proven or refuted (``Escape.proven``, ``Escape.proof``). Equal escapes of one plan (the
     same act and manoeuvre at several reaction times) are replayed once and share the verdict. The
@@ -328,8 +356,7 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
             jobs.append(EscapeJob(plan, e))
             owners.append(e)
     if jobs:
-        verdicts = prove_escapes(scenario, scene, target, jobs, drivable=drivable, held=held, workers=workers,
-                                 traci=traci, horizon_s=horizon_s, traffic=traffic)
+        verdicts = prove_escapes(scenario, scene, target, jobs, proof)
         for e, v in zip(owners, verdicts, strict=True):
             e.proven, e.proof = v.ok, v.to_json()
     for lab in labels:  # an escape's equals at other reaction times share its verdict

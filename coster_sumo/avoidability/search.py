@@ -244,7 +244,7 @@ class _Candidates:
             good[kk[hit], mm[hit]] = False
         # only what is clear is checked against the road (the costlier test), and only as far as the
         # answer needs it: the least demanding escape per reaction time and the last moment to act
-        self.on_road = _RoadCheck(ctx.drivable, pos, yaw, length, width, after[:, 0], nx, ny, nyaw, n)
+        self.on_road = _RoadCheck(ctx, pos, yaw, after[:, 0])
         self.demand = np.max(np.where(after, a_comb, 0.0), -1)  # (K, M)
         self.peak_decel = np.max(np.where(after, np.maximum(-a_lon, 0.0), 0.0), -1)
         self.peak_lat = np.max(np.where(after & moving, a_lat, 0.0), -1)
@@ -358,15 +358,18 @@ class _RoadCheck:
 
     CHUNK = 32  # candidates tested at a time, in order of demand
 
-    def __init__(self, drivable: DrivableArea | None, pos: np.ndarray, yaw: np.ndarray, length: float,
-                 width: float, acted: np.ndarray, nx: np.ndarray, ny: np.ndarray, nyaw: np.ndarray, n: int):
+    def __init__(self, ctx: _SearchContext, pos: np.ndarray, yaw: np.ndarray, acted: np.ndarray):
+        """``pos`` (K, M, n, 2) [m] and ``yaw`` (K, M, n) [rad]: the candidates' poses on ``ctx``'s time
+        grid; ``acted`` (K, n): the steps after acting."""
+        drivable, length, width = ctx.drivable, ctx.length, ctx.width
         self.drivable, self.pos, self.yaw, self.length, self.width = drivable, pos, yaw, length, width
         self.acted = acted  # (K, n): steps after acting
-        self.sub = np.arange(0, n, max(1, round(OFF_ROAD_SPACING_S / DT_S)))
+        self.sub = np.arange(0, len(ctx.times), max(1, round(OFF_ROAD_SPACING_S / DT_S)))
         self.known: dict[tuple[int, int], bool] = {}
         self.nominal_off: np.ndarray | None = None
         if drivable is not None:  # where the log itself is off the road (a map that misses a driveway): forgiven
-            self.nominal_off = drivable.off_road(nx[self.sub], ny[self.sub], nyaw[self.sub], np.asarray(length),
+            sub = self.sub
+            self.nominal_off = drivable.off_road(ctx.nx[sub], ctx.ny[sub], ctx.nyaw[sub], np.asarray(length),
                                                  np.asarray(width))
 
     def __call__(self, kk: np.ndarray, mm: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.executor import GENERATION_TASK_MODULES, ExecutorSettings, Outcome, Task, execute, is_transient
 from coster_sumo.batch.generator_summary import (
     AvoidabilityStats,
     EvalSummary,
@@ -47,7 +47,7 @@ from coster_sumo.batch.sources import (
     slug,
     task_folders,
 )
-from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.core.spec import GenerationConfig, InjectionSettings, ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.infra.atomic import write_json
 from coster_sumo.infra.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
@@ -90,8 +90,8 @@ def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[in
 
 def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Eval task: nominal pass of one scene (cached .npz) and its speed/acceleration histograms."""
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.pipeline.targets import choose_target
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
     if payload.get(PASS_FILE):  # a pass shared with the configuration's other targets (batch.shared_pass)
@@ -126,10 +126,10 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.core.scene import LaneType
     from coster_sumo.errors import NoSnapshot
     from coster_sumo.formats.scene_file import load_scene
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants, missing_weights
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
-    from coster_sumo.pipeline.targets import choose_target
     from coster_sumo.sim.inject import inject_variant
 
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
@@ -151,10 +151,10 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
         return {"status": "no_scenario", "reason": str(exc), "generation_s": time.perf_counter() - t0,
                 "records": []}
     gen_s = time.perf_counter() - t0
-    from coster_sumo.avoidability.labels import label_plans, label_record
+    from coster_sumo.avoidability.labels import ProofSettings, label_plans, label_record
 
     t1 = time.perf_counter()
-    labels = label_plans(spec, scene, target, [v.plan for v in variants], drivable=drivable)
+    labels = label_plans(spec, scene, target, [v.plan for v in variants], ProofSettings(drivable))
     avoid_s = time.perf_counter() - t1
     records = []
     speeds, accels = [], []
@@ -163,7 +163,8 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     for i, v in enumerate(variants):
         plan = v.plan
         with tempfile.TemporaryDirectory(prefix="coster-eval-") as wd:
-            res = inject_variant(spec, scene, target, plan, payload["planner"], drivable=drivable, workdir=Path(wd))
+            how = InjectionSettings(payload["planner"], workdir=Path(wd))
+            res = inject_variant(spec, scene, target, plan, how, drivable=drivable)
         c = res.contact
         adv = v.snapshot.adversary
         label = label_record(labels[i])
@@ -296,10 +297,9 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
     if not opts.quiet and todo < len(keys) * (1 + len(active)):
         print(f"resuming {out}: {len(keys) * (1 + len(active)) - todo} of {len(keys) * (1 + len(active))} tasks "
               "done before", flush=True)
-    execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
-            quiet=opts.quiet, desc="eval scenarios", expected_total=todo,
-            log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
-            preload=GENERATION_TASK_MODULES)
+    how = ExecutorSettings(opts.workers, opts.executor, opts.timeout, ray_address=opts.ray_address,
+                           log_dir=out / "logs" if opts.executor == "local" else None, preload=GENERATION_TASK_MODULES)
+    execute(initial, how, on_done=on_done, quiet=opts.quiet, desc="eval scenarios", expected_total=todo)
     table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
     summary = EvalSummary(scenes={k: s.label() for k, s in keys.items()}, planner=opts.planner,
                           variants=opts.variants, samples=opts.samples, methods=table,

@@ -23,12 +23,13 @@ and is written into OUT by the driver.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import tempfile
 import time
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,7 @@ from coster_sumo.batch.local_executor import (  # noqa: F401 - re-exported: the 
     GENERATION_TASK_MODULES,
     LOST_ON_CLUSTER,
     SUMO_TASK_MODULES,
+    ExecutorSettings,
     OnDone,
     Outcome,
     Task,
@@ -49,40 +51,25 @@ from coster_sumo.batch.local_executor import (  # noqa: F401 - re-exported: the 
     is_transient,
 )
 from coster_sumo.batch.ray_executor import _execute_ray
-from coster_sumo.errors import InputError
 
 
-def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: int = 1,
-            executor: str = "local", timeout: float | None = DEFAULT_TIMEOUT_S, quiet: bool = True,
-            desc: str = "tasks", expected_total: int | None = None, start_method: str | None = None,
-            log_dir: Path | None = None, ray_address: str | None = None,
-            preload: Sequence[str] = ()) -> list[tuple[Task, Outcome]]:
-    """Run ``tasks`` (and whatever ``on_done`` schedules) and return every (task, outcome) in finish order.
+def execute(tasks: Iterable[Task], settings: ExecutorSettings | None = None, *,
+            on_done: OnDone | None = None, quiet: bool = True, desc: str = "tasks",
+            expected_total: int | None = None) -> list[tuple[Task, Outcome]]:
+    """Run ``tasks`` (and whatever ``on_done`` schedules) as ``settings`` say (None: one local worker)
+    and return every (task, outcome) in finish order.
 
     Args:
         on_done: called in this process as each task finishes; returns further tasks.
-        workers: tasks at a time.
-        executor: "local" (one ``multiprocessing`` process per task) or "ray".
-        timeout: [s] wall clock per task; None = unlimited.
-        quiet: no progress bar.
+        quiet: no progress bar; ``desc``: the bar's label.
         expected_total: the progress bar's first total estimate (it grows when needed).
-        start_method: "fork" (default where available) or "spawn" (local executor).
-        log_dir: the local executor sends each task's stdout/stderr to ``log_dir/<key>.log``.
-        ray_address: Ray cluster address (default: start a local Ray instance).
-        preload: modules imported here first, so that forked task processes inherit them instead of
-            importing them again (about 1 s per task for the SUMO side of the package);
-            :data:`GENERATION_TASK_MODULES` (torch) are imported by a fork server instead, which
-            every task forks from. On Ray, each Ray worker does the same for the tasks it forks.
     """
-    if workers < 1:
-        raise InputError(f"--workers must be >= 1, not {workers}")
-    if executor not in ("local", "ray"):
-        raise InputError(f"--executor must be local or ray, not {executor!r}")
+    settings = settings or ExecutorSettings()
     pending = deque(tasks)
     finished: list[tuple[Task, Outcome]] = []
-    method = _task_start_method(start_method, preload)
-    if executor == "local" and method == "fork":
-        _import_quietly(preload)
+    method = _task_start_method(settings.start_method, settings.preload)
+    if settings.executor == "local" and method == "fork":
+        _import_quietly(settings.preload)
     progress: Any
     if quiet:
         progress = _NoProgress()
@@ -103,14 +90,14 @@ def execute(tasks: Iterable[Task], *, on_done: OnDone | None = None, workers: in
         return more
 
     try:
-        if log_dir is not None:
-            log_dir.mkdir(parents=True, exist_ok=True)
-        if executor == "local":
-            _execute_local(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
-                           start_method=method, log_dir=log_dir, preload=preload)
+        if settings.log_dir is not None:
+            settings.log_dir.mkdir(parents=True, exist_ok=True)
+        if settings.executor == "local":
+            _execute_local(pending, dataclasses.replace(settings, start_method=method), on_done=done,
+                           progress=progress)
         else:
-            _execute_ray(pending, workers=workers, timeout=timeout, on_done=done, progress=progress,
-                         ray_address=ray_address, preload=preload)
+            _execute_ray(pending, workers=settings.workers, timeout=settings.timeout, on_done=done,
+                         progress=progress, ray_address=settings.ray_address, preload=settings.preload)
         progress.total = len(finished)  # done: the estimate may have been high (fewer variants than asked)
         progress.refresh()
     finally:

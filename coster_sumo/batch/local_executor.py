@@ -20,6 +20,7 @@ from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
 from typing import Any
 
+from coster_sumo.errors import InputError
 from coster_sumo.infra.procs import die_with_parent, imports_only, one_openmp_thread_after_fork, signal_name
 
 # modules every SUMO task needs; never torch (forking after torch has started its thread pools is unsafe)
@@ -33,6 +34,40 @@ SUMO_TASK_MODULES = ("libsumo", "coster_sumo.pipeline.scenario",
 GENERATION_TASK_MODULES = ("coster_sumo.batch.task_imports",)
 
 DEFAULT_TIMEOUT_S = 900.0  # [s] wall clock per task
+
+
+@dataclass(frozen=True)
+class ExecutorSettings:
+    """How a batch's tasks run (:func:`coster_sumo.batch.executor.execute`), checked when made.
+
+    Attributes:
+        workers: tasks at a time.
+        executor: "local" (one ``multiprocessing`` process per task) or "ray".
+        timeout: [s] wall clock per task; None = unlimited.
+        start_method: "fork" (default where available) or "spawn" (local executor).
+        log_dir: the local executor sends each task's stdout/stderr to ``log_dir/<key>.log``.
+        ray_address: Ray cluster address (default: start a local Ray instance).
+        preload: modules imported here first, so that forked task processes inherit them instead of
+            importing them again (about 1 s per task for the SUMO side of the package);
+            :data:`GENERATION_TASK_MODULES` (torch) are imported by a fork server instead, which
+            every task forks from. On Ray, each Ray worker does the same for the tasks it forks.
+        threads: compute threads per task (None: the cores shared among the workers).
+    """
+
+    workers: int = 1
+    executor: str = "local"
+    timeout: float | None = DEFAULT_TIMEOUT_S
+    start_method: str | None = None
+    log_dir: Path | None = None
+    ray_address: str | None = None
+    preload: Sequence[str] = ()
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise InputError(f"--workers must be >= 1, not {self.workers}")
+        if self.executor not in ("local", "ray"):
+            raise InputError(f"--executor must be local or ray, not {self.executor!r}")
 
 
 
@@ -281,10 +316,10 @@ def _import_quietly(modules: Sequence[str]) -> None:
             importlib.import_module(name)
 
 
-def _execute_local(pending: deque[Task], *, workers: int, timeout: float | None, on_done: OnDone,
-                   progress: Any, start_method: str | None, log_dir: Path | None,
-                   preload: Sequence[str] = (), threads: int | None = None) -> None:
-    method = start_method or _default_start_method()
+def _execute_local(pending: deque[Task], settings: ExecutorSettings, *, on_done: OnDone, progress: Any) -> None:
+    workers, timeout, log_dir, threads = settings.workers, settings.timeout, settings.log_dir, settings.threads
+    preload = settings.preload
+    method = settings.start_method or _default_start_method()
     ctx: Any = mp.get_context(method)
     if method == "forkserver":  # the server imports these once; every task forks from it
         ctx.set_forkserver_preload(sorted({*preload, *(t.fn.__module__ for t in pending)}))

@@ -15,6 +15,7 @@ from typing import Any
 
 from coster_sumo.batch.local_executor import (
     LOST_ON_CLUSTER,
+    ExecutorSettings,
     OnDone,
     Outcome,
     Task,
@@ -49,9 +50,8 @@ def _ray_entry(fn: Callable[[dict[str, Any]], Any], payload: dict[str, Any], shi
             finished.append(outcome)
             return []
 
-        _execute_local(deque([Task("ray-task", fn, local)]), workers=1, timeout=timeout, on_done=keep,
-                       progress=_NoProgress(), start_method=method, log_dir=None, preload=preload,
-                       threads=max(1, int(cpus)))
+        settings = ExecutorSettings(timeout=timeout, start_method=method, preload=preload, threads=max(1, int(cpus)))
+        _execute_local(deque([Task("ray-task", fn, local)]), settings, on_done=keep, progress=_NoProgress())
         return finished[0]
 
     if not shipped:

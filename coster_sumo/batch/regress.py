@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.avoidability.labels import escape_dict
-from coster_sumo.batch.executor import GENERATION_TASK_MODULES, Outcome, Task, execute, is_transient
+from coster_sumo.batch.executor import GENERATION_TASK_MODULES, ExecutorSettings, Outcome, Task, execute, is_transient
 from coster_sumo.batch.scene_plans import ScenePlans, read_plans
 from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
 from coster_sumo.batch.sources import (
@@ -62,9 +62,9 @@ ESCAPE_PLANNER = "escape"  # the reference planner: the target drives the varian
 
 def generation_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Task: nominal pass + variants of one scene -> ``plans/<scene_key>.json`` (+ the scene's .npz)."""
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants
-    from coster_sumo.pipeline.targets import choose_target
 
     t0 = time.perf_counter()
     spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
@@ -101,13 +101,13 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
     """Every variant's avoidability with its escapes proven in SUMO (:mod:`coster_sumo.avoidability.labels`);
     with ``--avoidable only`` the unavoidable ones are replaced by variants of further draws (and
     the counts of variants tried, kept and extra draws are returned; None without)."""
-    from coster_sumo.avoidability.labels import label_plans
+    from coster_sumo.avoidability.labels import ProofSettings, label_plans
     from coster_sumo.method.generation import EXTRA_DRAWS, derived_seed, generate_variants
 
     reaction = float(payload.get("reaction_time", 1.0))
 
     def label(vs: list[Variant]) -> list[Any]:
-        return label_plans(spec, scene, target, [v.plan for v in vs], drivable=drivable, reaction_time_s=reaction)
+        return label_plans(spec, scene, target, [v.plan for v in vs], ProofSettings(drivable), reaction_time_s=reaction)
 
     labels = label(variants)
     if payload.get("avoidable", "any") != "only":
@@ -147,6 +147,7 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
     from coster_sumo.avoidability.labels import escape_replay, planner_outcome
     from coster_sumo.avoidability.search import HORIZON_AFTER_TCOL_S
+    from coster_sumo.core.spec import InjectionSettings
     from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.pipeline.outputs import variant_outcome
@@ -164,15 +165,14 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     drivable = DrivableArea.from_road_map(scene.road_map)
     label = doc.label(i)
     avoidable = None if label is None else bool(label["avoidable"])
-    driver = None
+    driver, how = None, InjectionSettings(payload["planner"], traffic=payload.get("traffic", "log"))
     if payload["planner"] == ESCAPE_PLANNER:  # the reference: the variant's own escape, where it has one
-        esc = doc.escape(i)
+        esc, how = doc.escape(i), dataclasses.replace(how, planner="replay")
         length = float(np.median(scene.tracks.length[target][scene.tracks.valid[target]]))
         driver = escape_replay(esc, length) if esc else None
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
-        res = inject_variant(spec, scene, target, plan, "replay" if payload["planner"] == ESCAPE_PLANNER
-                             else payload["planner"], drivable=drivable, workdir=Path(wd), driver=driver,
-                             traffic=payload.get("traffic", "log"))
+        res = inject_variant(spec, scene, target, plan, dataclasses.replace(how, workdir=Path(wd)), drivable=drivable,
+                             driver=driver)
     rec = variant_outcome(i, plan, res, target_id, t_col)
     in_horizon = any(e.kind == "collision" and target_id in e.vehicles and e.time <= t_col + HORIZON_AFTER_TCOL_S + 1e-6
                      for e in res.events)
@@ -254,10 +254,10 @@ def with_duration(spec: ScenarioSpec, duration: float) -> ScenarioSpec:
 def with_targets(specs: list[ScenarioSpec], target: str | None, more: Sequence[str],
                  n: int | None) -> list[ScenarioSpec]:
     """``specs`` with a scene for every further target: the ``more`` targets beside each scene of
-    ``target``, or (``n``) the ``n`` targets :func:`~coster_sumo.pipeline.targets.choose_targets` picks for each
+    ``target``, or (``n``) the ``n`` targets :func:`~coster_sumo.formats.targets.choose_targets` picks for each
     scene without one, as ``run --targets N`` picks them. The targets of a configuration, window and
     seed share one nominal pass (:mod:`coster_sumo.batch.shared_pass`)."""
-    from coster_sumo.pipeline.targets import choose_targets
+    from coster_sumo.formats.targets import choose_targets
 
     if n is not None and n < 1:
         raise InputError(f"--targets must be >= 1, not {n}")
@@ -368,13 +368,12 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         return []
 
     generations = sum(t.key.startswith("plan__") for t in initial) + shared.waiting_scenes
-    execute(initial, on_done=on_done, workers=opts.workers, executor=opts.executor, timeout=opts.timeout,
-            # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
-            quiet=opts.quiet, desc=f"regress (first {generations} scene generation{'s' if generations != 1 else ''})"
-            if generations else "regress",
-            expected_total=len(initial) + shared.waiting_scenes + n_runs_expected - len(done),
-            start_method=opts.start_method, log_dir=logs_dir if opts.executor == "local" else None,
-            ray_address=opts.ray_address, preload=GENERATION_TASK_MODULES)
+    how = ExecutorSettings(opts.workers, opts.executor, opts.timeout, opts.start_method, ray_address=opts.ray_address,
+                           log_dir=logs_dir if opts.executor == "local" else None, preload=GENERATION_TASK_MODULES)
+    # the first tasks generate the scenes' variants (tens of seconds each, nothing else moves meanwhile)
+    execute(initial, how, on_done=on_done, quiet=opts.quiet, expected_total=len(initial) + shared.waiting_scenes
+            + n_runs_expected - len(done), desc=f"regress (first {generations} scene generation"
+            f"{'s' if generations != 1 else ''})" if generations else "regress")
     return _write_summary(opts, out, keys, generation, store, t_start)
 
 

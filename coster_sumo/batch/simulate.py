@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.batch.executor import Outcome, Task, execute
+from coster_sumo.batch.executor import ExecutorSettings, Outcome, Task, execute
 from coster_sumo.batch.nets import Source, generate_nets, run_tool
 from coster_sumo.batch.records import BatchCounts, RunOutcome, SimulateSummary
 from coster_sumo.data import dataset as ds
@@ -258,16 +258,16 @@ def simulate_run(task: RunTask) -> RunOutcome:
         num_chunks = max(1, math.ceil(task.duration_s / CHUNK_S - 1e-9))
         for chunk in range(num_chunks):
             chunk_end = min(end, round(begin + (chunk + 1) * CHUNK_S, 6))
-            scene = record(session, end=chunk_end, scenario_id=task.run_id, after_step=sampler,
-                           meta={"run_id": task.run_id, "scale": task.scale, "seed": task.seed,
-                                 "source": str(src.path)} | ({"network": task.network} if task.network else {}))
+            scene = record(session, end=chunk_end, after_step=sampler)
+            scene = dataclasses.replace(scene, scenario_id=task.run_id, meta=scene.meta | {
+                "run_id": task.run_id, "scale": task.scale, "seed": task.seed,
+                "source": str(src.path)} | ({"network": task.network} if task.network else {}))
             sim_end = session.time
             vehicles.update(scene.tracks.ids.tolist())
             budget = math.ceil((task.max_clips - clips) / (num_chunks - chunk))
             warmup = max(0.0, begin + task.warmup_s - chunk_start)
             if scene.num_steps >= ds.CLIP_STEPS and budget > 0 and warmup < chunk_end - chunk_start:
-                picks = ds.plan_clips(scene, budget, rng, targets_per_window=task.targets_per_window,
-                                      warmup_s=warmup)
+                picks = ds.plan_clips(scene, budget, rng, ds.ClipRules(task.targets_per_window, warmup_s=warmup))
                 for start, target in picks:
                     t0 = float(scene.timestamps[start]) - begin
                     name = f"{task.run_id}_{t0:07.1f}_{ds.safe_name(str(scene.tracks.ids[target]))}"
@@ -423,9 +423,10 @@ def run_batch(tasks: list[RunTask], dataset: Path, manifest: dict[str, Any], *, 
 
     for run in todo:
         run.work.mkdir(parents=True, exist_ok=True)
-    execute([Task(key=t.run_id, fn=run_task, payload={"run": t}, kind="run") for t in todo],
-            on_done=on_done, workers=workers, timeout=timeout_s, quiet=quiet, desc=what,
-            log_dir=dataset / WORK_DIR / "logs", preload=("libsumo", "coster_sumo.sim.record"))
+    how = ExecutorSettings(workers, timeout=timeout_s, log_dir=dataset / WORK_DIR / "logs",
+                           preload=("libsumo", "coster_sumo.sim.record"))
+    execute([Task(key=t.run_id, fn=run_task, payload={"run": t}, kind="run") for t in todo], how,
+            on_done=on_done, quiet=quiet, desc=what)
     logs = dataset / WORK_DIR / "logs"
     if logs.is_dir() and not failures:
         import shutil

@@ -75,6 +75,14 @@ class CommandLine:
             self._groups[name] = p.add_subparsers(dest=f"{name}_command", metavar="WHAT", required=True)
         return self._groups[name]
 
+    def training(self, name: str, help: str, description: str, out: str, what: str) -> argparse.ArgumentParser:
+        """``coster-sumo train NAME``: its parser, with the options every training takes: ``--data``
+        (the dataset) and ``-o``/``--out`` (the ``what`` it writes, default ``out``)."""
+        p = self.group("train", help="train a model").add_parser(name, help=help, description=description)
+        p.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
+        p.add_argument("-o", "--out", "--output", dest="out", default=out, help=f"{what} to write (%(default)s)")
+        return p
+
 
 def _global_options(parser: argparse.ArgumentParser, default: object) -> None:
     """``--debug`` and ``--quiet``: on the top-level parser (``default`` False) and on every

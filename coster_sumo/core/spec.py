@@ -142,6 +142,7 @@ class InjectionSettings:
         traffic: ``log`` (a converted scene's agents replay their log) or ``reactive`` (each follows its
             log until the target's deviation reaches it, then SUMO drives it: :mod:`coster_sumo.sim.reactive`);
             a SUMO configuration's own traffic runs in SUMO either way.
+        workdir: where a planner writes the files its passes load (its vTypes; None: the current folder).
     """
 
     planner: str
@@ -149,3 +150,4 @@ class InjectionSettings:
     workers: int = 1
     timeout: float | None = None
     traffic: str = "log"
+    workdir: Path | None = None

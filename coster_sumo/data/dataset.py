@@ -245,11 +245,39 @@ def clip_scene(scene: Scene, start: int, target: int, *, num_steps: int = CLIP_S
     return crop_scene(clip, radius_m)
 
 
-def plan_clips(scene: Scene, max_clips: int, rng: np.random.Generator, *,
-               targets_per_window: int = 3, warmup_s: float = 0.0, prefer: Sequence[str] = (),
-               num_steps: int = CLIP_STEPS, min_path_m: float = MIN_TARGET_PATH_M,
-               min_separation_m: float = MIN_TARGET_SEPARATION_M) -> list[tuple[int, int]]:
-    """Choose up to ``max_clips`` (start step, target agent) pairs from a long 10 Hz scene.
+@dataclasses.dataclass(frozen=True)
+class ClipRules:
+    """How :func:`plan_clips` chooses clips, checked when made.
+
+    Attributes:
+        targets_per_window: targets drawn per window at the most.
+        warmup_s: [s] the windows start this long after the scene's first step.
+        prefer: vehicle ids drawn first where they are eligible.
+        num_steps: steps per window (a clip's length).
+        min_path_m: [m] a target drives at least this far in its window (:func:`eligible_targets`).
+        min_separation_m: [m] targets of one window stand at least this far apart at its current step.
+    """
+
+    targets_per_window: int = 3
+    warmup_s: float = 0.0
+    prefer: Sequence[str] = ()
+    num_steps: int = CLIP_STEPS
+    min_path_m: float = MIN_TARGET_PATH_M
+    min_separation_m: float = MIN_TARGET_SEPARATION_M
+
+    def __post_init__(self) -> None:
+        if self.targets_per_window < 1:
+            raise InputError(f"targets per window must be >= 1, not {self.targets_per_window}")
+        if self.num_steps < 1:
+            raise InputError(f"a clip needs at least one step, not {self.num_steps}")
+        if self.warmup_s < 0:
+            raise InputError(f"the warm-up must be >= 0 s, not {self.warmup_s}")
+
+
+def plan_clips(scene: Scene, max_clips: int, rng: np.random.Generator,
+               rules: ClipRules | None = None) -> list[tuple[int, int]]:
+    """Choose up to ``max_clips`` (start step, target agent) pairs from a long 10 Hz scene, as the
+    ``rules`` say (None: the defaults of :class:`ClipRules`).
 
     Windows of ``num_steps`` steps follow each other without overlap from ``warmup_s``. In each,
     up to ``targets_per_window`` eligible targets (:func:`eligible_targets`) are drawn with ``rng``,
@@ -257,11 +285,13 @@ def plan_clips(scene: Scene, max_clips: int, rng: np.random.Generator, *,
     window's current step. When ``max_clips`` is the limit, clips are spread over the windows
     (first one target per window, then a second, ...). Deterministic for a given ``rng`` state.
     """
-    first = int(np.searchsorted(scene.timestamps, scene.timestamps[0] + warmup_s - 1e-9))
+    r = rules or ClipRules()
+    targets_per_window, prefer, num_steps = r.targets_per_window, r.prefer, r.num_steps
+    first = int(np.searchsorted(scene.timestamps, scene.timestamps[0] + r.warmup_s - 1e-9))
     tr = scene.tracks
     per_window: list[list[tuple[int, int]]] = []
     for start in range(first, scene.num_steps - num_steps + 1, num_steps):
-        cand = eligible_targets(tr, start, num_steps, min_path_m)
+        cand = eligible_targets(tr, start, num_steps, r.min_path_m)
         if len(cand) == 0:
             continue
         preferred = [c for c in cand if str(tr.ids[c]) in prefer]
@@ -271,7 +301,7 @@ def plan_clips(scene: Scene, max_clips: int, rng: np.random.Generator, *,
         for c in preferred + others:
             if len(chosen) >= targets_per_window:
                 break
-            if all(np.hypot(tr.x[c, now] - tr.x[o, now], tr.y[c, now] - tr.y[o, now]) >= min_separation_m
+            if all(np.hypot(tr.x[c, now] - tr.x[o, now], tr.y[c, now] - tr.y[o, now]) >= r.min_separation_m
                    for o in chosen):
                 chosen.append(int(c))
         per_window.append([(start, c) for c in chosen])
@@ -283,10 +313,10 @@ def plan_clips(scene: Scene, max_clips: int, rng: np.random.Generator, *,
     return sorted(out)
 
 
-def cut_clips(scene: Scene, max_clips: int, seed: int = 0, **kwargs: object) -> list[Scene]:
-    """:func:`plan_clips` then :func:`clip_scene` for each pick; ``kwargs`` go to plan_clips."""
+def cut_clips(scene: Scene, max_clips: int, seed: int = 0, rules: ClipRules | None = None) -> list[Scene]:
+    """:func:`plan_clips` then :func:`clip_scene` for each pick."""
     rng = np.random.default_rng(seed)
-    picks = plan_clips(scene, max_clips, rng, **kwargs)  # type: ignore[arg-type]
+    picks = plan_clips(scene, max_clips, rng, rules)
     return [clip_scene(scene, start, target) for start, target in picks]
 
 

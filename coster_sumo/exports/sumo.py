@@ -42,7 +42,13 @@ from coster_sumo.exports.fcd import (
     write_fcd,
     write_vtypes,
 )
-from coster_sumo.exports.sumo_config import GUI_SETTINGS_FILE, source_option, write_export_config, write_gui_settings
+from coster_sumo.exports.sumo_config import (
+    GUI_SETTINGS_FILE,
+    PassClock,
+    source_option,
+    write_export_config,
+    write_gui_settings,
+)
 from coster_sumo.formats.scene_folder import LANE_MAP_FILE, converted_scene_file
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.sim.inject import ADVERSARY_COLOR, InjectionResult
@@ -129,8 +135,8 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
     output = _filter_staging(folder, lanes, staging)
     _write_gui_settings(folder, lanes, plan)
     cfg = folder / config.name
-    expanded = _write_config(cfg, config, names, demand, demand_files, target_id, end=end, step=step, seed=seed,
-                             output=output)
+    clock = PassClock(_fmt_time(read_sumocfg(config).begin), end, step, seed)
+    expanded = _write_config(cfg, config, names, demand, demand_files, target_id, clock, output)
     info: dict[str, Any] = {
         "sumocfg": cfg.name, "fcd_file": FCD_FILE, "vtypes_file": VTYPES_FILE, "gui_settings": GUI_SETTINGS_FILE,
         "fcd_vehicles": len(vehicles), "fcd_entries": n_entries,
@@ -148,8 +154,7 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
 
 
 def _write_config(cfg: Path, config: Path, names: dict[str, list[str]], demand: _Demand, demand_files: list[Path],
-                  target_id: str, *, end: float | None, step: float, seed: int | None, output: dict[str, str]
-                  ) -> list[str]:
+                  target_id: str, clock: PassClock, output: dict[str, str]) -> list[str]:
     """The export's configuration ``cfg``; where the target is a flow member, every flow becomes the
     vehicles it made first (:mod:`coster_sumo.exports.demand`). Returns those vehicles."""
     # the device routes a vehicle along the edges its entries name; staging, parking and logged
@@ -159,8 +164,7 @@ def _write_config(cfg: Path, config: Path, names: dict[str, list[str]], demand: 
     processing = {"ignore-route-errors": "true", "insertion-checks": "none"}
 
     def write_cfg() -> None:
-        write_export_config(cfg, config, names, begin=_fmt_time(read_sumocfg(config).begin), end=end, step=step,
-                            seed=seed, processing=processing, output=output, fcd_file=FCD_FILE,
+        write_export_config(cfg, config, names, clock, processing=processing, output=output, fcd_file=FCD_FILE,
                             gui_settings=GUI_SETTINGS_FILE)
 
     write_cfg()

@@ -18,10 +18,12 @@ set twice; options written straight under the source's root, which sumo also rea
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 
 from defusedxml import ElementTree as SafeET
 
+from coster_sumo.errors import InputError
 from coster_sumo.formats.sumocfg import INPUT_KEYS, open_maybe_gzip, option_name
 from coster_sumo.sim.sumo_options import RECOMMENDED_OPTIONS
 
@@ -81,9 +83,30 @@ def write_gui_settings(path: Path, centre: tuple[float, float], net_span_m: floa
     ET.ElementTree(root).write(path, encoding="unicode", xml_declaration=True)
 
 
-def write_export_config(path: Path, source: Path, names: dict[str, list[str]], *, begin: str | None,
-                        end: float | None, step: float, seed: int | None, processing: dict[str, str],
-                        output: dict[str, str], fcd_file: str, gui_settings: str | None) -> None:
+@dataclass(frozen=True)
+class PassClock:
+    """The time window, step and seed of a variant's pass, as its export replays it.
+
+    Attributes:
+        begin: [s] SUMO's begin as the configuration writes it (None: the source's).
+        end: [s] the pass's last time (None: the source's).
+        step: [s] the step length.
+        seed: SUMO's seed (None: the source's).
+    """
+
+    begin: str | None
+    end: float | None
+    step: float
+    seed: int | None
+
+    def __post_init__(self) -> None:
+        if not self.step > 0:
+            raise InputError(f"the step length must be > 0 s, not {self.step}")
+
+
+def write_export_config(path: Path, source: Path, names: dict[str, list[str]], clock: PassClock, *,
+                        processing: dict[str, str], output: dict[str, str], fcd_file: str,
+                        gui_settings: str | None) -> None:
     """Write the export's configuration (see the module docstring).
 
     Args:
@@ -91,7 +114,7 @@ def write_export_config(path: Path, source: Path, names: dict[str, list[str]], *
         source: the configuration the variant was generated on.
         names: input option -> file names in the export folder (``net-file``, ``route-files``,
             ``additional-files``; the FCD vTypes first among the additional files).
-        begin, end, step, seed: the pass's time window [s], step [s] and seed (None: the source's).
+        clock: the pass's time window [s], step [s] and seed.
         processing, output: further options of the export (they win over the source's).
         fcd_file: the FCD replay file.
         gui_settings: the sumo-gui settings file (None: none).
@@ -101,16 +124,16 @@ def write_export_config(path: Path, source: Path, names: dict[str, list[str]], *
     for key in INPUT_KEYS:
         if names.get(key):
             mine["input"][key] = ",".join(names[key])
-    if begin is not None:
-        mine["time"]["begin"] = begin
-    if end is not None:
-        mine["time"]["end"] = f"{end:.3f}"
-    mine["time"]["step-length"] = f"{step:g}"
+    if clock.begin is not None:
+        mine["time"]["begin"] = clock.begin
+    if clock.end is not None:
+        mine["time"]["end"] = f"{clock.end:.3f}"
+    mine["time"]["step-length"] = f"{clock.step:g}"
     for key in PASS_OPTIONS:
         mine["processing"][key.lstrip("-")] = RECOMMENDED_OPTIONS[key]
     mine["processing"].update(processing)
-    if seed is not None:
-        mine["random_number"]["seed"] = str(int(seed))
+    if clock.seed is not None:
+        mine["random_number"]["seed"] = str(int(clock.seed))
     # as in the pass: the device's placements warn every step (jumps, emergency braking); contacts
     # still reach --collision-output (pass --no-warnings false to see them all)
     mine["report"].update({"no-step-log": "true", "no-warnings": "true"})

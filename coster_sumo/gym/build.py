@@ -120,8 +120,8 @@ def _net_file(config: Path) -> Path:
 
 
 def _append_agent(scene: Scene, agent_id: str, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, speed: np.ndarray,
-                  valid: np.ndarray, length: float, width: float) -> Scene:
-    """``scene`` with one more (vehicle) agent; arrays (T,) on the scene's timestamps."""
+                  valid: np.ndarray, size: tuple[float, float]) -> Scene:
+    """``scene`` with one more (vehicle) agent of ``size`` (length, width) [m]; arrays (T,) on its timestamps."""
     tr = scene.tracks
     T = tr.num_steps
 
@@ -132,7 +132,7 @@ def _append_agent(scene: Scene, agent_id: str, x: np.ndarray, y: np.ndarray, yaw
                     object_type=np.append(tr.object_type, ObjectType.VEHICLE).astype(tr.object_type.dtype),
                     x=row(tr.x, x), y=row(tr.y, y), heading=row(tr.heading, yaw),
                     vx=row(tr.vx, speed * np.cos(yaw)), vy=row(tr.vy, speed * np.sin(yaw)),
-                    length=row(tr.length, np.full(T, length)), width=row(tr.width, np.full(T, width)),
+                    length=row(tr.length, np.full(T, size[0])), width=row(tr.width, np.full(T, size[1])),
                     valid=row(tr.valid, valid))
     return dataclasses.replace(scene, tracks=tracks)
 
@@ -224,7 +224,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
                        failed: list[dict[str, str]]) -> list[ScenarioEntry]:
     """The generator's variants of the source (none, and a line in ``failed``, without a snapshot): each
     the nominal pass with the adversary's plan as one more agent."""
-    from coster_sumo.avoidability.labels import label_plans
+    from coster_sumo.avoidability.labels import ProofSettings, label_plans
     from coster_sumo.errors import NoSnapshot
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import DrawMemo, plan_scenarios
@@ -240,7 +240,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
     for k, p in enumerate(planned):
         plans = p.plans[:1] if method.one_per_snapshot else p.plans
         # whether the target could have avoided each contact (docs/method.md), for info["avoidable"]
-        labels = (label_plans(src.spec, src.scene, src.target, plans, drivable=drivable, traffic=opts.traffic)
+        labels = (label_plans(src.spec, src.scene, src.target, plans, ProofSettings(drivable, traffic=opts.traffic))
                   if plans else [])
         for j, (plan, lab) in enumerate(zip(plans, labels, strict=True)):
             t_start = max(src.t_dep, plan.t_start - opts.lead_s)
@@ -248,7 +248,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
             xs, ys, yaws, speeds = plan.sample(ts, lead=0.05)
             valid = (ts >= plan.t_start - 0.05) & (ts <= t_stop + 1e-6)
             with_adv = _append_agent(src.scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
-                                     float(plan.length), float(plan.width))
+                                     (float(plan.length), float(plan.width)))
             sid = f"{src.base}_{opts.method}_k{k}_v{j}"
             save_scene(_crop_steps(with_adv, t_start - 0.1, t_stop), opts.out / "scenarios" / f"{sid}.npz")
             new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start, t_end=t_stop,
@@ -261,9 +261,9 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
 def build_set(opts: BuildOptions) -> dict[str, Any]:
     """Build (or resume) the scenario set ``opts.out``; returns the manifest's counts."""
     from coster_sumo.batch.sources import parse_sources
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.method.generation import check_generation
     from coster_sumo.pipeline.scenario import nominal_scene
-    from coster_sumo.pipeline.targets import choose_target
 
     if opts.method not in METHODS or opts.traffic not in ("log", "reactive"):
         raise InputError(f"--method must be one of {', '.join(METHODS)} and --traffic log or reactive, not "
@@ -400,7 +400,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
         for k in np.flatnonzero(after):
             x, y, h = route.pose(float(s_along[k]))
             xs[k], ys[k], hs[k] = x - d_off[k] * np.sin(h), y + d_off[k] * np.cos(h), h
-        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, after, 4.5, 1.9)
+        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, after, (4.5, 1.9))
         sid = f"{base}_hard_{name}"
         save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
         entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
@@ -408,7 +408,7 @@ def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict
     runner = red_light_runner(scene, target, t0, t_stop)
     if runner is not None:
         xs, ys, hs, speed, present, t_hit, signal = runner
-        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, present, 4.5, 1.9)
+        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, present, (4.5, 1.9))
         sid = f"{base}_hard_red-light-runner"
         save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
         entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,

@@ -64,6 +64,7 @@ from coster_sumo.core.scene import Scene
 from coster_sumo.errors import InputError
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
+from coster_sumo.sim.control import Departure
 from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, STEP_S, Driver, Route
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
 from coster_sumo.sim.states import concat_states
@@ -304,7 +305,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
                 edges = [str(edge)] if edge and not str(edge).startswith(":") else None
             except Exception:  # no lane nearby: SUMO picks an edge, moveToXY places it anyway
                 edges = None
-            sess.add_vehicle(target, self.length, self.width, "passenger", route_edges=edges,
+            sess.add_vehicle(target, self.length, self.width, "passenger", departure=Departure(edges),
                              color=(40, 120, 255, 255))
             self._added = True
             self._sumo_target = target

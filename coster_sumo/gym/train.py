@@ -258,16 +258,16 @@ def hard_ids(scenarios: str | Path, split: str | None) -> list[str]:
 
 
 def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None = "test",
-             control_period_s: float = 0.2, max_episodes: int | None = None,
-             hard: bool = False, traffic: str = "log", car_following: str = "Krauss",
-             observation: str = "default") -> tuple[EvalResult, list[EpisodeRecord]]:
+             max_episodes: int | None = None, hard: bool = False,
+             **env_options: Any) -> tuple[EvalResult, list[EpisodeRecord]]:
     """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0));
-    ``hard``: only the scenarios of :func:`hard_ids`; ``traffic``, ``car_following``: the environment's."""
+    ``hard``: only the scenarios of :func:`hard_ids`. ``env_options``: the environment's
+    (:class:`~coster_sumo.gym.env.ScenarioEnv`: ``control_period_s``, ``traffic``, ``car_following``,
+    ``observation``...), which checks them."""
     from coster_sumo.gym.env import ScenarioEnv
 
     ids = hard_ids(scenarios, split) if hard else None
-    env = ScenarioEnv(scenarios, split=split, order="cycle", control_period_s=control_period_s, scenario_ids=ids,
-                      traffic=traffic, car_following=car_following, observation=observation)
+    env = ScenarioEnv(scenarios, split=split, order="cycle", scenario_ids=ids, **env_options)
     model = None
     if policy is not None:
         from stable_baselines3 import PPO

@@ -138,11 +138,11 @@ class _Draws:
     """The draws of one :func:`plan_scenario`: the seeded generator, the 2 Hz steps not to take as
     t_col, the collision times given up (label -> why its last draw failed) and the draws made."""
 
-    def __init__(self, scene: Scene, low: Scene, target: int, seed: int, gen: GenerationConfig,
-                 drivable: DrivableArea, exclude: Collection[int],
-                 on_snapshot: Callable[[CollisionSnapshot], None] | None, init_memo: PriorMemo) -> None:
-        self.scene, self.low, self.target, self.seed, self.gen, self.drivable = scene, low, target, seed, gen, drivable
-        self.on_snapshot, self.init_memo = on_snapshot, init_memo
+    def __init__(self, scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
+                 memo: DrawMemo, exclude: Collection[int],
+                 on_snapshot: Callable[[CollisionSnapshot], None] | None) -> None:
+        self.scene, self.low, self.target, self.seed, self.gen = scene, memo.low, target, seed, gen
+        self.drivable, self.on_snapshot, self.init_memo = drivable, on_snapshot, memo.prior
         self.rng = generation_rng(seed, scene)
         self.init, self.rollout = SNAPSHOT_INITS[gen.init], ROLLOUTS[gen.rollout]
         self.excluded = set(exclude)
@@ -231,7 +231,7 @@ def _plan(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable:
           exclude: Collection[int] = (), on_snapshot: Callable[[CollisionSnapshot], None] | None = None
           ) -> PlannedScenario:
     """:func:`plan_scenario` with its memo."""
-    draws = _Draws(scene, memo.low, target, seed, gen, drivable, exclude, on_snapshot, memo.prior)
+    draws = _Draws(scene, target, seed, gen, drivable, memo, exclude, on_snapshot)
     for _ in range(COLLISION_TIMES):
         planned, here = draws.at_one_time()
         if planned is not None:

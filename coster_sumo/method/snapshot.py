@@ -243,22 +243,24 @@ def _plausible_sample(pred: Any, k: int, scene: Scene, t_col: int, target: int, 
     return s["world_xy"][0], heading, length, width, speed
 
 
-def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable: DrivableArea | None,
-                   collision_time: str = "entropy", seed: int = 0, models_dir: Path | None = None,
-                   model: Any = None, regions_out: dict[str, np.ndarray] | None = None,
-                   exclude: Collection[int] = (), strict: bool = True,
-                   memo: PriorMemo | None = None) -> CollisionSnapshot:
+def prior_snapshot(request: PlacementRequest, *, model: Any = None,
+                   regions_out: dict[str, np.ndarray] | None = None) -> CollisionSnapshot:
     """COSTER's snapshot: t_col from the velocity entropy, placement from the prior (module docstring).
 
-    ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in ``models_dir`` (default: the shipped
-    models folder). ``regions_out``, when given, receives the region centres ``xy`` (K, 2) [m] and
-    presence probabilities ``presence`` (K,) around the target at t_col, for pictures. ``memo``:
-    kept by the caller across draws for the same scene, target and model: the regions, the
-    entropy curve and the prior's adaptation to the traffic around (fitted over the whole search
-    window) are computed once in it (:class:`PriorMemo`; they depend on nothing else).
+    The request's ``scene`` is at 2 Hz. ``model`` defaults to ``prior.pt`` in its ``models_dir``
+    (default: the shipped models folder). ``regions_out``, when given, receives the region centres
+    ``xy`` (K, 2) [m] and presence probabilities ``presence`` (K,) around the target at t_col, for
+    pictures. Its ``memo``: kept by the caller across draws for the same scene, target and model: the
+    regions, the entropy curve and the prior's adaptation to the traffic around (fitted over the
+    whole search window) are computed once in it (:class:`PriorMemo`; they depend on nothing else).
     """
     from coster_sumo.infra import weights
     from coster_sumo.prior.infer import load_prior, predict_scene
+
+    scene, target, rng, drivable, seed = request.scene, request.target, request.rng, request.drivable, request.seed
+    collision_time, models_dir, exclude, strict = (request.collision_time, request.models_dir, request.exclude,
+                                                   request.strict)
+    memo = request.memo
 
     if model is None:
         model = weights.load_cached(weights.weights_path(weights.PRIOR, models_dir), load_prior)
@@ -271,7 +273,7 @@ def prior_snapshot(scene: Scene, target: int, rng: np.random.Generator, drivable
     t_col = choose_collision_time(window, collision_time, rng, entropy)
     at_col = np.array([t_col])
     pred = predict_scene(model, data, target, steps=at_col, pose=target_pose(scene, target, at_col),
-                         adaptation=memo.adaptation)
+                         calibrate=memo.adaptation or True)
     tgt = AgentState.from_tracks(tr, target, t_col)
     obstacles = Obstacles.at_step(scene, t_col, [target])
     centres_col = pred.regions.centre[np.maximum(pred.region_index[0], 0)]  # (K, 2)
@@ -365,9 +367,7 @@ class SnapshotInit:
 
 
 def _prior_init(request: PlacementRequest) -> CollisionSnapshot:
-    r = request
-    return prior_snapshot(r.scene, r.target, r.rng, r.drivable, collision_time=r.collision_time, seed=r.seed,
-                          models_dir=r.models_dir, exclude=r.exclude, strict=r.strict, memo=r.memo)
+    return prior_snapshot(request)
 
 
 def _random_init(request: PlacementRequest) -> CollisionSnapshot:

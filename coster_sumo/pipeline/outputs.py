@@ -31,6 +31,7 @@ import sys
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,7 @@ from coster_sumo.avoidability.labels import ESCAPE_FILE, attach_labels
 from coster_sumo.core.plan import AdversaryPlan, sim_time_of
 from coster_sumo.core.results import AvoidableOnly, SnapshotRecord, TargetMotion, TargetResult, VariantOutcome
 from coster_sumo.core.scene import Scene
-from coster_sumo.core.snapshot import AgentState
+from coster_sumo.core.snapshot import AgentState, CollisionSnapshot
 from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.exports.trajectories import TRAJECTORIES_FILE, write_trajectories_csv
@@ -212,10 +213,13 @@ def target_motion(scene: Scene, index: int) -> TargetMotion:
                         distance_m=round(float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()), 1))
 
 
-def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult, target_id: str, t_col: float,
-                  rec: VariantOutcome, nominal: Scene, target: int, planned_state: AgentState, t_col_step: int) -> None:
+def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult, rec: VariantOutcome,
+                  nominal: Scene, target: int, snapshot: CollisionSnapshot) -> None:
     """A variant's render as SUMO drove it: every vehicle at the contact (else at t_col) where the
-    injection pass had it, the driven paths solid, the adversary's plan dashed; the title says so."""
+    injection pass had it, the driven paths solid, the adversary's plan dashed; the title says so.
+    Without the adversary or the target in the pass: its plan on the ``nominal`` scene, from its
+    ``snapshot``."""
+    target_id, t_col = str(nominal.tracks.ids[target]), snapshot.time
     xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
     planned_xy = np.stack([xs, ys], 1)
     c = res.contact
@@ -231,16 +235,17 @@ def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult,
         adv_xy = np.stack([driven.tracks.x[a, upto], driven.tracks.y[a, upto]], 1)
         if driven.tracks.valid[a, step] and len(adv_xy):
             at = f"{driven.timestamps[step]:.1f} s"
-            viz.render_variant(path, driven, ids.index(target_id), adv_xy,
-                               AgentState.from_tracks(driven.tracks, a, step), step,
-                               f"variant {i} as driven in SUMO: {what}\nvehicles at {at}",
-                               contact_xy=c.positions[1] if c else None, planned_xy=planned_xy,
-                               box_label=f"adversary at {at}")
+            marks = viz.AdversaryMarks(adv_xy, AgentState.from_tracks(driven.tracks, a, step),
+                                       contact_xy=c.positions[1] if c else None, planned_xy=planned_xy,
+                                       box_label=f"adversary at {at}")
+            viz.render_variant(path, driven, ids.index(target_id), step,
+                               f"variant {i} as driven in SUMO: {what}\nvehicles at {at}", marks)
             return
     # the pass lost the adversary or the target (it left early): the plan on the nominal scene, said so
-    viz.render_variant(path, nominal, target, planned_xy, planned_state, t_col_step,
+    t_col_step = int(np.argmin(np.abs(nominal.timestamps - t_col)))
+    viz.render_variant(path, nominal, target, t_col_step,
                        f"variant {i} as planned (not in the pass at {when:.1f} s): {what}",
-                       contact_xy=c.positions[1] if c else None)
+                       viz.AdversaryMarks(planned_xy, snapshot.adversary, contact_xy=c.positions[1] if c else None))
 
 
 def _overview_name(k: int) -> str:
@@ -313,21 +318,45 @@ class OverviewRenders:
                 _render_overview(out, k, p, p.plans)
 
 
-def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list[PlannedScenario],
-                      results: list[InjectionResult], labels: Sequence[Avoidability], timings: dict[str, float], *,
-                      render: bool, options: dict[str, Any], copy_outside: bool = False,
-                      overviews: OverviewRenders | None = None, folder: Path | None = None,
-                      avoidable_only: AvoidableOnly | None = None,
+@dataclass(frozen=True)
+class OutputSettings:
+    """How a run's outputs are written, and what its summary records besides the variants.
+
+    Attributes:
+        spec: the run's scenario; planner: who drove the target (chosen already).
+        render: draw the overviews and each variant's render.
+        options: the run's options as summary.json records them.
+        copy_outside: exports also copy the files the configuration names outside its folder.
+        folder: where the caller renames the output folder to (None: where it is written).
+        avoidable_only: what ``--avoidable only`` tried (None: not asked).
+    """
+
+    spec: ScenarioSpec
+    planner: str
+    render: bool
+    options: dict[str, Any]
+    copy_outside: bool = False
+    folder: Path | None = None
+    avoidable_only: AvoidableOnly | None = None
+
+    def __post_init__(self) -> None:
+        if not self.planner:
+            raise InputError("the outputs of a run need the planner that drove its target")
+
+
+def write_run_outputs(out: Path, planned: list[PlannedScenario], results: list[InjectionResult],
+                      labels: Sequence[Avoidability], timings: dict[str, float], settings: OutputSettings, *,
+                      overviews: OverviewRenders | None = None,
                       done: Callable[[int], object] | None = None) -> TargetResult:
-    """Write everything of a run into ``out`` (the caller renames it into place, to ``folder``: None,
-    ``out`` itself), ``summary.json`` last; returns the target's result (``summary.json`` is its JSON).
+    """Write everything of a run into ``out`` (the caller renames it into place, to ``settings.folder``:
+    None, ``out`` itself), ``summary.json`` last; returns the target's result (``summary.json`` is its JSON).
 
     ``planned``: one entry per collision snapshot (``--snapshots``); ``results`` and ``labels``: one
     per plan, in the order of the snapshots' plans. Variants are numbered across snapshots.
-    ``overviews``: the overviews started before the variants ran (None: drawn here);
-    ``avoidable_only``: what ``--avoidable only`` tried; ``done(1)`` is called as each variant's files
-    and export are written. ``timings`` gains ``outputs_s``.
+    ``overviews``: the overviews started before the variants ran (None: drawn here); ``done(1)`` is
+    called as each variant's files and export are written. ``timings`` gains ``outputs_s``.
     """
+    spec, planner, render, options = settings.spec, settings.planner, settings.render, settings.options
     t0 = time.perf_counter()
     first = planned[0]
     scene, target = first.scene, first.target_index
@@ -347,15 +376,14 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
 
     def draw_variants() -> None:
         for i, (_, p, plan) in enumerate(jobs):
-            render_driven(out / "variants" / str(i) / "render.png", i, plan, results[i], target_id, p.snapshot.time,
-                          variants[i], scene, target, p.snapshot.adversary,
-                          int(np.argmin(np.abs(scene.timestamps - p.snapshot.time))))
+            render_driven(out / "variants" / str(i) / "render.png", i, plan, results[i], variants[i], scene, target,
+                          p.snapshot)
 
     # the renders are drawn on another core while the files and exports are written here
     drawing = _Drawing(draw_variants) if render else None
     for i, (_, _, plan) in enumerate(jobs):
-        variants[i] = _write_variant(out, i, plan, results[i], labels[i].escape, spec, planner, scene, target_id,
-                                     variants[i], copy_outside=copy_outside)
+        variants[i] = _write_variant(out / "variants" / str(i), plan, results[i], labels[i].escape, variants[i],
+                                     target_id, float(scene.timestamps[-1]), settings)
         if done is not None:
             done(1)
     snapshots: list[SnapshotRecord] = []
@@ -377,7 +405,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
     rates = run_metrics(variants)
     timings = {**timings, "outputs_s": time.perf_counter() - t0}
     result = TargetResult(
-        folder if folder is not None else out, target_id, config=str(spec.config), planner=planner,
+        settings.folder if settings.folder is not None else out, target_id, config=str(spec.config), planner=planner,
         seed=spec.seed, t_col=round(snap0.time, 3), num_snapshots=len(snapshots), num_variants=len(variants),
         collision_rate=rates["collision_rate"], off_road_rate=rates["off_road_rate"],
         impact_angle_spread_deg=rates["impact_angle_spread_deg"], variants=tuple(variants), snapshots=tuple(snapshots),
@@ -389,7 +417,7 @@ def write_run_outputs(out: Path, spec: ScenarioSpec, planner: str, planned: list
         timings_s={k: round(v, 3) for k, v in timings.items()}, options=options, renders=tuple(renders),
         # where the README documents it: how --targets N chose (also under options)
         target_choice=tuple(options["target_choice"]) if options.get("target_choice") else None,
-        avoidable_only=avoidable_only)
+        avoidable_only=settings.avoidable_only)
     result = attach_labels(result, labels, [(plan, results[i]) for i, (_, _, plan) in enumerate(jobs)])
     write_json(out / "summary.json", result.to_json())
     return result
@@ -405,22 +433,21 @@ def run_metrics(variants: Sequence[VariantOutcome]) -> dict[str, float | None]:
     return {key: metrics.compute(name, sample).value for key, name in RUN_METRICS.items()}
 
 
-def _write_variant(out: Path, i: int, plan: AdversaryPlan, res: InjectionResult, escape: Escape | None,
-                   spec: ScenarioSpec, planner: str, scene: Scene, target_id: str, rec: VariantOutcome, *,
-                   copy_outside: bool) -> VariantOutcome:
-    """Variant ``i``'s files into ``out/variants/i``: trajectories, the target's ``escape`` (None: its
-    label has none) and the plain-SUMO export; returns its record (``rec``) with the export's error,
-    if any."""
-    vdir = out / "variants" / str(i)
+def _write_variant(vdir: Path, plan: AdversaryPlan, res: InjectionResult, escape: Escape | None,
+                   rec: VariantOutcome, target_id: str, end: float, settings: OutputSettings) -> VariantOutcome:
+    """A variant's files into its folder ``vdir``: trajectories, the target's ``escape`` (None: its
+    label has none) and the plain-SUMO export of its pass up to ``end`` [s]; returns its record
+    (``rec``) with the export's error, if any."""
+    spec = settings.spec
     trajectory_csv(vdir / "trajectory.csv", res, [target_id, plan.vehicle_id])
     write_trajectories_csv(vdir / TRAJECTORIES_FILE, res.scene)
     if escape is not None:
         (vdir / ESCAPE_FILE).write_text(escape.csv())
     try:  # a variant whose export SUMO refuses keeps everything else; the reason is in its record
         export_variant(vdir / "export", spec.config, plan,
-                       {"target_id": target_id, "planner": planner, "seed": spec.seed,
-                        "begin": spec.begin, "end": float(scene.timestamps[-1])}, res,
-                       copy_outside=copy_outside)
+                       {"target_id": target_id, "planner": settings.planner, "seed": spec.seed,
+                        "begin": spec.begin, "end": end}, res,
+                       copy_outside=settings.copy_outside)
     except (SumoError, InputError) as exc:
         shutil.rmtree(vdir / "export", ignore_errors=True)
         return dataclasses.replace(rec, export_error=str(exc))

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import shutil
@@ -21,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from coster_sumo.avoidability.labels import label_plans
+from coster_sumo.avoidability.labels import ProofSettings, label_plans
 from coster_sumo.core.results import RunResult, RunSummary, TargetEntry, TargetResult
 from coster_sumo.core.snapshot import CollisionSnapshot
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
@@ -34,7 +35,7 @@ from coster_sumo.infra.progress import Bars, progress_bar
 from coster_sumo.method.collision_time import PRIOR_RATE_HZ
 from coster_sumo.method.generation import DrawMemo, check_generation, label_and_keep, plan_scenarios
 from coster_sumo.method.snapshot import SNAPSHOT_INITS
-from coster_sumo.pipeline.outputs import OverviewRenders, write_run_outputs
+from coster_sumo.pipeline.outputs import OutputSettings, OverviewRenders, write_run_outputs
 from coster_sumo.pipeline.scenario import NominalPass, nominal_pass
 from coster_sumo.rollout.methods import HORIZON_STEPS, ROLLOUTS
 from coster_sumo.sim.hold import HeldStates
@@ -235,9 +236,9 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     def label(plans: list[Any]) -> list[Any]:
         # one step per plan's kinematic search, one for the escapes' replays in SUMO
         with bars("labels (escapes proven in SUMO last)", "step", total=len(plans) + 1) as bar:
-            return label_plans(source, scene, target, plans, drivable=drivable, held=held, workers=how.workers,
-                               traci=how.traci, reaction_time_s=wanted.reaction_time, timings=timings,
-                               done=bar.update)
+            proof = ProofSettings(drivable, held, workers=how.workers, traci=how.traci)
+            return label_plans(source, scene, target, plans, proof, reaction_time_s=wanted.reaction_time,
+                               timings=timings, done=bar.update)
 
     planned, labels, tried = label_and_keep(planned, label, wanted, opts.generation.variants * opts.snapshots,
                                             seed=spec.seed, gen=opts.generation, drivable=drivable, memo=shared)
@@ -251,8 +252,8 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     t0 = time.perf_counter()
     plans = [plan for p in planned for plan in p.plans]
     with bars("variants", "variant", total=len(plans)) as bar:
-        outcomes = inject_variants(source, scene, target, plans, how, drivable=drivable, workdir=out, held=held,
-                                   done=bar.update)
+        outcomes = inject_variants(source, scene, target, plans, dataclasses.replace(how, workdir=out),
+                                   drivable=drivable, held=held, done=bar.update)
     timings["injection_s"] = time.perf_counter() - t0
     planned, results = drop_failed_variants(planned, outcomes)
     planned, results = drop_bystander_wrecks(planned, results, target_id)
@@ -265,9 +266,9 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
                          "t_col in the simulation")
     kept = [labels[pl.vehicle_id] for p in planned for pl in p.plans]
     with bars("outputs", "variant", total=sum(len(p.plans) for p in planned)) as bar:
-        return write_run_outputs(out, spec, how.planner, planned, results, kept, timings, render=opts.render,
-                                 options=opts.to_json(), copy_outside=opts.copy_outside, overviews=overviews,
-                                 folder=published, avoidable_only=tried, done=bar.update)
+        settings = OutputSettings(spec, how.planner, opts.render, opts.to_json(), copy_outside=opts.copy_outside,
+                                  folder=published, avoidable_only=tried)
+        return write_run_outputs(out, planned, results, kept, timings, settings, overviews=overviews, done=bar.update)
 
 
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:

@@ -7,7 +7,7 @@
    (``scene.npz``, see :mod:`coster_sumo.formats.scene_folder`); any other configuration is
    simulated with libsumo and recorded with the spec's seed (the injection passes use the same);
 3. :func:`nominal_pass`: for ``coster-sumo run``, the scene, its drivable area and each requested
-   target chosen once (:func:`coster_sumo.pipeline.targets.choose_target`: the spec's target, else the SDC
+   target chosen once (:func:`coster_sumo.formats.targets.choose_target`: the spec's target, else the SDC
    of a converted scene, else ``ego``), in one :class:`NominalPass` that the targets of a run share.
 
 The generation itself is :mod:`coster_sumo.method.generation`.
@@ -29,9 +29,9 @@ from coster_sumo.data.dataset import crop_scene
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.formats.targets import OFF_ROAD_CLASSES, choose_target, config_demand, missing_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
-from coster_sumo.pipeline.targets import OFF_ROAD_CLASSES, choose_target, config_demand, missing_target
 from coster_sumo.sim.hold import HeldStates
 
 MAX_TARGET_LIFE_S = 3600.0  # [s] of the target's life a nominal pass records at most (then it stops)

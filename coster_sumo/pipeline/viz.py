@@ -134,21 +134,40 @@ def heatmap(ax: Axes, xy: np.ndarray, window: tuple[float, float, float, float],
               alpha=0.75, zorder=2)
 
 
-def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarray, adversary_state: AgentState,
-                   t_col_step: int, title: str, contact_xy: Sequence[float] | None = None,
-                   planned_xy: np.ndarray | None = None, box_label: str = "adversary at t_col") -> Path:
+@dataclass(frozen=True)
+class AdversaryMarks:
+    """What a variant's render draws of its adversary.
+
+    Attributes:
+        path_xy: (T, 2) [m] its path, solid.
+        state: its box (at the render's step).
+        contact_xy: [m] the first contact, a star (None: none; the close-up then centres on the box).
+        planned_xy: (T, 2) [m] its plan, dashed (None: not drawn).
+        box_label: the box's legend entry.
+    """
+
+    path_xy: np.ndarray
+    state: AgentState
+    contact_xy: Sequence[float] | None = None
+    planned_xy: np.ndarray | None = None
+    box_label: str = "adversary at t_col"
+
+
+def render_variant(path: Path, scene: Scene, target: int, t_col_step: int, title: str,
+                   adversary: AdversaryMarks) -> Path:
     """One variant: map, agents at ``t_col_step`` of ``scene``, the target's path, the adversary's
-    path and box; ``planned_xy`` (the adversary's plan) dashed where it is given.
+    path and box, its plan dashed where it is given.
 
     Pass the injection pass as ``scene`` (with the adversary's driven path) to draw what was driven:
     a target that braked is then drawn where it was, not where the nominal pass had it.
     """
+    adversary_xy, contact_xy, planned_xy = adversary.path_xy, adversary.contact_xy, adversary.planned_xy
     t = scene.tracks
     tv = t.valid[target]
     window = window_around(np.concatenate([adversary_xy, np.stack([t.x[target, tv], t.y[target, tv]], 1)]),
                            margin=15.0)
     fig, ax = plt.subplots(figsize=(7, 7.6))
-    s = adversary_state
+    s = adversary.state
     focus = np.asarray(contact_xy if contact_xy is not None else (s.x, s.y), float)
 
     def draw(a: Axes, win: tuple[float, float, float, float], labels: bool) -> None:
@@ -161,7 +180,7 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
                    label="adversary's plan" if labels else None)
         a.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, zorder=3,
                label="adversary path" if labels else None)
-        draw_box(a, s, ADVERSARY_COLOR, label=box_label if labels else None)
+        draw_box(a, s, ADVERSARY_COLOR, label=adversary.box_label if labels else None)
         if contact_xy is not None:  # hollow in the close-up, so the boxes under it stay visible
             a.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8,
                    mfc="gold" if labels else "none", label="first contact" if labels else None)

@@ -428,9 +428,8 @@ def predict_tokens(model: TrafficPrior, tokens: Tokens, only_query: bool = False
 
 def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: int,
                   steps: np.ndarray | None = None, mode: str = "context",
-                  pose: np.ndarray | None = None, hide_radius: float | None = None,
-                  heads: Collection[str] | None = None, calibrate: bool = True,
-                  adaptation: SceneAdaptation | None = None) -> PriorPrediction:
+                  pose: np.ndarray | None = None, heads: Collection[str] | None = None,
+                  calibrate: bool | SceneAdaptation = True) -> PriorPrediction:
     """Run the prior around ``target`` at every step (one batched forward pass).
 
     Args:
@@ -439,18 +438,16 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
             ``target`` to be a vehicle index in its tracks.
         target: agent index of the target (neighbourhood centre).
         steps: (T,) steps of the 2 Hz scene (default all).
-        mode: "context" (regions within ``hide_radius`` of the target are predicted, the traffic
-            outside is given) or "map" (every region predicted from map and signals only). Only the
-            ``query`` tokens of the result carry predictions.
+        mode: "context" (regions within the model's ``hide_radius`` of the target are predicted,
+            the traffic outside is given) or "map" (every region predicted from map and signals
+            only). Only the ``query`` tokens of the result carry predictions.
         pose: optional (T, 3) centre x, y, heading overriding the target's logged pose (needed where
             the target is invalid; such steps otherwise get no regions).
-        hide_radius: [m] for "context" mode (default ``config.hide_radius``, 15 m); the region
-            centres to be predicted must lie within it.
         heads: the attributes to predict (default all; :meth:`PriorPrediction.sample` needs all).
         calibrate: in "context" mode, adapt presence and the speed and length classes to the
-            scene's visible traffic (:func:`fit_scene_adaptation` over these steps, module docstring).
-        adaptation: the adaptation to apply instead of fitting one here (e.g. one fitted over a
-            longer stretch of the same scene); with ``calibrate``, context mode only.
+            scene's visible traffic (True: :func:`fit_scene_adaptation` over these steps, module
+            docstring); or the :class:`SceneAdaptation` to apply instead of fitting one here (e.g.
+            one fitted over a longer stretch of the same scene). False: none.
     """
     cfg = model.config
     if isinstance(scene, Scene):
@@ -479,11 +476,12 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
         raise ValueError(f"mode must be 'context' or 'map', got {mode!r}")
     pose = np.where(ok[:, None], pose, 1e12)  # far away: no regions at steps without a target
     tokens = scene_tokens(data, st, np.asarray(pose, np.float64), cfg.bins(), cfg.radius, cfg.max_regions,
-                          visible=mode, hide_radius=cfg.hide_radius if hide_radius is None else hide_radius)
+                          visible=mode, hide_radius=cfg.hide_radius)
     presence, probs = predict_tokens(model, tokens, only_query=True, heads=heads)
     fitted = SceneAdaptation()
-    if calibrate and mode == "context":
-        fitted = adaptation or fit_scene_adaptation(model, data, st, np.asarray(pose, np.float64), tokens)
+    if calibrate is not False and mode == "context":
+        fitted = (calibrate if isinstance(calibrate, SceneAdaptation)
+                  else fit_scene_adaptation(model, data, st, np.asarray(pose, np.float64), tokens))
         presence, probs = fitted.apply(model, presence, probs, tokens.query & tokens.mask)
     agent, _, _ = data.occupancy.gather(st[:, None], np.maximum(tokens.region_index, 0))
     return PriorPrediction(regions=data.regions, steps=st, region_index=tokens.region_index, mask=tokens.mask,

@@ -120,10 +120,11 @@ def _resumed(state_path: Path, mcfg: PriorConfig, tcfg: TrainConfig, model: Traf
 
 
 def _train_epoch(model: TrafficPrior, opt: torch.optim.Optimizer, train: Sequence[ScenePriorData],
-                 tcfg: TrainConfig, dev: torch.device, epoch: int, steps_per_epoch: int, total_steps: int,
-                 progress: bool) -> float:
-    """One epoch (0-based) over fresh samples of ``train``: the mean training loss per batch."""
+                 tcfg: TrainConfig, dev: torch.device, epoch: int, steps_per_epoch: int, progress: bool) -> float:
+    """One epoch (0-based) of ``tcfg.epochs``, ``steps_per_epoch`` batches each, over fresh samples of
+    ``train``: the mean training loss per batch."""
     cfg = model.config
+    total_steps = steps_per_epoch * tcfg.epochs
     rng = np.random.default_rng([tcfg.seed, epoch])
     samples = epoch_samples(train, rng, tcfg.centres_per_step)
     batches = range(0, len(samples), tcfg.batch_size)
@@ -215,13 +216,12 @@ def train_prior(train: Sequence[ScenePriorData], val: Sequence[ScenePriorData], 
     # every epoch has the same number of samples (centres_per_step per scene step with a centre)
     num_samples = len(epoch_samples(train, np.random.default_rng(0), tcfg.centres_per_step))
     steps_per_epoch = max(1, math.ceil(num_samples / tcfg.batch_size))
-    total_steps = steps_per_epoch * tcfg.epochs
     val_samples = epoch_samples(val, np.random.default_rng([tcfg.seed, 10**6 + 1]), 1) if val else None
     if val_samples is not None:
         val_samples = val_samples[: tcfg.val_batches_max * tcfg.batch_size]
     for epoch in range(done.epoch, tcfg.epochs):
         t0 = time.perf_counter()
-        train_loss = _train_epoch(model, opt, train, tcfg, dev, epoch, steps_per_epoch, total_steps, progress)
+        train_loss = _train_epoch(model, opt, train, tcfg, dev, epoch, steps_per_epoch, progress)
         record = PriorEpoch(epoch=epoch + 1, train_loss=train_loss, seconds=time.perf_counter() - t0)
         if val_samples is not None and len(val_samples):
             record = replace(record, val=evaluate_loss(model, val, val_samples, tcfg.batch_size, tcfg.seed))

@@ -279,11 +279,12 @@ def encode_neighbors(scene: Scene, origin: Pose, t_index: int, horizon: int,
     return nbr, mask
 
 
-def encode_context(cache: SceneCache, pose: Pose, speed: float, length: float, width: float,
+def encode_context(cache: SceneCache, pose: Pose, speed: float, size: tuple[float, float],
                    t_index: int, horizon: int, cfg: RolloutConfig, exclude: Iterable[int] = ()) -> Context:
-    """One context: the vehicle at world ``pose`` = (x, y, yaw) with ``speed`` [m/s] and size [m] at
-    step ``t_index`` of the 2 Hz scene, reconstructed ``horizon`` steps back; agents ``exclude`` are
-    never neighbours (the vehicle itself when it is in the scene)."""
+    """One context: the vehicle at world ``pose`` = (x, y, yaw) with ``speed`` [m/s] and ``size`` =
+    (length, width) [m] at step ``t_index`` of the 2 Hz scene, reconstructed ``horizon`` steps back;
+    agents ``exclude`` are never neighbours (the vehicle itself when it is in the scene)."""
+    length, width = size
     origin = np.asarray(pose, np.float64).reshape(3)
     if horizon > t_index:
         raise InputError(f"horizon {horizon} reaches before the scene start (t_index {t_index})")
@@ -298,8 +299,8 @@ def agent_context(cache: SceneCache, agent: int, t_index: int, horizon: int, cfg
     tr = cache.scene.tracks
     pose = (tr.x[agent, t_index], tr.y[agent, t_index], tr.heading[agent, t_index])
     speed = float(np.hypot(tr.vx[agent, t_index], tr.vy[agent, t_index]))
-    return encode_context(cache, pose, speed, float(tr.length[agent, t_index]), float(tr.width[agent, t_index]),
-                          t_index, horizon, cfg, exclude=(agent,))
+    size = (float(tr.length[agent, t_index]), float(tr.width[agent, t_index]))
+    return encode_context(cache, pose, speed, size, t_index, horizon, cfg, exclude=(agent,))
 
 
 def reverse_targets(scene: Scene, agent: int, t_index: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:

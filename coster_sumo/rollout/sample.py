@@ -74,8 +74,7 @@ def trajectory_times(scene_2hz: Scene, t_index: int, horizon: int) -> np.ndarray
 
 def sample_trajectories(model: RolloutCVAE, scene_2hz: Scene, snapshot: CollisionSnapshot | tuple[AgentState, int],
                         n: int = DEFAULT_SAMPLES, seed: int = 0, *, horizon: int | None = None,
-                        exclude: Iterable[int] = (), cache: SceneCache | None = None,
-                        temperature: float = 1.0) -> np.ndarray:
+                        exclude: Iterable[int] = (), cache: SceneCache | None = None) -> np.ndarray:
     """Oversample the adversary's approach backwards from the collision snapshot, in one batched pass.
 
     Args:
@@ -93,7 +92,6 @@ def sample_trajectories(model: RolloutCVAE, scene_2hz: Scene, snapshot: Collisio
             adversary replaces a logged agent).
         cache: :func:`~coster_sumo.rollout.data.build_cache` of ``scene_2hz`` when sampling several
             snapshots of one scene.
-        temperature: scales the prior's standard deviation (1 = the model's distribution).
 
     Returns:
         (N, H + 1, 3) float64 centre x, y [m] and yaw [rad] (CCW from +x, unwrapped) in the scene's
@@ -113,12 +111,12 @@ def sample_trajectories(model: RolloutCVAE, scene_2hz: Scene, snapshot: Collisio
     if h == 0:
         return np.broadcast_to(last, (n, 1, 3)).copy()
     cache = cache if cache is not None else build_cache(scene_2hz, model.cfg)
-    ctx = encode_context(cache, last, state.speed, state.length, state.width, t_index, h, model.cfg,
+    ctx = encode_context(cache, last, state.speed, (state.length, state.width), t_index, h, model.cfg,
                          exclude=exclude)
     arrays = stack_contexts([ctx])
     arrays.pop("origin")
     gen = torch.Generator().manual_seed(int(seed))
-    poses = model.sample(to_tensors(arrays), n, generator=gen, temperature=temperature)[0]  # (N, H, 3)
+    poses = model.sample(to_tensors(arrays), n, generator=gen)[0]  # (N, H, 3)
     p = poses.double().numpy()
     x, y, yaw = from_frame(p[..., 0], p[..., 1], p[..., 2], last)
     out = np.empty((n, h + 1, 3))

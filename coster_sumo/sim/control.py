@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from coster_sumo.errors import SumoError
+from coster_sumo.errors import InputError, SumoError
 from coster_sumo.geometry import frames
 from coster_sumo.sim.sumo_options import (
     KEEP_ROUTE_EXACT_ANYWHERE,
@@ -26,6 +27,30 @@ from coster_sumo.sim.sumo_options import (
     SPEED_MODE_ALL_CHECKS_OFF,
     SPEED_MODE_SUMO_DEFAULT,
 )
+
+
+@dataclass(frozen=True)
+class Departure:
+    """Where and how an added vehicle enters (SUMO's route and departLane / departPos / departSpeed).
+
+    Attributes:
+        edges: its route (a private route is made of them); None: ``""``, which lets SUMO put it on a
+            random edge (fine for a vehicle placed with :meth:`SessionControl.move_to_xy`).
+        lane, pos, speed: SUMO's departLane, departPos and departSpeed, as SUMO spells them (a vehicle
+            SUMO drives from its departure waits where inserting it is unsafe).
+    """
+
+    edges: Sequence[str] | None = None
+    lane: str = "first"
+    pos: str = "base"
+    speed: str = "0"
+
+    def __post_init__(self) -> None:
+        if self.edges is not None and not self.edges:
+            raise InputError("a vehicle's route needs at least one edge")
+
+
+ANYWHERE = Departure()  # SUMO's choice of edge, for a vehicle placed with move_to_xy
 
 
 class SessionControl:
@@ -51,20 +76,15 @@ class SessionControl:
         raise NotImplementedError
 
     def add_vehicle(self, veh_id: str, length: float, width: float, vclass: str = "passenger", *,
-                    route_edges: Sequence[str] | None = None, route_id: str | None = None,
-                    base_type: str = "DEFAULT_VEHTYPE", depart: str = "now",
-                    color: tuple[int, int, int, int] | None = None, remote: bool = True,
-                    depart_lane: str = "first", depart_pos: str = "base", depart_speed: str = "0") -> None:
-        """Add a vehicle with a private vType ``"<veh_id>@coster"`` of the given size and class.
+                    departure: Departure = ANYWHERE, base_type: str = "DEFAULT_VEHTYPE",
+                    color: tuple[int, int, int, int] | None = None, remote: bool = True) -> None:
+        """Add a vehicle with a private vType ``"<veh_id>@coster"`` of the given size and class, now,
+        entering as ``departure`` says.
 
-        Route: ``route_edges`` (a private route is made), else ``route_id``, else ``""``, which lets
-        SUMO put it on a random edge (fine for a vehicle you place with :meth:`move_to_xy`).
         ``remote=True`` prepares it for :meth:`move_to_xy`: speed mode and lane-change mode 0, and a
         speed factor / max speed large enough that SUMO does not cap its reported speed. Place a
         remote vehicle on a lane first: a vehicle first placed far from every lane can crash
-        libsumo on some getters (docs/sumo.md §3). ``depart_lane``, ``depart_pos`` and
-        ``depart_speed`` are SUMO's departLane / departPos / departSpeed (a vehicle SUMO drives from
-        its departure waits where inserting it is unsafe).
+        libsumo on some getters (docs/sumo.md §3).
         """
         api = self.api
         vt = api.vehicletype
@@ -84,15 +104,17 @@ class SessionControl:
             vt.setSpeedFactor(type_id, REMOTE_SPEED_FACTOR)
             vt.setMaxSpeed(type_id, REMOTE_MAX_SPEED_MPS)
             vt.setSpeedDeviation(type_id, 0.0)
-        if route_edges is not None:
-            route_id = self._routes.get(tuple(route_edges))
+        route_id = None
+        if departure.edges is not None:
+            route_edges = tuple(departure.edges)
+            route_id = self._routes.get(route_edges)
             if route_id is None:
                 route_id = f"{veh_id}@route" + ("" if not self._routes else f"#{len(self._routes)}")
                 api.route.add(route_id, list(route_edges))
-                self._routes[tuple(route_edges)] = route_id
+                self._routes[route_edges] = route_id
         try:
-            api.vehicle.add(veh_id, route_id or "", typeID=type_id, depart=depart, departLane=depart_lane,
-                            departPos=depart_pos, departSpeed=depart_speed)
+            api.vehicle.add(veh_id, route_id or "", typeID=type_id, depart="now", departLane=departure.lane,
+                            departPos=departure.pos, departSpeed=departure.speed)
         except Exception as exc:
             raise SumoError(f"{self.name}: cannot add vehicle {veh_id!r}: {sumo_message(exc)}") from None
         if color is not None:

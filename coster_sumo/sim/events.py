@@ -31,9 +31,13 @@ def _velocity(states: VehicleStates, i: int) -> np.ndarray:
     return states.speed[i] * np.array([np.cos(states.yaw[i]), np.sin(states.yaw[i])])
 
 
-def _sat_gap(ax: float, ay: float, ayaw: float, alen: float, awid: float,
-             bx: float, by: float, byaw: float, blen: float, bwid: float) -> float:
+Box = tuple[float, float, float, float, float]  # x [m], y [m], yaw [rad], length [m], width [m]
+
+
+def _sat_gap(a: Box, b: Box) -> float:
     """Largest separation [m] of two oriented boxes along their four axes (< 0: overlapping)."""
+    ax, ay, ayaw, alen, awid = a
+    bx, by, byaw, blen, bwid = b
     ac, as_, bc, bs = math.cos(ayaw), math.sin(ayaw), math.cos(byaw), math.sin(byaw)
     dx, dy = bx - ax, by - ay
     ahl, ahw, bhl, bhw = 0.5 * alen, 0.5 * awid, 0.5 * blen, 0.5 * bwid
@@ -202,9 +206,9 @@ class EventDetector:
         The largest gap along the four box axes is a lower bound of the Euclidean gap, and <= 0
         exactly when the boxes overlap; only a gap in (0, tolerance] needs the exact distance.
         """
-        a = (s.x.item(i), s.y.item(i), s.yaw.item(i), s.length.item(i), s.width.item(i))
-        b = (s.x.item(j), s.y.item(j), s.yaw.item(j), s.length.item(j), s.width.item(j))
-        gap = _sat_gap(*a, *b)
+        a: Box = (s.x.item(i), s.y.item(i), s.yaw.item(i), s.length.item(i), s.width.item(i))
+        b: Box = (s.x.item(j), s.y.item(j), s.yaw.item(j), s.length.item(j), s.width.item(j))
+        gap = _sat_gap(a, b)
         if gap > CONTACT_TOLERANCE_M:
             return False
         return gap <= 0.0 or bool(box_signed_distance(np.array(a), np.array(b)) <= CONTACT_TOLERANCE_M)

@@ -37,6 +37,7 @@ from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.geometry.frames import centre_to_front
 from coster_sumo.infra.procs import ChildFailed, run_forked
 from coster_sumo.sim import handover
+from coster_sumo.sim.control import Departure
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
@@ -101,8 +102,8 @@ class AdversaryController:
             return
         x, y, yaw, speed = self._pose(t_next)
         if not self.added:
-            session.add_vehicle(vid, self.plan.length, self.plan.width, "passenger",
-                                route_edges=edge_under(session, x, y, yaw, self.plan.length), color=ADVERSARY_COLOR)
+            session.add_vehicle(vid, self.plan.length, self.plan.width, "passenger", color=ADVERSARY_COLOR,
+                                departure=Departure(edge_under(session, x, y, yaw, self.plan.length)))
             self.added = True
         session.move_to_xy(vid, x, y, yaw, self.plan.length, speed=speed)
 
@@ -206,50 +207,28 @@ class PassSettings:
     post_contact_s: float | None = None
 
 
-def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
-                  seed: int | None, end: float, begin: float | None = None,
-                  drivable: DrivableArea | None = None, actors: tuple[StepActor, ...] = (),
-                  detect_events: bool = True, freeze_at: float | None = None, traci: bool = False,
-                  workdir: Path | None = None, session_kwargs: dict[str, Any] | None = None,
-                  surroundings_m: float | None = None, post_contact_s: float | None = None) -> InjectionResult:
+def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner,
+                  settings: PassSettings, *, seed: int | None, traci: bool = False,
+                  workdir: Path | None = None) -> InjectionResult:
     """Run one pass of ``config`` from a fresh start with the adversary ``plan`` injected.
 
-    ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner). The
-    other keywords after ``seed`` but ``traci``, ``workdir`` and ``session_kwargs`` are the
-    :class:`PassSettings`.
+    ``plan=None`` runs the pass without an adversary (a nominal pass with the same planner). A fresh
+    session of ``config`` (``seed``, libsumo or ``traci``, the planner's files written into
+    ``workdir``) runs the pass that ``settings`` describe.
     """
-    settings = PassSettings(end=end, begin=begin, drivable=drivable, actors=actors, detect_events=detect_events,
-                            freeze_at=freeze_at, surroundings_m=surroundings_m, post_contact_s=post_contact_s)
-    return run_pass(config, target_id, plan, planner, settings, seed=seed, traci=traci, workdir=workdir,
-                    session_kwargs=session_kwargs)
-
-
-def run_pass(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner,
-             settings: PassSettings, *, seed: int | None, traci: bool = False, workdir: Path | None = None,
-             session_kwargs: dict[str, Any] | None = None) -> InjectionResult:
-    """:func:`run_injection` with its settings as one object: a fresh session of ``config``
-    (``seed``, libsumo or ``traci``, the planner's files written into ``workdir``) and one pass."""
     workdir = Path(workdir) if workdir is not None else Path(".")
-    kwargs = dict(session_kwargs or {})
-    additional = planner.additional_files(workdir)
-    if additional:
-        kwargs["additional"] = [*kwargs.get("additional", []), *additional]
-    with SumoSession(config, seed=seed, begin=settings.begin, end=settings.end, traci=traci, **kwargs) as session:
+    with SumoSession(config, seed=seed, begin=settings.begin, end=settings.end, traci=traci,
+                     additional=planner.additional_files(workdir)) as session:
         return InjectionPass(session, target_id, plan, planner, settings).run()
 
 
-def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan | None, planner: Planner, *,
-                       end: float, begin: float | None = None, drivable: DrivableArea | None = None,
-                       actors: tuple[StepActor, ...] = (), detect_events: bool = True,
-                       freeze_at: float | None = None, surroundings_m: float | None = None,
-                       post_contact_s: float | None = None) -> InjectionResult:
+def continue_injection(session: SumoSession, target_id: str, plan: AdversaryPlan | None, planner: Planner,
+                       settings: PassSettings) -> InjectionResult:
     """The pass of :func:`run_injection` on a running session, from its current time on.
 
     The planner's additional files must already be loaded (a forked copy of a session started with
     them, see :mod:`coster_sumo.sim.hold`). Events are checked, and the pass recorded, from now on.
     """
-    settings = PassSettings(end=end, begin=begin, drivable=drivable, actors=actors, detect_events=detect_events,
-                            freeze_at=freeze_at, surroundings_m=surroundings_m, post_contact_s=post_contact_s)
     return InjectionPass(session, target_id, plan, planner, settings).run()
 
 
@@ -374,13 +353,13 @@ def nominal_replay(scene: Scene, target: int) -> ReplayPlanner:
 
 
 def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plan: AdversaryPlan,
-                   planner: str | None = None, *, drivable: DrivableArea | None = None, traci: bool = False,
-                   workdir: Path | None = None, detect_events: bool = True, freeze_at: float | None = None,
-                   post_contact_s: float | None = POST_CONTACT_S, driver: Planner | None = None,
-                   traffic: str = "log") -> InjectionResult:
+                   planner: str | InjectionSettings | None = None, *, drivable: DrivableArea | None = None,
+                   driver: Planner | None = None) -> InjectionResult:
     """Inject one variant: the one place that decides who drives whom (every command goes through it).
 
-    Who drives the target: the ``planner`` spec (default :func:`default_planner`).
+    Who drives the target: the ``planner`` spec (default :func:`default_planner`), or the
+    :class:`~coster_sumo.core.spec.InjectionSettings` that name it with the back end (``traci``) and
+    the converted scene's ``traffic`` (and the ``workdir`` its planner's files go to).
 
     - Any SUMO configuration: the configuration's own traffic runs; ``replay`` moves the target
       along its nominal trajectory (:func:`nominal_replay`), ``sumo[:<model>]`` leaves it to SUMO's
@@ -392,7 +371,7 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
       SUMO's driver (``sumo``) continues from the logged pose along the road the target is on.
 
     ``scenario``: the spec, or its source resolved already. The pass runs from the spec's begin with
-    its seed to the end of the nominal scene, or until the target has arrived, or ``post_contact_s``
+    its seed to the end of the nominal scene, or until the target has arrived, or :data:`POST_CONTACT_S`
     after the adversary's contact with the target (or after t_col, when the adversary hit another
     vehicle first and stays there). ``driver``: a planner object that replaces the one ``planner``
     names (a replay of another trajectory). On a SUMO configuration only the target's surroundings
@@ -400,19 +379,22 @@ def inject_variant(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target
     """
     source = ScenarioSource.of(scenario)
     spec, converted, target_id = source.spec, source.converted, str(scene.tracks.ids[target])
-    planner_spec = planner or default_planner(converted)
+    how = planner if isinstance(planner, InjectionSettings) else InjectionSettings(
+        planner or default_planner(converted))
+    planner_spec = how.planner
     actors: tuple[StepActor, ...] = ()
     if converted:
         handover = {} if planner_spec == "replay" and driver is None else {target_id: plan.t_start}
-        actors = (replayer_for(spec.config, scene, target_id, handover, traffic),)
+        actors = (replayer_for(spec.config, scene, target_id, handover, how.traffic),)
         if driver is None:
             driver = LoggedPlanner() if planner_spec == "replay" else make_planner(planner_spec)
     elif driver is None:
         driver = make_planner(planner_spec, nominal_replay(scene, target))
     settings = PassSettings(end=float(scene.timestamps[-1]) + 1e-9, begin=spec.begin, drivable=drivable,
-                            actors=actors, detect_events=detect_events, freeze_at=freeze_at,
-                            surroundings_m=None if converted else SURROUNDINGS_RADIUS_M, post_contact_s=post_contact_s)
-    return run_pass(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=traci, workdir=workdir)
+                            actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M,
+                            post_contact_s=POST_CONTACT_S)
+    return run_injection(spec.config, target_id, plan, driver, settings, seed=spec.seed, traci=how.traci,
+                         workdir=how.workdir)
 
 
 @dataclass(frozen=True)
@@ -451,8 +433,8 @@ class VariantFailure:
 
 
 def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: list[AdversaryPlan],
-                    how: InjectionSettings, *, drivable: DrivableArea | None = None, workdir: Path | None = None,
-                    held: HeldStates | None = None, post_contact_s: float | None = POST_CONTACT_S,
+                    how: InjectionSettings, *, drivable: DrivableArea | None = None,
+                    held: HeldStates | None = None,
                     done: Callable[[int], None] | None = None) -> list[InjectionResult | VariantFailure]:
     """:func:`inject_variant` for every plan, each in a process of its own; from held copies of
     the nominal pass where there are.
@@ -472,7 +454,7 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
     target_id = str(scene.tracks.ids[target])
     nominal = nominal_replay(scene, target)
     settings = PassSettings(end=float(scene.timestamps[-1]) + 1e-9, drivable=drivable,
-                            surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=post_contact_s)
+                            surroundings_m=SURROUNDINGS_RADIUS_M, post_contact_s=POST_CONTACT_S)
     results: list[InjectionResult | VariantFailure | None] = [None] * len(plans)
     groups: dict[int, list[int]] = {}  # the held copy each variant continues from (by its index)
     if held is not None and not source.converted and not traci:
@@ -489,8 +471,7 @@ def inject_variants(scenario: ScenarioSpec | ScenarioSource, scene: Scene, targe
             done(len(members))
     for i, plan in enumerate(plans):
         if results[i] is None:
-            one = functools.partial(inject_variant, source, scene, target, plan, planner_spec, drivable=drivable,
-                                    traci=traci, workdir=workdir, post_contact_s=post_contact_s, traffic=how.traffic)
+            one = functools.partial(inject_variant, source, scene, target, plan, how, drivable=drivable)
             try:
                 results[i] = run_forked(one, timeout=timeout)
             except ChildFailed as exc:

@@ -43,6 +43,7 @@ import numpy as np
 from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.formats.scene_folder import VTYPES, agent_sizes, vtype_for
 from coster_sumo.geometry.boxes import project_points
+from coster_sumo.sim.control import Departure
 from coster_sumo.sim.states import VehicleStates, empty_states
 
 if TYPE_CHECKING:
@@ -261,10 +262,10 @@ class ReactiveTraffic:
             return
         edge, pos, lane = under
         sid = str(tr.ids[a])
-        session.add_vehicle(sid, length, float(self.widths[a]), vt[1], base_type=vt[0] + self._suffix,
-                            route_edges=[edge], remote=False, depart_lane=str(int(lane)),
-                            depart_pos=f"{max(float(pos) - length, 0.0):.2f}",
-                            depart_speed=f"{math.hypot(tr.vx[a, k], tr.vy[a, k]):.2f}")
+        session.add_vehicle(sid, length, float(self.widths[a]), vt[1], base_type=vt[0] + self._suffix, remote=False,
+                            departure=Departure([edge], lane=str(int(lane)),
+                                                pos=f"{max(float(pos) - length, 0.0):.2f}",
+                                                speed=f"{math.hypot(tr.vx[a, k], tr.vy[a, k]):.2f}"))
         last = int(np.flatnonzero(tr.valid[a])[-1])
         end = _lane_under(session, tr, a, last, length, vt[1])
         if end is not None and end[0] != edge:  # on to where its log ends

@@ -271,10 +271,8 @@ class _Rows:
 
 
 def record(session: SumoSession, *, end: float | None = None, begin: float | None = None,
-           max_steps: int | None = None, net: SumoNet | None = None, incoming_lanes: bool = True,
-           before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
-           scenario_id: str | None = None, meta: dict[str, Any] | None = None,
-           focus: Focus | None = None, bar: Any = None) -> Scene:
+           max_steps: int | None = None, before_step: BeforeStep | None = None,
+           after_step: AfterStep | None = None, focus: Focus | None = None, bar: Any = None) -> Scene:
     """Step a running session and record it into a :class:`Scene` (``source="sumo"``).
 
     Stepping stops at the first of: the time reaches ``end`` [s] (default: the session's own
@@ -283,9 +281,9 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     Only steps whose time lies in [``begin``, ``end``] are recorded; earlier steps are simulated.
 
     Args:
-        session: a started session; it is left running (the caller closes it).
-        net: the converted network; default :func:`load_sumo_net` of the session's net (cached).
-        incoming_lanes: also give incoming lanes a signal state (see the module docstring).
+        session: a started session; it is left running (the caller closes it). Its net is read
+            with :func:`load_sumo_net` (cached); every incoming lane gets a signal state (see the
+            module docstring).
         before_step: called before every simulation step, e.g. to ``move_to_xy`` an adversary.
         after_step: called after every step with the vehicle states just read; return True to stop.
         focus: record only the surroundings of one vehicle while it runs (see :class:`Focus`); the
@@ -294,8 +292,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
             vehicle that ran in the pass, by id, with its time in the network [s], and
             ``meta["pass_window_s"]`` the first and last simulated time: what an error naming other
             targets needs, without a second pass.
-        scenario_id: default ``<config or net stem>_seed<seed>``.
-        meta: extra metadata merged into ``Scene.meta``.
+        The scene's id is ``<config or net stem>_seed<seed>`` (``dataclasses.replace`` gives
+        another, and more metadata).
         bar: a progress bar (tqdm-like) moved along the simulation time to ``end``.
     """
     if not session.is_running:
@@ -303,11 +301,9 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
     end = session.end if end is None else end
     if end is None and max_steps is None and session.min_expected_number() == 0 and before_step is None:
         raise InputError(f"{session.name}: nothing to record (no vehicles expected); pass end= or max_steps=")
-    net_path: Path | None = None
-    if net is None:
-        net_path = net_file_of(session)
-        net = load_sumo_net(net_path)
-    table = SignalTable.build(net, incoming_lanes=incoming_lanes)
+    net_path = net_file_of(session)
+    net = load_sumo_net(net_path)
+    table = SignalTable.build(net)
     eps = 1e-6 * session.step_length
     rec = _Rows()
     reader = _FocusedReader(session, focus) if focus is not None else None
@@ -343,9 +339,8 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
             break
 
     info = _pass_meta(session, net, net_path, rec, reader, first_t, t)
-    info.update(meta or {})
     source_file = session.config or session.net or net.path
-    sid = scenario_id or f"{Path(str(source_file)).name.split('.')[0]}_seed{session.seed}"
+    sid = f"{Path(str(source_file)).name.split('.')[0]}_seed{session.seed}"
     sdc = rec.agent.get("ego", -1)
     return Scene(scenario_id=sid, timestamps=np.array(rec.times, np.float64), tracks=rec.tracks(),
                  road_map=net.road_map, signals=rec.signals(table), sdc_index=sdc, current_time_index=0,
@@ -373,14 +368,13 @@ def _pass_meta(session: SumoSession, net: SumoNet, net_path: Path | None, rec: _
     return info
 
 
-def record_config(config: str | Path, *, seed: int | None = None, begin: float | None = None,
-                  end: float | None = None, traci: bool = False, max_steps: int | None = None,
+def record_config(config: str | Path, *, begin: float | None = None, end: float | None = None,
                   before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
                   focus: Focus | None = None, **session_kwargs: Any) -> Scene:
     """Open a session on ``config``, record [begin, end], close it. See :func:`record`.
 
-    ``begin`` and ``end`` [s] are SUMO's (absolute simulation times; None: the configuration's).
+    ``begin`` and ``end`` [s] are SUMO's (absolute simulation times; None: the configuration's); the
+    other keywords are the :class:`SumoSession`'s (``seed``, ``traci``, ``additional``...).
     """
-    with SumoSession(config, seed=seed, begin=begin, end=end, traci=traci, **session_kwargs) as session:
-        return record(session, begin=begin, end=end, max_steps=max_steps, before_step=before_step,
-                      after_step=after_step, focus=focus)
+    with SumoSession(config, begin=begin, end=end, **session_kwargs) as session:
+        return record(session, begin=begin, end=end, before_step=before_step, after_step=after_step, focus=focus)

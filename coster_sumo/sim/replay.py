@@ -44,6 +44,7 @@ from coster_sumo.formats.scene_folder import (
     vtype_for,
 )
 from coster_sumo.formats.sumocfg import read_sumocfg
+from coster_sumo.sim.control import Departure
 from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates, empty_states
 
@@ -180,7 +181,7 @@ class LogReplayer:
         drive it: a replayed agent's own copy is :meth:`before_step`'s)."""
         vt = vtype_for(int(self.scene.tracks.object_type[a]))
         sim.add_vehicle(sid, float(self.lengths[a]), float(self.widths[a]), vt[1], base_type=vt[0],
-                        route_edges=route_edges)
+                        departure=Departure(route_edges))
 
     def _add(self, sim: SumoSession, a: int) -> str:
         tr = self.scene.tracks

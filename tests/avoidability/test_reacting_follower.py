@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from coster_sumo.avoidability import search
-from coster_sumo.avoidability.labels import label_line, label_plans, label_record, labels_moved
+from coster_sumo.avoidability.labels import ProofSettings, label_line, label_plans, label_record, labels_moved
 from coster_sumo.batch.nets import run_tool
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.spec import ScenarioSpec
@@ -58,7 +58,7 @@ def test_a_braking_target_blocked_only_by_its_follower_is_avoidable(tmp_path):
                          yaw=np.zeros(len(times)), final_speed=0.0, length=5.0, width=1.8)
     blind = search.assess(scene, target, plan, drivable)  # the follower as recorded, reacting to nothing
     assert not blind.avoidable and not blind.blocked
-    [lab] = label_plans(spec, scene, target, [plan], drivable=drivable)
+    [lab] = label_plans(spec, scene, target, [plan], ProofSettings(drivable))
     tried = [e for e in lab.blocked if e.proven is not None]
     assert tried and all(e.blocked_by == ("follower",) for e in tried)
     assert lab.avoidable and lab.escape is not None and lab.escape.proven
@@ -75,7 +75,7 @@ def test_sumo_drives_an_adversary_that_missed_once_the_horizon_has_passed(tmp_pa
     limit, stays on the road, and the target's driver follows it without contact)."""
     from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S
     from coster_sumo.geometry.road_follow import follow_road
-    from coster_sumo.sim.inject import run_injection
+    from coster_sumo.sim.inject import PassSettings, run_injection
     from coster_sumo.sim.planners import make_planner
 
     cfg = _one_lane_road(tmp_path)
@@ -88,8 +88,9 @@ def test_sumo_drives_an_adversary_that_missed_once_the_horizon_has_passed(tmp_pa
                                      yaw=np.zeros(len(times)), final_speed=8.0, length=5.0, width=1.8),
                        scene.road_map)
     assert plan.road is not None
-    res = run_injection(cfg, "ego", plan, make_planner("sumo"), seed=1, end=22.0,
-                        drivable=DrivableArea.from_road_map(scene.road_map), workdir=tmp_path)
+    res = run_injection(cfg, "ego", plan, make_planner("sumo"),
+                        PassSettings(end=22.0, drivable=DrivableArea.from_road_map(scene.road_map)), seed=1,
+                        workdir=tmp_path)
     assert res.contact is None
     assert not [e for e in res.events if plan.vehicle_id in e.vehicles]  # no contact, never off the road
     ts, a = res.scene.timestamps, res.scene.tracks.index_of(plan.vehicle_id)

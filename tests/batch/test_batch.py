@@ -15,7 +15,7 @@ from pathlib import Path
 import pyarrow.dataset as ds
 import pytest
 
-from coster_sumo.batch.executor import Outcome, Task, execute, probe_task
+from coster_sumo.batch.executor import ExecutorSettings, Outcome, Task, execute, probe_task
 from coster_sumo.batch.regress import run_key
 from coster_sumo.batch.sources import parse_sources, scene_key
 from coster_sumo.batch.store import RESULT_FIELDS, ResultRow, ResultStore, result_row
@@ -38,7 +38,7 @@ def _outcomes(finished: list[tuple[Task, Outcome]]) -> dict[str, Outcome]:
 def test_segfault_and_hang_become_failed_outcomes_and_the_rest_finish(tmp_path):
     tasks = [_probe("a"), _probe("crash", "segfault"), _probe("b"), _probe("stuck", "hang"),
              _probe("oops", "error"), _probe("quit", "exit"), _probe("c")]
-    out = _outcomes(execute(tasks, workers=3, timeout=2.0, log_dir=tmp_path / "logs"))
+    out = _outcomes(execute(tasks, ExecutorSettings(workers=3, timeout=2.0, log_dir=tmp_path / "logs")))
     assert set(out) == {t.key for t in tasks}
     for k in ("a", "b", "c"):
         assert out[k].ok and out[k].value["name"] == k
@@ -60,7 +60,7 @@ def test_segfault_and_hang_become_failed_outcomes_and_the_rest_finish(tmp_path):
 def test_a_task_s_temporary_files_go_however_the_task_ends(tmp_path):
     modes = ("ok", "error", "segfault", "hang", "exit")
     tasks = [Task(m, probe_task, {"name": m, "mode": m, "note": str(tmp_path / f"{m}.txt")}) for m in modes]
-    out = _outcomes(execute(tasks, workers=2, timeout=2.0))
+    out = _outcomes(execute(tasks, ExecutorSettings(workers=2, timeout=2.0)))
     assert out["ok"].ok and not any(out[m].ok for m in modes[1:])
     for m in modes:
         made = Path((tmp_path / f"{m}.txt").read_text())
@@ -89,19 +89,20 @@ def test_each_task_runs_in_its_own_process_and_on_done_can_schedule_more():
         seen.append(task.key)
         return [_probe(f"{task.key}.child")] if "." not in task.key else []
 
-    finished = execute([_probe("p0"), _probe("p1")], on_done=on_done, workers=2)
+    finished = execute([_probe("p0"), _probe("p1")], ExecutorSettings(workers=2), on_done=on_done)
     pids = {o.value["pid"] for _, o in finished}
     assert len(finished) == 4 and len(pids) == 4 and os.getpid() not in pids
     assert sorted(seen) == ["p0", "p0.child", "p1", "p1.child"]
 
 
 def test_spawn_start_method_works_too():
-    out = _outcomes(execute([_probe("s"), _probe("boom", "segfault")], workers=2, start_method="spawn", timeout=30))
+    out = _outcomes(execute([_probe("s"), _probe("boom", "segfault")],
+                                    ExecutorSettings(workers=2, start_method="spawn", timeout=30)))
     assert out["s"].ok and not out["boom"].ok
 
 
 def test_workers_run_in_parallel():
-    out = _outcomes(execute([_probe(f"t{i}", sleep=1.0) for i in range(4)], workers=4))
+    out = _outcomes(execute([_probe(f"t{i}", sleep=1.0) for i in range(4)], ExecutorSettings(workers=4)))
     starts = [o.value["start"] for o in out.values()]
     ends = [o.value["end"] for o in out.values()]
     assert len(out) == 4 and max(starts) < min(ends)  # all four were sleeping at the same moment
@@ -118,10 +119,11 @@ def test_workers_share_the_cores_instead_of_oversubscribing_them():
     cores divided among the workers."""
     code = textwrap.dedent("""
         import json, os, sys
-        from coster_sumo.batch.executor import Task, execute
+        from coster_sumo.batch.executor import ExecutorSettings, Task, execute
         from tests.batch.test_batch import _thread_limits
         assert "torch" not in sys.modules
-        got = {w: execute([Task("t", _thread_limits, {})], workers=w, timeout=120)[0][1].value for w in (1, 2, 64)}
+        got = {w: execute([Task("t", _thread_limits, {})], ExecutorSettings(workers=w, timeout=120))[0][1].value
+               for w in (1, 2, 64)}
         print(json.dumps(got))
     """)
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300,
@@ -154,7 +156,7 @@ def test_a_driver_that_ran_torch_starts_its_tasks_from_a_clean_fork_server():
     x = torch.ones(256, 256)
     _ = x @ x  # the driver's OpenMP pool is up
     assert _default_start_method() == "forkserver"
-    out = _outcomes(execute([Task("t", _torch_on_all_threads, {})], workers=1, timeout=120))
+    out = _outcomes(execute([Task("t", _torch_on_all_threads, {})], ExecutorSettings(workers=1, timeout=120)))
     cores = os.cpu_count() or 1
     assert out["t"].ok and out["t"].value == {"torch": cores, "omp": str(cores)}, out["t"]
 
@@ -207,7 +209,7 @@ def test_a_result_row_has_the_stored_fields_in_their_order():
 RESUMABLE_BATCH = textwrap.dedent("""
     import sys
     from pathlib import Path
-    from coster_sumo.batch.executor import Task, execute, probe_task
+    from coster_sumo.batch.executor import ExecutorSettings, Task, execute, probe_task
     from coster_sumo.batch.store import RESULT_FIELDS, ResultRow, ResultStore, result_row
     store = ResultStore(Path(sys.argv[1]))
     done = store.keys()
@@ -216,7 +218,7 @@ RESUMABLE_BATCH = textwrap.dedent("""
         store.write(result_row({"run_key": task.key, "scene_key": "s", "variant": 0, "planner": "p"},
                                status="ok" if outcome.ok else "failed", reason=outcome.reason))
         return []
-    execute(tasks, on_done=on_done, workers=2)
+    execute(tasks, ExecutorSettings(workers=2), on_done=on_done)
     print(len(tasks))
 """)
 
@@ -269,7 +271,7 @@ def test_ray_executor_isolates_crashes_and_hangs():
     tasks = [_probe("a"), _probe("crash", "segfault"), _probe("stuck", "hang"), _probe("oops", "error"), _probe("b")]
     # a task's clock runs from its start on its Ray worker (tests/batch/test_ray_cluster.py checks that a
     # task waiting for a free CPU is not timed out); the hang must still be killed
-    out = _outcomes(execute(tasks, workers=2, timeout=20.0, executor="ray"))
+    out = _outcomes(execute(tasks, ExecutorSettings(workers=2, timeout=20.0, executor="ray")))
     assert out["a"].ok and out["b"].ok
     assert not out["crash"].ok and not out["stuck"].ok and "timed out" in out["stuck"].reason
     assert not out["oops"].ok and "probe oops failed on purpose" in out["oops"].reason

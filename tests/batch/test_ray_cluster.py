@@ -128,13 +128,14 @@ def test_regress_on_a_multi_node_ray_cluster_equals_the_local_run_and_resumes(cl
 
 
 def test_a_task_waiting_for_a_free_cpu_is_not_timed_out_and_a_hang_is(cluster):
-    from coster_sumo.batch.executor import Task, execute, probe_task
+    from coster_sumo.batch.executor import ExecutorSettings, Task, execute, probe_task
 
     c, _ = cluster
     # five tasks at once on the two CPUs: three wait in Ray's queue; the clock runs from each start
     tasks = [Task(f"t{i}", probe_task, {"name": f"t{i}", "sleep": 4.0}) for i in range(4)]
     tasks.append(Task("stuck", probe_task, {"name": "stuck", "mode": "hang"}))
-    out = {t.key: o for t, o in execute(tasks, workers=5, executor="ray", timeout=7.0, ray_address=c.address)}
+    how = ExecutorSettings(workers=5, executor="ray", timeout=7.0, ray_address=c.address)
+    out = {t.key: o for t, o in execute(tasks, how)}
     assert all(out[f"t{i}"].ok for i in range(4)), {k: o.reason for k, o in out.items()}
     assert not out["stuck"].ok and out["stuck"].reason.startswith("timed out after 7 s (killed) in ")
 

@@ -38,7 +38,7 @@ def test_targets_of_one_configuration_window_and_seed_share_a_pass():
 
 
 def test_regress_targets_expand_as_run_chooses_them():
-    from coster_sumo.pipeline.targets import choose_targets
+    from coster_sumo.formats.targets import choose_targets
 
     plain = [ScenarioSpec(ARTERIAL, 0, None, 60.0, None)]
     picked = [c.vehicle_id for c in choose_targets(ARTERIAL, 3, None, 60.0)]

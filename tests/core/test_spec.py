@@ -27,7 +27,9 @@ def test_label_options_check_themselves():
 
 
 @pytest.mark.parametrize(("kwargs", "flag"), [({"init": "bogus"}, "--init"), ({"rollout": "gan"}, "--rollout"),
-                                              ({"variants": 0}, "--variants")])
+                                              ({"variants": 0}, "--variants"), ({"avoidable": "x"}, "--avoidable"),
+                                              ({"variant": 3}, "unknown setting 'variant'"),
+                                              ({"generation": GenerationConfig(init="bogus")}, "--init")])
 def test_the_api_refuses_a_bad_setting_before_its_nominal_pass(monkeypatch, kwargs, flag):
     def no_work(*args, **kw):
         raise AssertionError("the nominal pass ran before the settings were checked")

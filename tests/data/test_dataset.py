@@ -83,18 +83,18 @@ def test_crop_scene_drops_far_agents_and_keeps_the_target():
 
 def test_plan_clips_is_deterministic_and_spreads_over_windows():
     scene = _long_scene(400)  # 4 windows of 91 steps
-    a = dataset.plan_clips(scene, 4, np.random.default_rng(3), min_separation_m=0.0)
-    b = dataset.plan_clips(scene, 4, np.random.default_rng(3), min_separation_m=0.0)
+    a = dataset.plan_clips(scene, 4, np.random.default_rng(3), dataset.ClipRules(min_separation_m=0.0))
+    b = dataset.plan_clips(scene, 4, np.random.default_rng(3), dataset.ClipRules(min_separation_m=0.0))
     assert a == b
     assert sorted({start for start, _ in a}) == [0, 91, 182, 273]  # one per window first
-    many = dataset.plan_clips(scene, 100, np.random.default_rng(3), targets_per_window=2,
-                              min_separation_m=0.0)
+    many = dataset.plan_clips(scene, 100, np.random.default_rng(3),
+                              dataset.ClipRules(targets_per_window=2, min_separation_m=0.0))
     assert len(many) == 8
 
 
 def test_plan_clips_skips_warmup_and_parked_cars():
     scene = _long_scene(400)
-    picks = dataset.plan_clips(scene, 100, np.random.default_rng(0), warmup_s=10.0)
+    picks = dataset.plan_clips(scene, 100, np.random.default_rng(0), dataset.ClipRules(warmup_s=10.0))
     assert all(scene.timestamps[s] >= scene.timestamps[0] + 10.0 for s, _ in picks)
     parked = dataclasses.replace(scene.tracks, vx=scene.tracks.vx * 0, vy=scene.tracks.vy * 0,
                                  x=np.repeat(scene.tracks.x[:, :1], scene.num_steps, axis=1))

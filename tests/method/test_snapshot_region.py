@@ -7,7 +7,7 @@ import numpy as np
 from coster_sumo.core.scene import resample
 from coster_sumo.errors import NoSnapshot
 from coster_sumo.geometry.drivable import DrivableArea
-from coster_sumo.method.snapshot import PriorMemo, prior_snapshot
+from coster_sumo.method.snapshot import PlacementRequest, PriorMemo, prior_snapshot
 
 
 def test_the_adversary_never_comes_from_the_targets_own_region(synthetic_scene):
@@ -20,7 +20,8 @@ def test_the_adversary_never_comes_from_the_targets_own_region(synthetic_scene):
     placed = 0
     for seed in range(4):
         try:
-            snap = prior_snapshot(low, target, np.random.default_rng(seed), drivable, seed=seed, memo=memo)
+            request = PlacementRequest(low, target, np.random.default_rng(seed), drivable, "entropy", seed, memo=memo)
+            snap = prior_snapshot(request)
         except NoSnapshot:
             continue
         placed += 1

@@ -36,7 +36,7 @@ def test_ramp_every_missing_variant_and_every_miss_has_its_reason(tmp_path, caps
 
     def spy(path, scene, *args, **kwargs):  # type: ignore[no-untyped-def]
         with log.open("a") as fh:
-            fh.write(json.dumps([str(args[4]), scene.tracks.ids.tolist()]) + "\n")
+            fh.write(json.dumps([str(args[2]), scene.tracks.ids.tolist()]) + "\n")
         return real(path, scene, *args, **kwargs)
 
     monkeypatch.setattr(outputs.viz, "render_variant", spy)

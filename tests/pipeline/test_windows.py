@@ -12,10 +12,10 @@ from coster_sumo.cli.command_line import main
 from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.formats.source import simulation_window
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
 
 REPO = Path(__file__).resolve().parents[2]
 NET = REPO / "networks" / "intersection" / "intersection.net.xml"

@@ -64,7 +64,11 @@ def test_sat_gap_bounds_the_exact_distance_and_agrees_on_overlap():
     b = make_boxes(rng.uniform(-7, 7, n), rng.uniform(-7, 7, n), rng.uniform(-np.pi, np.pi, n),
                    rng.uniform(3, 12, n), rng.uniform(1.5, 2.6, n))
     exact = box_signed_distance(a, b)
-    gap = np.array([_sat_gap(*map(float, a[k]), *map(float, b[k])) for k in range(n)])
+    def box(row: np.ndarray) -> tuple[float, float, float, float, float]:
+        x, y, yaw, length, width = map(float, row)
+        return x, y, yaw, length, width
+
+    gap = np.array([_sat_gap(box(a[k]), box(b[k])) for k in range(n)])
     assert ((gap <= 0) == (exact <= 0)).all()  # SAT: overlap exactly when no axis separates
     sep = exact > 0
     assert (gap[sep] <= exact[sep] + 1e-9).all()  # an axis gap never exceeds the Euclidean gap

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, ScenarioSpec
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import generate_variants
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import inject_variants
 
@@ -48,11 +48,12 @@ def test_same_seed_same_outcome_held_or_from_begin(tmp_path, network, planner):
         drivable = DrivableArea.from_road_map(scene.road_map)
         variants, _ = generate_variants(scene, target, spec.seed, gen, drivable)
         plans = [v.plan for v in variants]
-        from_held = inject_variants(spec, scene, target, plans, InjectionSettings(planner, workers=2),
-                                    drivable=drivable, workdir=tmp_path, held=held)
+        from_held = inject_variants(spec, scene, target, plans,
+                                    InjectionSettings(planner, workers=2, workdir=tmp_path),
+                                    drivable=drivable, held=held)
         times = [held.holder_before(p.t_start).time for p in plans]
-    from_begin = inject_variants(spec, scene, target, plans, InjectionSettings(planner), drivable=drivable,
-                                 workdir=tmp_path)
+    from_begin = inject_variants(spec, scene, target, plans, InjectionSettings(planner, workdir=tmp_path),
+                                 drivable=drivable)
     _assert_same_outcomes(plans, times, from_held, from_begin)
 
 
@@ -81,13 +82,14 @@ def test_advanced_holder_gives_the_same_outcome(tmp_path, network, planner):
         new = held.advance(first - 0.45)
         assert new is not None and len(held.holders) == 2
         assert held.advance(first - 0.2) is None  # already within MIN_ADVANCE_S: nothing to gain
-        from_held = inject_variants(spec, scene, target, plans, InjectionSettings(planner, workers=2),
-                                    drivable=drivable, workdir=tmp_path, held=held)
+        from_held = inject_variants(spec, scene, target, plans,
+                                    InjectionSettings(planner, workers=2, workdir=tmp_path),
+                                    drivable=drivable, held=held)
         assert new.ready and first - 0.45 - 1e-6 <= new.time < first
         times = [held.holder_before(p.t_start).time for p in plans]
         assert times == [new.time] * len(plans)
-    from_begin = inject_variants(spec, scene, target, plans, InjectionSettings(planner), drivable=drivable,
-                                 workdir=tmp_path)
+    from_begin = inject_variants(spec, scene, target, plans, InjectionSettings(planner, workdir=tmp_path),
+                                 drivable=drivable)
     _assert_same_outcomes(plans, times, from_held, from_begin)
 
 
@@ -189,10 +191,11 @@ def test_variants_from_a_holder_made_before_the_target_departs(tmp_path):
         drivable = DrivableArea.from_road_map(scene.road_map)
         variants, _ = generate_variants(scene, target, spec.seed, gen, drivable)
         plans = [v.plan for v in variants]
-        from_held = inject_variants(spec, scene, target, plans, InjectionSettings("replay", workers=2),
-                                    drivable=drivable, workdir=tmp_path, held=held)
+        from_held = inject_variants(spec, scene, target, plans,
+                                    InjectionSettings("replay", workers=2, workdir=tmp_path),
+                                    drivable=drivable, held=held)
         times = [held.holder_before(p.t_start).time for p in plans]
         assert set(times) <= {h.time for h in lead}
-    from_begin = inject_variants(spec, scene, target, plans, InjectionSettings("replay"), drivable=drivable,
-                                 workdir=tmp_path)
+    from_begin = inject_variants(spec, scene, target, plans, InjectionSettings("replay", workdir=tmp_path),
+                                 drivable=drivable)
     _assert_same_outcomes(plans, times, from_held, from_begin)

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import choose_target
+from coster_sumo.sim.inject import PassSettings, run_injection
 from coster_sumo.sim.inject import nominal_replay as replay_planner_for
-from coster_sumo.sim.inject import run_injection
 from coster_sumo.sim.planners import make_planner
 
 REPO = Path(__file__).resolve().parents[2]
@@ -36,8 +36,9 @@ def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_pat
     tid = str(scene.tracks.ids[target])
 
     def run(detect: bool, freeze_at: float | None = None):
-        return run_injection(CFG, tid, plan, make_planner("sumo"), seed=1, end=50.0, drivable=drivable,
-                             detect_events=detect, freeze_at=freeze_at, workdir=tmp_path)
+        return run_injection(CFG, tid, plan, make_planner("sumo"),
+                             PassSettings(end=50.0, drivable=drivable, detect_events=detect, freeze_at=freeze_at),
+                             seed=1, workdir=tmp_path)
 
     detected = run(True)
     first = next(e for e in detected.events if e.kind == "collision" and plan.vehicle_id in e.vehicles)
@@ -60,8 +61,9 @@ def test_pass_without_detection_told_the_contact_time_plays_out_the_same(tmp_pat
 
 def test_traci_pass_finds_the_same_events_as_libsumo(tmp_path):
     scene, target, drivable, plan = _planned(tmp_path, 45, seed=3)
-    runs = [run_injection(CFG, str(scene.tracks.ids[target]), plan, replay_planner_for(scene, target), seed=3, end=45.0,
-                          drivable=drivable, traci=traci, workdir=tmp_path) for traci in (False, True)]
+    runs = [run_injection(CFG, str(scene.tracks.ids[target]), plan, replay_planner_for(scene, target),
+                          PassSettings(end=45.0, drivable=drivable), seed=3, traci=traci, workdir=tmp_path)
+            for traci in (False, True)]
     events = [[(e.kind, round(e.time, 3), e.vehicles) for e in r.events] for r in runs]
     assert runs[0].contact is not None and events[0]
     assert events[0] == events[1]
@@ -77,8 +79,8 @@ def test_a_pass_whose_adversary_hits_another_vehicle_ends_after_t_col(tmp_path):
     others = [i for i in range(len(tr.ids)) if i != target and tr.valid[i, k0:k1 + 1].all()]
     assert others, "no other vehicle lives from the plan's start to 3 s after t_col"
     bystander = str(tr.ids[others[0]])
-    res = run_injection(CFG, bystander, plan, make_planner("sumo"), seed=1, end=50.0, drivable=drivable,
-                        workdir=tmp_path, post_contact_s=2.0)
+    res = run_injection(CFG, bystander, plan, make_planner("sumo"),
+                        PassSettings(end=50.0, drivable=drivable, post_contact_s=2.0), seed=1, workdir=tmp_path)
     first = next(e for e in res.events if e.kind == "collision" and plan.vehicle_id in e.vehicles)
     assert hit in first.vehicles and res.contact is None
     last = float(res.scene.timestamps[-1])

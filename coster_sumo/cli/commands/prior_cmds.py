@@ -30,14 +30,12 @@ def _subset(files: list[Path], n: int | None, seed: int) -> list[Path]:
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
-    train = cli.group("train", help="train a model").add_parser(
+    train = cli.training(
         "prior", help="train the regional traffic prior on a dataset of scenes",
         description="Train the traffic prior on DATASET/scenes/*.npz (held-out split by file name). "
                     "Writes the best held-out checkpoint to OUTPUT, metrics to OUTPUT with .json, and a "
-                    "resumable training state to OUTPUT.state (rerun the same command to resume).")
-    train.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
-    train.add_argument("-o", "--out", "--output", dest="out", default=DEFAULT_CHECKPOINT,
-                       help="checkpoint to write (%(default)s)")
+                    "resumable training state to OUTPUT.state (rerun the same command to resume).",
+        out=DEFAULT_CHECKPOINT, what="checkpoint")
     train.add_argument("--epochs", type=int, default=20)
     train.add_argument("--batch-size", type=int, default=32)
     train.add_argument("--lr", type=float, default=1e-3)

@@ -28,14 +28,12 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
 
 def _register_train(cli) -> None:  # type: ignore[no-untyped-def]
     """``coster-sumo train rollout``."""
-    train = cli.group("train", help="train a model").add_parser(
+    train = cli.training(
         "rollout", help="train the time-reversed CVAE rollout on a dataset of scenes",
         description="Train the rollout CVAE on DATASET/scenes/*.npz (2 Hz, held-out split by file name). "
                     "Writes the checkpoint to OUTPUT after every epoch, metrics to OUTPUT with .json and a "
-                    "training state to OUTPUT.state: rerun the same command to resume.")
-    train.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
-    train.add_argument("-o", "--out", "--output", dest="out", default=DEFAULT_CHECKPOINT,
-                       help="checkpoint to write (%(default)s)")
+                    "training state to OUTPUT.state: rerun the same command to resume.",
+        out=DEFAULT_CHECKPOINT, what="checkpoint")
     train.add_argument("--no-dsa", action="store_true",
                        help="the w/o-DSA ablation: neighbours only as they were at t_rev")
     train.add_argument("--no-map-steps", action="store_true", help="attend to the map only for the first state")
@@ -91,14 +89,12 @@ def _register_train(cli) -> None:  # type: ignore[no-untyped-def]
 
 def _register_vocab(cli) -> None:  # type: ignore[no-untyped-def]
     """``coster-sumo train vocab``."""
-    vocab = cli.group("train", help="train a model").add_parser(
+    vocab = cli.training(
         "vocab", help="build the motion vocabulary (k-disks over 0.5 s transitions)",
         description="Collect every 2 Hz transition (dx, dy, dyaw) of the vehicles of DATASET (training split) "
                     "and cover them with about SIZE tokens by k-disks on the mean box-corner error. Writes "
-                    "OUTPUT (.npz) and OUTPUT with .json (coverage).")
-    vocab.add_argument("--data", required=True, help="dataset folder (DATASET/scenes/*.npz) or folder of .npz")
-    vocab.add_argument("-o", "--out", "--output", dest="out", default=DEFAULT_VOCAB,
-                       help="vocabulary to write (%(default)s)")
+                    "OUTPUT (.npz) and OUTPUT with .json (coverage).",
+        out=DEFAULT_VOCAB, what="vocabulary")
     vocab.add_argument("--size", type=int, default=384, help="number of tokens (%(default)s)")
     vocab.add_argument("--seed", type=int, default=0)
     vocab.add_argument("--max-transitions", type=int, default=50_000,

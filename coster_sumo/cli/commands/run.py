@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     lines: list[str] = []
     failed: list[tuple[str, dict[str, Any]]] = []
     if getattr(args, "targets", None) is not None:
-        from coster_sumo.pipeline.targets import choose_targets, iter_lines
+        from coster_sumo.formats.targets import choose_targets, iter_lines
 
         picked = choose_targets(args.config, args.targets, args.begin, end)
         targets = [c.vehicle_id for c in picked]

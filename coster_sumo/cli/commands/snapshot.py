@@ -49,10 +49,10 @@ def _scene(args: argparse.Namespace) -> Any:
 def run(args: argparse.Namespace) -> int:
     from coster_sumo.core.scene import resample
     from coster_sumo.errors import InputError, NoSnapshot
+    from coster_sumo.formats.targets import choose_target
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.snapshot import prior_snapshot
     from coster_sumo.pipeline import viz
-    from coster_sumo.pipeline.targets import choose_target
 
     scene = _scene(args)
     target = choose_target(scene, args.target, args.source)
@@ -62,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
     regions: dict[str, np.ndarray] = {}
     try:
         if args.init == "snapshot":  # the prior's placement, with its regions for the picture
-            snap = prior_snapshot(low, target, rng, drivable, collision_time=args.collision_time, seed=args.seed,
-                                  models_dir=args.models, regions_out=regions)
+            snap = prior_snapshot(PlacementRequest(low, target, rng, drivable, args.collision_time, args.seed,
+                                                   args.models), regions_out=regions)
         else:
             snap = SNAPSHOT_INITS[args.init].place(PlacementRequest(low, target, rng, drivable, args.collision_time,
                                                                     args.seed, args.models))

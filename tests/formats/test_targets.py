@@ -1,4 +1,4 @@
-"""Choosing targets from the demand (``run --targets N``, coster_sumo/pipeline/targets.py)."""
+"""Choosing targets from the demand (``run --targets N``, coster_sumo/formats/targets.py)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import pytest
 
 from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError
+from coster_sumo.formats.targets import MIN_IN_WINDOW_S, choose_targets, config_demand, long_lived
 from coster_sumo.infra.sumo_install import sumo_home
 from coster_sumo.pipeline.scenario import nominal_scene
-from coster_sumo.pipeline.targets import MIN_IN_WINDOW_S, choose_targets, config_demand, long_lived
 from coster_sumo.sim import session
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -158,7 +158,7 @@ def test_a_target_that_never_runs_is_named_after_one_pass(tmp_path: Path, monkey
     with pytest.raises(InputError, match="no vehicle 'ego' in its demand"):
         nominal_scene(ScenarioSpec(cfg, end=40.0))
     # candidates: names like the one asked for, else those that ran (for the default, longest first)
-    from coster_sumo.pipeline.targets import missing_target
+    from coster_sumo.formats.targets import missing_target
 
     ran = {"short": 12.0, "long": 30.0, "longer": 31.0}
     assert str(missing_target(cfg, ["x"], "w", ran)).endswith("candidates: short, long, longer")
