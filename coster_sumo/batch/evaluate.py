@@ -80,6 +80,7 @@ class EvalOptions(BatchOptions):
 
     methods: list[str] | None = None  # names of GENERATOR_METHODS (default: all)
     planner: str = "replay"
+    traffic: str = "log"  # log | reactive: converted scenes' agents in the labels' proofs and the injections
     variants: int = 5
     samples: int = 1000
 
@@ -154,7 +155,8 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.avoidability.labels import ProofSettings, label_plans, label_record
 
     t1 = time.perf_counter()
-    labels = label_plans(spec, scene, target, [v.plan for v in variants], ProofSettings(drivable))
+    traffic = payload.get("traffic", "log")
+    labels = label_plans(spec, scene, target, [v.plan for v in variants], ProofSettings(drivable, traffic=traffic))
     avoid_s = time.perf_counter() - t1
     records = []
     speeds, accels = [], []
@@ -163,7 +165,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     for i, v in enumerate(variants):
         plan = v.plan
         with tempfile.TemporaryDirectory(prefix="coster-eval-") as wd:
-            how = InjectionSettings(payload["planner"], workdir=Path(wd))
+            how = InjectionSettings(payload["planner"], workdir=Path(wd), traffic=traffic)
             res = inject_variant(spec, scene, target, plan, how, drivable=drivable)
         c = res.contact
         adv = v.snapshot.adversary
@@ -207,6 +209,8 @@ def evaluate_generators(opts: EvalOptions) -> EvalSummary:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(by_name)}")
     methods = [by_name[n] for n in names]
     check_planner(opts.planner)
+    if opts.traffic not in ("log", "reactive"):
+        raise InputError(f"traffic must be log or reactive, not {opts.traffic!r}")
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
                           target=opts.target)
     out = Path(opts.out)
@@ -218,10 +222,11 @@ def evaluate_generators(opts: EvalOptions) -> EvalSummary:
         return _evaluate_locked(opts, t_start, methods, specs, out)
 
 
-def part_key(scene: str, method: str, variants: int, weights: str) -> str:
+def part_key(scene: str, method: str, variants: int, weights: str, traffic: str = "log") -> str:
     """The file stem of one method's part on one scene (the weights by their contents: other
-    weights are another part, the same weights by another path the same one)."""
-    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}"
+    weights are another part, the same weights by another path the same one; reactive traffic's
+    parts apart from the log's)."""
+    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}" + ("" if traffic == "log" else f"__{traffic}")
 
 
 def _done(part: ScenePart | MethodPart | None) -> bool:
@@ -250,7 +255,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
     def method_tasks(key: str, scene_file: str) -> list[Task]:
         tasks = []
         for m in active:
-            pk = part_key(key, m.name, opts.variants, weights)
+            pk = part_key(key, m.name, opts.variants, weights, opts.traffic)
             if _done(read_method_part(parts_dir / f"{pk}.json")):
                 continue
             folders = task_folders(keys[key], scenes_dir=(scene_file,))
@@ -259,7 +264,8 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
             tasks.append(Task(pk, method_task, {
                 "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
                 "scenes_dir": str(scenes_dir), "method": dataclasses.asdict(m), "variants": opts.variants,
-                "samples": opts.samples, "planner": opts.planner, CONFIG_DIR: config_dir(keys[key]),
+                "samples": opts.samples, "planner": opts.planner, "traffic": opts.traffic,
+                CONFIG_DIR: config_dir(keys[key]),
                 "models_dir": str(opts.models_dir.resolve()) if opts.models_dir else None}, kind="method",
                 folders=folders))
         return tasks
@@ -300,7 +306,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
     how = ExecutorSettings(opts.workers, opts.executor, opts.timeout, ray_address=opts.ray_address,
                            log_dir=out / "logs" if opts.executor == "local" else None, preload=GENERATION_TASK_MODULES)
     execute(initial, how, on_done=on_done, quiet=opts.quiet, desc="eval scenarios", expected_total=todo)
-    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
+    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights, opts.traffic)
     summary = EvalSummary(scenes={k: s.label() for k, s in keys.items()}, planner=opts.planner,
                           variants=opts.variants, samples=opts.samples, methods=table,
                           wall_time_s=round(time.perf_counter() - t_start, 3))
@@ -313,7 +319,8 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
 
 
 def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], methods: Sequence[GeneratorMethod],
-                                skipped: dict[str, str], variants: int, weights: str) -> GeneratorTable:
+                                skipped: dict[str, str], variants: int, weights: str,
+                                traffic: str = "log") -> GeneratorTable:
     """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD (with 95 %
     intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
     the same scenes (:func:`paired_diversity`)."""
@@ -331,7 +338,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if m.name in skipped:
             table[m.name] = SkippedGenerator(m, skipped[m.name])
             continue
-        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights)}.json")
+        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights, traffic)}.json")
                   for k in nominal.scenes]
         parts = [p for p in loaded if p is not None]
         skip = [p for p in parts if p.status == "skipped"]

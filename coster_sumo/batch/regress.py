@@ -107,7 +107,8 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
     reaction = float(payload.get("reaction_time", 1.0))
 
     def label(vs: list[Variant]) -> list[Any]:
-        return label_plans(spec, scene, target, [v.plan for v in vs], ProofSettings(drivable), reaction_time_s=reaction)
+        proof = ProofSettings(drivable, traffic=payload.get("traffic", "log"))  # a converted scene's agents react
+        return label_plans(spec, scene, target, [v.plan for v in vs], proof, reaction_time_s=reaction)
 
     labels = label(variants)
     if payload.get("avoidable", "any") != "only":
@@ -325,7 +326,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         return _run_tasks(key, keys[key], doc, opts.planners, done, plans_dir, opts.traffic)
 
     shared = SharedPasses(keys, plans_dir)  # the targets of a configuration, window and seed share its pass
-    labels = {"reaction_time": opts.reaction_time, "avoidable": opts.avoidable}
+    labels = {"reaction_time": opts.reaction_time, "avoidable": opts.avoidable, "traffic": opts.traffic}
 
     def generation_for(key: str) -> Task:
         return generation_task_for(key, keys[key], plans_dir, gen, generation.models_dir, labels,

@@ -289,3 +289,14 @@ def test_a_part_file_of_another_shape_is_done_again(tmp_path):
     assert read_method_part(part) is None
     part.write_text(json.dumps({"status": "ok", "records": []}))
     assert read_method_part(part) is not None and read_method_part(tmp_path / "missing.json") is None
+
+
+def test_eval_scenarios_keeps_reactive_parts_apart_and_refuses_an_unknown_traffic_mode(tmp_path):
+    from coster_sumo.batch.evaluate import EvalOptions, evaluate_generators, part_key
+
+    log = part_key("scene", "COSTER", 5, "abcdef0123")
+    assert part_key("scene", "COSTER", 5, "abcdef0123", "log") == log
+    assert part_key("scene", "COSTER", 5, "abcdef0123", "reactive") == log + "__reactive"
+    with pytest.raises(InputError, match="traffic must be log or reactive"):
+        evaluate_generators(EvalOptions(sources=[str(INTERSECTION)], out=tmp_path / "o", traffic="ghost"))
+    assert not (tmp_path / "o").exists()

@@ -21,6 +21,10 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
     p.add_argument("--method", action="append", dest="methods", choices=[m.name for m in GENERATOR_METHODS],
                    help="only these methods (repeat; default all)")
     p.add_argument("--planner", default="replay", help="who drives the target (default replay: the nominal path)")
+    p.add_argument("--traffic", choices=("log", "reactive"), default="log",
+                   help="a converted scene's agents in the labels' proofs and the injections: log (replayed; "
+                        "default) or reactive (each follows its log until the target's deviation reaches it, then "
+                        "SUMO drives it); the two modes' parts are kept apart")
     p.add_argument("--variants", type=int, default=5, help="variants per scene and method (default 5)")
     p.add_argument("--samples", type=int, default=1000, help="CVAE trajectories oversampled (default 1000)")
     p.add_argument("-o", "--out", type=Path, default=Path("out/eval_scenarios"),
@@ -33,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
     from coster_sumo.batch.report import generator_table
 
     opts = EvalOptions(sources=args.sources, out=args.out, methods=args.methods, planner=args.planner,
-                       variants=args.variants, samples=args.samples, workers=args.workers, executor=args.executor,
+                       traffic=args.traffic, variants=args.variants, samples=args.samples, workers=args.workers,
+                       executor=args.executor,
                        timeout=args.timeout or None, seed=args.seed, seeds=args.seeds, begin=args.begin,
                        end=args.end, target=args.target, models_dir=args.models, quiet=args.quiet,
                        ray_address=args.ray_address)
