@@ -245,6 +245,9 @@ def run_supervised(fn: Callable[[], Any], what: str) -> Any:
     try:
         ok, value = run_forked(functools.partial(_capture, fn))
     except ChildFailed as exc:
+        from coster_sumo.sim.sumo_outputs import remove_dead_staging
+
+        remove_dead_staging()  # the temporary folder of SUMO's outputs the crashed child made
         raise ChildFailed(f"{what}: stopped, {exc}") from None
     if not ok:
         raise value
