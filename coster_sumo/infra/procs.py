@@ -242,12 +242,12 @@ def run_supervised(fn: Callable[[], Any], what: str) -> Any:
     here with their exit codes; a crash or any other failure of the child becomes
     :class:`ChildFailed` naming ``what`` (``"run of CFG"``). The child dies with this process.
     """
+    from coster_sumo.sim.sumo_outputs import staging_folder
+
+    staging_folder()  # made here, the child's SUMO outputs folder outlives a crash of the child and goes with us
     try:
         ok, value = run_forked(functools.partial(_capture, fn))
     except ChildFailed as exc:
-        from coster_sumo.sim.sumo_outputs import remove_dead_staging
-
-        remove_dead_staging()  # the temporary folder of SUMO's outputs the crashed child made
         raise ChildFailed(f"{what}: stopped, {exc}") from None
     if not ok:
         raise value

@@ -25,7 +25,6 @@ import json
 import os
 import shutil
 import tempfile
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing import util as mp_util
@@ -126,8 +125,8 @@ STAGING_PREFIX = "coster-sumo-outputs-"
 # Each staging folder holds this file, locked (flock) by the process that made it while it lives; the
 # kernel drops the lock when that process dies, however it dies (a SIGSEGV in SUMO, SIGKILL), which
 # atexit cannot see. A folder whose lock can be taken is a dead process's: the next one removes it.
+# The file is locked under another name and then renamed, so it is never seen unlocked by its maker.
 LOCK_NAME = ".owner.lock"
-LOCK_MIN_AGE_S = 10.0  # a lock file younger than this may not be locked yet by its maker
 _LOCK_FD: list[int] = []
 
 
@@ -150,7 +149,7 @@ def remove_dead_staging(root: Path | None = None) -> list[Path]:
     for folder in Path(root or tempfile.gettempdir()).glob(STAGING_PREFIX + "*"):
         lock = folder / LOCK_NAME
         try:
-            if folder in _STAGING or time.time() - lock.stat().st_mtime < LOCK_MIN_AGE_S:
+            if folder in _STAGING:
                 continue
             fd = os.open(lock, os.O_RDWR)
         except OSError:
@@ -175,8 +174,9 @@ def staging_folder() -> Path:
     if not _STAGING:
         remove_dead_staging()
         folder = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX))
-        fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o600)
+        fd = os.open(folder / f"{LOCK_NAME}.new", os.O_RDWR | os.O_CREAT, 0o600)
         fcntl.flock(fd, fcntl.LOCK_EX)  # held until this process (and its forks, which share it) ends
+        os.rename(folder / f"{LOCK_NAME}.new", folder / LOCK_NAME)
         _LOCK_FD[:] = [fd]
         _STAGING[:] = [folder]
         _OWNER = os.getpid()
