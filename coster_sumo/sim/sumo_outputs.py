@@ -339,8 +339,12 @@ def _quiet_copy(config: Path, box: Sandbox, drop: frozenset[str] | set[str]) -> 
                 el.set(attr, ",".join(str(p) for p in box.additional))
         value = el.get("value")
         if value and not (box.staged and option_name(str(el.tag)) == "additional-files"):
-            el.set("value", ",".join(str((config.parent / f).resolve()) if (config.parent / f).exists() else f
-                                     for f in split_files(value)))
+            # only a list that names files is rewritten: other lists (insertion-checks "collision
+            # leaderGap ...") keep their own separators, which SUMO may need (it refused the commas)
+            parts = split_files(value)
+            moved = [str((config.parent / f).resolve()) if (config.parent / f).is_file() else f for f in parts]
+            if moved != parts:
+                el.set("value", ",".join(moved))
     if not changed:
         return None
     out = Path(tempfile.mkdtemp(prefix="cfg-", dir=staging_folder())) / config.name.removesuffix(".gz")
