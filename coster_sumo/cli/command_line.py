@@ -119,6 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from coster_sumo.infra.procs import passive_openmp_waits
+
+    passive_openmp_waits()  # before any command loads torch
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:

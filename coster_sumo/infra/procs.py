@@ -96,6 +96,19 @@ def one_openmp_thread_after_fork() -> bool:
     return True
 
 
+def passive_openmp_waits() -> None:
+    """OpenMP threads (torch's pool, scikit-learn's K-means) that wait at a barrier sleep instead of
+    spinning: set before torch loads (OpenMP reads it then); a value the user set is kept.
+
+    On the 2-core machine shared with other jobs (load average 10), the freeway's generation
+    (bench/bench_freeway.py's scene, two torch threads, the weights loaded) took 5.6-13.1 s with
+    spinning waits and 1.6-2.4 s with passive ones, the plans bit for bit the same: a spinning
+    thread burns the core its descheduled sibling, or the run's own SUMO processes, would use.
+    """
+    if "torch" not in sys.modules:
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
 def usable_cores() -> int:
     """The cores this process may run on (its CPU affinity where the system has one)."""
     with contextlib.suppress(AttributeError, OSError):
@@ -242,6 +255,9 @@ def run_supervised(fn: Callable[[], Any], what: str) -> Any:
     here with their exit codes; a crash or any other failure of the child becomes
     :class:`ChildFailed` naming ``what`` (``"run of CFG"``). The child dies with this process.
     """
+    from coster_sumo.sim.sumo_outputs import staging_folder
+
+    staging_folder()  # made here, the child's SUMO outputs folder outlives a crash of the child and goes with us
     try:
         ok, value = run_forked(functools.partial(_capture, fn))
     except ChildFailed as exc:

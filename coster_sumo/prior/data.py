@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from coster_sumo.core.scene import ObjectType, Scene, resample
+from coster_sumo.core.scene import ObjectType, Scene, Tracks, resample
 from coster_sumo.data import dataset as ds
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
+from coster_sumo.geometry.frames import wrap_angle
 from coster_sumo.prior.bins import AttributeBins
 from coster_sumo.prior.features import (
     AGENT_FEATURES,
@@ -35,7 +36,7 @@ from coster_sumo.prior.regions import (
     REGION_WIDTH,
     Occupancy,
     Regions,
-    assign_agents,
+    assigned_agent,
     build_regions,
     neighbourhood,
     region_signals,
@@ -67,6 +68,24 @@ class CompactOccupancy:
         values = np.concatenate([occ.normalised_xy[t, r], np.stack([occ.heading[t, r], occ.speed[t, r],
                                  occ.length[t, r], occ.width[t, r]], -1)], -1).astype(np.float32)
         return cls(row=row, agent=occ.agent[t, r].astype(np.int32), values=values.reshape(-1, 6))
+
+    @classmethod
+    def of_assignment(cls, regions: Regions, tracks: Tracks, agent: np.ndarray, steps: np.ndarray
+                      ) -> CompactOccupancy:
+        """:meth:`from_occupancy` of ``occupancy_of(regions, tracks, agent, steps)``, its attributes
+        computed at the occupied (step, region) pairs only (the same numbers: each pair's are its own;
+        over a long life most pairs are empty)."""
+        t, r = np.nonzero(agent >= 0)
+        a, s = agent[t, r], np.asarray(steps, np.int64)[t]
+        row = np.full(agent.shape, -1, np.int32)
+        row[t, r] = np.arange(len(t), dtype=np.int32)
+        loc = regions.to_region_frame(np.stack([tracks.x[a, s], tracks.y[a, s]], -1), r)
+        norm = np.stack([loc[..., 0] / regions.width, loc[..., 1] / np.maximum(regions.height[r], 1e-9) - 0.5], -1)
+        rel_h = wrap_angle(tracks.heading[a, s] - regions.heading[r])
+        speed = np.hypot(tracks.vx[a, s], tracks.vy[a, s])
+        values = np.concatenate([norm, np.stack([rel_h, speed, tracks.length[a, s], tracks.width[a, s]], -1)],
+                                -1).astype(np.float32)
+        return cls(row=row, agent=a.astype(np.int32), values=values.reshape(-1, 6))
 
     def gather(self, t: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rows at steps ``t`` and regions ``r`` (broadcast): (agent (-1 empty), present, values (..., 6))."""
@@ -130,14 +149,15 @@ def prepare_scene(scene: Scene, radius: float = NEIGHBOURHOOD_RADIUS, spacing: f
     elif crop:
         keep = regions_near(regions, np.stack([tr.x[a_idx, t_idx], tr.y[a_idx, t_idx]], -1), radius)
         regions = regions.select(keep)
-    occ = assign_agents(regions, tr)
+    agent = assigned_agent(regions, tr, np.arange(tr.num_steps))
     signal = region_signals(regions, scene.signals, len(scene.road_map.lanes))
     order = np.lexsort((a_idx, t_idx))
     centres = np.stack([t_idx[order], a_idx[order]], -1).astype(np.int64).reshape(-1, 2)
     pose = np.stack([tr.x[centres[:, 1], centres[:, 0]], tr.y[centres[:, 1], centres[:, 0]],
                      tr.heading[centres[:, 1], centres[:, 0]]], -1).reshape(-1, 3)
     return ScenePriorData(scenario_id=scene.scenario_id, regions=regions, signal=signal.astype(np.int8),
-                          occupancy=CompactOccupancy.from_occupancy(occ), centres=centres, centre_pose=pose,
+                          occupancy=CompactOccupancy.of_assignment(regions, tr, agent, np.arange(tr.num_steps)),
+                          centres=centres, centre_pose=pose,
                           sdc_index=scene.sdc_index)
 
 

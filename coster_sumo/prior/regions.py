@@ -252,6 +252,14 @@ def assign_agents(regions: Regions, tracks: Tracks, steps: np.ndarray | None = N
         :class:`Occupancy` with leading shape (T, R).
     """
     st = np.arange(tracks.num_steps) if steps is None else np.asarray(steps, np.int64)
+    return occupancy_of(regions, tracks, assigned_agent(regions, tracks, st, object_types, max_heading_diff_deg), st)
+
+
+def assigned_agent(regions: Regions, tracks: Tracks, st: np.ndarray,
+                   object_types: Sequence[int] = (ObjectType.VEHICLE,),
+                   max_heading_diff_deg: float = MAX_HEADING_DIFF_DEG) -> np.ndarray:
+    """(T, R) int64 the agent in each region at steps ``st`` (T,), -1 where none
+    (:func:`assign_agents` without the region-frame attributes)."""
     T, R = len(st), len(regions)
     agent = np.full((T, R), -1, np.int64)
     if R > 0 and tracks.num_agents > 0 and T > 0:
@@ -263,9 +271,9 @@ def assign_agents(regions: Regions, tracks: Tracks, steps: np.ndarray | None = N
             height = regions.height
             reach = float(np.sqrt((0.5 * height.max()) ** 2 + (0.5 * regions.width) ** 2)) + 1e-6
             hits = KDTree(regions.centre).query_radius(pts, r=reach)
-            n_hits = np.array([len(h) for h in hits], np.int64)
+            n_hits = np.fromiter(map(len, hits), np.int64, count=len(hits))
             p = np.repeat(np.arange(len(pts)), n_hits)  # pair -> point
-            r = np.concatenate(list(hits)).astype(np.int64) if n_hits.sum() else np.zeros(0, np.int64)
+            r = np.concatenate(hits).astype(np.int64) if n_hits.sum() else np.zeros(0, np.int64)
             loc = regions.to_region_frame(pts[p], r)
             rel_h = wrap_angle(tracks.heading[a_idx[p], st[t_idx[p]]] - regions.heading[r])
             inside = ((np.abs(loc[:, 0]) <= 0.5 * regions.width) & (loc[:, 1] >= 0.0)
@@ -286,7 +294,7 @@ def assign_agents(regions: Regions, tracks: Tracks, steps: np.ndarray | None = N
             first[1:] = key[order][1:] != key[order][:-1]
             sel = order[first]
             agent[t_of[sel], r[sel]] = a_idx[p[sel]]
-    return occupancy_of(regions, tracks, agent, st)
+    return agent
 
 
 def occupancy_of(regions: Regions, tracks: Tracks, agent: np.ndarray, steps: np.ndarray) -> Occupancy:

@@ -95,6 +95,23 @@ def test_a_name_declared_twice_is_kept_twice_and_nowhere_stays_nowhere(tmp_path)
     assert sorted(Path(args[k]).name for k in ("--stop-output", "--tripinfo-output")) == ["x-2.xml", "x.xml"]
 
 
+def test_a_staged_copy_keeps_a_list_that_names_no_file_as_it_was(tmp_path):
+    """fokr_bs_demo's insertion-checks ("collision leaderGap ..."): SUMO refused it comma-joined."""
+    cfg = tmp_path / "c.sumocfg"
+    shutil.copy(NET / "intersection.net.xml", tmp_path)
+    checks = "collision leaderGap followerGap stop arrivalSpeed speedLimit pedestrian"
+    cfg.write_text('<configuration><input><net-file value="intersection.net.xml"/></input>'
+                   f'<processing><insertion-checks value="{checks}"/></processing>'
+                   '<output><fcd-output value="fcd.xml"/></output><time><end value="5"/></time></configuration>')
+    staged = sandbox(cfg).config
+    assert staged is not None
+    text = staged.read_text()
+    assert f'"{checks}"' in text and f'"{(tmp_path / "intersection.net.xml").resolve()}"' in text
+    with SumoSession(cfg, end=2) as sim:  # SUMO loads the staged copy
+        while sim.time < 2:
+            sim.step()
+
+
 def test_every_sumo_process_is_started_through_the_sandbox():
     """Only the session and the flow expansion of exports start SUMO; both take the sandbox."""
     starts = []
