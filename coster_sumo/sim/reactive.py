@@ -42,7 +42,7 @@ import numpy as np
 
 from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.formats.scene_folder import VTYPES, agent_sizes, vtype_for
-from coster_sumo.geometry.boxes import project_points
+from coster_sumo.sim.corridor import PreparedPolyline
 from coster_sumo.sim.states import VehicleStates, empty_states
 
 if TYPE_CHECKING:
@@ -79,7 +79,7 @@ class Pose:
 
 
 def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.ndarray,
-                    route: np.ndarray | None = None, target: Pose | None = None,
+                    route: np.ndarray | PreparedPolyline | None = None, target: Pose | None = None,
                     sizes: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Which of ``candidates`` the deviation of ``deviating`` reaches at log step ``k``.
 
@@ -89,7 +89,8 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
         deviating: the vehicles that deviate from their logs now (the target first, if it does).
         candidates: (A,) agent indices that may react (valid at ``k``, not the adversary, not
             reacting yet).
-        route: (P, 2) [m] the target's route, for its corridor (None: no follower/leader test).
+        route: (P, 2) [m] the target's route, for its corridor (None: no follower/leader test), or
+            it prepared (a caller that asks every step prepares it once).
         target: the target's pose now (with ``route``).
         sizes: (A,) lengths and widths [m] of every agent (default :func:`agent_sizes`; a caller that
             asks every step passes them once computed).
@@ -104,7 +105,8 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
         return hit
     lengths, widths = sizes if sizes is not None else agent_sizes(scene)
     if route is not None and target is not None and len(route) >= 2:
-        s_t, d_t, _ = project_points(np.array([target.x, target.y]), route)
+        line = route if isinstance(route, PreparedPolyline) else PreparedPolyline(route)
+        s_t, d_t, _ = line.project(np.array([target.x, target.y]))
         # a follower or leader is within the gap along the route and CORRIDOR_M of it, so (the chord no
         # longer than the arc) within this of the target: the others need no projection
         bound = max(FOLLOW_GAP_M, LEAD_GAP_M) + CORRIDOR_M + abs(float(d_t)) + 1e-6
@@ -112,9 +114,8 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
         close = np.flatnonzero(np.hypot(ax0 - target.x, ay0 - target.y) <= bound)
         if len(close):
             c_a = cand[close]
-            s_a, d_a, seg = project_points(np.stack([ax0[close], ay0[close]], -1), route)
-            seg_dir = np.diff(route, axis=0)[seg]  # (C, 2)
-            rel = np.abs((tr.heading[c_a, k] - np.arctan2(seg_dir[:, 1], seg_dir[:, 0]) + np.pi) % (2 * np.pi) - np.pi)
+            s_a, d_a, seg = line.project(np.stack([ax0[close], ay0[close]], -1))
+            rel = np.abs((tr.heading[c_a, k] - line.heading[seg] + np.pi) % (2 * np.pi) - np.pi)
             gap = s_a - float(s_t)
             in_corridor = (np.abs(d_a) <= CORRIDOR_M) & (rel <= CORRIDOR_HEADING_RAD)
             hit[close] |= in_corridor & (gap >= -FOLLOW_GAP_M) & (gap <= LEAD_GAP_M)
@@ -191,7 +192,7 @@ class ReactiveTraffic:
         tr = scene.tracks
         self.target = tr.index_of(target)
         # the corridor test needs no finer route than every 2 m (the environment's is every 0.5 m)
-        self.route = None if route is None else np.asarray(route, np.float64).reshape(-1, 2)[::4]
+        self.route = None if route is None else PreparedPolyline(np.asarray(route, np.float64).reshape(-1, 2)[::4])
         self._types_file, self._suffix = car_following_types(car_following)
         ids = [str(i) for i in tr.ids]
         in_log = np.array([i not in exclude and i != target for i in ids], bool)  # (A,)
