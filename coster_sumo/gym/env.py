@@ -194,7 +194,6 @@ class ScenarioEnv(gymnasium.Env, Driver):
         return self._observation(), self._info()
 
     def _start(self, entry: ScenarioEntry) -> None:
-        from coster_sumo.sim.replay import LogReplayer, LogTraffic, far_agents
         from coster_sumo.sim.session import SumoSession
 
         self.entry = entry
@@ -244,19 +243,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
             self._t_shift = 0.0
         self._sumo_target = None
         self.api = self._session.api
-        cached = self._replays.get((entry.id, k0))
-        if cached is None:
-            far = far_agents(scene.tracks, self.route.points[::4], REPLAY_RADIUS_M, from_step=k0)
-            replayed = _from_step(scene, k0)
-            log = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic != "sumo" else None
-            # SUMO holds every agent in mode sumo; else the target alone (and the signals), the agents read
-            # from the log
-            replayer = LogReplayer(replayed, entry.tls, entry.staging_lane,
-                                   exclude={entry.target, *far} if self.traffic == "sumo" else set(tr.ids.tolist()))
-            cached = (far, replayed, log, replayer)
-            if len(self._replays) < CACHED_SCENARIOS and not self.random_start:
-                self._replays[(entry.id, k0)] = cached
-        far, replayed, log, replayer = cached
+        far, replayed, log, replayer = self._replay_of(entry, scene, k0)
         self._replayer = replayer.restarted()  # the cached one is never stepped
         self._traffic = log if self.traffic == "log" else None
         if self._traffic is not None:
@@ -277,6 +264,26 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._signals_only = self.traffic != "sumo" and not self._replayer.drives_agents
         self._added = False
         self._advance()  # the first step shows the scenario's first state
+
+    def _replay_of(self, entry: ScenarioEntry, scene: Scene, k0: int) -> tuple[set[str], Scene, Any, Any]:
+        """The episode's agents too far to replay, the replayed scene from step ``k0``, its LogTraffic
+        (None in mode sumo) and a LogReplayer never stepped (kept per scenario and start step)."""
+        from coster_sumo.sim.replay import LogReplayer, LogTraffic, far_agents
+
+        cached = self._replays.get((entry.id, k0))
+        if cached is None:
+            far = far_agents(scene.tracks, self.route.points[::4], REPLAY_RADIUS_M, from_step=k0)
+            replayed = _from_step(scene, k0)
+            log = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic != "sumo" else None
+            # SUMO holds every agent in mode sumo; else the target alone (and the signals), the agents read
+            # from the log
+            every = set(scene.tracks.ids.tolist())
+            replayer = LogReplayer(replayed, entry.tls, entry.staging_lane,
+                                   exclude={entry.target, *far} if self.traffic == "sumo" else every)
+            cached = (far, replayed, log, replayer)
+            if len(self._replays) < CACHED_SCENARIOS and not self.random_start:
+                self._replays[(entry.id, k0)] = cached
+        return cached
 
     def _scene_of(self, entry: ScenarioEntry) -> Scene:
         """The replay scene of ``entry`` (kept for CACHED_SCENARIOS scenarios)."""

@@ -154,16 +154,7 @@ def train(opts: TrainOptions) -> TrainProgress:
 
     left = opts.timesteps - progress.steps
     if left > 0:
-        import torch
-
-        threads = torch.get_num_threads()
-        # the MLP is small: one thread computes it fastest (two on a busy 2-core machine wait on each
-        # other: the same 2,048 PPO steps took 1.8x the time), and leaves the cores to the environments
-        torch.set_num_threads(max(1, opts.torch_threads))
-        try:
-            model.learn(total_timesteps=left, callback=Checkpoints(), reset_num_timesteps=False, progress_bar=False)
-        finally:
-            torch.set_num_threads(threads)
+        _learn(model, left, Checkpoints(), opts.torch_threads)
         save()
     venv.close()
     final = opts.out / "policy.zip"
@@ -172,6 +163,20 @@ def train(opts: TrainOptions) -> TrainProgress:
         model.save(tmp)
         os.replace(tmp, final)
     return progress
+
+
+def _learn(model: Any, steps: int, callback: Any, threads: int) -> None:
+    """``model.learn`` for ``steps`` more steps with ``threads`` torch threads (restored after)."""
+    import torch
+
+    before = torch.get_num_threads()
+    # the MLP is small: one thread computes it fastest (two on a busy 2-core machine wait on each
+    # other: the same 2,048 PPO steps took 1.8x the time), and leaves the cores to the environments
+    torch.set_num_threads(max(1, threads))
+    try:
+        model.learn(total_timesteps=steps, callback=callback, reset_num_timesteps=False, progress_bar=False)
+    finally:
+        torch.set_num_threads(before)
 
 
 @dataclass(frozen=True)
