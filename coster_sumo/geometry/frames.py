@@ -7,6 +7,8 @@ clockwise from north** (0 = +y, 90 = +x). All functions broadcast over numpy arr
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 ArrayLike = np.ndarray | float
@@ -55,6 +57,19 @@ def from_sumo(fx: ArrayLike, fy: ArrayLike, angle_deg: ArrayLike, length: ArrayL
     yaw = sumo_angle_to_yaw(angle_deg)
     cx, cy = front_to_centre(fx, fy, yaw, length)
     return cx, cy, yaw
+
+
+def to_sumo_scalar(x: float, y: float, yaw_rad: float, length: float) -> tuple[float, float, float]:
+    """:func:`to_sumo` of one pose in plain floats (the same operations, without numpy's per-call cost)."""
+    half = 0.5 * length
+    return x + half * math.cos(yaw_rad), y + half * math.sin(yaw_rad), (90.0 - math.degrees(yaw_rad)) % 360.0
+
+
+def from_sumo_scalar(fx: float, fy: float, angle_deg: float, length: float) -> tuple[float, float, float]:
+    """:func:`from_sumo` of one pose in plain floats (the same operations, without numpy's per-call cost)."""
+    yaw = math.pi - (math.pi - math.radians(90.0 - angle_deg)) % (2.0 * math.pi)
+    half = 0.5 * length
+    return fx - half * math.cos(yaw), fy - half * math.sin(yaw), yaw
 
 
 MPH_TO_MPS = 0.44704  # [m/s per mph]

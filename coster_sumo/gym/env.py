@@ -64,9 +64,9 @@ from coster_sumo.core.scene import Scene
 from coster_sumo.errors import InputError
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.gym.scenario_set import ScenarioEntry, ScenarioSet
+from coster_sumo.gym.stepping import box_off_road, first_contact, sumo_box
 from coster_sumo.sim.control import Departure
-from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, STEP_S, Driver, Route
-from coster_sumo.sim.events import CONTACT_TOLERANCE_M, EventDetector
+from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, STEP_S, Arrays6, Driver, Route
 from coster_sumo.sim.states import concat_states
 
 COMPLETION_MARGIN_M = 1.0  # [m] the route counts as completed this close to its end
@@ -163,10 +163,16 @@ class ScenarioEnv(gymnasium.Env, Driver):
         self._scenes: dict[str, Scene] = {}
         # per scenario and start step: the agents too far to replay, the replayed part, LogTraffic (not kept
         # with random starts: a scenario has many)
-        self._replays: dict[tuple[str, int], tuple[set[str], Scene, Any]] = {}
+        self._replays: dict[tuple[str, int], tuple[set[str], Scene, Any, Any]] = {}
         self._drivable: dict[Path, DrivableArea] = {}  # per network (a clip's variants share its network)
         self._next_index = 0
         self.entry: ScenarioEntry | None = None
+        self._states: Any = None  # :attr:`states`, built when first read in log mode
+        self._states_k: int | None = None  # the log step they are of
+        self._signals_only = False
+        self._others_now: Arrays6 | None = None  # log mode: _others() of the last step
+        self._log_rows = np.zeros(0, np.int64)  # their rows in the log
+        self._half_diagonal = np.zeros(0)  # log mode: 0.5 * hypot(length, width) per row of the log
         self.episodes = 0
         self.sim_steps = 0
 
@@ -189,7 +195,6 @@ class ScenarioEnv(gymnasium.Env, Driver):
         return self._observation(), self._info()
 
     def _start(self, entry: ScenarioEntry) -> None:
-        from coster_sumo.sim.replay import LogReplayer, LogTraffic, far_agents
         from coster_sumo.sim.session import SumoSession
 
         self.entry = entry
@@ -239,33 +244,47 @@ class ScenarioEnv(gymnasium.Env, Driver):
             self._t_shift = 0.0
         self._sumo_target = None
         self.api = self._session.api
-        cached = self._replays.get((entry.id, k0))
-        if cached is None:
-            far = far_agents(scene.tracks, self.route.points[::4], REPLAY_RADIUS_M, from_step=k0)
-            replayed = _from_step(scene, k0)
-            traffic = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic == "log" else None
-            cached = (far, replayed, traffic)
-            if len(self._replays) < CACHED_SCENARIOS and not self.random_start:
-                self._replays[(entry.id, k0)] = cached
-        far, replayed, self._traffic = cached
+        far, replayed, log, replayer = self._replay_of(entry, scene, k0)
+        self._replayer = replayer.restarted()  # the cached one is never stepped
+        self._traffic = log if self.traffic == "log" else None
+        if self._traffic is not None:
+            self._half_diagonal = 0.5 * np.hypot(self._traffic.length, self._traffic.width)
+        self._others_now = None
         self._reactive = None
         if self.traffic == "reactive":  # read from the log until the target's deviation reaches them
             from coster_sumo.sim.reactive import ReactiveTraffic
 
             self._reactive = ReactiveTraffic(replayed, entry.target, exclude=far, adversary=entry.adversary,
-                                             route=self.route.points, car_following=self.car_following)
-        if self.traffic == "sumo":  # every agent in SUMO, moved by moveToXY each step
-            self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude={entry.target, *far})
-        else:  # SUMO holds the target and runs the signals; the agents are read from the log
-            self._replayer = LogReplayer(replayed, entry.tls, entry.staging_lane, exclude=set(tr.ids.tolist()))
+                                             route=self.route.points, car_following=self.car_following, log=log)
         drivable = self._drivable.get(net)
         if drivable is None:
             drivable = DrivableArea.from_road_map(scene.road_map)
             if len(self._drivable) < CACHED_SCENARIOS:
                 self._drivable[net] = drivable
         self._drivable_now = drivable
+        self._signals_only = self.traffic != "sumo" and not self._replayer.drives_agents
         self._added = False
         self._advance()  # the first step shows the scenario's first state
+
+    def _replay_of(self, entry: ScenarioEntry, scene: Scene, k0: int) -> tuple[set[str], Scene, Any, Any]:
+        """The episode's agents too far to replay, the replayed scene from step ``k0``, its LogTraffic
+        (None in mode sumo) and a LogReplayer never stepped (kept per scenario and start step)."""
+        from coster_sumo.sim.replay import LogReplayer, LogTraffic, far_agents
+
+        cached = self._replays.get((entry.id, k0))
+        if cached is None:
+            far = far_agents(scene.tracks, self.route.points[::4], REPLAY_RADIUS_M, from_step=k0)
+            replayed = _from_step(scene, k0)
+            log = LogTraffic(replayed, exclude={entry.target, *far}) if self.traffic != "sumo" else None
+            # SUMO holds every agent in mode sumo; else the target alone (and the signals), the agents read
+            # from the log
+            every = set(scene.tracks.ids.tolist())
+            replayer = LogReplayer(replayed, entry.tls, entry.staging_lane,
+                                   exclude={entry.target, *far} if self.traffic == "sumo" else every)
+            cached = (far, replayed, log, replayer)
+            if len(self._replays) < CACHED_SCENARIOS and not self.random_start:
+                self._replays[(entry.id, k0)] = cached
+        return cached
 
     def _scene_of(self, entry: ScenarioEntry) -> Scene:
         """The replay scene of ``entry`` (kept for CACHED_SCENARIOS scenarios)."""
@@ -289,7 +308,12 @@ class ScenarioEnv(gymnasium.Env, Driver):
         """One SUMO step: replay the others, place the target, step, check events."""
         sess = self._session
         t_next = round(self._now() + STEP_S, 9)
-        self._replayer.before_step(sess, t_next)
+        if self._signals_only:  # log mode: the replayer drives no agent, only the logged signals
+            k_next = self._replayer.step_at(t_next)
+            if k_next is not None:
+                self._replayer.set_signals(sess, k_next)
+        else:
+            self._replayer.before_step(sess, t_next)
         if self._reactive is not None:
             k_next = self._replayer.step_at(t_next)
             if k_next is not None:
@@ -297,26 +321,17 @@ class ScenarioEnv(gymnasium.Env, Driver):
         x, y, yaw = self._ego_pose()
         target = self.entry.target if self.entry is not None else "ego"
         if not self._added:
-            edges = None
-            try:
-                fx = x + 0.5 * self.length * math.cos(yaw)
-                fy = y + 0.5 * self.length * math.sin(yaw)
-                edge, _, _ = sess.api.simulation.convertRoad(fx, fy, False, "passenger")
-                edges = [str(edge)] if edge and not str(edge).startswith(":") else None
-            except Exception:  # no lane nearby: SUMO picks an edge, moveToXY places it anyway
-                edges = None
-            sess.add_vehicle(target, self.length, self.width, "passenger", departure=Departure(edges),
-                             color=(40, 120, 255, 255))
-            self._added = True
-            self._sumo_target = target
+            self._add_target(target, x, y, yaw)
         sess.move_to_xy(target, x, y, yaw, self.length, speed=self.v)
         sess.step()
         self.sim_steps += 1
-        st = sess.vehicle_states()
         k = self._replayer.step_at(self._now())
-        if k is not None and self._traffic is not None:
-            st = concat_states(st, self._traffic.states_at(k))
-        elif k is not None and self._reactive is not None:
+        if self._traffic is not None:  # the states of every vehicle only when someone reads them
+            self._states, self._states_k, self._others_now = None, k, None
+            self._check_log_step(target, k)
+            return
+        st = sess.vehicle_states()
+        if k is not None and self._reactive is not None:
             st = concat_states(st, self._reactive.states_at(k))
         self.states = st
         # the target's events only (the pass detector's checks of the adversary's other contacts and
@@ -324,18 +339,79 @@ class ScenarioEnv(gymnasium.Env, Driver):
         i = _row(st.id_list(), target)
         if i < 0:
             return
-        reach = 0.5 * (np.hypot(st.length, st.width) + math.hypot(st.length.item(i), st.width.item(i)))
-        near = np.flatnonzero(np.hypot(st.x - st.x.item(i), st.y - st.y.item(i)) <= reach + CONTACT_TOLERANCE_M)
-        for j in near.tolist():
-            if j != i and self.collided_with is None and EventDetector._in_contact(st, i, j):
-                self.collided_with = str(st.ids[j])
+        box = (st.x.item(i), st.y.item(i), st.yaw.item(i), st.length.item(i), st.width.item(i))
+        if self.collided_with is None:
+            others = np.arange(len(st)) != i
+            j = first_contact(box, st.x[others], st.y[others], st.yaw[others], st.length[others], st.width[others])
+            if j >= 0:
+                self.collided_with = str(st.ids[others][j])
         if not self.off_road:
-            self.off_road = bool(self._drivable_now.off_road(st.x[i], st.y[i], st.yaw[i], st.length[i], st.width[i]))
+            self.off_road = box_off_road(self._drivable_now, box)
         if self._reactive is not None and k is not None:
             from coster_sumo.sim.reactive import Pose
 
-            self._reactive.after_step(k, st, Pose(float(st.x[i]), float(st.y[i]), float(st.yaw[i]), self.v,
-                                                  self.length, self.width))
+            self._reactive.after_step(k, st, Pose(box[0], box[1], box[2], self.v, self.length, self.width))
+
+    def _check_log_step(self, target: str, k: int | None) -> None:
+        """The target's contacts and off-road after a step of log mode: its box as SUMO has it, the
+        others' boxes from the log at step ``k`` (in the order :attr:`states` lists them)."""
+        box = sumo_box(self._session.api, target)
+        if box is None:
+            return
+        if self.collided_with is None:
+            x, y, yaw, _, length, width = self._others()
+            j = first_contact(box, x, y, yaw, length, width, self._half_diagonal[self._log_rows])
+            if j >= 0:
+                self.collided_with = str(self._traffic.ids[self._log_rows[j]])
+        if not self.off_road:
+            self.off_road = box_off_road(self._drivable_now, box)
+
+    def _others(self) -> Arrays6:
+        """Log mode: the vehicles but the target are the log's at the last step (in :attr:`states`'
+        order: SUMO holds the target alone), read without building :attr:`states`."""
+        log, k = self._traffic, self._states_k
+        if log is None:
+            return super()._others()
+        if self._others_now is None:
+            if k is None or not 0 <= k < log.valid.shape[1]:
+                self._log_rows = rows = np.zeros(0, np.int64)
+            else:
+                self._log_rows = rows = np.flatnonzero(log.valid[:, k])
+            self._others_now = (log.x[rows, k], log.y[rows, k], log.yaw[rows, k], log.speed[rows, k],
+                                log.length[rows], log.width[rows])
+        return self._others_now
+
+    @property
+    def states(self) -> Any:  # type: ignore[override]
+        """The vehicles after the last step (VehicleStates: SUMO's, then the log's); in log mode
+        built when first read (before the next step: SUMO's state does not change in between)."""
+        if self._states is None and self._session is not None:
+            st = self._session.vehicle_states()
+            k = self._states_k
+            if k is not None and self._traffic is not None:
+                st = concat_states(st, self._traffic.states_at(k))
+            self._states = st
+        return self._states
+
+    @states.setter
+    def states(self, value: Any) -> None:
+        self._states = value
+
+    def _add_target(self, target: str, x: float, y: float, yaw: float) -> None:
+        """Put the target into SUMO, on the edge under its front bumper where there is one."""
+        sess = self._session
+        edges = None
+        try:
+            fx = x + 0.5 * self.length * math.cos(yaw)
+            fy = y + 0.5 * self.length * math.sin(yaw)
+            edge, _, _ = sess.api.simulation.convertRoad(fx, fy, False, "passenger")
+            edges = [str(edge)] if edge and not str(edge).startswith(":") else None
+        except Exception:  # no lane nearby: SUMO picks an edge, moveToXY places it anyway
+            edges = None
+        sess.add_vehicle(target, self.length, self.width, "passenger", departure=Departure(edges),
+                         color=(40, 120, 255, 255))
+        self._added = True
+        self._sumo_target = target
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._session is None or self.entry is None:

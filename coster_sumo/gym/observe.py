@@ -53,11 +53,11 @@ OBSERVATIONS = {"default": OBS_SIZE, "avoidance": OBS_SIZE + CORRIDOR_FEATURES,
 def corridor_features(driver: Driver, time_left_s: float) -> np.ndarray:
     """(CORRIDOR_FEATURES,) float64: the module docstring's table, for the target ``driver`` drives."""
     out = np.array([0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, min(max(time_left_s, 0.0) / TIME_LEFT_SCALE_S, 1.0)])
-    st = driver.states
-    if st is None or not len(st):
+    ox, oy, oyaw, ospeed, olength, _ = driver._others()
+    if not len(ox):
         return out
     x, y, _ = driver._ego_pose()
-    near = np.flatnonzero((st.ids != driver.target_id) & (np.hypot(st.x - x, st.y - y) <= NEIGHBOUR_RADIUS_M + 10.0))
+    near = np.flatnonzero(np.hypot(ox - x, oy - y) <= NEIGHBOUR_RADIUS_M + 10.0)
     if not len(near):
         return out
     route = driver.route
@@ -66,13 +66,13 @@ def corridor_features(driver: Driver, time_left_s: float) -> np.ndarray:
     window = route.points[max(lo - 1, 0):hi + 1]  # (W, 2) the route around the target
     if len(window) < 2:
         return out
-    s_win, d, seg = project_points(np.stack([st.x[near], st.y[near]], -1), window)
+    s_win, d, seg = project_points(np.stack([ox[near], oy[near]], -1), window)
     s_o = s_win + route.cum[max(lo - 1, 0)]  # (N,) arc length along the whole route
     seg_h = np.arctan2(*np.diff(window, axis=0)[seg][:, ::-1].T)  # (N,) route heading there
-    rel = np.abs((st.yaw[near] - seg_h + np.pi) % (2 * np.pi) - np.pi)
+    rel = np.abs((oyaw[near] - seg_h + np.pi) % (2 * np.pi) - np.pi)
     inside = (np.abs(d - driver.d) <= CORRIDOR_HALF_WIDTH_M) & (rel <= CORRIDOR_HEADING_RAD)
-    v_along = st.speed[near] * np.cos(rel)  # (N,) their speed along the route
-    gap = np.abs(s_o - driver.s) - 0.5 * (st.length[near] + driver.length)
+    v_along = ospeed[near] * np.cos(rel)  # (N,) their speed along the route
+    gap = np.abs(s_o - driver.s) - 0.5 * (olength[near] + driver.length)
     for side, (mask, sign) in enumerate(((inside & (s_o > driver.s), 1.0), (inside & (s_o <= driver.s), -1.0))):
         if not mask.any():
             continue
@@ -90,22 +90,22 @@ def lidar(driver: Driver, num_rays: int = NUM_RAYS, range_m: float = LIDAR_RANGE
     spaced) the distance from the target's centre to the first vehicle box it meets / ``range_m``
     (1: none within range)."""
     out = np.ones(num_rays)
-    st = driver.states
-    if st is None or not len(st):
+    ox, oy, oyaw, _, olength, owidth = driver._others()
+    if not len(ox):
         return out
     x, y, yaw = driver._ego_pose()
-    reach = range_m + 0.5 * np.hypot(st.length, st.width)
-    near = np.flatnonzero((st.ids != driver.target_id) & (np.hypot(st.x - x, st.y - y) <= reach))
+    reach = range_m + 0.5 * np.hypot(olength, owidth)
+    near = np.flatnonzero(np.hypot(ox - x, oy - y) <= reach)
     if not len(near):
         return out
     angles = yaw + np.arange(num_rays) * (2 * np.pi / num_rays)  # (R,)
     # each ray in each box's frame: origin o, direction u; slab test against |x| <= L/2, |y| <= W/2
-    c, s = np.cos(st.yaw[near]), np.sin(st.yaw[near])  # (B,)
-    dx, dy = x - st.x[near], y - st.y[near]
+    c, s = np.cos(oyaw[near]), np.sin(oyaw[near])  # (B,)
+    dx, dy = x - ox[near], y - oy[near]
     ox, oy = c * dx + s * dy, -s * dx + c * dy  # (B,)
     rc, rs = np.cos(angles)[:, None], np.sin(angles)[:, None]  # (R, 1)
     ux, uy = rc * c + rs * s, -rc * s + rs * c  # (R, B)
-    half_l, half_w = 0.5 * st.length[near], 0.5 * st.width[near]
+    half_l, half_w = 0.5 * olength[near], 0.5 * owidth[near]
     with np.errstate(divide="ignore", invalid="ignore"):
         t1x, t2x = (-half_l - ox) / ux, (half_l - ox) / ux
         t1y, t2y = (-half_w - oy) / uy, (half_w - oy) / uy

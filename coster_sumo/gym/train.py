@@ -1,10 +1,11 @@
-"""Train a driving policy on a scenario set (stable-baselines3 PPO) and evaluate it (RCR, CR, ORR).
+"""Train a driving policy on a scenario set (stable-baselines3 PPO or TD3) and evaluate it (RCR, CR, ORR).
 
 Training is resumable: every ``checkpoint_steps`` environment steps the model is saved as
 ``OUT/checkpoint.zip`` (atomically, with ``OUT/progress.json``: steps done, wall time, episode
-outcomes so far); the same command after an interruption loads it and trains on up to the budget.
-The finished policy is ``OUT/policy.zip``. Every arm of the downstream experiment uses the same
-network (an MLP of two hidden layers of 64), the same PPO settings and the same budget.
+outcomes so far; a TD3 learner's replay buffer beside it, :mod:`coster_sumo.gym.learners`); the
+same command after an interruption loads it and trains on up to the budget. The finished policy is
+``OUT/policy.zip``. Every arm of the downstream experiment uses the same network (an MLP of two
+hidden layers of 64), the same learner settings and the same budget.
 """
 
 from __future__ import annotations
@@ -19,14 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.gym.learners import LEARNERS
 from coster_sumo.infra.atomic import write_json
-
-POLICY_LAYERS = (64, 64)  # hidden units of the policy and value MLPs (the same for every arm)
-# log of the initial standard deviation of the Gaussian actions: SB3's default (0, std 1 on actions
-# in [-1, 1]) swerves a full lane and brakes at 8 m/s^2 at random, so early episodes end off the road
-# before anything is learnt; std 0.37 explores around the action (0, 0), which drives the route at
-# constant speed
-INITIAL_LOG_STD = -1.0
 
 
 @dataclass
@@ -45,6 +40,8 @@ class TrainOptions:
     car_following: str = "Krauss"  # the reacting agents' model (traffic="reactive")
     random_start: bool = False  # nominal episodes start at a seeded random time within the clip
     observation: str = "default"  # the environment's observation (coster_sumo.gym.observe)
+    learner: str = "ppo"  # ppo or td3 (coster_sumo.gym.learners)
+    torch_threads: int = 1  # torch threads of the learner while it trains
 
 
 @dataclass(frozen=True)
@@ -94,10 +91,14 @@ def _make_env(scenarios: str, split: str | None, seed: int, control_period_s: fl
 
 
 def train(opts: TrainOptions) -> TrainProgress:
-    """Train (or resume) PPO on the ``train`` split of ``opts.scenarios``; returns the progress record."""
-    from stable_baselines3 import PPO
+    """Train (or resume) ``opts.learner`` on the ``train`` split of ``opts.scenarios``; returns the progress record."""
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    from coster_sumo.gym.learners import load_state, new_model, save_state
+
+    if opts.learner not in LEARNERS:
+        raise ValueError(f"learner must be one of {LEARNERS}, not {opts.learner!r}")
 
     opts.out.mkdir(parents=True, exist_ok=True)
     makers = [_make_env(str(opts.scenarios), "train", opts.seed * 1000 + i, opts.control_period_s, opts.traffic,
@@ -109,11 +110,9 @@ def train(opts: TrainOptions) -> TrainProgress:
     if ckpt.exists() and progress_path.exists():
         progress = dataclasses.replace(TrainProgress.from_json(json.loads(progress_path.read_text())),
                                        options=_option_strings(opts))  # the budget may have grown
-        model = PPO.load(ckpt, env=venv, device="cpu")
+        model = load_state(ckpt, venv)
     else:
-        model = PPO("MlpPolicy", venv, seed=opts.seed, device="cpu", n_steps=512, batch_size=128, n_epochs=5,
-                    learning_rate=3e-4, gamma=0.99, verbose=0,
-                    policy_kwargs={"net_arch": list(POLICY_LAYERS), "log_std_init": INITIAL_LOG_STD})
+        model = new_model(opts.learner, venv, opts.seed)
     # a logger that writes nowhere: SB3's default makes an empty SB3-<date> folder in the temporary
     # directory on every learn() (progress.json holds what this training reports)
     from stable_baselines3.common.logger import Logger
@@ -126,9 +125,7 @@ def train(opts: TrainOptions) -> TrainProgress:
 
     def save() -> None:
         nonlocal progress
-        tmp = opts.out / ".checkpoint.tmp.zip"
-        model.save(tmp)
-        os.replace(tmp, ckpt)
+        save_state(model, ckpt)
         curve = progress.curve
         if returns:
             curve = (*curve, (int(model.num_timesteps), float(np.mean(returns))))
@@ -157,7 +154,7 @@ def train(opts: TrainOptions) -> TrainProgress:
 
     left = opts.timesteps - progress.steps
     if left > 0:
-        model.learn(total_timesteps=left, callback=Checkpoints(), reset_num_timesteps=False, progress_bar=False)
+        _learn(model, left, Checkpoints(), opts.torch_threads)
         save()
     venv.close()
     final = opts.out / "policy.zip"
@@ -166,6 +163,20 @@ def train(opts: TrainOptions) -> TrainProgress:
         model.save(tmp)
         os.replace(tmp, final)
     return progress
+
+
+def _learn(model: Any, steps: int, callback: Any, threads: int) -> None:
+    """``model.learn`` for ``steps`` more steps with ``threads`` torch threads (restored after)."""
+    import torch
+
+    before = torch.get_num_threads()
+    # the MLP is small: one thread computes it fastest (two on a busy 2-core machine wait on each
+    # other: the same 2,048 PPO steps took 1.8x the time), and leaves the cores to the environments
+    torch.set_num_threads(max(1, threads))
+    try:
+        model.learn(total_timesteps=steps, callback=callback, reset_num_timesteps=False, progress_bar=False)
+    finally:
+        torch.set_num_threads(before)
 
 
 @dataclass(frozen=True)
@@ -270,9 +281,9 @@ def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None
     env = ScenarioEnv(scenarios, split=split, order="cycle", scenario_ids=ids, **env_options)
     model = None
     if policy is not None:
-        from stable_baselines3 import PPO
+        from coster_sumo.gym.learners import load_model
 
-        model = PPO.load(policy, device="cpu")
+        model = load_model(policy)
     rows: list[EpisodeRecord] = []
     n = len(env.entries) if max_episodes is None else min(max_episodes, len(env.entries))
     for i in range(n):

@@ -159,8 +159,8 @@ class SessionControl:
         if length is None:
             st = self._static.get(veh_id)
             length = st[0] if st is not None else float(api.vehicle.getLength(veh_id))
-        fx, fy, angle = frames.to_sumo(cx, cy, yaw, length)
-        api.vehicle.moveToXY(veh_id, "", -1, float(fx), float(fy), angle=float(angle),
+        fx, fy, angle = frames.to_sumo_scalar(float(cx), float(cy), float(yaw), float(length))
+        api.vehicle.moveToXY(veh_id, "", -1, fx, fy, angle=angle,
                              keepRoute=KEEP_ROUTE_EXACT_ANYWHERE, matchThreshold=MOVE_MATCH_THRESHOLD_M)
         if speed is not None:
             self._pending_speed[veh_id] = float(speed)

@@ -45,7 +45,7 @@ class PolicyPlanner(Driver):
     """Drives the target with a trained policy (see the module docstring).
 
     Args:
-        path: the policy's ``.zip`` (stable-baselines3 PPO).
+        path: the policy's ``.zip`` (stable-baselines3 PPO or TD3).
         nominal: the target's nominal trajectory (its route); None where the caller has none
             (``run`` asks a planner for its files before the nominal pass): then it cannot drive.
     """
@@ -68,9 +68,9 @@ class PolicyPlanner(Driver):
     def setup(self, session: SumoSession, target_id: str) -> None:
         if self._model is None:
             require("rl", f"planner policy:{self.path}")
-            from stable_baselines3 import PPO
+            from coster_sumo.gym.learners import load_model
 
-            self._model = PPO.load(self.path, device="cpu")
+            self._model = load_model(self.path)
         self._taken = False
         self.target_id = target_id
         self.api = session.api

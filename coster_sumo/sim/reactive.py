@@ -42,13 +42,14 @@ import numpy as np
 
 from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.formats.scene_folder import VTYPES, agent_sizes, vtype_for
-from coster_sumo.geometry.boxes import project_points
 from coster_sumo.sim.control import Departure
+from coster_sumo.sim.corridor import PreparedPolyline
 from coster_sumo.sim.states import VehicleStates, empty_states
 
 if TYPE_CHECKING:
     from coster_sumo.core.scene import Tracks
     from coster_sumo.sim.replay import LogReplayer as LogReplayerLike
+    from coster_sumo.sim.replay import LogTraffic
     from coster_sumo.sim.session import SumoSession
 
 DEVIATION_M = 0.5  # [m] the target's centre this far from its logged centre: it deviates
@@ -79,7 +80,7 @@ class Pose:
 
 
 def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.ndarray,
-                    route: np.ndarray | None = None, target: Pose | None = None,
+                    route: np.ndarray | PreparedPolyline | None = None, target: Pose | None = None,
                     sizes: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Which of ``candidates`` the deviation of ``deviating`` reaches at log step ``k``.
 
@@ -89,7 +90,8 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
         deviating: the vehicles that deviate from their logs now (the target first, if it does).
         candidates: (A,) agent indices that may react (valid at ``k``, not the adversary, not
             reacting yet).
-        route: (P, 2) [m] the target's route, for its corridor (None: no follower/leader test).
+        route: (P, 2) [m] the target's route, for its corridor (None: no follower/leader test), or
+            it prepared (a caller that asks every step prepares it once).
         target: the target's pose now (with ``route``).
         sizes: (A,) lengths and widths [m] of every agent (default :func:`agent_sizes`; a caller that
             asks every step passes them once computed).
@@ -104,25 +106,33 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
         return hit
     lengths, widths = sizes if sizes is not None else agent_sizes(scene)
     if route is not None and target is not None and len(route) >= 2:
-        pts = np.stack([tr.x[cand, k], tr.y[cand, k]], -1)  # (A, 2)
-        s_a, d_a, seg = project_points(pts, route)
-        s_t, _, _ = project_points(np.array([target.x, target.y]), route)
-        seg_dir = np.diff(route, axis=0)[seg]  # (A, 2)
-        rel = np.abs((tr.heading[cand, k] - np.arctan2(seg_dir[:, 1], seg_dir[:, 0]) + np.pi) % (2 * np.pi) - np.pi)
-        gap = s_a - float(s_t)
-        in_corridor = (np.abs(d_a) <= CORRIDOR_M) & (rel <= CORRIDOR_HEADING_RAD)
-        hit |= in_corridor & (gap >= -FOLLOW_GAP_M) & (gap <= LEAD_GAP_M)
+        line = route if isinstance(route, PreparedPolyline) else PreparedPolyline(route)
+        s_t, d_t, _ = line.project(np.array([target.x, target.y]))
+        # a follower or leader is within the gap along the route and CORRIDOR_M of it, so (the chord no
+        # longer than the arc) within this of the target: the others need no projection
+        bound = max(FOLLOW_GAP_M, LEAD_GAP_M) + CORRIDOR_M + abs(float(d_t)) + 1e-6
+        ax0, ay0 = tr.x[cand, k], tr.y[cand, k]
+        close = np.flatnonzero(np.hypot(ax0 - target.x, ay0 - target.y) <= bound)
+        if len(close):
+            c_a = cand[close]
+            s_a, d_a, seg = line.project(np.stack([ax0[close], ay0[close]], -1))
+            rel = np.abs((tr.heading[c_a, k] - line.heading[seg] + np.pi) % (2 * np.pi) - np.pi)
+            gap = s_a - float(s_t)
+            in_corridor = (np.abs(d_a) <= CORRIDOR_M) & (rel <= CORRIDOR_HEADING_RAD)
+            hit[close] |= in_corridor & (gap >= -FOLLOW_GAP_M) & (gap <= LEAD_GAP_M)
     horizon = np.arange(0.0, HORIZON_S + 1e-9, HORIZON_STEP_S)  # (H,)
     steps = np.minimum(k + np.round(horizon / scene.dt).astype(np.int64), scene.num_steps - 1)  # (H,)
-    ax, ay = tr.x[cand][:, steps], tr.y[cand][:, steps]  # (A, H)
-    a_ok = tr.valid[cand][:, steps]  # (A, H)
+    grid = (cand[:, None], steps[None, :])
+    ax, ay = tr.x[grid], tr.y[grid]  # (A, H)
+    a_ok = tr.valid[grid]  # (A, H)
+    l_cand, w_cand = lengths[cand], widths[cand]
     for p in deviating:
         c, s = math.cos(p.yaw), math.sin(p.yaw)
         px, py = p.x + p.speed * c * horizon, p.y + p.speed * s * horizon  # (H,)
         dx, dy = ax - px, ay - py  # (A, H) in the world frame
         along, across = np.abs(c * dx + s * dy), np.abs(-s * dx + c * dy)
-        reach_l = 0.5 * (lengths[cand] + p.length)[:, None] + CONFLICT_MARGIN_M  # (A, 1)
-        reach_w = 0.5 * (widths[cand] + p.width)[:, None] + CONFLICT_MARGIN_M
+        reach_l = 0.5 * (l_cand + p.length)[:, None] + CONFLICT_MARGIN_M  # (A, 1)
+        reach_w = 0.5 * (w_cand + p.width)[:, None] + CONFLICT_MARGIN_M
         hit |= (a_ok & (along <= reach_l) & (across <= reach_w)).any(axis=1)
     return hit
 
@@ -176,19 +186,20 @@ class ReactiveTraffic:
 
     def __init__(self, scene: Scene, target: str, exclude: set[str] | frozenset[str] = frozenset(),
                  adversary: str | None = None, route: np.ndarray | None = None,
-                 car_following: str = "Krauss") -> None:
+                 car_following: str = "Krauss", log: LogTraffic | None = None) -> None:
         from coster_sumo.sim.replay import LogTraffic
 
         self.scene = scene
         tr = scene.tracks
         self.target = tr.index_of(target)
         # the corridor test needs no finer route than every 2 m (the environment's is every 0.5 m)
-        self.route = None if route is None else np.asarray(route, np.float64).reshape(-1, 2)[::4]
+        self.route = None if route is None else PreparedPolyline(np.asarray(route, np.float64).reshape(-1, 2)[::4])
         self._types_file, self._suffix = car_following_types(car_following)
-        self.lengths, self.widths = agent_sizes(scene)
         ids = [str(i) for i in tr.ids]
         in_log = np.array([i not in exclude and i != target for i in ids], bool)  # (A,)
-        self.log = LogTraffic(scene, exclude={*exclude, target})
+        # ``log``: the same LogTraffic where the caller keeps one (read-only here)
+        self.log = log if log is not None else LogTraffic(scene, exclude={*exclude, target})
+        self.lengths, self.widths = (log.agent_lengths, log.agent_widths) if log is not None else agent_sizes(scene)
         self._row = np.cumsum(in_log) - 1  # agent index -> row of self.log
         # pedestrians stay on their logs (SUMO's car-following models drive vehicles) and are not put
         # into SUMO for the reacting vehicles to see

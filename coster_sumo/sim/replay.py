@@ -24,6 +24,7 @@ Nothing SUMO-specific is imported at module import time.
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from collections.abc import Callable
@@ -149,6 +150,17 @@ class LogReplayer:
         self.handover = {tr.index_of(a): float(t) for a, t in (handover or {}).items()}
         self.released: set[int] = set()
 
+    def restarted(self) -> LogReplayer:
+        """A replayer of the same log from its start, sharing this one's read-only arrays (agents'
+        sizes, validity, signal strings): what a new one of the same arguments is, without their cost
+        (an environment replays a scenario many times)."""
+        new = copy.copy(self)
+        new.active, new.released, new._tls_last = {}, set(), {}
+        new.handover = dict(self.handover)
+        new.appearances = np.zeros_like(self.appearances)
+        new.tls_changes, new._slot, new._slots, new._staging_checked = 0, 0, None, False
+        return new
+
     @classmethod
     def for_config(cls, config: str | Path, scene: Scene | None = None,
                    exclude: set[str] | frozenset[str] = frozenset(),
@@ -226,16 +238,28 @@ class LogReplayer:
                 session.move_to_xy(sid, float(tr.x[a, k]), float(tr.y[a, k]), float(tr.heading[a, k]),
                                    length=float(self.lengths[a]),
                                    speed=float(np.hypot(tr.vx[a, k], tr.vy[a, k])))
-            for tid, seq in self.tls_states.items():
-                if self._tls_last.get(tid) != seq[k]:
-                    session.set_tls_state(tid, seq[k])
-                    self._tls_last[tid] = seq[k]
-                    self.tls_changes += 1
+            self.set_signals(session, k)
         nxt = self.step_at(t_next + self.dt)
         if nxt is not None:  # stage the agents that appear at the next log step
             for a in np.flatnonzero(self.valid[:, nxt]).tolist():
                 if a not in self.active:
                     self._add(session, a)
+
+    def set_signals(self, session: SumoSession, k: int) -> None:
+        """Give SUMO the logged signal states of log step ``k`` (only those that changed).
+
+        All that :meth:`before_step` does for a replayer that drives no agent (every one excluded:
+        the environment reads them from the log); such a caller may call this alone."""
+        for tid, seq in self.tls_states.items():
+            if self._tls_last.get(tid) != seq[k]:
+                session.set_tls_state(tid, seq[k])
+                self._tls_last[tid] = seq[k]
+                self.tls_changes += 1
+
+    @property
+    def drives_agents(self) -> bool:
+        """Whether :meth:`before_step` has agents to drive or a handover to make (else only signals)."""
+        return bool(self.handover) or bool(self.valid.any())
 
 
 class LogTraffic:
@@ -257,6 +281,7 @@ class LogTraffic:
         keep = np.array([str(i) not in exclude for i in tr.ids], bool)
         rows = np.flatnonzero(keep)
         lengths, widths = agent_sizes(scene)
+        self.agent_lengths, self.agent_widths = lengths, widths  # (every agent of the scene,)
         self.valid = tr.valid[rows]  # (A, T)
         self.x, self.y, self.yaw = tr.x[rows], tr.y[rows], (tr.heading[rows] + np.pi) % (2 * np.pi) - np.pi
         self.speed = np.hypot(tr.vx[rows], tr.vy[rows])

@@ -1,6 +1,6 @@
 """``coster-sumo policy train SET -o DIR`` and ``coster-sumo policy eval POLICY SET``.
 
-``train`` trains a driving policy (stable-baselines3 PPO, a small MLP) on the ``train`` split of a
+``train`` trains a driving policy (stable-baselines3 PPO or TD3, a small MLP) on the ``train`` split of a
 scenario set in ``coster_sumo/Scenario-v0``; rerunning the same command resumes from
 DIR/checkpoint.zip. ``eval`` drives every scenario of a split once and prints RCR, CR and ORR
 (and writes them with every episode to the JSON file ``-o`` names). The library is
@@ -24,7 +24,8 @@ def _train(args: argparse.Namespace) -> int:
     progress = train(TrainOptions(scenarios=args.scenarios, out=args.out, timesteps=args.timesteps, seed=args.seed,
                                   envs=args.envs, checkpoint_steps=args.checkpoint_steps, quiet=args.quiet,
                                   traffic=args.traffic, car_following=args.car_following,
-                                  random_start=args.random_start, observation=args.observation))
+                                  random_start=args.random_start, observation=args.observation,
+                                  learner=args.learner))
     if not args.quiet:
         print(f"{progress.steps} steps in {progress.wall_s:.0f} s; outcomes {progress.outcomes}; "
               f"wrote {args.out}")
@@ -52,7 +53,7 @@ def _eval(args: argparse.Namespace) -> int:
 
 def register(cli: Any) -> None:
     group = cli.group("policy", help="train and evaluate driving policies on scenario sets (needs coster-sumo[rl])")
-    t = group.add_parser("train", help="PPO on a scenario set's train split (resumable)",
+    t = group.add_parser("train", help="PPO or TD3 on a scenario set's train split (resumable)",
                          description=__doc__.split("\n\n")[1] if __doc__ else None)
     t.add_argument("scenarios", type=Path, metavar="SET", help="scenario set (coster-sumo scenarios build)")
     t.add_argument("-o", "--out", type=Path, required=True, help="folder for checkpoint.zip, progress.json, policy.zip")
@@ -60,6 +61,8 @@ def register(cli: Any) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed of the learner and the scenario draws (default 0)")
     t.add_argument("--envs", type=int, default=1, help="environments, one process each when > 1 (default 1)")
     t.add_argument("--checkpoint-steps", type=int, default=2048, help="save every N steps (default 2048)")
+    t.add_argument("--learner", choices=("ppo", "td3"), default="ppo",
+                   help="ppo (default) or td3 (Adv-BMT's settings; its replay buffer is saved beside the checkpoint)")
     t.add_argument("--random-start", action="store_true",
                    help="nominal episodes start at a seeded random time within the clip (not at its start)")
     add_traffic_options(t)
