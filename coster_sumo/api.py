@@ -41,7 +41,7 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
                      variants: int = 5, collision_time: str = "entropy", init: str = "snapshot",
                      rollout: str = "cvae", begin: float | None = None, end: float | None = None,
                      models_dir: str | Path | None = None, avoidable: str = "any",
-                     reaction_time: float = 1.0) -> PlannedScenario:
+                     reaction_time: float = 1.0, adversary: str = "vehicle") -> PlannedScenario:
     """Nominal pass, collision snapshot and adversary plans for ``target`` (see ``coster-sumo run``).
 
     Returns the :class:`~coster_sumo.method.generation.PlannedScenario`: ``.snapshot`` and ``.plans`` (one
@@ -58,10 +58,13 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     ``avoidable="only"`` the unavoidable plans are dropped and replaced by plans of up to three
     further draws (their own collision snapshots: each label carries its ``t_col``);
     ``.info["avoidable_only"]`` says how many were tried.
+    ``adversary``: vehicle (default), cyclist, pedestrian or any (``coster-sumo run --adversary``); each
+    plan's ``vclass`` and the snapshot's ``adversary_class`` say the class drawn.
     """
     spec = ScenarioSpec(Path(config), seed=seed, begin=begin, end=end, target=target)
     gen = GenerationConfig(init=init, collision_time=collision_time, rollout=rollout, samples=samples,
-                           variants=variants, models_dir=Path(models_dir) if models_dir is not None else None)
+                           variants=variants, models_dir=Path(models_dir) if models_dir is not None else None,
+                           adversary=adversary)
     wanted = LabelOptions(reaction_time, avoidable)  # a bad one is one line before any work
     check_generation(gen)  # the method names and their weights, before the nominal pass
     scene, _ = nominal_scene(spec)

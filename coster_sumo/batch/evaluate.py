@@ -82,6 +82,7 @@ class EvalOptions(BatchOptions):
     planner: str = "replay"
     variants: int = 5
     samples: int = 1000
+    adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.vru)
 
 
 def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[int]:
@@ -140,6 +141,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     m = payload["method"]
     gen = GenerationConfig(init=m["init"], rollout=m["rollout"], collision_time=m["collision_time"],
                            variants=payload["variants"], samples=payload["samples"],
+                           adversary=payload.get("adversary", "vehicle"),
                            models_dir=Path(payload["models_dir"]) if payload.get("models_dir") else None)
     reason = missing_weights(gen)
     if reason:
@@ -168,10 +170,11 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
         adv = v.snapshot.adversary
         label = label_record(labels[i])
         records.append(VariantRecord(
-            variant=i, collision=c is not None, adversary_off_road=res.adversary_off_road,
+            variant=i, collision=c is not None, adversary_off_road=_off(plan, res, scene),
             relative_speed=c.relative_speed if c else None, impact_angle=c.impact_angle if c else None,
             t_col=v.snapshot.time, adversary_speed=adv.speed, adversary_length=adv.length, adversary_width=adv.width,
-            adversary_lane_type=LaneType(int(lane_types[i])).name, avoidable=label.pop("avoidable"), extra=label))
+            adversary_lane_type=LaneType(int(lane_types[i])).name, avoidable=label.pop("avoidable"),
+            extra={**label, "adversary_class": v.snapshot.adversary_class}))
         tr = res.scene.tracks
         if plan.vehicle_id in set(tr.ids.tolist()):
             a = tr.index_of(plan.vehicle_id)
@@ -184,6 +187,13 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     sa = np.concatenate(accels) if accels else np.zeros(0)
     return {"status": "ok", "records": [r.to_json() for r in records], "generation_s": gen_s, "avoidability_s": avoid_s,
             "speed_hist": _hist(sv, SPEED_BINS, 0, 50), "accel_hist": _hist(sa, ACCEL_BINS, -10, 10)}
+
+
+def _off(plan: Any, res: Any, scene: Any) -> bool:
+    """The adversary left the drivable area (a vehicle) or its class's area (a pedestrian or cyclist)."""
+    from coster_sumo.vru.areas import off_class_area
+
+    return bool(res.adversary_off_road) if plan.vclass == "passenger" else off_class_area(plan, scene)
 
 
 def _scene_task_for(key: str, spec: ScenarioSpec, scenes_dir: Path, pass_file: str | None) -> Task:
@@ -217,10 +227,11 @@ def evaluate_generators(opts: EvalOptions) -> EvalSummary:
         return _evaluate_locked(opts, t_start, methods, specs, out)
 
 
-def part_key(scene: str, method: str, variants: int, weights: str) -> str:
+def part_key(scene: str, method: str, variants: int, weights: str, adversary: str = "vehicle") -> str:
     """The file stem of one method's part on one scene (the weights by their contents: other
-    weights are another part, the same weights by another path the same one)."""
-    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}"
+    weights are another part, the same weights by another path the same one; a VRU adversary's apart)."""
+    tail = "" if adversary == "vehicle" else f"__{adversary}"
+    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}{tail}"
 
 
 def _done(part: ScenePart | MethodPart | None) -> bool:
@@ -249,7 +260,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
     def method_tasks(key: str, scene_file: str) -> list[Task]:
         tasks = []
         for m in active:
-            pk = part_key(key, m.name, opts.variants, weights)
+            pk = part_key(key, m.name, opts.variants, weights, opts.adversary)
             if _done(read_method_part(parts_dir / f"{pk}.json")):
                 continue
             folders = task_folders(keys[key], scenes_dir=(scene_file,))
@@ -259,6 +270,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
                 "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
                 "scenes_dir": str(scenes_dir), "method": dataclasses.asdict(m), "variants": opts.variants,
                 "samples": opts.samples, "planner": opts.planner, CONFIG_DIR: config_dir(keys[key]),
+                "adversary": opts.adversary,
                 "models_dir": str(opts.models_dir.resolve()) if opts.models_dir else None}, kind="method",
                 folders=folders))
         return tasks
@@ -298,9 +310,9 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
             quiet=opts.quiet, desc="eval scenarios", expected_total=todo,
             log_dir=out / "logs" if opts.executor == "local" else None, ray_address=opts.ray_address,
             preload=GENERATION_TASK_MODULES)
-    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights)
+    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights, opts.adversary)
     summary = EvalSummary(scenes={k: s.label() for k, s in keys.items()}, planner=opts.planner,
-                          variants=opts.variants, samples=opts.samples, methods=table,
+                          variants=opts.variants, samples=opts.samples, methods=table, adversary=opts.adversary,
                           wall_time_s=round(time.perf_counter() - t_start, 3))
     write_json(out / "summary.json", summary.to_json())
     from coster_sumo.batch.report import write_generator_report
@@ -311,7 +323,8 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
 
 
 def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], methods: Sequence[GeneratorMethod],
-                                skipped: dict[str, str], variants: int, weights: str) -> GeneratorTable:
+                                skipped: dict[str, str], variants: int, weights: str,
+                                adversary: str = "vehicle") -> GeneratorTable:
     """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD (with 95 %
     intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
     the same scenes (:func:`paired_diversity`)."""
@@ -329,7 +342,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if m.name in skipped:
             table[m.name] = SkippedGenerator(m, skipped[m.name])
             continue
-        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights)}.json")
+        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights, adversary)}.json")
                   for k in nominal.scenes]
         parts = [p for p in loaded if p is not None]
         skip = [p for p in parts if p.status == "skipped"]
