@@ -240,12 +240,18 @@ def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult,
                                AgentState.from_tracks(driven.tracks, a, step), step,
                                f"variant {i} as driven in SUMO: {what}\nvehicles at {at}",
                                contact_xy=c.positions[1] if c else None, planned_xy=planned_xy,
-                               box_label=f"adversary at {at}")
+                               box_label=f"{_who(plan)} at {at}", adversary_class=class_of_vclass(plan.vclass))
             return
     # the pass lost the adversary or the target (it left early): the plan on the nominal scene, said so
     viz.render_variant(path, nominal, target, planned_xy, planned_state, t_col_step,
                        f"variant {i} as planned (not in the pass at {when:.1f} s): {what}",
-                       contact_xy=c.positions[1] if c else None)
+                       contact_xy=c.positions[1] if c else None, adversary_class=class_of_vclass(plan.vclass))
+
+
+def _who(plan: AdversaryPlan) -> str:
+    """``adversary``, or ``pedestrian adversary`` / ``cyclist adversary``: how a render names it."""
+    cls = class_of_vclass(plan.vclass)
+    return "adversary" if cls == "vehicle" else f"{cls} adversary"
 
 
 def _overview_name(k: int) -> str:
@@ -260,8 +266,10 @@ def _render_overview(out: Path, k: int, p: PlannedScenario, plans: Sequence[Adve
     scene, snap = p.scene, p.snapshot
     t_col_step = int(np.argmin(np.abs(scene.timestamps - snap.time)))
     reps = [np.stack([q.x, q.y], 1) for q in plans]
-    moment = viz.CollisionMoment(snap.time, t_col_step, snap.target, entropy=snap.entropy or None,
-                                 times=p.scene_2hz.timestamps)
+    vru = snap.adversary_class != "vehicle"  # a VRU's box and class are drawn: a small box on a big map
+    moment = viz.CollisionMoment(snap.time, t_col_step, snap.target, snap.adversary if vru else None,
+                                 entropy=snap.entropy or None, times=p.scene_2hz.timestamps,
+                                 adversary_class=snap.adversary_class)
     viz.render_overview(out / _overview_name(k), scene, p.target_index, moment, reps, p.samples_xy)
 
 

@@ -95,6 +95,17 @@ def draw_agents(ax: Axes, scene: Scene, step: int, highlight: dict[int, str] | N
                                      joinstyle="round", zorder=6))
 
 
+CLASS_MARKS = {"pedestrian": "o", "cyclist": "D"}  # matplotlib markers of a VRU adversary
+
+
+def draw_class_mark(ax: Axes, state: AgentState, adversary_class: str, labels: bool = True, zorder: int = 7) -> None:
+    """A marker of the adversary's class at its centre (a pedestrian's 0.5 m box is a dot at map scale)."""
+    mark = CLASS_MARKS.get(adversary_class)
+    if mark is not None:
+        ax.plot(state.x, state.y, marker=mark, ms=8, mfc="none", mec=ADVERSARY_COLOR, mew=1.5, ls="", zorder=zorder,
+                label=adversary_class if labels else None)
+
+
 def window_around(points: np.ndarray, margin: float = 25.0) -> tuple[float, float, float, float]:
     p = np.asarray(points, float).reshape(-1, 2)
     p = p[np.isfinite(p).all(axis=1)]
@@ -136,9 +147,11 @@ def heatmap(ax: Axes, xy: np.ndarray, window: tuple[float, float, float, float],
 
 def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarray, adversary_state: AgentState,
                    t_col_step: int, title: str, contact_xy: Sequence[float] | None = None,
-                   planned_xy: np.ndarray | None = None, box_label: str = "adversary at t_col") -> Path:
+                   planned_xy: np.ndarray | None = None, box_label: str = "adversary at t_col",
+                   adversary_class: str = "vehicle") -> Path:
     """One variant: map, agents at ``t_col_step`` of ``scene``, the target's path, the adversary's
-    path and box; ``planned_xy`` (the adversary's plan) dashed where it is given.
+    path and box; ``planned_xy`` (the adversary's plan) dashed where it is given. A pedestrian or
+    cyclist adversary (``adversary_class``) gets its class's mark over its small box.
 
     Pass the injection pass as ``scene`` (with the adversary's driven path) to draw what was driven:
     a target that braked is then drawn where it was, not where the nominal pass had it.
@@ -162,6 +175,7 @@ def render_variant(path: Path, scene: Scene, target: int, adversary_xy: np.ndarr
         a.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, zorder=3,
                label="adversary path" if labels else None)
         draw_box(a, s, ADVERSARY_COLOR, label=box_label if labels else None)
+        draw_class_mark(a, s, adversary_class, labels)
         if contact_xy is not None:  # hollow in the close-up, so the boxes under it stay visible
             a.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8,
                    mfc="gold" if labels else "none", label="first contact" if labels else None)
@@ -205,6 +219,7 @@ class CollisionMoment:
         target: the target's state at t_col; adversary: the adversary's (None: not drawn).
         entropy, times: the entropy curve over ``times`` [s] (None: no curve is drawn).
         region_xy, region_presence: (R, 2) region centres and the prior's presence at each (None: not drawn).
+        adversary_class: vehicle, pedestrian or cyclist (a VRU is drawn with its class's mark).
     """
 
     t_col: float
@@ -215,6 +230,7 @@ class CollisionMoment:
     times: np.ndarray | None = None
     region_xy: np.ndarray | None = None
     region_presence: np.ndarray | None = None
+    adversary_class: str = "vehicle"
 
 
 def render_overview(path: Path, scene: Scene, target: int, moment: CollisionMoment,
@@ -239,7 +255,9 @@ def render_overview(path: Path, scene: Scene, target: int, moment: CollisionMome
                         vmin=0.0, vmax=max(float(np.max(region_presence)), 1e-3))
         ax.figure.colorbar(sc, ax=ax, fraction=0.04, label="predicted presence probability")
     if adversary is not None:
-        draw_box(ax, adversary, ADVERSARY_COLOR, label="adversary at t_col", zorder=7)
+        who = "adversary" if moment.adversary_class == "vehicle" else f"{moment.adversary_class} adversary"
+        draw_box(ax, adversary, ADVERSARY_COLOR, label=f"{who} at t_col", zorder=7)
+        draw_class_mark(ax, adversary, moment.adversary_class, labels=False, zorder=8)
     cmap = plt.get_cmap("tab10")
     for i, r in enumerate(representatives):  # above the boxes: a short path is not hidden under them
         ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=9)
