@@ -9,6 +9,7 @@ crossings (built here, in a temporary folder), two OSM configurations of the ecl
 pedestrians and bicycles (fokr_bs_demo, DRT), and the real WOMD samples of ../shared (converted here).
 
     python tests/vru/measure.py [--samples 200] [--variants 3] [--only NAME] [--json OUT.json]
+    python tests/vru/measure.py --womd-stats
 
 Takes about 20-40 s per configuration and class on 2 cores.
 """
@@ -88,13 +89,47 @@ def variants_of(run_out: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def womd_stats() -> None:
+    """Speeds of the WOMD samples' pedestrians and cyclists (the class limits' cross-check in docs/method.md)."""
+    import numpy as np
+    from coster_sumo.converters.read import read_scenes
+
+    from coster_sumo.core.scene import ObjectType
+
+    inputs = sorted((WOMD / "scenario_proto").glob("*.tfrecord")) + sorted((WOMD / "scenarionet_pkl").glob("*.pkl"))
+    seen: set[str] = set()
+    speeds: dict[ObjectType, list[float]] = {ObjectType.PEDESTRIAN: [], ObjectType.CYCLIST: []}
+    tracks = dict.fromkeys(speeds, 0)
+    for f in inputs:
+        for scene in read_scenes(f):
+            if scene.scenario_id in seen:
+                continue
+            seen.add(scene.scenario_id)
+            t = scene.tracks
+            for a in range(t.num_agents):
+                kind = ObjectType(int(t.object_type[a]))
+                if kind in speeds:
+                    tracks[kind] += 1
+                    speeds[kind] += np.hypot(t.vx[a], t.vy[a])[t.valid[a]].tolist()
+    for kind, v in speeds.items():
+        moving = np.array([x for x in v if x > 0.2])
+        if len(moving):
+            print(f"WOMD {kind.name}: {tracks[kind]} tracks in {len(seen)} scenes; moving speed p50 "
+                  f"{np.percentile(moving, 50):.2f}, p95 {np.percentile(moving, 95):.2f}, p99 "
+                  f"{np.percentile(moving, 99):.2f}, max {moving.max():.2f} m/s")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--samples", type=int, default=200)
     ap.add_argument("--variants", type=int, default=3)
     ap.add_argument("--only", help="only configurations whose name contains this")
     ap.add_argument("--json", type=Path, help="write every variant's row here")
+    ap.add_argument("--womd-stats", action="store_true", help="only the WOMD samples' VRU speeds")
     args = ap.parse_args()
+    if args.womd_stats:
+        womd_stats()
+        return 0
     table: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="coster-vru-") as td:
         tmp = Path(td)
