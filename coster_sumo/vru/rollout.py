@@ -11,8 +11,8 @@ selects (K-means on lateral displacement and arc length, the member nearest each
 - heading: a pedestrian's turn rate is drawn per 0.5 s up to its limit; a cyclist's path curvature is
   drawn and bounded by its tightest turn and its lateral-acceleration limit at that speed;
 - kept: samples whose every knot lies in the class's area, whose box overlaps neither the target
-  before the last 2 Hz step nor another agent at its step, and whose densified plan stays within the
-  class's speed and acceleration limits (:func:`~coster_sumo.vru.classes.within_limits`).
+  before the last 2 Hz step nor another agent at its step, and whose densified plan stays inside the
+  class's area and within its speed and acceleration limits (:func:`~coster_sumo.vru.classes.within_limits`).
 """
 
 from __future__ import annotations
@@ -110,14 +110,14 @@ def vru_rollout(request: RolloutRequest, vru: VruClass, area: ClassArea) -> Roll
     rejected: list[dict[str, Any]] = []
     if len(keep):
         for c, members in enumerate(cluster_trajectories(knots[keep], k=request.variants, seed=request.seed)):
-            for m in members:  # the member nearest the centroid whose densified plan keeps the limits
+            for m in members:  # the member nearest the centroid whose densified plan keeps the limits and area
                 plan = AdversaryPlan.from_knots(times, knots[keep[m]], a, vclass=vru.vclass)
-                if plan_within_limits(plan, vru):
+                if plan_within_limits(plan, vru) and not densified_off_area(plan, area):
                     plans.append(plan)
                     break
             else:
-                rejected.append({"cluster": c, "reason": f"all {len(members)} trajectories exceed the {vru.name}'s "
-                                 "speed or acceleration limits once densified"})
+                rejected.append({"cluster": c, "reason": f"all {len(members)} trajectories leave the {vru.name}'s "
+                                 "area or exceed its speed or acceleration limits once densified"})
     info["rejected_clusters"] = rejected
     plans = [_renamed(p, i) for i, p in enumerate(plans)]
     info["kept"] = len(plans)
@@ -135,6 +135,13 @@ def plan_kinematics(plan: AdversaryPlan) -> Kinematics:
     t = np.arange(plan.t_start, plan.t_col + 1e-9, 1.0 / CHECK_HZ)
     x, y, yaw, _ = plan.sample(t)
     return Kinematics.of(np.stack([x, y], -1)[None], yaw[None], 1.0 / CHECK_HZ)
+
+
+def densified_off_area(plan: AdversaryPlan, area: ClassArea) -> bool:
+    """Whether the densified plan's centre leaves the class's area before t_col (every 1 / :data:`CHECK_HZ`)."""
+    t = np.arange(plan.t_start, plan.t_col + 1e-9, 1.0 / CHECK_HZ)
+    x, y, _, _ = plan.sample(t)
+    return bool(area.off_area(np.stack([x, y], -1)[None])[0])
 
 
 def plan_within_limits(plan: AdversaryPlan, vru: VruClass) -> bool:

@@ -5,11 +5,12 @@ target on its nominal path, so contact belongs at t_col), then per variant: the 
 t_col, whether the adversary left its class's area, and the densified plan's fastest speed, largest
 acceleration and deceleration against the class's limits (coster_sumo.vru.classes). Configurations:
 the three project networks, the intersection rebuilt by netconvert with guessed sidewalks and
-crossings (built here, in a temporary folder), two OSM configurations of the eclipse-sumo wheel with
-pedestrians and bicycles (fokr_bs_demo, DRT), and the real WOMD samples of ../shared (converted here).
+crossings (built here, in a temporary folder), OSM configurations of the eclipse-sumo wheel with
+pedestrians or bicycles (fokr_bs_demo, fkk_in, DRT), and the real WOMD samples of ../shared (converted here).
 
     python tests/vru/measure.py [--samples 200] [--variants 3] [--only NAME] [--json OUT.json]
     python tests/vru/measure.py --womd-stats
+    python tests/vru/measure.py --asam-checker /path/to/venv/bin/qc_openscenario   # pip install asam-qc-openscenarioxml
 
 Takes about 20-40 s per configuration and class on 2 cores.
 """
@@ -59,7 +60,8 @@ def configs(tmp: Path) -> list[tuple[str, Path, list[str]]]:
         (n, REPO / "networks" / n / f"{n}.sumocfg", []) for n in ("intersection", "merge", "arterial")]
     out.append(("intersection+sidewalks", sidewalk_fixture(tmp), []))
     out.append(("fokr_bs_demo", game / "fokr_bs_demo.sumocfg", ["--targets", "1", "--duration", "90"]))
-    out.append(("DRT", game / "DRT.sumocfg", ["--targets", "1", "--begin", "60", "--duration", "90"]))
+    out.append(("fkk_in", game / "fkk_in.sumocfg", ["--targets", "1"]))  # OSM Ingolstadt: bicycles, crossings
+    out.append(("DRT", game / "DRT.sumocfg", ["--targets", "1", "--duration", "300"]))  # persons, crossings
     inputs = sorted((WOMD / "scenario_proto").glob("*.tfrecord")) + sorted((WOMD / "scenarionet_pkl").glob("*.pkl"))
     if inputs:
         conv = tmp / "womd"
@@ -119,6 +121,31 @@ def womd_stats() -> None:
                   f"{np.percentile(moving, 99):.2f}, max {moving.max():.2f} m/s")
 
 
+def asam_check(checker: Path, tmp: Path) -> None:
+    """ASAM's OpenSCENARIO checker (the ``qc_openscenario`` script of the PyPI package
+    asam-qc-openscenarioxml, installed anywhere) on the .xosc of a pedestrian and a cyclist variant."""
+    import xml.etree.ElementTree as ET
+
+    for cls in CLASSES:
+        out = tmp / f"osc_{cls}"
+        cli("run", REPO / "networks" / "intersection" / "intersection.sumocfg", "--adversary", cls, "--planner",
+            "replay", "--samples", "150", "--variants", "1", "--no-render", "--export", "openscenario", "-o", out,
+            check=True)
+        xosc = next((out / "variants" / "0" / "openscenario").glob("*.xosc"))
+        entity = "Pedestrian" if cls == "pedestrian" else 'vehicleCategory="bicycle"'
+        config, report = tmp / f"qc_{cls}.xml", tmp / f"qc_{cls}.xqar"
+        config.write_text('<?xml version="1.0" encoding="UTF-8"?>\n'
+                          f'<Config>\n<Param name="InputFile" value="{xosc}"/>\n'
+                          f'<CheckerBundle application="xoscBundle">\n<Param name="resultFile" value="{report}"/>\n'
+                          "</CheckerBundle>\n</Config>\n")
+        subprocess.run([str(checker), "-c", str(config)], check=True, capture_output=True, cwd=xosc.parent)
+        root = ET.parse(report).getroot()
+        statuses = [c.get("status") for c in root.iter("Checker")]
+        print(f"ASAM OpenSCENARIO checker, {cls} variant ({entity} in the file: {entity in xosc.read_text()}): "
+              f"{statuses.count('completed')}/{len(statuses)} checkers completed, "
+              f"{len(list(root.iter('Issue')))} issues")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--samples", type=int, default=200)
@@ -126,9 +153,15 @@ def main() -> int:
     ap.add_argument("--only", help="only configurations whose name contains this")
     ap.add_argument("--json", type=Path, help="write every variant's row here")
     ap.add_argument("--womd-stats", action="store_true", help="only the WOMD samples' VRU speeds")
+    ap.add_argument("--asam-checker", type=Path, metavar="QC_OPENSCENARIO",
+                    help="only ASAM's OpenSCENARIO checker on a pedestrian's and a cyclist's .xosc")
     args = ap.parse_args()
     if args.womd_stats:
         womd_stats()
+        return 0
+    if args.asam_checker:
+        with tempfile.TemporaryDirectory(prefix="coster-vru-") as td:
+            asam_check(args.asam_checker, Path(td))
         return 0
     table: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="coster-vru-") as td:
