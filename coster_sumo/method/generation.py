@@ -202,6 +202,11 @@ class _Draws:
         dropped: list[dict[str, Any]] = [{"candidate": f"cluster {r['cluster']}", "reason": r["reason"]}
                                          for r in info.get("rejected_clusters", ())]
         kept, filtered = keep_clear_plans(plans, self.scene, self.target)
+        if snap.adversary_class != "vehicle":  # a VRU squeezes past vehicles: a clearance too
+            from coster_sumo.vru.rollout import keep_vru_clear
+
+            kept, more = keep_vru_clear(kept, self.scene, self.target)
+            filtered += more
         # after t_col a missed adversary keeps to its lane: the search and every pass see that
         kept = [follow_road(p, self.scene.road_map) if p.vclass == "passenger" else p for p in kept]
         dropped += filtered
