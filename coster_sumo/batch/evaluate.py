@@ -141,7 +141,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     m = payload["method"]
     gen = GenerationConfig(init=m["init"], rollout=m["rollout"], collision_time=m["collision_time"],
                            variants=payload["variants"], samples=payload["samples"],
-                           adversary=payload.get("adversary", "vehicle"),
+                           adversary=m.get("adversary", "vehicle"),
                            models_dir=Path(payload["models_dir"]) if payload.get("models_dir") else None)
     reason = missing_weights(gen)
     if reason:
@@ -268,11 +268,10 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
                 folders["models_dir"] = WEIGHT_FILES
             tasks.append(Task(pk, method_task, {
                 "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
-                "scenes_dir": str(scenes_dir), "method": dataclasses.asdict(m), "variants": opts.variants,
-                "samples": opts.samples, "planner": opts.planner, CONFIG_DIR: config_dir(keys[key]),
-                "adversary": opts.adversary,
-                "models_dir": str(opts.models_dir.resolve()) if opts.models_dir else None}, kind="method",
-                folders=folders))
+                "scenes_dir": str(scenes_dir), "method": {**dataclasses.asdict(m), "adversary": opts.adversary},
+                "variants": opts.variants, "samples": opts.samples, "planner": opts.planner, CONFIG_DIR:
+                config_dir(keys[key]), "models_dir": str(opts.models_dir.resolve()) if opts.models_dir else None},
+                kind="method", folders=folders))
         return tasks
 
     shared = SharedPasses(keys, scenes_dir)  # the targets of a configuration, window and seed share its pass
