@@ -139,3 +139,28 @@ def test_any_draws_every_class_over_seeds() -> None:
         seen.add(plan_scenarios(scene, scene.sdc_index, seed, gen, drivable, DrawMemo.of(scene))[0]
                  .snapshot.adversary_class)
     assert seen == {"vehicle", "pedestrian", "cyclist"}
+
+
+def test_eval_parts_of_a_vru_adversary_are_keyed_apart_and_vehicle_keys_unchanged() -> None:
+    from coster_sumo.batch.evaluate import part_key
+
+    assert part_key("s", "COSTER", 5, "abcdef0123") == "s__COSTER__k5__wabcdef01"
+    assert part_key("s", "COSTER", 5, "abcdef0123", "cyclist") == "s__COSTER__k5__wabcdef01__cyclist"
+
+
+def test_defect_rate_per_class_splits_the_rows() -> None:
+    from coster_sumo.batch.by_class import class_table, defects_by_class
+    from coster_sumo.batch.store import ResultRow
+
+    def row(i: int, cls: str | None, hit: bool) -> ResultRow:
+        return ResultRow(run_key=f"r{i}", scene_key="s", variant=i, planner="p", status="ok", collision=hit,
+                         adversary_contact=hit, avoidable=True, contact_in_horizon=hit, adversary_class=cls,
+                         target_off_road=False, adversary_off_road=False, route_completed=not hit)
+
+    rows = [row(0, "pedestrian", True), row(1, "pedestrian", False), row(2, None, True), row(3, "cyclist", False)]
+    per = defects_by_class(rows, ["p"])["p"]
+    assert sorted(per) == ["cyclist", "pedestrian", "vehicle"]  # a row without a class is a vehicle's
+    assert per["pedestrian"]["defect_rate"]["k"] == 1 and per["pedestrian"]["defect_rate"]["n"] == 2
+    assert per["cyclist"]["defect_rate"]["k"] == 0 and per["vehicle"]["defect_rate"]["k"] == 1
+    head, table = class_table({"p": per})
+    assert [r[1] for r in table] == ["cyclist", "pedestrian", "vehicle"] and table[1][3].startswith("50.0 %")
