@@ -33,7 +33,8 @@ import numpy as np
 from coster_sumo.converters.read import iter_scenes
 
 from coster_sumo import metrics
-from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
+from coster_sumo.batch.eval_metrics import snapshot_state_metrics
+from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type
 from coster_sumo.batch.generator_summary import VariantRecord
 from coster_sumo.core.scene import LaneType, Scene, resample
 from coster_sumo.core.snapshot import AgentState

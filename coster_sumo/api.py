@@ -64,7 +64,9 @@ def plan_adversaries(config: str | Path, target: str | None = None, *, seed: int
     :class:`~coster_sumo.core.spec.LabelOptions`: ``reaction_time``, ``avoidable``), their defaults
     ``coster-sumo run``'s; any of their fields may also be given as a keyword (``variants=3``,
     ``avoidable="only"``) and replaces that field. A bad or unknown one is one :class:`InputError`
-    line before any work.
+    line before any work. ``adversary`` (a field of :class:`GenerationConfig`): vehicle (default),
+    cyclist, pedestrian or any (``coster-sumo run --adversary``); each plan's ``vclass`` and the
+    snapshot's ``adversary_class`` say the class drawn.
     """
     spec = ScenarioSpec(Path(config), seed=seed, begin=begin, end=end, target=target)
     gen, wanted = _settings(generation or GenerationConfig(), labels or LabelOptions(), settings)

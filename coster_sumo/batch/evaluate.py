@@ -10,24 +10,27 @@ from __future__ import annotations
 import dataclasses
 import tempfile
 import time
-from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from coster_sumo.batch.eval_metrics import (
+    adversaries_by_lane_type,
+    avoidability_summary,
+    paired_diversity,
+    record_outcome,
+)
 from coster_sumo.batch.executor import GENERATION_TASK_MODULES, ExecutorSettings, Outcome, Task, execute, is_transient
 from coster_sumo.batch.generator_summary import (
-    AvoidabilityStats,
     EvalSummary,
     GeneratorEntry,
     GeneratorMethod,
     GeneratorResult,
     GeneratorTable,
     MethodPart,
-    PairedDiversity,
     SceneFailure,
     ScenePart,
     SkippedGenerator,
@@ -55,12 +58,7 @@ from coster_sumo.infra.weights import WEIGHT_FILES, weights_digest
 from coster_sumo.method.generation import missing_weights
 from coster_sumo.metrics import (
     MetricSample,
-    RunOutcome,
-    circular_std_deg,
-    collision_position_diversity,
-    collision_speed_diversity,
     compute,
-    scene_bootstrap,
 )
 from coster_sumo.sim.planners import check_planner
 
@@ -83,6 +81,7 @@ class EvalOptions(BatchOptions):
     traffic: str = "log"  # log | reactive: converted scenes' agents in the labels' proofs and the injections
     variants: int = 5
     samples: int = 1000
+    adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.vru)
 
 
 def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[int]:
@@ -141,6 +140,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     m = payload["method"]
     gen = GenerationConfig(init=m["init"], rollout=m["rollout"], collision_time=m["collision_time"],
                            variants=payload["variants"], samples=payload["samples"],
+                           adversary=m.get("adversary", "vehicle"),
                            models_dir=Path(payload["models_dir"]) if payload.get("models_dir") else None)
     reason = missing_weights(gen)
     if reason:
@@ -171,10 +171,11 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
         adv = v.snapshot.adversary
         label = label_record(labels[i])
         records.append(VariantRecord(
-            variant=i, collision=c is not None, adversary_off_road=res.adversary_off_road,
+            variant=i, collision=c is not None, adversary_off_road=_off(plan, res, scene),
             relative_speed=c.relative_speed if c else None, impact_angle=c.impact_angle if c else None,
             t_col=v.snapshot.time, adversary_speed=adv.speed, adversary_length=adv.length, adversary_width=adv.width,
-            adversary_lane_type=LaneType(int(lane_types[i])).name, avoidable=label.pop("avoidable"), extra=label))
+            adversary_lane_type=LaneType(int(lane_types[i])).name, avoidable=label.pop("avoidable"),
+            extra={**label, "adversary_class": v.snapshot.adversary_class}))
         tr = res.scene.tracks
         if plan.vehicle_id in set(tr.ids.tolist()):
             a = tr.index_of(plan.vehicle_id)
@@ -187,6 +188,13 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     sa = np.concatenate(accels) if accels else np.zeros(0)
     return {"status": "ok", "records": [r.to_json() for r in records], "generation_s": gen_s, "avoidability_s": avoid_s,
             "speed_hist": _hist(sv, SPEED_BINS, 0, 50), "accel_hist": _hist(sa, ACCEL_BINS, -10, 10)}
+
+
+def _off(plan: Any, res: Any, scene: Any) -> bool:
+    """The adversary left the drivable area (a vehicle) or its class's area (a pedestrian or cyclist)."""
+    from coster_sumo.vru.areas import off_class_area
+
+    return bool(res.adversary_off_road) if plan.vclass == "passenger" else off_class_area(plan, scene)
 
 
 def _scene_task_for(key: str, spec: ScenarioSpec, scenes_dir: Path, pass_file: str | None) -> Task:
@@ -222,16 +230,25 @@ def evaluate_generators(opts: EvalOptions) -> EvalSummary:
         return _evaluate_locked(opts, t_start, methods, specs, out)
 
 
-def part_key(scene: str, method: str, variants: int, weights: str, traffic: str = "log") -> str:
+def part_key(scene: str, method: str, variants: int, weights: str, adversary: str = "vehicle",
+             traffic: str = "log") -> str:
     """The file stem of one method's part on one scene (the weights by their contents: other
-    weights are another part, the same weights by another path the same one; reactive traffic's
-    parts apart from the log's)."""
-    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}" + ("" if traffic == "log" else f"__{traffic}")
+    weights are another part, the same weights by another path the same one; a VRU adversary's and
+    reactive traffic's parts apart)."""
+    tail = ("" if adversary == "vehicle" else f"__{adversary}") + ("" if traffic == "log" else f"__{traffic}")
+    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}{tail}"
 
 
 def _done(part: ScenePart | MethodPart | None) -> bool:
     """A part written by an earlier batch that counts: ok, or failed for a reason of the input's."""
     return part is not None and (part.status != "failed" or not is_transient(part.reason or ""))
+
+
+def _missing_weights(methods: Sequence[GeneratorMethod], models_dir: Path | None) -> dict[str, str]:
+    """Method name -> why it is skipped: the weights it needs are missing."""
+    reasons = {m.name: missing_weights(GenerationConfig(init=m.init, rollout=m.rollout, models_dir=models_dir))
+               for m in methods}
+    return {name: reason for name, reason in reasons.items() if reason}
 
 
 def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorMethod], specs: list[ScenarioSpec],
@@ -244,18 +261,14 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
         for leftover in staged_names(folder, (".tmp.npz", ".tmp.json")):
             leftover.unlink(missing_ok=True)
     weights = weights_digest(opts.models_dir)
-    skipped: dict[str, str] = {}
-    for m in methods:
-        reason = missing_weights(GenerationConfig(init=m.init, rollout=m.rollout, models_dir=opts.models_dir))
-        if reason:
-            skipped[m.name] = reason
+    skipped = _missing_weights(methods, opts.models_dir)
     active = [m for m in methods if m.name not in skipped]
     keys = {scene_key(s): s for s in specs}
 
     def method_tasks(key: str, scene_file: str) -> list[Task]:
         tasks = []
         for m in active:
-            pk = part_key(key, m.name, opts.variants, weights, opts.traffic)
+            pk = part_key(key, m.name, opts.variants, weights, opts.adversary, opts.traffic)
             if _done(read_method_part(parts_dir / f"{pk}.json")):
                 continue
             folders = task_folders(keys[key], scenes_dir=(scene_file,))
@@ -263,8 +276,8 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
                 folders["models_dir"] = WEIGHT_FILES
             tasks.append(Task(pk, method_task, {
                 "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
-                "scenes_dir": str(scenes_dir), "method": dataclasses.asdict(m), "variants": opts.variants,
-                "samples": opts.samples, "planner": opts.planner, "traffic": opts.traffic,
+                "scenes_dir": str(scenes_dir), "method": {**dataclasses.asdict(m), "adversary": opts.adversary},
+                "variants": opts.variants, "samples": opts.samples, "planner": opts.planner, "traffic": opts.traffic,
                 CONFIG_DIR: config_dir(keys[key]),
                 "models_dir": str(opts.models_dir.resolve()) if opts.models_dir else None}, kind="method",
                 folders=folders))
@@ -306,9 +319,10 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
     how = ExecutorSettings(opts.workers, opts.executor, opts.timeout, ray_address=opts.ray_address,
                            log_dir=out / "logs" if opts.executor == "local" else None, preload=GENERATION_TASK_MODULES)
     execute(initial, how, on_done=on_done, quiet=opts.quiet, desc="eval scenarios", expected_total=todo)
-    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights, opts.traffic)
+    table = aggregate_generator_metrics(parts_dir, keys, methods, skipped, opts.variants, weights, opts.adversary,
+                                        opts.traffic)
     summary = EvalSummary(scenes={k: s.label() for k, s in keys.items()}, planner=opts.planner,
-                          variants=opts.variants, samples=opts.samples, methods=table,
+                          variants=opts.variants, samples=opts.samples, methods=table, adversary=opts.adversary,
                           wall_time_s=round(time.perf_counter() - t_start, 3))
     write_json(out / "summary.json", summary.to_json())
     from coster_sumo.batch.report import write_generator_report
@@ -320,7 +334,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
 
 def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], methods: Sequence[GeneratorMethod],
                                 skipped: dict[str, str], variants: int, weights: str,
-                                traffic: str = "log") -> GeneratorTable:
+                                adversary: str = "vehicle", traffic: str = "log") -> GeneratorTable:
     """Per method: SUR, CR, ORR (with Wilson intervals), VDD, ADD, CSD, CPD, circular CPD (with 95 %
     intervals from resampling scenes); ``paired``: COSTER's diversities minus each other method's on
     the same scenes (:func:`paired_diversity`)."""
@@ -338,7 +352,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if m.name in skipped:
             table[m.name] = SkippedGenerator(m, skipped[m.name])
             continue
-        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights, traffic)}.json")
+        loaded = [read_method_part(parts_dir / f"{part_key(k, m.name, variants, weights, adversary, traffic)}.json")
                   for k in nominal.scenes]
         parts = [p for p in loaded if p is not None]
         skip = [p for p in parts if p.status == "skipped"]
@@ -406,89 +420,6 @@ def generator_result(m: GeneratorMethod, parts: Sequence[MethodPart], nominal: N
 # eval scenarios' figures per method: the metrics of coster_sumo.metrics.REGISTRY by name
 GENERATOR_METRICS = ("SUR", "CR", "ORR", "VDD", "ADD", "CSD", "CPD", "CPD_circular", "VDD_tcol", "VDD_tcol_floor",
                      "size_in_class")
-# the diversity metrics and what they read of a scene's contacts: 0 relative speeds, 1 impact angles
-# (for the paired differences, which compare two methods on the same scenes)
-DIVERSITY: dict[str, tuple[Callable[[np.ndarray], float], int]] = {
-    "CSD": (collision_speed_diversity, 0), "CPD": (collision_position_diversity, 1),
-    "CPD_circular": (circular_std_deg, 1)}
-REFERENCE_METHOD = "COSTER"
-
-
-def paired_diversity(per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]]
-                     ) -> dict[str, PairedDiversity]:
-    """CSD and CPD of :data:`REFERENCE_METHOD` minus those of every other method, on the scenes both
-    generated for, with 95 % intervals from resampling those scenes (:func:`scene_bootstrap`): is
-    an ordering a property of the methods or of the scenes drawn? Empty without the reference."""
-    ref = per_scene.get(REFERENCE_METHOD)
-    if ref is None:
-        return {}
-    out: dict[str, PairedDiversity] = {}
-    for name, scenes in per_scene.items():
-        if name == REFERENCE_METHOD:
-            continue
-        shared = [k for k in ref if k in scenes]
-        differences = {}
-        for col, (fn, which) in DIVERSITY.items():
-            a = [np.asarray(ref[k][which], float) for k in shared]
-            b = [np.asarray(scenes[k][which], float) for k in shared]
-            differences[col] = scene_bootstrap(fn, a, b)  # (difference, low, high)
-        out[f"{REFERENCE_METHOD} - {name}"] = PairedDiversity(len(shared), differences["CSD"], differences["CPD"],
-                                                              differences["CPD_circular"])
-    return out
-
-
-def record_outcome(r: VariantRecord, scene: str = "") -> RunOutcome:
-    """A variant's record of :func:`method_task` (``snapshot`` added by the aggregation) as the
-    metrics read it; the adversary's size is checked against the corpus's vehicle classes
-    (:data:`~coster_sumo.method.plausible.VEHICLE_CLASSES`) here."""
-    from coster_sumo.method.plausible import VEHICLE_CLASSES
-
-    eps = 1e-6
-    length, width = r.adversary_length, r.adversary_width
-    in_class = (r.adversary_speed is not None and length is not None and width is not None and any(
-        l0 - eps <= length <= l1 + eps and w0 - eps <= width <= w1 + eps
-        for (l0, l1), (w0, w1) in VEHICLE_CLASSES.values()))
-    return RunOutcome(scene=scene, adversary_contact=r.collision, adversary_off_road=r.adversary_off_road,
-                      relative_speed=r.relative_speed, impact_angle=r.impact_angle, avoidable=r.avoidable,
-                      adversary_speed=r.adversary_speed, adversary_lane_type=r.adversary_lane_type,
-                      adversary_size_in_class=in_class, snapshot=r.snapshot)
-
-
-def adversaries_by_lane_type(sample: MetricSample) -> dict[str, int]:
-    """How many adversaries (with a recorded state at t_col) stood on each lane type."""
-    return dict(Counter(str(o.adversary_lane_type) for o in sample.outcomes if o.adversary_speed is not None))
-
-
-def snapshot_state_metrics(records: Sequence[VariantRecord], nominal_by_type: Mapping[str, np.ndarray]
-                           ) -> dict[str, Any]:
-    """The adversaries' states at t_col against the nominal traffic (None where not recorded), from
-    the registry of :mod:`coster_sumo.metrics` (docs/method.md, Step 7).
-
-    ``VDD_tcol``: per lane type, the Jensen-Shannon divergence between the histograms of the
-    adversaries' speeds at t_col on that type and the nominal speeds on it (an adversary on a
-    freeway lane is compared with freeway traffic), averaged weighted by the adversaries on each.
-    ``VDD_tcol_floor``: the same divergence for a generator that draws its speeds from the nominal
-    traffic itself, with as many adversaries on each lane type (mean of
-    :data:`~coster_sumo.metrics.FLOOR_DRAWS` seeded draws): a histogram of a few dozen values over
-    100 bins is never near a smooth one, so this is the lowest ``VDD_tcol`` the sample size allows.
-    Records with the same ``snapshot`` key (the variants of one scene share their snapshot) count as
-    one draw repeated as often; a record without the key is a draw of its own.
-    ``size_in_class``: share of adversaries whose length and width both lie in the range of one
-    vehicle class of the corpus.
-    """
-    sample = MetricSample(tuple(record_outcome(r) for r in records),
-                          nominal_speed_hist_by_lane_type=dict(nominal_by_type))
-    return {**{name: compute(name, sample).value for name in ("VDD_tcol", "VDD_tcol_floor", "size_in_class")},
-            "adversaries_by_lane_type": adversaries_by_lane_type(sample)}
-
-
-def avoidability_summary(records: Sequence[VariantRecord]) -> AvoidabilityStats:
-    """The labels of a method's variants (:func:`coster_sumo.avoidability.labels.avoidability_table`)."""
-    from coster_sumo.avoidability.labels import avoidability_table
-
-    return AvoidabilityStats.from_json(avoidability_table([r.to_json() for r in records]))
-
-
 def eval_exit_code(summary: EvalSummary) -> int:
     """0 when every scene ran its nominal pass and every generator's task finished; 1 otherwise."""
     t = summary.methods

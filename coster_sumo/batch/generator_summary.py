@@ -422,6 +422,7 @@ class EvalSummary:
         scenes: scene key -> its label; planner: who drove the target; variants: asked per scene and
             method; samples: CVAE trajectories oversampled; methods: the generators' table.
         wall_time_s: [s] the whole command; report: the report's files relative to OUT (None: not yet).
+        adversary: the adversary class generated (``--adversary``).
     """
 
     scenes: dict[str, str]
@@ -432,9 +433,11 @@ class EvalSummary:
     wall_time_s: float | None = None
     units: Mapping[str, str] = field(default_factory=lambda: dict(EVAL_UNITS))
     report: tuple[str, ...] | None = None
+    adversary: str = "vehicle"
 
     def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"command": "eval scenarios", "scenes": dict(self.scenes), "planner": self.planner,
+        out: dict[str, Any] = {"command": "eval scenarios", "adversary": self.adversary, "scenes": dict(self.scenes),
+                               "planner": self.planner,
                                "variants": self.variants, "samples": self.samples, "methods": self.methods.to_json()}
         if self.wall_time_s is not None:
             out["wall_time_s"] = self.wall_time_s
@@ -447,4 +450,4 @@ class EvalSummary:
     def from_json(cls, d: Mapping[str, Any]) -> EvalSummary:
         return cls(dict(d["scenes"]), d["planner"], d["variants"], d["samples"], GeneratorTable.from_json(d["methods"]),
                    d.get("wall_time_s"), dict(d.get("units", EVAL_UNITS)),
-                   tuple(d["report"]) if "report" in d else None)
+                   tuple(d["report"]) if "report" in d else None, str(d.get("adversary", "vehicle")))

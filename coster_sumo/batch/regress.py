@@ -174,7 +174,7 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
     with tempfile.TemporaryDirectory(prefix="coster-run-") as wd:
         res = inject_variant(spec, scene, target, plan, dataclasses.replace(how, workdir=Path(wd)), drivable=drivable,
                              driver=driver)
-    rec = variant_outcome(i, plan, res, target_id, t_col)
+    rec = variant_outcome(i, plan, res, target_id, t_col, scene if plan.vclass != "passenger" else None)
     in_horizon = any(e.kind == "collision" and target_id in e.vehicles and e.time <= t_col + HORIZON_AFTER_TCOL_S + 1e-6
                      for e in res.events)
     target_any = any(e.kind == "collision" and target_id in e.vehicles for e in res.events)
@@ -182,14 +182,14 @@ def run_task(payload: dict[str, Any]) -> ResultRow:
                       adversary_contact=rec.collision,
                       target_other_collision=any(e.kind == "collision" and target_id in e.vehicles
                                                  and plan.vehicle_id not in e.vehicles for e in res.events),
-                      target_off_road=bool(res.target_off_road), adversary_off_road=bool(res.adversary_off_road),
+                      target_off_road=bool(res.target_off_road), adversary_off_road=bool(rec.adversary_off_road),
                       route_completed=bool(res.route_completed), target_arrived=bool(res.target_arrived),
                       min_ttc=rec.min_ttc, contact_time=rec.collision_time,
                       contact_offset_s=rec.contact_offset_s, relative_speed=rec.relative_speed,
                       impact_angle=rec.impact_angle, sumo_reported_contact=rec.sumo_reported_contact,
                       t_col=t_col, sim_wall_time_s=float(res.wall_time_s),
                       target_path=json.dumps(_target_path(res, target_id)),
-                      avoidable=avoidable, contact_in_horizon=in_horizon,
+                      avoidable=avoidable, contact_in_horizon=in_horizon, adversary_class=rec.adversary_class,
                       contact_kind=None if label is None else label["contact_kind"],
                       outcome=planner_outcome(res.scene, target_id, plan, in_horizon, avoidable))
 
@@ -205,6 +205,7 @@ class RegressOptions(BatchOptions):
     rollout: str = "cvae"
     collision_time: str = "entropy"
     samples: int = 1000
+    adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.vru)
     retry_failed: bool = False
     report: bool = True
     start_method: str | None = None
@@ -291,7 +292,7 @@ def regress(opts: RegressOptions) -> RegressionSummary:
     if opts.traffic not in ("log", "reactive"):
         raise InputError(f"traffic must be log or reactive, not {opts.traffic!r}")
     generation = GenerationConfig(init=opts.init, collision_time=opts.collision_time, rollout=opts.rollout,
-                                  samples=opts.samples, variants=opts.variants,
+                                  samples=opts.samples, variants=opts.variants, adversary=opts.adversary,
                                   models_dir=opts.models_dir.resolve() if opts.models_dir else None)
     check_generation(generation)
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
@@ -334,7 +335,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
 
     initial: list[Task] = []
     for key in keys:
-        doc = read_plans(plans_dir / f"{key}.json")
+        doc = read_plans(out / "plans" / f"{key}.json")
         retry = opts.retry_failed or is_transient(str(doc.reason if doc else "") or "")
         if doc is not None and (doc.ok or not retry):
             if doc.ok:
@@ -354,7 +355,7 @@ def _regress_locked(opts: RegressOptions, t_start: float, generation: Generation
         key = task.payload["scene_key"]
         if task.kind == "plan":
             if outcome.ok:
-                doc = read_plans(plans_dir / f"{key}.json")
+                doc = read_plans(out / "plans" / f"{key}.json")
                 return run_tasks_for(key, doc) if doc else []
             _failed_plans(plans_dir, key, outcome.reason, task.payload["spec"], gen)
             outcome.append_to_log(logs_dir / f"{task.key}.log")
@@ -386,7 +387,7 @@ def _write_summary(opts: RegressOptions, out: Path, keys: dict[str, ScenarioSpec
         options=RegressionRunOptions(variants=generation.variants, workers=opts.workers, executor=opts.executor,
                                      timeout_s=opts.timeout, init=generation.init, rollout=generation.rollout,
                                      collision_time=generation.collision_time, samples=generation.samples,
-                                     seed=opts.seed))
+                                     seed=opts.seed, adversary=generation.adversary))
     write_json(out / "summary.json", summary.to_json())  # before the report: a plotting failure loses no result
     if opts.report:
         from coster_sumo.batch.report import write_regression_report
@@ -438,16 +439,15 @@ REGRESS_FIGURES = {"median_min_ttc_s": "median_min_ttc", "mean_relative_speed_mp
 
 
 def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Sequence[str]) -> RegressionSummary:
-    """The summary of a regression over ``keys`` x ``planners`` (rows already in OUT/results), without
-    the command's wall time, options and report."""
-    plans_dir = out / "plans"
+    """The summary of a regression over ``keys`` x ``planners`` (rows in OUT/results), less wall time and report."""
     rows = [r for r in ResultStore(out / "results").read() if r.scene_key in keys and r.planner in planners]
     from coster_sumo.avoidability.labels import labels_moved
+    from coster_sumo.batch.by_class import defects_by_class
 
     scenes_failed, n_variants, n_avoidable, tried = [], 0, 0, 0
     labels: list[dict[str, Any]] = []
     for key, spec in keys.items():
-        doc = read_plans(plans_dir / f"{key}.json")
+        doc = read_plans(out / "plans" / f"{key}.json")
         if doc is not None and doc.ok:
             labels += [_moved_fields(a) for a in doc.avoidability]
             n_variants += len(doc.variants)
@@ -462,7 +462,7 @@ def summarize_regression(out: Path, keys: dict[str, ScenarioSpec], planners: Seq
         runs=RunCounts(expected=n_variants * len(planners), recorded=len(rows), ok=len(rows) - len(failures),
                        failed=len(failures), failures=failures),
         planners={p: planner_summary([r for r in rows if r.planner == p]) for p in planners},
-        labels_moved=labels_moved(labels))
+        labels_moved=labels_moved(labels), defects_by_class=defects_by_class(rows, planners))
 
 
 def _moved_fields(label: Mapping[str, Any]) -> dict[str, Any]:

@@ -474,14 +474,14 @@ def write_generator_report(out: Path, summary: EvalSummary) -> list[str]:
     plot_generator_metrics(out / "metrics.png", summary)
     head, rows = generator_table(summary)
     md = ["# Scenario generators", "",
-          f"{len(summary.scenes)} scenes, up to {summary.variants} variants per scene and method, target "
-          f"driven by `{summary.planner}`. Measured on these scenes with this installation; not the paper's "
+          f"{len(summary.scenes)} scenes, up to {summary.variants} {summary.adversary} variants per scene and method, "
+          f"target driven by `{summary.planner}`. Measured on these scenes with this installation; not the paper's "
           "figures.", "",
           "SUR: share of scenes with at least one colliding variant; CR: colliding variants; ORR: adversaries "
-          "leaving the road; VDD/ADD: Jensen-Shannon divergence (nats) of the adversaries' speed / acceleration "
-          "histograms (10 Hz, plan start to contact) against every vehicle of the raw scenes; CSD: std of the "
-          "relative speed at contact; CPD: std of the impact angle (linear and circular); VDD at t_col: the "
-          "same divergence between the adversaries' speeds at t_col and the nominal speeds on lanes of the same "
+          "leaving the road (a VRU: its class's area); VDD/ADD: Jensen-Shannon divergence (nats) of the adversaries' "
+          "speed / acceleration histograms (10 Hz, plan start to contact) against every vehicle of the raw scenes; "
+          "CSD: std of the relative speed at contact; CPD: std of the impact angle (linear, circular); VDD at t_col: "
+          "the same divergence between the adversaries' speeds at t_col and the nominal speeds on lanes of the same "
           "type (in brackets: its floor, what speeds drawn from the nominal traffic itself would score with as "
           "many adversaries); sizes in class: adversaries whose length and width fit one vehicle class of the "
           "corpus.", "",

@@ -27,6 +27,7 @@ RESULT_FIELDS: dict[str, str] = {
     "impact_angle": "float64", "sumo_reported_contact": "bool", "t_col": "float64",
     "sim_wall_time_s": "float64", "wall_time_s": "float64", "target_path": "string", "finished_at": "string",
     "avoidable": "bool", "contact_kind": "string", "outcome": "string", "contact_in_horizon": "bool",  # defects
+    "adversary_class": "string",  # vehicle | pedestrian | cyclist (--adversary)
 }
 
 
@@ -66,6 +67,7 @@ class ResultRow:
     contact_kind: str | None = None
     outcome: str | None = None
     contact_in_horizon: bool | None = None
+    adversary_class: str | None = None
 
     @property
     def ok(self) -> bool:

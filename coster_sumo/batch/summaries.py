@@ -185,11 +185,13 @@ class RegressionRunOptions:
     collision_time: str
     samples: int
     seed: int
+    adversary: str = "vehicle"
 
     def to_json(self) -> dict[str, Any]:
         return {"variants": self.variants, "workers": self.workers, "executor": self.executor,
                 "timeout_s": self.timeout_s, "init": self.init, "rollout": self.rollout,
-                "collision_time": self.collision_time, "samples": self.samples, "seed": self.seed}
+                "collision_time": self.collision_time, "samples": self.samples, "seed": self.seed,
+                "adversary": self.adversary}
 
 
 REGRESSION_UNITS: Mapping[str, str] = {
@@ -213,6 +215,7 @@ class RegressionSummary:
         report: the report's files relative to OUT (None: ``--no-report``).
         labels_moved: what each change to the labels moved (:func:`coster_sumo.avoidability.labels.labels_moved`
             over the variants' labels; empty: not recorded).
+        defects_by_class: planner -> adversary class -> its defect rates (:mod:`coster_sumo.batch.by_class`).
     """
 
     scenes: SceneCounts
@@ -227,6 +230,7 @@ class RegressionSummary:
     options: RegressionRunOptions | None = None
     report: tuple[str, ...] | None = None
     labels_moved: Mapping[str, Any] = field(default_factory=dict)
+    defects_by_class: Mapping[str, Any] = field(default_factory=dict)
 
     def moved_words(self) -> str:
         """One sentence on the labels that plans blocked only by reacting traffic moved ('' without)."""
@@ -252,6 +256,8 @@ class RegressionSummary:
             out["report"] = list(self.report)
         if self.labels_moved:
             out["labels_moved"] = dict(self.labels_moved)
+        if self.defects_by_class:
+            out["defects_by_class"] = dict(self.defects_by_class)
         return out
 
     @classmethod
@@ -261,7 +267,8 @@ class RegressionSummary:
                    {k: PlannerSummary.from_json(p) for k, p in d["planners"].items()},
                    d.get("results", RESULTS_NOTE), dict(d.get("units", REGRESSION_UNITS)), d.get("wall_time_s"),
                    RegressionRunOptions(**d["options"]) if "options" in d else None,
-                   tuple(d["report"]) if "report" in d else None, labels_moved=d.get("labels_moved") or {})
+                   tuple(d["report"]) if "report" in d else None, labels_moved=d.get("labels_moved") or {},
+                   defects_by_class=d.get("defects_by_class") or {})
 
 
 # a planner's rates in a regression: key of summary.json -> the metric of coster_sumo.metrics.REGISTRY

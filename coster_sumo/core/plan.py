@@ -55,6 +55,8 @@ class AdversaryPlan:
         vehicle_id: the SUMO id used when it is injected.
         road: (n, 2) [m] or None: the path it drives after t_col, from its centre at t_col
             (:func:`coster_sumo.geometry.road_follow.road_path`); None: straight on along its final heading.
+        vclass: SUMO's vehicle class it is injected as: ``passenger`` (a vehicle adversary),
+            ``pedestrian`` or ``bicycle`` (:mod:`coster_sumo.vru`).
     """
 
     times: np.ndarray
@@ -66,6 +68,7 @@ class AdversaryPlan:
     width: float
     vehicle_id: str = "adversary"
     road: np.ndarray | None = None
+    vclass: str = "passenger"
 
     @property
     def t_start(self) -> float:
@@ -77,13 +80,13 @@ class AdversaryPlan:
 
     @classmethod
     def from_knots(cls, times: np.ndarray, xy_yaw: np.ndarray, snapshot_state: AgentState,
-                   vehicle_id: str = "adversary") -> AdversaryPlan:
+                   vehicle_id: str = "adversary", vclass: str = "passenger") -> AdversaryPlan:
         """Build from (num_knots, 3) x, y, yaw; the last knot is replaced by the snapshot exactly."""
         k = np.array(xy_yaw, dtype=np.float64, copy=True)
         k[-1] = (snapshot_state.x, snapshot_state.y, snapshot_state.yaw)
         return cls(times=np.asarray(times, np.float64), x=k[:, 0], y=k[:, 1], yaw=k[:, 2],
                    final_speed=float(snapshot_state.speed), length=float(snapshot_state.length),
-                   width=float(snapshot_state.width), vehicle_id=vehicle_id)
+                   width=float(snapshot_state.width), vehicle_id=vehicle_id, vclass=vclass)
 
     @functools.cached_property
     def _splines(self) -> tuple[CubicSpline, CubicSpline, PchipInterpolator] | None:
@@ -135,7 +138,8 @@ class AdversaryPlan:
         return {"vehicle_id": self.vehicle_id, "length": self.length, "width": self.width,
                 "final_speed": self.final_speed, "times": self.times.tolist(), "x": self.x.tolist(),
                 "y": self.y.tolist(), "yaw": self.yaw.tolist(),
-                **({"road": np.round(self.road, 3).tolist()} if self.road is not None else {})}
+                **({"road": np.round(self.road, 3).tolist()} if self.road is not None else {}),
+                **({"vclass": self.vclass} if self.vclass != "passenger" else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> AdversaryPlan:
@@ -143,7 +147,8 @@ class AdversaryPlan:
                    y=np.asarray(d["y"], float), yaw=np.asarray(d["yaw"], float),
                    final_speed=float(d["final_speed"]), length=float(d["length"]),
                    width=float(d["width"]), vehicle_id=str(d.get("vehicle_id", "adversary")),
-                   road=np.asarray(d["road"], float).reshape(-1, 2) if d.get("road") is not None else None)
+                   road=np.asarray(d["road"], float).reshape(-1, 2) if d.get("road") is not None else None,
+                   vclass=str(d.get("vclass", "passenger")))
 
     def save(self, path: str | Path) -> Path:
         return write_json(path, self.to_dict())

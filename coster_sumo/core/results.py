@@ -59,11 +59,14 @@ class VariantOutcome:
         avoidability: its label as summary.json holds it (``Avoidability.summary`` of
             :mod:`coster_sumo.avoidability.evasion`, plus ``escape_file``); label: the label in words;
             outcome: how the target's planner fared, in words (None until labelled).
+        adversary_class: vehicle, pedestrian or cyclist (for the two last, ``adversary_off_road`` says
+            whether it left its class's area: :mod:`coster_sumo.vru.areas`).
         extra: keys this version does not know.
     """
 
     variant: int
     adversary_id: str = ""
+    adversary_class: str = "vehicle"
     plan_start_s: float | None = None
     approach_m: float | None = None
     collision: bool = False
@@ -126,6 +129,7 @@ class SnapshotRecord:
         variants: the numbers of its variants; impact_angles_deg: of those in contact.
         generation: what its rollout reported (timings, clusters, and the candidates ``dropped``,
             ``failed`` and ``collision_times_given_up``, with their reasons).
+        adversary_class: vehicle, pedestrian or cyclist.
         extra: keys this version does not know.
     """
 
@@ -140,6 +144,7 @@ class SnapshotRecord:
     variants: tuple[int, ...] = ()
     generation: Mapping[str, Any] = field(default_factory=dict)
     impact_angles_deg: tuple[float | None, ...] = ()
+    adversary_class: str = "vehicle"
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
@@ -240,6 +245,7 @@ class TargetResult:
         target_choice: how ``--targets N`` chose (None: it was named).
         avoidable_only: what ``--avoidable only`` tried (None: not asked).
         labels: the labels' counts (None before the labels are attached).
+        adversary: the adversary class asked for (``--adversary``; each variant says its own).
         extra: keys this version does not know.
     """
 
@@ -272,6 +278,7 @@ class TargetResult:
     target_choice: tuple[Mapping[str, Any], ...] | None = None
     avoidable_only: AvoidableOnly | None = None
     labels: LabelCounts | None = None
+    adversary: str = "vehicle"
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     _OMITTED = ("nominal_cut_after_s", "target_choice", "avoidable_only", "labels")

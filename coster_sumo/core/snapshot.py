@@ -67,6 +67,7 @@ class CollisionSnapshot:
         collision_time_method: "entropy" | "last" | "random" | "fixed".
         init_method: "snapshot" | "random".
         seed: the seed that produced it.
+        adversary_class: ``vehicle``, ``pedestrian`` or ``cyclist`` (``--adversary``).
     """
 
     scenario_id: str
@@ -83,6 +84,7 @@ class CollisionSnapshot:
     collision_time_method: str = "entropy"
     init_method: str = "snapshot"
     seed: int = 0
+    adversary_class: str = "vehicle"
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)

@@ -13,6 +13,9 @@ from typing import Any
 
 from coster_sumo.errors import InputError
 
+# the adversary classes of ``--adversary`` (their limits: coster_sumo.vru.classes)
+ADVERSARY_CHOICES = ("vehicle", "cyclist", "pedestrian", "any")
+
 
 @dataclass(frozen=True)
 class ScenarioSpec:
@@ -63,6 +66,8 @@ class GenerationConfig:
         samples: trajectories oversampled per snapshot.
         variants: representatives kept (K-means K).
         models_dir: folder with the weights (None: the shipped ones).
+        adversary: the adversary's class, ``vehicle`` (default), ``cyclist``, ``pedestrian`` or ``any``
+            (each draw picks one: :mod:`coster_sumo.vru.methods`).
     """
 
     init: str = "snapshot"
@@ -71,6 +76,7 @@ class GenerationConfig:
     samples: int = 1000
     variants: int = 5
     models_dir: Path | None = None
+    adversary: str = "vehicle"
 
     def __post_init__(self) -> None:
         """The counts, checked when made. The method names and the weights they need are checked against
@@ -80,6 +86,8 @@ class GenerationConfig:
             raise InputError(f"--variants must be >= 1, not {self.variants}")
         if self.samples < 1:
             raise InputError(f"--samples must be >= 1, not {self.samples}")
+        if self.adversary not in ADVERSARY_CHOICES:
+            raise InputError(f"--adversary must be one of {', '.join(ADVERSARY_CHOICES)}, not {self.adversary!r}")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -91,7 +99,8 @@ class GenerationConfig:
         models = d.get("models_dir")
         return cls(init=str(d.get("init", "snapshot")), collision_time=str(d.get("collision_time", "entropy")),
                    rollout=str(d.get("rollout", "cvae")), samples=int(d.get("samples", 1000)),
-                   variants=int(d.get("variants", 5)), models_dir=Path(models) if models else None)
+                   variants=int(d.get("variants", 5)), models_dir=Path(models) if models else None,
+                   adversary=str(d.get("adversary", "vehicle")))
 
 
 # ----------------------------------------------------------------------------- labels

@@ -89,13 +89,14 @@ class BuildOptions:
     horizon_s: float = HORIZON_S
     quiet: bool = False
     traffic: str = "log"  # a converted source's agents in the labels' escape proof (coster_sumo.sim.reactive)
+    adversary: str = "vehicle"  # the adversaries' class (coster-sumo run --adversary)
     progress: Callable[[str], None] | None = field(default=None, repr=False)
 
     def to_json(self) -> dict[str, Any]:
         return {"sources": list(self.sources), "method": self.method, "seed": self.seed, "seeds": self.seeds,
                 "target": self.target, "heldout": list(self.heldout), "snapshots": self.snapshots,
                 "variants": self.variants, "samples": self.samples, "lead_s": self.lead_s,
-                "horizon_s": self.horizon_s, "traffic": self.traffic,
+                "horizon_s": self.horizon_s, "traffic": self.traffic, "adversary": self.adversary,
                 "models_dir": str(self.models_dir) if self.models_dir is not None else None}
 
 
@@ -239,9 +240,8 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
     new, ts = [], src.scene.timestamps
     for k, p in enumerate(planned):
         plans = p.plans[:1] if method.one_per_snapshot else p.plans
-        # whether the target could have avoided each contact (docs/method.md), for info["avoidable"]
-        labels = (label_plans(src.spec, src.scene, src.target, plans, ProofSettings(drivable, traffic=opts.traffic))
-                  if plans else [])
+        proof = ProofSettings(drivable, traffic=opts.traffic)  # could the target have avoided each contact
+        labels = label_plans(src.spec, src.scene, src.target, plans, proof) if plans else []  # info["avoidable"]
         for j, (plan, lab) in enumerate(zip(plans, labels, strict=True)):
             t_start = max(src.t_dep, plan.t_start - opts.lead_s)
             t_stop = min(src.t_last, plan.t_col + POST_COLLISION_S)
@@ -254,7 +254,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
             new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start, t_end=t_stop,
                                      t_col=float(plan.t_col), adversary=plan.vehicle_id, avoidable=lab.avoidable,
                                      extra={"snapshot": k, "variant": j, "contact": lab.contact_kind,
-                                            "last_moment_s": lab.last_moment_s}, **src.common))
+                                            "last_moment_s": lab.last_moment_s, "vclass": plan.vclass}, **src.common))
     return new
 
 
@@ -272,7 +272,7 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
     gen = None
     if method.init is not None and method.rollout is not None:
         gen = GenerationConfig(init=method.init, rollout=method.rollout, samples=opts.samples,
-                               variants=opts.variants, models_dir=opts.models_dir)
+                               variants=opts.variants, models_dir=opts.models_dir, adversary=opts.adversary)
         check_generation(gen)
     specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, target=opts.target)
     out = opts.out

@@ -127,6 +127,7 @@ class DrawMemo:
 
     low: Scene
     prior: PriorMemo = field(default_factory=PriorMemo)
+    areas: dict[str, Any] = field(default_factory=dict)  # the VRU classes' areas (coster_sumo.vru.methods)
 
     @classmethod
     def of(cls, scene: Scene) -> DrawMemo:
@@ -145,6 +146,7 @@ class _Draws:
         self.drivable, self.on_snapshot, self.init_memo = drivable, on_snapshot, memo.prior
         self.rng = generation_rng(seed, scene)
         self.init, self.rollout = SNAPSHOT_INITS[gen.init], ROLLOUTS[gen.rollout]
+        self.areas = memo.areas
         self.excluded = set(exclude)
         self.failed: dict[str, str] = {}  # "t_col 20.6 s" -> why its last draw failed
         self.count = 0
@@ -159,6 +161,8 @@ class _Draws:
         strict = True
         for k in range(ATTEMPTS_PER_TIME):
             self.count += 1
+            if self.gen.adversary != "vehicle":  # the class's own placement and rollout (coster_sumo.vru)
+                self.init, self.rollout = self.class_methods()
             try:
                 snap, strict = place_closing_first(self.init, PlacementRequest(
                     self.low, self.target, self.rng, self.drivable, self.gen.collision_time, self.seed,
@@ -176,6 +180,14 @@ class _Draws:
                 return planned, here
         return None, here
 
+    def class_methods(self) -> tuple[Any, Any]:
+        """The snapshot init and rollout of this draw's adversary class (``any``: drawn now)."""
+        from coster_sumo.vru.methods import class_area, draw_class, methods_for
+
+        name = draw_class(self.gen.adversary, self.rng)
+        area = None if name == "vehicle" else class_area(name, self.scene.road_map, self.drivable, self.areas)
+        return methods_for(name, self.gen.init, self.gen.rollout, area)
+
     def plans_of(self, snap: CollisionSnapshot) -> PlannedScenario | None:
         """The rollout from ``snap`` and the plans the filters keep; None (and the time's reason
         recorded) when they keep none."""
@@ -189,8 +201,13 @@ class _Draws:
         dropped: list[dict[str, Any]] = [{"candidate": f"cluster {r['cluster']}", "reason": r["reason"]}
                                          for r in info.get("rejected_clusters", ())]
         kept, filtered = keep_clear_plans(plans, self.scene, self.target)
+        if snap.adversary_class != "vehicle":  # a VRU squeezes past vehicles: a clearance too
+            from coster_sumo.vru.rollout import keep_vru_clear
+
+            kept, more = keep_vru_clear(kept, self.scene, self.target)
+            filtered += more
         # after t_col a missed adversary keeps to its lane: the search and every pass see that
-        kept = [follow_road(p, self.scene.road_map) for p in kept]
+        kept = [follow_road(p, self.scene.road_map) if p.vclass == "passenger" else p for p in kept]
         dropped += filtered
         if kept:
             self.failed.pop(self.label(snap.t_index), None)
@@ -199,8 +216,13 @@ class _Draws:
             return PlannedScenario(self.scene, self.low, self.target, snap, kept, samples_xy=samples_xy, info=info)
         self.failed[self.label(snap.t_index)] = (
             "every trajectory hits the target or another vehicle before t_col" if plans
-            else "no rollout stays on the road and clear of other vehicles")
+            else f"no rollout stays on the {_surface(snap)} and clear of other vehicles")
         return None
+
+
+def _surface(snap: CollisionSnapshot) -> str:
+    """Where the adversary of ``snap`` must stay: the road, or its class's area."""
+    return {"pedestrian": "walkable area", "cyclist": "rideable area"}.get(snap.adversary_class, "road")
 
 
 def plan_scenario(scene: Scene, target: int, seed: int, gen: GenerationConfig,

@@ -54,6 +54,8 @@ from coster_sumo.method.generation import PlannedScenario
 from coster_sumo.pipeline import viz
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.sim.inject import InjectionResult
+from coster_sumo.vru.areas import off_class_area
+from coster_sumo.vru.classes import class_of_vclass
 
 VARIANT_FILE = "variant.json"
 
@@ -77,8 +79,11 @@ def variant_outcome(i: int, plan: AdversaryPlan, res: InjectionResult, target_id
     sumo_others = [e for e in res.events if e.kind == "sumo_collision" and set(e.vehicles) != pair]
     gap = closest_approach(res.scene, target_id, plan.vehicle_id)
     xs, ys, _, _ = plan.sample(np.arange(plan.t_start, plan.t_col + 1e-9, 0.1))
+    off_road = res.adversary_off_road  # a pedestrian or cyclist: whether it left its class's area
+    if plan.vclass != "passenger" and nominal is not None:
+        off_road = off_class_area(plan, nominal)
     return VariantOutcome(
-        i, adversary_id=plan.vehicle_id,
+        i, adversary_id=plan.vehicle_id, adversary_class=class_of_vclass(plan.vclass),
         # what sets variants of one snapshot apart (their contact is the same by construction)
         plan_start_s=round(plan.t_start, 3), approach_m=round(float(np.hypot(np.diff(xs), np.diff(ys)).sum()), 1),
         collision=c is not None, collision_time=round(c.time, 3) if c else None,
@@ -86,7 +91,7 @@ def variant_outcome(i: int, plan: AdversaryPlan, res: InjectionResult, target_id
         relative_speed=c.relative_speed if c else None, impact_angle=c.impact_angle if c else None,
         no_contact_reason=None if c else no_contact_reason(plan, res, target_id, t_col, nominal, gap),
         closest_distance_m=round(gap[0], 2) if gap else None,
-        adversary_off_road=res.adversary_off_road, target_off_road=res.target_off_road,
+        adversary_off_road=off_road, target_off_road=res.target_off_road,
         route_completed=res.route_completed, target_arrived=res.target_arrived,
         min_ttc=res.min_ttc if np.isfinite(res.min_ttc) else None,
         other_collisions=len(others),
@@ -237,7 +242,8 @@ def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult,
             at = f"{driven.timestamps[step]:.1f} s"
             marks = viz.AdversaryMarks(adv_xy, AgentState.from_tracks(driven.tracks, a, step),
                                        contact_xy=c.positions[1] if c else None, planned_xy=planned_xy,
-                                       box_label=f"adversary at {at}")
+                                       box_label=f"{_who(plan)} at {at}",
+                                       adversary_class=class_of_vclass(plan.vclass))
             viz.render_variant(path, driven, ids.index(target_id), step,
                                f"variant {i} as driven in SUMO: {what}\nvehicles at {at}", marks)
             return
@@ -245,7 +251,14 @@ def render_driven(path: Path, i: int, plan: AdversaryPlan, res: InjectionResult,
     t_col_step = int(np.argmin(np.abs(nominal.timestamps - t_col)))
     viz.render_variant(path, nominal, target, t_col_step,
                        f"variant {i} as planned (not in the pass at {when:.1f} s): {what}",
-                       viz.AdversaryMarks(planned_xy, snapshot.adversary, contact_xy=c.positions[1] if c else None))
+                       viz.AdversaryMarks(planned_xy, snapshot.adversary, contact_xy=c.positions[1] if c else None,
+                                          adversary_class=class_of_vclass(plan.vclass)))
+
+
+def _who(plan: AdversaryPlan) -> str:
+    """``adversary``, or ``pedestrian adversary`` / ``cyclist adversary``: how a render names it."""
+    cls = class_of_vclass(plan.vclass)
+    return "adversary" if cls == "vehicle" else f"{cls} adversary"
 
 
 def _overview_name(k: int) -> str:
@@ -260,8 +273,10 @@ def _render_overview(out: Path, k: int, p: PlannedScenario, plans: Sequence[Adve
     scene, snap = p.scene, p.snapshot
     t_col_step = int(np.argmin(np.abs(scene.timestamps - snap.time)))
     reps = [np.stack([q.x, q.y], 1) for q in plans]
-    moment = viz.CollisionMoment(snap.time, t_col_step, snap.target, entropy=snap.entropy or None,
-                                 times=p.scene_2hz.timestamps)
+    vru = snap.adversary_class != "vehicle"  # a VRU's box and class are drawn: a small box on a big map
+    moment = viz.CollisionMoment(snap.time, t_col_step, snap.target, snap.adversary if vru else None,
+                                 entropy=snap.entropy or None, times=p.scene_2hz.timestamps,
+                                 adversary_class=snap.adversary_class)
     viz.render_overview(out / _overview_name(k), scene, p.target_index, moment, reps, p.samples_xy)
 
 
@@ -417,7 +432,7 @@ def write_run_outputs(out: Path, planned: list[PlannedScenario], results: list[I
         timings_s={k: round(v, 3) for k, v in timings.items()}, options=options, renders=tuple(renders),
         # where the README documents it: how --targets N chose (also under options)
         target_choice=tuple(options["target_choice"]) if options.get("target_choice") else None,
-        avoidable_only=settings.avoidable_only)
+        avoidable_only=settings.avoidable_only, adversary=str(options.get("adversary", "vehicle")))
     result = attach_labels(result, labels, [(plan, results[i]) for i, (_, _, plan) in enumerate(jobs)])
     write_json(out / "summary.json", result.to_json())
     return result
@@ -464,4 +479,4 @@ def _snapshot_record(k: int, p: PlannedScenario, mine: list[VariantOutcome], ste
         adversary={"x": round(a.x, 3), "y": round(a.y, 3), "heading_deg": round(float(np.degrees(a.yaw)), 2),
                    "speed": round(a.speed, 3), "length": round(a.length, 3), "width": round(a.width, 3)},
         variants=tuple(r.variant for r in mine), generation=p.info,
-        impact_angles_deg=tuple(r.impact_angle for r in mine if r.collision))
+        impact_angles_deg=tuple(r.impact_angle for r in mine if r.collision), adversary_class=snap.adversary_class)

@@ -95,6 +95,17 @@ def draw_agents(ax: Axes, scene: Scene, step: int, highlight: dict[int, str] | N
                                      joinstyle="round", zorder=6))
 
 
+CLASS_MARKS = {"pedestrian": "o", "cyclist": "D"}  # matplotlib markers of a VRU adversary
+
+
+def draw_class_mark(ax: Axes, state: AgentState, adversary_class: str, labels: bool = True, zorder: int = 7) -> None:
+    """A marker of the adversary's class at its centre (a pedestrian's 0.5 m box is a dot at map scale)."""
+    mark = CLASS_MARKS.get(adversary_class)
+    if mark is not None:
+        ax.plot(state.x, state.y, marker=mark, ms=8, mfc="none", mec=ADVERSARY_COLOR, mew=1.5, ls="", zorder=zorder,
+                label=adversary_class if labels else None)
+
+
 def window_around(points: np.ndarray, margin: float = 25.0) -> tuple[float, float, float, float]:
     p = np.asarray(points, float).reshape(-1, 2)
     p = p[np.isfinite(p).all(axis=1)]
@@ -144,6 +155,8 @@ class AdversaryMarks:
         contact_xy: [m] the first contact, a star (None: none; the close-up then centres on the box).
         planned_xy: (T, 2) [m] its plan, dashed (None: not drawn).
         box_label: the box's legend entry.
+        adversary_class: vehicle, pedestrian or cyclist: the latter two get their class's mark over
+            their small box.
     """
 
     path_xy: np.ndarray
@@ -151,6 +164,7 @@ class AdversaryMarks:
     contact_xy: Sequence[float] | None = None
     planned_xy: np.ndarray | None = None
     box_label: str = "adversary at t_col"
+    adversary_class: str = "vehicle"
 
 
 def render_variant(path: Path, scene: Scene, target: int, t_col_step: int, title: str,
@@ -181,6 +195,7 @@ def render_variant(path: Path, scene: Scene, target: int, t_col_step: int, title
         a.plot(adversary_xy[:, 0], adversary_xy[:, 1], color=ADVERSARY_COLOR, lw=1.5, zorder=3,
                label="adversary path" if labels else None)
         draw_box(a, s, ADVERSARY_COLOR, label=adversary.box_label if labels else None)
+        draw_class_mark(a, s, adversary.adversary_class, labels)
         if contact_xy is not None:  # hollow in the close-up, so the boxes under it stay visible
             a.plot(*contact_xy, marker="*", ms=14, color="gold", mec="black", zorder=8,
                    mfc="gold" if labels else "none", label="first contact" if labels else None)
@@ -224,6 +239,7 @@ class CollisionMoment:
         target: the target's state at t_col; adversary: the adversary's (None: not drawn).
         entropy, times: the entropy curve over ``times`` [s] (None: no curve is drawn).
         region_xy, region_presence: (R, 2) region centres and the prior's presence at each (None: not drawn).
+        adversary_class: vehicle, pedestrian or cyclist (a VRU is drawn with its class's mark).
     """
 
     t_col: float
@@ -234,6 +250,7 @@ class CollisionMoment:
     times: np.ndarray | None = None
     region_xy: np.ndarray | None = None
     region_presence: np.ndarray | None = None
+    adversary_class: str = "vehicle"
 
 
 def render_overview(path: Path, scene: Scene, target: int, moment: CollisionMoment,
@@ -258,7 +275,9 @@ def render_overview(path: Path, scene: Scene, target: int, moment: CollisionMome
                         vmin=0.0, vmax=max(float(np.max(region_presence)), 1e-3))
         ax.figure.colorbar(sc, ax=ax, fraction=0.04, label="predicted presence probability")
     if adversary is not None:
-        draw_box(ax, adversary, ADVERSARY_COLOR, label="adversary at t_col", zorder=7)
+        who = "adversary" if moment.adversary_class == "vehicle" else f"{moment.adversary_class} adversary"
+        draw_box(ax, adversary, ADVERSARY_COLOR, label=f"{who} at t_col", zorder=7)
+        draw_class_mark(ax, adversary, moment.adversary_class, labels=False, zorder=8)
     cmap = plt.get_cmap("tab10")
     for i, r in enumerate(representatives):  # above the boxes: a short path is not hidden under them
         ax.plot(r[:, 0], r[:, 1], color=cmap(i % 10), lw=1.6, label=f"variant {i}", zorder=9)

@@ -18,7 +18,6 @@ up to the labels' horizon, then SUMO's driver takes it over (:mod:`coster_sumo.s
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import time as _time
@@ -34,12 +33,12 @@ from coster_sumo.core.scene import Scene
 from coster_sumo.core.spec import InjectionSettings, ScenarioSpec
 from coster_sumo.formats.source import ScenarioSource
 from coster_sumo.geometry.drivable import DrivableArea
-from coster_sumo.geometry.frames import centre_to_front
 from coster_sumo.infra.procs import ChildFailed, run_forked
 from coster_sumo.sim import handover
 from coster_sumo.sim.control import Departure
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
+from coster_sumo.sim.placing import BASE_TYPES, edge_under
 from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
 from coster_sumo.sim.reactive import replayer_for
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
@@ -55,16 +54,6 @@ class StepActor(Protocol):
     """Anything that commands vehicles before a step (e.g. the log replayer of converted scenes)."""
 
     def before_step(self, session: SumoSession, t_next: float) -> None: ...
-
-
-def edge_under(session: SumoSession, x: float, y: float, yaw: float, length: float) -> list[str] | None:
-    """The route of a vehicle added at box centre ``x, y`` [m]: the (non-internal) edge under its front."""
-    fx, fy = centre_to_front(x, y, yaw, length)
-    with contextlib.suppress(Exception):
-        edge, _, _ = session.api.simulation.convertRoad(float(fx), float(fy), False, "passenger")
-        if edge and not str(edge).startswith(":"):
-            return [str(edge)]
-    return None
 
 
 class AdversaryController:
@@ -102,8 +91,9 @@ class AdversaryController:
             return
         x, y, yaw, speed = self._pose(t_next)
         if not self.added:
-            session.add_vehicle(vid, self.plan.length, self.plan.width, "passenger", color=ADVERSARY_COLOR,
-                                departure=Departure(edge_under(session, x, y, yaw, self.plan.length)))
+            vclass, base = self.plan.vclass, BASE_TYPES.get(self.plan.vclass, "DEFAULT_VEHTYPE")  # docs/sumo.md
+            session.add_vehicle(vid, self.plan.length, self.plan.width, vclass, base_type=base, color=ADVERSARY_COLOR,
+                                departure=Departure(edge_under(session, x, y, yaw, self.plan.length, vclass)))
             self.added = True
         session.move_to_xy(vid, x, y, yaw, self.plan.length, speed=speed)
 

@@ -12,7 +12,8 @@ from coster_sumo.errors import InputError
 
 
 def _variant(i: int, collision: bool) -> dict:
-    return {"variant": i, "adversary_id": f"adversary{i}", "plan_start_s": 10.0, "approach_m": 41.2,
+    return {"variant": i, "adversary_id": f"adversary{i}", "adversary_class": "vehicle", "plan_start_s": 10.0,
+            "approach_m": 41.2,
             "collision": collision, "collision_time": 15.0 if collision else None,
             "contact_offset_s": 0.0 if collision else None, "relative_speed": 7.5 if collision else None,
             "impact_angle": 30.0 if collision else None, "no_contact_reason": None if collision else "braked",
@@ -32,12 +33,14 @@ def _summary() -> dict:
                            "collision_time_method": "entropy", "init_method": "snapshot", "signed_distance": -0.1,
                            "adversary": {"x": 1.0, "y": 2.0, "heading_deg": 90.0, "speed": 5.0, "length": 4.5,
                                          "width": 1.8},
-                           "variants": [0, 1], "generation": generation, "impact_angles_deg": [30.0]}],
+                           "variants": [0, 1], "generation": generation, "impact_angles_deg": [30.0],
+                           "adversary_class": "vehicle"}],
             "scenario_id": "a", "t_col_sim": 15.0, "t_col_index_2hz": 30, "collision_time_method": "entropy",
             "init_method": "snapshot", "snapshot_signed_distance": -0.1, "nominal_until_s": 40.0,
             "target_motion": {"in_window_s": 40.0, "stopped_s": 0.0, "distance_m": 300.0},
             "generation": generation, "timings_s": {"nominal_s": 1.0}, "options": {"variants": 2},
             "renders": ["overview.png"], "avoidable_only": {"tried": 3, "kept": 2, "extra_draws": 1},
+            "adversary": "vehicle",
             "avoidable_variants": 2, "reaction_time_s": 1.0, "defects": 1, "unavoidable_contacts": 0,
             "avoidable_share": 1.0}
 

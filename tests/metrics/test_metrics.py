@@ -131,7 +131,8 @@ def test_paired_scene_bootstrap_separates_a_real_difference_from_none():
 
 
 def test_paired_diversity_compares_coster_on_shared_scenes_only():
-    from coster_sumo.batch.evaluate import GENERATOR_METHODS, avoidability_summary, paired_diversity
+    from coster_sumo.batch.eval_metrics import avoidability_summary, paired_diversity
+    from coster_sumo.batch.evaluate import GENERATOR_METHODS
     from coster_sumo.batch.generator_summary import EvalSummary, GeneratorResult, GeneratorTable
     from coster_sumo.batch.report import diversity_section
     from coster_sumo.metrics import MetricValue

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type, snapshot_state_metrics
+from coster_sumo.batch.eval_metrics import snapshot_state_metrics
+from coster_sumo.batch.evaluate import nominal_speeds_by_lane_type
 from coster_sumo.batch.generator_summary import VariantRecord
 from coster_sumo.data.synthetic import two_lane_road
 from coster_sumo.metrics import SPEED_BINS

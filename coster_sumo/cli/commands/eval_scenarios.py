@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from coster_sumo.cli.commands.regress import add_scene_source_arguments
+from coster_sumo.core.spec import ADVERSARY_CHOICES
 
 
 def register(cli) -> None:  # type: ignore[no-untyped-def]
@@ -27,6 +28,9 @@ def register(cli) -> None:  # type: ignore[no-untyped-def]
                         "SUMO drives it); the two modes' parts are kept apart")
     p.add_argument("--variants", type=int, default=5, help="variants per scene and method (default 5)")
     p.add_argument("--samples", type=int, default=1000, help="CVAE trajectories oversampled (default 1000)")
+    p.add_argument("--adversary", default="vehicle", choices=ADVERSARY_CHOICES,
+                   help="the adversaries' class: vehicle (default), cyclist, pedestrian or any (as in run); the "
+                        "metrics are then that class's (ORR: the share leaving the class's area)")
     p.add_argument("-o", "--out", type=Path, default=Path("out/eval_scenarios"),
                    help="output folder (default out/eval_scenarios)")
     p.set_defaults(func=run)
@@ -41,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
                        executor=args.executor,
                        timeout=args.timeout or None, seed=args.seed, seeds=args.seeds, begin=args.begin,
                        end=args.end, target=args.target, models_dir=args.models, quiet=args.quiet,
-                       ray_address=args.ray_address)
+                       ray_address=args.ray_address, adversary=args.adversary)
     summary = evaluate_generators(opts)
     if not args.quiet:
         head, rows = generator_table(summary)

@@ -90,13 +90,18 @@ def run(args: argparse.Namespace) -> int:
                           more_targets=tuple(args.target[1:]) if args.target else (), targets=args.targets,
                           init=args.init, rollout=args.rollout, collision_time=args.collision_time,
                           samples=args.samples, models_dir=args.models, retry_failed=args.retry_failed,
+                          adversary=args.adversary,
                           report=not args.no_report, quiet=args.quiet, ray_address=args.ray_address,
                           reaction_time=args.reaction_time, avoidable=args.avoidable, traffic=args.traffic)
     summary = regress(opts)
     # --quiet drops the progress bars and the file list; the tables and every failure line stay
+    from coster_sumo.batch.by_class import class_table
     from coster_sumo.batch.report import defect_table, regression_table
 
-    for head, rows in (defect_table(summary), regression_table(summary)):
+    tables = [defect_table(summary), regression_table(summary)]
+    if any(c != "vehicle" for per in summary.defects_by_class.values() for c in per):
+        tables.insert(1, class_table(summary.defects_by_class))  # the defect rate per adversary class
+    for head, rows in tables:
         width = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(head)]
         print("  ".join(h.ljust(w) for h, w in zip(head, width, strict=True)))
         for r in rows:

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from coster_sumo.core.results import RunResult, RunSummary, TargetEntry, TargetResult, VariantOutcome
-from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
+from coster_sumo.core.spec import ADVERSARY_CHOICES, GenerationConfig, ScenarioSpec
 from coster_sumo.errors import CosterError, InputError
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.infra import procs, progress
@@ -103,6 +103,9 @@ def add_method_arguments(p: argparse.ArgumentParser) -> None:
                    help="snapshot = the prior's placement; random = random pose offset baseline")
     p.add_argument("--rollout", default="cvae", choices=tuple(ROLLOUTS),
                    help="cvae = time-reversed CVAE; cv = constant-velocity baseline")
+    p.add_argument("--adversary", default="vehicle", choices=ADVERSARY_CHOICES,
+                   help="the adversary's class: vehicle (default), cyclist or pedestrian (their own placement "
+                        "and kinematic rollout, injected as SUMO bicycle / pedestrian), or any (each draw picks one)")
 
 
 def add_avoidability_arguments(p: argparse.ArgumentParser) -> None:
@@ -118,7 +121,8 @@ def add_avoidability_arguments(p: argparse.ArgumentParser) -> None:
 def generation_config(args: argparse.Namespace) -> GenerationConfig:
     """The generation config of parsed arguments (``--init``, ``--samples``, ``--models``...)."""
     return GenerationConfig(init=args.init, collision_time=args.collision_time, rollout=args.rollout,
-                            samples=args.samples, variants=args.variants, models_dir=args.models)
+                            samples=args.samples, variants=args.variants, models_dir=args.models,
+                            adversary=getattr(args, "adversary", "vehicle"))
 
 
 def end_of(args: argparse.Namespace) -> float | None:
@@ -233,7 +237,7 @@ def target_lines(result: TargetResult) -> list[str]:
     """The one-line results of one target: its collision times, then a line per variant."""
     r = result
     lines = [f"target {r.target}: t_col = " + ", ".join(f"{s.t_col:.1f} s" for s in r.snapshots)
-             + f" ({r.collision_time_method}, init {r.init_method}), planner {r.planner}"]
+             + f" ({r.collision_time_method}, init {r.init_method}), planner {r.planner}, adversary {r.adversary}"]
     if r.nominal_cut_after_s:
         lines.append(f"  note: the nominal pass stopped {r.nominal_cut_after_s:.0f} s after "
                      f"{r.target} departed (at {r.nominal_until_s:.1f} s; it had not arrived): "
@@ -252,6 +256,9 @@ def target_lines(result: TargetResult) -> list[str]:
     return lines
 
 
+OFF_AREA = {"pedestrian": "walkable", "cyclist": "rideable"}  # the area a VRU adversary left
+
+
 def variant_line(v: VariantOutcome) -> str:
     """A variant's result in one line: its contact (or why none), its approach, what else happened,
     the planner's outcome and the label."""
@@ -260,8 +267,9 @@ def variant_line(v: VariantOutcome) -> str:
         "no contact: " + (v.no_contact_reason or "no reason recorded"))
     others = v.other_collisions_list
     approach = (f"; approach {v.approach_m:.0f} m from {v.plan_start_s:.1f} s" if v.approach_m is not None else "")
-    return (f"  variant {v.variant}: {hit}" + approach
-            + ("; adversary off-road" if v.adversary_off_road else "")
+    who = "" if v.adversary_class == "vehicle" else f" ({v.adversary_class})"
+    return (f"  variant {v.variant}{who}: {hit}" + approach
+            + (f"; adversary off-{OFF_AREA.get(v.adversary_class, 'road')}" if v.adversary_off_road else "")
             + (f"; {len(others)} other collision{'s' if len(others) != 1 else ''} ({others[0]}"
                + (", ..." if len(others) > 1 else "") + ")" if others else "")
             + (f"; no SUMO export ({v.export_error})" if v.export_error else "")

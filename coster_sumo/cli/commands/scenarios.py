@@ -19,7 +19,8 @@ def _build(args: argparse.Namespace) -> int:
     opts = BuildOptions(sources=args.sources, out=args.out, method=args.method, seed=args.seed, seeds=args.seeds,
                         target=args.target, heldout=parse_networks(args.heldout or []), snapshots=args.snapshots,
                         variants=args.variants, samples=args.samples, models_dir=args.models, quiet=args.quiet,
-                        progress=None if args.quiet else print, traffic=args.traffic)
+                        progress=None if args.quiet else print, traffic=args.traffic,
+                        adversary=getattr(args, "adversary", "vehicle"))
     summary = build_set(opts)
     if not args.quiet:
         print(f"{summary['scenarios']} scenarios ({summary['variants']} variants) on "
@@ -55,4 +56,6 @@ def register(cli: Any) -> None:
     b.add_argument("--variants", type=int, default=5, help="variants per snapshot (default 5)")
     b.add_argument("--samples", type=int, default=1000, help="CVAE trajectories oversampled (default 1000)")
     b.add_argument("--models", type=Path, help="folder with prior/rollout weights (default: shipped)")
+    b.add_argument("--adversary", default="vehicle", choices=("vehicle", "cyclist", "pedestrian", "any"),
+                   help="the adversaries' class (as in run; default vehicle)")
     b.set_defaults(func=_build, horizon=HORIZON_S)
