@@ -295,8 +295,9 @@ def test_eval_scenarios_keeps_reactive_parts_apart_and_refuses_an_unknown_traffi
     from coster_sumo.batch.evaluate import EvalOptions, evaluate_generators, part_key
 
     log = part_key("scene", "COSTER", 5, "abcdef0123")
-    assert part_key("scene", "COSTER", 5, "abcdef0123", "log") == log
-    assert part_key("scene", "COSTER", 5, "abcdef0123", "reactive") == log + "__reactive"
+    assert part_key("scene", "COSTER", 5, "abcdef0123", traffic="log") == log
+    assert part_key("scene", "COSTER", 5, "abcdef0123", traffic="reactive") == log + "__reactive"
+    assert part_key("scene", "COSTER", 5, "abcdef0123", "pedestrian", "reactive") == log + "__pedestrian__reactive"
     with pytest.raises(InputError, match="traffic must be log or reactive"):
         evaluate_generators(EvalOptions(sources=[str(INTERSECTION)], out=tmp_path / "o", traffic="ghost"))
     assert not (tmp_path / "o").exists()
