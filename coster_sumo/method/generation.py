@@ -47,7 +47,8 @@ from coster_sumo.method.snapshot import (
     PriorMemo,
     place_closing_first,
 )
-from coster_sumo.rollout.methods import ROLLOUTS, RolloutRequest
+from coster_sumo.rollout.methods import ROLLOUTS
+from coster_sumo.rollout.request import RolloutRequest
 
 
 @dataclass
