@@ -75,7 +75,7 @@ def main() -> None:
                              crop=False)
         for t in steps:
             pose = np.array([[tr.x[target, t], tr.y[target, t], tr.heading[target, t]]])
-            tok = scene_tokens(data, np.array([t]), pose, cfg.bins(), cfg.radius, cfg.max_regions,
+            tok = scene_tokens(data, np.array([t]), pose, cfg,
                                visible=args.mode, hide_radius=cfg.hide_radius)
             predict_tokens(model, tok, only_query=True)
 

@@ -286,7 +286,7 @@ def bench_prior(args: argparse.Namespace) -> None:
     def run(background: bool) -> float:
         rows = samples[rng.permutation(len(samples))[: bs * args.prior_steps]]
         def make(i: int) -> tuple[torch.Tensor, ...]:
-            return _torch_batch(batch_tokens(scenes, rows[i:i + bs], cfg.bins(), cfg.radius, cfg.max_regions,
+            return _torch_batch(batch_tokens(scenes, rows[i:i + bs], cfg,
                                              visible="random", rng=rng, hide_radius=cfg.hide_radius))
 
         starts = range(0, len(rows), bs)

@@ -38,7 +38,7 @@ def main() -> None:
     seen = np.zeros((cfg.length_bins, cfg.width_bins), bool)
     samples = epoch_samples(train, np.random.default_rng([0, 0]), 1)
     for i in range(0, len(samples), 256):
-        tok = batch_tokens(train, samples[i:i + 256], bins, cfg.radius, cfg.max_regions, visible="map")
+        tok = batch_tokens(train, samples[i:i + 256], cfg, visible="map")
         c = tok.classes[tok.mask & tok.present]
         seen[c[:, 3], c[:, 4]] = True
     by_net: dict[str, list[Path]] = {}
@@ -52,7 +52,7 @@ def main() -> None:
         total, unseen, sizes = 0, 0, Counter()
         for data in load_prepared(files[::3][: args.scenes], cfg.radius):
             steps, poses = evaluation_centres(data, rng)
-            tok = scene_tokens(data, steps, poses, bins, cfg.radius, cfg.max_regions, visible="map")
+            tok = scene_tokens(data, steps, poses, cfg, visible="map")
             presence, probs = predict_tokens(model, tok)
             _, vals = _sample_model(presence, probs, tok.mask, bins, rng, table)
             lc, wc = bins.length_class(vals[:, 4]), bins.width_class(vals[:, 5])

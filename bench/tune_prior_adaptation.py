@@ -55,7 +55,7 @@ def clip_record(model: TrafficPrior, data) -> dict | None:  # type: ignore[no-un
     if len(data.centres) == 0:
         return None
     steps, poses = evaluation_centres(data, np.random.default_rng([0, 7]))
-    ctx = scene_tokens(data, steps, poses, cfg.bins(), cfg.radius, cfg.max_regions, visible="context",
+    ctx = scene_tokens(data, steps, poses, cfg, visible="context",
                        hide_radius=cfg.hide_radius)
     probe = probe_visible_traffic(model, data, steps, poses, ctx)
     if probe is None:

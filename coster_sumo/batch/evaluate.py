@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.batch import sources
 from coster_sumo.batch.eval_metrics import (
     adversaries_by_lane_type,
     avoidability_summary,
@@ -39,17 +40,7 @@ from coster_sumo.batch.generator_summary import (
     read_scene_part,
 )
 from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
-from coster_sumo.batch.sources import (
-    CONFIG_DIR,
-    BatchOptions,
-    config_dir,
-    located,
-    nominal_for,
-    parse_sources,
-    scene_key,
-    slug,
-    task_folders,
-)
+from coster_sumo.batch.sources import scene_key
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.infra.atomic import write_json
@@ -73,7 +64,7 @@ GENERATOR_METHODS: tuple[GeneratorMethod, ...] = (
 
 
 @dataclass(kw_only=True)
-class EvalOptions(BatchOptions):
+class EvalOptions(sources.BatchOptions):
     """Everything ``coster-sumo eval scenarios`` takes."""
 
     methods: list[str] | None = None  # names of GENERATOR_METHODS (default: all)
@@ -93,11 +84,11 @@ def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.formats.targets import choose_target
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
 
-    spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
+    spec = sources.located(ScenarioSpec.from_dict(payload["spec"]), payload)
     if payload.get(PASS_FILE):  # a pass shared with the configuration's other targets (batch.shared_pass)
         scene, _, path = shared_nominal(spec, Path(payload["scenes_dir"]), payload[PASS_FILE])
     else:
-        scene, _, path = nominal_for(spec, Path(payload["scenes_dir"]))
+        scene, _, path = sources.nominal_for(spec, Path(payload["scenes_dir"]))
     choose_target(scene, spec.target, spec.config)
     t = scene.tracks
     v, a = speeds_and_accels(t.xy, t.valid, scene.dt)
@@ -132,7 +123,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
     from coster_sumo.metrics import ACCEL_BINS, SPEED_BINS, speeds_and_accels
     from coster_sumo.sim.inject import inject_variant
 
-    spec = located(ScenarioSpec.from_dict(payload["spec"]), payload)
+    spec = sources.located(ScenarioSpec.from_dict(payload["spec"]), payload)
     scenes_dir = Path(payload["scenes_dir"])
     scene = load_scene(scenes_dir / payload["scene_file"])
     target = choose_target(scene, spec.target, spec.config)
@@ -200,11 +191,11 @@ def _off(plan: Any, res: Any, scene: Any) -> bool:
 def _scene_task_for(key: str, spec: ScenarioSpec, scenes_dir: Path, pass_file: str | None) -> Task:
     """The task of one scene's nominal pass (``pass_file``: the pass it shares, in ``scenes_dir``)."""
     payload: dict[str, Any] = {"spec": spec.to_dict(), "scenes_dir": str(scenes_dir), "scene_key": key,
-                               CONFIG_DIR: config_dir(spec)}
+                               sources.CONFIG_DIR: sources.config_dir(spec)}
     if pass_file:
         payload[PASS_FILE] = pass_file
     return Task(f"{key}__scene", scene_task, payload, kind="scene",
-                folders=task_folders(spec, scenes_dir=(pass_file or f"{key}.npz",)))
+                folders=sources.task_folders(spec, scenes_dir=(pass_file or f"{key}.npz",)))
 
 
 def evaluate_generators(opts: EvalOptions) -> EvalSummary:
@@ -219,7 +210,7 @@ def evaluate_generators(opts: EvalOptions) -> EvalSummary:
     check_planner(opts.planner)
     if opts.traffic not in ("log", "reactive"):
         raise InputError(f"traffic must be log or reactive, not {opts.traffic!r}")
-    specs = parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
+    specs = sources.parse_sources(opts.sources, seed=opts.seed, seeds=opts.seeds, begin=opts.begin, end=opts.end,
                           target=opts.target)
     out = Path(opts.out)
     check_output(out, kind="eval-scenarios", inputs=[Path(s.config) for s in specs], reusable=True)
@@ -236,7 +227,7 @@ def part_key(scene: str, method: str, variants: int, weights: str, adversary: st
     weights are another part, the same weights by another path the same one; a VRU adversary's and
     reactive traffic's parts apart)."""
     tail = ("" if adversary == "vehicle" else f"__{adversary}") + ("" if traffic == "log" else f"__{traffic}")
-    return f"{scene}__{slug(method)}__k{variants}__w{weights[:8]}{tail}"
+    return f"{scene}__{sources.slug(method)}__k{variants}__w{weights[:8]}{tail}"
 
 
 def _done(part: ScenePart | MethodPart | None) -> bool:
@@ -271,14 +262,14 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
             pk = part_key(key, m.name, opts.variants, weights, opts.adversary, opts.traffic)
             if _done(read_method_part(parts_dir / f"{pk}.json")):
                 continue
-            folders = task_folders(keys[key], scenes_dir=(scene_file,))
+            folders = sources.task_folders(keys[key], scenes_dir=(scene_file,))
             if opts.models_dir:
                 folders["models_dir"] = WEIGHT_FILES
             tasks.append(Task(pk, method_task, {
                 "part_key": pk, "scene_key": key, "spec": keys[key].to_dict(), "scene_file": scene_file,
                 "scenes_dir": str(scenes_dir), "method": {**dataclasses.asdict(m), "adversary": opts.adversary},
                 "variants": opts.variants, "samples": opts.samples, "planner": opts.planner, "traffic": opts.traffic,
-                CONFIG_DIR: config_dir(keys[key]),
+                sources.CONFIG_DIR: sources.config_dir(keys[key]),
                 "models_dir": str(opts.models_dir.resolve()) if opts.models_dir else None}, kind="method",
                 folders=folders))
         return tasks

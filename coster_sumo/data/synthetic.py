@@ -15,18 +15,8 @@ import dataclasses
 
 import numpy as np
 
-from coster_sumo.core.scene import (
-    Lanes,
-    LaneType,
-    ObjectType,
-    Polylines,
-    Ragged,
-    RoadMap,
-    Scene,
-    SignalState,
-    SignalStates,
-    Tracks,
-)
+from coster_sumo.core import scene
+from coster_sumo.core.scene import Ragged, Scene
 
 DT = 0.1  # [s]
 NUM_STEPS = 91
@@ -66,7 +56,7 @@ class _MapBuilder:
         self.right: list[list[int]] = []
 
     def lane(self, pts: np.ndarray, *, junction: bool = False, speed: float = 13.89,
-             lane_type: LaneType = LaneType.SURFACE_STREET) -> int:
+             lane_type: scene.LaneType = scene.LaneType.SURFACE_STREET) -> int:
         i = len(self.ids)
         self.ids.append(str(100 + i))
         self.lines.append(np.asarray(pts, float))
@@ -85,22 +75,22 @@ class _MapBuilder:
         self.left[right].append(left)
         self.right[left].append(right)
 
-    def build(self, road_edges: list[np.ndarray] | None = None) -> RoadMap:
+    def build(self, road_edges: list[np.ndarray] | None = None) -> scene.RoadMap:
         n = len(self.ids)
 
         def rag(lists: list[list[int]]) -> Ragged:
             return Ragged.from_list([np.asarray(v, np.int64) for v in lists], np.int64)
 
-        lanes = Lanes(
+        lanes = scene.Lanes(
             ids=np.asarray(self.ids), centerline=Ragged.from_list(self.lines, np.float64, (2,)),
             width=np.full(n, LANE_WIDTH), lane_type=np.asarray(self.types, np.int8),
             speed_limit=np.asarray(self.speed), is_junction=np.asarray(self.junction, bool),
             predecessors=rag(self.pred), successors=rag(self.succ),
             left_neighbors=rag(self.left), right_neighbors=rag(self.right))
         edges = road_edges or []
-        return RoadMap(lanes=lanes,
-                       road_edges=Polylines(points=Ragged.from_list(edges, np.float64, (2,)),
-                                            kind=np.ones(len(edges), np.int8)))
+        return scene.RoadMap(lanes=lanes,
+                             road_edges=scene.Polylines(points=Ragged.from_list(edges, np.float64, (2,)),
+                                                        kind=np.ones(len(edges), np.int8)))
 
 
 def _follow(path: np.ndarray, s0: float, speed: float, steps: int = NUM_STEPS
@@ -117,7 +107,7 @@ def _follow(path: np.ndarray, s0: float, speed: float, steps: int = NUM_STEPS
 
 
 def _tracks(agents: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, float]],
-            steps: int = NUM_STEPS) -> Tracks:
+            steps: int = NUM_STEPS) -> scene.Tracks:
     """agents: (id, x, y, heading, speed) with per-step arrays; all vehicles 4.5 x 1.9 m."""
     n = len(agents)
     x = np.stack([a[1] for a in agents]) if n else np.zeros((0, steps))
@@ -126,11 +116,11 @@ def _tracks(agents: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, float]],
     # velocity from finite differences so that it agrees with positions
     vx: np.ndarray = np.gradient(x, DT, axis=1) if n else x.copy()  # type: ignore[assignment]
     vy: np.ndarray = np.gradient(y, DT, axis=1) if n else y.copy()  # type: ignore[assignment]
-    return Tracks(ids=np.asarray([a[0] for a in agents], dtype=str),
-                  object_type=np.full(n, int(ObjectType.VEHICLE), np.int8),
-                  x=x, y=y, heading=h, vx=vx, vy=vy,
-                  length=np.full((n, steps), 4.5), width=np.full((n, steps), 1.9),
-                  valid=np.ones((n, steps), bool))
+    return scene.Tracks(ids=np.asarray([a[0] for a in agents], dtype=str),
+                        object_type=np.full(n, int(scene.ObjectType.VEHICLE), np.int8),
+                        x=x, y=y, heading=h, vx=vx, vy=vy,
+                        length=np.full((n, steps), 4.5), width=np.full((n, steps), 1.9),
+                        valid=np.ones((n, steps), bool))
 
 
 def _timestamps(steps: int = NUM_STEPS) -> np.ndarray:
@@ -153,7 +143,7 @@ def two_lane_road(origin: tuple[float, float] = (-7785.0, -6683.0), length_m: fl
         x, y, h = _follow(road_map.lanes.centerline[lane], s0, v)
         agents.append((name, x, y, h, v))
     return Scene(scenario_id="synthetic_two_lane", timestamps=_timestamps(), tracks=_tracks(agents),
-                 road_map=road_map, signals=SignalStates.empty(NUM_STEPS), sdc_index=0,
+                 road_map=road_map, signals=scene.SignalStates.empty(NUM_STEPS), sdc_index=0,
                  current_time_index=10, source="synthetic").validate()
 
 
@@ -205,11 +195,11 @@ def four_way_junction(origin: tuple[float, float] = (8123.45, -3456.78), arm_m: 
     ctrl = np.array([incoming[a] for a in ("S", "N", "W", "E")], np.int64)
     state = np.zeros((NUM_STEPS, 4), np.int8)
     ns_green = np.arange(NUM_STEPS) < 45
-    state[:, 0] = state[:, 1] = np.where(ns_green, SignalState.GO, SignalState.STOP)
-    state[:, 2] = state[:, 3] = np.where(ns_green, SignalState.STOP, SignalState.GO)
-    state[40:45, 0:2] = SignalState.CAUTION
-    signals = SignalStates(lane_index=ctrl, state=state,
-                           stop_point=np.stack([lanes.centerline[i][-1] for i in ctrl]))
+    state[:, 0] = state[:, 1] = np.where(ns_green, scene.SignalState.GO, scene.SignalState.STOP)
+    state[:, 2] = state[:, 3] = np.where(ns_green, scene.SignalState.STOP, scene.SignalState.GO)
+    state[40:45, 0:2] = scene.SignalState.CAUTION
+    signals = scene.SignalStates(lane_index=ctrl, state=state,
+                                 stop_point=np.stack([lanes.centerline[i][-1] for i in ctrl]))
     agents = []
     # the SDC goes straight S->N through the green; a vehicle turns left from N; one waits at W.
     path = np.concatenate([lanes.centerline[incoming["S"]], lanes.centerline[interior[("S", "N")]][1:],
@@ -254,7 +244,7 @@ def merge(origin: tuple[float, float] = (1234.567, -9876.543), length_m: float =
     agents.append(("ramp", *_follow(ramp_path, 10.0, 12.0), 12.0))
     agents.append(("ahead", *_follow(main, 90.0, 14.0), 14.0))
     return Scene(scenario_id="synthetic_merge", timestamps=_timestamps(), tracks=_tracks(agents),
-                 road_map=road_map, signals=SignalStates.empty(NUM_STEPS), sdc_index=0,
+                 road_map=road_map, signals=scene.SignalStates.empty(NUM_STEPS), sdc_index=0,
                  current_time_index=10, source="synthetic").validate()
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,7 +48,8 @@ from coster_sumo.method.snapshot import (
     PriorMemo,
     place_closing_first,
 )
-from coster_sumo.rollout.methods import ROLLOUTS, RolloutRequest
+from coster_sumo.rollout.methods import ROLLOUTS
+from coster_sumo.rollout.request import RolloutRequest
 
 
 @dataclass
@@ -267,7 +269,7 @@ def _plan(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable:
 
 
 def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, drivable: DrivableArea,
-                   max_draws: int, memo: DrawMemo, apart: bool = False,
+                   memo: DrawMemo, apart: bool = False,
                    on_snapshot: Callable[[CollisionSnapshot], None] | None = None
                    ) -> Iterator[tuple[int, int, PlannedScenario | NoSnapshot]]:
     """The one loop of generation: draw ``j`` = 0, 1, ... of :func:`plan_scenario` with ``seed``
@@ -275,13 +277,14 @@ def draw_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
     regions, the entropy curve are computed once per scene and target).
 
     Yields (j, the draw's seed, its :class:`PlannedScenario` or the :class:`NoSnapshot` it raised);
-    a draw is made only when the caller asks for the next one. With ``apart`` no draw takes a
+    a draw is made only when the caller asks for the next one, so the caller bounds the draws
+    (``itertools.islice``); the sequence itself does not end. With ``apart`` no draw takes a
     collision time closer than 2 s to one taken before (several snapshots of one scene). ``memo``:
     that memo (:meth:`DrawMemo.of` the scene), which the caller keeps when it draws again later for
     the same scene, target and ``gen`` (:func:`keep_avoidable`).
     """
     excluded: set[int] = set()
-    for j in range(max_draws):
+    for j in itertools.count():
         draw_seed = seed if j == 0 else derived_seed(seed, j)
         try:
             planned = _plan(scene, target, draw_seed, gen, drivable, memo, exclude=excluded, on_snapshot=on_snapshot)
@@ -304,8 +307,8 @@ def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
     ``memo``: see :func:`draw_scenarios`.
     """
     taken: list[PlannedScenario] = []
-    for j, _, drawn in draw_scenarios(scene, target, seed, gen, drivable, snapshots, memo, apart=True,
-                                      on_snapshot=on_snapshot):
+    draws = draw_scenarios(scene, target, seed, gen, drivable, memo, apart=True, on_snapshot=on_snapshot)
+    for j, _, drawn in itertools.islice(draws, snapshots):
         if isinstance(drawn, NoSnapshot):
             if j == 0:
                 raise drawn
@@ -427,7 +430,8 @@ def generate_variants(scene: Scene, target: int, seed: int, gen: GenerationConfi
     reasons: list[str] = []
     max_draws = max_draws if max_draws is not None else 3 * gen.variants
     if gen.variants > 0:
-        for j, draw_seed, planned in draw_scenarios(scene, target, seed, gen, drivable, max_draws, DrawMemo.of(scene)):
+        draws = draw_scenarios(scene, target, seed, gen, drivable, DrawMemo.of(scene))
+        for j, draw_seed, planned in itertools.islice(draws, max_draws):
             if isinstance(planned, NoSnapshot):
                 reasons.append(f"draw {j}: {planned}")
                 if not one_each:

@@ -184,8 +184,8 @@ def scene_adaptation(model: Any, data: Any, scene: Scene, target: int, steps: np
 
     full = search_window(scene, target) if steps is None else steps
     full_pose = target_pose(scene, target, full)
-    context = scene_tokens(data, full, full_pose, model.config.bins(), model.config.radius,
-                           model.config.max_regions, visible="context", hide_radius=model.config.hide_radius)
+    cfg = model.config
+    context = scene_tokens(data, full, full_pose, cfg, visible="context", hide_radius=cfg.hide_radius)
     return fit_scene_adaptation(model, data, full, full_pose, context)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -161,12 +162,28 @@ def prepare_scene(scene: Scene, radius: float = NEIGHBOURHOOD_RADIUS, spacing: f
                           sdc_index=scene.sdc_index)
 
 
-def scene_tokens(data: ScenePriorData, steps: np.ndarray, pose: np.ndarray, bins: AttributeBins,
-                 radius: float, max_regions: int, visible: str | np.ndarray = "map",
-                 hide_radius: float = 15.0, rng: np.random.Generator | None = None) -> Tokens:
+class TokenSettings(Protocol):
+    """What tokens are made with: the model's settings (:class:`~coster_sumo.prior.model.PriorConfig`)."""
+
+    @property
+    def radius(self) -> float:
+        """[m] regions within this distance of the centre are tokens."""
+
+    @property
+    def max_regions(self) -> int:
+        """At most this many regions, the nearest."""
+
+    def bins(self) -> AttributeBins:
+        """The attribute bins of the target classes."""
+
+
+def scene_tokens(data: ScenePriorData, steps: np.ndarray, pose: np.ndarray, cfg: TokenSettings,
+                 visible: str | np.ndarray = "map", hide_radius: float = 15.0,
+                 rng: np.random.Generator | None = None) -> Tokens:
     """Tokens of samples centred at ``pose`` (B, 3) at rows ``steps`` (B,) of one scene.
 
     Args:
+        cfg: the neighbourhood (``radius``, ``max_regions``) and the ``bins()`` of the classes.
         visible: "map" (everything hidden), "context" (regions beyond ``hide_radius`` visible),
             "random" (training draw, needs ``rng``) or a (B, K) bool array.
     """
@@ -178,7 +195,7 @@ def scene_tokens(data: ScenePriorData, steps: np.ndarray, pose: np.ndarray, bins
                       query=np.zeros((b, 1), bool), present=np.zeros((b, 1), bool),
                       classes=np.zeros((b, 1, 5), np.int64), region_index=np.full((b, 1), -1, np.int64),
                       values=np.zeros((b, 1, 6), np.float32))
-    index, mask = neighbourhood(data.regions, pose[:, :2], radius, max_regions)
+    index, mask = neighbourhood(data.regions, pose[:, :2], cfg.radius, cfg.max_regions)
     ridx = np.where(mask, index, 0)
     t = steps[:, None]
     agent, present, vals = data.occupancy.gather(t, ridx)
@@ -199,10 +216,10 @@ def scene_tokens(data: ScenePriorData, steps: np.ndarray, pose: np.ndarray, bins
     vis = vis & mask
     nxy, hd, sp, ln, wd = vals[..., :2], vals[..., 2], vals[..., 3], vals[..., 4], vals[..., 5]
     sig = data.signal[t, ridx]
-    return Tokens(map_features=map_features(data.regions, index, mask, sig, pose, radius),
+    return Tokens(map_features=map_features(data.regions, index, mask, sig, pose, cfg.radius),
                   agent_features=agent_features(present, nxy, hd, sp, ln, wd, vis),
                   mask=mask, query=mask & ~vis, present=present,
-                  classes=target_classes(bins, nxy, hd, sp, ln, wd), region_index=np.where(mask, index, -1),
+                  classes=target_classes(cfg.bins(), nxy, hd, sp, ln, wd), region_index=np.where(mask, index, -1),
                   values=vals.astype(np.float32))
 
 
@@ -238,9 +255,8 @@ def epoch_samples(scenes: Sequence[ScenePriorData], rng: np.random.Generator, pe
     return samples[rng.permutation(len(samples))]
 
 
-def batch_tokens(scenes: Sequence[ScenePriorData], samples: np.ndarray, bins: AttributeBins, radius: float,
-                 max_regions: int, visible: str = "random", rng: np.random.Generator | None = None,
-                 hide_radius: float = 15.0) -> Tokens:
+def batch_tokens(scenes: Sequence[ScenePriorData], samples: np.ndarray, cfg: TokenSettings, visible: str = "random",
+                 rng: np.random.Generator | None = None, hide_radius: float = 15.0) -> Tokens:
     """Tokens for (scene, centre row) pairs (grouped by scene internally; order kept)."""
     parts = []
     order = []
@@ -248,8 +264,8 @@ def batch_tokens(scenes: Sequence[ScenePriorData], samples: np.ndarray, bins: At
         rows = np.flatnonzero(samples[:, 0] == si)
         d = scenes[int(si)]
         c = samples[rows, 1]
-        parts.append(scene_tokens(d, d.centres[c, 0], d.centre_pose[c], bins, radius, max_regions,
-                                  visible=visible, hide_radius=hide_radius, rng=rng))
+        parts.append(scene_tokens(d, d.centres[c, 0], d.centre_pose[c], cfg, visible=visible, hide_radius=hide_radius,
+                                  rng=rng))
         order.append(rows)
     tokens = concat_tokens(parts)
     inverse = np.argsort(np.concatenate(order))

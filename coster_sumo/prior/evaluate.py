@@ -212,7 +212,7 @@ def fit_baselines(model: TrafficPrior, train: Sequence[ScenePriorData], seed: in
     samples = epoch_samples(train, np.random.default_rng([seed, 0]), 1)
     buckets, present, values = [], [], []
     for i in range(0, len(samples), 256):
-        tok = batch_tokens(train, samples[i:i + 256], cfg.bins(), cfg.radius, cfg.max_regions, visible="map")
+        tok = batch_tokens(train, samples[i:i + 256], cfg, visible="map")
         m = tok.mask
         buckets.append(token_buckets(tok.map_features)[m])
         present.append(tok.present[m])
@@ -287,7 +287,7 @@ class _Centres:
 def _score_map_mode(ev: _Evaluation, c: _Centres, t: _Tallies) -> None:
     """Every region hidden: the model's and the baselines' draws against the ground truth."""
     cfg = ev.model.config
-    tok = scene_tokens(c.data, c.steps, c.poses, ev.bins, cfg.radius, cfg.max_regions, visible="map")
+    tok = scene_tokens(c.data, c.steps, c.poses, cfg, visible="map")
     mask = tok.mask
     flat_mask = mask.ravel()
     gt_sel = np.flatnonzero((tok.present & mask).ravel())
@@ -318,8 +318,7 @@ def _score_hidden_disc(ev: _Evaluation, c: _Centres, t: _Tallies) -> None:
     """The traffic beyond the hide radius given: the prior (raw and adapted to the scene) sees it,
     the baselines only their map buckets; draws in the hidden disc against what was there."""
     cfg = ev.model.config
-    ctx = scene_tokens(c.data, c.steps, c.poses, ev.bins, cfg.radius, cfg.max_regions, visible="context",
-                       hide_radius=cfg.hide_radius)
+    ctx = scene_tokens(c.data, c.steps, c.poses, cfg, visible="context", hide_radius=cfg.hide_radius)
     p_raw, probs_raw = predict_tokens(ev.model, ctx)
     q = ctx.query & ctx.mask
     adaptation = fit_scene_adaptation(ev.model, c.data, c.steps, c.poses, ctx)

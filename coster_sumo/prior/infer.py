@@ -222,8 +222,8 @@ def probe_visible_traffic(model: TrafficPrior, data: ScenePriorData, steps: np.n
     if not probe.any():
         return None
     cfg = model.config
-    probe_tokens = scene_tokens(data, np.asarray(steps, np.int64), np.asarray(pose, np.float64), cfg.bins(),
-                                cfg.radius, cfg.max_regions, visible=visible & ~probe)
+    probe_tokens = scene_tokens(data, np.asarray(steps, np.int64), np.asarray(pose, np.float64), cfg,
+                                visible=visible & ~probe)
     p, probs = predict_tokens(model, probe_tokens, only_query=True, heads=ADAPTED_ATTRIBUTES)
     present = probe_tokens.present & probe
     agent, _, _ = data.occupancy.gather(np.asarray(steps, np.int64).reshape(-1, 1),
@@ -475,8 +475,7 @@ def predict_scene(model: TrafficPrior, scene: Scene | ScenePriorData, target: in
     if mode not in ("context", "map"):
         raise ValueError(f"mode must be 'context' or 'map', got {mode!r}")
     pose = np.where(ok[:, None], pose, 1e12)  # far away: no regions at steps without a target
-    tokens = scene_tokens(data, st, np.asarray(pose, np.float64), cfg.bins(), cfg.radius, cfg.max_regions,
-                          visible=mode, hide_radius=cfg.hide_radius)
+    tokens = scene_tokens(data, st, np.asarray(pose, np.float64), cfg, visible=mode, hide_radius=cfg.hide_radius)
     presence, probs = predict_tokens(model, tokens, only_query=True, heads=heads)
     fitted = SceneAdaptation()
     if calibrate is not False and mode == "context":

@@ -64,7 +64,7 @@ def evaluate_loss(model: TrafficPrior, scenes: Sequence[ScenePriorData], samples
     sums: dict[str, float] = {}
     total, n_query = 0.0, 0.0
     for i in range(0, len(samples), batch_size):
-        tok = batch_tokens(scenes, samples[i:i + batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
+        tok = batch_tokens(scenes, samples[i:i + batch_size], cfg,
                            visible=visible, rng=rng, hide_radius=cfg.hide_radius)
         mf, af, mask, query, present, classes = _torch_batch(tok, next(model.parameters()).device)
         h = model.encode_packed(mf, af, mask)  # (N, 2D)
@@ -141,7 +141,7 @@ def _train_epoch(model: TrafficPrior, opt: torch.optim.Optimizer, train: Sequenc
         step = epoch * steps_per_epoch + bi
         for group in opt.param_groups:
             group["lr"] = _lr_at(step, total_steps, tcfg)
-        tok = batch_tokens(train, samples[i:i + tcfg.batch_size], cfg.bins(), cfg.radius, cfg.max_regions,
+        tok = batch_tokens(train, samples[i:i + tcfg.batch_size], cfg,
                            visible="random", rng=rng, hide_radius=cfg.hide_radius)
         _, loss = model(*_torch_batch(tok, dev))
         assert loss is not None

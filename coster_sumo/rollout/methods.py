@@ -8,43 +8,13 @@ pictures (or None) and an info dict. A new rollout is one function and one line 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Protocol
-
-import numpy as np
+from typing import Protocol
 
 from coster_sumo.core.plan import AdversaryPlan
-from coster_sumo.core.scene import Scene
-from coster_sumo.core.snapshot import CollisionSnapshot
-from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.rollout.baselines import constant_velocity_backward
+from coster_sumo.rollout.request import RolloutRequest, RolloutResult
 
 HORIZON_STEPS = 10  # [2 Hz steps] 5 s of approach at most
-
-RolloutResult = tuple[list[AdversaryPlan], "np.ndarray | None", dict[str, Any]]
-
-
-@dataclass(frozen=True)
-class RolloutRequest:
-    """What a rollout is asked for: adversary plans that end in ``snapshot``.
-
-    Attributes:
-        scene_2hz: the nominal scene at 2 Hz.
-        target: the target's agent index.
-        snapshot: the collision snapshot the plans end in.
-        drivable: the drivable area (None: no check).
-        samples: trajectories to oversample; variants: representatives to keep (K).
-        seed: the draw's seed; models_dir: the models folder (None: the shipped one).
-    """
-
-    scene_2hz: Scene
-    target: int
-    snapshot: CollisionSnapshot
-    drivable: DrivableArea | None
-    samples: int
-    variants: int
-    seed: int
-    models_dir: Path | None = None
 
 
 class RolloutMethod(Protocol):
@@ -83,9 +53,7 @@ def cvae(request: RolloutRequest) -> RolloutResult:
     """COSTER: oversample the time-reversed CVAE, K-means, refine with the motion vocabulary."""
     from coster_sumo.rollout.sample import plan_variants
 
-    r = request
-    return plan_variants(r.scene_2hz, r.target, r.snapshot, r.drivable, n=r.samples, k=r.variants, seed=r.seed,
-                         models_dir=r.models_dir)
+    return plan_variants(request)
 
 
 ROLLOUTS: dict[str, Rollout] = {

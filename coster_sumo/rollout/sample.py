@@ -19,7 +19,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -43,6 +42,7 @@ from coster_sumo.rollout.vocab import MotionVocab, project_backward
 if TYPE_CHECKING:
     from coster_sumo.core.plan import AdversaryPlan
     from coster_sumo.rollout.model import RolloutCVAE
+    from coster_sumo.rollout.request import RolloutRequest
 
 DEFAULT_SAMPLES = 1000
 DEFAULT_CLUSTERS = 5
@@ -444,19 +444,14 @@ def _cluster_reason(tried: int, hit: int, off: int) -> str:
 
 # ----------------------------------------------------------------------------- pipeline entry
 
-def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
-                  drivable: DrivableArea | OffRoadFn | None, n: int = DEFAULT_SAMPLES, k: int = DEFAULT_CLUSTERS,
-                  seed: int = 0, models_dir: str | Path | None = None,
+def plan_variants(request: RolloutRequest,
                   exclude: Sequence[int] = ()) -> tuple[list[AdversaryPlan], np.ndarray, dict[str, Any]]:
     """Oversample, cluster, refine and check: the adversary plans of one snapshot.
 
     Args:
-        scene_2hz: the nominal scene at 2 Hz; target: the target's agent index (it stays a
-            neighbour and an obstacle before t_col).
-        snapshot: the collision snapshot.
-        drivable: the drivable area (or an off-road function) for rejection; None: no check.
-        n, k, seed: samples, clusters, seed.
-        models_dir: folder with ``rollout.pt`` and optionally ``vocab.npz`` (default ``models/``).
+        request: the scene at 2 Hz, the target (it stays a neighbour and an obstacle before t_col),
+            the snapshot, the drivable area (None: no check), ``samples`` N, ``variants`` K, the
+            seed and the folder with ``rollout.pt`` and optionally ``vocab.npz`` (None: ``models/``).
         exclude: agents that are neither neighbours nor obstacles.
 
     Returns:
@@ -465,6 +460,8 @@ def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
     """
     from coster_sumo.core.plan import AdversaryPlan
 
+    scene_2hz, snapshot, models_dir = request.scene_2hz, request.snapshot, request.models_dir
+    n, k, seed = request.samples, request.variants, request.seed
     t0 = time.perf_counter()
     from coster_sumo.infra import weights
     from coster_sumo.rollout.checkpoint import load_model
@@ -481,12 +478,12 @@ def plan_variants(scene_2hz: Scene, target: int, snapshot: CollisionSnapshot,
     others = others_from_scene(scene_2hz, snapshot.t_index, h, exclude=exclude)
     adv = snapshot.adversary
     rejected: list[dict[str, Any]] = []
-    reps = select_representatives(trajs, k=k, seed=seed, vocab=vocab, drivable=drivable, others=others,
+    reps = select_representatives(trajs, k=k, seed=seed, vocab=vocab, drivable=request.drivable, others=others,
                                   size=(adv.length, adv.width), times=times, rejected=rejected)
     t3 = time.perf_counter()
     plans = [AdversaryPlan.from_knots(r.times, r.poses, adv) for r in reps]
     info: dict[str, Any] = {
-        "rollout": "cvae", "samples": n, "clusters": k, "horizon_steps": h, "target": int(target),
+        "rollout": "cvae", "samples": n, "clusters": k, "horizon_steps": h, "target": int(request.target),
         "use_dsa": bool(model.cfg.use_dsa), "vocab_tokens": len(vocab) if vocab is not None else None,
         "representatives": [{"cluster": r.cluster, "cluster_size": r.cluster_size, "rank": r.rank,
                              "sample_index": r.sample_index, "refine_error_m": r.refine_error_m} for r in reps],

@@ -18,7 +18,8 @@ from coster_sumo.core.scene import RoadMap
 from coster_sumo.core.snapshot import CollisionSnapshot
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest, SnapshotInit
-from coster_sumo.rollout.methods import ROLLOUTS, Rollout, RolloutRequest, RolloutResult
+from coster_sumo.rollout.methods import ROLLOUTS, Rollout
+from coster_sumo.rollout.request import RolloutRequest, RolloutResult
 from coster_sumo.vru.areas import ClassArea
 from coster_sumo.vru.classes import VEHICLE, VRU_CLASSES
 from coster_sumo.vru.rollout import vru_rollout

@@ -24,7 +24,8 @@ import numpy as np
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.scene import Scene
 from coster_sumo.geometry.boxes import box_signed_distance, boxes_overlap, make_boxes
-from coster_sumo.rollout.methods import HORIZON_STEPS, RolloutRequest, RolloutResult
+from coster_sumo.rollout.methods import HORIZON_STEPS
+from coster_sumo.rollout.request import RolloutRequest, RolloutResult
 from coster_sumo.rollout.sample import cluster_trajectories
 from coster_sumo.vru.areas import ClassArea
 from coster_sumo.vru.classes import Kinematics, VruClass, within_limits

@@ -65,7 +65,7 @@ def test_hidden_regions_carry_no_agent_information(prepared):
     cfg = PriorConfig()
     rng = np.random.default_rng(0)
     samples = epoch_samples(prepared, rng)
-    tok = batch_tokens(prepared, samples, cfg.bins(), cfg.radius, cfg.max_regions, visible="random", rng=rng)
+    tok = batch_tokens(prepared, samples, cfg, visible="random", rng=rng)
     assert tok.map_features.shape[:2] == tok.mask.shape and tok.map_features.shape[2] == cfg.map_features
     assert np.all(tok.agent_features[tok.query] == 0.0)
     assert np.all(tok.query <= tok.mask) and np.all(tok.present <= tok.mask)
@@ -85,9 +85,9 @@ def test_map_mode_hides_everything_and_context_mode_only_nearby(prepared):
     cfg = PriorConfig()
     d = prepared[1]  # the junction
     rows = np.flatnonzero(d.centres[:, 0] == 5)
-    tok_map = scene_tokens(d, d.centres[rows, 0], d.centre_pose[rows], cfg.bins(), cfg.radius, cfg.max_regions)
+    tok_map = scene_tokens(d, d.centres[rows, 0], d.centre_pose[rows], cfg)
     assert np.array_equal(tok_map.query, tok_map.mask)
-    tok_ctx = scene_tokens(d, d.centres[rows, 0], d.centre_pose[rows], cfg.bins(), cfg.radius, cfg.max_regions,
+    tok_ctx = scene_tokens(d, d.centres[rows, 0], d.centre_pose[rows], cfg,
                            visible="context", hide_radius=10.0)
     centre = d.regions.centre[np.maximum(tok_ctx.region_index, 0)]
     dist = np.linalg.norm(centre - d.centre_pose[rows, None, :2], axis=-1)
@@ -104,7 +104,7 @@ def test_loss_decreases_and_model_overfits_one_batch(prepared):
     model = TrafficPrior(dataclasses.replace(SMALL, num_blocks=5)).double()
     rng = np.random.default_rng(1)
     samples = epoch_samples(prepared, rng)[:3]
-    tok = batch_tokens(prepared, samples, SMALL.bins(), SMALL.radius, SMALL.max_regions, visible="random", rng=rng)
+    tok = batch_tokens(prepared, samples, SMALL, visible="random", rng=rng)
     batch = [torch.from_numpy(a) for a in (tok.map_features, tok.agent_features, tok.mask, tok.query,
                                             tok.present, tok.classes)]
     batch = [b.double() if b.is_floating_point() else b for b in batch]
@@ -139,8 +139,7 @@ def test_checkpoint_round_trip(tmp_path, prepared):
     assert raw["config"]["hidden"] == 64 and raw["metrics"] == {"x": 1.0}
     loaded = load_prior(path)
     assert loaded.config == model.config
-    tok = scene_tokens(prepared[0], np.array([3]), prepared[0].centre_pose[:1], SMALL.bins(), SMALL.radius,
-                       SMALL.max_regions)
+    tok = scene_tokens(prepared[0], np.array([3]), prepared[0].centre_pose[:1], SMALL)
     p0, a0 = predict_tokens(model, tok)
     p1, a1 = predict_tokens(loaded, tok)
     np.testing.assert_array_equal(p0, p1)
@@ -253,7 +252,7 @@ def test_length_evidence_counts_each_vehicle_once():
     steps = np.arange(data.num_steps)
     pose = np.stack([scene.tracks.x[0], scene.tracks.y[0], scene.tracks.heading[0]], -1)
     cfg = model.config
-    tokens = scene_tokens(data, steps, pose, cfg.bins(), cfg.radius, cfg.max_regions, visible="context",
+    tokens = scene_tokens(data, steps, pose, cfg, visible="context",
                           hide_radius=cfg.hide_radius)
     probe = probe_visible_traffic(model, data, steps, pose, tokens)
     assert probe is not None and probe.observed > probe.vehicles > 0  # the same vehicles at several steps
@@ -501,8 +500,7 @@ def _long_and_short_widths(prepared, joint: bool) -> tuple[float, float]:
     model = TrafficPrior(cfg)
     assert (model.width_table is not None) == joint
     bins = cfg.bins()
-    tok = batch_tokens(prepared, epoch_samples(prepared, np.random.default_rng(0), 1)[:8], bins, cfg.radius,
-                       cfg.max_regions, visible="map")
+    tok = batch_tokens(prepared, epoch_samples(prepared, np.random.default_rng(0), 1)[:8], cfg, visible="map")
     cls = np.concatenate([tok.classes, tok.classes])
     long_ = np.arange(len(cls)) < len(tok.classes)
     cls[..., 3] = np.where(long_[:, None], bins.length_class(12.0), bins.length_class(2.2))
@@ -548,8 +546,7 @@ def test_checkpoint_from_before_speed_limits_and_joint_size_still_loads(tmp_path
     torch.save(ckpt, path)
     loaded = load_prior(path)
     assert loaded.config == old and loaded.width_table is None
-    tok = scene_tokens(prepared[0], np.array([3]), prepared[0].centre_pose[:1], old.bins(), old.radius,
-                       old.max_regions)
+    tok = scene_tokens(prepared[0], np.array([3]), prepared[0].centre_pose[:1], old)
     assert tok.map_features.shape[-1] == MAP_FEATURES
     presence, probs = predict_tokens(loaded, tok)  # reads the first 17 map features only
     assert "width_logits" not in probs and np.isfinite(presence).all()
@@ -559,7 +556,7 @@ def test_map_features_carry_the_lane_speed_limit(prepared):
     from coster_sumo.prior.features import SPEED_LIMIT, SPEED_LIMIT_KNOWN, SPEED_LIMIT_SCALE
 
     data = prepared[0]
-    tok = scene_tokens(data, np.array([3]), data.centre_pose[:1], SMALL.bins(), SMALL.radius, SMALL.max_regions)
+    tok = scene_tokens(data, np.array([3]), data.centre_pose[:1], SMALL)
     m = tok.mask
     limit = data.regions.speed_limit[tok.region_index[m]]
     assert (limit > 0).all()

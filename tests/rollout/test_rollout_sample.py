@@ -17,6 +17,7 @@ from coster_sumo.rollout import vocab as V
 from coster_sumo.rollout.baselines import constant_lane_backward, constant_velocity_backward
 from coster_sumo.rollout.checkpoint import save_checkpoint
 from coster_sumo.rollout.model import RolloutConfig, RolloutCVAE
+from coster_sumo.rollout.request import RolloutRequest
 
 TINY = RolloutConfig(hidden=32, heads=4, latent=8, posterior_hidden=16, max_map_chunks=32, max_neighbors=8)
 
@@ -232,15 +233,16 @@ def test_constant_lane_reconstructs_lane_following(scene_fn, agent, t_index):
 
 def test_plan_variants_uses_the_models_folder(tmp_path, junction, vocab, model):
     with pytest.raises(InputError, match="train rollout"):
-        S.plan_variants(junction, 0, None, None, models_dir=tmp_path)  # type: ignore[arg-type]
+        S.plan_variants(RolloutRequest(junction, 0, None, None, samples=40, variants=3, seed=0,  # type: ignore[arg-type]
+                                       models_dir=tmp_path))
     save_checkpoint(model, tmp_path / weights.ROLLOUT)
     vocab.save(tmp_path / weights.VOCAB)
     adv = adversary_near_target(junction, 14)
     snap = CollisionSnapshot(scenario_id="x", target_id="sdc", t_index=14, time=7.0,
                              target=AgentState.from_tracks(junction.tracks, 0, 14), adversary=adv)
     everyone = range(junction.tracks.num_agents)
-    plans, xy, info = S.plan_variants(junction, 0, snap, None, n=40, k=3, seed=0, models_dir=tmp_path,
-                                      exclude=everyone)
+    plans, xy, info = S.plan_variants(RolloutRequest(junction, 0, snap, None, samples=40, variants=3, seed=0,
+                                                     models_dir=tmp_path), exclude=everyone)
     assert xy.shape == (40, 11, 2) and 1 <= len(plans) <= 3
     assert info["vocab_tokens"] == len(vocab) and len(info["representatives"]) == len(plans)
     for p in plans:
