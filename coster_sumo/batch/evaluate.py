@@ -72,7 +72,7 @@ class EvalOptions(sources.BatchOptions):
     traffic: str = "log"  # log | reactive: converted scenes' agents in the labels' proofs and the injections
     variants: int = 5
     samples: int = 1000
-    adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.vru)
+    adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.method.vru)
 
 
 def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[int]:
@@ -183,7 +183,7 @@ def method_task(payload: dict[str, Any]) -> dict[str, Any]:
 
 def _off(plan: Any, res: Any, scene: Any) -> bool:
     """The adversary left the drivable area (a vehicle) or its class's area (a pedestrian or cyclist)."""
-    from coster_sumo.vru.areas import off_class_area
+    from coster_sumo.method.vru.areas import off_class_area
 
     return bool(res.adversary_off_road) if plan.vclass == "passenger" else off_class_area(plan, scene)
 

@@ -205,7 +205,7 @@ class RegressOptions(BatchOptions):
     rollout: str = "cvae"
     collision_time: str = "entropy"
     samples: int = 1000
-    adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.vru)
+    adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.method.vru)
     retry_failed: bool = False
     report: bool = True
     start_method: str | None = None

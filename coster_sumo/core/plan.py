@@ -56,7 +56,7 @@ class AdversaryPlan:
         road: (n, 2) [m] or None: the path it drives after t_col, from its centre at t_col
             (:func:`coster_sumo.geometry.road_follow.road_path`); None: straight on along its final heading.
         vclass: SUMO's vehicle class it is injected as: ``passenger`` (a vehicle adversary),
-            ``pedestrian`` or ``bicycle`` (:mod:`coster_sumo.vru`).
+            ``pedestrian`` or ``bicycle`` (:mod:`coster_sumo.method.vru`).
     """
 
     times: np.ndarray

@@ -60,7 +60,7 @@ class VariantOutcome:
             :mod:`coster_sumo.avoidability.evasion`, plus ``escape_file``); label: the label in words;
             outcome: how the target's planner fared, in words (None until labelled).
         adversary_class: vehicle, pedestrian or cyclist (for the two last, ``adversary_off_road`` says
-            whether it left its class's area: :mod:`coster_sumo.vru.areas`).
+            whether it left its class's area: :mod:`coster_sumo.method.vru.areas`).
         extra: keys this version does not know.
     """
 

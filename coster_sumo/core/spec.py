@@ -13,7 +13,7 @@ from typing import Any
 
 from coster_sumo.errors import InputError
 
-# the adversary classes of ``--adversary`` (their limits: coster_sumo.vru.classes)
+# the adversary classes of ``--adversary`` (their limits: coster_sumo.method.vru.classes)
 ADVERSARY_CHOICES = ("vehicle", "cyclist", "pedestrian", "any")
 
 
@@ -67,7 +67,7 @@ class GenerationConfig:
         variants: representatives kept (K-means K).
         models_dir: folder with the weights (None: the shipped ones).
         adversary: the adversary's class, ``vehicle`` (default), ``cyclist``, ``pedestrian`` or ``any``
-            (each draw picks one: :mod:`coster_sumo.vru.methods`).
+            (each draw picks one: :mod:`coster_sumo.method.vru.methods`).
     """
 
     init: str = "snapshot"

@@ -15,13 +15,13 @@ loads either.
 
 from __future__ import annotations
 
-import json
 import os
-import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from coster_sumo.sim.policy import load_model
 
 LEARNERS = ("ppo", "td3")
 POLICY_LAYERS = (64, 64)  # hidden units of the policy and value MLPs (the same for every arm)
@@ -56,25 +56,6 @@ def new_model(learner: str, venv: Any, seed: int) -> Any:
                    buffer_size=TD3_BUFFER, learning_starts=TD3_LEARNING_STARTS, train_freq=1, gradient_steps=1,
                    gamma=0.99, action_noise=noise, verbose=0, policy_kwargs={"net_arch": list(POLICY_LAYERS)})
     raise ValueError(f"learner must be one of {LEARNERS}, not {learner!r}")
-
-
-def learner_of(path: str | Path) -> str:
-    """The learner that saved the policy ``path`` (an SB3 zip): ``td3`` or ``ppo``."""
-    with zipfile.ZipFile(path) as z:
-        data = json.loads(z.read("data").decode())
-    module = str(data.get("policy_class", {}).get("__module__", ""))
-    return "td3" if ".td3." in module else "ppo"
-
-
-def load_model(path: str | Path, env: Any = None) -> Any:
-    """The policy (or checkpoint) ``path``, as the learner that saved it, on ``env`` when given."""
-    if learner_of(path) == "td3":
-        from stable_baselines3 import TD3
-
-        return TD3.load(path, env=env, device="cpu")
-    from stable_baselines3 import PPO
-
-    return PPO.load(path, env=env, device="cpu")
 
 
 def save_state(model: Any, ckpt: Path) -> None:

@@ -281,7 +281,7 @@ def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None
     env = ScenarioEnv(scenarios, split=split, order="cycle", scenario_ids=ids, **env_options)
     model = None
     if policy is not None:
-        from coster_sumo.gym.learners import load_model
+        from coster_sumo.sim.policy import load_model
 
         model = load_model(policy)
     rows: list[EpisodeRecord] = []

@@ -156,7 +156,7 @@ def _child_body(fn: Callable[[], Any], path: str) -> None:
         code = 1
     sys.stdout.flush()
     sys.stderr.flush()
-    outputs = sys.modules.get("coster_sumo.sim.sumo_outputs")
+    outputs = sys.modules.get("coster_sumo.infra.staging")
     if outputs is not None:  # a temporary folder this child made itself (none where its parent had one)
         outputs.cleanup()
     os._exit(code)  # no atexit handlers inherited from the parent (libsumo, tqdm)
@@ -255,7 +255,7 @@ def run_supervised(fn: Callable[[], Any], what: str) -> Any:
     here with their exit codes; a crash or any other failure of the child becomes
     :class:`ChildFailed` naming ``what`` (``"run of CFG"``). The child dies with this process.
     """
-    from coster_sumo.sim.sumo_outputs import staging_folder
+    from coster_sumo.infra.staging import staging_folder
 
     staging_folder()  # made here, the child's SUMO outputs folder outlives a crash of the child and goes with us
     try:

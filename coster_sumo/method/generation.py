@@ -129,7 +129,7 @@ class DrawMemo:
 
     low: Scene
     prior: PriorMemo = field(default_factory=PriorMemo)
-    areas: dict[str, Any] = field(default_factory=dict)  # the VRU classes' areas (coster_sumo.vru.methods)
+    areas: dict[str, Any] = field(default_factory=dict)  # the VRU classes' areas (coster_sumo.method.vru.methods)
 
     @classmethod
     def of(cls, scene: Scene) -> DrawMemo:
@@ -163,7 +163,7 @@ class _Draws:
         strict = True
         for k in range(ATTEMPTS_PER_TIME):
             self.count += 1
-            if self.gen.adversary != "vehicle":  # the class's own placement and rollout (coster_sumo.vru)
+            if self.gen.adversary != "vehicle":  # the class's own placement and rollout (coster_sumo.method.vru)
                 self.init, self.rollout = self.class_methods()
             try:
                 snap, strict = place_closing_first(self.init, PlacementRequest(
@@ -184,7 +184,7 @@ class _Draws:
 
     def class_methods(self) -> tuple[Any, Any]:
         """The snapshot init and rollout of this draw's adversary class (``any``: drawn now)."""
-        from coster_sumo.vru.methods import class_area, draw_class, methods_for
+        from coster_sumo.method.vru.methods import class_area, draw_class, methods_for
 
         name = draw_class(self.gen.adversary, self.rng)
         area = None if name == "vehicle" else class_area(name, self.scene.road_map, self.drivable, self.areas)
@@ -204,7 +204,7 @@ class _Draws:
                                          for r in info.get("rejected_clusters", ())]
         kept, filtered = keep_clear_plans(plans, self.scene, self.target)
         if snap.adversary_class != "vehicle":  # a VRU squeezes past vehicles: a clearance too
-            from coster_sumo.vru.rollout import keep_vru_clear
+            from coster_sumo.method.vru.rollout import keep_vru_clear
 
             kept, more = keep_vru_clear(kept, self.scene, self.target)
             filtered += more

@@ -51,11 +51,11 @@ from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
 from coster_sumo.infra.atomic import json_default, write_json
 from coster_sumo.infra.procs import die_with_parent
 from coster_sumo.method.generation import PlannedScenario
+from coster_sumo.method.vru.areas import off_class_area
+from coster_sumo.method.vru.classes import class_of_vclass
 from coster_sumo.pipeline import viz
 from coster_sumo.rollout.data import STOPPED_MPS
 from coster_sumo.sim.inject import InjectionResult
-from coster_sumo.vru.areas import off_class_area
-from coster_sumo.vru.classes import class_of_vclass
 
 VARIANT_FILE = "variant.json"
 

@@ -13,7 +13,9 @@ configurations (on converted WOMD scenes the built-in planners only).
 
 from __future__ import annotations
 
+import json
 import math
+import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -68,8 +70,6 @@ class PolicyPlanner(Driver):
     def setup(self, session: SumoSession, target_id: str) -> None:
         if self._model is None:
             require("rl", f"planner policy:{self.path}")
-            from coster_sumo.gym.learners import load_model
-
             self._model = load_model(self.path)
         self._taken = False
         self.target_id = target_id
@@ -114,3 +114,22 @@ def make_policy_planner(arg: str | None, nominal: NominalPath | None) -> PolicyP
     if not arg:
         raise InputError("planner policy:PATH needs the path of a policy.zip")
     return PolicyPlanner(arg, nominal)  # without the nominal trajectory it refuses at takeover
+
+
+def learner_of(path: str | Path) -> str:
+    """The learner that saved the policy ``path`` (an SB3 zip): ``td3`` or ``ppo``."""
+    with zipfile.ZipFile(path) as z:
+        data = json.loads(z.read("data").decode())
+    module = str(data.get("policy_class", {}).get("__module__", ""))
+    return "td3" if ".td3." in module else "ppo"
+
+
+def load_model(path: str | Path, env: Any = None) -> Any:
+    """The policy (or checkpoint) ``path``, as the learner that saved it, on ``env`` when given."""
+    if learner_of(path) == "td3":
+        from stable_baselines3 import TD3
+
+        return TD3.load(path, env=env, device="cpu")
+    from stable_baselines3 import PPO
+
+    return PPO.load(path, env=env, device="cpu")

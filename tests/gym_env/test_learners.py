@@ -25,6 +25,7 @@ def merge_set(tmp_path_factory) -> Path:
 def test_td3_training_resumes_with_its_replay_buffer(merge_set, tmp_path, monkeypatch):
     from coster_sumo.gym import learners
     from coster_sumo.gym.train import TrainOptions, evaluate, train
+    from coster_sumo.sim import policy
 
     monkeypatch.setattr(learners, "TD3_BUFFER", 2_000)  # a small buffer file
     monkeypatch.setattr(learners, "TD3_LEARNING_STARTS", 200)  # gradient steps within the budget
@@ -33,7 +34,7 @@ def test_td3_training_resumes_with_its_replay_buffer(merge_set, tmp_path, monkey
     opts = dict(scenarios=merge_set, out=out, checkpoint_steps=128, quiet=True, learner="td3")
     first = train(TrainOptions(timesteps=256, **opts))
     assert first.steps >= 256 and (out / "policy.zip").exists() and (out / learners.REPLAY_BUFFER_FILE).exists()
-    assert learners.learner_of(out / "policy.zip") == "td3"
+    assert policy.learner_of(out / "policy.zip") == "td3"
     model = learners.load_state(out / "checkpoint.zip", env=None)
     held = model.replay_buffer.size()
     assert held >= 256 - 1
@@ -47,12 +48,12 @@ def test_td3_training_resumes_with_its_replay_buffer(merge_set, tmp_path, monkey
 
 @pytest.mark.slow
 def test_a_ppo_policy_loads_as_ppo(merge_set, tmp_path):
-    from coster_sumo.gym import learners
     from coster_sumo.gym.train import TrainOptions, train
+    from coster_sumo.sim import policy
 
     out = tmp_path / "ppo"
     train(TrainOptions(scenarios=merge_set, out=out, timesteps=64, checkpoint_steps=64, quiet=True))
-    assert learners.learner_of(out / "policy.zip") == "ppo"
-    assert type(learners.load_model(out / "policy.zip")).__name__ == "PPO"
+    assert policy.learner_of(out / "policy.zip") == "ppo"
+    assert type(policy.load_model(out / "policy.zip")).__name__ == "PPO"
     with pytest.raises(ValueError, match="learner"):
         train(TrainOptions(scenarios=merge_set, out=tmp_path / "x", timesteps=64, quiet=True, learner="sac"))

@@ -15,8 +15,8 @@ from coster_sumo.cli.command_line import main
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.formats.sumo_net import read_sumolib_net, sumo_net_to_road_map
 from coster_sumo.infra import sumo_install
-from coster_sumo.vru.classes import VRU_CLASSES
-from coster_sumo.vru.rollout import plan_within_limits
+from coster_sumo.method.vru.classes import VRU_CLASSES
+from coster_sumo.method.vru.rollout import plan_within_limits
 from tests.exports.test_export_sumo import check_variant
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,6 +1,6 @@
 """What SUMO's driver sees of a pedestrian- or bicycle-class adversary placed with moveToXY (docs/sumo.md §13a).
 
-    python tests/vru/sumo_sees_vru.py
+    python tests/method/vru/sumo_sees_vru.py
 
 1. networks/intersection: SUMO's driver on W2C -> C2E at 13 m/s; the adversary (vClass pedestrian,
    bicycle, passenger) stands 200 m ahead on the driver's lane, or 2.5 m beside it.

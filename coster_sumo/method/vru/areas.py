@@ -1,7 +1,7 @@
 """Where a vulnerable road user may be: its class's area, and the off-area check of the metrics.
 
 - **walkable** (pedestrian): the road surface (a pedestrian adversary crosses it, on a crossing or
-  not), the crossings the map holds, and a band of :attr:`~coster_sumo.vru.classes.VruClass.area_band`
+  not), the crossings the map holds, and a band of :attr:`~coster_sumo.method.vru.classes.VruClass.area_band`
   beyond the road surface: the sidewalk or verge. The road maps leave sidewalk lanes out
   (:mod:`coster_sumo.formats.sumo_net`), so a net's sidewalks count through that band.
 - **rideable** (cyclist): the road surface (bike lanes included) and a narrower band (the shoulder).
@@ -20,7 +20,7 @@ from shapely.geometry.base import BaseGeometry
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.scene import RoadMap, Scene
 from coster_sumo.geometry.drivable import DrivableArea
-from coster_sumo.vru.classes import VruClass
+from coster_sumo.method.vru.classes import VruClass
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,7 @@ _AREAS: dict[int, tuple[RoadMap, dict[str, ClassArea]]] = {}  # by id of the roa
 
 def area_of(vclass: str, road_map: RoadMap) -> ClassArea:
     """The class area of SUMO class ``vclass`` on ``road_map``, built once per road map and class."""
-    from coster_sumo.vru.classes import VRU_CLASSES, class_of_vclass
+    from coster_sumo.method.vru.classes import VRU_CLASSES, class_of_vclass
 
     held = _AREAS.get(id(road_map))
     if held is None or held[0] is not road_map:

@@ -3,14 +3,15 @@
 For every configuration and class: ``coster-sumo run CFG --adversary CLASS --planner replay`` (the
 target on its nominal path, so contact belongs at t_col), then per variant: the contact's offset from
 t_col, whether the adversary left its class's area, and the densified plan's fastest speed, largest
-acceleration and deceleration against the class's limits (coster_sumo.vru.classes). Configurations:
+acceleration and deceleration against the class's limits (coster_sumo.method.vru.classes). Configurations:
 the three project networks, the intersection rebuilt by netconvert with guessed sidewalks and
 crossings (built here, in a temporary folder), OSM configurations of the eclipse-sumo wheel with
 pedestrians or bicycles (fokr_bs_demo, fkk_in, DRT), and the real WOMD samples of ../shared (converted here).
 
-    python tests/vru/measure.py [--samples 200] [--variants 3] [--only NAME] [--json OUT.json]
-    python tests/vru/measure.py --womd-stats
-    python tests/vru/measure.py --asam-checker /path/to/venv/bin/qc_openscenario   # pip install asam-qc-openscenarioxml
+    python tests/method/vru/measure.py [--samples 200] [--variants 3] [--only NAME] [--json OUT.json]
+    python tests/method/vru/measure.py --womd-stats
+    # with ASAM's checker (pip install asam-qc-openscenarioxml into a venv of its own):
+    python tests/method/vru/measure.py --asam-checker /path/to/venv/bin/qc_openscenario
 
 Takes about 20-40 s per configuration and class on 2 cores.
 """
@@ -88,8 +89,8 @@ def configs(tmp: Path) -> list[tuple[str, Path, list[str]]]:
 def variants_of(run_out: Path) -> list[dict[str, Any]]:
     """Every variant of a run folder (one target or several) with its plan's kinematics."""
     from coster_sumo.core.plan import AdversaryPlan
-    from coster_sumo.vru.classes import VRU_CLASSES, class_of_vclass
-    from coster_sumo.vru.rollout import plan_kinematics
+    from coster_sumo.method.vru.classes import VRU_CLASSES, class_of_vclass
+    from coster_sumo.method.vru.rollout import plan_kinematics
 
     rows = []
     for summary in sorted(run_out.rglob("summary.json")):

@@ -5,9 +5,9 @@ The collision time is chosen as for a vehicle (the rule of ``--collision-time``;
 the traffic prior's velocity entropy around the target). At that time candidates of the class are
 drawn around the target: a heading relative to the target's (a pedestrian mostly crosses its
 path; a cyclist mostly rides along it, sometimes crosses), a speed from the class's distribution
-(:meth:`~coster_sumo.vru.classes.VruClass.draw_speed`), a start beside or ahead of the target; each
+(:meth:`~coster_sumo.method.vru.classes.VruClass.draw_speed`), a start beside or ahead of the target; each
 is translated towards the target until the boxes touch (the vehicle placement's geometry). A
-placement is kept when it lies in the class's area (:mod:`coster_sumo.vru.areas`), overlaps no other
+placement is kept when it lies in the class's area (:mod:`coster_sumo.method.vru.areas`), overlaps no other
 agent and closes in on the target; among those, one is drawn with weight ``exp(-d / EDGE_SCALE_M)``
 of its distance ``d`` to the road edge or a crossing: where a pedestrian or cyclist enters the
 road, not in the middle of it.
@@ -21,8 +21,8 @@ from coster_sumo.core.snapshot import AgentState, CollisionSnapshot
 from coster_sumo.errors import NoSnapshot
 from coster_sumo.method.collision_time import choose_collision_time, search_window
 from coster_sumo.method.snapshot import Obstacles, PlacementRequest, _scene_prior, closing, contact_placements
-from coster_sumo.vru.areas import ClassArea
-from coster_sumo.vru.classes import VruClass
+from coster_sumo.method.vru.areas import ClassArea
+from coster_sumo.method.vru.classes import VruClass
 
 CANDIDATES = 400  # placements drawn per snapshot
 EDGE_SCALE_M = 1.5  # [m] the weight's length scale: a placement this much further in is e times less likely

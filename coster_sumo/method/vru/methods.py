@@ -2,9 +2,9 @@
 
 ``vehicle`` keeps the registries' methods (:data:`~coster_sumo.method.snapshot.SNAPSHOT_INITS`,
 :data:`~coster_sumo.rollout.methods.ROLLOUTS`) untouched. ``pedestrian`` and ``cyclist`` take the
-class's placement (:mod:`coster_sumo.vru.snapshot`; with ``--init snapshot`` its collision time reads
+class's placement (:mod:`coster_sumo.method.vru.snapshot`; with ``--init snapshot`` its collision time reads
 the prior's entropy, with ``--init random`` the random init's rule) and the class's kinematic rollout
-(:mod:`coster_sumo.vru.rollout`, whatever ``--rollout`` says: no VRU rollout is learned yet).
+(:mod:`coster_sumo.method.vru.rollout`, whatever ``--rollout`` says: no VRU rollout is learned yet).
 ``any``: each draw picks one of the three classes uniformly with the generation's seeded generator.
 """
 
@@ -18,12 +18,12 @@ from coster_sumo.core.scene import RoadMap
 from coster_sumo.core.snapshot import CollisionSnapshot
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest, SnapshotInit
+from coster_sumo.method.vru.areas import ClassArea
+from coster_sumo.method.vru.classes import VEHICLE, VRU_CLASSES
+from coster_sumo.method.vru.rollout import vru_rollout
+from coster_sumo.method.vru.snapshot import vru_snapshot
 from coster_sumo.rollout.methods import ROLLOUTS, Rollout
 from coster_sumo.rollout.request import RolloutRequest, RolloutResult
-from coster_sumo.vru.areas import ClassArea
-from coster_sumo.vru.classes import VEHICLE, VRU_CLASSES
-from coster_sumo.vru.rollout import vru_rollout
-from coster_sumo.vru.snapshot import vru_snapshot
 
 ANY_CLASSES = ("vehicle", "cyclist", "pedestrian")
 

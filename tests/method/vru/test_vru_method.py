@@ -16,11 +16,11 @@ from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import DrawMemo, plan_scenarios
 from coster_sumo.method.snapshot import PlacementRequest
+from coster_sumo.method.vru.areas import ClassArea
+from coster_sumo.method.vru.classes import CYCLIST, PEDESTRIAN, VRU_CLASSES, Kinematics, check_adversary, within_limits
+from coster_sumo.method.vru.rollout import plan_kinematics, plan_within_limits, sample_backwards, vru_rollout
+from coster_sumo.method.vru.snapshot import vru_snapshot
 from coster_sumo.rollout.request import RolloutRequest
-from coster_sumo.vru.areas import ClassArea
-from coster_sumo.vru.classes import CYCLIST, PEDESTRIAN, VRU_CLASSES, Kinematics, check_adversary, within_limits
-from coster_sumo.vru.rollout import plan_kinematics, plan_within_limits, sample_backwards, vru_rollout
-from coster_sumo.vru.snapshot import vru_snapshot
 
 LANE_WIDTH = synthetic.LANE_WIDTH
 

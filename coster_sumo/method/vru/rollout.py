@@ -12,7 +12,7 @@ selects (K-means on lateral displacement and arc length, the member nearest each
   drawn and bounded by its tightest turn and its lateral-acceleration limit at that speed;
 - kept: samples whose every knot lies in the class's area, whose box overlaps neither the target
   before the last 2 Hz step nor another agent at its step, and whose densified plan stays inside the
-  class's area and within its speed and acceleration limits (:func:`~coster_sumo.vru.classes.within_limits`).
+  class's area and within its speed and acceleration limits (:func:`~coster_sumo.method.vru.classes.within_limits`).
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ import numpy as np
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.scene import Scene
 from coster_sumo.geometry.boxes import box_signed_distance, boxes_overlap, make_boxes
+from coster_sumo.method.vru.areas import ClassArea
+from coster_sumo.method.vru.classes import Kinematics, VruClass, within_limits
 from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.rollout.request import RolloutRequest, RolloutResult
 from coster_sumo.rollout.sample import cluster_trajectories
-from coster_sumo.vru.areas import ClassArea
-from coster_sumo.vru.classes import Kinematics, VruClass, within_limits
 
 SUBSTEP_S = 0.1  # [s] integration step
 KNOT_S = 0.5  # [s] the 2 Hz knots
