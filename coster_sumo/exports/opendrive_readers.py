@@ -20,6 +20,11 @@ OpenDRIVE conversion and pyxodr (``docs/sumo.md §12a``). :func:`make_readable` 
 - **no roads of (almost) no length**: a junction whose connecting roads are all shorter than
   :data:`MIN_ROAD_M` (SUMO internal lanes of length 0 where two edges meet end to end) is
   replaced by direct road-to-road links; its lane links carry over.
+- **objects the schema and commonroad accept**: netconvert writes a crosswalk ``<object>`` without
+  ``zOffset`` (required by the 1.8 schema; the checker skips its other checks on a file that fails
+  the schema) and with the SUMO crossing's id (``:<node>_c0``), which commonroad's reader takes for
+  an integer. Objects get ``zOffset="0"`` where it is missing and ids 1, 2, ... (the SUMO id stays in
+  ``name``).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ def make_readable(root: ET.Element) -> dict[str, int]:
     if header is not None:
         header.set("revMajor", "1")
         header.set("revMinor", str(OPENDRIVE_REV_MINOR))
-    counts = {"signals_renumbered": _integer_signal_ids(root)}
+    counts = {"signals_renumbered": _integer_signal_ids(root), "objects_renumbered": _readable_objects(root)}
     counts["junctions_bypassed"] = _bypass_short_junctions(root)
     counts["lines_merged"] = sum(merge_collinear_lines(road) for road in root.findall("road"))
     counts["dangling_links_dropped"] = _drop_dangling_junction_links(root)
@@ -70,6 +75,22 @@ def _integer_signal_ids(root: ET.Element) -> int:
         for control in junction.findall("controller"):
             control.set("id", controller_ids.get(control.get("id", ""), control.get("id", "")))
     return len(signal_ids)
+
+
+def _readable_objects(root: ET.Element) -> int:
+    """Road objects numbered 1, 2, ... (old ids kept as names), ``zOffset`` 0 where missing; returns
+    how many objects."""
+    count = 0
+    for road in root.findall("road"):
+        for obj in road.findall("objects/object"):
+            count += 1
+            old = obj.get("id", "")
+            obj.set("id", str(count))
+            if not obj.get("name"):
+                obj.set("name", old)
+            if obj.get("zOffset") is None:
+                obj.set("zOffset", "0")
+    return count
 
 
 def merge_collinear_lines(road: ET.Element) -> int:
