@@ -9,8 +9,9 @@ network and of extra netgenerate nets, and those cuts converted by the project's
 exports each with :func:`coster_sumo.exports.opendrive.write_xodr` into ``WORK/xodr/`` and runs
 each reader (``tests/xodr_reader_probe.py`` in the environments ``make xodr-readers`` builds) over
 all of them. Prints per reader the totals and every file with a finding, and writes
-``WORK/summary.json``. ``--reuse-nets``: export the nets of an earlier run (``WORK/nets.json``)
-again; ``--reuse``: check the ``.xodr`` files already in ``WORK/xodr/``.
+``WORK/summary.json`` (each reader's rows also go to ``WORK/rows_<reader>.jsonl`` as they come).
+``--reuse-nets``: export the nets of an earlier run (``WORK/nets.json``) again;
+``--reuse``: check the ``.xodr`` files already in ``WORK/xodr/``.
 Exit status 0 when every reader found nothing.
 """
 
@@ -75,8 +76,9 @@ def export_all(work: Path, nets: list[dict], jobs: int = 1) -> list[str]:
     return failed
 
 
-def probe(reader: str, files: list[Path], jobs: int = 1) -> dict[str, dict]:
-    """Run one reader over ``files`` in chunks of :data:`CHUNK`, ``jobs`` reader processes at a time."""
+def probe(reader: str, files: list[Path], jobs: int = 1, log: Path | None = None) -> dict[str, dict]:
+    """Run one reader over ``files`` in chunks of :data:`CHUNK`, ``jobs`` reader processes at a time;
+    each chunk's rows are appended to ``log`` (JSON lines) as it finishes."""
     python = REPO / ENVS[reader] / "bin" / "python"
     if not python.is_file():
         raise SystemExit(f"{python} not found: run `make xodr-readers`")
@@ -96,6 +98,9 @@ def probe(reader: str, files: list[Path], jobs: int = 1) -> dict[str, dict]:
                 if line.startswith("{"):
                     row = json.loads(line)
                     rows[Path(row["file"]).stem] = row
+                    if log is not None:
+                        with log.open("a") as fh:
+                            fh.write(line + "\n")
     return rows
 
 
@@ -146,7 +151,9 @@ def main() -> int:
     ok = not failed
     for reader in args.readers:
         t1 = time.perf_counter()
-        rows = probe(reader, files, args.jobs)
+        log = work / f"rows_{reader}.jsonl"
+        log.unlink(missing_ok=True)
+        rows = probe(reader, files, args.jobs, log)
         bad = {name: f for name in sorted(rows) if (f := findings(reader, rows[name], work / "xodr" / f"{name}.xodr"))}
         missing = sorted({p.stem for p in files} - set(rows))
         totals: dict[str, int] = {}

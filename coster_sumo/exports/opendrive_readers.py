@@ -20,12 +20,23 @@ OpenDRIVE conversion and pyxodr (``docs/sumo.md §12a``). :func:`make_readable` 
 - **no roads of (almost) no length**: a junction whose connecting roads are all shorter than
   :data:`MIN_ROAD_M` (SUMO internal lanes of length 0 where two edges meet end to end) is
   replaced by direct road-to-road links; its lane links carry over.
+- **objects the schema and commonroad accept**: netconvert writes a crosswalk ``<object>`` without
+  ``zOffset`` (required by the 1.8 schema; the checker skips its other checks on a file that fails
+  the schema) and with the SUMO crossing's id (``:<node>_c0``), which commonroad's reader takes for
+  an integer. Objects get ``zOffset="0"`` where it is missing and ids 1, 2, ... (the SUMO id stays in
+  ``name``).
+- **a curve as long as its length says**: ASAM's checker wants a normalized ``paramPoly3``'s arc
+  length within 1 mm of its ``length``; netconvert's own curve of a connecting road the fit leaves
+  as it is (a one-piece road whose u runs back and forth) may miss it by more. Such a road's
+  length becomes the curve's arc length (:func:`_true_curve_lengths`).
 """
 
 from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
+
+import numpy as np
 
 OPENDRIVE_REV_MINOR = 8  # OpenDRIVE 1.8
 MIN_ROAD_M = 0.05  # [m] shorter connecting roads are bypassed (readers choke on 1 cm roads)
@@ -39,10 +50,11 @@ def make_readable(root: ET.Element) -> dict[str, int]:
     if header is not None:
         header.set("revMajor", "1")
         header.set("revMinor", str(OPENDRIVE_REV_MINOR))
-    counts = {"signals_renumbered": _integer_signal_ids(root)}
+    counts = {"signals_renumbered": _integer_signal_ids(root), "objects_renumbered": _readable_objects(root)}
     counts["junctions_bypassed"] = _bypass_short_junctions(root)
     counts["lines_merged"] = sum(merge_collinear_lines(road) for road in root.findall("road"))
     counts["dangling_links_dropped"] = _drop_dangling_junction_links(root)
+    counts["lengths_corrected"] = _true_curve_lengths(root)
     return counts
 
 
@@ -70,6 +82,46 @@ def _integer_signal_ids(root: ET.Element) -> int:
         for control in junction.findall("controller"):
             control.set("id", controller_ids.get(control.get("id", ""), control.get("id", "")))
     return len(signal_ids)
+
+
+def _readable_objects(root: ET.Element) -> int:
+    """Road objects numbered 1, 2, ... (old ids kept as names), ``zOffset`` 0 where missing; returns
+    how many objects."""
+    count = 0
+    for road in root.findall("road"):
+        for obj in road.findall("objects/object"):
+            count += 1
+            old = obj.get("id", "")
+            obj.set("id", str(count))
+            if not obj.get("name"):
+                obj.set("name", old)
+            if obj.get("zOffset") is None:
+                obj.set("zOffset", "0")
+    return count
+
+
+CURVE_LENGTH_TOL_M = 1e-4  # [m] a paramPoly3's length this far from its arc length is corrected
+
+
+def _true_curve_lengths(root: ET.Element) -> int:
+    """Set the length of every one-piece road whose normalized ``paramPoly3`` has another arc length
+    (by more than :data:`CURVE_LENGTH_TOL_M`) to that arc length; returns how many roads."""
+    p = np.linspace(0.0, 1.0, 4001)
+    fixed = 0
+    for road in root.findall("road"):
+        geos = road.findall("planView/geometry")
+        poly = geos[0].find("paramPoly3") if len(geos) == 1 else None
+        if poly is None or poly.get("pRange", "normalized") != "normalized":
+            continue
+        c = {k: float(poly.get(k, "0")) for k in ("bU", "cU", "dU", "bV", "cV", "dV")}
+        speed = np.hypot(c["bU"] + 2 * c["cU"] * p + 3 * c["dU"] * p ** 2,
+                         c["bV"] + 2 * c["cV"] * p + 3 * c["dV"] * p ** 2)
+        arc = float(np.sum((speed[1:] + speed[:-1]) * 0.5 * np.diff(p)))
+        if abs(arc - float(geos[0].get("length", "0"))) > CURVE_LENGTH_TOL_M:
+            geos[0].set("length", f"{arc:.8f}")
+            road.set("length", f"{arc:.8f}")
+            fixed += 1
+    return fixed
 
 
 def merge_collinear_lines(road: ET.Element) -> int:
