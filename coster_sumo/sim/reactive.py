@@ -422,7 +422,9 @@ def _react(replayer: LogReplayerLike, session: SumoSession, target: str) -> None
     sid = replayer.active.get(t_index)
     if k is None or sid is None or sid in session.hidden:
         return
-    ids = [replayer.active[a] for a in sorted(replayer.active) if replayer.active[a] not in session.hidden]
+    # an agent handed to SUMO may have left the network (arrived, or removed after a collision)
+    present = set(session.vehicle_ids()) - session.hidden
+    ids = [replayer.active[a] for a in sorted(replayer.active) if replayer.active[a] in present]
     st = session.vehicle_states(ids)
     names = st.id_list()
     deviating: list[Pose] = []
@@ -436,7 +438,7 @@ def _react(replayer: LogReplayerLike, session: SumoSession, target: str) -> None
     if not deviating:
         return
     cand = np.array([a for a in sorted(replayer.active) if a not in replayer.handover and a != t_index
-                     and replayer.active[a] not in session.hidden and tr.valid[a, k]
+                     and replayer.active[a] in present and tr.valid[a, k]
                      and int(tr.object_type[a]) != int(ObjectType.PEDESTRIAN)], np.int64)
     hit = reacting_agents(scene, k, deviating, cand, sizes=(replayer.lengths, replayer.widths))
     for a in cand[hit].tolist():

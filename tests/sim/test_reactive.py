@@ -248,3 +248,36 @@ def test_scenarios_build_proves_the_labels_in_reactive_traffic(tmp_path):
     assert s.meta["options"]["traffic"] == "reactive"
     variants = s.select(kind="variant")
     assert variants and all(isinstance(e.avoidable, bool) for e in variants)
+
+
+def test_an_agent_that_left_the_network_is_not_asked_for_its_state():
+    """A held-out corpus clip in reactive traffic: an agent handed to SUMO had arrived, and reading it
+    raised ``TraCIException: Vehicle '27' is not known``; it is skipped, the others still react."""
+    from types import SimpleNamespace
+
+    from coster_sumo.sim.reactive import _react
+    from coster_sumo.sim.states import VehicleStates
+
+    scene = _lane_scene()
+    k = 10
+    braking = (10.0, 0.0, 0.0, 6.0)  # the target at its logged place, 4 m/s slower: it deviates
+    behind = (float(scene.tracks.x[1, k]), 0.0, 0.0, 10.0)
+    in_sumo = {"t": braking, "behind": behind}  # "ahead" has left the network
+
+    def vehicle_states(ids):
+        ids = list(ids)
+        unknown = [v for v in ids if v not in in_sumo]
+        assert not unknown, f"Vehicle {unknown[0]!r} is not known"
+        rows = [in_sumo[v] for v in ids]
+        col = [np.array([r[j] for r in rows], float) for j in range(4)]
+        n = len(ids)
+        return VehicleStates(ids=np.array(ids), x=col[0], y=col[1], yaw=col[2], speed=col[3],
+                             length=np.full(n, 4.5), width=np.full(n, 1.9), vclass=np.full(n, "passenger"),
+                             type_id=np.full(n, "car"))
+
+    session = SimpleNamespace(time=float(scene.timestamps[k]), hidden=set(), vehicle_ids=lambda: tuple(in_sumo),
+                              vehicle_states=vehicle_states)
+    replayer = SimpleNamespace(scene=scene, step_at=lambda t: k, active={0: "t", 1: "behind", 2: "ahead"},
+                               released={0}, handover={}, lengths=np.full(5, 4.5), widths=np.full(5, 1.9))
+    _react(replayer, session, "t")
+    assert set(replayer.handover) == {1}  # the follower reacts; the agent that left is left alone
