@@ -314,6 +314,7 @@ def _evaluate_locked(opts: EvalOptions, t_start: float, methods: list[GeneratorM
                                         opts.traffic)
     summary = EvalSummary(scenes={k: s.label() for k, s in keys.items()}, planner=opts.planner,
                           variants=opts.variants, samples=opts.samples, methods=table, adversary=opts.adversary,
+                          traffic=opts.traffic,
                           wall_time_s=round(time.perf_counter() - t_start, 3))
     write_json(out / "summary.json", summary.to_json())
     from coster_sumo.batch.report import write_generator_report

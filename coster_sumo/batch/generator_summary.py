@@ -423,6 +423,7 @@ class EvalSummary:
             method; samples: CVAE trajectories oversampled; methods: the generators' table.
         wall_time_s: [s] the whole command; report: the report's files relative to OUT (None: not yet).
         adversary: the adversary class generated (``--adversary``).
+        traffic: a converted scene's agents in the labels' proofs and the injections (``--traffic``).
     """
 
     scenes: dict[str, str]
@@ -434,10 +435,11 @@ class EvalSummary:
     units: Mapping[str, str] = field(default_factory=lambda: dict(EVAL_UNITS))
     report: tuple[str, ...] | None = None
     adversary: str = "vehicle"
+    traffic: str = "log"
 
     def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"command": "eval scenarios", "adversary": self.adversary, "scenes": dict(self.scenes),
-                               "planner": self.planner,
+        out: dict[str, Any] = {"command": "eval scenarios", "adversary": self.adversary, "traffic": self.traffic,
+                               "scenes": dict(self.scenes), "planner": self.planner,
                                "variants": self.variants, "samples": self.samples, "methods": self.methods.to_json()}
         if self.wall_time_s is not None:
             out["wall_time_s"] = self.wall_time_s
@@ -450,4 +452,5 @@ class EvalSummary:
     def from_json(cls, d: Mapping[str, Any]) -> EvalSummary:
         return cls(dict(d["scenes"]), d["planner"], d["variants"], d["samples"], GeneratorTable.from_json(d["methods"]),
                    d.get("wall_time_s"), dict(d.get("units", EVAL_UNITS)),
-                   tuple(d["report"]) if "report" in d else None, str(d.get("adversary", "vehicle")))
+                   tuple(d["report"]) if "report" in d else None, str(d.get("adversary", "vehicle")),
+                   str(d.get("traffic", "log")))

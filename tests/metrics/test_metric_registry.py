@@ -152,6 +152,6 @@ def test_eval_summary_round_trips_through_its_json_and_skipped_methods_keep_thei
     summary = EvalSummary(scenes={"s": "net.sumocfg"}, planner="replay", variants=1, samples=10, methods=table,
                           wall_time_s=1.5, report=("metrics.json",))
     written = json.dumps(summary.to_json())
-    assert list(json.loads(written)) == ["command", "scenes", "planner", "variants", "samples", "methods",
-                                         "wall_time_s", "units", "report"]
+    assert list(json.loads(written)) == ["command", "adversary", "traffic", "scenes", "planner", "variants",
+                                         "samples", "methods", "wall_time_s", "units", "report"]
     assert json.dumps(EvalSummary.from_json(json.loads(written)).to_json()) == written

@@ -14,7 +14,7 @@ class _Session:
     def __init__(self) -> None:
         self.calls: list[tuple[str, float, float]] = []
 
-    def add_vehicle(self, vid, length, width, vclass, route_edges=None, color=None):  # noqa: ANN001, ANN201
+    def add_vehicle(self, vid, length, width, vclass, base_type=None, departure=None, color=None):  # noqa: ANN001, ANN201
         self.calls.append(("add", 0.0, 0.0))
 
     def move_to_xy(self, vid, x, y, yaw, length, speed=None):  # noqa: ANN001, ANN201
