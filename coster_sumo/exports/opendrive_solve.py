@@ -139,7 +139,7 @@ def merge_short_runs(s: np.ndarray, present: np.ndarray, min_m: float = MIN_SECT
     (two SUMO lanes of 0.2 m, 0.12 m apart along the road): there every lane present anywhere is
     present throughout."""
     if s[-1] - s[0] < 2 * min_m:
-        return np.repeat(np.any(present, axis=0, keepdims=True), len(s), axis=0)
+        return np.repeat(present.any(axis=0)[None, :], len(s), axis=0)
     out = present.copy()
     while True:
         runs = runs_of(out)
