@@ -56,15 +56,14 @@ def smooth_path(points: np.ndarray, start_heading: float, end_heading: float, st
     return p, heading
 
 
-def narrowed_half_width(s: np.ndarray, tight: np.ndarray, start_width: float, end_width: float,
-                        min_half: float = MIN_HALF_WIDTH_M) -> np.ndarray:
+def narrowed_half_width(s: np.ndarray, tight: np.ndarray, start_width: float, end_width: float) -> np.ndarray:
     """(N,) [m] half a lane's width at stations ``s`` (N,) [m] of a curve whose |curvature| there is
     ``tight`` (N,) [1/m]: the width that changes linearly from ``start_width`` to ``end_width``,
     narrowed where the curve turns tighter than that lane could follow (to :data:`FOLD_RATIO`
-    over the curvature, not below ``min_half``), changing by no more than
+    over the curvature, not below :data:`MIN_HALF_WIDTH_M`), changing by no more than
     :data:`TAPER` per metre, and the two given widths kept at the ends (the linked lanes')."""
     lin = 0.5 * (start_width + (end_width - start_width) * s / max(float(s[-1]), 1e-12))
-    room = np.maximum((1.0 - 1e-9) * FOLD_RATIO / np.maximum(tight, 1e-12), min_half)
+    room = np.maximum((1.0 - 1e-9) * FOLD_RATIO / np.maximum(tight, 1e-12), MIN_HALF_WIDTH_M)
     want = np.minimum(lin, room)
     # the widest profile below `want` that changes by at most TAPER per metre ...
     below = (want[None, :] + TAPER * np.abs(s[:, None] - s[None, :])).min(axis=1)
@@ -109,8 +108,7 @@ def _clamped_system(pts: np.ndarray, sigma: np.ndarray, s: np.ndarray, step: flo
 
 
 def bend(points: np.ndarray, start_heading: float, end_heading: float, start_width: float,
-         end_width: float, narrow: bool = False, min_half: float = MIN_HALF_WIDTH_M
-         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+         end_width: float, narrow: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A connecting road's centre line along its polyline (N, 2) [m] (first and last point: the
     contacts with its two lanes), leaving the first point at ``start_heading`` and reaching the last
     at ``end_heading`` [rad], bending no tighter than its lane's border can follow.
@@ -127,7 +125,7 @@ def bend(points: np.ndarray, start_heading: float, end_heading: float, start_wid
 
     With ``narrow``, the lane may also narrow where the curve turns (:func:`narrowed_half_width`),
     and the curve stiffens only where that is not enough (near the two contacts, which keep the
-    linked lanes' widths); not below ``min_half`` [m] of half width.
+    linked lanes' widths).
 
     Returns the points (K, 2) [m], the heading [rad] at each (the two given ones at the ends), for
     :func:`~coster_sumo.exports.opendrive_solve.cubic_pieces`, and half the lane's width at each [m].
@@ -160,7 +158,7 @@ def bend(points: np.ndarray, start_heading: float, end_heading: float, start_wid
         tight = np.maximum(np.abs(discrete_curvature(e)[1:-1]),
                            np.maximum(np.append(piece, 0.0), np.insert(piece, 0, 0.0)))
         if narrow:
-            half = narrowed_half_width(s, tight, start_width, end_width, min_half)
+            half = narrowed_half_width(s, tight, start_width, end_width)
         ratio = tight * half / FOLD_RATIO  # (n + 1,) above 1: folds
         if not (ratio > 1.0).any():
             break

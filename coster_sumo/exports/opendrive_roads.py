@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.exports.opendrive_bend import MIN_HALF_WIDTH_M, bend, deviation, fold_ratio, smooth_path, untangle
+from coster_sumo.exports.opendrive_bend import bend, deviation, fold_ratio, smooth_path, untangle
 from coster_sumo.exports.opendrive_solve import (
     END_TOLERANCE_M,
     STATION_M,
@@ -39,10 +39,6 @@ BEND_DEVIATION_M = 0.09
 # [-] ... or by this many times as far as the curve through the shape's points does (netconvert's
 # internal lanes that leave their lanes at an angle: that curve runs up to 0.25 m beside them)
 BEND_KINK_FACTOR = 1.5
-# [m] half width a connecting road's lane may narrow to where the curve through its SUMO shape
-# folds and a lane narrowed to opendrive_bend.MIN_HALF_WIDTH_M folds too (turns of 0.5 m radius at
-# the kinks of netconvert's internal lanes on OSM nets): a narrow lane readers accept, not a folded one
-LAST_HALF_WIDTH_M = 0.3
 
 
 def fmt(v: float) -> str:
@@ -357,21 +353,14 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
     pieces = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
     half = None  # the width changes linearly
     if fold_ratio(pieces, start[1], end[1]) >= 1.0 or deviation(pieces, path) > bound:
-        # no curve keeps the lane whole: it narrows where it turns (opendrive_bend.bend), to
-        # MIN_HALF_WIDTH_M, else (a turn tighter than that lane can follow) to LAST_HALF_WIDTH_M
-        through_folds = fold_ratio(through, start[1], end[1]) >= 1.0
-        for min_half in (MIN_HALF_WIDTH_M, LAST_HALF_WIDTH_M):
-            p, hd, narrowed = bend(path, start[2], end[2], start[1], end[1], narrow=True, min_half=min_half)
-            pieces = cubic_pieces(p, hd, samples=64)
-            half = None
-            if fold_ratio(pieces, start[1], end[1], half=narrowed) < 1.0:
-                half = untangle(pieces, narrowed, start[1], end[1])
-            if half is not None and fold_ratio(pieces, start[1], end[1], half=half) < 1.0 and \
-                    (deviation(pieces, path) <= bound or through_folds):
-                return pieces, half, False
-            if not through_folds:  # the curve through the points does not fold: it stays
-                break
-        return through, None, through_folds
+        # no curve keeps the lane whole: it narrows where it turns (opendrive_bend.bend)
+        p, hd, half = bend(path, start[2], end[2], start[1], end[1], narrow=True)
+        pieces = cubic_pieces(p, hd, samples=64)
+        if fold_ratio(pieces, start[1], end[1], half=half) < 1.0 and deviation(pieces, path) <= bound:
+            half = untangle(pieces, half, start[1], end[1])
+        if half is None or fold_ratio(pieces, start[1], end[1], half=half) >= 1.0 or \
+                deviation(pieces, path) > bound:
+            return through, None, fold_ratio(through, start[1], end[1]) >= 1.0
     return pieces, half, False
 
 
