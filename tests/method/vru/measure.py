@@ -27,7 +27,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 WOMD = REPO.parent / "shared" / "data" / "womd"
 CLASSES = ("pedestrian", "cyclist")
 

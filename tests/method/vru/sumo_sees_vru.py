@@ -21,7 +21,7 @@ import libsumo as t
 
 from coster_sumo.infra import sumo_install
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 NET = REPO / "networks" / "intersection" / "intersection.net.xml"
 OPTS = ["--step-length", "0.1", "--no-step-log", "true", "--no-warnings", "true", "--collision.action", "warn",
         "--collision.mingap-factor", "0", "--collision.check-junctions", "true"]

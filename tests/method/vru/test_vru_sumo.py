@@ -19,7 +19,7 @@ from coster_sumo.method.vru.classes import VRU_CLASSES
 from coster_sumo.method.vru.rollout import plan_within_limits
 from tests.exports.test_export_sumo import check_variant
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"
 T_COL_TOLERANCE_S = 0.1  # [s] contact within one SUMO step of t_col
 
