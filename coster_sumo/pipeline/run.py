@@ -236,7 +236,7 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
     def label(plans: list[Any]) -> list[Any]:
         # one step per plan's kinematic search, one for the escapes' replays in SUMO
         with bars("labels (escapes proven in SUMO last)", "step", total=len(plans) + 1) as bar:
-            proof = ProofSettings(drivable, held, workers=how.workers, traci=how.traci)
+            proof = ProofSettings(drivable, held, workers=how.workers, traci=how.traci, traffic=how.traffic)
             return label_plans(source, scene, target, plans, proof, reaction_time_s=wanted.reaction_time,
                                timings=timings, done=bar.update)
 
