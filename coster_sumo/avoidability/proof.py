@@ -12,14 +12,8 @@ the target touches nobody (our box check, the ground truth of every pass) and st
 from __future__ import annotations
 
 import dataclasses
-import functools
-import math
-import os
-import pickle
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -199,11 +193,7 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     the adversary and the target), so with ``together`` every escape is replayed in one pass
     (:class:`_JointProof`), each by a copy of the target facing its own copy of the adversary; the
     verdicts are those of one pass per escape (``together=False``). ``traffic="reactive"``: the
-    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per
-    escape; with ``together`` (and libsumo on a system with fork) the passes share their common
-    start: one pass replays the log up to shortly before each escape acts and forks it there
-    (:class:`_ForkedProof`), with the verdicts of one pass per escape from the begin. On a converted
-    scene the logged agents never within :data:`PROOF_RADIUS_M` of any escape's path are left out.
+    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape.
     """
     drivable, held, traci, horizon_s = proof.drivable, proof.held, proof.traci, proof.horizon_s
     tr = scene.tracks
@@ -226,16 +216,17 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             out[i] = v
     if converted and together and not traci and jobs and proof.traffic == "log":
         return _JointProof(spec, scene, target, jobs, drivable, horizon_s).run()
-    far = _far_from_escapes(scene, jobs) if converted and jobs else set()
-    if converted and together and not traci and jobs and hasattr(os, "fork"):
-        return _ForkedProof(spec, scene, target, jobs, drivable, horizon_s, proof.traffic, far).run(proof.workers)
     for i, job in enumerate(jobs):
         if out[i] is not None:
             continue
         actors: tuple[StepActor, ...] = ()
         if converted:
             from coster_sumo.sim.reactive import replayer_for
+            from coster_sumo.sim.replay import far_agents
 
+            # logged agents that never come near the escape are left out: they are replayed, so they
+            # react to nothing, and the verdict is about the target's contacts
+            far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
             actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, proof.traffic, far),)
         settings = PassSettings(end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
                                 actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M)
@@ -259,7 +250,7 @@ class _JointProof:
 
     def __init__(self, spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
                  drivable: DrivableArea | None, horizon_s: float) -> None:
-        from coster_sumo.sim.replay import LogReplayer
+        from coster_sumo.sim.replay import LogReplayer, far_agents
 
         self.spec, self.scene, self.jobs = spec, scene, jobs
         tr = scene.tracks
@@ -270,7 +261,8 @@ class _JointProof:
         self.ids = [(f"{self.target_id}#escape{k}", f"{j.plan.vehicle_id}#escape{k}") for k, j in enumerate(jobs)]
         self.adversaries = [AdversaryController(j.plan, vehicle_id=a) for j, (_, a) in zip(jobs, self.ids, strict=True)]
         self.detectors = [EventDetector(t, a, drivable, batch=200) for t, a in self.ids]
-        far = _far_from_escapes(scene, jobs)
+        paths = np.concatenate([np.stack([j.escape.x, j.escape.y], -1) for j in jobs])
+        far = far_agents(scene.tracks, paths, PROOF_RADIUS_M)
         self.replayer = LogReplayer.for_config(spec.config, scene, exclude=far | {self.target_id})
         step = round(scene.dt, 6)  # SUMO runs a converted scene at its log's step
         self.starts = [sim_time_of(j.plan.t_start, step) for j in jobs]
@@ -331,77 +323,6 @@ class _JointProof:
         return out
 
 
-class _ForkedProof:
-    """The escapes of a converted scene with reactive traffic, one forked pass each.
-
-    One libsumo session replays the log (every agent, the target too, as in each escape's own pass
-    before it acts) up to :data:`FORK_LEAD_S` before an escape's adversary appears, and forks there;
-    the copy hands the target to the escape at that moment and continues as
-    :func:`~coster_sumo.sim.inject.run_injection` from the begin would (a forked libsumo process
-    continues bit-exactly, docs/sumo.md §10), without the SUMO start and the steps before. The
-    agents react (:mod:`coster_sumo.sim.reactive`) only once the target deviates from its log, which
-    it does only after it acts, so the shared replay is the same for every escape.
-    """
-
-    def __init__(self, spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
-                 drivable: DrivableArea | None, horizon_s: float, traffic: str, far: set[str]) -> None:
-        from coster_sumo.sim.reactive import replayer_for
-
-        self.spec, self.scene, self.target, self.jobs, self.drivable = spec, scene, target, jobs, drivable
-        tr = scene.tracks
-        self.target_id = str(tr.ids[target])
-        self.length = float(np.median(tr.length[target][tr.valid[target]]))
-        self.ends = [j.plan.t_col + horizon_s + 1e-6 for j in jobs]
-        self.replayer = replayer_for(spec.config, scene, self.target_id, {}, traffic, far)
-
-    def run(self, workers: int = 1) -> list[Verdict]:
-        from coster_sumo.errors import SumoError
-        from coster_sumo.formats.sumo_net import load_sumo_net
-        from coster_sumo.infra.procs import fork_and_wait
-        from coster_sumo.sim.record import net_file_of
-
-        out: list[Verdict | None] = [None] * len(self.jobs)
-        with SumoSession(self.spec.config, seed=self.spec.seed, begin=self.spec.begin, end=max(self.ends)) as session, \
-                tempfile.TemporaryDirectory(prefix="coster-proof-") as tmp:
-            # each copy records its pass (record reads the network); read once here, not in every copy
-            load_sumo_net(net_file_of(session))
-            step = session.step_length
-            forks: dict[float, list[int]] = {}
-            for i, job in enumerate(self.jobs):  # on SUMO's step grid, not before the session's start
-                k = math.floor((job.plan.t_start - FORK_LEAD_S - session.time) / step + 1e-6)
-                forks.setdefault(round(session.time + max(0, k) * step, 9), []).append(i)
-            for t_fork in sorted(forks):
-                while session.time < t_fork - 0.5 * step:
-                    self.replayer.before_step(session, round(session.time + step, 9))
-                    session.step()
-                members = forks[t_fork]
-                calls = [(functools.partial(self._prove, session, i), str(Path(tmp) / f"{i}.pickle")) for i in members]
-                for i, (ok, reason) in zip(members, fork_and_wait(calls, workers), strict=True):
-                    if not ok:
-                        raise SumoError(f"{self.spec.config}: the SUMO proof of an escape failed: {reason}")
-                    with open(Path(tmp) / f"{i}.pickle", "rb") as fh:  # our own file, written by our own child
-                        out[i] = pickle.load(fh)
-        return [v for v in out if v is not None]
-
-    def _prove(self, session: SumoSession, i: int) -> Verdict:
-        """In the forked copy: escape ``i`` from here on."""
-        job = self.jobs[i]
-        self.replayer.handover[self.target] = job.plan.t_start
-        settings = PassSettings(end=self.ends[i], drivable=self.drivable, actors=(self.replayer,))
-        res = continue_injection(session, self.target_id, job.plan, escape_planner(job.escape, self.length), settings)
-        return verdict(res, self.target_id, job)
-
-
-def _far_from_escapes(scene: Scene, jobs: Sequence[EscapeJob]) -> set[str]:
-    """The logged agents never within :data:`PROOF_RADIUS_M` of any escape's path: left out of the
-    proof's passes (they cannot touch the target, and in reactive traffic the target's deviation
-    would reach them last)."""
-    from coster_sumo.sim.replay import far_agents
-
-    paths = np.concatenate([np.stack([j.escape.x, j.escape.y], -1) for j in jobs])
-    return far_agents(scene.tracks, paths, PROOF_RADIUS_M)
-
-
 def _take(states: VehicleStates, rows: list[int]) -> VehicleStates:
     """The vehicles of ``states`` at ``rows``, in that order."""
     idx = np.asarray(rows, np.int64)
@@ -415,10 +336,6 @@ def _take(states: VehicleStates, rows: list[int]) -> VehicleStates:
 # vehicles are under 25 m long, so two boxes in contact have centres under 15 m apart, and the path's
 # points are at most a few metres apart
 PROOF_RADIUS_M = 30.0
-# [s] a forked escape pass starts this long before its adversary appears, so that everything the
-# pass does up to then (the adversary's controller, the planner's set-up) runs in the copy as from
-# the begin
-FORK_LEAD_S = 1.0
 
 
 def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],

@@ -1,6 +1,5 @@
-"""The SUMO proof of escapes: one pass for every escape of a converted scene (log traffic), and
-forked copies of one pass (reactive traffic), give the verdicts of one pass per escape from the
-begin (coster_sumo.avoidability.proof)."""
+"""The SUMO proof of escapes: one pass for every escape of a converted scene gives the verdicts of
+one pass per escape (coster_sumo.avoidability.proof)."""
 
 from __future__ import annotations
 
@@ -20,9 +19,9 @@ from tests.conftest import WOMD_PKL, requires_womd
 pytestmark = [pytest.mark.sumo, pytest.mark.slow, pytest.mark.realdata, requires_womd()]
 
 
-def _verdicts(cfg: Path, seed: int, out: Path, traffic: str = "log") -> list[list[dict | None]]:
+def _verdicts(cfg: Path, seed: int, out: Path) -> list[list[dict | None]]:
     s = run(RunOptions(spec=ScenarioSpec(cfg, seed=seed), out=out, generation=GenerationConfig(), planner="replay",
-                       render=False, traffic=traffic), bars(quiet=True)).to_json()
+                       render=False), bars(quiet=True)).to_json()
     return [[e and e.get("proof") for e in v["avoidability"]["escapes"].values()] for v in s["variants"]]
 
 
@@ -40,26 +39,3 @@ def test_every_escape_in_one_pass_gives_the_verdicts_of_a_pass_per_escape(tmp_pa
         assert json.dumps(got[True], sort_keys=True) == json.dumps(got[False], sort_keys=True)
         checked += sum(1 for v in got[True] for e in v if e)
     assert checked >= 4  # escapes were found and proven (28 when this was written)
-
-
-def test_forked_reactive_proof_gives_the_verdicts_of_a_pass_per_escape(tmp_path, monkeypatch):
-    assert main(["-q", "convert", "-o", str(tmp_path / "conv"), str(WOMD_PKL[1])]) == 0
-    (cfg,) = (tmp_path / "conv").glob("*/*.sumocfg")
-    forks = []
-    monkeypatch.setattr(proof._ForkedProof, "run", _counting(proof._ForkedProof.run, forks))
-    prove_escapes = proof.prove_escapes
-    got = {}
-    for together in (False, True):
-        monkeypatch.setattr(proof, "prove_escapes", functools.partial(prove_escapes, together=together))
-        got[together] = _verdicts(cfg, 0, tmp_path / f"run{together}", traffic="reactive")
-    assert forks  # the forked proof ran (together), and the passes from the begin did (not together)
-    # a forked libsumo copy continues bit-exactly: equal to the last digit the verdicts keep
-    assert json.dumps(got[True], sort_keys=True) == json.dumps(got[False], sort_keys=True)
-    assert sum(1 for v in got[True] for e in v if e) >= 2
-
-
-def _counting(fn, calls: list):
-    def wrapped(*args, **kwargs):
-        calls.append(1)
-        return fn(*args, **kwargs)
-    return wrapped
