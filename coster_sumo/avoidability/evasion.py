@@ -280,12 +280,12 @@ class Avoidability:
 
     @property
     def escape(self) -> Escape | None:
-        """The escape behind the label: the least demanding one proven at the stated reaction time."""
-        for r in sorted(self.escapes):
-            e = self.escapes[r]
-            if r >= self.reaction_time_s - 1e-9 and e is not None and e.proven is not False:
-                return e
-        return None
+        """The escape behind the label: the one proven in SUMO at the earliest reaction time not
+        before the stated one (an escape left unproven because a later one cleared,
+        :func:`~coster_sumo.avoidability.proof.prove_labels`, only where none is proven)."""
+        late = [self.escapes[r] for r in sorted(self.escapes) if r >= self.reaction_time_s - 1e-9]
+        return (next((e for e in late if e is not None and e.proven), None)
+                or next((e for e in late if e is not None and e.proven is not False), None))
 
     def summary(self) -> dict[str, Any]:
         return {"avoidable": self.avoidable, "reaction_time_s": self.reaction_time_s,
@@ -303,7 +303,8 @@ class Avoidability:
                 "flipped_by_reacting_traffic_at": {f"{r:g}": self.flipped_at(r) for r in sorted(self.escapes)}}
 
     def flipped_at(self, reaction_s: float) -> bool:
-        """Avoidable at ``reaction_s`` only through blocked plans SUMO's traffic cleared."""
+        """Avoidable at ``reaction_s`` only through blocked plans SUMO's traffic cleared (an escape
+        left unproven because a later one cleared counts as the search found it: clear)."""
         ok = [e for r, e in self.escapes.items() if r >= reaction_s - 1e-9 and e is not None and e.proven is not False]
         return bool(ok) and all(e.blocked_by for e in ok)
 

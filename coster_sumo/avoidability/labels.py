@@ -72,8 +72,7 @@ def label_line(lab: Avoidability) -> str:
     """One phrase for a variant's label (``run`` prints it after the variant's result)."""
     kind = lab.contact_kind.replace("_", " ")
     if lab.avoidable:
-        e = lab.escapes.get(lab.reaction_time_s) or next(
-            (x for _, x in sorted(lab.escapes.items()) if x and x.proven is not False), None)
+        e = lab.escape
         # the times as summary.json rounds them, so that the line reads as the file does
         how = (f" by '{e.manoeuvre.describe()}' from {round(lab.t_col, 3) - round(e.t_act, 3):.1f} s before t_col"
                if e else "")

@@ -340,31 +340,81 @@ PROOF_RADIUS_M = 30.0
 
 def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],
                  labels: Sequence[Avoidability], proof: ProofSettings) -> None:
-    """Replay every escape of ``labels`` (one per plan of ``plans``) with :func:`prove_escapes` and
-    mark it proven or refuted (``Escape.proven``, ``Escape.proof``). Equal escapes of one plan (the
-    same act and manoeuvre at several reaction times) are replayed once and share the verdict. The
-    blocked plans of a label (``Avoidability.blocked``) are replayed in the same batch, and one SUMO
-    clears becomes an escape (:meth:`~coster_sumo.avoidability.evasion.Avoidability.adopt_cleared`)."""
-    jobs: list[EscapeJob] = []
-    owners: list[Escape] = []
-    for plan, lab in zip(plans, labels, strict=True):
-        seen: set[tuple[float, Manoeuvre]] = set()  # one object may stand at several reaction times too
-        for e in [*lab.escapes.values(), *lab.blocked]:
-            if e is None or (key := _same_escape(e)) in seen:
-                continue
-            seen.add(key)
-            jobs.append(EscapeJob(plan, e))
-            owners.append(e)
-    if jobs:
+    """Replay the escapes of ``labels`` (one per plan of ``plans``) with :func:`prove_escapes` and
+    mark each replayed one proven or refuted (``Escape.proven``, ``Escape.proof``). Equal escapes of
+    one plan (the same act and manoeuvre at several reaction times) are replayed once and share the
+    verdict. The blocked plans of a label (``Avoidability.blocked``) are replayed too, and one SUMO
+    clears becomes an escape (:meth:`~coster_sumo.avoidability.evasion.Avoidability.adopt_cleared`).
+
+    Where every escape costs a SUMO pass of its own (every case but the joint pass of a converted
+    scene in log traffic, :class:`_JointProof`), the escapes are replayed in rounds, the latest
+    reaction time first (:func:`_next_to_prove`): a driver who may act later may also act earlier,
+    so once one clears, the earlier reaction times' escapes need no replay (they stay unproven,
+    ``proven=None``, and their labels stand on the later one)."""
+    joint = ScenarioSource.of(scenario).converted and proof.traffic == "log" and not proof.traci
+    while True:
+        jobs: list[EscapeJob] = []
+        owners: list[Escape] = []
+        for plan, lab in zip(plans, labels, strict=True):
+            for e in (_all_to_prove(lab) if joint else [_next_to_prove(lab)]):
+                if e is not None:
+                    jobs.append(EscapeJob(plan, e))
+                    owners.append(e)
+        if not jobs:
+            break
         verdicts = prove_escapes(scenario, scene, target, jobs, proof)
         for e, v in zip(owners, verdicts, strict=True):
             e.proven, e.proof = v.ok, v.to_json()
-    for lab in labels:  # an escape's equals at other reaction times share its verdict
+        for lab in labels:
+            _share_with_twins(lab)
+        if joint:
+            break
+    for lab in labels:
         lab.adopt_cleared()
-        by_key = {_same_escape(e): e for e in lab.escapes.values() if e is not None and e.proven is not None}
-        for e in lab.escapes.values():
-            if e is not None and e.proven is None and (twin := by_key.get(_same_escape(e))) is not None:
-                e.proven, e.proof = twin.proven, twin.proof
+        _share_with_twins(lab)
+
+
+def _all_to_prove(lab: Avoidability) -> list[Escape]:
+    """Every escape and blocked plan of ``lab``, one of each equal group (one joint pass proves them)."""
+    seen: set[tuple[float, Manoeuvre]] = set()
+    out = []
+    for e in [*lab.escapes.values(), *lab.blocked]:
+        if e is not None and (key := _same_escape(e)) not in seen:
+            seen.add(key)
+            out.append(e)
+    return out
+
+
+def _next_to_prove(lab: Avoidability) -> Escape | None:
+    """The one escape of ``lab`` to replay next, or None when its label is settled.
+
+    From the latest reaction time down: where one is cleared (its escape proven, or a blocked plan
+    SUMO cleared that acts late enough) every earlier reaction time is settled too; else its escape
+    if not replayed yet, or, where the search found none, the least demanding untried blocked plan
+    that acts late enough for it (:meth:`Avoidability.adopt_cleared`'s choice)."""
+    blocked = sorted(lab.blocked, key=lambda b: (b.peak_accel, b.t_act))
+    for r in sorted(lab.escapes, reverse=True):
+        late_enough = [b for b in blocked if b.t_act >= lab.t_threat + r - 1e-6]
+        e = lab.escapes[r]
+        if (e is not None and e.proven) or (e is None and any(b.proven for b in late_enough)):
+            return None
+        if e is not None:
+            if e.proven is None:
+                return e
+            continue
+        nxt = next((b for b in late_enough if b.proven is None), None)
+        if nxt is not None:
+            return nxt
+    return None
+
+
+def _share_with_twins(lab: Avoidability) -> None:
+    """An escape's equals (at other reaction times, or among the blocked plans) take its verdict."""
+    both = [e for e in [*lab.escapes.values(), *lab.blocked] if e is not None]
+    by_key = {_same_escape(e): e for e in both if e.proven is not None}
+    for e in both:
+        if e.proven is None and (twin := by_key.get(_same_escape(e))) is not None:
+            e.proven, e.proof = twin.proven, twin.proof
 
 
 def _same_escape(e: Escape) -> tuple[float, Manoeuvre]:

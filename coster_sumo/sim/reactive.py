@@ -81,7 +81,7 @@ class Pose:
 
 def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.ndarray,
                     route: np.ndarray | PreparedPolyline | None = None, target: Pose | None = None,
-                    sizes: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                    sizes: tuple[np.ndarray, np.ndarray] | None = None, dt: float | None = None) -> np.ndarray:
     """Which of ``candidates`` the deviation of ``deviating`` reaches at log step ``k``.
 
     Args:
@@ -95,6 +95,8 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
         target: the target's pose now (with ``route``).
         sizes: (A,) lengths and widths [m] of every agent (default :func:`agent_sizes`; a caller that
             asks every step passes them once computed).
+        dt: [s] the log's step (default ``scene.dt``, a median over the log: a caller that asks every
+            step passes it once computed).
 
     Returns:
         (A,) bool: reached.
@@ -121,7 +123,8 @@ def reacting_agents(scene: Scene, k: int, deviating: list[Pose], candidates: np.
             in_corridor = (np.abs(d_a) <= CORRIDOR_M) & (rel <= CORRIDOR_HEADING_RAD)
             hit[close] |= in_corridor & (gap >= -FOLLOW_GAP_M) & (gap <= LEAD_GAP_M)
     horizon = np.arange(0.0, HORIZON_S + 1e-9, HORIZON_STEP_S)  # (H,)
-    steps = np.minimum(k + np.round(horizon / scene.dt).astype(np.int64), scene.num_steps - 1)  # (H,)
+    dt = scene.dt if dt is None else dt
+    steps = np.minimum(k + np.round(horizon / dt).astype(np.int64), scene.num_steps - 1)  # (H,)
     grid = (cand[:, None], steps[None, :])
     ax, ay = tr.x[grid], tr.y[grid]  # (A, H)
     a_ok = tr.valid[grid]  # (A, H)
@@ -190,6 +193,7 @@ class ReactiveTraffic:
         from coster_sumo.sim.replay import LogTraffic
 
         self.scene = scene
+        self.dt = scene.dt  # [s] once: a median over the log, asked for every step
         tr = scene.tracks
         self.target = tr.index_of(target)
         # the corridor test needs no finer route than every 2 m (the environment's is every 0.5 m)
@@ -231,7 +235,7 @@ class ReactiveTraffic:
             entering = np.array([a for a in entering.tolist() if a not in self.in_sumo and a not in self.released
                                  and a not in self.unplaceable], np.int64)
             hit = reacting_agents(self.scene, k_next, self._deviating, entering, self.route, self._target_pose,
-                                  (self.lengths, self.widths))
+                                  (self.lengths, self.widths), self.dt)
             for a in entering[hit].tolist():
                 self._insert(session, a, k_next)
         for a, sid in list(self.in_sumo.items()):
@@ -351,7 +355,7 @@ class ReactiveTraffic:
         cand = np.flatnonzero(self.may_react & tr.valid[:, k])
         cand = np.array([a for a in cand.tolist() if a not in self.released and a not in self.pending
                          and a not in self.unplaceable], np.int64)
-        hit = reacting_agents(self.scene, k, deviating, cand, self.route, target, (self.lengths, self.widths))
+        hit = reacting_agents(self.scene, k, deviating, cand, self.route, target, (self.lengths, self.widths), self.dt)
         self.pending.update(cand[hit].tolist())
         reacting = sorted(self.pending | self.released)
         if reacting:  # what reacting agents must see: the logged agents around them, in SUMO
@@ -420,16 +424,16 @@ def _react(replayer: LogReplayerLike, session: SumoSession, target: str) -> None
     k = replayer.step_at(session.time)
     t_index = tr.index_of(target)
     sid = replayer.active.get(t_index)
-    if k is None or sid is None or sid in session.hidden:
-        return
+    if k is None or sid is None or sid in session.hidden or not replayer.released:
+        return  # only agents handed to SUMO (the target first) deviate from their logs
     # an agent handed to SUMO may have left the network (arrived, or removed after a collision)
     present = set(session.vehicle_ids()) - session.hidden
-    ids = [replayer.active[a] for a in sorted(replayer.active) if replayer.active[a] in present]
-    st = session.vehicle_states(ids)
+    released = [a for a in sorted(replayer.released) if replayer.active.get(a) in present]
+    st = session.vehicle_states([replayer.active[a] for a in released])
     names = st.id_list()
     deviating: list[Pose] = []
-    for a in sorted(replayer.released):
-        if replayer.active.get(a) in names:
+    for a in released:
+        if replayer.active[a] in names:
             i = names.index(replayer.active[a])
             p = Pose(float(st.x[i]), float(st.y[i]), float(st.yaw[i]), float(st.speed[i]), float(st.length[i]),
                      float(st.width[i]))
@@ -440,6 +444,8 @@ def _react(replayer: LogReplayerLike, session: SumoSession, target: str) -> None
     cand = np.array([a for a in sorted(replayer.active) if a not in replayer.handover and a != t_index
                      and replayer.active[a] in present and tr.valid[a, k]
                      and int(tr.object_type[a]) != int(ObjectType.PEDESTRIAN)], np.int64)
-    hit = reacting_agents(scene, k, deviating, cand, sizes=(replayer.lengths, replayer.widths))
+    # the replayer's step is the log's to a millionth of a second: the horizon's offsets (multiples of
+    # 0.5 s over a 0.1 s step) round to the same whole steps
+    hit = reacting_agents(scene, k, deviating, cand, sizes=(replayer.lengths, replayer.widths), dt=replayer.dt)
     for a in cand[hit].tolist():
         replayer.handover[a] = float(session.time)

@@ -278,6 +278,7 @@ def test_an_agent_that_left_the_network_is_not_asked_for_its_state():
     session = SimpleNamespace(time=float(scene.timestamps[k]), hidden=set(), vehicle_ids=lambda: tuple(in_sumo),
                               vehicle_states=vehicle_states)
     replayer = SimpleNamespace(scene=scene, step_at=lambda t: k, active={0: "t", 1: "behind", 2: "ahead"},
-                               released={0}, handover={}, lengths=np.full(5, 4.5), widths=np.full(5, 1.9))
+                               released={0}, handover={}, lengths=np.full(5, 4.5), widths=np.full(5, 1.9),
+                               dt=scene.dt)
     _react(replayer, session, "t")
     assert set(replayer.handover) == {1}  # the follower reacts; the agent that left is left alone
