@@ -134,7 +134,7 @@ class KeptOutputs:
                  "kept_as": None if r.written == os.devnull else os.path.relpath(r.written, self.folder)}
                 for r in self.redirects]
         path.write_text(json.dumps(rows, indent=1) + "\n")
-        return path
+        return path.resolve()
 
 
 _NOMINAL: list[KeptOutputs] = []
@@ -192,8 +192,8 @@ def _stage_additional(path: Path, box: Sandbox) -> Path:
                 v = el.get(a)
                 if v and not os.path.isabs(v):
                     el.set(a, str((path.parent / v).resolve()))
-    if not changed:
-        return path
+    if not changed:  # by its absolute path: a staged configuration that names it lives elsewhere
+        return path.resolve()
     out = Path(tempfile.mkdtemp(prefix="add-", dir=staging_folder())) / path.name.removesuffix(".gz")
     tree.write(out, encoding="unicode", xml_declaration=True)
     box.staged = True

@@ -112,6 +112,28 @@ def test_a_staged_copy_keeps_a_list_that_names_no_file_as_it_was(tmp_path):
             sim.step()
 
 
+def test_a_configuration_named_by_a_relative_path_keeps_its_additional_files(tmp_path, monkeypatch):
+    """The wheel's game/fkk_in (``fkk_in/fkk_in.tls.add.xml`` beside an output) given as a relative
+    path: the staged copy named the additional file relative to the working folder, SUMO looked for it
+    under the staging folder and ``run`` ended with 'SUMO could not load it'."""
+    (tmp_path / "cfg" / "tls").mkdir(parents=True)
+    shutil.copy(NET / "intersection.net.xml", tmp_path / "cfg")
+    (tmp_path / "cfg" / "tls" / "none.add.xml").write_text("<additional/>\n")  # no output: not staged
+    lane = _lane(NET / "intersection.net.xml")
+    (tmp_path / "cfg" / "det.add.xml").write_text(  # an output: staged, so the list is rewritten
+        f'<additional><inductionLoop id="d" lane="{lane}" pos="5" period="10" file="out.xml"/></additional>\n')
+    (tmp_path / "cfg" / "c.sumocfg").write_text(
+        '<configuration><input><net-file value="intersection.net.xml"/>'
+        '<additional-files value="tls/none.add.xml,det.add.xml"/></input>'
+        '<output><fcd-output value="fcd.xml"/></output><time><end value="5"/></time></configuration>')
+    monkeypatch.chdir(tmp_path)
+    staged = sandbox(Path("cfg/c.sumocfg")).config
+    assert staged is not None and str((tmp_path / "cfg" / "tls" / "none.add.xml").resolve()) in staged.read_text()
+    with SumoSession(Path("cfg/c.sumocfg"), end=2) as sim:  # SUMO loads the staged copy
+        while sim.time < 2:
+            sim.step()
+
+
 def test_every_sumo_process_is_started_through_the_sandbox():
     """Only the session and the flow expansion of exports start SUMO; both take the sandbox."""
     starts = []
