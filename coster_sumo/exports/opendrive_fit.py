@@ -143,7 +143,7 @@ def _fit_road(road: ET.Element, targets: list[np.ndarray], widths: np.ndarray, s
         lanes_el.remove(el)
     for j, (s0, a, b) in enumerate(records(s, offset, runs)):
         lanes_el.insert(j, ET.Element("laneOffset", {"s": fmt(s0), "a": fmt(a), "b": fmt(b), "c": "0", "d": "0"}))
-    if len(runs) == 1 and not with_fillers:
+    if len(runs) == 1 and not with_fillers and present[0].all():  # (else absent lanes are left out)
         for k, el in enumerate(lane_els):
             _set_widths(el, records(s, width[:, k], runs))
         return {}, error

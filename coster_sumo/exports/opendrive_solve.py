@@ -134,7 +134,12 @@ def merge_short_runs(s: np.ndarray, present: np.ndarray, min_m: float = MIN_SECT
     """``present`` (S, n) with every run of stations shorter than ``min_m`` [m] (up to the next
     run's start) given the lanes of the run before it (the first run: of the one after), so that
     lanes that start or end within ``min_m`` of each other start or end together (a lane moves its
-    start or end by less than ``min_m``; see :data:`MIN_SECTION_M` for why)."""
+    start or end by less than ``min_m``; see :data:`MIN_SECTION_M` for why). On a road shorter than
+    twice ``min_m`` every run is short and merging would drop a lane that covers only part of it
+    (two SUMO lanes of 0.2 m, 0.12 m apart along the road): there every lane present anywhere is
+    present throughout."""
+    if s[-1] - s[0] < 2 * min_m:
+        return np.repeat(np.any(present, axis=0, keepdims=True), len(s), axis=0)
     out = present.copy()
     while True:
         runs = runs_of(out)
