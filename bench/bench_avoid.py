@@ -6,7 +6,9 @@ and the variants' injection passes (what a run cost before labels); avoidability
 search (``avoidability_s``) plus the SUMO replays of the escapes (``proof_s``). Prints both per
 variant and the ratio (goal: at most 30 %).
 
-    python bench/bench_avoid.py [CFG ...] [--seeds 3]
+    python bench/bench_avoid.py [CFG ...] [--seeds 3] [--traffic log|reactive]
+
+``--traffic``: a converted scene's logged agents in every pass, the labels' proof included.
 """
 
 from __future__ import annotations
@@ -31,13 +33,15 @@ def main() -> None:
     ap.add_argument("configs", nargs="*", type=Path, default=DEFAULT)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--json", type=Path, help="write the rows here too")
+    ap.add_argument("--traffic", choices=("log", "reactive"), default="log")
     args = ap.parse_args()
     rows = []
     for cfg in args.configs:
         for seed in range(args.seeds):
             with tempfile.TemporaryDirectory(prefix="bench-avoid-") as tmp:
                 opts = RunOptions(spec=ScenarioSpec(cfg, seed=seed), out=Path(tmp) / "out",
-                                  generation=GenerationConfig(), planner="replay", render=False)
+                                  generation=GenerationConfig(), planner="replay", render=False,
+                                  traffic=args.traffic)
                 s = run(opts, bars(quiet=True)).to_json()
             t = s["timings_s"]
             n = s["num_variants"]
