@@ -134,7 +134,7 @@ class KeptOutputs:
                  "kept_as": None if r.written == os.devnull else os.path.relpath(r.written, self.folder)}
                 for r in self.redirects]
         path.write_text(json.dumps(rows, indent=1) + "\n")
-        return path.resolve()
+        return path
 
 
 _NOMINAL: list[KeptOutputs] = []
