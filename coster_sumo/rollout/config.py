@@ -28,9 +28,9 @@ class RolloutConfig:
         max_map_chunks, map_radius_m: map chunks kept around the t_rev position.
         lane_spacing_m, chunk_vectors: lanes resampled every ``lane_spacing_m``, chunks of this many
             vectors.
-        pos_scale_m, vel_scale_mps: input normalisation.
         disp_scale: (3,) scale of the decoder's output, the correction of (dx [m], dy [m], dyaw [rad])
             to a constant-velocity step (see :meth:`RolloutCVAE.rollout`).
+        pos_scale_m, vel_scale_mps: input normalisation.
         recon_sigma: (3,) fixed standard deviation of the Gaussian reconstruction term.
         kl_weight: weight of the KL term (1 = the ELBO).
         free_nats: per step, KL below this is not penalised (0 = the plain ELBO).
@@ -50,9 +50,10 @@ class RolloutConfig:
     map_radius_m: float = 80.0
     lane_spacing_m: float = 2.0
     chunk_vectors: int = 5
+    # scales: of the decoder's output, then of its inputs
+    disp_scale: tuple[float, float, float] = (1.0, 0.3, 0.05)
     pos_scale_m: float = 20.0
     vel_scale_mps: float = 10.0
-    disp_scale: tuple[float, float, float] = (1.0, 0.3, 0.05)
     recon_sigma: tuple[float, float, float] = (0.2, 0.1, 0.02)
     kl_weight: float = 1.0
     free_nats: float = 0.0
