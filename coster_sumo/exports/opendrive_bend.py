@@ -26,6 +26,8 @@ Two causes, measured on the exports of ``docs/sumo.md §12a``:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 FOLD_RATIO = 0.9  # [-] the fold ratio smooth_path keeps below where it can (1: the border stops)
@@ -38,6 +40,24 @@ STIFFEN_ROUNDS = 30
 STIFFEN_SPREAD = 2  # points on each side of a folding point that share its need
 TAPER = 1.0  # [-] most a narrowed lane's half width changes per metre along its road
 MIN_HALF_WIDTH_M = 0.9  # [m] no lane is narrowed below twice this
+# Where even that folds (a U-turn of 4.7 m, the length of a half circle of radius 1.5 m, by a lane
+# 3.2 m wide: SUMO's turnarounds on the corpus nets' cuts), the lane may narrow this fast and this far:
+# a narrower lane that readers can build, rather than one whose outline crosses itself.
+TIGHT_TAPER = 4.0  # [-]
+TIGHT_MIN_HALF_WIDTH_M = 0.3  # [m]
+
+
+@dataclass(frozen=True)
+class Narrowing:
+    """How a lane may narrow where its curve turns: by at most ``taper`` [m per m] of half width,
+    down to ``min_half_m`` [m] (half its width)."""
+
+    taper: float = TAPER
+    min_half_m: float = MIN_HALF_WIDTH_M
+
+
+NARROW = Narrowing()
+TIGHT = Narrowing(TIGHT_TAPER, TIGHT_MIN_HALF_WIDTH_M)
 
 
 def discrete_curvature(p: np.ndarray) -> np.ndarray:
@@ -56,19 +76,21 @@ def smooth_path(points: np.ndarray, start_heading: float, end_heading: float, st
     return p, heading
 
 
-def narrowed_half_width(s: np.ndarray, tight: np.ndarray, start_width: float, end_width: float) -> np.ndarray:
+def narrowed_half_width(s: np.ndarray, tight: np.ndarray, start_width: float, end_width: float,
+                        narrowing: Narrowing = NARROW) -> np.ndarray:
     """(N,) [m] half a lane's width at stations ``s`` (N,) [m] of a curve whose |curvature| there is
     ``tight`` (N,) [1/m]: the width that changes linearly from ``start_width`` to ``end_width``,
     narrowed where the curve turns tighter than that lane could follow (to :data:`FOLD_RATIO`
-    over the curvature, not below :data:`MIN_HALF_WIDTH_M`), changing by no more than
-    :data:`TAPER` per metre, and the two given widths kept at the ends (the linked lanes')."""
+    over the curvature, not below ``narrowing.min_half_m``), changing by no more than
+    ``narrowing.taper`` per metre, and the two given widths kept at the ends (the linked lanes')."""
+    taper = narrowing.taper
     lin = 0.5 * (start_width + (end_width - start_width) * s / max(float(s[-1]), 1e-12))
-    room = np.maximum((1.0 - 1e-9) * FOLD_RATIO / np.maximum(tight, 1e-12), MIN_HALF_WIDTH_M)
+    room = np.maximum((1.0 - 1e-9) * FOLD_RATIO / np.maximum(tight, 1e-12), narrowing.min_half_m)
     want = np.minimum(lin, room)
-    # the widest profile below `want` that changes by at most TAPER per metre ...
-    below = (want[None, :] + TAPER * np.abs(s[:, None] - s[None, :])).min(axis=1)
+    # the widest profile below `want` that changes by at most `taper` per metre ...
+    below = (want[None, :] + taper * np.abs(s[:, None] - s[None, :])).min(axis=1)
     # ... and that reaches the linked lanes' widths at both ends
-    ends = np.maximum(lin[0] - TAPER * s, lin[-1] - TAPER * (s[-1] - s))
+    ends = np.maximum(lin[0] - taper * s, lin[-1] - taper * (s[-1] - s))
     return np.minimum(lin, np.maximum(below, ends))
 
 
@@ -108,7 +130,7 @@ def _clamped_system(pts: np.ndarray, sigma: np.ndarray, s: np.ndarray, step: flo
 
 
 def bend(points: np.ndarray, start_heading: float, end_heading: float, start_width: float,
-         end_width: float, narrow: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+         end_width: float, narrow: Narrowing | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A connecting road's centre line along its polyline (N, 2) [m] (first and last point: the
     contacts with its two lanes), leaving the first point at ``start_heading`` and reaching the last
     at ``end_heading`` [rad], bending no tighter than its lane's border can follow.
@@ -123,7 +145,8 @@ def bend(points: np.ndarray, start_heading: float, end_heading: float, start_wid
     :data:`STIFFEN` a round, up to :data:`MAX_STIFFNESS`); where the lane has room it shrinks back:
     the curve keeps to the SUMO shape except where a lane that wide could not follow it.
 
-    With ``narrow``, the lane may also narrow where the curve turns (:func:`narrowed_half_width`),
+    With ``narrow``, the lane may also narrow where the curve turns, as far and as fast as it says
+    (:func:`narrowed_half_width`),
     and the curve stiffens only where that is not enough (near the two contacts, which keep the
     linked lanes' widths).
 
@@ -157,8 +180,8 @@ def bend(points: np.ndarray, start_heading: float, end_heading: float, start_wid
         piece = piece_curvature(p, heading)  # (n,)
         tight = np.maximum(np.abs(discrete_curvature(e)[1:-1]),
                            np.maximum(np.append(piece, 0.0), np.insert(piece, 0, 0.0)))
-        if narrow:
-            half = narrowed_half_width(s, tight, start_width, end_width)
+        if narrow is not None:
+            half = narrowed_half_width(s, tight, start_width, end_width, narrow)
         ratio = tight * half / FOLD_RATIO  # (n + 1,) above 1: folds
         if not (ratio > 1.0).any():
             break
@@ -216,9 +239,9 @@ def crossings(ring: np.ndarray) -> np.ndarray:
 
 
 def untangle(pieces: list[dict[str, float]], half: np.ndarray, start_width: float, end_width: float,
-             rounds: int = 20) -> np.ndarray | None:
-    """Half widths (len(pieces) + 1,) [m] at the pieces' ends, narrowed further (within the same
-    taper, the two ends kept) until the lane's outline (:func:`outline`) crosses itself nowhere:
+             narrowing: Narrowing = NARROW, rounds: int = 20) -> np.ndarray | None:
+    """Half widths (len(pieces) + 1,) [m] at the pieces' ends, narrowed further (within
+    ``narrowing``, the two ends kept) until the lane's outline (:func:`outline`) crosses itself nowhere:
     a lane wider than the diameter of a sharp turn crosses its own inner border between the
     stretches before and after the turn, also where no border folds. None where that cannot be
     done."""
@@ -231,9 +254,9 @@ def untangle(pieces: list[dict[str, float]], half: np.ndarray, start_width: floa
         if len(hit) == 0:
             return half
         lo, hi = float(at[hit].min()), float(at[hit].max())
-        want = np.where((s >= lo - 0.5) & (s <= hi + 0.5), np.maximum(0.8 * half, MIN_HALF_WIDTH_M), half)
-        below = (want[None, :] + TAPER * np.abs(s[:, None] - s[None, :])).min(axis=1)
-        ends = np.maximum(lin[0] - TAPER * s, lin[-1] - TAPER * (s[-1] - s))
+        want = np.where((s >= lo - 0.5) & (s <= hi + 0.5), np.maximum(0.8 * half, narrowing.min_half_m), half)
+        below = (want[None, :] + narrowing.taper * np.abs(s[:, None] - s[None, :])).min(axis=1)
+        ends = np.maximum(lin[0] - narrowing.taper * s, lin[-1] - narrowing.taper * (s[-1] - s))
         new = np.minimum(half, np.maximum(below, ends))
         if np.allclose(new, half):
             return None

@@ -80,7 +80,9 @@ class NetLanes:
             if c.get("via"):
                 key = (c.get("from", ""), int(c.get("fromLane", "0")), c.get("to", ""), int(c.get("toLane", "0")))
                 out.via[key] = str(c.get("via"))
-                if c.get("dir") == "t" and out.uturn_is_pinched(key):
+                # by its lanes, not by its direction: converted maps mark some of these U-turns
+                # as left turns ("l"; the corpus cuts of grid_tls3)
+                if out.uturn_is_pinched(key):
                     out.pinched_uturns.add(key)
         return out
 

@@ -29,6 +29,12 @@ OpenDRIVE conversion and pyxodr (``docs/sumo.md §12a``). :func:`make_readable` 
   length within 1 mm of its ``length``; netconvert's own curve of a connecting road the fit leaves
   as it is (a one-piece road whose u runs back and forth) may miss it by more. Such a road's
   length becomes the curve's arc length (:func:`_true_curve_lengths`).
+- **road lengths in whole millimetres**: commonroad's reader evaluates a lane's border at the
+  station rounded to 1 mm (its plan view takes no ``is_last_pos``, and the fallback rounds): at the
+  end of a road whose length has a fraction of a millimetre of 0.5 or more it samples up to 0.5 mm
+  past the road's end, and where it joins that lane to the next road's lane, the border steps back
+  by as much: a self-intersecting lanelet. Every road's length becomes a whole number of
+  millimetres (:func:`_whole_mm_lengths`).
 """
 
 from __future__ import annotations
@@ -55,6 +61,7 @@ def make_readable(root: ET.Element) -> dict[str, int]:
     counts["lines_merged"] = sum(merge_collinear_lines(road) for road in root.findall("road"))
     counts["dangling_links_dropped"] = _drop_dangling_junction_links(root)
     counts["lengths_corrected"] = _true_curve_lengths(root)
+    counts["lengths_to_mm"] = _whole_mm_lengths(root)
     return counts
 
 
@@ -122,6 +129,37 @@ def _true_curve_lengths(root: ET.Element) -> int:
             road.set("length", f"{arc:.8f}")
             fixed += 1
     return fixed
+
+
+def _whole_mm_lengths(root: ET.Element) -> int:
+    """Make every road's length a whole number of millimetres by changing its last geometry's
+    ``length``; returns how many roads changed. A normalized ``paramPoly3`` keeps its shape whatever
+    its ``length`` says (p runs over [0, 1]): its length is rounded, so that it stays within 0.5 mm
+    of the arc length (ASAM's checker allows 1 mm). Any other piece is parametrised by its arc
+    length: its length is rounded down, so that it ends less than 1 mm short of where it did
+    (ASAM's checker allows 1 cm between linked lanes) and never past the next road's start. Stations
+    of signals and objects beyond the new end are moved onto it."""
+    changed = 0
+    for road in root.findall("road"):
+        geos = road.findall("planView/geometry")
+        if not geos:
+            continue
+        last = geos[-1]
+        start = float(last.get("s", "0"))
+        end = start + float(last.get("length", "0"))
+        poly = last.find("paramPoly3")
+        shape_free = poly is not None and poly.get("pRange", "normalized") == "normalized"
+        mm = round(end * 1000.0) if shape_free else math.floor(end * 1000.0 + 1e-6)
+        new_end = mm / 1000.0
+        if abs(new_end - end) < 1e-9 or new_end - start <= 0.0:
+            continue
+        last.set("length", f"{new_end - start:.9f}")
+        road.set("length", f"{new_end:.3f}")
+        for el in [*road.findall("signals/signal"), *road.findall("objects/object")]:
+            if float(el.get("s", "0")) > new_end:
+                el.set("s", f"{new_end:.3f}")
+        changed += 1
+    return changed
 
 
 def merge_collinear_lines(road: ET.Element) -> int:

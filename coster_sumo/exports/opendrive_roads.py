@@ -17,7 +17,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.exports.opendrive_bend import bend, deviation, fold_ratio, smooth_path, untangle
+from coster_sumo.exports.opendrive_bend import (
+    NARROW,
+    TIGHT,
+    Narrowing,
+    bend,
+    deviation,
+    fold_ratio,
+    smooth_path,
+    untangle,
+)
 from coster_sumo.exports.opendrive_solve import (
     END_TOLERANCE_M,
     STATION_M,
@@ -39,6 +48,10 @@ BEND_DEVIATION_M = 0.09
 # [-] ... or by this many times as far as the curve through the shape's points does (netconvert's
 # internal lanes that leave their lanes at an angle: that curve runs up to 0.25 m beside them)
 BEND_KINK_FACTOR = 1.5
+# [-] ... and where every curve within those bounds folds, by up to this share of the narrower
+# linked lane's width: the SUMO shape then stays within the middle half of the exported lane (the
+# converted corpus cuts' junction lanes: kinked shapes that a lane 3.2 m wide cannot follow)
+FOLD_ESCAPE_WIDTH_SHARE = 0.25
 
 
 def fmt(v: float) -> str:
@@ -342,26 +355,50 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
     """The cubic pieces of the joined road, half its lane's width at their ends (None: the width
     changes linearly) and whether its lane folds all the same."""
     path, start, end = c.path, c.start, c.end
-    # the smooth curve where it keeps the lane from folding within BEND_DEVIATION_M of the SUMO
-    # shape (or BEND_KINK_FACTOR times as far as the curve through the shape's points, which
-    # leaves netconvert's kinked internal lanes by up to 0.25 m); else the same with the lane
-    # narrowed where it turns; else the curve through the points, as before (opendrive_bend:
-    # where the contacts leave no room, the smooth one does not take the fold away either, and
-    # shows it to readers at its finer pieces)
+    # In order: the smooth curve where it keeps the lane from folding within BEND_DEVIATION_M of
+    # the SUMO shape (or BEND_KINK_FACTOR times as far as the curve through the shape's points,
+    # which leaves netconvert's kinked internal lanes by up to 0.25 m); else the same with the lane
+    # narrowed where it turns; else the curve through the points where its lane keeps whole; else
+    # the closest of those, or of the lane narrowed further (opendrive_bend.TIGHT), within
+    # FOLD_ESCAPE_WIDTH_SHARE of the lane's width (a lane a reader can build beats one a few
+    # decimetres closer that it rejects); else the curve through the points, folded (where the
+    # contacts leave no room).
     through = hermite_through(path, start[2], end[2])
     bound = max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M)
-    pieces = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
-    half = None  # the width changes linearly
-    if fold_ratio(pieces, start[1], end[1]) >= 1.0 or deviation(pieces, path) > bound:
-        # no curve keeps the lane whole: it narrows where it turns (opendrive_bend.bend)
-        p, hd, half = bend(path, start[2], end[2], start[1], end[1], narrow=True)
-        pieces = cubic_pieces(p, hd, samples=64)
-        if fold_ratio(pieces, start[1], end[1], half=half) < 1.0 and deviation(pieces, path) <= bound:
-            half = untangle(pieces, half, start[1], end[1])
-        if half is None or fold_ratio(pieces, start[1], end[1], half=half) >= 1.0 or \
-                deviation(pieces, path) > bound:
-            return through, None, fold_ratio(through, start[1], end[1]) >= 1.0
-    return pieces, half, False
+    smooth = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
+    whole: list[tuple[float, list[dict[str, float]], np.ndarray | None]] = []
+    if fold_ratio(smooth, start[1], end[1]) < 1.0:
+        whole.append((deviation(smooth, path), smooth, None))
+    for narrowing in (NARROW, TIGHT):
+        if whole and min(w[0] for w in whole) <= bound:
+            break
+        if narrowing is TIGHT and fold_ratio(through, start[1], end[1]) < 1.0:
+            return through, None, False
+        bent = _narrowed(c, narrowing)
+        if bent is not None:
+            whole.append(bent)
+    within = [w for w in whole if w[0] <= bound]
+    if within:
+        return within[0][1], within[0][2], False
+    escape = FOLD_ESCAPE_WIDTH_SHARE * min(start[1], end[1])
+    near = sorted((w for w in whole if w[0] <= escape), key=lambda w: w[0])
+    if near:
+        return near[0][1], near[0][2], False
+    return through, None, True
+
+
+def _narrowed(c: _Connecting, narrowing: Narrowing
+              ) -> tuple[float, list[dict[str, float]], np.ndarray] | None:
+    """The joined road's curve with its lane narrowed where it turns (its deviation from the SUMO
+    shape [m], its pieces, half its width at their ends), or None where its lane folds all the same."""
+    p, hd, half = bend(c.path, c.start[2], c.end[2], c.start[1], c.end[1], narrow=narrowing)
+    bent = cubic_pieces(p, hd, samples=64)
+    if fold_ratio(bent, c.start[1], c.end[1], half=half) >= 1.0:
+        return None
+    kept = untangle(bent, half, c.start[1], c.end[1], narrowing)
+    if kept is None or fold_ratio(bent, c.start[1], c.end[1], half=kept) >= 1.0:
+        return None
+    return deviation(bent, c.path), bent, kept
 
 
 def _write_joined(c: _Connecting, pieces: list[dict[str, float]], half: np.ndarray | None) -> bool:

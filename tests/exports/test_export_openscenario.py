@@ -52,7 +52,8 @@ LANE_END_TOLERANCE_M = 0.35
 # netconvert's own internal lanes start or end at an angle to their lanes (up to ~8 deg on the demo
 # networks), a curve without that heading jump runs up to 0.36 m beside them (measured: demo
 # intersection 0.35, arterial 0.35, game square 0.21, grid6 0.32, where it also bends so that its
-# lane does not fold (opendrive_bend); WOMD samples <= 0.09 m)
+# lane does not fold (opendrive_bend); WOMD samples <= 0.34 m, where their logged interior lanes
+# turn tighter than their lanes can follow and the curve leaves them so that the lane does not fold)
 XODR_JUNCTION_TOLERANCE_M = 0.4
 
 
