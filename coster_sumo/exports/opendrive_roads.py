@@ -366,16 +366,16 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
     through = hermite_through(path, start[2], end[2])
     bound = max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M)
     smooth = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
+    # (deviation from the SUMO shape [m], pieces, half widths) of the curves whose lane keeps whole
     whole: list[tuple[float, list[dict[str, float]], np.ndarray | None]] = []
     if fold_ratio(smooth, start[1], end[1]) < 1.0:
         whole.append((deviation(smooth, path), smooth, None))
-    for narrowing in (NARROW, TIGHT):
-        if whole and min(w[0] for w in whole) <= bound:
-            break
-        if narrowing is TIGHT and fold_ratio(through, start[1], end[1]) < 1.0:
+    if not any(w[0] <= bound for w in whole) and (bent := _narrowed(c, NARROW)) is not None:
+        whole.append(bent)
+    if not any(w[0] <= bound for w in whole):
+        if fold_ratio(through, start[1], end[1]) < 1.0:
             return through, None, False
-        bent = _narrowed(c, narrowing)
-        if bent is not None:
+        if (bent := _narrowed(c, TIGHT)) is not None:
             whole.append(bent)
     within = [w for w in whole if w[0] <= bound]
     if within:
