@@ -231,7 +231,8 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
             actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, proof.traffic, far),)
         settings = PassSettings(end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
-                                actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M)
+                                actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M,
+                                road=False)  # the verdict reads the tracks alone
         res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), settings,
                             seed=spec.seed, traci=traci)
         out[i] = verdict(res, target_id, job)
@@ -317,7 +318,9 @@ class _JointProof:
     def run(self) -> list[Verdict]:
         end = max(self.ends)
         with SumoSession(self.spec.config, seed=self.spec.seed, begin=self.spec.begin, end=end) as session:
-            rec = record(session, begin=self.spec.begin, end=end, before_step=self.before, after_step=self.after)
+            # the verdict reads the tracks alone: no map (reading the net costs more than the pass)
+            rec = record(session, begin=self.spec.begin, end=end, before_step=self.before, after_step=self.after,
+                         road=False)
         out = []
         for det, (tid, aid), job in zip(self.detectors, self.ids, self.jobs, strict=True):
             det.flush()

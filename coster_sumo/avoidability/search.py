@@ -29,10 +29,12 @@ Times are simulation seconds, distances metres, accelerations m/s^2.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from coster_sumo.avoidability.clearance import hits_adversary, other_boxes, too_close
 from coster_sumo.avoidability.evasion import (
     DEFAULT_REACTION_S,
     DT_S,
@@ -55,7 +57,6 @@ from coster_sumo.geometry.boxes import (
     make_boxes,
     point_at_arc_length,
     project_points,
-    sat_overlap_depth,
 )
 from coster_sumo.geometry.drivable import DrivableArea
 
@@ -64,10 +65,10 @@ MIN_CLEARANCE_M = 0.3  # [m] smallest gap an escape keeps to every box (the SUMO
 REACTION_TIMES_S = (0.5, 1.0, 1.5)  # [s] reaction times reported for every variant
 ACT_SPACING_S = 0.2  # [s] moments to act are searched on this grid (plus the reaction moments)
 OFF_ROAD_SPACING_S = 0.2  # [s] on-road checks every other step (a car moves < 8 m in it)
-NEAR_M = 60.0  # [m] other vehicles further than this from the target's path never matter
 # candidates clear of the adversary and blocked only by traffic that reacts, tried in SUMO per
 # reaction time without an escape: the least demanding few (docs/method.md step 8)
 BLOCKED_TRIED_PER_REACTION = 2
+EARLY_CHUNK = 5  # moments to act before the shortest reaction, built at a time (latest first)
 
 
 
@@ -151,12 +152,16 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     ctx = _SearchContext(scene, target, plan, drivable, man, limits, times, nx, ny, nyaw, nv, length, width, path)
     t_acts_all = times[act_k]
     # the moments before the shortest reaction serve only the last moment to act, which is searched
-    # from the latest moment back: they are computed only when no later moment has an escape (rare)
+    # from the latest moment back: they are computed only when no later moment has an escape, a
+    # few moments at a time from the latest (each row is computed on its own: the same answer)
     late = t_acts_all >= t_threat + min(reaction_times) - 1e-6
     late_cand = _Candidates(ctx, act_k[late]) if late.any() else None
     last_moment = late_cand.last_moment(t_col) if late_cand is not None else None
-    if last_moment is None and not late.all():
-        last_moment = _Candidates(ctx, act_k[~late]).last_moment(t_col)
+    early = act_k[~late]
+    for stop in range(len(early), 0, -EARLY_CHUNK):
+        if last_moment is not None:
+            break
+        last_moment = _Candidates(ctx, early[max(0, stop - EARLY_CHUNK):stop]).last_moment(t_col)
     blocked: dict[tuple[float, Manoeuvre], Escape] = {}
     if late_cand is not None:
         for r in reaction_times:
@@ -188,6 +193,32 @@ class _SearchContext:
     width: float
     path: np.ndarray
 
+    @functools.cached_property
+    def adv_box(self) -> np.ndarray:
+        """(T, 5) the adversary's boxes on the grid (its plan, then along the road)."""
+        ax, ay, ayaw, _ = self.plan.sample(self.times)
+        return make_boxes(ax, ay, ayaw, self.plan.length, self.plan.width)
+
+    @functools.cached_property
+    def others(self) -> tuple[tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
+        """The other vehicles near the path (:func:`~coster_sumo.avoidability.clearance.other_boxes`)."""
+        return other_boxes(self.scene, self.target, self.times, self.path)
+
+    @functools.cached_property
+    def nominal_off(self) -> np.ndarray | None:
+        """(S,) where the log itself is off the drivable area, at the road check's steps (None: no
+        area). A map that misses a driveway: forgiven."""
+        if self.drivable is None:
+            return None
+        sub = self.road_steps
+        return self.drivable.off_road(self.nx[sub], self.ny[sub], self.nyaw[sub], np.asarray(self.length),
+                                      np.asarray(self.width))
+
+    @property
+    def road_steps(self) -> np.ndarray:
+        """The grid steps the road check tests (every :data:`OFF_ROAD_SPACING_S`)."""
+        return np.arange(0, len(self.times), max(1, round(OFF_ROAD_SPACING_S / DT_S)))
+
 
 class _Candidates:
     """The (act, manoeuvre) candidates of the moments to act ``act_k`` (steps of the time grid): their
@@ -201,12 +232,16 @@ class _Candidates:
         self.ctx, self.act_k = ctx, act_k
         nx, ny, nyaw, times = ctx.nx, ctx.ny, ctx.nyaw, ctx.times
         n = len(times)
-        s, v, a_lon, d = _profiles(ctx, act_k)
+        # the profiles of the distinct longitudinal and lateral parts, each computed once and shared
+        # by every manoeuvre that combines them (the same numbers as computing each manoeuvre's own)
+        s_u, v_u, a_u, d_u, lon_of, lat_of = _profiles(ctx, act_k)
         # poses: along the path plus the sideways shift; the nominal part is the log itself
-        xy, hd = point_at_arc_length(ctx.path, s)  # (K, M, n, 2), (K, M, n)
-        normal = np.stack([-np.sin(hd), np.cos(hd)], -1)
-        pos = xy + d[..., None] * normal
-        dd = np.gradient(d, DT_S, axis=-1)
+        xy_u, hd_u = point_at_arc_length(ctx.path, s_u)  # (K, L, n, 2), (K, L, n)
+        normal_u = np.stack([-np.sin(hd_u), np.cos(hd_u)], -1)
+        v, a_lon, d = v_u[:, lon_of], a_u[:, lon_of], d_u[:, lat_of]  # (K, M, n)
+        hd = hd_u[:, lon_of]
+        pos = xy_u[:, lon_of] + d[..., None] * normal_u[:, lon_of]
+        dd = np.gradient(d_u, DT_S, axis=-1)[:, lat_of]
         yaw = hd + np.arctan2(dd, np.maximum(v, 0.5))
         pre = np.arange(n)[None, :] < act_k[:, None]  # (K, n) steps before acting: the log
         pos = np.where(pre[:, None, :, None], np.stack([nx, ny], -1)[None, None], pos)
@@ -225,22 +260,20 @@ class _Candidates:
         feasible = ~(after & ((curv > limits.max_curvature(length) * 1.02) | slow_shift
                               | (a_comb > limits.emergency_decel * 1.02))).any(-1)  # (K, M)
         # clearance to the adversary (its plan, then constant velocity) and to every other vehicle
-        plan = ctx.plan
-        ax, ay, ayaw, _ = plan.sample(times)
-        self.adv_box = make_boxes(ax, ay, ayaw, plan.length, plan.width)  # (n, 5)
+        self.adv_box = ctx.adv_box  # (n, 5)
         # boxes grown by the clearance on every side: an overlap (SAT, no corners) means too close
         grown = (length + 2 * MIN_CLEARANCE_M, width + 2 * MIN_CLEARANCE_M)
         good = feasible.copy()
         kk, mm = np.nonzero(good)
         if len(kk):  # the adversary first: it rules out most candidates
-            hit = _hits_adversary(pos[kk, mm], yaw[kk, mm], grown, self.adv_box, after[kk, 0])
+            hit = hits_adversary(pos[kk, mm], yaw[kk, mm], grown, self.adv_box, after[kk, 0])
             good[kk[hit], mm[hit]] = False
         self.clear_of_adversary = good.copy()
-        self.others, self.other_ids = _other_boxes(ctx.scene, ctx.target, times, ctx.path)
+        self.others, self.other_ids = ctx.others
         kk, mm = np.nonzero(good)
         if self.others is not None and len(kk):
             o_box, o_valid = self.others  # (N, n, 5), (N, n)
-            hit = _too_close(pos[kk, mm], yaw[kk, mm], grown, o_box, o_valid & after[kk, 0][:, None, :].any(0))
+            hit = too_close(pos[kk, mm], yaw[kk, mm], grown, o_box, o_valid & after[kk, 0][:, None, :].any(0))
             good[kk[hit], mm[hit]] = False
         # only what is clear is checked against the road (the costlier test), and only as far as the
         # answer needs it: the least demanding escape per reaction time and the last moment to act
@@ -309,35 +342,39 @@ class _Candidates:
                       blocked_by=blocked_by)
 
 
-def _profiles(ctx: _SearchContext, act_k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Every (act, manoeuvre) candidate's arc length along the path [m], speed [m/s], longitudinal
-    acceleration [m/s^2] and sideways shift [m], each (K, M, T): the nominal log before acting, the
-    manoeuvre's profiles from then on."""
+def _profiles(ctx: _SearchContext, act_k: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The candidates' profiles, each part computed once: for every moment to act and distinct
+    longitudinal part (L of them) the arc length along the path [m], speed [m/s] and longitudinal
+    acceleration [m/s^2], each (K, L, T); for every moment and distinct lateral part (A) the sideways
+    shift [m], (K, A, T); and each manoeuvre's longitudinal and lateral part, (M,) indices. The
+    nominal log before acting, the part's profile from then on."""
     nx, ny, nv, man, times = ctx.nx, ctx.ny, ctx.nv, ctx.man, ctx.times
     n = len(times)
-    m_count, k_count = len(man), len(act_k)
+    lon_keys = list(dict.fromkeys((m.longitudinal, m.accel) for m in man))
+    lat_keys = list(dict.fromkeys((m.lateral_m, m.lateral_accel) for m in man))
+    lon_of = np.array([lon_keys.index((m.longitudinal, m.accel)) for m in man])
+    lat_of = np.array([lat_keys.index((m.lateral_m, m.lateral_accel)) for m in man])
+    l_count, a_count, k_count = len(lon_keys), len(lat_keys), len(act_k)
     s_nom, d_nom, _ = project_points(np.stack([nx, ny], 1), ctx.path)  # (T,)
     # nominal acceleration at each moment to act
     a_nom = np.gradient(nv, DT_S) if n > 1 else np.zeros(n)
     v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
-    # longitudinal: arc length along the path for every (act, manoeuvre) pair
-    goals = np.array([m.accel for m in man])
-    lon_kind = np.array([m.longitudinal for m in man])
+    # longitudinal: arc length along the path for every (act, longitudinal part) pair
+    goals = np.array([acc for _, acc in lon_keys])
+    nominal = np.array([kind == "nominal" for kind, _ in lon_keys])
     tau = np.arange(n) * DT_S  # time since acting, long enough for the earliest act
-    s = np.empty((k_count, m_count, n))
-    v = np.empty((k_count, m_count, n))
-    a_lon = np.empty((k_count, m_count, n))
-    lat_shift = np.array([m.lateral_m for m in man])
-    lat_acc = np.array([m.lateral_accel for m in man])
-    d_prof = lateral_profile(tau, lat_shift, lat_acc)  # (M, n) from the moment of acting
-    d = np.empty((k_count, m_count, n))
-    for j, k in enumerate(act_k):  # once per moment to act; each call is batched over manoeuvres and steps
+    s = np.empty((k_count, l_count, n))
+    v = np.empty((k_count, l_count, n))
+    a_lon = np.empty((k_count, l_count, n))
+    d_prof = lateral_profile(tau, np.array([d for d, _ in lat_keys]), np.array([a for _, a in lat_keys]))  # (A, n)
+    d = np.empty((k_count, a_count, n))
+    for j, k in enumerate(act_k):  # once per moment to act; each call is batched over the parts and steps
         rest = n - k
-        sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (M, rest)
-        nominal = lon_kind == "nominal"
+        sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (L, rest)
         sp[nominal] = nv[k:]
         ac[nominal] = a_nom[k:]
-        ds = np.concatenate([np.zeros((m_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
+        ds = np.concatenate([np.zeros((l_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
         s[j, :, :k] = s_nom[:k]
         s[j, :, k:] = np.where(nominal[:, None], s_nom[k:], s_nom[k] + ds)
         v[j, :, :k] = nv[:k]
@@ -346,7 +383,7 @@ def _profiles(ctx: _SearchContext, act_k: np.ndarray) -> tuple[np.ndarray, np.nd
         a_lon[j, :, k:] = ac
         d[j, :, :k] = d_nom[:k]
         d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
-    return s, v, a_lon, d
+    return s, v, a_lon, d, lon_of, lat_of
 
 
 class _RoadCheck:
@@ -364,13 +401,9 @@ class _RoadCheck:
         drivable, length, width = ctx.drivable, ctx.length, ctx.width
         self.drivable, self.pos, self.yaw, self.length, self.width = drivable, pos, yaw, length, width
         self.acted = acted  # (K, n): steps after acting
-        self.sub = np.arange(0, len(ctx.times), max(1, round(OFF_ROAD_SPACING_S / DT_S)))
+        self.sub = ctx.road_steps
         self.known: dict[tuple[int, int], bool] = {}
-        self.nominal_off: np.ndarray | None = None
-        if drivable is not None:  # where the log itself is off the road (a map that misses a driveway): forgiven
-            sub = self.sub
-            self.nominal_off = drivable.off_road(ctx.nx[sub], ctx.ny[sub], ctx.nyaw[sub], np.asarray(length),
-                                                 np.asarray(width))
+        self.nominal_off = ctx.nominal_off  # where the log itself is off the road: forgiven
 
     def __call__(self, kk: np.ndarray, mm: np.ndarray) -> np.ndarray:
         """(G,) on the road, for candidates (kk[i], mm[i])."""
@@ -380,10 +413,12 @@ class _RoadCheck:
         if todo:
             tk, tm = kk[todo], mm[todo]
             sub = self.sub
-            off = self.drivable.off_road(self.pos[tk, tm][:, sub, 0], self.pos[tk, tm][:, sub, 1],
-                                         self.yaw[tk, tm][:, sub], np.asarray(self.length), np.asarray(self.width))
-            off &= self.acted[tk][:, sub] & ~self.nominal_off[None, :]
-            bad_rows: np.ndarray = np.any(off, axis=-1)
+            # a footprint counts after acting, where the log itself is on the road; a path's test stops
+            # at its first footprint off the road
+            bad_rows = self.drivable.any_off_road(
+                self.pos[tk, tm][:, sub, 0], self.pos[tk, tm][:, sub, 1], self.yaw[tk, tm][:, sub],
+                np.asarray(self.length), np.asarray(self.width),
+                where=self.acted[tk][:, sub] & ~self.nominal_off[None, :])
             bad_any: list[bool] = bad_rows.tolist()
             for k, m, bad in zip(tk.tolist(), tm.tolist(), bad_any, strict=True):
                 self.known[(k, m)] = not bad
@@ -407,75 +442,3 @@ class _RoadCheck:
                 first = int(ok_near.min())
                 return int(first // shape[1]), int(first % shape[1])
         return None
-
-
-def _other_boxes(scene: Scene, target: int, times: np.ndarray, path: np.ndarray
-                 ) -> tuple[tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
-    """(N, T, 5) boxes and (N, T) validity of the other vehicles near the target's path on the grid
-    (None: none), and their (N,) ids."""
-    tr = scene.tracks
-    ts = scene.timestamps
-    idx = np.clip(np.searchsorted(ts, times - 1e-6), 0, len(ts) - 1)
-    prev = np.clip(idx - 1, 0, len(ts) - 1)
-    idx = np.where(np.abs(ts[prev] - times) < np.abs(ts[idx] - times), prev, idx)
-    inside = np.abs(ts[idx] - times) <= 0.06
-    others = np.flatnonzero(np.arange(tr.num_agents) != target)
-    if not len(others):
-        return None, np.zeros(0, str)
-    valid = tr.valid[np.ix_(others, idx)] & inside[None]
-    ox, oy = tr.x[np.ix_(others, idx)], tr.y[np.ix_(others, idx)]
-    lo, hi = path[1:-1].min(0) - NEAR_M, path[1:-1].max(0) + NEAR_M
-    near = valid & (ox >= lo[0]) & (ox <= hi[0]) & (oy >= lo[1]) & (oy <= hi[1])
-    keep = near.any(1)
-    if not keep.any():
-        return None, np.zeros(0, str)
-    rows = others[keep]
-    boxes = make_boxes(tr.x[np.ix_(rows, idx)], tr.y[np.ix_(rows, idx)], tr.heading[np.ix_(rows, idx)],
-                       tr.length[np.ix_(rows, idx)], tr.width[np.ix_(rows, idx)])
-    return (boxes, valid[keep]), tr.ids[rows].astype(str)
-
-
-def _hits_adversary(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], adv_box: np.ndarray,
-                    acted: np.ndarray) -> np.ndarray:
-    """(G,) whether each candidate's grown boxes overlap the adversary at a step after acting.
-
-    Args:
-        centres: (G, T, 2) candidate box centres [m]; yaws: (G, T) [rad]; size: the grown boxes'
-            length and width [m]; adv_box: (T, 5); acted: (G, T).
-
-    Two boxes overlap only where their centres are closer than the sum of their half diagonals:
-    the exact test runs on those steps alone (the same answer as on every step).
-    """
-    reach = 0.5 * (np.hypot(*size) + np.hypot(adv_box[0, 3], adv_box[0, 4]))
-    dx = centres[..., 0] - adv_box[None, :, 0]
-    dy = centres[..., 1] - adv_box[None, :, 1]
-    near = acted & (dx * dx + dy * dy < reach * reach * (1.0 + 1e-9))
-    hit = np.zeros(len(centres), bool)
-    if near.any():
-        g, t = np.nonzero(near)
-        boxes = make_boxes(centres[g, t, 0], centres[g, t, 1], yaws[g, t], *size)
-        hit[g[sat_overlap_depth(boxes, adv_box[t]) > 0.0]] = True
-    return hit
-
-
-def _too_close(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], o_box: np.ndarray,
-               o_valid: np.ndarray) -> np.ndarray:
-    """(G,) whether each candidate's grown boxes overlap another vehicle at some step.
-
-    Args:
-        centres: (G, T, 2) candidate box centres [m]; yaws: (G, T) [rad]; size: the boxes' length
-            and width grown by the clearance [m]; o_box: (N, T, 5); o_valid: (N, T) the other
-            vehicles, valid where they exist (and the candidates have acted).
-
-    Only pairs whose centres are within reach of each other (half diagonals) are tested exactly.
-    """
-    dx = centres[:, None, :, 0] - o_box[None, :, :, 0]  # (G, N, T)
-    dy = centres[:, None, :, 1] - o_box[None, :, :, 1]
-    reach = 0.5 * (np.hypot(*size) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
-    near = o_valid[None] & (dx * dx + dy * dy < (reach * reach)[None])
-    hit = np.zeros(len(centres), bool)
-    if near.any():
-        c, o, t = np.nonzero(near)
-        boxes = make_boxes(centres[c, t, 0], centres[c, t, 1], yaws[c, t], *size)
-        hit[c[sat_overlap_depth(boxes, o_box[o, t]) > 0.0]] = True
-    return hit

@@ -267,6 +267,12 @@ class Lanes:
     left_neighbors: Ragged
     right_neighbors: Ragged
 
+    @classmethod
+    def empty(cls) -> Lanes:  # no lanes (a recording that left the map out)
+        e = Ragged.empty
+        return cls(np.zeros(0, str), e(0, np.float64, (2,)), np.zeros(0), np.zeros(0, np.int8), np.zeros(0),
+                   np.zeros(0, bool), e(), e(), e(), e())
+
     def __len__(self) -> int:
         return len(self.ids)
 

@@ -117,18 +117,22 @@ class DrivableArea:
         return np.maximum(shapely.area(boxes) - inside, 0.0)  # type: ignore[no-any-return]
 
     def any_off_road(self, cx: np.ndarray, cy: np.ndarray, yaw: np.ndarray, length: np.ndarray,
-                     width: np.ndarray) -> np.ndarray:
+                     width: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
         """bool (...): :meth:`off_road` of any footprint along the inputs' last axis (a path's poses).
 
         The same answer as ``off_road(...).any(-1)``, box for box the same areas, but a path's
         areas are computed only up to its first footprint off the road: oversampled paths that leave
         the road leave it at several poses, and the exact areas are most of the check's cost.
+        ``where`` (bool, broadcast to the poses): only these footprints count (the others are
+        never tested): ``(off_road(...) & where).any(-1)``.
         """
         corners = _corners(np.asarray(cx, float), np.asarray(cy, float), np.asarray(yaw, float),
                            np.asarray(length, float), np.asarray(width, float))  # (..., T, 4, 2)
         lead, steps = corners.shape[:-3], corners.shape[-3]
         flat = corners.reshape(-1, steps, 4, 2)
         todo = ~shapely.contains_xy(self.geometry, flat[..., 0], flat[..., 1]).all(axis=-1)  # (P, T)
+        if where is not None:
+            todo &= np.broadcast_to(where, (*lead, steps)).reshape(-1, steps)
         off = np.zeros(len(flat), bool)
         pending = todo.any(axis=1)
         while pending.any():  # each round: every undecided path's next footprint with a corner out

@@ -185,6 +185,8 @@ class PassSettings:
         post_contact_s: [s] stop this long after the adversary's first contact with the target, or
             after the later of its first contact with another vehicle (it stays there, a wreck) and
             t_col; None: run to ``end``.
+        road: record the map and the signals with the vehicles (False: the vehicles only, for a
+            reader that needs no more; see :func:`~coster_sumo.sim.record.record`).
     """
 
     end: float
@@ -195,6 +197,7 @@ class PassSettings:
     freeze_at: float | None = None
     surroundings_m: float | None = None
     post_contact_s: float | None = None
+    road: bool = True
 
 
 def run_injection(config: str | Path, target_id: str, plan: AdversaryPlan | None, planner: Planner,
@@ -252,7 +255,7 @@ class InjectionPass:
         s = self.settings
         focus = None if s.surroundings_m is None else Focus(self.target_id, s.surroundings_m, extra_ids=(self.adv_id,))
         scene = record(self.session, begin=s.begin, end=s.end, before_step=self.before_step,
-                       after_step=self.after_step, focus=focus)
+                       after_step=self.after_step, focus=focus, road=s.road)
         t_ev = _time.perf_counter()
         self.detector.flush()
         self.event_s += _time.perf_counter() - t_ev

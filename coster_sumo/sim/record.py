@@ -20,7 +20,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from coster_sumo.core.scene import ObjectType, Scene, SignalStates, Tracks
+from coster_sumo.core.scene import Lanes, ObjectType, RoadMap, Scene, SignalStates, Tracks
 from coster_sumo.errors import InputError
 from coster_sumo.formats.sumo_net import SumoNet, load_sumo_net
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -225,7 +225,7 @@ class _Rows:
         self.signal_rows: list[np.ndarray] = []
         self.sampled: list[bool] = []  # per recorded step: were the surroundings read (not just the target)
 
-    def add(self, t: float, st: VehicleStates, full: bool, signals: np.ndarray) -> None:
+    def add(self, t: float, st: VehicleStates, full: bool, signals: np.ndarray | None) -> None:
         agent = self.agent
         names = st.id_list()
         for i in [i for i, vid in enumerate(names) if vid not in agent]:  # first appearances
@@ -237,7 +237,8 @@ class _Rows:
         self.times.append(t)
         self.sampled.append(full)
         self.rows.append((idx, st))
-        self.signal_rows.append(signals)
+        if signals is not None:
+            self.signal_rows.append(signals)
 
     def signals(self, table: SignalTable) -> SignalStates:
         """The signal states of the recorded steps."""
@@ -271,13 +272,13 @@ class _Rows:
 
 
 def record(session: SumoSession, *, end: float | None = None, begin: float | None = None,
-           max_steps: int | None = None, before_step: BeforeStep | None = None,
-           after_step: AfterStep | None = None, focus: Focus | None = None, bar: Any = None) -> Scene:
+           before_step: BeforeStep | None = None, after_step: AfterStep | None = None,
+           focus: Focus | None = None, bar: Any = None, road: bool = True) -> Scene:
     """Step a running session and record it into a :class:`Scene` (``source="sumo"``).
 
     Stepping stops at the first of: the time reaches ``end`` [s] (default: the session's own
-    ``end``); ``max_steps`` steps were taken; ``after_step`` returns True; no vehicle is running or
-    waiting any more (only when neither ``end`` nor ``max_steps`` bounds the run).
+    ``end``); ``after_step`` returns True; no vehicle is running or waiting any more (only when no
+    ``end`` bounds the run).
     Only steps whose time lies in [``begin``, ``end``] are recorded; earlier steps are simulated.
 
     Args:
@@ -295,25 +296,27 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         The scene's id is ``<config or net stem>_seed<seed>`` (``dataclasses.replace`` gives
         another, and more metadata).
         bar: a progress bar (tqdm-like) moved along the simulation time to ``end``.
+        road: False records the vehicles only (no net read: it costs more than a short pass; an
+            empty road map, no signals, no ``location_offset``), for readers of the tracks alone.
     """
     if not session.is_running:
         raise InputError(f"{session.name}: start the session before recording it")
     end = session.end if end is None else end
-    if end is None and max_steps is None and session.min_expected_number() == 0 and before_step is None:
-        raise InputError(f"{session.name}: nothing to record (no vehicles expected); pass end= or max_steps=")
+    if end is None and session.min_expected_number() == 0 and before_step is None:
+        raise InputError(f"{session.name}: nothing to record (no vehicles expected); pass end=")
     net_path = net_file_of(session)
-    net = load_sumo_net(net_path)
-    table = SignalTable.build(net)
+    net = load_sumo_net(net_path) if road else None
+    table = SignalTable.build(net) if net is not None else None
     eps = 1e-6 * session.step_length
     rec = _Rows()
     reader = _FocusedReader(session, focus) if focus is not None else None
-    signals = SignalReader(session, table)
+    signals = SignalReader(session, table) if table is not None else None
     steps, shown = 0, 0.0  # steps taken; [s] of simulation time the bar shows
     first_t: float | None = None
     t = session.time
     while True:
-        if ((max_steps is not None and steps >= max_steps) or (end is not None and session.time >= end - eps)
-                or (end is None and max_steps is None and steps > 0 and session.min_expected_number() == 0)):
+        if ((end is not None and session.time >= end - eps)
+                or (end is None and steps > 0 and session.min_expected_number() == 0)):
             break
         if before_step is not None:
             before_step(session)
@@ -334,32 +337,35 @@ def record(session: SumoSession, *, end: float | None = None, begin: float | Non
         stop = bool(after_step(session, st)) if after_step is not None else False
         # a focused recording starts when its (first) vehicle departs
         if (reader is None or reader.started) and (begin is None or t >= begin - eps):
-            rec.add(t, st, full, signals.read())
+            rec.add(t, st, full, signals.read() if signals is not None else None)
         if stop:
             break
 
     info = _pass_meta(session, net, net_path, rec, reader, first_t, t)
-    source_file = session.config or session.net or net.path
+    source_file = session.config or session.net or net_path
     sid = f"{Path(str(source_file)).name.split('.')[0]}_seed{session.seed}"
     sdc = rec.agent.get("ego", -1)
+    road_map, signal_states = ((net.road_map, rec.signals(table)) if net is not None and table is not None
+                               else (RoadMap(lanes=Lanes.empty()), SignalStates.empty(len(rec.times))))
     return Scene(scenario_id=sid, timestamps=np.array(rec.times, np.float64), tracks=rec.tracks(),
-                 road_map=net.road_map, signals=rec.signals(table), sdc_index=sdc, current_time_index=0,
+                 road_map=road_map, signals=signal_states, sdc_index=sdc, current_time_index=0,
                  source="sumo", meta=info).validate()
 
 
-def _pass_meta(session: SumoSession, net: SumoNet, net_path: Path | None, rec: _Rows, reader: _FocusedReader | None,
+def _pass_meta(session: SumoSession, net: SumoNet | None, net_path: Path, rec: _Rows, reader: _FocusedReader | None,
                first_t: float | None, t: float) -> dict[str, Any]:
     """``Scene.meta`` of a recorded pass (the keys :func:`record` documents); ``first_t`` and ``t``:
     the first and last simulated time [s]."""
     times = rec.times
     info: dict[str, Any] = {
         "sumocfg": str(session.config) if session.config is not None else None,
-        "net": str(net_path or net.path), "seed": session.seed, "backend": session.backend,
+        "net": str(net_path), "seed": session.seed, "backend": session.backend,
         "step_length": session.step_length,
         "begin": times[0] if times else None, "end": times[-1] if times else None,
-        "location_offset": [float(v) for v in net.location_offset],
         "vehicle_classes": rec.vclasses,  # id -> SUMO vClass when first seen (object_type keeps less)
     }
+    if net is not None:
+        info["location_offset"] = [float(v) for v in net.location_offset]
     if reader is not None and reader.cut:
         info["cut_after_s"] = reader.focus.max_life_s
     if reader is not None and not reader.started:

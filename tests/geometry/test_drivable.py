@@ -104,3 +104,8 @@ def test_any_off_road_answers_as_off_road_of_every_pose():
     every = area.off_road(x, y, yaw, length, width).any(axis=-1)
     assert 0 < every.sum() < len(every)  # both kinds of path are there
     np.testing.assert_array_equal(area.any_off_road(x, y, yaw, length, width), every)
+    # only the footprints ``where`` names count (the search forgives those before acting)
+    where = rng.random((60, 8)) < 0.5
+    counted = (area.off_road(x, y, yaw, length, width) & where).any(axis=-1)
+    assert counted.sum() < every.sum()
+    np.testing.assert_array_equal(area.any_off_road(x, y, yaw, length, width, where=where), counted)

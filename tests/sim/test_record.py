@@ -159,6 +159,20 @@ def test_after_step_can_stop_and_traci_records_the_same(grid_cfg):
     np.testing.assert_array_equal(a.signals.state, b.signals.state)
 
 
+def test_a_recording_without_the_road_has_the_same_tracks(grid_cfg):
+    """road=False (the proofs' passes): the net is not read; the vehicles are recorded as ever."""
+    scenes = []
+    for road in (True, False):
+        with SumoSession(grid_cfg, seed=2) as sim:
+            scenes.append(record(sim, end=8.0, road=road))
+    full, bare = scenes
+    assert len(full.road_map.lanes) > 0 and len(bare.road_map.lanes) == 0
+    assert full.signals.state.shape[1] > 0 and bare.signals.state.shape == (bare.num_steps, 0)
+    np.testing.assert_array_equal(full.tracks.ids, bare.tracks.ids)
+    for f in ("x", "y", "heading", "vx", "vy", "valid"):
+        np.testing.assert_array_equal(getattr(full.tracks, f), getattr(bare.tracks, f))
+
+
 @pytest.mark.sumo
 def test_run_to_the_end_of_the_demand(grid_cfg):
     scene = record_config(grid_cfg)
@@ -175,7 +189,7 @@ def test_net_without_traffic_lights(tmp_path):
                     "--default-junction-type", "priority", "-o", str(net)],
                    check=True, capture_output=True, env=sumo_install.subprocess_env())
     with SumoSession(net=net) as sim:
-        scene = record(sim, max_steps=20)
+        scene = record(sim, end=sim.time + 20 * sim.step_length)
     assert scene.num_steps == 20 and scene.tracks.num_agents == 0
     assert scene.signals.state.shape == (20, 0) and scene.meta["sumocfg"] is None
 
