@@ -1,9 +1,11 @@
 """``coster-sumo run`` against plain ``sumo`` on a flow freeway with sublane lane changes, in one run.
 
-    python bench/bench_freeway.py [--work DIR] [--target highway1.60]
+    python bench/bench_freeway.py [--work DIR] [--end 900] [--target highway1.400]
 
 Builds (in ``--work``) a copy of the wheel's ``tools/game/ramp`` (a motorway with an on- and an
-off-ramp, demand as flows) whose own configuration steps at 0.5 s with the sublane model
+off-ramp, demand as flows) whose own configuration runs to ``--end`` (default 900 s: plain
+``sumo`` then takes about as long as on the configuration issue 59 measured, 28 s; the flows
+congest the motorway from about 500 s on) and steps at 0.5 s with the sublane model
 (``lateral-resolution`` 0.8 m) and declares outputs beside itself (an induction loop writing
 ``out.xml``, edge data, tripinfo), with a file of the user's already named ``out.xml``. Then runs
 ``coster-sumo run CFG --target T --planner replay`` (5 variants, renders on) once and plain
@@ -33,7 +35,7 @@ CONFIG = """<configuration>
     </input>
     <time>
         <begin value="0"/>
-        <end value="400"/>
+        <end value="{end}"/>
         <step-length value="0.5"/>
     </time>
     <processing>
@@ -51,7 +53,7 @@ DETECTORS = """<additional>
 """
 
 
-def build(work: Path) -> Path:
+def build(work: Path, end: float) -> Path:
     """The freeway configuration in ``work/cfg`` (rebuilt every time: the check needs the user's file)."""
     folder = work / "cfg"
     shutil.rmtree(folder, ignore_errors=True)
@@ -59,7 +61,7 @@ def build(work: Path) -> Path:
     ramp = sumo_install.sumo_home() / "tools" / "game" / "ramp"
     for name in ("ramp.net.xml", "ramp.rou.xml"):
         shutil.copy(ramp / name, folder / name)
-    (folder / "fw.sumocfg").write_text(CONFIG)
+    (folder / "fw.sumocfg").write_text(CONFIG.replace("{end}", f"{end:g}"))
     (folder / "det.add.xml").write_text(DETECTORS)
     (folder / "out.xml").write_text("<the-users-own-calibration-data/>\n")
     return folder / "fw.sumocfg"
@@ -81,9 +83,11 @@ def timed(cmd: list[str], cwd: Path | None = None) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-freeway"))
-    ap.add_argument("--target", default="highway1.60", help="a flow member (default highway1.60)")
+    ap.add_argument("--end", type=float, default=900.0, help="the configuration's end [s] (default 900)")
+    ap.add_argument("--target", default="highway1.400",
+                    help="a flow member (default highway1.400: departs at about 685 s, in the congestion)")
     args = ap.parse_args()
-    cfg = build(args.work)
+    cfg = build(args.work, args.end)
     before = tree_hash(cfg.parent)
     out = args.work / "run"
     shutil.rmtree(out, ignore_errors=True)
@@ -99,7 +103,8 @@ def main() -> None:
                     f"{until:.1f}", "--no-step-log", "true", "--no-warnings", "true"])
     timings = summary["timings_s"]
     covered = sum(timings.values())
-    print(f"config {cfg} (0.5 s steps, sublane 0.8 m, flows), target {args.target}, nominal pass to {until:.1f} s")
+    print(f"config {cfg} (end {args.end:g} s, 0.5 s steps, sublane 0.8 m, flows), target {args.target}, "
+          f"nominal pass to {until:.1f} s")
     print(f"coster-sumo run: {t_run:.1f} s; plain sumo (0.1 s steps, same end): {t_sumo:.1f} s; "
           f"ratio {t_run / t_sumo:.2f}")
     print(f"timings_s: {timings}; sum {covered:.1f} s = {100 * covered / t_run:.1f} % of the run's wall time")
