@@ -31,19 +31,30 @@ import copy
 import gzip
 import hashlib
 import io
+import os
+import re
 import subprocess
+import time
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
 from defusedxml import ElementTree as SafeET
 
 from coster_sumo.errors import InputError, SumoError
-from coster_sumo.formats.sumocfg import config_files, open_maybe_gzip, parse_time
+from coster_sumo.formats.sumocfg import config_files, open_maybe_gzip, parse_time, read_sumocfg
 from coster_sumo.infra import sumo_install
 from coster_sumo.sim.sumo_outputs import sandbox
 
 DEMAND_TAGS = ("vehicle", "trip", "flow")
+# what shows an expansion's progress (it is a plain sumo run of the whole window: as long as plain
+# sumo itself): called with the simulated seconds done and the window's length; set around an
+# export by whoever shows progress (``coster-sumo run``'s outputs phase); None: nothing shown
+EXPANSION_PROGRESS: ContextVar[Callable[[float, float], object] | None] = ContextVar("expansion_progress",
+                                                                                     default=None)
+STEP_LOG = re.compile(rb"Step #(\d+(?:\.\d+)?)")
 EXPANDED_FILE = "flows_expanded.rou.xml"
 XSI = "http://www.w3.org/2001/XMLSchema-instance"
 
@@ -211,10 +222,14 @@ def _expand(config: Path, flows: set[str], leave_out: frozenset[str], out: Path,
     cmd = [sumo_install.binary("sumo"), "-c", str(quiet), "--device.fcd-replay.files", "",
            "--vehroute-output", str(tmp), "--vehroute-output.sorted", "true",
            "--vehroute-output.intended-depart", "true", "--vehroute-output.write-unfinished", "true",
-           "--vehroute-output.speedfactor", "true", "--no-warnings", "true", "--no-step-log", "true"]
+           "--vehroute-output.speedfactor", "true", "--no-warnings", "true"]
+    progress = EXPANSION_PROGRESS.get()
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=sumo_install.subprocess_env(),
-                              timeout=timeout_s, cwd=config.parent)
+        if progress is None:
+            proc = subprocess.run([*cmd, "--no-step-log", "true"], capture_output=True, text=True,
+                                  env=sumo_install.subprocess_env(), timeout=timeout_s, cwd=config.parent)
+        else:
+            proc = _run_showing_steps(cmd, config, progress, timeout_s)
         if proc.returncode != 0 or not tmp.is_file():
             lines = (proc.stderr or proc.stdout).strip().splitlines()
             # sumo ends with "Quitting (on error)."; the line that says what went wrong comes before
@@ -244,3 +259,31 @@ def _expand(config: Path, flows: set[str], leave_out: frozenset[str], out: Path,
     ET.indent(new)
     _write(_serialized(ET.ElementTree(new)), out)
     return kept
+
+
+def _run_showing_steps(cmd: list[str], config: Path, progress: Callable[[float, float], object],
+                       timeout_s: float) -> subprocess.CompletedProcess[str]:
+    """``cmd`` run with SUMO's step log on (every simulated second), each step it reports handed to
+    ``progress`` as the seconds done since the configuration's begin. Its messages (stderr joined
+    to stdout: one pipe cannot fill while the other is read) come back as stdout, the step log
+    left out."""
+    cfg = read_sumocfg(config)
+    begin = cfg.begin or 0.0
+    span = max((cfg.end or begin) - begin, 0.0)
+    period = max(1, round(1.0 / (cfg.step_length or 1.0)))
+    with subprocess.Popen([*cmd, "--no-step-log", "false", "--step-log.period", str(period)], stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, env=sumo_install.subprocess_env(), cwd=config.parent) as proc:
+        assert proc.stdout is not None
+        kept: list[bytes] = []
+        deadline = time.monotonic() + timeout_s
+        out = proc.stdout.fileno()
+        for chunk in iter(lambda: os.read(out, 65536), b""):  # what SUMO wrote so far (b"": it ended)
+            if time.monotonic() > deadline:
+                proc.kill()
+                raise subprocess.TimeoutExpired(cmd, timeout_s)
+            steps = STEP_LOG.findall(chunk)
+            if steps:
+                progress(min(max(float(steps[-1]) - begin, 0.0), span), span)
+            kept.append(STEP_LOG.sub(b"", chunk))
+        proc.wait()
+    return subprocess.CompletedProcess(cmd, proc.returncode, b"".join(kept).decode(errors="replace"), "")

@@ -12,12 +12,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import re
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from coster_sumo.core.results import RunResult, RunSummary, TargetEntry, TargetR
 from coster_sumo.core.snapshot import CollisionSnapshot
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, LabelOptions, ScenarioSpec
 from coster_sumo.errors import InputError, NoSnapshot, SumoError, not_found
+from coster_sumo.exports.demand import EXPANSION_PROGRESS
 from coster_sumo.formats.source import ScenarioSource
 from coster_sumo.infra.atomic import write_json
 from coster_sumo.infra.outdir import staged_output
@@ -265,10 +267,36 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
         raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
                          "t_col in the simulation")
     kept = [labels[pl.vehicle_id] for p in planned for pl in p.plans]
-    with bars("outputs", "variant", total=sum(len(p.plans) for p in planned)) as bar:
+    with bars("outputs", "variant", total=sum(len(p.plans) for p in planned)) as bar, \
+            _expansion_bar(bars) as show:
         settings = OutputSettings(spec, how.planner, opts.render, opts.to_json(), copy_outside=opts.copy_outside,
                                   folder=published, avoidable_only=tried)
-        return write_run_outputs(out, planned, results, kept, timings, settings, overviews=overviews, done=bar.update)
+        token = EXPANSION_PROGRESS.set(show)
+        try:
+            return write_run_outputs(out, planned, results, kept, timings, settings, overviews=overviews,
+                                     done=bar.update)
+        finally:
+            EXPANSION_PROGRESS.reset(token)
+
+
+@contextlib.contextmanager
+def _expansion_bar(bars: Bars) -> Iterator[Callable[[float, float], object]]:
+    """What shows an export's flow expansion (a plain sumo run of the window, ``exports/demand.py``):
+    a bar in simulated seconds, opened at its first report."""
+    opened: list[Any] = []
+
+    def show(done: float, total: float) -> None:
+        if not opened:
+            opened.append(bars("outputs: the flows expanded by sumo", "sim s", total=round(total, 1)))
+        bar = opened[0]
+        if round(done, 1) > bar.n:  # a step number cut between two reads shows less: skipped
+            bar.update(round(done, 1) - bar.n)
+
+    try:
+        yield show
+    finally:
+        for bar in opened:
+            bar.close()
 
 
 def generation_threads(gen: GenerationConfig, held: HeldStates | None) -> int | None:
