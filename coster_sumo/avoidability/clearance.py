@@ -66,20 +66,20 @@ def hits_adversary(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, flo
 
 
 def too_close(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], o_box: np.ndarray,
-               o_valid: np.ndarray) -> np.ndarray:
-    """(G,) whether each candidate's grown boxes overlap another vehicle at some step.
+              o_valid: np.ndarray, acted: np.ndarray) -> np.ndarray:
+    """(G,) whether each candidate's grown boxes overlap another vehicle at a step after acting.
 
     Args:
         centres: (G, T, 2) candidate box centres [m]; yaws: (G, T) [rad]; size: the boxes' length
             and width grown by the clearance [m]; o_box: (N, T, 5); o_valid: (N, T) the other
-            vehicles, valid where they exist (and the candidates have acted).
+            vehicles, valid where they exist; acted: (G, T) each candidate's steps after acting.
 
     Only pairs whose centres are within reach of each other (half diagonals) are tested exactly.
     """
     dx = centres[:, None, :, 0] - o_box[None, :, :, 0]  # (G, N, T)
     dy = centres[:, None, :, 1] - o_box[None, :, :, 1]
     reach = 0.5 * (np.hypot(*size) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
-    near = o_valid[None] & (dx * dx + dy * dy < (reach * reach)[None])
+    near = o_valid[None] & acted[:, None, :] & (dx * dx + dy * dy < (reach * reach)[None])
     hit = np.zeros(len(centres), bool)
     if near.any():
         c, o, t = np.nonzero(near)

@@ -224,8 +224,8 @@ class _Candidates:
     """The (act, manoeuvre) candidates of the moments to act ``act_k`` (steps of the time grid): their
     poses, kinematic feasibility and clearance to the adversary and the other vehicles.
 
-    Every row (one moment to act) is computed on its own, so a subset of the moments gives the same
-    rows as the whole grid.
+    Every row (one moment to act) is computed on its own, each candidate's tests over its own steps
+    after acting, so a subset of the moments gives the same rows as the whole grid.
     """
 
     def __init__(self, ctx: _SearchContext, act_k: np.ndarray) -> None:
@@ -273,7 +273,7 @@ class _Candidates:
         kk, mm = np.nonzero(good)
         if self.others is not None and len(kk):
             o_box, o_valid = self.others  # (N, n, 5), (N, n)
-            hit = too_close(pos[kk, mm], yaw[kk, mm], grown, o_box, o_valid & after[kk, 0][:, None, :].any(0))
+            hit = too_close(pos[kk, mm], yaw[kk, mm], grown, o_box, o_valid, after[kk, 0])
             good[kk[hit], mm[hit]] = False
         # only what is clear is checked against the road (the costlier test), and only as far as the
         # answer needs it: the least demanding escape per reaction time and the last moment to act
