@@ -91,3 +91,22 @@ def test_a_hand_made_adversity_starts_3_s_in_and_the_episode_runs_5_s_past_it(tm
             assert v[int(np.argmin(np.abs(ts - entry.t_start - ADVERSITY_ONSET_S - 1.0)))] < v[before][0] - 3.0
         if name == "red-light-runner":
             assert entry.extra["t_conflict"] >= entry.t_start + ADVERSITY_ONSET_S
+
+
+def test_a_clip_of_9_s_holds_both_adversities(tmp_path):
+    """A corpus clip is 9.1 s: an adversity's episode (onset 3 s in, 5 s past it) fits when it starts
+    as the target departs (with 2 s more, no held-out clip had one)."""
+    from coster_sumo.data import synthetic
+    from coster_sumo.gym.build import _hard_variants
+
+    scene = synthetic.four_way_junction()
+    target = int(scene.sdc_index)
+    valid = scene.timestamps[scene.tracks.valid[target]]
+    assert valid[-1] - valid[0] < 9.2  # a clip's length
+    (tmp_path / "scenarios").mkdir()
+    common = {"network": "n", "split": "test", "source": "s", "target": str(scene.tracks.ids[target]),
+              "net": "n.net.xml"}
+    entries = _hard_variants(tmp_path, scene, target, "x", common, float(valid[0]), float(valid[-1]), 20.0)
+    assert {"leader-braking", "cut-in"} <= {e.extra["adversity"] for e in entries}
+    for entry in entries:
+        assert entry.t_end >= entry.t_start + ADVERSITY_ONSET_S + AVOIDANCE_TAIL_S - 1e-6
