@@ -53,8 +53,7 @@ METHODS: dict[str, Method] = {
     "hard": Method(None, None),
 }
 
-HARD_START_S = 0.0  # [s] the episode of a hand-specified adversity starts this long after the target departs (its
-# onset comes ADVERSITY_ONSET_S later: a 9.1 s clip holds the onset and the AVOIDANCE_TAIL_S after it)
+HARD_START_S = 0.0  # [s] a hand-made adversity's episode starts this long after the target departs (9.1 s clips)
 ADVERSITY_ONSET_S = 3.0  # [s] the adversity (the leader's braking, the cut-in's move) starts this long into it
 AVOIDANCE_TAIL_S = 5.0  # [s] an episode runs at least this long past the adversity's onset or t_col
 LEADER_GAP_M = 20.0  # [m] bumper-to-bumper gap of the braking leader at the start
