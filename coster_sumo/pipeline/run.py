@@ -267,22 +267,16 @@ def _one_target(opts: RunOptions, nominal: NominalPass, requested: str | None, o
         raise InputError(f"{spec.config}: every adversary of target {target_id!r} ran into another vehicle before "
                          "t_col in the simulation")
     kept = [labels[pl.vehicle_id] for p in planned for pl in p.plans]
-    with bars("outputs", "variant", total=sum(len(p.plans) for p in planned)) as bar, \
-            _expansion_bar(bars) as show:
+    with bars("outputs", "variant", total=sum(len(p.plans) for p in planned)) as bar, _expansion_bar(bars):
         settings = OutputSettings(spec, how.planner, opts.render, opts.to_json(), copy_outside=opts.copy_outside,
                                   folder=published, avoidable_only=tried)
-        token = EXPANSION_PROGRESS.set(show)
-        try:
-            return write_run_outputs(out, planned, results, kept, timings, settings, overviews=overviews,
-                                     done=bar.update)
-        finally:
-            EXPANSION_PROGRESS.reset(token)
+        return write_run_outputs(out, planned, results, kept, timings, settings, overviews=overviews, done=bar.update)
 
 
 @contextlib.contextmanager
-def _expansion_bar(bars: Bars) -> Iterator[Callable[[float, float], object]]:
-    """What shows an export's flow expansion (a plain sumo run of the window, ``exports/demand.py``):
-    a bar in simulated seconds, opened at its first report."""
+def _expansion_bar(bars: Bars) -> Iterator[None]:
+    """Inside it, an export's flow expansion (a plain sumo run of the window, ``exports/demand.py``)
+    shows a bar in simulated seconds, opened at its first report."""
     opened: list[Any] = []
 
     def show(done: float, total: float) -> None:
@@ -292,9 +286,11 @@ def _expansion_bar(bars: Bars) -> Iterator[Callable[[float, float], object]]:
         if round(done, 1) > bar.n:  # a step number cut between two reads shows less: skipped
             bar.update(round(done, 1) - bar.n)
 
+    token = EXPANSION_PROGRESS.set(show)
     try:
-        yield show
+        yield
     finally:
+        EXPANSION_PROGRESS.reset(token)
         for bar in opened:
             bar.close()
 
