@@ -23,30 +23,47 @@ Three rewrites of the copied files, each for one reason (measured on SUMO 1.28, 
   stream shared by all flows, and routes and types from distributions are drawn from one stream
   at departure, so dropping one flow would re-draw the others. The expanded vehicles carry their
   route and speed factor, so nothing is drawn for them again.
+
+  That plain run is the nominal pass again, as long as plain ``sumo`` itself (on a congested
+  freeway 33 s of a 100 s ``run``). So the nominal pass of a configuration with flows writes the
+  same vehroute output (:func:`pass_route_args`, :func:`remember_pass_routes`) and an export whose
+  window ends before that pass ended takes its members from there (:func:`pass_routes`), leaving
+  out those whose intended departure lies after the export's end. Members that were due within the
+  window but not yet inserted at its end may be listed where the plain run lists none: they wait
+  for a gap in the export as they did in the pass, and never enter the window either way. The
+  ``arrival`` SUMO writes is left out of both: it tells where the pass that wrote it stopped, not
+  what the export runs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import dataclasses
 import gzip
 import hashlib
 import io
 import os
 import re
 import subprocess
+import tempfile
 import time
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from contextvars import ContextVar
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from defusedxml import ElementTree as SafeET
 
 from coster_sumo.errors import InputError, SumoError
 from coster_sumo.formats.sumocfg import config_files, open_maybe_gzip, parse_time, read_sumocfg
 from coster_sumo.infra import sumo_install
-from coster_sumo.sim.sumo_outputs import sandbox
+from coster_sumo.sim.sumo_outputs import declares, sandbox
+
+if TYPE_CHECKING:
+    from coster_sumo.sim.session import SumoSession
 
 DEMAND_TAGS = ("vehicle", "trip", "flow")
 # what shows an expansion's progress (it is a plain sumo run of the whole window: as long as plain
@@ -174,7 +191,8 @@ def _begin_s(flow: ET.Element, path: Path) -> float:
 
 
 def expand_flows(config: Path, flows: set[str], leave_out: frozenset[str], out: Path, *, checks: str,
-                 timeout_s: float = 3600.0, same_without: frozenset[str] = frozenset()) -> list[str]:
+                 timeout_s: float = 3600.0, same_without: frozenset[str] = frozenset(),
+                 from_pass: PassRoutes | None = None) -> list[str]:
     """Write ``out``: every member of ``flows`` that the export's configuration runs, as a vehicle.
 
     Runs plain ``sumo -c config`` without the FCD replay device (a temporary vehroute file beside
@@ -186,7 +204,13 @@ def expand_flows(config: Path, flows: set[str], leave_out: frozenset[str], out: 
     replay device's, which it runs without); an expansion whose other inputs are the same as an
     earlier one's in this process is copied from it, not simulated again (a run's variants differ
     only there: on the wheel's ramp the expanded files of its variants were byte-identical).
+
+    ``from_pass``: the nominal pass's vehroute output (:func:`pass_routes`); the members are taken
+    from it, up to the pass's ``end``, instead of running SUMO (module docstring).
     """
+    if from_pass is not None:
+        return _write_members(SafeET.fromstring(from_pass.data, forbid_dtd=True), flows, leave_out, out,
+                              checks=checks, end=from_pass.end)
     key = _expansion_key(config, flows, leave_out, checks, same_without)
     if key in _EXPANDED:
         data, kept = _EXPANDED[key]
@@ -220,9 +244,7 @@ def _expand(config: Path, flows: set[str], leave_out: frozenset[str], out: Path,
     tmp = out.with_name(f".{out.name}.vehroute.xml")
     quiet = sandbox(config).config or config  # without the configuration's own outputs (none beside it)
     cmd = [sumo_install.binary("sumo"), "-c", str(quiet), "--device.fcd-replay.files", "",
-           "--vehroute-output", str(tmp), "--vehroute-output.sorted", "true",
-           "--vehroute-output.intended-depart", "true", "--vehroute-output.write-unfinished", "true",
-           "--vehroute-output.speedfactor", "true", "--no-warnings", "true"]
+           *pass_route_args(tmp), "--no-warnings", "true"]
     progress = EXPANSION_PROGRESS.get()
     try:
         if progress is None:
@@ -238,15 +260,25 @@ def _expand(config: Path, flows: set[str], leave_out: frozenset[str], out: Path,
         root = _read(tmp)[1]
     finally:
         tmp.unlink(missing_ok=True)
+    return _write_members(root, flows, leave_out, out, checks=checks, end=None)
+
+
+def _write_members(root: ET.Element, flows: set[str], leave_out: frozenset[str], out: Path, *, checks: str,
+                   end: float | None) -> list[str]:
+    """``out`` from a vehroute output's ``root`` (:func:`expand_flows`); ``end`` [s]: members whose
+    intended departure lies after it are left out (None: all)."""
     new = ET.Element("routes")
     new.append(ET.Comment(" coster-sumo export: the members of the configuration's flows as the pass ran "
-                          "them (plain sumo, vehroute output, this folder without the FCD replay device; "
-                          "intended departure, first route, speed factor drawn) "))
+                          "them (vehroute output of SUMO without the FCD replay device; intended departure, "
+                          "first route, speed factor drawn) "))
     kept: list[str] = []
     for el in root:
         vid = el.get("id", "")
         if el.tag != "vehicle" or vid.rpartition(".")[0] not in flows or vid in leave_out:
             continue
+        if end is not None and float(el.get("depart", "0")) > end + 1e-6:
+            continue
+        el.attrib.pop("arrival", None)  # where the writing pass stopped (module docstring)
         dist = el.find("routeDistribution")
         if dist is not None:  # rerouted on the way: it departed with the first route
             first = dist.find("route")
@@ -259,6 +291,75 @@ def _expand(config: Path, flows: set[str], leave_out: frozenset[str], out: Path,
     ET.indent(new)
     _write(_serialized(ET.ElementTree(new)), out)
     return kept
+
+
+@dataclass(frozen=True)
+class PassRoutes:
+    """The vehroute output of a nominal pass (:func:`pass_route_args`) and what it ran.
+
+    Attributes:
+        config: the configuration the pass ran (resolved).
+        seed, begin, step: SUMO's seed (None: the configuration's), begin [s] and step [s].
+        end: [s] the pass's last simulated time.
+        data: the file's bytes.
+    """
+
+    config: Path
+    seed: int | None
+    begin: float
+    step: float
+    end: float
+    data: bytes
+
+
+def pass_route_args(path: Path) -> list[str]:
+    """SUMO's options for the vehroute output that :func:`expand_flows` reads, written to ``path``."""
+    return ["--vehroute-output", str(path), "--vehroute-output.sorted", "true",
+            "--vehroute-output.intended-depart", "true", "--vehroute-output.write-unfinished", "true",
+            "--vehroute-output.speedfactor", "true"]
+
+
+@contextlib.contextmanager
+def recording_pass_routes(session: SumoSession, *, begin: float) -> Iterator[None]:
+    """Around the start and end of a nominal pass (``session`` not started yet): the pass writes the
+    vehroute output its variants' exports take the flows' members from (:func:`pass_routes`).
+    Nothing where the configuration declares a vehroute output of its own (these options would
+    change what it writes) or where the pass ends with an error. ``begin`` [s]: the pass's."""
+    if session.config is None or declares(session.config, "vehroute-output"):
+        yield
+        return
+    with tempfile.TemporaryDirectory(prefix="coster-pass-routes-") as tmp:
+        path = Path(tmp) / "pass.vehroute.xml"
+        session.extra_args += pass_route_args(path)
+        session.own_outputs.append(Path(tmp))  # held copies of the pass never write into it
+        yield
+        if path.is_file() and not session.is_running:
+            remember_pass_routes(PassRoutes(session.config.resolve(), session.seed, begin, session.step_length,
+                                            session.time, path.read_bytes()))
+
+
+_PASS_ROUTES: list[PassRoutes] = []
+MAX_PASS_ROUTES_KEPT = 4
+
+
+def remember_pass_routes(routes: PassRoutes) -> None:
+    """Keep a nominal pass's vehroute output for the exports of its variants in this process."""
+    _PASS_ROUTES[:] = [r for r in _PASS_ROUTES if r.config != routes.config][-(MAX_PASS_ROUTES_KEPT - 1):]
+    _PASS_ROUTES.append(routes)
+
+
+def pass_routes(config: Path, *, seed: int | None, begin: float, step: float, end: float | None
+                ) -> PassRoutes | None:
+    """The kept vehroute output of a nominal pass of ``config`` with this seed, begin and step that
+    ran at least to ``end`` [s] (None: to its own end is not known, so none), cut to ``end``; None
+    where there is none."""
+    if end is None:
+        return None
+    for r in reversed(_PASS_ROUTES):
+        if (r.config == Path(config).resolve() and r.seed == seed and abs(r.begin - begin) < 1e-6
+                and abs(r.step - step) < 1e-9 and r.end >= end - 1e-6):
+            return dataclasses.replace(r, end=end)
+    return None
 
 
 def _run_showing_steps(cmd: list[str], config: Path, progress: Callable[[float, float], object],

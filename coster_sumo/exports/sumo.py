@@ -32,7 +32,7 @@ import shapely
 
 from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.errors import InputError
-from coster_sumo.exports.demand import EXPANDED_FILE, demand_ids, expand_flows, rewrite_demand
+from coster_sumo.exports.demand import EXPANDED_FILE, demand_ids, expand_flows, pass_routes, rewrite_demand
 from coster_sumo.exports.fcd import (
     FCD_FILE,
     VTYPES_FILE,
@@ -145,7 +145,7 @@ def write_sumo_export(folder: Path, config: Path, result: InjectionResult, plan:
         "fcd_time_label": "simulation time - step_length", "step_length": step,
         "demand": {"insertion_checks": demand.checks, "dropped": sorted(demand.drop),
                    "expanded_flows": sorted(demand.flows), "expanded_vehicles": len(expanded),
-                   "expanded_file": EXPANDED_FILE if demand.flows else None,
+                   "expanded_file": EXPANDED_FILE if demand.flows else None, "expanded_by": demand.expanded_by,
                    "flows_after_end": sorted(demand.after_end)},
         "outside_files": outside,
         "notes": notes,
@@ -170,9 +170,14 @@ def _write_config(cfg: Path, config: Path, names: dict[str, list[str]], demand: 
     write_cfg()
     if not demand.flows:
         return []
-    # expanding reads the configuration just written (its demand as SUMO loads it)
+    # the nominal pass's vehroute output where it ran this long, else a plain run of the configuration
+    # just written (its demand as SUMO loads it)
+    from_pass = pass_routes(config, seed=clock.seed, begin=read_sumocfg(config).begin or 0.0, step=clock.step,
+                            end=clock.end)
     expanded = expand_flows(cfg, demand.flows, frozenset({target_id}), cfg.parent / EXPANDED_FILE,
-                            checks=demand.checks or "all", same_without=frozenset({FCD_FILE, VTYPES_FILE}))
+                            checks=demand.checks or "all", same_without=frozenset({FCD_FILE, VTYPES_FILE}),
+                            from_pass=from_pass)
+    demand.expanded_by = "sumo" if from_pass is None else "the nominal pass"
     for f in demand_files:
         rewrite_demand(f, drop_flows=True)
     names["route-files"] = [*names.get("route-files", []), EXPANDED_FILE]
@@ -218,6 +223,7 @@ class _Demand:
     drop: frozenset[str] = frozenset()  # vehicles dropped from the demand (the replayed target)
     flows: set[str] = field(default_factory=set)  # flows to expand into their vehicles
     after_end: list[str] = field(default_factory=list)  # flows that begin after the export ends (removed)
+    expanded_by: str | None = None  # what ran the flows' members: "the nominal pass" or "sumo"
 
 
 def _fit_demand(config: Path, demand_files: list[Path], adversary_id: str, target_id: str, planner: str,

@@ -15,6 +15,7 @@ The generation itself is :mod:`coster_sumo.method.generation`.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -29,6 +30,7 @@ from coster_sumo.data.dataset import crop_scene
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import load_scene
 from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.formats.targets import OFF_ROAD_CLASSES, choose_target, config_demand, missing_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.collision_time import MARGIN_END, PRIOR_RATE_HZ
@@ -64,6 +66,7 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
               more_targets: Sequence[str], bar: Any) -> Scene:
     """:func:`nominal_scene` of a SUMO configuration: its pass recorded around the target(s), in a
     session of its own, opened here as the variants' passes open theirs."""
+    from coster_sumo.exports.demand import recording_pass_routes
     from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
     from coster_sumo.sim.session import SumoSession
     from coster_sumo.sim.sumo_outputs import nominal_outputs
@@ -96,8 +99,13 @@ def _recorded(source: ScenarioSource, *, traci: bool, hold: HeldStates | None, a
     # MARGIN_END steps of a scene free, and they must not eat into the target's own lifetime
     tail_s = (MARGIN_END + 1) / PRIOR_RATE_HZ
     kept = nominal_outputs()  # the configuration's own outputs: into the command's folder, or a temporary one
-    with SumoSession(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci, additional=list(additional),
-                     sumo_outputs=None if kept is None else kept.folder) as session:
+    session = SumoSession(cfg, seed=spec.seed, begin=spec.begin, end=end, traci=traci, additional=list(additional),
+                          sumo_outputs=None if kept is None else kept.folder)
+    # where flows may insert the target, the exports take their members from this pass (exports/demand.py)
+    routes = (recording_pass_routes(session, begin=spec.begin if spec.begin is not None else
+                                    read_sumocfg(cfg).begin or 0.0)
+              if demand is None or demand.flows else contextlib.nullcontext())
+    with routes, session:
         if kept is not None:
             kept.redirects = session.redirects
         scene = record(session, begin=spec.begin, end=end, bar=bar,

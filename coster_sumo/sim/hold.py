@@ -158,8 +158,9 @@ class HeldStates:
         pid = os.fork()
         if pid == 0:  # the holder
             die_with_parent()
-            if session.sumo_outputs is not None:  # the pass's kept outputs are the parent's alone
-                detach_outputs(session.sumo_outputs)
+            for folder in (session.sumo_outputs, *session.own_outputs):  # the pass's outputs are the parent's alone
+                if folder is not None:
+                    detach_outputs(folder)
             parent_end.close()
             for h in self.holders:  # the other holders' pipes belong to the parent
                 with contextlib.suppress(OSError):

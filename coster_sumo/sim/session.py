@@ -109,6 +109,7 @@ class SumoSession(SessionControl):
         self.host = host
         self.uses_traci = bool(traci or gui or port is not None)
         self.sumo_outputs = sumo_outputs
+        self.own_outputs: list[Path] = []  # folders of more files only this process writes (forks detach them)
         self.redirects: tuple[sumo_outputs_mod.Redirect, ...] = ()  # set by command()
         self._api: Any = None
         self._label: str | None = None

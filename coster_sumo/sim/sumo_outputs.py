@@ -156,6 +156,11 @@ def nominal_outputs() -> KeptOutputs | None:
     return _NOMINAL[-1] if _NOMINAL else None
 
 
+def declares(config: Path, option: str) -> bool:
+    """Whether ``config`` sets ``option`` (SUMO's long name, e.g. ``vehroute-output``) to something."""
+    return bool(_config_options(config).get(option_name(option), "").strip())
+
+
 def _config_options(config: Path) -> dict[str, str]:
     """Every option a configuration sets, under SUMO's own names (both spellings, as SUMO reads them)."""
     with open_maybe_gzip(config) as fh:

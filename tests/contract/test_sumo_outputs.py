@@ -240,3 +240,37 @@ def test_a_flow_expansion_shows_its_progress_and_writes_the_same_vehicles(tmp_pa
     # SUMO's step log reaches the pipe a buffer at a time (here twice over 90 simulated seconds)
     assert len(seen) >= 2 and dones == sorted(dones) and 0 < dones[0] < dones[-1] <= total
     assert total - dones[-1] <= 1.0 + 1e-9  # the last report is within a simulated second of the end
+
+
+def test_an_export_takes_the_flows_members_from_the_nominal_pass(tmp_path, monkeypatch):
+    """A flow-member target: the exports' expanded flows come from the nominal pass's vehroute
+    output (no plain sumo run of the export), byte for byte the file the plain run writes, each
+    member once and the target left out."""
+    import xml.etree.ElementTree as ET
+
+    from coster_sumo.exports import demand
+    from coster_sumo.exports import sumo as sumo_export
+
+    merge = REPO / "networks" / "merge" / "merge.sumocfg"
+    args = ["-q", "run", str(merge), "--target", "hw.4", "--planner", "replay", "--no-render", *FAST]
+    files = {}
+    for how in ("the nominal pass", "sumo"):
+        monkeypatch.setattr(demand, "_EXPANDED", {})
+        monkeypatch.setattr(demand, "_PASS_ROUTES", [])
+        if how == "sumo":
+            monkeypatch.setattr(sumo_export, "pass_routes", lambda *a, **k: None)
+        out = tmp_path / how.replace(" ", "_")
+        assert main([*args, "-o", str(out)]) == 0
+        variants = json.loads((out / "summary.json").read_text())["variants"]
+        assert variants
+        for v in variants:
+            export = out / "variants" / str(v["variant"]) / "export"
+            info = json.loads((export / "variant.json").read_text())["export"]["demand"]
+            assert info["expanded_by"] == how and info["expanded_vehicles"] > 0
+            data = (export / info["expanded_file"]).read_bytes()
+            ids = [el.get("id") for el in ET.fromstring(data).iter("vehicle")]
+            assert len(ids) == len(set(ids)) == info["expanded_vehicles"] and "hw.4" not in ids
+            files[how, v["variant"]] = data
+    assert {k[1] for k in files if k[0] == "sumo"} == {k[1] for k in files if k[0] != "sumo"}
+    for (how, i), data in files.items():
+        assert data == files["sumo", i], i
