@@ -119,6 +119,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
+    sumo_drives = False  # SUMO's driver model drives the target (:mod:`coster_sumo.gym.sumo_driver`)
 
     def __init__(self, scenarios: str | Path, split: str | None = None, kind: str | None = None,
                  networks: tuple[str, ...] | list[str] | None = None,
@@ -322,7 +323,8 @@ class ScenarioEnv(gymnasium.Env, Driver):
         target = self.entry.target if self.entry is not None else "ego"
         if not self._added:
             self._add_target(target, x, y, yaw)
-        sess.move_to_xy(target, x, y, yaw, self.length, speed=self.v)
+        if not self.sumo_drives:
+            sess.move_to_xy(target, x, y, yaw, self.length, speed=self.v)
         sess.step()
         self.sim_steps += 1
         k = self._replayer.step_at(self._now())

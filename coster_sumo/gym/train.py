@@ -271,16 +271,19 @@ def hard_ids(scenarios: str | Path, split: str | None) -> list[str]:
 def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None = "test",
              max_episodes: int | None = None, hard: bool = False,
              **env_options: Any) -> tuple[EvalResult, list[EpisodeRecord]]:
-    """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0));
-    ``hard``: only the scenarios of :func:`hard_ids`. ``env_options``: the environment's
+    """Drive every scenario of ``split`` once with ``policy`` (deterministic actions; None: action (0, 0);
+    ``"sumo"``: SUMO's driver model, :mod:`coster_sumo.gym.sumo_driver`); ``hard``: only the
+    scenarios of :func:`hard_ids`. ``env_options``: the environment's
     (:class:`~coster_sumo.gym.env.ScenarioEnv`: ``control_period_s``, ``traffic``, ``car_following``,
     ``observation``...), which checks them."""
     from coster_sumo.gym.env import ScenarioEnv
+    from coster_sumo.gym.sumo_driver import SumoDriverEnv
 
     ids = hard_ids(scenarios, split) if hard else None
-    env = ScenarioEnv(scenarios, split=split, order="cycle", scenario_ids=ids, **env_options)
+    env_cls = SumoDriverEnv if policy == "sumo" else ScenarioEnv
+    env = env_cls(scenarios, split=split, order="cycle", scenario_ids=ids, **env_options)
     model = None
-    if policy is not None:
+    if policy is not None and policy != "sumo":
         from coster_sumo.sim.policy import load_model
 
         model = load_model(policy)

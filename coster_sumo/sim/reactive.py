@@ -365,6 +365,16 @@ class ReactiveTraffic:
                 d = np.hypot(tr.x[others, k][:, None] - ref[:, 0], tr.y[others, k][:, None] - ref[:, 1]).min(axis=1)
                 self.shadow.update(others[d <= SHADOW_RADIUS_M].tolist())
 
+    def see_around(self, x: float, y: float, k: int) -> None:
+        """Put the logged agents within :data:`SHADOW_RADIUS_M` of (x, y) [m] at log step ``k`` into
+        SUMO from the next step on (log-driven), so that a vehicle SUMO drives there sees them."""
+        if not 0 <= k < self.scene.num_steps:
+            return
+        tr = self.scene.tracks
+        others = np.flatnonzero(self.replayed & tr.valid[:, k])
+        near = np.hypot(tr.x[others, k] - x, tr.y[others, k] - y) <= SHADOW_RADIUS_M
+        self.shadow.update(others[near].tolist())
+
     def remove_all(self, session: SumoSession) -> None:
         """Take every vehicle this traffic put into SUMO out again (the episode is over)."""
         for sid in self.in_sumo.values():

@@ -272,5 +272,5 @@ def test_an_export_takes_the_flows_members_from_the_nominal_pass(tmp_path, monke
             assert len(ids) == len(set(ids)) == info["expanded_vehicles"] and "hw.4" not in ids
             files[how, v["variant"]] = data
     assert {k[1] for k in files if k[0] == "sumo"} == {k[1] for k in files if k[0] != "sumo"}
-    for (how, i), data in files.items():
+    for (_how, i), data in files.items():
         assert data == files["sumo", i], i

@@ -271,6 +271,33 @@ def test_hard_set_leader_braking_hits_a_target_that_keeps_its_speed(tmp_path):
     assert outcomes["brake"] != "adversity"  # (a replayed follower may still run into it: replay does not react)
 
 
+def test_sumos_driver_brakes_for_the_braking_leader_that_a_constant_speed_target_hits(tmp_path):
+    """The reference row "SUMO's driver" (policy "sumo"): SUMO drives the target after its first step
+    and sees the braking leader, in both traffic modes; in the log the replayed follower then drives
+    into it, in reactive traffic nobody does. Actions are ignored."""
+    from coster_sumo.gym.sumo_driver import SumoDriverEnv
+
+    out = tmp_path / "hard"
+    build_set(BuildOptions(sources=CONFIGS[2:], out=out, method="hard"))
+    (entry,) = [e for e in ScenarioSet.load(out).entries if e.extra.get("adversity") == "leader-braking"]
+    seen = {}
+    for traffic in ("log", "reactive"):
+        env = SumoDriverEnv(out, traffic=traffic)
+        env.reset(options={"scenario": entry.id})
+        assert env.sumo_drives and env.kept_on_path == 0
+        done, info, speeds = False, {}, []
+        first = env.v
+        while not done:
+            _, _, terminated, truncated, info = env.step(np.array([1.0, 1.0], np.float32))  # ignored
+            speeds.append(env.v)
+            done = terminated or truncated
+        env.close()
+        seen[traffic] = (info["collided_with"], info["outcome"], min(speeds))
+    assert seen["log"][0] not in (None, "adversity")  # a replayed follower, which does not react
+    assert seen["reactive"][:2] == (None, "completed")
+    assert all(low < 0.25 * first for _, _, low in seen.values())  # it slowed behind the leader (16.7 -> 2.0 m/s)
+
+
 def test_hard_set_red_light_runner_crosses_on_red_into_a_target_that_keeps_its_nominal_speed(tmp_path):
     from coster_sumo.core.scene import SignalState
 

@@ -69,7 +69,8 @@ def register(cli: Any) -> None:
     t.set_defaults(func=_train)
     e = group.add_parser("eval", help="drive every scenario of a split once: RCR, CR, ORR")
     e.add_argument("policy", metavar="POLICY",
-                   help="policy.zip or checkpoint.zip ('none': the action (0, 0), the nominal path at constant speed)")
+                   help="policy.zip or checkpoint.zip ('none': the action (0, 0), the nominal path at constant speed; "
+                        "'sumo': SUMO's driver model drives the target)")
     e.add_argument("scenarios", type=Path, metavar="SET", help="scenario set")
     e.add_argument("--split", choices=("train", "test", "all"), default="test", help="default test")
     e.add_argument("--max-episodes", type=int, help="at most this many scenarios")

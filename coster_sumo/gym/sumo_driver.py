@@ -1,0 +1,106 @@
+"""The reference row "SUMO's driver": SUMO's own driver model drives the target of every episode.
+
+``coster-sumo policy eval sumo SET`` (and :func:`coster_sumo.gym.train.evaluate` with ``policy="sumo"``)
+drives the same episodes as a policy, with the target handed to SUMO: it enters as in every
+episode (its first pose and speed, by moveToXY), and after that first step SUMO's driver model
+drives it (the set's vType, Krauss: its speed mode, lane changes and speed factor SUMO's own),
+routed to the edge under the end of its nominal route. Actions are ignored. Each step reads where
+SUMO put it; its arc length and offset along the nominal route (route completion, the observation)
+are its projection onto that route near where it was.
+
+A driver model sees only vehicles that are in SUMO. With ``traffic="log"`` the others are then put
+into SUMO and moved along their logs (the environment's ``traffic="sumo"``, the same episodes as
+``log``: ``tests/gym_env/test_gym.py``); with ``traffic="reactive"`` the logged agents around the
+target are put into SUMO as they come within :data:`~coster_sumo.sim.reactive.SHADOW_RADIUS_M`,
+as around any vehicle that reacts. Where SUMO cannot drive the target (no lane under its front
+at the start), the episode keeps the constant-speed motion and :attr:`SumoDriverEnv.kept_on_path`
+counts it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from coster_sumo.gym.env import ScenarioEnv
+from coster_sumo.gym.stepping import sumo_box
+from coster_sumo.sim.corridor import PreparedPolyline
+from coster_sumo.sim.reactive import LANE_MATCH_M
+
+BACK_M = 5.0  # [m] the projection looks this far behind the last arc length
+AHEAD_M = 60.0  # [m] and this far ahead (6 s at 10 m/s per 0.1 s step is far more than a step goes)
+
+
+class SumoDriverEnv(ScenarioEnv):
+    """:class:`~coster_sumo.gym.env.ScenarioEnv` with SUMO's driver model driving the target (module docstring)."""
+
+    def __init__(self, scenarios: Any, traffic: str = "log", **kwargs: Any) -> None:
+        super().__init__(scenarios, traffic="sumo" if traffic == "log" else traffic, **kwargs)
+        self.kept_on_path = 0  # episodes SUMO could not drive (no lane under the target at the start)
+
+    def _start(self, entry: Any) -> None:
+        self.sumo_drives = False
+        super()._start(entry)  # its first step puts the target in at its first pose
+        self._route_line = PreparedPolyline(self.route.points)
+        front = self._front()
+        if front is None:
+            self.kept_on_path += 1
+            return
+        s_end = self.route.length_m
+        poses = [(*self.route.pose(max(s_end - back, 0.0))[:2], self.route.pose(max(s_end - back, 0.0))[2],
+                  self.length) for back in (0.0, 5.0, 10.0, 20.0, 40.0)]
+        self._session.release_vehicle(self.target_id, poses)
+        self.sumo_drives = True
+
+    def _front(self) -> tuple[str, float] | None:
+        """(edge, position) of the normal lane under the target's front bumper, None where none is
+        within :data:`~coster_sumo.sim.reactive.LANE_MATCH_M`."""
+        x, y, yaw = self._ego_pose()
+        fx, fy = x + 0.5 * self.length * math.cos(yaw), y + 0.5 * self.length * math.sin(yaw)
+        sim = self._session.api.simulation
+        try:
+            edge, pos, lane = sim.convertRoad(fx, fy, False, "passenger")
+            if not edge or str(edge).startswith(":"):
+                return None
+            lx, ly = sim.convert2D(str(edge), float(pos), int(lane))
+        except Exception:  # no lane for its class nearby
+            return None
+        return (str(edge), float(pos)) if math.hypot(lx - fx, ly - fy) <= LANE_MATCH_M else None
+
+    def _command(self, action: np.ndarray) -> float:
+        if not self.sumo_drives:
+            return super()._command(np.zeros(2, np.float32))
+        self.accel = 0.0
+        return self.d
+
+    def _kinematic_step(self, d_target: float) -> None:
+        if not self.sumo_drives:
+            super()._kinematic_step(d_target)
+
+    def _advance(self) -> None:
+        if self.sumo_drives and self._reactive is not None:
+            k = self._replayer.step_at(self._now())
+            if k is not None:
+                x, y, _ = self._ego_pose()
+                self._reactive.see_around(x, y, k)
+        super()._advance()
+        if self.sumo_drives:
+            self._follow_sumo()
+
+    def _follow_sumo(self) -> None:
+        """The target's arc length, offset and speed from where SUMO has it (gone: it arrived)."""
+        box = sumo_box(self._session.api, self.target_id)
+        if box is None:
+            self.s = self.route.length_m
+            return
+        line = self._route_line
+        cum = line.cum
+        lo = max(int(np.searchsorted(cum, self.s - BACK_M)) - 1, 0)
+        hi = min(int(np.searchsorted(cum, self.s + AHEAD_M)) + 1, len(line.points) - 1)
+        near = PreparedPolyline(line.points[lo:hi + 1]) if hi > lo else line
+        arc, lateral, _ = near.project(np.array([box[0], box[1]]))
+        self.s = float(cum[lo] + arc) if hi > lo else float(arc)
+        self.d = float(lateral)
+        self.v = float(self._session.api.vehicle.getSpeed(self.target_id))
