@@ -5,7 +5,10 @@ exactly as in ``coster_sumo/Scenario-v0``: the same observation, the same action
 (:class:`coster_sumo.sim.driver.Driver`). Its route is the target's nominal trajectory. At takeover
 (the first :meth:`before_step` with the target present, when the adversary's plan starts) the
 target's pose and speed are read from SUMO and projected onto the route; from then on the planner
-places the target with moveToXY every step and asks the policy for an action every 0.2 s.
+places the target with moveToXY every step and asks the policy for an action every 0.2 s. The
+observation is the one the policy was trained on, told by its size (``default``, ``avoidance`` or
+``lidar``: :mod:`coster_sumo.gym.observe`); its time left is the nominal trajectory's (the
+environment's is its episode's, which ends with the clip).
 
 Needs the nominal trajectory of the target, which ``run`` and ``regress`` give planners on SUMO
 configurations (on converted WOMD scenes the built-in planners only).
@@ -60,6 +63,7 @@ class PolicyPlanner(Driver):
         self.nominal = nominal
         self.substeps = max(1, int(round(CONTROL_PERIOD_S / STEP_S)))
         self._model: Any = None
+        self.observation = "default"  # which observation the policy reads (its size tells, at setup)
         self._taken = False
         self._count = 0
         self._d_target = 0.0
@@ -71,6 +75,7 @@ class PolicyPlanner(Driver):
         if self._model is None:
             require("rl", f"planner policy:{self.path}")
             self._model = load_model(self.path)
+            self.observation = observation_of(self._model, self.path)
         self._taken = False
         self.target_id = target_id
         self.api = session.api
@@ -99,7 +104,7 @@ class PolicyPlanner(Driver):
             self._take_over(session, target_id)
         if self._count % self.substeps == 0:
             self.states = session.vehicle_states()
-            action = self._model.predict(self._observe(), deterministic=True)[0]
+            action = self._model.predict(self._observation(session.time), deterministic=True)[0]
             self._d_target = self._command(action)
         self._count += 1
         self._kinematic_step(self._d_target)
@@ -107,6 +112,28 @@ class PolicyPlanner(Driver):
         if not all(math.isfinite(v) for v in (x, y, yaw)):
             return
         session.move_to_xy(target_id, x, y, yaw, self.length, speed=self.v)
+
+
+    def _observation(self, now: float) -> np.ndarray:
+        if self.observation == "default":
+            return self._observe()
+        from coster_sumo.gym.observe import observe
+
+        n = self.nominal
+        end = float(n.times[n.valid][-1]) if n is not None and n.valid.any() else now
+        return observe(self, self.observation, end - now)
+
+
+def observation_of(model: Any, path: Path) -> str:
+    """The observation kind whose size is the policy's input (InputError: none has it)."""
+    from coster_sumo.gym.observe import OBSERVATIONS
+
+    size = int(np.prod(model.observation_space.shape))
+    for kind, n in OBSERVATIONS.items():
+        if n == size:
+            return kind
+    raise InputError(f"planner policy:{path}: its observation has {size} numbers, none of "
+                     + ", ".join(f"{k} ({n})" for k, n in OBSERVATIONS.items()))
 
 
 def make_policy_planner(arg: str | None, nominal: NominalPath | None) -> PolicyPlanner:

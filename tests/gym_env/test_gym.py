@@ -221,13 +221,15 @@ def test_short_episode_on_a_converted_womd_scene(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_trained_policy_is_a_planner_for_run(nominal_set, tmp_path):
+@pytest.mark.parametrize("observation", ["default", "avoidance", "lidar"])
+def test_a_trained_policy_is_a_planner_for_run(nominal_set, tmp_path, observation):
+    """The planner reads the observation the policy was trained on (its size tells which)."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import Logger
 
     from coster_sumo.cli.command_line import main
 
-    env = ScenarioEnv(nominal_set, split="train")
+    env = ScenarioEnv(nominal_set, split="train", observation=observation)
     model = PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
     model.set_logger(Logger(folder=None, output_formats=[]))  # SB3's default leaves a folder in /tmp
     model.learn(64)
