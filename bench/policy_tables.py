@@ -134,8 +134,12 @@ def main() -> None:
     args = ap.parse_args()
     found = _load(args.root)
     everything: dict[str, Any] = {}
+    def order(group: str) -> tuple[int, str]:  # Normal, Hard, the adversities, COSTER's variants
+        return (["Normal", "Hard"].index(group) if group in ("Normal", "Hard") else
+                2 if group.startswith("adversity") else 3, group)
+
     for mode in MODES:
-        for (m, group), rows in sorted(found.items()):
+        for (m, group), rows in sorted(found.items(), key=lambda item: order(item[0][1])):
             if m != mode:
                 continue
             lines, numbers = table(rows)
