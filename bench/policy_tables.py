@@ -15,8 +15,9 @@ mode ``T`` (``log`` or ``reactive``), whichever of these ``policy eval`` files e
 
 Per traffic mode and episode group, one row per arm and reference: each score of
 :mod:`coster_sumo.gym.scores` with its 95 % bootstrap interval over the seeds and episodes; then
-every arm against the nominal-only arm on the same episodes (the paired difference and its
-interval): Hard CR (also relative), Normal RCR; and COSTER against Random + CVAE on Hard CR.
+the learning gate (the nominal-only arm against constant speed on Normal: RCR and CR), then every
+arm against the nominal-only arm on the same episodes (the paired difference and its interval):
+Hard CR (also relative), Normal RCR; and COSTER against Random + CVAE on Hard CR.
 """
 
 from __future__ import annotations
@@ -111,9 +112,12 @@ def table(rows: dict[str, dict[str, list[list[dict]]]]) -> tuple[list[str], dict
 
 
 def differences(found: dict[tuple[str, str], dict[str, dict[str, list[list[dict]]]]], mode: str) -> list[str]:
-    """Each arm against nominal only (Hard CR, Normal RCR), and COSTER against Random + CVAE on Hard CR."""
+    """The learning gate (nominal only against constant speed: Normal RCR and CR), each arm against
+    nominal only (Hard CR, Normal RCR), and COSTER against Random + CVAE on Hard CR."""
     out = []
-    pairs = [("nominal", a, "Hard", "cr") for a in ARMS[1:]] + [("nominal", a, "Normal", "rcr") for a in ARMS[1:]]
+    constant = f"reference: {REFERENCES['none']}"
+    pairs = [(constant, "nominal", "Normal", "rcr"), (constant, "nominal", "Normal", "cr")]
+    pairs += [("nominal", a, "Hard", "cr") for a in ARMS[1:]] + [("nominal", a, "Normal", "rcr") for a in ARMS[1:]]
     pairs.append(("random-cvae", "coster", "Hard", "cr"))
     for base, arm, group, score in pairs:
         rows = found.get((mode, group), {})
