@@ -44,30 +44,30 @@ class SumoDriverEnv(ScenarioEnv):
         self.sumo_drives = False
         super()._start(entry)  # its first step puts the target in at its first pose
         self._route_line = PreparedPolyline(self.route.points)
-        front = self._front()
-        if front is None:
+        if not self._on_a_lane():
             self.kept_on_path += 1
             return
-        s_end = self.route.length_m
-        poses = [(*self.route.pose(max(s_end - back, 0.0))[:2], self.route.pose(max(s_end - back, 0.0))[2],
-                  self.length) for back in (0.0, 5.0, 10.0, 20.0, 40.0)]
+        poses = []  # where its route ends, then a little before (the first one SUMO can route to)
+        for back in (0.0, 5.0, 10.0, 20.0, 40.0):
+            x, y, heading = self.route.pose(max(self.route.length_m - back, 0.0))
+            poses.append((x, y, heading, self.length))
         self._session.release_vehicle(self.target_id, poses)
         self.sumo_drives = True
 
-    def _front(self) -> tuple[str, float] | None:
-        """(edge, position) of the normal lane under the target's front bumper, None where none is
-        within :data:`~coster_sumo.sim.reactive.LANE_MATCH_M`."""
+    def _on_a_lane(self) -> bool:
+        """Whether a normal lane lies under the target's front bumper, within
+        :data:`~coster_sumo.sim.reactive.LANE_MATCH_M`."""
         x, y, yaw = self._ego_pose()
         fx, fy = x + 0.5 * self.length * math.cos(yaw), y + 0.5 * self.length * math.sin(yaw)
         sim = self._session.api.simulation
         try:
             edge, pos, lane = sim.convertRoad(fx, fy, False, "passenger")
             if not edge or str(edge).startswith(":"):
-                return None
+                return False
             lx, ly = sim.convert2D(str(edge), float(pos), int(lane))
         except Exception:  # no lane for its class nearby
-            return None
-        return (str(edge), float(pos)) if math.hypot(lx - fx, ly - fy) <= LANE_MATCH_M else None
+            return False
+        return math.hypot(lx - fx, ly - fy) <= LANE_MATCH_M
 
     def _command(self, action: np.ndarray) -> float:
         if not self.sumo_drives:

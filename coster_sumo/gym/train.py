@@ -240,6 +240,7 @@ class EvalResult:
     defect_rate: float | None = None
     avoidable_variants: int = 0
     scores: dict[str, float] = field(default_factory=dict)  # coster_sumo.gym.scores: the paper's RCR, CR by whom
+    kept_on_path: int | None = None  # policy "sumo": episodes SUMO could not drive (no lane under the target)
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -307,4 +308,5 @@ def evaluate(policy: str | Path | None, scenarios: str | Path, split: str | None
     defects = float(np.mean([r.collided_with_adversary for r in avoidable])) if avoidable else None
     from coster_sumo.gym.scores import scores
 
-    return EvalResult(len(rows), rcr, cr, orr, per_kind, defects, len(avoidable), scores(rows)), rows
+    return EvalResult(len(rows), rcr, cr, orr, per_kind, defects, len(avoidable), scores(rows),
+                      getattr(env, "kept_on_path", None)), rows

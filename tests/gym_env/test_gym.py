@@ -298,6 +298,10 @@ def test_sumos_driver_brakes_for_the_braking_leader_that_a_constant_speed_target
     assert seen["log"][0] not in (None, "adversity")  # a replayed follower, which does not react
     assert seen["reactive"][:2] == (None, "completed")
     assert all(low < 0.25 * first for _, _, low in seen.values())  # it slowed behind the leader (16.7 -> 2.0 m/s)
+    from coster_sumo.gym.train import evaluate
+
+    result, rows = evaluate("sumo", out, split=None, traffic="reactive")
+    assert result.kept_on_path == 0 and len(rows) == result.episodes > 1  # SUMO drove every episode
 
 
 def test_hard_set_red_light_runner_crosses_on_red_into_a_target_that_keeps_its_nominal_speed(tmp_path):
