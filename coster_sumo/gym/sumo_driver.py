@@ -12,9 +12,11 @@ A driver model sees only vehicles that are in SUMO. With ``traffic="log"`` the o
 into SUMO and moved along their logs (the environment's ``traffic="sumo"``, the same episodes as
 ``log``: ``tests/gym_env/test_gym.py``); with ``traffic="reactive"`` the logged agents around the
 target are put into SUMO as they come within :data:`~coster_sumo.sim.reactive.SHADOW_RADIUS_M`,
-as around any vehicle that reacts. Where SUMO cannot drive the target (no lane under its front
-at the start), the episode keeps the constant-speed motion and :attr:`SumoDriverEnv.kept_on_path`
-counts it.
+as around any vehicle that reacts. SUMO drives a vehicle on its lanes only: a target that starts
+off them (inside a junction, where its lanes are internal, or more than
+:data:`~coster_sumo.sim.reactive.LANE_MATCH_M` from a lane) keeps its first speed until a normal
+lane lies under its front, and is handed over then; :attr:`SumoDriverEnv.kept_on_path` counts the
+episodes that ended before that.
 """
 
 from __future__ import annotations
@@ -38,14 +40,26 @@ class SumoDriverEnv(ScenarioEnv):
 
     def __init__(self, scenarios: Any, traffic: str = "log", **kwargs: Any) -> None:
         super().__init__(scenarios, traffic="sumo" if traffic == "log" else traffic, **kwargs)
-        self.kept_on_path = 0  # episodes SUMO could not drive (no lane under the target at the start)
+        self.kept_on_path = 0  # episodes that ended before SUMO could drive (no lane under the target)
+
+    def close(self) -> None:
+        if self.entry is not None and not self.sumo_drives:
+            self.kept_on_path += 1
+            self.entry = None
+        super().close()
 
     def _start(self, entry: Any) -> None:
+        if self.entry is not None and not self.sumo_drives:
+            self.kept_on_path += 1  # the last episode ended before SUMO could take it
         self.sumo_drives = False
         super()._start(entry)  # its first step puts the target in at its first pose
         self._route_line = PreparedPolyline(self.route.points)
+        self._hand_over()
+
+    def _hand_over(self) -> None:
+        """Release the target to SUMO where a normal lane lies under it (else it goes on at constant
+        speed and this is tried again after the next step)."""
         if not self._on_a_lane():
-            self.kept_on_path += 1
             return
         poses = []  # where its route ends, then a little before (the first one SUMO can route to)
         for back in (0.0, 5.0, 10.0, 20.0, 40.0):
@@ -88,6 +102,8 @@ class SumoDriverEnv(ScenarioEnv):
         super()._advance()
         if self.sumo_drives:
             self._follow_sumo()
+        elif self._added:
+            self._hand_over()
 
     def _follow_sumo(self) -> None:
         """The target's arc length, offset and speed from where SUMO has it (gone: it arrived)."""
