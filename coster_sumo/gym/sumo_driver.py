@@ -98,7 +98,7 @@ class SumoDriverEnv(ScenarioEnv):
             k = self._replayer.step_at(self._now())
             if k is not None:
                 x, y, _ = self._ego_pose()
-                self._reactive.see_around(x, y, k)
+                self._reactive.see_around(np.array([[x, y]]), k)
         super()._advance()
         if self.sumo_drives:
             self._follow_sumo()

@@ -361,19 +361,19 @@ class ReactiveTraffic:
         if reacting:  # what reacting agents must see: the logged agents around them, in SUMO
             ref = np.array([[p.x, p.y] for p in deviating[1:]] + [[tr.x[a, k], tr.y[a, k]] for a in self.pending])
             if len(ref):
-                others = np.flatnonzero(self.replayed & tr.valid[:, k])
-                d = np.hypot(tr.x[others, k][:, None] - ref[:, 0], tr.y[others, k][:, None] - ref[:, 1]).min(axis=1)
-                self.shadow.update(others[d <= SHADOW_RADIUS_M].tolist())
+                self.see_around(ref, k)
 
-    def see_around(self, x: float, y: float, k: int) -> None:
-        """Put the logged agents within :data:`SHADOW_RADIUS_M` of (x, y) [m] at log step ``k`` into
-        SUMO from the next step on (log-driven), so that a vehicle SUMO drives there sees them."""
+    def see_around(self, ref: np.ndarray, k: int) -> None:
+        """Put the logged agents within :data:`SHADOW_RADIUS_M` of any of the points ``ref`` ((R, 2)
+        [m]) at log step ``k`` into SUMO from the next step on (log-driven), so that a vehicle SUMO
+        drives there sees them."""
         if not 0 <= k < self.scene.num_steps:
             return
         tr = self.scene.tracks
+        ref = np.asarray(ref, np.float64).reshape(-1, 2)
         others = np.flatnonzero(self.replayed & tr.valid[:, k])
-        near = np.hypot(tr.x[others, k] - x, tr.y[others, k] - y) <= SHADOW_RADIUS_M
-        self.shadow.update(others[near].tolist())
+        d = np.hypot(tr.x[others, k][:, None] - ref[:, 0], tr.y[others, k][:, None] - ref[:, 1]).min(axis=1)
+        self.shadow.update(others[d <= SHADOW_RADIUS_M].tolist())
 
     def remove_all(self, session: SumoSession) -> None:
         """Take every vehicle this traffic put into SUMO out again (the episode is over)."""
