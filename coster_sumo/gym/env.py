@@ -69,8 +69,6 @@ from coster_sumo.sim.control import Departure
 from coster_sumo.sim.driver import NEIGHBOUR_RADIUS_M, STEP_S, Arrays6, Driver, Route
 from coster_sumo.sim.states import concat_states
 
-COMPLETION_MARGIN_M = 1.0  # [m] the route counts as completed this close to its end
-MIN_ROUTE_M = 5.0  # [m] a shorter route (a target that hardly moved) ends by time only
 ROUTE_SLACK_S = 3.0
 # [m] agents that never come this close to the target's route (its run-on included) are not replayed:
 # the observation sees 50 m, the target strays at most MAX_OFFSET_M from the route, and a converted
@@ -429,7 +427,7 @@ class ScenarioEnv(gymnasium.Env, Driver):
                 self.outcome, terminated = "collision", True
             elif self.off_road:
                 self.outcome, terminated = "off_road", True
-            elif self.route.length_m >= MIN_ROUTE_M and self.s >= self.route.length_m - COMPLETION_MARGIN_M:
+            elif self.route_completed():
                 self.outcome, terminated = "completed", True
             elif self._now() >= self.t_end - 0.5 * STEP_S:  # the last logged step (WOMD times jitter)
                 self.outcome, truncated = "timeout", True

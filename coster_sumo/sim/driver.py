@@ -34,6 +34,8 @@ OBS_SIZE = EGO_FEATURES + NUM_NEIGHBOURS * NEIGHBOUR_FEATURES
 ROUTE_SPACING_M = 0.5  # [m] the route polyline is resampled to this spacing
 Arrays6 = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 ROUTE_EXTENSION_M = 60.0  # [m] straight run-on beyond the route's end (lookahead only)
+COMPLETION_MARGIN_M = 1.0  # [m] the route counts as completed this close to its end
+MIN_ROUTE_M = 5.0  # [m] a shorter route (a target that hardly moved) ends by time only
 
 
 class Route:
@@ -101,6 +103,11 @@ class Driver:
     target_id: str = "ego"
     states: Any = None  # VehicleStates of the last step
     api: Any = None  # the SUMO API of the session
+
+    def route_completed(self) -> bool:
+        """The target is at its route's end (the environment's ``completed``; a route shorter than
+        :data:`MIN_ROUTE_M` is never completed)."""
+        return self.route.length_m >= MIN_ROUTE_M and self.s >= self.route.length_m - COMPLETION_MARGIN_M
 
     def _ego_pose(self) -> tuple[float, float, float]:
         x, y, h = self.route.pose(self.s)

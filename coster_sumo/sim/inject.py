@@ -39,7 +39,7 @@ from coster_sumo.sim.control import Departure
 from coster_sumo.sim.events import Event, EventDetector
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.placing import BASE_TYPES, edge_under
-from coster_sumo.sim.planners import LoggedPlanner, Planner, ReplayPlanner, make_planner
+from coster_sumo.sim.planners import LoggedPlanner, PlanAware, Planner, ReplayPlanner, make_planner
 from coster_sumo.sim.reactive import replayer_for
 from coster_sumo.sim.record import SURROUNDINGS_RADIUS_M, Focus, record
 from coster_sumo.sim.session import SumoSession, VehicleStates
@@ -251,6 +251,8 @@ class InjectionPass:
     def run(self) -> InjectionResult:
         """Step to the end (or the stop after a contact), recording; the outcome."""
         t0 = _time.perf_counter()
+        if self.plan is not None and isinstance(self.planner, PlanAware):
+            self.planner.set_plan(self.plan)
         self.planner.setup(self.session, self.target_id)
         s = self.settings
         focus = None if s.surroundings_m is None else Focus(self.target_id, s.surroundings_m, extra_ids=(self.adv_id,))

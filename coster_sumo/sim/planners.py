@@ -35,6 +35,7 @@ from coster_sumo.errors import InputError, not_found
 from coster_sumo.sim.policy import make_policy_planner
 
 if TYPE_CHECKING:
+    from coster_sumo.core.plan import AdversaryPlan
     from coster_sumo.sim.session import SumoSession
 
 CAR_FOLLOWING_MODELS = ("Krauss", "KraussPS", "KraussOrig1", "IDM", "IDMM", "EIDM", "ACC", "CACC", "W99",
@@ -57,6 +58,16 @@ class Planner(Protocol):
 
     def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
         """Command the target for simulation time ``t_next``; ``present``: it is in the network."""
+        ...
+
+
+@runtime_checkable
+class PlanAware(Protocol):
+    """A planner that drives only part of the pass and needs the adversary's plan to know which
+    (the policy planner: as long as its training episodes ran)."""
+
+    def set_plan(self, plan: AdversaryPlan) -> None:
+        """Called with the variant's plan before :meth:`Planner.setup`."""
         ...
 
 

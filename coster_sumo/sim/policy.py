@@ -6,6 +6,11 @@ exactly as in ``coster_sumo/Scenario-v0``: the same observation, the same action
 (the first :meth:`before_step` with the target present, when the adversary's plan starts) the
 target's pose and speed are read from SUMO and projected onto the route; from then on the planner
 places the target with moveToXY every step and asks the policy for an action every 0.2 s. The
+policy drives as long as its training episodes ran: to the route's end (the environment's
+``completed``), and in a variant's pass to :data:`~coster_sumo.gym.build.AVOIDANCE_TAIL_S` after
+t_col (a variant's episode ends there). Then SUMO's driver takes the target on along its SUMO route,
+as it takes a replayed target where its recording ends and a missed adversary after the labels'
+horizon: the policy never learnt to drive past them (through the signals of a whole arterial, say). The
 observation is the one the policy was trained on, told by its size (``default``, ``avoidance`` or
 ``lidar``: :mod:`coster_sumo.gym.observe`); its time left is the nominal trajectory's (the
 environment's is its episode's, which ends with the clip).
@@ -30,6 +35,7 @@ from coster_sumo.infra.extras import require
 from coster_sumo.sim.driver import STEP_S, Driver, Route
 
 if TYPE_CHECKING:
+    from coster_sumo.core.plan import AdversaryPlan
     from coster_sumo.sim.session import SumoSession
 
 CONTROL_PERIOD_S = 0.2  # [s] as Scenario-v0's default
@@ -65,18 +71,26 @@ class PolicyPlanner(Driver):
         self._model: Any = None
         self.observation = "default"  # which observation the policy reads (its size tells, at setup)
         self._taken = False
+        self._released = False
+        self.until = math.inf  # [s] SUMO's driver takes the target after this (set_plan)
         self._count = 0
         self._d_target = 0.0
 
     def additional_files(self, workdir: Path) -> list[Path]:
         return []
 
+    def set_plan(self, plan: AdversaryPlan) -> None:
+        """Drive up to the end of the variant's episode (t_col + the episodes' tail)."""
+        from coster_sumo.gym.build import AVOIDANCE_TAIL_S
+
+        self.until = float(plan.t_col) + AVOIDANCE_TAIL_S
+
     def setup(self, session: SumoSession, target_id: str) -> None:
         if self._model is None:
             require("rl", f"planner policy:{self.path}")
             self._model = load_model(self.path)
             self.observation = observation_of(self._model, self.path)
-        self._taken = False
+        self._taken = self._released = False
         self.target_id = target_id
         self.api = session.api
 
@@ -98,10 +112,13 @@ class PolicyPlanner(Driver):
         self._count = 0
 
     def before_step(self, session: SumoSession, target_id: str, t_next: float, present: bool) -> None:
-        if not present:
+        if not present or self._released:
             return
         if not self._taken:
             self._take_over(session, target_id)
+        elif self.route_completed() or t_next > self.until + 1e-6:
+            self._release(session, target_id)
+            return
         if self._count % self.substeps == 0:
             self.states = session.vehicle_states()
             action = self._model.predict(self._observation(session.time), deterministic=True)[0]
@@ -113,6 +130,19 @@ class PolicyPlanner(Driver):
             return
         session.move_to_xy(target_id, x, y, yaw, self.length, speed=self.v)
 
+
+    def _release(self, session: SumoSession, target_id: str) -> None:
+        """Hand the target to SUMO's driver at its route's end: on along its own SUMO route where it
+        still stands on it, else routed to the edge where the nominal trajectory ended."""
+        veh = session.api.vehicle
+        ends: list[tuple[float, float, float, float]] = []
+        if veh.getRouteIndex(target_id) < 0 or veh.getRoadID(target_id) not in veh.getRoute(target_id):
+            n = self.nominal
+            if n is not None and n.valid.any():
+                last = int(np.flatnonzero(n.valid)[-1])
+                ends = [(float(n.x[last]), float(n.y[last]), float(n.yaw[last]), self.length)]
+        session.release_vehicle(target_id, ends)
+        self._released = True
 
     def _observation(self, now: float) -> np.ndarray:
         if self.observation == "default":
