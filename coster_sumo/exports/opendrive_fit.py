@@ -308,7 +308,9 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
             inset = (0.0, 0.0)
             for _ in range(SPAN_TRIES):
                 span, moved = road_span(axis, targets, enters, leaves, inset)
-                if not moved and inset == (0.0, 0.0):  # lanes that end together: room for tight turns
+                # room for tight turns, also where the lanes do not end together (netgenerate's
+                # spiders: the lanes of a two-lane road end apart, and its pinched corners need room)
+                if inset == (0.0, 0.0):
                     inset = (max((cutbacks.get(lane, (0.0, 0.0))[0] for lane in lane_ids), default=0.0),
                              max((cutbacks.get(lane, (0.0, 0.0))[1] for lane in lane_ids), default=0.0))
                     if max(inset) > CUT_EPS_M:
