@@ -45,11 +45,13 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
+from coster_sumo.exports.opendrive_bend import fold_ratio
 from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
 from coster_sumo.exports.opendrive_ends import length as piece_length
 from coster_sumo.exports.opendrive_net import DEFAULT_LANE_WIDTH_M, NetLanes
 from coster_sumo.exports.opendrive_readers import link_lane
 from coster_sumo.exports.opendrive_roads import (
+    NOT_DRIVABLE,
     Sampler,
     drop_outer_walkways,
     extend_reference,
@@ -337,6 +339,9 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     counts["sections"] = sum(len(r.findall("lanes/laneSection")) > 1 for r in root.findall("road"))
     counts["links_to_no_lane_removed"] = renumber(root, renumbered)
     counts["connecting_joined"], counts["connecting_folded"] = join_connecting_roads(root, sample)
+    for road in [r for r in root.findall("road") if r.get("junction", "-1") != "-1" and _folded_walkway(r)]:
+        _remove_connecting(root, road)  # (SUMO has no lane there; a walkway that folds is no walkway)
+        counts["folded_walkways_left_out"] = counts.get("folded_walkways_left_out", 0) + 1
     ET.indent(tree)
     tree.write(xodr, encoding="UTF-8", xml_declaration=True)
     return counts
@@ -386,6 +391,21 @@ def _keys(road: ET.Element, net: NetLanes, edge_of: dict[str, str]) -> set[tuple
             return set()
         keys.add((frm, n_from + int(p.get("id", "0")), to, n_to + int(q.get("id", "0"))))
     return keys
+
+
+def _folded_walkway(road: ET.Element) -> bool:
+    """Whether a connecting road of netconvert's is one lane that is not drivable (a sidewalk,
+    which SUMO crosses by walking areas, not lanes) and that folds on its curve (netconvert's
+    cubics on OSM cuts whose u runs back: commonroad's invalid lanelets)."""
+    lanes = road.findall("lanes/laneSection/right/lane") + road.findall("lanes/laneSection/left/lane")
+    geos = road.findall("planView/geometry")
+    if len(lanes) != 1 or lanes[0].get("type") not in NOT_DRIVABLE or not geos \
+            or any(g.find("paramPoly3[@pRange='normalized']") is None for g in geos):
+        return False
+    width = max((float(w.get("a", "0")) for w in lanes[0].findall("width")), default=0.0)
+    pieces = [{**{k: float(pp.get(k, "0")) for k in ("bU", "cU", "dU", "cV", "dV")},
+               "length": float(g.get("length", "0"))} for g in geos if (pp := g.find("paramPoly3")) is not None]
+    return width > 0.0 and fold_ratio(pieces, width, width) >= 1.0
 
 
 def _remove_connecting(root: ET.Element, road: ET.Element) -> None:
