@@ -269,8 +269,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     """
     net = NetLanes.read(net_file)
     cutbacks = net.tight_cutbacks()
-    tree = SafeET.parse(str(xodr), forbid_dtd=True)
-    root = tree.getroot()
+    root = (tree := SafeET.parse(str(xodr), forbid_dtd=True)).getroot()
     counts = {"roads_fitted": 0, "roads_kept": 0, "connecting_fitted": 0, "connecting_kept": 0, "connecting_split": 0,
               "renumbered": 0}
     if net.lefthand:
@@ -310,9 +309,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
             inset = (0.0, 0.0)
             for _ in range(SPAN_TRIES):
                 span, moved = road_span(axis, targets, enters, leaves, inset)
-                # room for tight turns, also where the lanes do not end together (netgenerate's
-                # spiders: the lanes of a two-lane road end apart, and its pinched corners need room)
-                if inset == (0.0, 0.0):
+                if inset == (0.0, 0.0):  # room for tight turns (NetLanes.tight_cutbacks)
                     inset = (max((cutbacks.get(lane, (0.0, 0.0))[0] for lane in lane_ids), default=0.0),
                              max((cutbacks.get(lane, (0.0, 0.0))[1] for lane in lane_ids), default=0.0))
                     if max(inset) > CUT_EPS_M:
@@ -339,9 +336,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     counts["sections"] = sum(len(r.findall("lanes/laneSection")) > 1 for r in root.findall("road"))
     counts["links_to_no_lane_removed"] = renumber(root, renumbered)
     counts["connecting_joined"], counts["connecting_folded"] = join_connecting_roads(root, sample)
-    for road in [r for r in root.findall("road") if r.get("junction", "-1") != "-1" and _folded_walkway(r)]:
-        _remove_connecting(root, road)  # (SUMO has no lane there; a walkway that folds is no walkway)
-        counts["folded_walkways_left_out"] = counts.get("folded_walkways_left_out", 0) + 1
+    counts["folded_walkways_left_out"] = _drop_folded_walkways(root)
     ET.indent(tree)
     tree.write(xodr, encoding="UTF-8", xml_declaration=True)
     return counts
@@ -391,6 +386,15 @@ def _keys(road: ET.Element, net: NetLanes, edge_of: dict[str, str]) -> set[tuple
             return set()
         keys.add((frm, n_from + int(p.get("id", "0")), to, n_to + int(q.get("id", "0"))))
     return keys
+
+
+def _drop_folded_walkways(root: ET.Element) -> int:
+    """Take out every connecting road that is a walkway folding on its curve (:func:`_folded_walkway`;
+    SUMO has no drivable lane there); returns how many."""
+    gone = [r for r in root.findall("road") if r.get("junction", "-1") != "-1" and _folded_walkway(r)]
+    for road in gone:
+        _remove_connecting(root, road)
+    return len(gone)
 
 
 def _folded_walkway(road: ET.Element) -> bool:

@@ -140,7 +140,7 @@ class NetLanes:
         the lane it leaves and half from the start of the lane it enters, only as far as that lane
         runs straight there and up to :data:`MAX_CUTBACK_M`. (game/grid6's corner connections:
         1.1 m turning 0.67 rad with a 3.2 m lane.) U-turns and turns over 90 degrees are left
-        alone."""
+        alone, unless their lanes meet at its inner corner (:meth:`corner_is_pinched`)."""
         out: dict[str, tuple[float, float]] = {}
         for key in self.via:
             frm, i, to, j = key
