@@ -398,9 +398,9 @@ def _drop_folded_walkways(root: ET.Element) -> int:
 
 
 def _folded_walkway(road: ET.Element) -> bool:
-    """Whether a connecting road of netconvert's is one lane that is not drivable (a sidewalk,
-    which SUMO crosses by walking areas, not lanes) and that folds on its curve (netconvert's
-    cubics on OSM cuts whose u runs back: commonroad's invalid lanelets)."""
+    """Whether a connecting road of netconvert's is one lane that is not drivable (a sidewalk
+    the fit left on netconvert's curve) and that folds on that curve (cubics on OSM cuts whose u
+    runs back: their outline crosses itself, commonroad's invalid lanelets)."""
     lanes = road.findall("lanes/laneSection/right/lane") + road.findall("lanes/laneSection/left/lane")
     geos = road.findall("planView/geometry")
     if len(lanes) != 1 or lanes[0].get("type") not in NOT_DRIVABLE or not geos \
