@@ -45,11 +45,13 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
+from coster_sumo.exports.opendrive_bend import fold_ratio
 from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
 from coster_sumo.exports.opendrive_ends import length as piece_length
 from coster_sumo.exports.opendrive_net import DEFAULT_LANE_WIDTH_M, NetLanes
 from coster_sumo.exports.opendrive_readers import link_lane
 from coster_sumo.exports.opendrive_roads import (
+    NOT_DRIVABLE,
     Sampler,
     drop_outer_walkways,
     extend_reference,
@@ -267,8 +269,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     """
     net = NetLanes.read(net_file)
     cutbacks = net.tight_cutbacks()
-    tree = SafeET.parse(str(xodr), forbid_dtd=True)
-    root = tree.getroot()
+    root = (tree := SafeET.parse(str(xodr), forbid_dtd=True)).getroot()
     counts = {"roads_fitted": 0, "roads_kept": 0, "connecting_fitted": 0, "connecting_kept": 0, "connecting_split": 0,
               "renumbered": 0}
     if net.lefthand:
@@ -308,7 +309,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
             inset = (0.0, 0.0)
             for _ in range(SPAN_TRIES):
                 span, moved = road_span(axis, targets, enters, leaves, inset)
-                if not moved and inset == (0.0, 0.0):  # lanes that end together: room for tight turns
+                if inset == (0.0, 0.0):  # room for tight turns (NetLanes.tight_cutbacks)
                     inset = (max((cutbacks.get(lane, (0.0, 0.0))[0] for lane in lane_ids), default=0.0),
                              max((cutbacks.get(lane, (0.0, 0.0))[1] for lane in lane_ids), default=0.0))
                     if max(inset) > CUT_EPS_M:
@@ -335,6 +336,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
     counts["sections"] = sum(len(r.findall("lanes/laneSection")) > 1 for r in root.findall("road"))
     counts["links_to_no_lane_removed"] = renumber(root, renumbered)
     counts["connecting_joined"], counts["connecting_folded"] = join_connecting_roads(root, sample)
+    counts["folded_walkways_left_out"] = _drop_folded_walkways(root)
     ET.indent(tree)
     tree.write(xodr, encoding="UTF-8", xml_declaration=True)
     return counts
@@ -384,6 +386,30 @@ def _keys(road: ET.Element, net: NetLanes, edge_of: dict[str, str]) -> set[tuple
             return set()
         keys.add((frm, n_from + int(p.get("id", "0")), to, n_to + int(q.get("id", "0"))))
     return keys
+
+
+def _drop_folded_walkways(root: ET.Element) -> int:
+    """Take out every connecting road that is a walkway folding on its curve (:func:`_folded_walkway`;
+    SUMO has no drivable lane there); returns how many."""
+    gone = [r for r in root.findall("road") if r.get("junction", "-1") != "-1" and _folded_walkway(r)]
+    for road in gone:
+        _remove_connecting(root, road)
+    return len(gone)
+
+
+def _folded_walkway(road: ET.Element) -> bool:
+    """Whether a connecting road of netconvert's is one lane that is not drivable (a sidewalk
+    the fit left on netconvert's curve) and that folds on that curve (cubics on OSM cuts whose u
+    runs back: their outline crosses itself, commonroad's invalid lanelets)."""
+    lanes = road.findall("lanes/laneSection/right/lane") + road.findall("lanes/laneSection/left/lane")
+    geos = road.findall("planView/geometry")
+    if len(lanes) != 1 or lanes[0].get("type") not in NOT_DRIVABLE or not geos \
+            or any(g.find("paramPoly3[@pRange='normalized']") is None for g in geos):
+        return False
+    width = max((float(w.get("a", "0")) for w in lanes[0].findall("width")), default=0.0)
+    pieces = [{**{k: float(pp.get(k, "0")) for k in ("bU", "cU", "dU", "cV", "dV")},
+               "length": float(g.get("length", "0"))} for g in geos if (pp := g.find("paramPoly3")) is not None]
+    return width > 0.0 and fold_ratio(pieces, width, width) >= 1.0
 
 
 def _remove_connecting(root: ET.Element, road: ET.Element) -> None:

@@ -24,6 +24,7 @@ PINCH_M = 0.05  # [m] a U-turn's two lanes whose left borders are this close sha
 # corners: with 2 none kept the lane from folding, even narrowed; with 2.5 and 3 the lane narrows to
 # 1.8 m where it turns and folds nowhere; 3 leaves a margin)
 TURN_ROOM = 3.0
+MAX_PINCHED_TURN = 0.9 * np.pi  # [rad] a sharper turn is a U-turn (NetLanes.corner_is_pinched)
 MAX_CUTBACK_M = 2.0  # [m] most a lane's end moves into it to give a tight connection room
 STRAIGHT_TOL_M = 0.01  # [m] a lane's end runs straight while it stays this close to its end segment's line
 
@@ -102,6 +103,25 @@ class NetLanes:
         left_b = _left_border(b[0], b[1] - b[0], self.width[lanes_to[j]])
         return float(np.hypot(*(left_a - left_b))) <= PINCH_M
 
+    def corner_is_pinched(self, key: tuple[str, int, str, int]) -> bool:
+        """Whether a turn (not a U-turn) leaves its lane's end and enters its next lane's start at
+        one point of the border on its inner side (within :data:`PINCH_M`; netgenerate's spiders:
+        116 degree right turns between neighbouring spokes)."""
+        frm, i, to, j = key
+        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
+        if not (0 <= i < len(lanes_from) and 0 <= j < len(lanes_to)):
+            return False
+        a, b = self.shape.get(lanes_from[i]), self.shape.get(lanes_to[j])
+        if a is None or b is None or len(a) < 2 or len(b) < 2:
+            return False
+        turn = _wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2]))
+        if abs(turn) > MAX_PINCHED_TURN:
+            return False
+        side = 1.0 if turn > 0 else -1.0  # the left border on a left turn, the right on a right turn
+        inner_a = _left_border(a[-1], a[-1] - a[-2], side * self.width[lanes_from[i]])
+        inner_b = _left_border(b[0], b[1] - b[0], side * self.width[lanes_to[j]])
+        return float(np.hypot(*(inner_a - inner_b))) <= PINCH_M
+
     def internal_lanes(self, key: tuple[str, int, str, int]) -> list[str]:
         """The internal lane ids a connection runs on (through internal junctions)."""
         lane, out = self.via.get(key), []
@@ -120,7 +140,7 @@ class NetLanes:
         the lane it leaves and half from the start of the lane it enters, only as far as that lane
         runs straight there and up to :data:`MAX_CUTBACK_M`. (game/grid6's corner connections:
         1.1 m turning 0.67 rad with a 3.2 m lane.) U-turns and turns over 90 degrees are left
-        alone."""
+        alone, unless their lanes meet at its inner corner (:meth:`corner_is_pinched`)."""
         out: dict[str, tuple[float, float]] = {}
         for key in self.via:
             frm, i, to, j = key
@@ -138,7 +158,9 @@ class NetLanes:
             turn = abs(_wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2])))
             half = 0.5 * self.width.get(internal[0], DEFAULT_LANE_WIDTH_M)
             lack = TURN_ROOM * turn * half / FOLD_RATIO - length
-            if turn > np.pi / 2 or lack <= 0.0:  # (a U-turn's room is the lanes beside it)
+            # (a U-turn's room is the lanes beside it; a sharper turn whose lanes meet at its
+            # inner corner gets room all the same: its inner border cannot start and end there)
+            if (turn > np.pi / 2 and not self.corner_is_pinched(key)) or lack <= 0.0:
                 continue
             # only as far as the lane runs straight from its end: the cut piece stays on its line
             back = min(0.5 * lack, MAX_CUTBACK_M, _straight(a[::-1]), _straight(b))

@@ -39,8 +39,7 @@ from coster_sumo.exports.opendrive_solve import (
 
 Sampler = Callable[[ET.Element, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 # [m] a connecting road joins a lane at least this wide at the contact: every lane the fit gave a
-# SUMO shape there (it is at least opendrive_solve.MIN_WIDTH_M wide, even where two logged lanes
-# overlap and share the room), not one that has not begun (width 0)
+# SUMO shape there (at least opendrive_solve.MIN_WIDTH_M), not one that has not begun (width 0)
 MIN_JOIN_WIDTH_M = 0.005
 # [m] a connecting road's curve may leave its SUMO shape by this much to keep its lane from folding
 # (the converted WOMD maps' connecting roads lie within 0.1 m of their logged lanes) ...
@@ -355,14 +354,11 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
     """The cubic pieces of the joined road, half its lane's width at their ends (None: the width
     changes linearly) and whether its lane folds all the same."""
     path, start, end = c.path, c.start, c.end
-    # In order: the smooth curve where it keeps the lane from folding within BEND_DEVIATION_M of
-    # the SUMO shape (or BEND_KINK_FACTOR times as far as the curve through the shape's points,
-    # which leaves netconvert's kinked internal lanes by up to 0.25 m); else the same with the lane
-    # narrowed where it turns; else the curve through the points where its lane keeps whole; else
-    # the closest of those, or of the lane narrowed further (opendrive_bend.TIGHT), within
-    # FOLD_ESCAPE_WIDTH_SHARE of the lane's width (a lane a reader can build beats one a few
-    # decimetres closer that it rejects); else the curve through the points, folded (where the
-    # contacts leave no room).
+    # In order: the smooth curve where its lane keeps whole within BEND_DEVIATION_M of the SUMO
+    # shape (or BEND_KINK_FACTOR times the curve through the points' distance: netconvert's kinked
+    # internal lanes); else that lane narrowed where it turns; else the curve through the points
+    # where its lane keeps whole; else the closest of those or of the lane narrowed further (TIGHT)
+    # within FOLD_ESCAPE_WIDTH_SHARE of the lane's width; else the curve through the points, folded.
     through = hermite_through(path, start[2], end[2])
     bound = max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M)
     smooth = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
@@ -435,6 +431,23 @@ def _write_joined(c: _Connecting, pieces: list[dict[str, float]], half: np.ndarr
     return True
 
 
+def _smooth_unlinked(road: ET.Element, sample: Sampler) -> None:
+    """A one-lane connecting road linked at neither end, left on its SUMO polyline (converted OSM
+    cuts' bicycle turns), gets the curve through the polyline's points where its lane keeps whole
+    and within :data:`FOLD_ESCAPE_WIDTH_SHARE` of its width: the kinks fold its inner border."""
+    plan, lanes = road.find("planView"), road.findall("lanes/laneSection/right/lane")
+    if road.get("junction", "-1") == "-1" or plan is None or len(lanes) != 1 or len(plan) < 2 \
+            or any(g.find("line") is None for g in plan) or len(lanes[0].findall("width")) != 1:
+        return
+    s = np.array([float(g.get("s", "0")) for g in plan.findall("geometry")] + [float(road.get("length", "0"))])
+    (x, y, h), width = sample(plan, s), _records_at(lanes[0].findall("width"), "sOffset", 0.0)
+    path, through = np.column_stack([x, y]), hermite_through(np.column_stack([x, y]), float(h[0]), float(h[-1]))
+    if width > 0.0 and fold_ratio(through, width, width) < 1.0 \
+            and deviation(through, path) <= FOLD_ESCAPE_WIDTH_SHARE * width:
+        _write_joined(_Connecting(road, plan, lanes[0], path, (path[0], width, float(h[0])),
+                                  (path[-1], width, float(h[-1]))), through, None)
+
+
 def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
     """Make every one-lane connecting road start exactly where its incoming lane ends and end where
     its outgoing lane starts: same centre point, heading and width, so both borders of the two lanes
@@ -450,6 +463,7 @@ def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:
     for road in roads.values():
         c = _connecting(road, roads, sample)
         if c is None:
+            _smooth_unlinked(road, sample)
             continue
         pieces, half, folds = _joining_curve(c)
         folded += folds
