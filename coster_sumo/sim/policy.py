@@ -10,7 +10,7 @@ policy drives as long as its training episodes ran: to the route's end (the envi
 ``completed``), and in a variant's pass to :data:`~coster_sumo.gym.build.AVOIDANCE_TAIL_S` after
 t_col (a variant's episode ends there). Then SUMO's driver takes the target on along its SUMO route,
 as it takes a replayed target where its recording ends and a missed adversary after the labels'
-horizon: the policy never learnt to drive past them (through the signals of a whole arterial, say). The
+horizon: the policy never learnt to drive past them (the rest of a long route, say). The
 observation is the one the policy was trained on, told by its size (``default``, ``avoidance`` or
 ``lidar``: :mod:`coster_sumo.gym.observe`); its time left is the nominal trajectory's (the
 environment's is its episode's, which ends with the clip).
