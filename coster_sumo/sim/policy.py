@@ -12,8 +12,8 @@ t_col (a variant's episode ends there). Then SUMO's driver takes the target on a
 as it takes a replayed target where its recording ends and a missed adversary after the labels'
 horizon: the policy never learnt to drive past them (the rest of a long route, say). The
 observation is the one the policy was trained on, told by its size (``default``, ``avoidance`` or
-``lidar``: :mod:`coster_sumo.gym.observe`); its time left is the nominal trajectory's (the
-environment's is its episode's, which ends with the clip).
+``lidar``: :mod:`coster_sumo.gym.observe`); its time left runs to where the policy hands over (the
+environment's runs to its episode's end).
 
 Needs the nominal trajectory of the target, which ``run`` and ``regress`` give planners on SUMO
 configurations (on converted WOMD scenes the built-in planners only).
@@ -151,7 +151,9 @@ class PolicyPlanner(Driver):
 
         n = self.nominal
         end = float(n.times[n.valid][-1]) if n is not None and n.valid.any() else now
-        return observe(self, self.observation, end - now)
+        # the episode the policy trained on ends at t_col + the tail in a variant: so does its time left
+        # here (a whole life's would read as 20 s or more, which no 9.1 s training clip shows)
+        return observe(self, self.observation, min(end, self.until) - now)
 
 
 def observation_of(model: Any, path: Path) -> str:

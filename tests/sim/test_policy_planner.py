@@ -69,3 +69,31 @@ def test_a_policy_drives_a_variant_only_as_long_as_its_episodes_ran(tmp_path):
     assert released_at is not None and arrived
     assert released_at == pytest.approx(planner.until + 0.1, abs=1e-6)
     assert planner.until == pytest.approx(2.0 + 1.0 + AVOIDANCE_TAIL_S, abs=0.05)
+
+
+def test_the_policys_time_left_runs_to_its_hand_over_as_in_its_episodes(tmp_path):
+    """The avoidance observation's last number is the time left over TIME_LEFT_SCALE_S: to t_col + the
+    tail with a plan (a variant's episode end), not to the end of the target's nominal life."""
+    from coster_sumo.gym.observe import TIME_LEFT_SCALE_S
+
+    cfg = make_grid(tmp_path / "grid")
+    (tmp_path / "policy.zip").write_bytes(b"")
+    with SumoSession(cfg, seed=0) as sim:
+        for _ in range(20):
+            sim.step()
+        st = sim.vehicle_states(["ego"])
+        x0, y0, yaw = float(st.x[0]), float(st.y[0]), float(st.yaw[0])
+        t = sim.time + 0.1 * np.arange(600)  # a 60 s nominal life
+        nominal = SimpleNamespace(times=t, x=x0 + 5.0 * (t - t[0]) * np.cos(yaw), y=y0 + 5.0 * (t - t[0]) * np.sin(yaw),
+                                  yaw=np.full(len(t), yaw), valid=np.ones(len(t), bool))
+        planner = PolicyPlanner(tmp_path / "policy.zip", nominal)
+        planner._model = KeepSpeed()
+        planner.observation = "avoidance"
+        planner.set_plan(SimpleNamespace(t_col=sim.time + 2.0))  # type: ignore[arg-type]
+        planner.setup(sim, "ego")
+        planner.before_step(sim, "ego", sim.time + 0.1, True)
+        sim.step()
+        planner.states = sim.vehicle_states()
+        left = planner.until - sim.time
+        assert 0.0 < left < TIME_LEFT_SCALE_S
+        assert float(planner._observation(sim.time)[-1]) == pytest.approx(left / TIME_LEFT_SCALE_S, abs=1e-6)
