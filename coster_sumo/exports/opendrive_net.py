@@ -92,35 +92,41 @@ class NetLanes:
         border point (within :data:`PINCH_M`): a U-turn between two lanes side by side. Its lane's
         inner border would start and end there, and no lane outline can pass one point twice
         (commonroad-scenario-designer's lanelets of such a connecting road are invalid polygons)."""
-        frm, i, to, j = key
-        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
-        if not (0 <= i < len(lanes_from) and 0 <= j < len(lanes_to)):
+        ends = self._connected_shapes(key)
+        if ends is None:
             return False
-        a, b = self.shape.get(lanes_from[i]), self.shape.get(lanes_to[j])
-        if a is None or b is None or len(a) < 2 or len(b) < 2:
-            return False
-        left_a = _left_border(a[-1], a[-1] - a[-2], self.width[lanes_from[i]])
-        left_b = _left_border(b[0], b[1] - b[0], self.width[lanes_to[j]])
+        a, b, width_a, width_b = ends
+        left_a = _left_border(a[-1], a[-1] - a[-2], width_a)
+        left_b = _left_border(b[0], b[1] - b[0], width_b)
         return float(np.hypot(*(left_a - left_b))) <= PINCH_M
 
     def corner_is_pinched(self, key: tuple[str, int, str, int]) -> bool:
         """Whether a turn (not a U-turn) leaves its lane's end and enters its next lane's start at
         one point of the border on its inner side (within :data:`PINCH_M`; netgenerate's spiders:
         116 degree right turns between neighbouring spokes)."""
-        frm, i, to, j = key
-        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
-        if not (0 <= i < len(lanes_from) and 0 <= j < len(lanes_to)):
+        ends = self._connected_shapes(key)
+        if ends is None:
             return False
-        a, b = self.shape.get(lanes_from[i]), self.shape.get(lanes_to[j])
-        if a is None or b is None or len(a) < 2 or len(b) < 2:
-            return False
+        a, b, width_a, width_b = ends
         turn = _wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2]))
         if abs(turn) > MAX_PINCHED_TURN:
             return False
         side = 1.0 if turn > 0 else -1.0  # the left border on a left turn, the right on a right turn
-        inner_a = _left_border(a[-1], a[-1] - a[-2], side * self.width[lanes_from[i]])
-        inner_b = _left_border(b[0], b[1] - b[0], side * self.width[lanes_to[j]])
+        inner_a = _left_border(a[-1], a[-1] - a[-2], side * width_a)
+        inner_b = _left_border(b[0], b[1] - b[0], side * width_b)
         return float(np.hypot(*(inner_a - inner_b))) <= PINCH_M
+
+    def _connected_shapes(self, key: tuple[str, int, str, int]) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+        """A connection's from-lane and to-lane shapes and widths (None: either is missing or has no
+        segment)."""
+        frm, i, to, j = key
+        lanes_from, lanes_to = self.edge_lanes.get(frm, []), self.edge_lanes.get(to, [])
+        if not (0 <= i < len(lanes_from) and 0 <= j < len(lanes_to)):
+            return None
+        a, b = self.shape.get(lanes_from[i]), self.shape.get(lanes_to[j])
+        if a is None or b is None or len(a) < 2 or len(b) < 2:
+            return None
+        return a, b, self.width[lanes_from[i]], self.width[lanes_to[j]]
 
     def internal_lanes(self, key: tuple[str, int, str, int]) -> list[str]:
         """The internal lane ids a connection runs on (through internal junctions)."""
