@@ -21,6 +21,18 @@ class KeepSpeed:
         return np.zeros(2, np.float32), None
 
 
+def _straight_nominal(sim: SumoSession, route_m: float, speed: float | None = None) -> SimpleNamespace:
+    """A nominal trajectory of ``route_m`` straight ahead of the grid's ego from now, at ``speed``
+    (default: its own, at least 5 m/s), at 10 Hz."""
+    st = sim.vehicle_states(["ego"])
+    x0, y0, yaw = float(st.x[0]), float(st.y[0]), float(st.yaw[0])
+    v = speed if speed is not None else max(float(st.speed[0]), 5.0)
+    t = sim.time + 0.1 * np.arange(int(route_m / v / 0.1) + 1)
+    run = v * (t - t[0])
+    return SimpleNamespace(times=t, x=x0 + run * np.cos(yaw), y=y0 + run * np.sin(yaw),
+                           yaw=np.full(len(t), yaw), valid=np.ones(len(t), bool))
+
+
 def _drive(tmp_path, route_m: float, t_col_in_s: float | None) -> tuple[PolicyPlanner, float | None, bool]:
     """The grid's ego driven by a keep-speed policy from 2 s on along a straight route of ``route_m``
     ahead; with a plan whose t_col is ``t_col_in_s`` after the takeover when given. Returns the
@@ -30,12 +42,7 @@ def _drive(tmp_path, route_m: float, t_col_in_s: float | None) -> tuple[PolicyPl
     with SumoSession(cfg, seed=0) as sim:
         for _ in range(20):
             sim.step()
-        st = sim.vehicle_states(["ego"])
-        x0, y0, yaw, v = float(st.x[0]), float(st.y[0]), float(st.yaw[0]), max(float(st.speed[0]), 5.0)
-        t = sim.time + 0.1 * np.arange(int(route_m / v / 0.1) + 1)
-        run = v * (t - t[0])
-        nominal = SimpleNamespace(times=t, x=x0 + run * np.cos(yaw), y=y0 + run * np.sin(yaw),
-                                  yaw=np.full(len(t), yaw), valid=np.ones(len(t), bool))
+        nominal = _straight_nominal(sim, route_m)
         planner = PolicyPlanner(tmp_path / "policy.zip", nominal)
         planner._model = KeepSpeed()
         if t_col_in_s is not None:
@@ -81,11 +88,7 @@ def test_the_policys_time_left_runs_to_its_hand_over_as_in_its_episodes(tmp_path
     with SumoSession(cfg, seed=0) as sim:
         for _ in range(20):
             sim.step()
-        st = sim.vehicle_states(["ego"])
-        x0, y0, yaw = float(st.x[0]), float(st.y[0]), float(st.yaw[0])
-        t = sim.time + 0.1 * np.arange(600)  # a 60 s nominal life
-        nominal = SimpleNamespace(times=t, x=x0 + 5.0 * (t - t[0]) * np.cos(yaw), y=y0 + 5.0 * (t - t[0]) * np.sin(yaw),
-                                  yaw=np.full(len(t), yaw), valid=np.ones(len(t), bool))
+        nominal = _straight_nominal(sim, 300.0, speed=5.0)  # a 60 s nominal life
         planner = PolicyPlanner(tmp_path / "policy.zip", nominal)
         planner._model = KeepSpeed()
         planner.observation = "avoidance"
