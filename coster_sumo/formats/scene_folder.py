@@ -115,6 +115,22 @@ def tls_state_strings(scene: Scene, tls: dict[str, dict]) -> dict[str, list[str]
     return out
 
 
+def _valid_medians(values: np.ndarray, valid: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(A,) float64: each row's median over its valid steps (NaN where none is valid). A row whose valid
+    values are all equal (a SUMO vehicle's size never changes) is that value, which is its median; the
+    others go through ``np.nanmedian`` (slow per row: a reset of the environment asks for every agent)."""
+    lo = np.where(valid, values, np.inf).min(axis=1)
+    hi = np.where(valid, values, -np.inf).max(axis=1)
+    constant = lo == hi
+    med = np.where(constant, lo, np.nan).astype(np.float64)
+    mixed = np.flatnonzero(seen & ~constant)
+    if len(mixed):
+        with warnings.catch_warnings():  # a row of non-finite sizes only: NaN, as below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med[mixed] = np.nanmedian(np.where(valid[mixed], values[mixed], np.nan), axis=1).astype(np.float64)
+    return med
+
+
 def agent_sizes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(num_agents,) length and width [m]: the median over valid steps (SUMO's size is fixed)."""
     tr = scene.tracks
@@ -123,9 +139,7 @@ def agent_sizes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     defaults = np.array([vtype_for(int(t))[3:5] for t in tr.object_type], np.float64).reshape(-1, 2)
     sizes = []
     for values, default in ((tr.length, defaults[:, 0]), (tr.width, defaults[:, 1])):
-        with warnings.catch_warnings():  # rows without a valid step: their default below
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(np.where(valid, values, np.nan), axis=1).astype(np.float64)
+        med = _valid_medians(values, valid, seen)
         med[(valid & ~np.isfinite(values)).any(axis=1)] = np.nan  # a non-finite logged size: as np.median gives
         sizes.append(np.where(seen, med, default))
     lengths, widths = sizes

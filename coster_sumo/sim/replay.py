@@ -51,6 +51,7 @@ from coster_sumo.sim.states import VehicleStates, empty_states
 
 STAGING_SPACING_M = 25.0  # [m] between agents parked on the staging lane (longer than any vehicle)
 TIME_EPS_S = 1e-6  # [s] two simulation times this close are the same step
+_FAR_BLOCK = 256  # agents boxed at once by far_agents (a city pass has thousands of rows of 10^4 steps)
 
 
 @dataclass(slots=True)
@@ -97,18 +98,28 @@ def far_agents(tracks: Tracks, path: np.ndarray, radius_m: float, from_step: int
     valid position there are not listed (a replay never adds them).
 
     A replay may leave such agents out where nothing closer matters (the proof of an escape, an
-    environment's observation radius): they react to nothing and cannot touch the path."""
+    environment's observation radius): they react to nothing and cannot touch the path.
+
+    Every agent's valid positions are boxed first (all agents at once, a block of rows at a time); an
+    agent whose box, grown by ``radius_m``, holds no point of the path is far, and only the others
+    are measured point to point against the path's points inside their box."""
     path = np.asarray(path, np.float64).reshape(-1, 2)
     far: set[str] = set()
-    for a in range(tracks.num_agents):
-        keep = tracks.valid[a, from_step:]
-        pts = np.stack([tracks.x[a, from_step:][keep], tracks.y[a, from_step:][keep]], -1)  # (n, 2)
-        if len(pts) == 0:
-            continue
-        lo, hi = pts.min(axis=0) - radius_m, pts.max(axis=0) + radius_m
-        near = path[((path >= lo) & (path <= hi)).all(axis=1)]  # the path's points around the agent first
-        if len(near) == 0 or np.min(np.hypot(*(pts[:, None, :] - near[None, :, :]).transpose(2, 0, 1))) > radius_m:
-            far.add(str(tracks.ids[a]))
+    for a0 in range(0, tracks.num_agents, _FAR_BLOCK):
+        rows = slice(a0, min(a0 + _FAR_BLOCK, tracks.num_agents))
+        keep = tracks.valid[rows, from_step:]
+        xs, ys = tracks.x[rows, from_step:], tracks.y[rows, from_step:]
+        seen = keep.any(axis=1)
+        lo = np.stack([np.where(keep, xs, np.inf).min(axis=1), np.where(keep, ys, np.inf).min(axis=1)], -1) - radius_m
+        hi = np.stack([np.where(keep, xs, -np.inf).max(axis=1), np.where(keep, ys, -np.inf).max(axis=1)], -1) + radius_m
+        inside = ((path[None] >= lo[:, None]) & (path[None] <= hi[:, None])).all(axis=2)  # (B, P)
+        for j in np.flatnonzero(seen).tolist():
+            near = path[inside[j]]  # the path's points around the agent
+            if len(near):
+                pts = np.stack([xs[j][keep[j]], ys[j][keep[j]]], -1)  # (n, 2)
+                if np.min(np.hypot(*(pts[:, None, :] - near[None, :, :]).transpose(2, 0, 1))) <= radius_m:
+                    continue
+            far.add(str(tracks.ids[a0 + j]))
     return far
 
 
