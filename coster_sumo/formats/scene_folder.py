@@ -135,7 +135,7 @@ def agent_sizes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(num_agents,) length and width [m]: the median over valid steps (SUMO's size is fixed)."""
     tr = scene.tracks
     valid = tr.valid
-    seen = valid.any(axis=1)
+    seen = np.any(valid, axis=1)
     defaults = np.array([vtype_for(int(t))[3:5] for t in tr.object_type], np.float64).reshape(-1, 2)
     sizes = []
     for values, default in ((tr.length, defaults[:, 0]), (tr.width, defaults[:, 1])):

@@ -112,7 +112,7 @@ def far_agents(tracks: Tracks, path: np.ndarray, radius_m: float, from_step: int
         seen = keep.any(axis=1)
         lo = np.stack([np.where(keep, xs, np.inf).min(axis=1), np.where(keep, ys, np.inf).min(axis=1)], -1) - radius_m
         hi = np.stack([np.where(keep, xs, -np.inf).max(axis=1), np.where(keep, ys, -np.inf).max(axis=1)], -1) + radius_m
-        inside = ((path[None] >= lo[:, None]) & (path[None] <= hi[:, None])).all(axis=2)  # (B, P)
+        inside = np.all((path[None] >= lo[:, None]) & (path[None] <= hi[:, None]), axis=2)  # (B, P)
         for j in np.flatnonzero(seen).tolist():
             near = path[inside[j]]  # the path's points around the agent
             if len(near):
