@@ -195,8 +195,8 @@ class PriorMemo:
     nothing a draw changes; None until computed).
 
     Attributes:
-        data: the prior's regions and agents near the target's whole path
-            (:class:`~coster_sumo.prior.data.ScenePriorData`).
+        data: the prior's regions near the target's whole path, the agents in them at the steps
+            read so far (:func:`~coster_sumo.prior.data.prepare_around`).
         entropy: (num_steps,) the velocity entropy over the search window (:func:`entropy_curve`).
         adaptation: the prior adapted to the traffic around the target (:func:`scene_adaptation`).
     """
@@ -209,15 +209,14 @@ class PriorMemo:
 def _scene_prior(model: Any, scene: Scene, target: int, memo: PriorMemo) -> tuple[Any, np.ndarray]:
     """The prior's regions and agents near the target's whole path and the entropy curve, from
     ``memo`` or computed into it (with the adaptation)."""
-    from coster_sumo.prior.data import at_prior_rate, prepare_scene
+    from coster_sumo.prior.data import at_prior_rate, prepare_around
 
-    tr = scene.tracks
     if memo.data is None:
-        # regions near the target's whole path; the velocity heads at every candidate step first,
-        # then every head at t_col only (the 1,600-class position head over a long life is costly)
-        memo.data = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
-                                  spacing=model.config.region_spacing, width=model.config.region_width,
-                                  crop=tr.xy_of(target, tr.valid[target]).reshape(-1, 2))
+        # regions near the target's whole path, the agents in them at the steps the prior reads
+        # only (a long life's search reads a few of them); the velocity heads at every candidate
+        # step first, then every head at t_col only (the 1,600-class position head is costly)
+        memo.data = prepare_around(at_prior_rate(scene), target, radius=model.config.radius,
+                                   spacing=model.config.region_spacing, width=model.config.region_width)
     data = memo.data
     if len(data.regions.centre) == 0:
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
