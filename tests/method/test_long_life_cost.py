@@ -69,6 +69,19 @@ def test_a_long_life_builds_the_prior_data_at_the_searched_steps_only(model, mon
     np.testing.assert_array_equal(np.flatnonzero(memo.data.occupancy.built), np.sort(steps))
 
 
+def test_the_adaptation_is_fitted_around_the_candidate_times(model):
+    scene = _jam()
+    target = scene.sdc_index
+    memo = PriorMemo()
+    _scene_prior(model, scene, target, memo)
+    around = ct.candidate_steps(scene, target, memo.entropy)
+    assert 0 < len(around) <= ct.FINE_CANDIDATES * (2 * ct.COARSE_STRIDE - 1)
+    best = int(np.nanargmax(memo.entropy))
+    assert best in around  # t_col's own minutes
+    short = _jam(200)
+    np.testing.assert_array_equal(ct.candidate_steps(short, target, np.zeros(200)), ct.search_window(short, target))
+
+
 def test_the_occupancy_built_at_some_steps_is_the_whole_life_s_there(model):
     scene = _jam(300)
     target = scene.sdc_index
