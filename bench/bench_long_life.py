@@ -1,7 +1,7 @@
 """Generation for a target with a long life (minutes in a city): the coarse-to-fine collision-time
 search against the exact one over every step.
 
-    python bench/bench_long_life.py --config CFG --target ID [--scene pass.npz] [--repeats 1]
+    python bench/bench_long_life.py --config CFG --target ID [--scene pass.npz] [--repeats 1] [--seeds 1]
 
 Records the nominal pass of ``--target`` once (kept in ``--scene``, default
 ``<work>/<config stem>_<target>.npz``, reused when it exists), then times generation on it
@@ -9,14 +9,20 @@ Records the nominal pass of ``--target`` once (kept in ``--scene``, default
 weights; as ``run``'s ``generation_s`` counts it, the 2 Hz copy of the scene apart), alternating
 the search as shipped (coarse to fine above ``LONG_WINDOW_STEPS``) and the exact search (every
 step: ``LONG_WINDOW_STEPS`` set past the window). Prints per round the 2 Hz copy's and the
-generation's wall time, the search window's length, the steps the curve was computed at, t_col
-and the variants kept. The prior's weights are loaded before the first round, as in
-``coster-sumo serve``.
+generation's wall time, the search window's length, the steps the curve was computed at, the
+steps the prior's data was built at, t_col, the variants kept and the draws made (``--seeds N``:
+each round for the seeds 0..N-1; a seed's draw can give its best collision time up and take the
+next best). The prior's weights are loaded before the first round, as in ``coster-sumo serve``.
+
+The same script times an older version of the package when that version comes first on the path
+(``PYTHONPATH=OLD_CHECKOUT``, its ``coster_sumo`` folder): old and new in one session, under the
+same load.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
 from pathlib import Path
 
@@ -37,7 +43,7 @@ def nominal(config: Path, target: str, path: Path) -> None:
     save_scene(scene, path)
 
 
-def one_round(scene, target: int, exact: bool) -> dict[str, float]:  # type: ignore[no-untyped-def]
+def one_round(scene, target: int, exact: bool, seed: int = 0) -> dict[str, float]:  # type: ignore[no-untyped-def]
     from coster_sumo.core.spec import GenerationConfig
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method import collision_time as ct
@@ -50,14 +56,17 @@ def one_round(scene, target: int, exact: bool) -> dict[str, float]:  # type: ign
         t0 = time.perf_counter()
         memo = DrawMemo.of(scene)  # a run makes its 2 Hz copy once for all its targets, before generation
         t1 = time.perf_counter()
-        planned = plan_scenarios(scene, target, 0, GenerationConfig(), drivable, memo, 1)
+        planned = plan_scenarios(scene, target, seed, GenerationConfig(), drivable, memo, 1)
         total = time.perf_counter() - t1
     finally:
         ct.LONG_WINDOW_STEPS = saved
     window = ct.search_window(memo.low, target)
     p = planned[0]
+    built = getattr(memo.prior.data.occupancy, "built", None)  # versions before it built every step
     return {"resample_s": t1 - t0, "generation_s": total, "window_steps": len(window), "t_col": float(p.snapshot.time),
-            "variants": len(p.plans), "computed_steps": int(np.isfinite(np.asarray(memo.prior.entropy)).sum())}
+            "variants": len(p.plans), "computed_steps": int(np.isfinite(np.asarray(memo.prior.entropy)).sum()),
+            "data_steps": memo.low.num_steps if built is None else int(built.sum()),
+            "draws": int(p.info.get("attempt", 1)), "given_up": len(p.info.get("collision_times_given_up", {}))}
 
 
 def main() -> None:
@@ -67,6 +76,7 @@ def main() -> None:
     ap.add_argument("--scene", type=Path)
     ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-long-life"))
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=1, help="each round for the seeds 0..N-1")
     ap.add_argument("--modes", nargs="+", choices=("coarse-to-fine", "exact"), default=["coarse-to-fine", "exact"])
     args = ap.parse_args()
     path = args.scene or args.work / f"{args.config.stem}_{args.target}.npz"
@@ -79,11 +89,14 @@ def main() -> None:
     weights.load_cached(weights.weights_path(weights.PRIOR, None), load_prior)  # loaded, as in a server
     scene = load_scene(path)
     target = scene.tracks.index_of(args.target)
+    import coster_sumo
+
+    print(f"package: {Path(coster_sumo.__file__).parent}")
     for r in range(args.repeats):
-        for mode in args.modes:
+        for mode, seed in itertools.product(args.modes, range(args.seeds)):
             exact = mode == "exact"
-            res = one_round(scene, target, exact)
-            print(f"round {r} {'exact' if exact else 'coarse-to-fine'}: " + ", ".join(
+            res = one_round(scene, target, exact, seed)
+            print(f"round {r} {'exact' if exact else 'coarse-to-fine'} seed {seed}: " + ", ".join(
                 f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in res.items()), flush=True)
 
 

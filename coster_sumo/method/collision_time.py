@@ -192,17 +192,41 @@ def entropy_search(model: Any, data: Any, scene: Scene, target: int) -> tuple[np
         return curve, full
     coarse = full[::COARSE_STRIDE]
     curve[coarse] = _entropy_at(model, data, scene, target, coarse)
-    vals = np.where(np.isfinite(curve[coarse]), curve[coarse], -np.inf)
-    best = coarse[np.argsort(-vals, kind="stable")[:FINE_CANDIDATES]]
-    best = best[np.isfinite(curve[best])]
-    near = np.zeros(scene.num_steps, bool)
-    for b in best:
-        near[max(0, b - COARSE_STRIDE + 1):b + COARSE_STRIDE] = True
-    fine = full[near[full] & np.isnan(curve[full])]
-    fine = np.setdiff1d(fine, coarse)
+    near = _near_best(curve, coarse, full)
+    fine = np.setdiff1d(near[np.isnan(curve[near])], coarse)
     if len(fine):
         curve[fine] = _entropy_at(model, data, scene, target, fine)
     return curve, np.union1d(coarse, fine)
+
+
+def candidate_steps(scene: Scene, target: int, curve: np.ndarray) -> np.ndarray:
+    """The 2 Hz steps around the candidate collision times of :func:`entropy_search`'s ``curve``,
+    where the prior's adaptation to the traffic is fitted (:func:`coster_sumo.method.snapshot.scene_adaptation`).
+
+    A search window of at most :data:`LONG_WINDOW_STEPS` steps: all of it. A longer one: its steps
+    within a stride of the :data:`FINE_CANDIDATES` highest coarse steps (the windows searched at
+    every step, each coarse step in them included; at most ``FINE_CANDIDATES * (2 COARSE_STRIDE - 1)``
+    steps, the traffic of the minutes where t_col and the next best times fall, not that of the
+    whole life), or the coarse grid where none of it has a region in the target's ellipse.
+    """
+    full = search_window(scene, target)
+    if len(full) <= LONG_WINDOW_STEPS:
+        return full
+    coarse = full[::COARSE_STRIDE]
+    near = _near_best(curve, coarse, full)
+    return near if len(near) else coarse
+
+
+def _near_best(curve: np.ndarray, coarse: np.ndarray, full: np.ndarray) -> np.ndarray:
+    """(S,) the steps of ``full`` within a stride of the :data:`FINE_CANDIDATES` highest finite
+    values of ``curve`` at the ``coarse`` steps (sorted)."""
+    vals = np.where(np.isfinite(curve[coarse]), curve[coarse], -np.inf)
+    best = coarse[np.argsort(-vals, kind="stable")[:FINE_CANDIDATES]]
+    best = best[np.isfinite(curve[best])]
+    near = np.zeros(len(curve), bool)
+    for b in best:
+        near[max(0, b - COARSE_STRIDE + 1):b + COARSE_STRIDE] = True
+    return full[near[full]]
 
 
 def _entropy_at(model: Any, data: Any, scene: Scene, target: int, steps: np.ndarray) -> np.ndarray:

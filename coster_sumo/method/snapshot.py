@@ -43,6 +43,7 @@ from coster_sumo.geometry.boxes import (
 )
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.collision_time import (
+    candidate_steps,
     choose_collision_time,
     entropy_search,
     in_ellipse,
@@ -176,9 +177,9 @@ MAX_REGIONS_TRIED = 24
 def scene_adaptation(model: Any, data: Any, scene: Scene, target: int, steps: np.ndarray | None = None) -> Any:
     """What the traffic around the target says (the prior adapted to the scene's visible traffic,
     docs/method.md step 2), fitted over the whole search window (one step sees little), or over
-    ``steps`` of it: those the entropy curve was computed at (every step of a window up to
-    :data:`~coster_sumo.method.collision_time.LONG_WINDOW_STEPS`, the coarse grid and the
-    neighbourhoods of the candidate times of a longer one: :func:`entropy_search`)."""
+    ``steps`` of it: those around the candidate collision times (every step of a window up to
+    :data:`~coster_sumo.method.collision_time.LONG_WINDOW_STEPS`, the neighbourhoods of the
+    candidate times of a longer one: :func:`~coster_sumo.method.collision_time.candidate_steps`)."""
     from coster_sumo.prior.data import scene_tokens
     from coster_sumo.prior.infer import fit_scene_adaptation
 
@@ -195,10 +196,11 @@ class PriorMemo:
     nothing a draw changes; None until computed).
 
     Attributes:
-        data: the prior's regions and agents near the target's whole path
-            (:class:`~coster_sumo.prior.data.ScenePriorData`).
+        data: the prior's regions near the target's whole path, the agents in them at the steps
+            read so far (:func:`~coster_sumo.prior.data.prepare_around`).
         entropy: (num_steps,) the velocity entropy over the search window (:func:`entropy_curve`).
-        adaptation: the prior adapted to the traffic around the target (:func:`scene_adaptation`).
+        adaptation: the prior adapted to the traffic around the target (:func:`scene_adaptation`,
+            fitted around the candidate collision times).
     """
 
     data: Any = None
@@ -209,21 +211,20 @@ class PriorMemo:
 def _scene_prior(model: Any, scene: Scene, target: int, memo: PriorMemo) -> tuple[Any, np.ndarray]:
     """The prior's regions and agents near the target's whole path and the entropy curve, from
     ``memo`` or computed into it (with the adaptation)."""
-    from coster_sumo.prior.data import at_prior_rate, prepare_scene
+    from coster_sumo.prior.data import at_prior_rate, prepare_around
 
-    tr = scene.tracks
     if memo.data is None:
-        # regions near the target's whole path; the velocity heads at every candidate step first,
-        # then every head at t_col only (the 1,600-class position head over a long life is costly)
-        memo.data = prepare_scene(at_prior_rate(scene), radius=model.config.radius,
-                                  spacing=model.config.region_spacing, width=model.config.region_width,
-                                  crop=tr.xy_of(target, tr.valid[target]).reshape(-1, 2))
+        # regions near the target's whole path, the agents in them at the steps the prior reads
+        # only (a long life's search reads a few of them); the velocity heads at every candidate
+        # step first, then every head at t_col only (the 1,600-class position head is costly)
+        memo.data = prepare_around(at_prior_rate(scene), target, radius=model.config.radius,
+                                   spacing=model.config.region_spacing, width=model.config.region_width)
     data = memo.data
     if len(data.regions.centre) == 0:
         raise NoSnapshot("no lanes near the target: the prior has no region to place an adversary in")
     if memo.entropy is None:
-        memo.entropy, searched = entropy_search(model, data, scene, target)
-        memo.adaptation = scene_adaptation(model, data, scene, target, searched)
+        memo.entropy, _ = entropy_search(model, data, scene, target)
+        memo.adaptation = scene_adaptation(model, data, scene, target, candidate_steps(scene, target, memo.entropy))
     return data, memo.entropy
 
 

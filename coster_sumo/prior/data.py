@@ -98,8 +98,52 @@ class CompactOccupancy:
         safe = np.where(present, rows, 0)
         if len(self.values) == 0:
             return np.full(rows.shape, -1, np.int64), present, np.zeros(rows.shape + (6,), np.float32)
-        vals = self.values[safe] * present[..., None]
+        # +0 at empty tokens whatever row 0 holds (a built-by-step occupancy's row 0 is another pair's)
+        vals = np.where(present[..., None], self.values[safe], np.float32(0.0))
         return np.where(present, self.agent[safe], -1).astype(np.int64), present, vals
+
+
+class StepOccupancy:
+    """:class:`CompactOccupancy` built step by step, each step when it is first read (:meth:`gather`).
+
+    Over a target's long life the prior reads a few of its steps (the collision-time search's grid
+    and its candidates' neighbourhoods, :func:`coster_sumo.method.collision_time.entropy_search`);
+    assigning the agents to the regions at every step was most of the prior's data. A step's
+    assignment and its region-frame attributes depend on that step alone, so what :meth:`gather`
+    returns is the same as :meth:`CompactOccupancy.gather` of the whole assignment (the same bytes).
+
+    Attributes:
+        row: (T, R) int32 row of ``values`` for the occupied (step, region) pairs of the steps
+            built, -1 elsewhere.
+        agent: (n,) int32 agent index of each row.
+        values: (n, 6) float32 as in :class:`CompactOccupancy`.
+        built: (T,) bool the steps whose assignment is in ``row``.
+    """
+
+    def __init__(self, regions: Regions, tracks: Tracks) -> None:
+        self._regions, self._tracks = regions, tracks
+        self.row = np.full((tracks.num_steps, len(regions)), -1, np.int32)
+        self.agent = np.zeros(0, np.int32)
+        self.values = np.zeros((0, 6), np.float32)
+        self.built = np.zeros(tracks.num_steps, bool)
+
+    def build(self, steps: np.ndarray) -> None:
+        """Assign the agents at those of ``steps`` (any shape of step indices) not built yet."""
+        new = np.unique(np.asarray(steps, np.int64))
+        new = new[~self.built[new]]
+        if len(new) == 0:
+            return
+        part = CompactOccupancy.of_assignment(self._regions, self._tracks,
+                                              assigned_agent(self._regions, self._tracks, new), new)
+        self.row[new] = np.where(part.row >= 0, part.row + len(self.agent), -1)
+        self.agent = np.concatenate([self.agent, part.agent])
+        self.values = np.concatenate([self.values, part.values])
+        self.built[new] = True
+
+    def gather(self, t: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`CompactOccupancy.gather`, the steps ``t`` built first."""
+        self.build(t)
+        return CompactOccupancy(row=self.row, agent=self.agent, values=self.values).gather(t, r)
 
 
 @dataclass(frozen=True)
@@ -110,8 +154,10 @@ class ScenePriorData:
         scenario_id: str.
         regions: the scene's regions (cropped to where neighbourhoods can reach).
         signal: (T, R) int8 signal category per step.
-        occupancy: sparse occupancy (T, R).
-        centres: (N, 2) int64 (step, agent) pairs usable as neighbourhood centres (valid vehicles).
+        occupancy: sparse occupancy (T, R), whole (:class:`CompactOccupancy`) or built at the
+            steps read (:class:`StepOccupancy`, :func:`prepare_around`).
+        centres: (N, 2) int64 (step, agent) pairs usable as neighbourhood centres (valid vehicles;
+            :func:`prepare_around`: the target's own).
         centre_pose: (N, 3) float64 x, y [m], heading [rad] of each centre.
         sdc_index: the scene's target / self-driving car (-1 if none).
     """
@@ -119,7 +165,7 @@ class ScenePriorData:
     scenario_id: str
     regions: Regions
     signal: np.ndarray
-    occupancy: CompactOccupancy
+    occupancy: CompactOccupancy | StepOccupancy
     centres: np.ndarray
     centre_pose: np.ndarray
     sdc_index: int = -1
@@ -159,6 +205,25 @@ def prepare_scene(scene: Scene, radius: float = NEIGHBOURHOOD_RADIUS, spacing: f
     return ScenePriorData(scenario_id=scene.scenario_id, regions=regions, signal=signal.astype(np.int8),
                           occupancy=CompactOccupancy.of_assignment(regions, tr, agent, np.arange(tr.num_steps)),
                           centres=centres, centre_pose=pose,
+                          sdc_index=scene.sdc_index)
+
+
+def prepare_around(scene: Scene, target: int, radius: float = NEIGHBOURHOOD_RADIUS,
+                   spacing: float = REGION_SPACING, width: float = REGION_WIDTH) -> ScenePriorData:
+    """The prior's data for one target of a scene given at 2 Hz: the regions within ``radius`` of
+    its path (as :func:`prepare_scene` with ``crop`` = that path), every step's signals, the
+    target's own steps as the only centres, and the occupancy built at the steps the prior reads
+    (:class:`StepOccupancy`): generation over a long life costs the steps it searches, not the life.
+    """
+    tr = scene.tracks
+    regions = build_regions(scene.road_map, spacing=spacing, width=width)
+    regions = regions.select(regions_near(regions, tr.xy_of(target, tr.valid[target]).reshape(-1, 2), radius))
+    signal = region_signals(regions, scene.signals, len(scene.road_map.lanes))
+    steps = np.flatnonzero(tr.valid[target] & (tr.object_type[target] == ObjectType.VEHICLE))
+    centres = np.stack([steps, np.full(len(steps), target)], -1).astype(np.int64).reshape(-1, 2)
+    pose = np.stack([tr.x[target, steps], tr.y[target, steps], tr.heading[target, steps]], -1).reshape(-1, 3)
+    return ScenePriorData(scenario_id=scene.scenario_id, regions=regions, signal=signal.astype(np.int8),
+                          occupancy=StepOccupancy(regions, tr), centres=centres, centre_pose=pose,
                           sdc_index=scene.sdc_index)
 
 
