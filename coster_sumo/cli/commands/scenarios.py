@@ -31,6 +31,15 @@ def _build(args: argparse.Namespace) -> int:
     return 1 if summary["failed"] and summary["scenarios"] == 0 else 0
 
 
+def _one_per_snapshot(args: argparse.Namespace) -> int:
+    from coster_sumo.gym.derive import one_per_snapshot
+
+    counts = one_per_snapshot(args.set, args.out)
+    print(f"{counts['scenarios']} scenarios ({counts['variants']} variants, the first of each snapshot) in "
+          f"{args.out}/manifest.json")
+    return 0
+
+
 def register(cli: Any) -> None:
     from coster_sumo.gym.build import HORIZON_S, METHODS
 
@@ -59,3 +68,10 @@ def register(cli: Any) -> None:
     b.add_argument("--adversary", default="vehicle", choices=("vehicle", "cyclist", "pedestrian", "any"),
                    help="the adversaries' class (as in run; default vehicle)")
     b.set_defaults(func=_build, horizon=HORIZON_S)
+    d = group.add_parser("one-per-snapshot", help="the coster-one-per-snapshot set of a coster set, without "
+                         "generating again", description=("The set `scenarios build --method "
+                         "coster-one-per-snapshot` gives for the same sources and options: the coster set's "
+                         "nominal scenes and the first variant of each snapshot (hard links where possible)."))
+    d.add_argument("set", type=Path, metavar="SET", help="a scenario set built with --method coster")
+    d.add_argument("-o", "--out", type=Path, required=True, help="the new set's folder")
+    d.set_defaults(func=_one_per_snapshot)
