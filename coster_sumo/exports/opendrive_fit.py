@@ -48,6 +48,7 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo.exports.opendrive_bend import fold_ratio
 from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
 from coster_sumo.exports.opendrive_ends import length as piece_length
+from coster_sumo.exports.opendrive_join import join_connecting_roads
 from coster_sumo.exports.opendrive_net import DEFAULT_LANE_WIDTH_M, NetLanes
 from coster_sumo.exports.opendrive_readers import link_lane
 from coster_sumo.exports.opendrive_roads import (
@@ -56,7 +57,6 @@ from coster_sumo.exports.opendrive_roads import (
     drop_outer_walkways,
     extend_reference,
     fmt,
-    join_connecting_roads,
     one_lane_road,
     overhang,
     renumber,

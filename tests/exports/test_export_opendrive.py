@@ -154,7 +154,7 @@ def test_a_turnaround_too_tight_for_its_lane_narrows_further_rather_than_fold():
     import xml.etree.ElementTree as ET
 
     from coster_sumo.exports.opendrive_bend import TIGHT
-    from coster_sumo.exports.opendrive_roads import _Connecting, _joining_curve
+    from coster_sumo.exports.opendrive_join import _Connecting, _joining_curve
 
     a = np.linspace(0.0, math.pi, 6)
     path = np.column_stack([1.7 * np.sin(a), 1.7 - 1.7 * np.cos(a)])
