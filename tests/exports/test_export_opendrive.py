@@ -190,6 +190,36 @@ def test_a_uturn_between_lanes_side_by_side_is_pinched_whatever_its_direction(tm
     assert lanes.pinched_uturns == {("in", 0, "out", 0)}
 
 
+def test_a_short_connection_between_lanes_apart_sideways_gets_room_for_an_s_curve(tmp_path):
+    # the converted OSM cuts of fkk_in: a one-lane road continues into one lane of a two-lane road
+    # whose line lies 0.55 m to its left, through an internal lane of 0.72 m; no curve that short
+    # shifts a lane 3.2 m wide that far without folding (the turn between the lanes is 0.05 rad, so
+    # the room for turns gave none): the two lanes' ends move in until an S-curve fits
+    from coster_sumo.exports.opendrive_bend import FOLD_RATIO
+    from coster_sumo.exports.opendrive_net import TURN_ROOM, NetLanes, shift_arc
+
+    net = tmp_path / "s.net.xml"
+    net.write_text("""<net>
+  <edge id="a"><lane id="a_0" index="0" width="3.2" shape="0.0,0.0 20.0,0.0"/></edge>
+  <edge id="b"><lane id="b_0" index="0" width="3.2" shape="20.47,0.55 40.0,0.55"/></edge>
+  <edge id=":n_0"><lane id=":n_0_0" index="0" width="3.2" shape="20.0,0.0 20.2,0.05 20.3,0.5 20.47,0.55"/></edge>
+  <connection from="a" to="b" fromLane="0" toLane="0" via=":n_0_0" dir="s"/>
+</net>""")
+    lanes = NetLanes.read(net)
+    arc = shift_arc(lanes.shape["a_0"], lanes.shape["b_0"], 1.6 / FOLD_RATIO)
+    assert 1.9 < arc < 2.1  # two arcs of 1.78 m radius, 0.56 rad each
+    cut = lanes.tight_cutbacks()
+    assert cut["a_0"][1] > 0.5 and cut["b_0"][0] > 0.5
+    length = cut["a_0"][1] + cut["b_0"][0] + 0.72
+    assert length == pytest.approx(min(TURN_ROOM * arc, 0.72 + 2 * 2.0), abs=0.05)
+    # with that room the fit's curve shifts the lane without folding it
+    x = np.linspace(20.0 - cut["a_0"][1], 20.47 + cut["b_0"][0], 40)
+    path = np.column_stack([x, np.interp(x, [20.0, 20.47], [0.0, 0.55])])
+    assert fold_ratio(cubic_pieces(*smooth_path(path, 0.0, 0.0, 3.2, 3.2), samples=64), 3.2, 3.2) < 1.0
+    short = np.array([[20.0, 0.0], [20.47, 0.55]])
+    assert fold_ratio(cubic_pieces(*smooth_path(short, 0.0, 0.0, 3.2, 3.2), samples=64), 3.2, 3.2) > 1.0
+
+
 def test_reference_lines_leave_their_ends_in_their_own_direction():
     # a lane on a 2.5 m radius: the smoothed axis and a road of one cubic piece (1.6 m) end in the
     # arc's own heading (the axis's first and last 0.5 m: 0.16 rad off; the average over the line
