@@ -199,7 +199,10 @@ def _write_joined(c: _Connecting, pieces: list[dict[str, float]], half: np.ndarr
 def _smooth_unlinked(road: ET.Element, sample: Sampler) -> None:
     """A one-lane connecting road linked at neither end, left on its SUMO polyline (converted OSM
     cuts' bicycle turns), gets the curve through the polyline's points where its lane keeps whole
-    and within :data:`FOLD_ESCAPE_WIDTH_SHARE` of its width: the kinks fold its inner border."""
+    and within :data:`FOLD_ESCAPE_WIDTH_SHARE` of its width: the kinks fold its inner border. Where
+    that lane folds on every such curve (netconvert's cut of bs3d: a bus lane 3.2 m wide turning
+    1.97 rad within 2.5 m), the lane narrowed where it turns, as a joined road's
+    (:func:`_narrowed`), its SUMO width kept at both ends, within the same distance."""
     plan, lanes = road.find("planView"), road.findall("lanes/laneSection/right/lane")
     if road.get("junction", "-1") == "-1" or plan is None or len(lanes) != 1 or len(plan) < 2 \
             or any(g.find("line") is None for g in plan) or len(lanes[0].findall("width")) != 1:
@@ -207,10 +210,18 @@ def _smooth_unlinked(road: ET.Element, sample: Sampler) -> None:
     s = np.array([float(g.get("s", "0")) for g in plan.findall("geometry")] + [float(road.get("length", "0"))])
     (x, y, h), width = sample(plan, s), records_at(lanes[0].findall("width"), "sOffset", 0.0)
     path, through = np.column_stack([x, y]), hermite_through(np.column_stack([x, y]), float(h[0]), float(h[-1]))
-    if width > 0.0 and fold_ratio(through, width, width) < 1.0 \
-            and deviation(through, path) <= FOLD_ESCAPE_WIDTH_SHARE * width:
-        _write_joined(_Connecting(road, plan, lanes[0], path, (path[0], width, float(h[0])),
-                                  (path[-1], width, float(h[-1]))), through, None)
+    if width <= 0.0:
+        return
+    c = _Connecting(road, plan, lanes[0], path, (path[0], width, float(h[0])), (path[-1], width, float(h[-1])))
+    escape = FOLD_ESCAPE_WIDTH_SHARE * width
+    if fold_ratio(through, width, width) < 1.0 and deviation(through, path) <= escape:
+        _write_joined(c, through, None)
+        return
+    for narrowing in (NARROW, TIGHT):
+        bent = _narrowed(c, narrowing)
+        if bent is not None and bent[0] <= escape:
+            _write_joined(c, bent[1], bent[2])
+            return
 
 
 def join_connecting_roads(root: ET.Element, sample: Sampler) -> tuple[int, int]:

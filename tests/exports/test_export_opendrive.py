@@ -220,6 +220,40 @@ def test_a_short_connection_between_lanes_apart_sideways_gets_room_for_an_s_curv
     assert fold_ratio(cubic_pieces(*smooth_path(short, 0.0, 0.0, 3.2, 3.2), samples=64), 3.2, 3.2) > 1.0
 
 
+def test_an_unlinked_connecting_road_too_tight_for_its_lane_narrows_where_it_turns():
+    # netconvert's cut of bs3d: a bus lane 3.2 m wide whose lane links are gone (its lanes are not
+    # there at the road ends) turns 1.97 rad left within 2.5 m on a SUMO polyline of 4 segments;
+    # its lane folds on that polyline and on the curve through its points, so it narrows where it
+    # turns (its SUMO width kept at both ends), near the polyline
+    import xml.etree.ElementTree as ET
+
+    from coster_sumo.exports.opendrive import _reference_line
+    from coster_sumo.exports.opendrive_join import _smooth_unlinked
+    from coster_sumo.exports.opendrive_roads import one_lane_road
+
+    shape = np.array([[830.99, 729.01], [829.73, 729.72], [828.84, 729.71], [828.31, 728.99], [828.14, 727.55]])
+    road = ET.fromstring('<road id="451" junction="16" length="0"><planView/><lanes><laneSection s="0">'
+                         '<center><lane id="0" type="none"/></center><right><lane id="-1" type="restricted">'
+                         '<link/></lane></right></laneSection></lanes></road>')
+    one_lane_road(road, shape, 3.2)
+    assert fold_ratio(hermite_through(shape, 2.6284499, -1.68830797), 3.2, 3.2) > 1.0
+    _smooth_unlinked(road, _reference_line)
+    geos = road.findall("planView/geometry")
+    assert all(g.find("paramPoly3") is not None for g in geos), "still on the polyline"
+    widths = [(float(w.get("sOffset")), float(w.get("a")), float(w.get("b"))) for w in road.iter("width")]
+    assert widths[0][1] == pytest.approx(3.2) and min(a for _, a, _ in widths) < 3.2
+    end = widths[-1][1] + widths[-1][2] * (float(road.get("length")) - widths[-1][0])
+    assert end == pytest.approx(3.2, abs=1e-6)
+    pieces = [{**{k: float(g.find("paramPoly3").get(k)) for k in ("bU", "cU", "dU", "cV", "dV")},
+               **{k: float(g.get(k)) for k in ("x", "y", "hdg", "length")}} for g in geos]
+    s = np.concatenate([[0.0], np.cumsum([pc["length"] for pc in pieces])])
+    half = 0.5 * np.interp(s, [w[0] for w in widths] + [s[-1]],
+                           [w[1] for w in widths] + [end])
+    assert fold_ratio(pieces, 3.2, 3.2, half=half) < 1.0
+    line = shapely.LineString(shape)
+    assert max(line.distance(shapely.Point(q)) for q in piece_points(pieces)) <= 0.8  # a quarter of 3.2 m
+
+
 def test_reference_lines_leave_their_ends_in_their_own_direction():
     # a lane on a 2.5 m radius: the smoothed axis and a road of one cubic piece (1.6 m) end in the
     # arc's own heading (the axis's first and last 0.5 m: 0.16 rad off; the average over the line
