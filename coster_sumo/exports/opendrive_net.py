@@ -25,7 +25,7 @@ PINCH_M = 0.05  # [m] a U-turn's two lanes whose left borders are this close sha
 # 1.8 m where it turns and folds nowhere; 3 leaves a margin)
 TURN_ROOM = 3.0
 # [rad] a connection that turns less than this but whose lanes' lines lie apart sideways needs room for
-# an S-curve (NetLanes.shift_arc): the converted OSM cuts' 0.7-0.9 m connections between a one-lane
+# an S-curve (shift_arc): the converted OSM cuts' 0.7-0.9 m connections between a one-lane
 # road and a lane of a two-lane road, 0.55 m apart
 MAX_SHIFT_TURN = np.pi / 8
 MAX_PINCHED_TURN = 0.9 * np.pi  # [rad] a sharper turn is a U-turn (NetLanes.corner_is_pinched)
@@ -151,9 +151,10 @@ class NetLanes:
         runs straight there and up to :data:`MAX_CUTBACK_M`. (game/grid6's corner connections:
         1.1 m turning 0.67 rad with a 3.2 m lane.) U-turns and turns over 90 degrees are left
         alone, unless their lanes meet at its inner corner (:meth:`corner_is_pinched`). A connection
-        that hardly turns but whose two lanes' lines lie apart sideways needs an S-curve
-        (:func:`shift_arc`); where its internal lanes are shorter than that, it gets the room the
-        same way (the converted OSM cuts' 0.7-0.9 m connections 0.55 m sideways)."""
+        that hardly turns but whose two lanes' lines lie apart sideways, by no more than half the
+        lane's width, needs an S-curve (:func:`shift_arc`); where its internal lanes are shorter
+        than that, it gets the room the same way (the converted OSM cuts' 0.7-0.9 m connections
+        0.55 m sideways)."""
         out: dict[str, tuple[float, float]] = {}
         for key in self.via:
             frm, i, to, j = key
@@ -171,8 +172,11 @@ class NetLanes:
             turn = abs(_wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2])))
             half = 0.5 * self.width.get(internal[0], DEFAULT_LANE_WIDTH_M)
             need = turn * half / FOLD_RATIO
-            if turn < MAX_SHIFT_TURN and (shift := shift_arc(a, b, half / FOLD_RATIO)) > length:
-                need = max(need, shift)  # (only where no curve that long can shift so far)
+            side = side_gap(a, b)
+            # (only a lane drawn aside within its own width, and only where no curve that long can
+            # shift so far: a connection that moves a whole lane over is a lane change, left as is)
+            if turn < MAX_SHIFT_TURN and side <= half and (shift := shift_arc(side, half / FOLD_RATIO)) > length:
+                need = max(need, shift)
             lack = TURN_ROOM * need - length
             # (a U-turn's room is the lanes beside it; a sharper turn whose lanes meet at its
             # inner corner gets room all the same: its inner border cannot start and end there)
@@ -208,14 +212,18 @@ class NetLanes:
         return pts[keep]
 
 
-def shift_arc(a: np.ndarray, b: np.ndarray, radius: float) -> float:
-    """[m] the shortest S-curve (two arcs of ``radius`` [m], the tightest the lane can follow) from
-    the end of lane shape ``a`` (K, 2) [m], in its direction there, to the line of ``b``'s start
-    (L, 2) [m], run parallel to ``a``'s end: ``2 r acos(1 - d / (2 r))`` for a sideways distance
-    ``d`` (each arc turns that far and back); 0 where the lines meet."""
+def side_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """[m] how far the start of lane shape ``b`` (L, 2) [m] lies beside the line of lane shape
+    ``a``'s (K, 2) [m] last segment."""
     d = a[-1] - a[-2]
     d = d / max(float(np.hypot(*d)), 1e-12)
-    side = abs(float(d[0] * (b[0] - a[-1])[1] - d[1] * (b[0] - a[-1])[0]))
+    return abs(float(d[0] * (b[0] - a[-1])[1] - d[1] * (b[0] - a[-1])[0]))
+
+
+def shift_arc(side: float, radius: float) -> float:
+    """[m] the shortest S-curve that moves a lane ``side`` [m] sideways onto a parallel line: two
+    arcs of ``radius`` [m] (the tightest the lane can follow), each turning ``acos(1 - side / (2
+    radius))`` and back; 0 for no shift."""
     if side <= 0.0 or radius <= 0.0:
         return 0.0
     return 2.0 * radius * float(np.arccos(max(1.0 - side / (2.0 * radius), -1.0)))

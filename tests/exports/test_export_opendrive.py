@@ -196,7 +196,7 @@ def test_a_short_connection_between_lanes_apart_sideways_gets_room_for_an_s_curv
     # shifts a lane 3.2 m wide that far without folding (the turn between the lanes is 0.05 rad, so
     # the room for turns gave none): the two lanes' ends move in until an S-curve fits
     from coster_sumo.exports.opendrive_bend import FOLD_RATIO
-    from coster_sumo.exports.opendrive_net import TURN_ROOM, NetLanes, shift_arc
+    from coster_sumo.exports.opendrive_net import TURN_ROOM, NetLanes, shift_arc, side_gap
 
     net = tmp_path / "s.net.xml"
     net.write_text("""<net>
@@ -206,7 +206,8 @@ def test_a_short_connection_between_lanes_apart_sideways_gets_room_for_an_s_curv
   <connection from="a" to="b" fromLane="0" toLane="0" via=":n_0_0" dir="s"/>
 </net>""")
     lanes = NetLanes.read(net)
-    arc = shift_arc(lanes.shape["a_0"], lanes.shape["b_0"], 1.6 / FOLD_RATIO)
+    assert side_gap(lanes.shape["a_0"], lanes.shape["b_0"]) == pytest.approx(0.55)
+    arc = shift_arc(0.55, 1.6 / FOLD_RATIO)
     assert 1.9 < arc < 2.1  # two arcs of 1.78 m radius, 0.56 rad each
     cut = lanes.tight_cutbacks()
     assert cut["a_0"][1] > 0.5 and cut["b_0"][0] > 0.5
