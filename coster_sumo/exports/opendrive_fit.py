@@ -70,8 +70,8 @@ from coster_sumo.exports.opendrive_solve import (
     lateral,
     merge_short_runs,
     records,
+    reference_axis,
     runs_of,
-    smooth_polyline,
     solve_borders,
 )
 
@@ -302,8 +302,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
                 counts["connecting_split"] += 1
             counts["connecting_fitted"] += 1
         else:  # netconvert's curve through a jittery WOMD lane wiggles; lanes far from it fold
-            longest = max(targets, key=lambda sh: float(np.hypot(*np.diff(sh, axis=0).T).sum()))
-            axis = smooth_polyline(longest)
+            axis = reference_axis(targets, widths)
             lane_ids = _road_lane_ids(road, net, edge_of)
             enters, leaves = [lane in net.enters for lane in lane_ids], [lane in net.leaves for lane in lane_ids]
             inset = (0.0, 0.0)

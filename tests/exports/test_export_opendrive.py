@@ -255,6 +255,31 @@ def test_an_unlinked_connecting_road_too_tight_for_its_lane_narrows_where_it_tur
     assert max(line.distance(shapely.Point(q)) for q in piece_points(pieces)) <= 0.8  # a quarter of 3.2 m
 
 
+def test_a_wide_road_turning_takes_its_reference_line_where_no_lane_border_folds_about_it():
+    # a crop of WOMD eb4b91b10ca94ff2: five logged lanes 4.6 m wide side by side, each a copy of
+    # one curve (a 0.5 rad left turn on 14 m) moved sideways, the rightmost the longest; each lane
+    # turns gently for its width (fold ratio 0.16), but the leftmost's borders lie 14-21 m left of
+    # the rightmost lane, and about a line turning on 14 m there they fold (commonroad: invalid)
+    from coster_sumo.exports.opendrive_solve import AXIS_FOLD_RATIO, border_fold, reference_axis
+
+    a = np.linspace(0.0, 0.5, 11)
+    arc = np.column_stack([14.0 * np.sin(a), 14.0 - 14.0 * np.cos(a)])
+    out = np.array([math.cos(0.5), math.sin(0.5)])
+    left = np.array([-math.sin(0.25), math.cos(0.25)])  # across the turn's middle direction
+    lanes = []
+    for j in range(5):
+        before, after = (6.0, 6.0) if j == 0 else (2.0, 2.0)  # the rightmost runs longest
+        line = np.vstack([[-before, 0.0], arc, arc[-1] + after * out])
+        lanes.append(line + 4.6 * j * left)
+    widths = np.full(5, 4.6)
+    assert border_fold(smooth_polyline(lanes[0]), lanes, widths) > 1.0
+    axis = reference_axis(lanes, widths)
+    assert border_fold(axis, lanes, widths) < AXIS_FOLD_RATIO
+    assert np.allclose(axis, smooth_polyline(lanes[4]))  # the innermost lane's
+    # a road whose borders keep whole about its longest lane keeps that lane's line
+    assert np.allclose(reference_axis(lanes[:2], widths[:2]), smooth_polyline(lanes[0]))
+
+
 def test_reference_lines_leave_their_ends_in_their_own_direction():
     # a lane on a 2.5 m radius: the smoothed axis and a road of one cubic piece (1.6 m) end in the
     # arc's own heading (the axis's first and last 0.5 m: 0.16 rad off; the average over the line
