@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo.exports.opendrive_bend import FOLD_RATIO
+from coster_sumo.exports.opendrive_bend import FOLD_RATIO, NARROW
 from coster_sumo.exports.opendrive_ends import length as piece_length
 from coster_sumo.formats.sumocfg import open_maybe_gzip
 
@@ -153,8 +153,8 @@ class NetLanes:
         alone, unless their lanes meet at its inner corner (:meth:`corner_is_pinched`). A connection
         that hardly turns but whose two lanes' lines lie apart sideways, by no more than half the
         lane's width, needs an S-curve (:func:`shift_arc`); where its internal lanes are shorter
-        than that, it gets the room the same way (the converted OSM cuts' 0.7-0.9 m connections
-        0.55 m sideways)."""
+        than even the narrowest lane the fit may draw needs, it gets the room the same way (the
+        converted OSM cuts' 0.7-0.9 m connections 0.55 m sideways)."""
         out: dict[str, tuple[float, float]] = {}
         for key in self.via:
             frm, i, to, j = key
@@ -173,10 +173,12 @@ class NetLanes:
             half = 0.5 * self.width.get(internal[0], DEFAULT_LANE_WIDTH_M)
             need = turn * half / FOLD_RATIO
             side = side_gap(a, b)
-            # (only a lane drawn aside within its own width, and only where no curve that long can
-            # shift so far: a connection that moves a whole lane over is a lane change, left as is)
-            if turn < MAX_SHIFT_TURN and side <= half and (shift := shift_arc(side, half / FOLD_RATIO)) > length:
-                need = max(need, shift)
+            # (only a lane drawn aside within its own width: a connection that moves a whole lane
+            # over is a lane change, left as is; and only where no curve that long can shift so far
+            # even with the lane narrowed as far as the fit may narrow it, opendrive_bend.NARROW)
+            if turn < MAX_SHIFT_TURN and side <= half \
+                    and shift_arc(side, min(half, NARROW.min_half_m) / FOLD_RATIO) > length:
+                need = max(need, shift_arc(side, half / FOLD_RATIO))
             lack = TURN_ROOM * need - length
             # (a U-turn's room is the lanes beside it; a sharper turn whose lanes meet at its
             # inner corner gets room all the same: its inner border cannot start and end there)
