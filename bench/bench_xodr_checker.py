@@ -2,7 +2,7 @@
 
     python bench/bench_xodr_checker.py [--work DIR] [--seed 0] [--per-sample 15] [--per-net 2]
                                        [--only NAME ...] [--readers asam commonroad pyxodr] [--jobs 1]
-                                       [--reuse-nets | --reuse]
+                                       [--reuse-nets | --reuse] [--names NAME ...]
 
 Generates the scenes of ``bench/xodr_scenes.py`` (WOMD crops and transforms, cuts of every corpus
 network and of extra netgenerate nets, and those cuts converted by the project's converter),
@@ -11,7 +11,8 @@ each reader (``tests/xodr_reader_probe.py`` in the environments ``make xodr-read
 all of them. Prints per reader the totals and every file with a finding, and writes
 ``WORK/summary.json`` (each reader's rows also go to ``WORK/rows_<reader>.jsonl`` as they come).
 ``--reuse-nets``: export the nets of an earlier run (``WORK/nets.json``) again;
-``--reuse``: check the ``.xodr`` files already in ``WORK/xodr/``.
+``--reuse``: check the ``.xodr`` files already in ``WORK/xodr/``;
+``--names``: generate only the scenes of these names (the same nets the whole list has).
 Exit status 0 when every reader found nothing.
 """
 
@@ -43,7 +44,8 @@ VERSION_SKIPPED = {"check_asam_xodr_junctions_connection_one_connection_element"
 def generate(work: Path, args: argparse.Namespace) -> list[dict]:
     """Generate every scene's SUMO net; records them in ``WORK/nets.json`` (name, family, net)."""
     nets = []
-    for test in xodr_scenes.all_nets(work, args.seed, args.per_sample, args.per_net, only=args.only):
+    names = set(args.names) if args.names else None
+    for test in xodr_scenes.all_nets(work, args.seed, args.per_sample, args.per_net, only=args.only, names=names):
         nets.append({"name": test.name, "family": test.family, "net": str(test.net)})
         print(f"generated {test.name} ({test.family})", flush=True)
         (work / "nets.json").write_text(json.dumps(nets, indent=1))
@@ -129,6 +131,7 @@ def main() -> int:
     ap.add_argument("--per-sample", type=int, default=15)
     ap.add_argument("--per-net", type=int, default=2)
     ap.add_argument("--only", nargs="*", default=None, help="'womd' and/or source net names")
+    ap.add_argument("--names", nargs="*", default=None, help="only the scenes of these names")
     ap.add_argument("--readers", nargs="*", default=list(ENVS), choices=list(ENVS))
     ap.add_argument("--jobs", type=int, default=1, help="export and reader processes at a time")
     ap.add_argument("--reuse-nets", action="store_true", help="export the nets WORK/nets.json lists again")

@@ -272,15 +272,18 @@ def source_nets(work: Path, seed: int, only: list[str] | None = None) -> list[tu
 
 
 def sumo_clips(work: Path, per_net: int, half: float, rng: np.random.Generator,
-               only: list[str] | None = None) -> Iterator[tuple[TestNet, Scene | None]]:
+               only: list[str] | None = None, names: set[str] | None = None) -> Iterator[tuple[TestNet, Scene | None]]:
     """Per source net, ``per_net`` cuts around random junctions: each as a :class:`TestNet` of
-    family ``clip`` and with its scene (to convert: family ``conv``)."""
+    family ``clip`` and with its scene (to convert: family ``conv``); with ``names``, only the cuts
+    that scenes of those names need (the random draws stay those of the whole list)."""
     for name, family, net in source_nets(work, int(rng.integers(1 << 16)), only):
         pts = node_points(net)
         if len(pts) == 0:
             continue
         for k in range(per_net):
             centre = pts[int(rng.integers(len(pts)))]
+            if names is not None and not {f"clip_{name}_{k}", f"conv_{name}_{k}"} & names:
+                continue
             out = work / "clips" / f"{name}_{k}.net.xml"
             out.parent.mkdir(parents=True, exist_ok=True)
             if clip_net(net, centre, half, out) is None:
@@ -300,8 +303,10 @@ def convert(scene: Scene, name: str, work: Path) -> Path | None:
         return None
 
 
-def womd_nets(work: Path, per_sample: int, radius: float, rng: np.random.Generator) -> Iterator[TestNet]:
-    """The WOMD samples' crops and transforms (:func:`womd_variants`), converted."""
+def womd_nets(work: Path, per_sample: int, radius: float, rng: np.random.Generator,
+              names: set[str] | None = None) -> Iterator[TestNet]:
+    """The WOMD samples' crops and transforms (:func:`womd_variants`), converted (with ``names``,
+    only those of these names)."""
     from coster_sumo.converters.read import read_scenes
 
     files = sorted((WOMD / "scenario_proto").glob("*.tfrecord")) + sorted((WOMD / "scenarionet_pkl").glob("*.pkl"))
@@ -309,21 +314,27 @@ def womd_nets(work: Path, per_sample: int, radius: float, rng: np.random.Generat
         for scene in read_scenes(path):
             for tag, variant in womd_variants(scene, per_sample, radius, rng):
                 name = f"womd_{scene.scenario_id}_{tag}"
+                if names is not None and name not in names:
+                    continue
                 net = convert(dataclasses.replace(variant, scenario_id=name), name, work)
                 if net is not None:
                     yield TestNet(name, "womd", net)
 
 
 def all_nets(work: Path, seed: int = 0, per_sample: int = 15, per_net: int = 2, radius: float = 45.0,
-             half: float = 90.0, only: list[str] | None = None) -> Iterator[TestNet]:
-    """Every generated scene: WOMD variants first, then per SUMO net its cuts and their conversions."""
+             half: float = 90.0, only: list[str] | None = None, names: set[str] | None = None
+             ) -> Iterator[TestNet]:
+    """Every generated scene: WOMD variants first, then per SUMO net its cuts and their conversions.
+    ``names``: only the scenes of these names, the same nets as in the whole list (every random
+    draw is made; only the conversions and cuts those scenes need are built)."""
     rng = np.random.default_rng(seed)
     if not only or "womd" in only:
-        yield from womd_nets(work, per_sample, radius, rng)
-    for clip, scene in sumo_clips(work, per_net, half, rng, only):
-        yield clip
-        if scene is not None:
-            name = clip.name.replace("clip_", "conv_", 1)
+        yield from womd_nets(work, per_sample, radius, rng, names)
+    for clip, scene in sumo_clips(work, per_net, half, rng, only, names):
+        if names is None or clip.name in names:
+            yield clip
+        name = clip.name.replace("clip_", "conv_", 1)
+        if scene is not None and (names is None or name in names):
             net = convert(dataclasses.replace(scene, scenario_id=name), name, work)
             if net is not None:
                 yield TestNet(name, clip.family.replace("clip:", "conv:"), net)

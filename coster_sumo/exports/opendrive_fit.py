@@ -48,6 +48,7 @@ from defusedxml import ElementTree as SafeET
 from coster_sumo.exports.opendrive_bend import fold_ratio
 from coster_sumo.exports.opendrive_ends import CUT_EPS_M, cut_both, road_span, shortfall
 from coster_sumo.exports.opendrive_ends import length as piece_length
+from coster_sumo.exports.opendrive_join import join_connecting_roads
 from coster_sumo.exports.opendrive_net import DEFAULT_LANE_WIDTH_M, NetLanes
 from coster_sumo.exports.opendrive_readers import link_lane
 from coster_sumo.exports.opendrive_roads import (
@@ -56,7 +57,6 @@ from coster_sumo.exports.opendrive_roads import (
     drop_outer_walkways,
     extend_reference,
     fmt,
-    join_connecting_roads,
     one_lane_road,
     overhang,
     renumber,
@@ -70,8 +70,8 @@ from coster_sumo.exports.opendrive_solve import (
     lateral,
     merge_short_runs,
     records,
+    reference_axis,
     runs_of,
-    smooth_polyline,
     solve_borders,
 )
 
@@ -302,8 +302,7 @@ def fit_lanes(xodr: Path, net_file: Path, sample: Sampler) -> dict[str, int]:
                 counts["connecting_split"] += 1
             counts["connecting_fitted"] += 1
         else:  # netconvert's curve through a jittery WOMD lane wiggles; lanes far from it fold
-            longest = max(targets, key=lambda sh: float(np.hypot(*np.diff(sh, axis=0).T).sum()))
-            axis = smooth_polyline(longest)
+            axis = reference_axis(targets, widths)
             lane_ids = _road_lane_ids(road, net, edge_of)
             enters, leaves = [lane in net.enters for lane in lane_ids], [lane in net.leaves for lane in lane_ids]
             inset = (0.0, 0.0)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from defusedxml import ElementTree as SafeET
 
-from coster_sumo.exports.opendrive_bend import FOLD_RATIO
+from coster_sumo.exports.opendrive_bend import FOLD_RATIO, NARROW
 from coster_sumo.exports.opendrive_ends import length as piece_length
 from coster_sumo.formats.sumocfg import open_maybe_gzip
 
@@ -24,6 +24,10 @@ PINCH_M = 0.05  # [m] a U-turn's two lanes whose left borders are this close sha
 # corners: with 2 none kept the lane from folding, even narrowed; with 2.5 and 3 the lane narrows to
 # 1.8 m where it turns and folds nowhere; 3 leaves a margin)
 TURN_ROOM = 3.0
+# [rad] a connection that turns less than this but whose lanes' lines lie apart sideways needs room for
+# an S-curve (shift_arc): the converted OSM cuts' 0.7-0.9 m connections between a one-lane
+# road and a lane of a two-lane road, 0.55 m apart
+MAX_SHIFT_TURN = np.pi / 8
 MAX_PINCHED_TURN = 0.9 * np.pi  # [rad] a sharper turn is a U-turn (NetLanes.corner_is_pinched)
 MAX_CUTBACK_M = 2.0  # [m] most a lane's end moves into it to give a tight connection room
 STRAIGHT_TOL_M = 0.01  # [m] a lane's end runs straight while it stays this close to its end segment's line
@@ -146,7 +150,11 @@ class NetLanes:
         the lane it leaves and half from the start of the lane it enters, only as far as that lane
         runs straight there and up to :data:`MAX_CUTBACK_M`. (game/grid6's corner connections:
         1.1 m turning 0.67 rad with a 3.2 m lane.) U-turns and turns over 90 degrees are left
-        alone, unless their lanes meet at its inner corner (:meth:`corner_is_pinched`)."""
+        alone, unless their lanes meet at its inner corner (:meth:`corner_is_pinched`). A connection
+        that hardly turns but whose two lanes' lines lie apart sideways, by no more than half the
+        lane's width, needs an S-curve (:func:`shift_arc`); where its internal lanes are shorter
+        than even the narrowest lane the fit may draw needs, it gets the room the same way (the
+        converted OSM cuts' 0.7-0.9 m connections 0.55 m sideways)."""
         out: dict[str, tuple[float, float]] = {}
         for key in self.via:
             frm, i, to, j = key
@@ -163,7 +171,15 @@ class NetLanes:
             length = sum(piece_length(part) for part in parts)
             turn = abs(_wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2])))
             half = 0.5 * self.width.get(internal[0], DEFAULT_LANE_WIDTH_M)
-            lack = TURN_ROOM * turn * half / FOLD_RATIO - length
+            need = turn * half / FOLD_RATIO
+            side = side_gap(a, b)
+            # (only a lane drawn aside within its own width: a connection that moves a whole lane
+            # over is a lane change, left as is; and only where no curve that long can shift so far
+            # even with the lane narrowed as far as the fit may narrow it, opendrive_bend.NARROW)
+            if turn < MAX_SHIFT_TURN and side <= half \
+                    and shift_arc(side, min(half, NARROW.min_half_m) / FOLD_RATIO) > length:
+                need = max(need, shift_arc(side, half / FOLD_RATIO))
+            lack = TURN_ROOM * need - length
             # (a U-turn's room is the lanes beside it; a sharper turn whose lanes meet at its
             # inner corner gets room all the same: its inner border cannot start and end there)
             if (turn > np.pi / 2 and not self.corner_is_pinched(key)) or lack <= 0.0:
@@ -196,6 +212,27 @@ class NetLanes:
         keep = np.ones(len(pts), bool)
         keep[1:] = np.hypot(*np.diff(pts, axis=0).T) > 1e-6  # joined parts repeat their shared point
         return pts[keep]
+
+
+def side_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """[m] how far the start of lane shape ``b`` (L, 2) [m] lies beside the circular arc from the
+    end of lane shape ``a`` (K, 2) [m], in ``a``'s direction there, that turns to ``b``'s start
+    direction: the sideways offset that a turn does not explain (an arc turning by ``t`` over a
+    chord ``c`` ends ``c sin(t / 2)`` aside; game/grid6's 0.62 m bends of 0.38 rad: 0.12 m)."""
+    d = a[-1] - a[-2]
+    d = d / max(float(np.hypot(*d)), 1e-12)
+    v = b[0] - a[-1]
+    turn = _wrap(_heading(b[1] - b[0]) - _heading(d))
+    return abs(float(d[0] * v[1] - d[1] * v[0]) - float(np.hypot(*v)) * float(np.sin(turn / 2.0)))
+
+
+def shift_arc(side: float, radius: float) -> float:
+    """[m] the shortest S-curve that moves a lane ``side`` [m] sideways onto a parallel line: two
+    arcs of ``radius`` [m] (the tightest the lane can follow), each turning ``acos(1 - side / (2
+    radius))`` and back; 0 for no shift."""
+    if side <= 0.0 or radius <= 0.0:
+        return 0.0
+    return 2.0 * radius * float(np.arccos(max(1.0 - side / (2.0 * radius), -1.0)))
 
 
 def _heading(v: np.ndarray) -> float:

@@ -12,6 +12,8 @@ import shapely
 from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
+from coster_sumo.exports.opendrive_bend import discrete_curvature
+
 STATION_M = 0.25  # [m] spacing of the stations the borders are solved at
 RECORD_TOLERANCE_M = 0.002  # [m] simplification of the border and width curves into records
 WIDTH_WEIGHT = 0.02  # least-squares weight of "keep SUMO's width" against "keep the centre" (1)
@@ -26,6 +28,9 @@ MIN_WIDTH_M = 0.01  # [m] narrowest a lane with a SUMO shape gets (readers take 
 # 0.1 m and fails on a lane section with fewer than two samples; commonroad makes a lanelet of no
 # area of a section of millimetres
 MIN_SECTION_M = 0.25
+# [-] a road's reference line is its longest lane's unless a lane border beside it would turn at
+# this fold ratio or tighter (reference_axis; opendrive_bend.FOLD_RATIO for connecting roads)
+AXIS_FOLD_RATIO = 0.9
 MERGE_SLOPE = 1e-6  # [-] a record whose slope and start value continue the one before within these
 MERGE_VALUE_M = 1e-5  # [m] is left out (at most 0.1 mm off over 100 m; records are written to 8 digits)
 
@@ -288,6 +293,46 @@ def smooth_polyline(shape: np.ndarray, window_m: float = SMOOTH_WINDOW_M, step: 
     r = np.minimum(np.minimum(i, len(pts) - 1 - i), half)  # each point's window: i - r .. i + r
     cum = np.concatenate([np.zeros((1, 2)), np.cumsum(pts, axis=0)])
     return (cum[i + r + 1] - cum[i - r]) / (2 * r + 1)[:, None]
+
+
+def reference_axis(shapes: list[np.ndarray], widths: np.ndarray) -> np.ndarray:
+    """(K, 2) [m] the smoothed polyline (:func:`smooth_polyline`) a normal road's reference line
+    follows: its longest lane's (``shapes`` (N_k, 2) [m], ``widths`` (n,) [m]); where a lane border
+    would turn about that line at :data:`AXIS_FOLD_RATIO` or tighter (:func:`border_fold`: a WOMD
+    road 23 m wide whose lanes turn 0.5 rad together, the line on its outermost lane), the lane's
+    whose borders turn least about theirs (the longer on a tie)."""
+    order = sorted(range(len(shapes)), key=lambda k: -float(np.hypot(*np.diff(shapes[k], axis=0).T).sum()))
+    best: tuple[float, np.ndarray] | None = None
+    for k in order:
+        if len(shapes[k]) < 2:
+            continue
+        axis = smooth_polyline(shapes[k])
+        fold = border_fold(axis, shapes, widths)
+        if best is None and fold < AXIS_FOLD_RATIO:
+            return axis
+        if best is None or fold < best[0]:
+            best = (fold, axis)
+    return best[1] if best is not None else smooth_polyline(shapes[0])
+
+
+def border_fold(axis: np.ndarray, shapes: list[np.ndarray], widths: np.ndarray) -> float:
+    """[-] the largest fold ratio of a lane border about a reference polyline ``axis`` (K, 2) [m]:
+    curvature times the border's lateral offset (1: the border stops, beyond it runs backwards;
+    :mod:`~coster_sumo.exports.opendrive_bend`), over the stations each lane of ``shapes`` covers."""
+    if len(axis) < 3:
+        return 0.0
+    d = np.diff(axis, axis=0)
+    h = np.arctan2(d[:, 1], d[:, 0])
+    h = np.append(h, h[-1])
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*d.T))])
+    k = discrete_curvature(axis)
+    worst = 0.0
+    for shape, width in zip(shapes, widths, strict=True):
+        got = lateral(axis[:, 0], axis[:, 1], h, s, shape) if len(shape) >= 2 else None
+        if got is not None and got[1].any():
+            t, covered = got  # the border on the inner side of the turn
+            worst = max(worst, float((k * t + np.abs(k) * 0.5 * float(width))[covered].max()))
+    return worst
 
 
 def hermite_pieces(points: np.ndarray, step: float = REFERENCE_STEP_M) -> list[dict[str, float]]:

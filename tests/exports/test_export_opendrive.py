@@ -154,7 +154,7 @@ def test_a_turnaround_too_tight_for_its_lane_narrows_further_rather_than_fold():
     import xml.etree.ElementTree as ET
 
     from coster_sumo.exports.opendrive_bend import TIGHT
-    from coster_sumo.exports.opendrive_roads import _Connecting, _joining_curve
+    from coster_sumo.exports.opendrive_join import _Connecting, _joining_curve
 
     a = np.linspace(0.0, math.pi, 6)
     path = np.column_stack([1.7 * np.sin(a), 1.7 - 1.7 * np.cos(a)])
@@ -188,6 +188,96 @@ def test_a_uturn_between_lanes_side_by_side_is_pinched_whatever_its_direction(tm
 </net>""")
     lanes = NetLanes.read(net)
     assert lanes.pinched_uturns == {("in", 0, "out", 0)}
+
+
+def test_a_short_connection_between_lanes_apart_sideways_gets_room_for_an_s_curve(tmp_path):
+    # the converted OSM cuts of fkk_in: a one-lane road continues into one lane of a two-lane road
+    # whose line lies 0.55 m to its left, through an internal lane of 0.72 m; no curve that short
+    # shifts a lane 3.2 m wide that far without folding (the turn between the lanes is 0.05 rad, so
+    # the room for turns gave none): the two lanes' ends move in until an S-curve fits
+    from coster_sumo.exports.opendrive_bend import FOLD_RATIO
+    from coster_sumo.exports.opendrive_net import TURN_ROOM, NetLanes, shift_arc, side_gap
+
+    net = tmp_path / "s.net.xml"
+    net.write_text("""<net>
+  <edge id="a"><lane id="a_0" index="0" width="3.2" shape="0.0,0.0 20.0,0.0"/></edge>
+  <edge id="b"><lane id="b_0" index="0" width="3.2" shape="20.47,0.55 40.0,0.55"/></edge>
+  <edge id=":n_0"><lane id=":n_0_0" index="0" width="3.2" shape="20.0,0.0 20.2,0.05 20.3,0.5 20.47,0.55"/></edge>
+  <connection from="a" to="b" fromLane="0" toLane="0" via=":n_0_0" dir="s"/>
+</net>""")
+    lanes = NetLanes.read(net)
+    assert side_gap(lanes.shape["a_0"], lanes.shape["b_0"]) == pytest.approx(0.55)
+    arc = shift_arc(0.55, 1.6 / FOLD_RATIO)
+    assert 1.9 < arc < 2.1  # two arcs of 1.78 m radius, 0.56 rad each
+    cut = lanes.tight_cutbacks()
+    assert cut["a_0"][1] > 0.5 and cut["b_0"][0] > 0.5
+    length = cut["a_0"][1] + cut["b_0"][0] + 0.72
+    assert length == pytest.approx(min(TURN_ROOM * arc, 0.72 + 2 * 2.0), abs=0.05)
+    # with that room the fit's curve shifts the lane without folding it
+    x = np.linspace(20.0 - cut["a_0"][1], 20.47 + cut["b_0"][0], 40)
+    path = np.column_stack([x, np.interp(x, [20.0, 20.47], [0.0, 0.55])])
+    assert fold_ratio(cubic_pieces(*smooth_path(path, 0.0, 0.0, 3.2, 3.2), samples=64), 3.2, 3.2) < 1.0
+    short = np.array([[20.0, 0.0], [20.47, 0.55]])
+    assert fold_ratio(cubic_pieces(*smooth_path(short, 0.0, 0.0, 3.2, 3.2), samples=64), 3.2, 3.2) > 1.0
+
+
+def test_an_unlinked_connecting_road_too_tight_for_its_lane_narrows_where_it_turns():
+    # netconvert's cut of bs3d: a bus lane 3.2 m wide whose lane links are gone (its lanes are not
+    # there at the road ends) turns 1.97 rad left within 2.5 m on a SUMO polyline of 4 segments;
+    # its lane folds on that polyline and on the curve through its points, so it narrows where it
+    # turns (its SUMO width kept at both ends), near the polyline
+    import xml.etree.ElementTree as ET
+
+    from coster_sumo.exports.opendrive import _reference_line
+    from coster_sumo.exports.opendrive_join import _smooth_unlinked
+    from coster_sumo.exports.opendrive_roads import one_lane_road
+
+    shape = np.array([[830.99, 729.01], [829.73, 729.72], [828.84, 729.71], [828.31, 728.99], [828.14, 727.55]])
+    road = ET.fromstring('<road id="451" junction="16" length="0"><planView/><lanes><laneSection s="0">'
+                         '<center><lane id="0" type="none"/></center><right><lane id="-1" type="restricted">'
+                         '<link/></lane></right></laneSection></lanes></road>')
+    one_lane_road(road, shape, 3.2)
+    assert fold_ratio(hermite_through(shape, 2.6284499, -1.68830797), 3.2, 3.2) > 1.0
+    _smooth_unlinked(road, _reference_line)
+    geos = road.findall("planView/geometry")
+    assert all(g.find("paramPoly3") is not None for g in geos), "still on the polyline"
+    widths = [(float(w.get("sOffset")), float(w.get("a")), float(w.get("b"))) for w in road.iter("width")]
+    assert widths[0][1] == pytest.approx(3.2) and min(a for _, a, _ in widths) < 3.2
+    end = widths[-1][1] + widths[-1][2] * (float(road.get("length")) - widths[-1][0])
+    assert end == pytest.approx(3.2, abs=1e-6)
+    pieces = [{**{k: float(g.find("paramPoly3").get(k)) for k in ("bU", "cU", "dU", "cV", "dV")},
+               **{k: float(g.get(k)) for k in ("x", "y", "hdg", "length")}} for g in geos]
+    s = np.concatenate([[0.0], np.cumsum([pc["length"] for pc in pieces])])
+    half = 0.5 * np.interp(s, [w[0] for w in widths] + [s[-1]],
+                           [w[1] for w in widths] + [end])
+    assert fold_ratio(pieces, 3.2, 3.2, half=half) < 1.0
+    line = shapely.LineString(shape)
+    assert max(line.distance(shapely.Point(q)) for q in piece_points(pieces)) <= 0.8  # a quarter of 3.2 m
+
+
+def test_a_wide_road_turning_takes_its_reference_line_where_no_lane_border_folds_about_it():
+    # a crop of WOMD eb4b91b10ca94ff2: five logged lanes 4.6 m wide side by side, each a copy of
+    # one curve (a 0.5 rad left turn on 14 m) moved sideways, the rightmost the longest; each lane
+    # turns gently for its width (fold ratio 0.16), but the leftmost's borders lie 14-21 m left of
+    # the rightmost lane, and about a line turning on 14 m there they fold (commonroad: invalid)
+    from coster_sumo.exports.opendrive_solve import AXIS_FOLD_RATIO, border_fold, reference_axis
+
+    a = np.linspace(0.0, 0.5, 11)
+    arc = np.column_stack([14.0 * np.sin(a), 14.0 - 14.0 * np.cos(a)])
+    out = np.array([math.cos(0.5), math.sin(0.5)])
+    left = np.array([-math.sin(0.25), math.cos(0.25)])  # across the turn's middle direction
+    lanes = []
+    for j in range(5):
+        before, after = (6.0, 6.0) if j == 0 else (2.0, 2.0)  # the rightmost runs longest
+        line = np.vstack([[-before, 0.0], arc, arc[-1] + after * out])
+        lanes.append(line + 4.6 * j * left)
+    widths = np.full(5, 4.6)
+    assert border_fold(smooth_polyline(lanes[0]), lanes, widths) > 1.0
+    axis = reference_axis(lanes, widths)
+    assert border_fold(axis, lanes, widths) < AXIS_FOLD_RATIO
+    assert np.allclose(axis, smooth_polyline(lanes[4]))  # the innermost lane's
+    # a road whose borders keep whole about its longest lane keeps that lane's line
+    assert np.allclose(reference_axis(lanes[:2], widths[:2]), smooth_polyline(lanes[0]))
 
 
 def test_reference_lines_leave_their_ends_in_their_own_direction():
