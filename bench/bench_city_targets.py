@@ -1,6 +1,6 @@
 """Scenarios per plain-SUMO pass on a city, for several numbers of targets, beside plain ``sumo``.
 
-    python bench/bench_city_targets.py [--config CFG] [--targets 1 5 20] [--variants 5] [--work DIR]
+    python bench/bench_city_targets.py [--config CFG] [--targets 1 5 20] [--variants 5] [--work DIR] [--pass]
 
 For each N of ``--targets``, in this order and one process after the other: ``coster-sumo run CFG
 --targets N --planner replay --variants V --no-render`` (one nominal pass for the N targets), then
@@ -12,7 +12,9 @@ labels, variants and outputs summed over the targets; generation at most per tar
 scenarios (variants kept, over all targets), how many of them were in contact with their target
 within 0.1 s of t_col, and **scenarios per plain-SUMO pass**: the scenarios divided by the ratio,
 i.e. how many the run gives in the time plain SUMO takes to simulate the same window once (on wall
-and on CPU time).
+and on CPU time). ``--pass`` also times the run's nominal pass alone, as a third child process
+after plain ``sumo``: the same targets in the same order, with the held copies a run makes, nothing
+after it; its wall time is the run's ``nominal_s`` measured again, its CPU time is the pass's own.
 
 On a machine shared with other jobs the wall ratio depends on what else ran in each command's
 minutes; the CPU ratio counts the work each command made the machine do. It also counts work that a
@@ -39,6 +41,21 @@ from typing import Any
 from coster_sumo.infra import sumo_install
 
 PR_SET_CHILD_SUBREAPER = 36
+# the nominal pass of run, alone (as coster_sumo.pipeline.run.run starts it)
+_PASS = """
+import sys
+from pathlib import Path
+from coster_sumo.core.spec import ScenarioSpec
+from coster_sumo.formats.source import ScenarioSource
+from coster_sumo.method.collision_time import PRIOR_RATE_HZ
+from coster_sumo.pipeline.scenario import nominal_pass
+from coster_sumo.rollout.methods import HORIZON_STEPS
+from coster_sumo.sim.hold import HeldStates
+
+cfg, ids = Path(sys.argv[1]), sys.argv[2:]
+with HeldStates(ids[0], lead_s=HORIZON_STEPS / PRIOR_RATE_HZ, more_targets=ids[1:]) as held:
+    nominal_pass(ScenarioSource.of(ScenarioSpec(cfg, seed=0, target=ids[0])), ids, hold=held)
+"""
 # the phases of a run's summary.json that come after the pass, each summed over the targets
 AFTER_PASS = ("generation_s", "avoidability_s", "proof_s", "labels_other_s", "injection_s", "outputs_s")
 
@@ -93,7 +110,7 @@ def target_summaries(out: Path) -> list[dict[str, Any]]:
     return [json.loads((out / t["folder"] / "summary.json").read_text()) for t in top["targets"] if t.get("folder")]
 
 
-def one(cfg: Path, n: int, variants: int, work: Path) -> dict[str, Any]:
+def one(cfg: Path, n: int, variants: int, work: Path, alone: bool) -> dict[str, Any]:
     out = work / f"run_{n}"
     run_cmd = [sys.executable, "-m", "coster_sumo", "--quiet", "run", str(cfg), "--targets", str(n),
                "--planner", "replay", "--variants", str(variants), "--no-render", "-o", str(out), "--overwrite"]
@@ -102,6 +119,11 @@ def one(cfg: Path, n: int, variants: int, work: Path) -> dict[str, Any]:
     until = float(top["nominal_until_s"])
     t_sumo, c_sumo = timed([sumo_install.binary("sumo"), "-c", str(cfg), "--step-length", "0.1", "--end",
                             f"{until:.1f}", "--no-step-log", "true", "--no-warnings", "true"])
+    pass_alone = {}
+    if alone:
+        ids = [str(t["target"]) for t in top["targets"]] if "targets" in top else [str(top["target"])]
+        pass_alone = dict(zip(("pass_s", "pass_cpu_s"), timed([sys.executable, "-c", _PASS, str(cfg), *ids]),
+                              strict=True))
     per = target_summaries(out)
     scenarios = sum(len(s["variants"]) for s in per)
     contact = sum(1 for s in per for v in s["variants"]
@@ -114,17 +136,20 @@ def one(cfg: Path, n: int, variants: int, work: Path) -> dict[str, Any]:
             "phases_s": phases, "generation_max_s": max(generation, default=0.0),
             "generation_per_target_s": sum(generation) / max(1, len(per)), "scenarios": scenarios,
             "in_contact": contact, "scenarios_per_sumo_pass": scenarios / (t_run / t_sumo),
-            "scenarios_per_sumo_pass_cpu": scenarios / (c_run / c_sumo)}
+            "scenarios_per_sumo_pass_cpu": scenarios / (c_run / c_sumo), **pass_alone}
 
 
 def report(r: dict[str, Any]) -> str:
     ph = r["phases_s"]
     phases = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in ph.items())
+    alone = (f"  the pass alone: wall {r['pass_s']:.1f} s, CPU {r['pass_cpu_s']:.1f} s, over sumo's "
+             f"{r['pass_s'] / r['sumo_s']:.2f} (wall), {r['pass_cpu_s'] / r['sumo_cpu_s']:.2f} (CPU)\n"
+             if "pass_s" in r else "")
     return (f"{r['targets']} targets ({r['with_scenarios']} with scenarios) to {r['until_s']:.1f} s:\n"
             f"  wall: run {r['run_s']:.1f} s, sumo {r['sumo_s']:.1f} s, ratio {r['ratio']:.2f}; "
             f"nominal pass / sumo {ph['nominal_s'] / r['sumo_s']:.2f}\n"
             f"  CPU (user+sys, with descendants): run {r['run_cpu_s']:.1f} s, sumo {r['sumo_cpu_s']:.1f} s, "
-            f"ratio {r['cpu_ratio']:.2f}\n"
+            f"ratio {r['cpu_ratio']:.2f}\n{alone}"
             f"  phases [s, wall] {phases}; generation per target {r['generation_per_target_s']:.2f}, "
             f"at most {r['generation_max_s']:.2f}\n"
             f"  {r['scenarios']} scenarios ({r['in_contact']} in contact within 0.1 s of t_col); per plain-SUMO pass "
@@ -137,6 +162,7 @@ def main() -> None:
     ap.add_argument("--targets", type=int, nargs="+", default=[1, 5, 20])
     ap.add_argument("--variants", type=int, default=5)
     ap.add_argument("--work", type=Path, default=Path("/tmp/coster-bench-city-targets"))
+    ap.add_argument("--pass", dest="alone", action="store_true", help="also time the nominal pass alone")
     args = ap.parse_args()
     cfg = args.config or sumo_install.sumo_home() / "tools" / "game" / "A10KW.sumocfg"
     args.work.mkdir(parents=True, exist_ok=True)
@@ -144,7 +170,7 @@ def main() -> None:
         print("warning: not a child subreaper: orphaned processes under the run are not in its CPU time")
     for n in args.targets:
         print(f"load average before: {os.getloadavg()[0]:.2f} ({time.strftime('%Y-%m-%d %H:%M')})", flush=True)
-        r = one(cfg, n, args.variants, args.work)
+        r = one(cfg, n, args.variants, args.work, args.alone)
         print(report(r), flush=True)
         print(f"load average after: {os.getloadavg()[0]:.2f}", flush=True)
         (args.work / f"result_{n}.json").write_text(json.dumps(r, indent=1))
