@@ -9,7 +9,8 @@ Records the nominal pass of ``--target`` once (kept in ``--scene``, default
 weights; as ``run``'s ``generation_s`` counts it, the 2 Hz copy of the scene apart), alternating
 the search as shipped (coarse to fine above ``LONG_WINDOW_STEPS``) and the exact search (every
 step: ``LONG_WINDOW_STEPS`` set past the window). Prints per round the 2 Hz copy's and the
-generation's wall time, the search window's length, the steps the curve was computed at, the
+generation's wall time, the generation's CPU time (user + system of every thread of the process:
+torch's included), the search window's length, the steps the curve was computed at, the
 steps the prior's data was built at, t_col, the variants kept and the draws made (``--seeds N``:
 each round for the seeds 0..N-1; a seed's draw can give its best collision time up and take the
 next best). The prior's weights are loaded before the first round, as in ``coster-sumo serve``.
@@ -55,15 +56,16 @@ def one_round(scene, target: int, exact: bool, seed: int = 0) -> dict[str, float
         drivable = DrivableArea.from_road_map(scene.road_map)
         t0 = time.perf_counter()
         memo = DrawMemo.of(scene)  # a run makes its 2 Hz copy once for all its targets, before generation
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         planned = plan_scenarios(scene, target, seed, GenerationConfig(), drivable, memo, 1)
-        total = time.perf_counter() - t1
+        total, cpu = time.perf_counter() - t1, time.process_time() - c1
     finally:
         ct.LONG_WINDOW_STEPS = saved
     window = ct.search_window(memo.low, target)
     p = planned[0]
     built = getattr(memo.prior.data.occupancy, "built", None)  # versions before it built every step
-    return {"resample_s": t1 - t0, "generation_s": total, "window_steps": len(window), "t_col": float(p.snapshot.time),
+    return {"resample_s": t1 - t0, "generation_s": total, "generation_cpu_s": cpu,
+            "window_steps": len(window), "t_col": float(p.snapshot.time),
             "variants": len(p.plans), "computed_steps": int(np.isfinite(np.asarray(memo.prior.entropy)).sum()),
             "data_steps": memo.low.num_steps if built is None else int(built.sum()),
             "draws": int(p.info.get("attempt", 1)), "given_up": len(p.info.get("collision_times_given_up", {}))}

@@ -166,9 +166,13 @@ class _FocusedReader:
         if full:
             once = self.every > 1
             near = session.vehicles_near(self.running[0], focus.radius_m, once=once)
+            seen = set(near)
             for other in self.running[1:]:  # several targets: the union of their surroundings
-                seen = set(near)
-                near += [v for v in session.vehicles_near(other, focus.radius_m, once=once) if v not in seen]
+                # mostly the same vehicles again: their ids only (the rest are read once, with getters)
+                more = [v for v in session.vehicles_near(other, focus.radius_m, once=once, values=False)
+                        if v not in seen]
+                near += more
+                seen.update(more)
         else:
             near = [v for v in self.running if v not in session.hidden]
         if focus.extra_ids:

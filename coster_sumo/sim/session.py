@@ -117,6 +117,7 @@ class SumoSession(SessionControl):
         self._remote: set[str] = set()  # vehicles we drive with moveToXY
         self._context: dict[str, float] = {}  # vehicle -> radius [m] of its context subscription
         self._near_values: dict[str, dict[int, Any]] = {}  # this step's context subscription values
+        self._constants: Any = None  # traci.constants, once looked up
         # vehicles in the simulation that are not part of the scene yet (a log replayer's agents
         # parked on the staging lane): left out of vehicle_states() and so of recordings and events
         self.hidden: set[str] = set()
@@ -397,19 +398,14 @@ class SumoSession(SessionControl):
                 id_list = list(veh.getIDList())
             if not id_list:
                 return empty_states()
-            # list comprehensions over bound getters: about 2x faster than filling arrays per item;
-            # vehicles found by vehicles_near this step come with their values already
-            known = self._near_values
-            if known and all(v in known for v in id_list):
-                tc, rows = self._tc(), [known[v] for v in id_list]
-                pos = np.array([r[tc.VAR_POSITION] for r in rows], np.float64).reshape(-1, 2)
-                angle = np.array([r[tc.VAR_ANGLE] for r in rows], np.float64)
-                speed = np.array([r[tc.VAR_SPEED] for r in rows], np.float64)
-            else:
-                get_pos, get_angle, get_speed = veh.getPosition, veh.getAngle, veh.getSpeed
-                pos = np.array([get_pos(v) for v in id_list], np.float64).reshape(-1, 2)
-                angle = np.array([get_angle(v) for v in id_list], np.float64)
-                speed = np.array([get_speed(v) for v in id_list], np.float64)
+            # list comprehensions over bound getters (about 2x faster than filling arrays per item); the
+            # vehicles found by vehicles_near this step come with their values (the getters' numbers)
+            known, tc, get_xy, get_angle, get_speed = (self._near_values, self._tc(), veh.getPosition, veh.getAngle,
+                                                       veh.getSpeed)
+            pairs = list(zip(id_list, [known.get(v) for v in id_list] if known else [None] * len(id_list), strict=True))
+            pos = np.array([get_xy(v) if r is None else r[tc.VAR_POSITION] for v, r in pairs], float).reshape(-1, 2)
+            angle = np.array([get_angle(v) if r is None else r[tc.VAR_ANGLE] for v, r in pairs], np.float64)
+            speed = np.array([get_speed(v) if r is None else r[tc.VAR_SPEED] for v, r in pairs], np.float64)
             static = self._static
             for vid in id_list:
                 if vid not in static:
@@ -429,21 +425,23 @@ class SumoSession(SessionControl):
                              length=length, width=width, vclass=np.array(vclass, dtype=str),
                              type_id=np.array(type_id, dtype=str), names=id_list)
 
-    def vehicles_near(self, veh_id: str, radius_m: float, *, once: bool = False) -> list[str]:
+    def vehicles_near(self, veh_id: str, radius_m: float, *, once: bool = False, values: bool = True) -> list[str]:
         """Ids of the vehicles within ``radius_m`` of ``veh_id`` (itself included), hidden ones left out.
 
         SUMO finds them (a context subscription made on the first call), so the cost does not grow
         with the number of vehicles in the network. SUMO then evaluates the subscription on every
         step, 0.4-1.8 ms per step around a target in dense city traffic (bench/bench_context_query.py);
         ``once=True`` (libsumo) subscribes, reads and unsubscribes instead, for callers that ask only
-        now and then.
+        now and then; with it, ``values=False`` has SUMO send the ids only, not the values that
+        :meth:`vehicle_states` takes from the query otherwise (it reads such vehicles with getters).
         """
         veh = self.api.vehicle
         tc = self._tc()
         standing = self._context.get(veh_id) == radius_m
+        bare = once and not values and not self.uses_traci
         if not standing:
             veh.subscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m),
-                                 [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED])
+                                 [tc.VAR_SPEED] if bare else [tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED])
         if standing:
             near = veh.getContextSubscriptionResults(veh_id) or {}
             if not self.uses_traci:  # this step's values of them, for vehicle_states (no getter calls)
@@ -451,7 +449,8 @@ class SumoSession(SessionControl):
         elif once and not self.uses_traci:
             near = dict(veh.getContextSubscriptionResults(veh_id) or {})  # libsumo: this step's, at once
             veh.unsubscribeContext(veh_id, tc.CMD_GET_VEHICLE_VARIABLE, float(radius_m))
-            self._near_values.update(near)
+            if not bare:
+                self._near_values.update(near)
         else:
             self._context[veh_id] = radius_m
             # results arrive with the next step; this once, measure the distances ourselves
@@ -493,7 +492,9 @@ class SumoSession(SessionControl):
     # ------------------------------------------------------------------------- TraCI plumbing
 
     def _tc(self) -> Any:
-        return sumo_install.import_traci().constants
+        if self._constants is None:  # looked up a few times per step: importlib's lookup each time cost
+            self._constants = sumo_install.import_traci().constants
+        return self._constants
 
     def _subscribe_vehicle(self, veh_id: str) -> None:
         subscribe_vehicle(self._api, self._tc(), veh_id)

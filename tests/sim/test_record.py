@@ -297,3 +297,38 @@ def test_a_quiet_progress_bar_is_still_moved_once_per_simulated_second(grid_cfg)
     with SumoSession(grid_cfg, seed=1, end=12.0) as session:
         record(session, end=12.0, bar=bar)
     assert 1 <= len(calls) <= 12  # 119 steps of 0.1 s
+
+
+def test_targets_after_the_first_get_ids_only_and_the_same_recording(monkeypatch):
+    """Several targets: the queries around the ones after the first ask SUMO for ids only
+    (``vehicles_near(values=False)``), and the vehicles that only those queries found are read with
+    getters. The recording is the same, byte for byte, as with every query's values."""
+    from coster_sumo.sim.record import Focus
+
+    cfg = Path(__file__).resolve().parents[2] / "networks" / "arterial" / "arterial.sumocfg"
+    targets = ("ego", "ew.0", "we.0", "pre_east.0")
+    # a small radius: each target sees vehicles the others do not
+    focus = Focus(targets[0], 40.0, tail_s=2.0, surroundings_hz=2.0, more_targets=targets[1:])
+    asked: list[bool] = []
+    lean = SumoSession.vehicles_near
+
+    def counted(self, veh_id, radius_m, *, once=False, values=True):  # type: ignore[no-untyped-def]
+        asked.append(values)
+        return lean(self, veh_id, radius_m, once=once, values=values)
+
+    monkeypatch.setattr(SumoSession, "vehicles_near", counted)
+    got = record_config(cfg, seed=0, end=60.0, focus=focus)
+    assert asked.count(False) > 20 and sum(t in set(got.tracks.ids) for t in targets) >= 3
+
+    def full(self, veh_id, radius_m, *, once=False, values=True):  # type: ignore[no-untyped-def]
+        return lean(self, veh_id, radius_m, once=once)  # every query with its values, as before
+
+    monkeypatch.setattr(SumoSession, "vehicles_near", full)
+    ref = record_config(cfg, seed=0, end=60.0, focus=focus)
+    assert got.tracks.ids.tolist() == ref.tracks.ids.tolist()
+    assert got.timestamps.tobytes() == ref.timestamps.tobytes()
+    for field in ("x", "y", "heading", "vx", "vy", "length", "width", "valid"):
+        assert getattr(got.tracks, field).tobytes() == getattr(ref.tracks, field).tobytes(), field
+    # the ids-only queries found vehicles the first target's did not: those were read with getters
+    first_only = Focus(targets[0], 40.0, tail_s=2.0, surroundings_hz=2.0)
+    assert len(record_config(cfg, seed=0, end=60.0, focus=first_only).tracks.ids) < len(got.tracks.ids)
