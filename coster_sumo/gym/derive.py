@@ -60,11 +60,11 @@ def one_per_snapshot(src: str | Path, out: str | Path) -> dict[str, Any]:
         raise InputError(f"{src / MANIFEST}: no build progress in its options (not written by `scenarios build`)")
     if (out / MANIFEST).exists() and json.loads((out / MANIFEST).read_text()).get("method") != METHOD:
         raise InputError(f"{out}: holds another set; choose an empty folder")
-    keep = [_renamed(e) for e in cset.entries if e.kind == "nominal" or e.extra.get("variant") == 0]
+    kept = [e for e in cset.entries if e.kind == "nominal" or e.extra.get("variant") == 0]
+    keep = [_renamed(e) for e in kept]
     (out / "scenarios").mkdir(parents=True, exist_ok=True)
     (out / "nets").mkdir(exist_ok=True)
-    for old, new in zip((e for e in cset.entries if e.kind == "nominal" or e.extra.get("variant") == 0), keep,
-                        strict=True):
+    for old, new in zip(kept, keep, strict=True):
         _link(src / "scenarios" / f"{old.id}.npz", out / "scenarios" / f"{new.id}.npz")
     for net in sorted({e.net for e in cset.entries} | {f"nets/{n}.net.xml" for n in cset.meta.get("networks", {})}):
         if (src / net).exists():
