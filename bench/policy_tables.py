@@ -17,7 +17,8 @@ Per traffic mode and episode group, one row per arm and reference: each score of
 :mod:`coster_sumo.gym.scores` with its 95 % bootstrap interval over the seeds and episodes; then
 the learning gate (the nominal-only arm against constant speed on Normal: RCR and CR), then every
 arm against the nominal-only arm on the same episodes (the paired difference and its interval):
-Hard CR (also relative), Normal RCR; and COSTER against Random + CVAE on Hard CR.
+Hard CR (also relative), Normal RCR, the leader-braking and cut-in adversities' CR and the defect
+rate on COSTER's held-out variants; and COSTER against Random + CVAE on Hard CR.
 """
 
 from __future__ import annotations
@@ -113,19 +114,30 @@ def table(rows: dict[str, dict[str, list[list[dict]]]]) -> tuple[list[str], dict
 
 def differences(found: dict[tuple[str, str], dict[str, dict[str, list[list[dict]]]]], mode: str) -> list[str]:
     """The learning gate (nominal only against constant speed: Normal RCR and CR), each arm against
-    nominal only (Hard CR, Normal RCR), and COSTER against Random + CVAE on Hard CR."""
+    nominal only (Hard CR, Normal RCR, the adversities' CR, the defect rate), and COSTER against
+    Random + CVAE on Hard CR."""
     out = []
     constant = f"reference: {REFERENCES['none']}"
     pairs = [(constant, "nominal", "Normal", "rcr"), (constant, "nominal", "Normal", "cr")]
     pairs += [("nominal", a, "Hard", "cr") for a in ARMS[1:]] + [("nominal", a, "Normal", "rcr") for a in ARMS[1:]]
     pairs.append(("random-cvae", "coster", "Hard", "cr"))
+    # where the arms differ most: the adversities, and COSTER's own variants (the defect rate)
+    pairs += [("nominal", a, f"adversity: {kind}", "cr") for kind in ("leader-braking", "cut-in") for a in ARMS[1:]]
+    pairs += [("nominal", a, "COSTER held-out variants", "defect rate") for a in ARMS[1:]]
     for base, arm, group, score in pairs:
         rows = found.get((mode, group), {})
         if base not in rows or arm not in rows:
             continue
-        va, vb = _values(rows[base]["seeds"], score), _values(rows[arm]["seeds"], score)
+        if score == "defect rate":  # contact with the adversary, over the variants labelled avoidable
+            pick = [[[r for r in s if r.get("avoidable") is True] for s in rows[n]["seeds"]] for n in (base, arm)]
+            if not pick[0][0]:
+                continue
+            va, vb = _values(pick[0], "cr_adversary"), _values(pick[1], "cr_adversary")
+        else:
+            va, vb = _values(rows[base]["seeds"], score), _values(rows[arm]["seeds"], score)
         d = bootstrap_difference(va, vb)
-        rel = f", {100 * d.mean / va.mean():+.1f} % of {base}'s" if score == "cr" and va.mean() > 0 else ""
+        rel = (f", {100 * d.mean / va.mean():+.1f} % of {base}'s" if score in ("cr", "defect rate") and va.mean() > 0
+               else "")
         out.append(f"- {mode}, {group} {score}: {arm} - {base} = {_fmt(d)}{rel}; "
                    f"interval {'excludes' if d.excludes_zero() else 'includes'} 0")
     return out
