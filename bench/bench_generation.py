@@ -16,7 +16,9 @@ the same weights (``--models``, default the shipped ``models/`` of this tree).
 
 Output: per scene the two times and whether the variants are the same (same number, same
 collision time and adversary state, plan knots within ``--tolerance`` metres / radians); then the
-per-variant times as the eval aggregates them (mean over scenes of time / variants), the median
+per-variant times as the eval aggregates them (mean over scenes of time / variants) in wall and in
+the task's CPU time (one torch thread: on a loaded machine the CPU time is what the call costs, the
+wall time what it waited as well), the median
 per-scene ratio baseline / current, and the load average. ``--warm`` also times a second call in
 the same task (weights and imports already there: the cost inside a long-lived process).
 
@@ -50,27 +52,37 @@ BASELINE_REF = "657c963"  # main before issue 47's generation work
 # The server: imports what the eval driver has imported when it forks a task, then for every
 # request line forks a task that times generate_variants and writes one JSON line back.
 SERVER = r'''
-import json, os, sys, time
+import importlib, json, os, sys, time
 sys.path.insert(0, sys.argv[1])
 import libsumo, pyarrow.parquet  # noqa: F401
-import coster_sumo.batch.evaluate, coster_sumo.pipeline.outputs  # noqa: F401
-# where generation lives: coster_sumo.method (issue 43) or coster_sumo.core (before it); asked of the
-# files, since an editable install of the current tree would answer any missing module from there
-NEW = os.path.isdir(os.path.join(sys.argv[1], "coster_sumo", "method"))
-if NEW:
-    from coster_sumo.method.generation import generate_variants
-    try:
-        from coster_sumo.formats.targets import choose_target
-    except ImportError:  # before it moved beside the other ways of choosing targets
-        from coster_sumo.pipeline.scenario import choose_target
-else:
-    from coster_sumo.core import choose_target, generate_variants
-if os.path.isfile(os.path.join(sys.argv[1], "coster_sumo", "formats", "scene_file.py")):
-    from coster_sumo.formats.scene_file import load_scene
-else:  # before the scene file had a module of its own
-    from coster_sumo.core.scene import load_scene
-import coster_sumo.geometry.drivable  # noqa: F401
-import coster_sumo.sim.inject  # noqa: F401
+import coster_sumo
+
+
+def have(module):
+    # asked of the files: an editable install of the current tree would answer a module the tree
+    # asked for does not hold from the current tree
+    path = os.path.join(sys.argv[1], *module.split("."))
+    return os.path.isfile(path + ".py") or os.path.isfile(os.path.join(path, "__init__.py"))
+
+
+def pick(name, *modules):
+    # the name from the first of ``modules`` the tree holds (the package's layout moved over time)
+    for module in modules:
+        if have(module):
+            return getattr(importlib.import_module(module), name)
+    raise ImportError(f"{name}: none of {modules} in {sys.argv[1]}")
+
+
+for module in ("coster_sumo.batch.evaluate", "coster_sumo.pipeline.outputs", "coster_sumo.outputs",
+               "coster_sumo.sim.inject"):
+    if have(module):
+        importlib.import_module(module)
+generate_variants = pick("generate_variants", "coster_sumo.method.generation", "coster_sumo.core")
+choose_target = pick("choose_target", "coster_sumo.formats.targets", "coster_sumo.pipeline.scenario",
+                     "coster_sumo.core")
+load_scene = pick("load_scene", "coster_sumo.formats.scene_file", "coster_sumo.core.scene", "coster_sumo.scene")
+DrivableArea = pick("DrivableArea", "coster_sumo.geometry.drivable", "coster_sumo.drivable")
+GenerationConfig = pick("GenerationConfig", "coster_sumo.core.spec", "coster_sumo.spec")
 from coster_sumo.batch import executor
 preload = getattr(executor, "GENERATION_TASK_MODULES", ())
 for name in preload:
@@ -86,25 +98,24 @@ for line in sys.stdin:
         out = {}
         try:
             from pathlib import Path
-            from coster_sumo.geometry.drivable import DrivableArea
-            from coster_sumo.core.spec import GenerationConfig
             scene = load_scene(req["scene"])
             target = choose_target(scene, None, req["scene"])
             drivable = DrivableArea.from_road_map(scene.road_map)
             gen = GenerationConfig(init="snapshot", rollout="cvae", collision_time="entropy",
                                    variants=req["variants"], samples=req["samples"],
                                    models_dir=Path(req["models"]))
-            times = []
+            times, cpu = [], []
             for _ in range(2 if req["warm"] else 1):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 try:
                     variants, _ = generate_variants(scene, target, req["seed"], gen, drivable)
                 except Exception as exc:  # NoSnapshot: a scene without a scenario, timed all the same
                     variants, out["error"] = [], f"{type(exc).__name__}: {exc}"
                 times.append(time.perf_counter() - t0)
-            out.update(times=times, variants=[v.to_dict() for v in variants])
+                cpu.append(time.process_time() - c0)
+            out.update(times=times, cpu=cpu, variants=[v.to_dict() for v in variants])
         except BaseException as exc:
-            out = {"error": f"{type(exc).__name__}: {exc}", "times": [], "variants": []}
+            out = {"error": f"{type(exc).__name__}: {exc}", "times": [], "cpu": [], "variants": []}
         with os.fdopen(w, "w") as fh:
             fh.write(json.dumps(out))
         os._exit(0)
@@ -225,7 +236,8 @@ def main() -> None:
             b, c = got["baseline"], got["current"]
             diff = compare(b["variants"], c["variants"])
             row = {"scene": scene.name, "variants": len(c["variants"]), "baseline_s": b["times"],
-                   "current_s": c["times"], "max_diff": diff, "same": diff <= args.tolerance,
+                   "current_s": c["times"], "baseline_cpu_s": b["cpu"], "current_cpu_s": c["cpu"],
+                   "max_diff": diff, "same": diff <= args.tolerance,
                    "errors": [x.get("error") for x in (b, c) if x.get("error")]}
             rows.append(row)
             warm = (f", warm {b['times'][1]:.3f} / {c['times'][1]:.3f} s" if args.warm and b["times"]
@@ -248,6 +260,8 @@ def main() -> None:
           f"(tolerance {args.tolerance:g}; largest difference {max((r['max_diff'] for r in rows), default=0):.2g})")
     print(f"per variant (mean over scenes of time / variants, as eval reports it): baseline "
           f"{per_variant('baseline_s'):.3f} s, current {per_variant('current_s'):.3f} s")
+    print(f"per variant in CPU time of the task (what load does not inflate): baseline "
+          f"{per_variant('baseline_cpu_s'):.3f} s, current {per_variant('current_cpu_s'):.3f} s")
     if args.warm:
         print(f"warm (second call in the task): baseline {per_variant('baseline_s', 1):.3f} s, current "
               f"{per_variant('current_s', 1):.3f} s")
