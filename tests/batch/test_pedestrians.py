@@ -170,6 +170,9 @@ def test_pedestrian_build_records_walkers_with_plausible_speeds(tmp_path):
         assert st["clip_ped_s"].sum() == pytest.approx(ped_s, rel=1e-4)
     run = dataset.read_manifest(out)["runs"][0]
     assert run["ped_density"] == pedestrians.PED_DENSITY and run["source"].endswith("square.walk.net.xml")
+    from coster_sumo.batch.card import write_card
+
+    assert f"**{ped_s / 3600:.3f} h** of pedestrian" in write_card(out).read_text()
 
 
 # grid6, 150 s, seed 0, without pedestrians, recorded by main at 3579716 (before pedestrians existed)
