@@ -182,6 +182,10 @@ class _Pool:
     def __call__(self, key: str, where: Callable[[RunRecord], bool] | None = None) -> np.ndarray:
         return _cat([s[key] for rid, s in self.stats.items() if where is None or where(self.run_of[rid])])
 
+    def runs_with(self, key: str) -> int:
+        """How many runs' stats hold ``key`` (builds before it was written lack it)."""
+        return sum(key in s for s in self.stats.values())
+
 
 @dataclass(frozen=True)
 class _Samples:
@@ -199,6 +203,7 @@ class _Samples:
     clip_median: np.ndarray
     clip_limit: np.ndarray
     classes: list[str]
+    vru_hours: tuple[float, float, int]  # [h] pedestrian and cyclist track time in clips; runs that counted it
 
     @classmethod
     def of(cls, pool: _Pool, rows: list[NetworkRow]) -> _Samples:
@@ -212,7 +217,17 @@ class _Samples:
                    lat_sublane=pool("lat_speed", lambda r: r.sublane),
                    lat_other=pool("lat_speed", lambda r: not r.sublane),
                    clip_median=pool("clip_median_speed"), clip_limit=pool("clip_speed_limit"),
-                   classes=sorted(set(vclass.tolist())))
+                   classes=sorted(set(vclass.tolist())), vru_hours=_vru_hours(pool))
+
+
+def _vru_hours(pool: _Pool) -> tuple[float, float, int]:
+    """[h] pedestrian and cyclist track time in the clips of the runs that counted it, and those runs."""
+    runs = pool.runs_with("clip_ped_s")
+    if not runs:
+        return 0.0, 0.0, 0
+    counted = {rid: st for rid, st in pool.stats.items() if "clip_ped_s" in st}
+    part = _Pool(counted, pool.run_of)
+    return float(part("clip_ped_s").sum()) / 3600.0, float(part("clip_cyclist_s").sum()) / 3600.0, runs
 
 
 def _draw_histograms(figs: Path, s: _Samples, pool: _Pool) -> None:
@@ -271,6 +286,9 @@ def _totals_lines(dataset: Path, manifest: CorpusManifest, runs: list[RunRecord]
         f"sublane runs, {np.mean(np.abs(lat_other) > 0.5) if len(lat_other) else 0:.2%} in the others",
         f"- clips: {congested} congested (median moving speed < {CONGESTED_MPS:g} m/s), {free} free flow "
         f"(>= {FREE_FLOW_SHARE:.0%} of the speed limit), of {len(s.clip_median)}",
+        f"- vulnerable road users in the clips: **{s.vru_hours[0]:.3f} h** of pedestrian and "
+        f"**{s.vru_hours[1]:.3f} h** of cyclist tracks (valid steps x 0.1 s, summed over clips; "
+        f"{s.vru_hours[2]} of {len(runs)} runs counted them)",
         ""]
 
 

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.batch import nets
+from coster_sumo.batch.pedestrians import PED_DENSITY, Walkable, walkable
 from coster_sumo.batch.records import BatchCounts, CorpusSummary, NetworkRecord
 from coster_sumo.batch.simulate import DEFAULT_TIMEOUT_S, RunTask, Source, run_batch
 from coster_sumo.data import dataset as ds
@@ -275,11 +276,16 @@ class CorpusConfig:
     card: bool = True  # write DATASET/card.md at the end
     quiet: bool = False
     debug: bool = False
+    pedestrians: bool = False  # sidewalks, crossings and walks (coster_sumo.batch.pedestrians)
 
 
-def plan_corpus(cfg: CorpusConfig, networks: list[Network]) -> list[RunTask]:
-    """Every run of the corpus (deterministic in the configuration)."""
+def plan_corpus(cfg: CorpusConfig, networks: list[Network], walk: dict[str, Walkable] | None = None
+                ) -> list[RunTask]:
+    """Every run of the corpus (deterministic in the configuration). ``walk``: the networks that
+    get pedestrians, as they walk them (:func:`coster_sumo.batch.pedestrians.walkable`; with
+    ``cfg.pedestrians`` only)."""
     tasks = []
+    walk = walk or {}
     for n_index, net in enumerate(networks):
         for i in range(cfg.runs_per_network):
             j = n_index + i  # run variant: rotates over the catalogue, so one run per network covers all
@@ -303,13 +309,18 @@ def plan_corpus(cfg: CorpusConfig, networks: list[Network]) -> list[RunTask]:
                 if not net.freeway and net.lane_km > 0:  # big city grids would gridlock, not congest
                     density = min(density, MAX_INSERTIONS_PER_H / net.lane_km)
             xml, models = vtypes_xml(rng, net.freeway)
+            bikes = 0.0 if (own or net.freeway) else BIKE_DENSITY
             src = Source(name=net.name, path=net.net, is_config=False, has_demand=own, begin_s=begin,
                          routes=net.routes if own else (), additional=net.additional)
+            ped = walk.get(net.name)
+            if ped is not None:  # the walkable net; randomTrips' vehicle densities count lanes, sidewalks not
+                src = dataclasses.replace(src, path=ped.net, additional=ped.additional)
+                density, bikes = density * ped.vehicle_factor, bikes * ped.bike_factor
             tasks.append(RunTask(
                 run_id=f"{net.name}_r{i}", source=src, seed=seed, scale=scale, duration_s=cfg.duration_s,
                 warmup_s=WARMUP_S, max_clips=CLIPS_PER_RUN, targets_per_window=3, dataset=cfg.dataset,
-                options=options, trip_density=density or 1.0,
-                bike_density=0.0 if (own or net.freeway) else BIKE_DENSITY, vtypes=xml, network=net.name,
+                options=options, trip_density=density or 1.0, bike_density=bikes, vtypes=xml, network=net.name,
+                ped_density=PED_DENSITY if ped is not None else 0.0, sidewalk_km=ped.sidewalk_km if ped else 0.0,
                 heldout=net.heldout, stats=True,
                 info={"family": net.family, "level": level, "sublane": sublane, "begin_s": begin,
                       "car_following": models}))
@@ -328,7 +339,7 @@ def build_corpus(cfg: CorpusConfig) -> CorpusSummary:
     manifest = ds.read_manifest(cfg.dataset)
     manifest["corpus"] = {"seed": cfg.seed, "runs_per_network": cfg.runs_per_network,
                           "duration_s": cfg.duration_s, "warmup_s": WARMUP_S,
-                          "wheel_excluded": WHEEL_EXCLUDED}
+                          "wheel_excluded": WHEEL_EXCLUDED} | ({"pedestrians": True} if cfg.pedestrians else {})
     manifest["networks"] = [n.record(cfg.dataset).to_json() for n in networks]  # the whole catalogue
     manifest["heldout_networks"] = sorted(n.name for n in networks if n.heldout)
     if cfg.networks:
@@ -336,7 +347,17 @@ def build_corpus(cfg: CorpusConfig) -> CorpusSummary:
         if unknown:
             raise InputError(f"unknown networks: {', '.join(sorted(unknown))}")
         networks = [n for n in networks if n.name in cfg.networks]
-    tasks = plan_corpus(cfg, networks)
+    walk: dict[str, Walkable] = {}
+    for n in networks if cfg.pedestrians else ():
+        try:
+            ped = walkable(n, cfg.dataset)
+        except RuntimeError as exc:  # netconvert failed: the network's runs go on without pedestrians
+            errors.append(f"{n.name}: {exc}")
+            print(f"coster-sumo corpus: network {n.name}: no pedestrians: {exc}", file=sys.stderr)
+            continue
+        if ped is not None:
+            walk[n.name] = ped
+    tasks = plan_corpus(cfg, networks, walk)
     result = run_batch(tasks, cfg.dataset, manifest, workers=cfg.workers, timeout_s=cfg.timeout_s,
                        quiet=cfg.quiet, debug=cfg.debug, what="corpus")
     manifest = ds.read_manifest(cfg.dataset)

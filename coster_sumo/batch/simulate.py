@@ -34,6 +34,8 @@ import numpy as np
 from coster_sumo.batch.executor import ExecutorSettings, Outcome, Task, execute
 from coster_sumo.batch.nets import Source, generate_nets, run_tool
 from coster_sumo.batch.records import BatchCounts, RunOutcome, SimulateSummary
+from coster_sumo.batch.run_stats import Sampler, clip_summary, clip_vru_seconds
+from coster_sumo.core.scene import ObjectType
 from coster_sumo.data import dataset as ds
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.formats.sumocfg import read_sumocfg
@@ -45,7 +47,6 @@ DEFAULT_TIMEOUT_S = 1800.0  # [s] wall clock per run
 CHUNK_S = 7 * 9.1  # [s] recorded at a time (7 clip windows): bounds memory; clips never span chunks
 RANDOM_TRIPS_DENSITY = 100.0  # [veh/h per km of lane] randomTrips --insertion-density before --scale
 GENERATED_WARMUP_S = 60.0  # [s] networks that start empty are filled this long before clips are cut
-STATS_EVERY = 10  # record steps between two statistics samples (1 Hz at 10 Hz)
 WORK_DIR = ".work"
 STATS_DIR = "stats"
 
@@ -69,7 +70,9 @@ class RunTask:
     Attributes beyond the obvious: ``options`` are extra SUMO options (e.g. ``--carfollow.model``,
     ``--lateral-resolution``); ``trip_density`` the randomTrips insertion density [veh/h/km of
     lane] before ``scale``; ``bike_density`` that of a second, bicycle-only trip set (0: none);
-    ``vtypes`` the vType XML random trips draw from (type ``mix``); ``heldout`` sends the clips to
+    ``vtypes`` the vType XML random trips draw from (type ``mix``); ``ped_density`` random walks
+    per hour and km of sidewalk (``sidewalk_km`` of them in the net; 0: no pedestrians, and none
+    recorded: :mod:`coster_sumo.batch.pedestrians`); ``heldout`` sends the clips to
     ``DATASET/heldout/``; ``stats`` writes ``DATASET/stats/<run>.npz``; ``info`` goes to the
     manifest as it is.
     """
@@ -87,6 +90,8 @@ class RunTask:
     trip_density: float = RANDOM_TRIPS_DENSITY
     bike_density: float = 0.0
     vtypes: str = DEFAULT_VTYPES
+    ped_density: float = 0.0
+    sidewalk_km: float = 0.0
     network: str = ""
     heldout: bool = False
     stats: bool = False
@@ -111,6 +116,8 @@ class RunTask:
             entry["trip_density"] = round(self.trip_density, 2)
         if self.bike_density:
             entry["bike_density"] = round(self.bike_density, 2)
+        if self.ped_density:  # absent without pedestrians: entries of earlier builds stay as they were
+            entry |= {"ped_density": round(self.ped_density, 2), "sidewalk_km": round(self.sidewalk_km, 3)}
         if self.options:
             entry["options"] = dict(self.options)
         return entry | self.info
@@ -181,75 +188,49 @@ def _random_trips(task: RunTask) -> list[Path]:
     return out
 
 
-class _Sampler:
-    """Per-vehicle samples once per simulated second (SUMO's own values), for the corpus card."""
+def _open_session(task: RunTask) -> Any:
+    """The run's :class:`SumoSession` (not started): its configuration, or its net with its own
+    demand or seeded random trips, plus its pedestrians' walks when it has any."""
+    from coster_sumo.sim.session import SumoSession
 
-    def __init__(self) -> None:
-        self.step = 0
-        self.cols: dict[str, list[Any]] = {k: [] for k in
-                                           ("speed", "accel", "lat_speed", "limit", "length", "width", "vclass")}
+    src = task.source
+    options = {"--scale": f"{task.scale:.4f}", "--ignore-route-errors": "true"} | task.options
+    begin = src.begin_s
+    end = begin + task.duration_s
+    walks: list[Path] = []
+    if task.ped_density > 0 and not src.is_config:
+        from coster_sumo.batch.pedestrians import pedestrian_trips
 
-    def __call__(self, session: Any, st: Any) -> None:
-        self.step += 1
-        if self.step % STATS_EVERY or len(st) == 0:
-            return
-        veh = session.api.vehicle
-        ids = st.id_list()
-        self.cols["speed"].append(st.speed.astype(np.float32))
-        self.cols["accel"].append(np.array([veh.getAcceleration(v) for v in ids], np.float32))
-        self.cols["lat_speed"].append(np.array([veh.getLateralSpeed(v) for v in ids], np.float32))
-        lane_speed = session.api.lane.getMaxSpeed  # the lane's speed limit (not the vehicle's share of it)
-        self.cols["limit"].append(np.array([lane_speed(veh.getLaneID(v)) if veh.getLaneID(v) else np.nan
-                                            for v in ids], np.float32))
-        self.cols["length"].append(st.length.astype(np.float32))
-        self.cols["width"].append(st.width.astype(np.float32))
-        self.cols["vclass"].append(st.vclass.astype(str))
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {k: (np.concatenate(v) if v else np.zeros(0, np.float32)) for k, v in self.cols.items()}
-
-
-def clip_summary(clip: Any) -> tuple[int, float, float, float]:
-    """(agents, median speed of the moving vehicles [m/s], median lane speed limit [m/s], target
-    mean speed [m/s]) of a clip. Moving: a vehicle that exceeds 0.5 m/s at some step (vehicles
-    stopped all clip long, at a red light or parked, are left out); median over their mean speeds."""
-    tr = clip.tracks
-    speed = np.hypot(tr.vx, tr.vy)
-    valid = tr.valid
-    veh = tr.object_type == 1  # ObjectType.VEHICLE
-    mean = np.where(valid.any(axis=1), np.sum(speed * valid, axis=1) / np.maximum(valid.sum(axis=1), 1), 0.0)
-    moving = veh & valid.any(axis=1) & (np.where(valid, speed, 0.0).max(axis=1) > 0.5)
-    med = float(np.median(mean[moving])) if moving.any() else 0.0
-    limits = clip.road_map.lanes.speed_limit
-    limit = float(np.median(limits)) if len(limits) else float("nan")
-    return tr.num_agents, med, limit, float(mean[clip.sdc_index])
+        walks = pedestrian_trips(task)
+    if src.is_config:
+        session = SumoSession(src.path, seed=task.seed, end=end, options=options)
+    elif src.has_demand:
+        session = SumoSession(net=src.path, routes=list(src.routes) + walks, additional=list(src.additional),
+                              seed=task.seed, begin=begin, end=end, options=options)
+    else:
+        session = SumoSession(net=src.path, routes=_random_trips(task) + walks, additional=list(src.additional),
+                              seed=task.seed, begin=begin, end=end, options=options)
+    return session
 
 
 def simulate_run(task: RunTask) -> RunOutcome:
     """Simulate, record in chunks, cut and write clips. Returns counts for the manifest."""
     from coster_sumo.formats.scene_file import save_scene
+    from coster_sumo.sim.persons import PersonReader
     from coster_sumo.sim.record import record
-    from coster_sumo.sim.session import SumoSession
 
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     task.work.mkdir(parents=True, exist_ok=True)
     out_dir = task.clips_dir
     out_dir.mkdir(parents=True, exist_ok=True)
-    src = task.source
-    options = {"--scale": f"{task.scale:.4f}", "--ignore-route-errors": "true"} | task.options
-    begin = src.begin_s
+    session = _open_session(task)
+    src, begin = task.source, task.source.begin_s
     end = begin + task.duration_s
-    if src.is_config:
-        session = SumoSession(src.path, seed=task.seed, end=end, options=options)
-    elif src.has_demand:
-        session = SumoSession(net=src.path, routes=list(src.routes), additional=list(src.additional),
-                              seed=task.seed, begin=begin, end=end, options=options)
-    else:
-        session = SumoSession(net=src.path, routes=_random_trips(task), additional=list(src.additional),
-                              seed=task.seed, begin=begin, end=end, options=options)
     rng = np.random.default_rng([task.seed, zlib.crc32(task.run_id.encode())])
-    sampler = _Sampler() if task.stats else None
-    clip_rows: list[tuple[int, float, float, float]] = []
+    sampler = Sampler() if task.stats else None
+    persons = PersonReader() if task.ped_density > 0 else None
+    after_step = sampler if persons is None else _chain(sampler, persons)
+    clip_rows: list[tuple[float, ...]] = []
     clips = 0
     vehicles: set[str] = set()
     sim_end = begin
@@ -258,12 +239,14 @@ def simulate_run(task: RunTask) -> RunOutcome:
         num_chunks = max(1, math.ceil(task.duration_s / CHUNK_S - 1e-9))
         for chunk in range(num_chunks):
             chunk_end = min(end, round(begin + (chunk + 1) * CHUNK_S, 6))
-            scene = record(session, end=chunk_end, after_step=sampler)
+            scene = record(session, end=chunk_end, after_step=after_step)
+            if persons is not None:
+                scene = persons.merge(scene)
             scene = dataclasses.replace(scene, scenario_id=task.run_id, meta=scene.meta | {
                 "run_id": task.run_id, "scale": task.scale, "seed": task.seed,
                 "source": str(src.path)} | ({"network": task.network} if task.network else {}))
             sim_end = session.time
-            vehicles.update(scene.tracks.ids.tolist())
+            vehicles.update(scene.tracks.ids[scene.tracks.object_type != ObjectType.PEDESTRIAN].tolist())
             budget = math.ceil((task.max_clips - clips) / (num_chunks - chunk))
             warmup = max(0.0, begin + task.warmup_s - chunk_start)
             if scene.num_steps >= ds.CLIP_STEPS and budget > 0 and warmup < chunk_end - chunk_start:
@@ -274,7 +257,7 @@ def simulate_run(task: RunTask) -> RunOutcome:
                     clip = ds.clip_scene(scene, start, target, scenario_id=name)
                     save_scene(clip, out_dir / f"{name}.npz")
                     if sampler is not None:
-                        clip_rows.append(clip_summary(clip))
+                        clip_rows.append((*clip_summary(clip), *clip_vru_seconds(clip)))
                     clips += 1
             chunk_start = chunk_end
             if session.min_expected_number() == 0 or sim_end >= end - 1e-6:
@@ -282,10 +265,11 @@ def simulate_run(task: RunTask) -> RunOutcome:
     if sampler is not None:
         stats = Path(task.dataset) / STATS_DIR / f"{task.run_id}.npz"
         stats.parent.mkdir(parents=True, exist_ok=True)
-        clip_arr = np.array(clip_rows, np.float32).reshape(-1, 4)
+        clip_arr = np.array(clip_rows, np.float32).reshape(-1, 6)
         with atomic_path(stats) as tmp:
             arrays = sampler.arrays() | {"clip_agents": clip_arr[:, 0], "clip_median_speed": clip_arr[:, 1],
-                                         "clip_speed_limit": clip_arr[:, 2], "clip_target_speed": clip_arr[:, 3]}
+                                         "clip_speed_limit": clip_arr[:, 2], "clip_target_speed": clip_arr[:, 3],
+                                         "clip_ped_s": clip_arr[:, 4], "clip_cyclist_s": clip_arr[:, 5]}
             np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
     import resource
 
@@ -293,6 +277,17 @@ def simulate_run(task: RunTask) -> RunOutcome:
     cpu = time.process_time() - t_cpu + children.ru_utime + children.ru_stime
     return RunOutcome(clips=clips, vehicles=len(vehicles), simulated_s=round(sim_end - begin, 3),
                       wall_s=round(time.perf_counter() - t_wall, 2), cpu_s=round(cpu, 2))
+
+
+def _chain(*calls: Any) -> Any:
+    """One ``after_step`` that calls each of ``calls`` (None ones left out) and never stops the run."""
+    live = [c for c in calls if c is not None]
+
+    def after_step(session: Any, states: Any) -> None:
+        for c in live:
+            c(session, states)
+
+    return after_step
 
 
 def run_task(payload: dict[str, Any]) -> RunOutcome:
@@ -358,6 +353,8 @@ class BatchResult:
 def _same_plan(task: RunTask, entry: dict[str, Any]) -> bool:
     """Whether a recorded run was planned as ``task`` is (every planned manifest field equal)."""
     planned = json.loads(json.dumps(task.manifest_entry(), default=str))
+    if "ped_density" in entry and "ped_density" not in planned:  # recorded with pedestrians, planned without
+        return False
     return all(entry.get(k) == v for k, v in planned.items())
 
 

@@ -24,7 +24,7 @@ def _build(args: argparse.Namespace) -> int:
     cfg = CorpusConfig(dataset=Path(args.dataset), runs_per_network=args.runs_per_network,
                        duration_s=args.duration, seed=args.seed, workers=args.workers,
                        networks=args.networks or None, timeout_s=args.timeout, card=not args.no_card, quiet=args.quiet,
-                       debug=args.debug)
+                       debug=args.debug, pedestrians=args.pedestrians)
     counts = build_corpus(cfg).counts
     if cfg.card:
         from coster_sumo.batch.card import write_card
@@ -62,6 +62,10 @@ def register(cli: Any) -> None:
     b.add_argument("--networks", nargs="+", metavar="NAME", help="only these networks (default: all)")
     b.add_argument("--timeout", type=float, default=1800.0, metavar="S", help="wall-clock limit per run")
     b.add_argument("--no-card", action="store_true", help="do not write the corpus card at the end")
+    b.add_argument("--pedestrians", action="store_true",
+                   help="sidewalks and crossings where a network has none (netconvert's guesses), random walks, "
+                        "some against the light; recorded as PEDESTRIAN tracks (docs/corpus.md). Off: the "
+                        "corpus is what it was without them")
     b.set_defaults(func=_build)
     c = group.add_parser("card", help="write the corpus card (markdown + PNG histograms)",
                          description=__doc__.split("\n\n")[2] if __doc__ else None)
