@@ -99,7 +99,8 @@ class RunTask:
 
     @property
     def work(self) -> Path:
-        return self.dataset / WORK_DIR / self.run_id
+        # absolute: SUMO's tools run inside it (``cwd``) and are handed paths below it
+        return self.dataset.resolve() / WORK_DIR / self.run_id
 
     @property
     def clips_dir(self) -> Path:

@@ -109,6 +109,17 @@ def test_generated_networks_with_random_trips(tmp_path):
 
 
 @pytest.mark.sumo
+def test_a_relative_output_folder_works_with_random_trips(tmp_path, monkeypatch):
+    # SUMO's tools run inside the run's work folder: a relative -o once named files they could not find
+    monkeypatch.chdir(tmp_path)
+    rc = main(["-q", "simulate", "-o", "ds", "--netgenerate", "1", "--seeds", "1", "--duration", "30",
+               "--warmup", "10", "--clips-per-run", "1", "--workers", "1"])
+    assert rc == 0
+    assert dataset.read_manifest(Path("ds"))["runs"][0]["demand"] == "randomTrips"
+    _check_dataset(Path("ds"), min_scenes=1)
+
+
+@pytest.mark.sumo
 @pytest.mark.slow
 @pytest.mark.parametrize("cfg", [INTERSECTION, MERGE, REPO / "networks" / "arterial" / "arterial.sumocfg"])
 def test_every_shipped_scenario_yields_clips(tmp_path, cfg):
