@@ -167,18 +167,17 @@ def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: 
 
 def evaluate_rollout(examples: ExampleSet, models: dict[str, RolloutCVAE], *, horizon: int = 10,
                      num_samples: int = 5, seed: int = 0, batch_size: int = 64,
-                     max_examples: int = 0, baselines: tuple[str, ...] = BASELINES,
-                     what: str = "vehicle") -> RolloutEvaluation:
-    """Score ``baselines`` and every model on the examples with a full ``horizon`` past
-    (``max_examples`` > 0: a seeded subset of that many); ``what`` names the examples' class in the
-    error when there are none."""
+                     max_examples: int = 0, agent_class: str = "vehicle") -> RolloutEvaluation:
+    """Score the baselines of ``agent_class`` (:func:`baselines_for`), the class of the examples, and
+    every model on the examples with a full ``horizon`` past (``max_examples`` > 0: a seeded subset
+    of that many)."""
     rows = np.flatnonzero(examples.index[:, 3] >= horizon) if len(examples) else np.zeros(0, np.int64)
     if max_examples > 0 and len(rows) > max_examples:
         rows = np.sort(np.random.default_rng(seed).choice(rows, max_examples, replace=False))
     if len(rows) == 0:
-        raise InputError(f"no {what} with a full {horizon * 0.5:g} s past to evaluate on")
+        raise InputError(f"no {agent_class} with a full {horizon * 0.5:g} s past to evaluate on")
     methods: dict[str, MethodErrors] = {}
-    for name in baselines:
+    for name in baselines_for(agent_class):
         methods[name] = baseline_errors(name, examples, rows, horizon)
     for name, model in models.items():
         if model.cfg.max_horizon < horizon:

@@ -290,7 +290,7 @@ def run_eval(args: argparse.Namespace) -> int:
 
     from coster_sumo.infra.devices import training_device
     from coster_sumo.rollout.data import build_examples
-    from coster_sumo.rollout.evaluate import LANE_NEIGHBOUR_ALONG_M, baselines_for, evaluate_rollout
+    from coster_sumo.rollout.evaluate import LANE_NEIGHBOUR_ALONG_M, evaluate_rollout
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
@@ -309,7 +309,7 @@ def run_eval(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     result = evaluate_rollout(examples, models, horizon=10, num_samples=args.samples, seed=args.seed,
                               batch_size=args.batch_size, max_examples=args.max_examples,
-                              baselines=baselines_for(args.agent_class), what=args.agent_class)
+                              agent_class=args.agent_class)
     report = {"format": "coster-sumo-rollout-eval", "data": [str(d) for d in args.data], "split": args.split,
               "t_rev": args.t_rev, "agent_class": args.agent_class,
               "scenes": len(scenes), **result.to_json(), "skipped": skipped, "checkpoints": checkpoints,
