@@ -119,17 +119,21 @@ def test_eval_of_a_class_scores_its_tracks_against_its_baselines(dataset, tmp_pa
     assert report["num_examples"] == 2 * 9 * 3
 
 
-def test_a_class_model_may_start_from_a_vehicle_model_with_the_vehicle_s_scales(dataset, tmp_path, capsys):
+def test_a_class_model_may_start_from_a_vehicle_model_and_keeps_its_scales(dataset, tmp_path, capsys):
     vehicle = tmp_path / "vehicle.pt"
     assert train(dataset, vehicle) == 0
-    scales = CLASS_SCALES["vehicle"]
-    as_vehicle = ["--disp-scale", *map(str, scales["disp_scale"]), "--recon-sigma", *map(str, scales["recon_sigma"])]
     tuned = tmp_path / "tuned.pt"
-    assert train(dataset, tuned, "--agent-class", "pedestrian", "--init", str(vehicle), *as_vehicle) == 0
-    assert load_model(tuned).cfg.agent_class == "pedestrian"
+    assert train(dataset, tuned, "--agent-class", "pedestrian", "--init", str(vehicle)) == 0
+    cfg = load_model(tuned).cfg
+    assert cfg.agent_class == "pedestrian"
+    # its weights correct a constant-velocity step at the vehicle's scales: it keeps them
+    assert (cfg.disp_scale, cfg.recon_sigma) == (CLASS_SCALES["vehicle"]["disp_scale"],
+                                                 CLASS_SCALES["vehicle"]["recon_sigma"])
     capsys.readouterr()
-    # with the pedestrian's own scales the vehicle weights would mean something else: refused
+    # asking for the pedestrian's own scales: the vehicle weights would mean something else, refused
+    walker = CLASS_SCALES["pedestrian"]
     code = main(["train", "rollout", "--data", str(dataset), "-o", str(tmp_path / "x.pt"), *TINY,
-                 "--agent-class", "pedestrian", "--init", str(vehicle)])
+                 "--agent-class", "pedestrian", "--init", str(vehicle),
+                 "--disp-scale", *map(str, walker["disp_scale"]), "--recon-sigma", *map(str, walker["recon_sigma"])])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "disp_scale" in err and str(vehicle) in err

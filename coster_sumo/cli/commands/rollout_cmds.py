@@ -39,9 +39,11 @@ def _register_train(cli) -> None:  # type: ignore[no-untyped-def]
                             "stored in the checkpoint, and sets the output scales (%(default)s)")
     train.add_argument("--disp-scale", type=float, nargs=3, default=None, metavar=("DX", "DY", "DYAW"),
                        help="scale of the decoder's correction of the constant-velocity step [m, m, rad] "
-                            "(default: the class's, coster_sumo.rollout.config.CLASS_SCALES)")
+                            "(default: the --init checkpoint's, else the class's: "
+                            "coster_sumo.rollout.config.CLASS_SCALES)")
     train.add_argument("--recon-sigma", type=float, nargs=3, default=None, metavar=("DX", "DY", "DYAW"),
-                       help="sigma of the reconstruction term [m, m, rad] (default: the class's)")
+                       help="sigma of the reconstruction term [m, m, rad] (default: the --init checkpoint's, "
+                            "else the class's)")
     train.add_argument("--no-dsa", action="store_true",
                        help="the w/o-DSA ablation: neighbours only as they were at t_rev")
     train.add_argument("--no-map-steps", action="store_true", help="attend to the map only for the first state")
@@ -158,6 +160,25 @@ def _write_json(path: Path, obj: Any) -> None:
     write_json(path, obj)
 
 
+def _output_scales(args: argparse.Namespace) -> dict[str, tuple[float, float, float]]:
+    """``disp_scale`` and ``recon_sigma`` of a training run: ``--disp-scale`` / ``--recon-sigma`` when
+    given, else those of the ``--init`` checkpoint (its weights mean corrections at its scales: a
+    pedestrian model fine-tuned from the vehicle model keeps the vehicle's), else the class's."""
+    scales = dict(CLASS_SCALES[args.agent_class])
+    if args.init is not None and (args.disp_scale is None or args.recon_sigma is None):
+        from coster_sumo.rollout.checkpoint import load_model
+
+        init_cfg = load_model(args.init).cfg
+        scales = {"disp_scale": init_cfg.disp_scale, "recon_sigma": init_cfg.recon_sigma}
+    for name in ("disp_scale", "recon_sigma"):
+        given = getattr(args, name)
+        if given is not None:
+            if min(given) <= 0.0:
+                raise InputError(f"--{name.replace('_', '-')} must be three values above 0, not {given}")
+            scales[name] = (float(given[0]), float(given[1]), float(given[2]))
+    return scales
+
+
 def run_train(args: argparse.Namespace) -> int:
     if "torch" not in sys.modules:  # OpenMP reads this when torch loads
         # on a machine shared with other jobs, threads spinning at OpenMP barriers while their
@@ -171,13 +192,7 @@ def run_train(args: argparse.Namespace) -> int:
                          "--lr-drop-epoch at least 0")
     if not 0.0 < args.lr_drop_factor <= 1.0:
         raise InputError(f"--lr-drop-factor must be in (0, 1], not {args.lr_drop_factor}")
-    scales = dict(CLASS_SCALES[args.agent_class])
-    for name in ("disp_scale", "recon_sigma"):
-        given = getattr(args, name)
-        if given is not None:
-            if min(given) <= 0.0:
-                raise InputError(f"--{name.replace('_', '-')} must be three values above 0, not {given}")
-            scales[name] = tuple(given)
+    scales = _output_scales(args)
     cfg = RolloutConfig(hidden=args.hidden, heads=args.heads, latent=args.latent, use_dsa=not args.no_dsa,
                         map_every_step=not args.no_map_steps, kl_weight=args.kl_weight,
                         neighbor_radius_m=args.neighbor_radius, agent_class=args.agent_class,
