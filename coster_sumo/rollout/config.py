@@ -107,10 +107,10 @@ class RolloutConfig:
 # Settings that size no weight and leave each weight's meaning alone: a run that starts from a
 # checkpoint's weights (``train rollout --init``) may change them. The radius only masks which of
 # the cached neighbours (those within ``neighbor_select_radius_m``) dynamic surrounding attention
-# sees; the KL weight only weighs a term of the loss.
-# The class only chooses the training tracks: a pedestrian model may start from a vehicle model's
-# weights (the per-class scales below are then given as the vehicle's, see CLASS_SCALES).
-FREE_ON_INIT = ("neighbor_radius_m", "kl_weight", "agent_class")
+# sees; the KL weight and the reconstruction sigma only weigh the terms of the loss. The class only
+# chooses the training tracks: a pedestrian model may start from a vehicle model's weights (at the
+# vehicle's ``disp_scale``, which gives the decoder's output its meaning, see CLASS_SCALES).
+FREE_ON_INIT = ("neighbor_radius_m", "kl_weight", "agent_class", "recon_sigma")
 
 # The output scales of each class's model (``--agent-class``; ``--disp-scale`` / ``--recon-sigma``
 # override them). The decoder corrects a constant-velocity step by ``disp_scale * output`` and the
