@@ -116,8 +116,8 @@ FREE_ON_INIT = ("neighbor_radius_m", "kl_weight", "agent_class", "recon_sigma")
 # override them). The decoder corrects a constant-velocity step by ``disp_scale * output`` and the
 # reconstruction term weighs the correction's error by ``1 / recon_sigma``. Measured on the 2 Hz
 # tracks of the pedestrian corpus (docs/method.md, "Pedestrian and cyclist adversaries"), the
-# spread of the true reverse step around the constant-velocity step (dx, dy [m], dyaw [rad]) is
-# 0.18 / 0.09 / 0.043 for vehicles, 0.057 / 0.048 / 0.091 for pedestrians and 0.069 / 0.052 / 0.041
+# spread (sd) of the true reverse step around the constant-velocity step (dx, dy [m], dyaw [rad]) is
+# 0.25 / 0.14 / 0.067 for vehicles, 0.079 / 0.071 / 0.10 for pedestrians and 0.093 / 0.069 / 0.054
 # for cyclists. A pedestrian is slow and turns on the spot: its forward and sideways corrections
 # are alike and small, its heading corrections are the largest of the three classes, and the
 # vehicle's 0.02 rad heading sigma would make a pedestrian's turns at a corner (0.5 rad in a step)
