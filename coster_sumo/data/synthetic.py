@@ -4,6 +4,8 @@
 - :func:`four_way_junction`: a signalised four-way intersection, one lane per approach and
   direction, with junction-interior lanes (straight, left, right) like WOMD's, signal states.
 - :func:`merge`: a main road with an on-ramp joining it.
+- :func:`with_vulnerable_road_users`: any of them with two pedestrians and a cyclist beside the SDC's
+  path (one pedestrian turns on the spot and crosses, one stops).
 
 All use WOMD conventions: 10 Hz, 91 steps, current_time_index 10, lane ids as decimal strings,
 large absolute coordinates (``origin``) so that code that silently normalises offsets is caught.
@@ -249,3 +251,51 @@ def merge(origin: tuple[float, float] = (1234.567, -9876.543), length_m: float =
 
 
 ALL = {"two_lane_road": two_lane_road, "four_way_junction": four_way_junction, "merge": merge}
+
+
+# (id, object type, length, width [m]): the agents with_vulnerable_road_users adds
+_VRU_AGENTS = (("walker_turns", scene.ObjectType.PEDESTRIAN, 0.5, 0.5),
+               ("walker_stops", scene.ObjectType.PEDESTRIAN, 0.5, 0.5),
+               ("rider", scene.ObjectType.CYCLIST, 1.8, 0.65))
+
+
+def _vru_paths(x0: float, y0: float, h0: float, steps: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per added agent: x, y [m], heading [rad] (steps,) in the world, from the SDC's first pose."""
+    t = np.arange(steps) * DT
+    fwd, left = np.array([np.cos(h0), np.sin(h0)]), np.array([-np.sin(h0), np.cos(h0)])
+    base = np.array([x0, y0])
+    turn_at = steps // 2
+    # walks along at 1.4 m/s 4 m right of the SDC's start, turns left on the spot and crosses
+    along = 1.4 * np.minimum(t, t[turn_at])
+    across = 1.4 * np.maximum(t - t[turn_at], 0.0)
+    walk1 = base + (5.0 + along)[:, None] * fwd + (-4.0 + across)[:, None] * left
+    head1 = np.where(t < t[turn_at], h0, h0 + np.pi / 2)
+    # walks at 1.2 m/s for 3 s, then stands (facing the same way)
+    walk2 = base + (2.0 + 1.2 * np.minimum(t, 3.0))[:, None] * fwd - 5.0 * left
+    head2 = np.full(steps, h0)
+    # rides at 5 m/s 2.5 m right of the SDC's start, bearing slowly left
+    yaw = 0.04 * t
+    ride = base + np.stack([np.cumsum(5.0 * DT * np.cos(yaw)), np.cumsum(5.0 * DT * np.sin(yaw))], -1) @ np.stack(
+        [fwd, left]) - 2.5 * left
+    return [(walk1[:, 0], walk1[:, 1], head1), (walk2[:, 0], walk2[:, 1], head2), (ride[:, 0], ride[:, 1], h0 + yaw)]
+
+
+def with_vulnerable_road_users(base: Scene) -> Scene:
+    """``base`` with two pedestrians and a cyclist added beside its SDC's path (see the module
+    docstring); the SDC and the other agents are unchanged."""
+    tr = base.tracks
+    n = tr.num_steps
+    x0, y0, h0 = (float(a[base.sdc_index, 0]) for a in (tr.x, tr.y, tr.heading))
+    paths = _vru_paths(x0, y0, h0, n)
+    x = np.stack([p[0] for p in paths])
+    y = np.stack([p[1] for p in paths])
+    size = np.array([[a[2], a[3]] for a in _VRU_AGENTS])  # (3, 2)
+    added = scene.Tracks(ids=np.array([a[0] for a in _VRU_AGENTS], dtype=str),
+                         object_type=np.array([int(a[1]) for a in _VRU_AGENTS], np.int8),
+                         x=x, y=y, heading=np.stack([p[2] for p in paths]),
+                         vx=np.gradient(x, DT, axis=1), vy=np.gradient(y, DT, axis=1),
+                         length=np.repeat(size[:, :1], n, axis=1), width=np.repeat(size[:, 1:], n, axis=1),
+                         valid=np.ones((len(paths), n), bool))
+    joined = {f.name: np.concatenate([getattr(tr, f.name), getattr(added, f.name)])
+              for f in dataclasses.fields(scene.Tracks)}
+    return dataclasses.replace(base, scenario_id=base.scenario_id + "_vru", tracks=scene.Tracks(**joined)).validate()

@@ -21,13 +21,20 @@ PRIOR = "prior.pt"
 ROLLOUT = "rollout.pt"
 ROLLOUT_NO_DSA = "rollout_nodsa.pt"
 VOCAB = "vocab.npz"
-WEIGHT_FILES = (PRIOR, ROLLOUT, ROLLOUT_NO_DSA, VOCAB)  # what a models folder holds
+# the learned rollouts of pedestrian and cyclist adversaries (optional: without them a VRU draw
+# takes the class's kinematic rollout)
+ROLLOUT_PEDESTRIAN = "rollout_pedestrian.pt"
+ROLLOUT_CYCLIST = "rollout_cyclist.pt"
+# what a models folder holds
+WEIGHT_FILES = (PRIOR, ROLLOUT, ROLLOUT_NO_DSA, VOCAB, ROLLOUT_PEDESTRIAN, ROLLOUT_CYCLIST)
 
 # what trains each file, for the "not found" message
 _TRAIN_COMMAND = {PRIOR: "coster-sumo train prior --data DATASET -o {path}",
                   ROLLOUT: "coster-sumo train rollout --data DATASET -o {path}",
                   ROLLOUT_NO_DSA: "coster-sumo train rollout --no-dsa --data DATASET -o {path}",
-                  VOCAB: "coster-sumo train vocab --data DATASET -o {path}"}
+                  VOCAB: "coster-sumo train vocab --data DATASET -o {path}",
+                  ROLLOUT_PEDESTRIAN: "coster-sumo train rollout --agent-class pedestrian --data DATASET -o {path}",
+                  ROLLOUT_CYCLIST: "coster-sumo train rollout --agent-class cyclist --data DATASET -o {path}"}
 
 
 def shipped_models_dir() -> Path:

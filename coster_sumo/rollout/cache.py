@@ -25,7 +25,8 @@ what the model keeps after :func:`coster_sumo.rollout.model.trim_padding`: the m
 same numbers as with :meth:`coster_sumo.rollout.data.ExampleSet.batch`.
 
 The key hashes the scene files (names and contents), the encoding settings of
-:class:`~coster_sumo.rollout.config.RolloutConfig` (not the model's width), ``min_steps`` and
+:class:`~coster_sumo.rollout.config.RolloutConfig` (not the model's width; the agent class but for
+vehicles), ``min_steps`` and
 :data:`FEATURE_VERSION`: editing a scene or a setting builds a new folder; nothing is reused
 wrongly. Folders are built under a temporary name and renamed when complete.
 """
@@ -102,9 +103,11 @@ class CacheMeta:
 
 
 def encoding_settings(cfg: RolloutConfig, min_steps: int) -> dict[str, Any]:
-    """What the stored features depend on (besides the scenes)."""
+    """What the stored features depend on (besides the scenes): the class of the tracks too, but for
+    vehicles (absent from ``cfg.to_dict()``: a vehicle cache keeps the key it had before)."""
     d = cfg.to_dict()
-    return {"version": FEATURE_VERSION, "min_steps": int(min_steps), **{k: d[k] for k in ENCODING_FIELDS}}
+    return {"version": FEATURE_VERSION, "min_steps": int(min_steps),
+            **{k: d[k] for k in (*ENCODING_FIELDS, "agent_class") if k in d}}
 
 
 def files_digest(paths: Sequence[Path]) -> str:

@@ -6,7 +6,13 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from coster_sumo.core.scene import ObjectType
 from coster_sumo.errors import InputError
+
+VEHICLE_CLASS = "vehicle"
+# --agent-class -> the WOMD object type (coster_sumo.core.scene.ObjectType) of the tracks it learns
+AGENT_CLASSES = {VEHICLE_CLASS: ObjectType.VEHICLE, "pedestrian": ObjectType.PEDESTRIAN,
+                 "cyclist": ObjectType.CYCLIST}
 
 
 @dataclass
@@ -34,6 +40,10 @@ class RolloutConfig:
         recon_sigma: (3,) fixed standard deviation of the Gaussian reconstruction term.
         kl_weight: weight of the KL term (1 = the ELBO).
         free_nats: per step, KL below this is not penalised (0 = the plain ELBO).
+        agent_class: whose tracks the model learns and reconstructs: ``vehicle``, ``pedestrian`` or
+            ``cyclist`` (:data:`AGENT_CLASSES`; one model per class). Left out of :meth:`to_dict`
+            for ``vehicle``, so that vehicle checkpoints, training states and feature caches are
+            what they were before the option existed (a config without it is a vehicle's).
     """
 
     hidden: int = 256
@@ -57,8 +67,12 @@ class RolloutConfig:
     recon_sigma: tuple[float, float, float] = (0.2, 0.1, 0.02)
     kl_weight: float = 1.0
     free_nats: float = 0.0
+    agent_class: str = "vehicle"
 
     def __post_init__(self) -> None:
+        if self.agent_class not in AGENT_CLASSES:
+            raise InputError(f"rollout config: agent class {self.agent_class!r} is not one of "
+                             f"{', '.join(AGENT_CLASSES)}")
         if not 0.0 < self.neighbor_radius_m <= self.neighbor_select_radius_m:
             raise InputError(f"rollout config: neighbour radius {self.neighbor_radius_m:g} m must be above 0 and "
                              f"at most the {self.neighbor_select_radius_m:g} m within which neighbours are kept")
@@ -73,6 +87,8 @@ class RolloutConfig:
         d = dataclasses.asdict(self)
         d["disp_scale"] = list(self.disp_scale)
         d["recon_sigma"] = list(self.recon_sigma)
+        if self.agent_class == VEHICLE_CLASS:
+            del d["agent_class"]
         return d
 
     @classmethod
@@ -91,5 +107,24 @@ class RolloutConfig:
 # Settings that size no weight and leave each weight's meaning alone: a run that starts from a
 # checkpoint's weights (``train rollout --init``) may change them. The radius only masks which of
 # the cached neighbours (those within ``neighbor_select_radius_m``) dynamic surrounding attention
-# sees; the KL weight only weighs a term of the loss.
-FREE_ON_INIT = ("neighbor_radius_m", "kl_weight")
+# sees; the KL weight and the reconstruction sigma only weigh the terms of the loss. The class only
+# chooses the training tracks: a pedestrian model may start from a vehicle model's weights (at the
+# vehicle's ``disp_scale``, which gives the decoder's output its meaning, see CLASS_SCALES).
+FREE_ON_INIT = ("neighbor_radius_m", "kl_weight", "agent_class", "recon_sigma")
+
+# The output scales of each class's model (``--agent-class``; ``--disp-scale`` / ``--recon-sigma``
+# override them). The decoder corrects a constant-velocity step by ``disp_scale * output`` and the
+# reconstruction term weighs the correction's error by ``1 / recon_sigma``. Measured on the 2 Hz
+# tracks of the pedestrian corpus (docs/method.md, "Pedestrian and cyclist adversaries"), the
+# spread (sd) of the true reverse step around the constant-velocity step (dx, dy [m], dyaw [rad]) is
+# 0.25 / 0.14 / 0.067 for vehicles, 0.079 / 0.071 / 0.10 for pedestrians and 0.093 / 0.069 / 0.054
+# for cyclists. A pedestrian is slow and turns on the spot: its forward and sideways corrections
+# are alike and small, its heading corrections are the largest of the three classes, and the
+# vehicle's 0.02 rad heading sigma would make a pedestrian's turns at a corner (0.5 rad in a step)
+# outweigh everything else in the loss. A cyclist is a slower vehicle: the vehicle's heading
+# scales, forward and sideways ones at its speed.
+CLASS_SCALES: dict[str, dict[str, tuple[float, float, float]]] = {
+    VEHICLE_CLASS: {"disp_scale": (1.0, 0.3, 0.05), "recon_sigma": (0.2, 0.1, 0.02)},
+    "pedestrian": {"disp_scale": (0.3, 0.3, 0.3), "recon_sigma": (0.05, 0.05, 0.05)},
+    "cyclist": {"disp_scale": (0.5, 0.2, 0.05), "recon_sigma": (0.07, 0.05, 0.02)},
+}

@@ -34,10 +34,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from coster_sumo.core.scene import ObjectType, Scene, SignalState
+from coster_sumo.core.scene import Scene, SignalState
 from coster_sumo.errors import InputError
 from coster_sumo.geometry.boxes import resample_polylines
-from coster_sumo.rollout.config import RolloutConfig
+from coster_sumo.rollout.config import AGENT_CLASSES, RolloutConfig
 
 if TYPE_CHECKING:
     import torch
@@ -324,12 +324,15 @@ def reverse_targets(scene: Scene, agent: int, t_index: int, horizon: int) -> tup
 
 
 def enumerate_examples(scene: Scene, cfg: RolloutConfig, *, min_steps: int = 2, full_only: bool = False,
-                       t_indices: Sequence[int] | None = None, vehicles_only: bool = True
+                       t_indices: Sequence[int] | None = None, class_only: bool = True
                        ) -> list[tuple[int, int, int]]:
-    """(agent, t_index, horizon) of every vehicle with at least ``min_steps`` valid steps before
-    t_index (``full_only``: the whole ``max_horizon``), horizon = min(max_horizon, t_index), at every
-    step or at ``t_indices`` (negative ones count from the end: -1 is the last step)."""
+    """(agent, t_index, horizon) of every agent of the model's class (``cfg.agent_class``: vehicle,
+    pedestrian or cyclist tracks by their object type; ``class_only=False``: every agent) with at
+    least ``min_steps`` valid steps before t_index (``full_only``: the whole ``max_horizon``),
+    horizon = min(max_horizon, t_index), at every step or at ``t_indices`` (negative ones count from
+    the end: -1 is the last step)."""
     tr = scene.tracks
+    of_class = tr.object_type == AGENT_CLASSES[cfg.agent_class]
     out: list[tuple[int, int, int]] = []
     h_max = cfg.max_horizon
     ts = range(1, scene.num_steps) if t_indices is None else [t % scene.num_steps for t in t_indices]
@@ -342,8 +345,8 @@ def enumerate_examples(scene: Scene, cfg: RolloutConfig, *, min_steps: int = 2, 
             continue
         past = tr.valid[:, t - need:t + 1]  # (A, need+1)
         ok = np.all(past, axis=1)
-        if vehicles_only:
-            ok &= tr.object_type == ObjectType.VEHICLE
+        if class_only:
+            ok &= of_class
         out.extend((int(a), int(t), h) for a in np.flatnonzero(ok))
     return out
 

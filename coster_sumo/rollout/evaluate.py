@@ -1,7 +1,8 @@
 """Evaluation of reverse rollouts: ``coster-sumo eval rollout --data ... --json OUT``.
 
-Every vehicle with a full 5 s past (``max_horizon`` valid 2 Hz steps before t_rev) at every
-t_rev of every scene is reconstructed by each method; errors are on the box centre over the
+Every agent of the class evaluated (``--agent-class``: vehicles by default) with a full 5 s past
+(``max_horizon`` valid 2 Hz steps before t_rev) at every t_rev of every scene is reconstructed by
+each method; errors are on the box centre over the
 reverse steps 1..H (metres):
 
 - minADE / minFDE: over ``num_samples`` (5) samples, the smallest average / final displacement
@@ -34,6 +35,12 @@ if TYPE_CHECKING:
     from coster_sumo.rollout.model import RolloutCVAE
 
 BASELINES = ("constant_velocity", "constant_lane")
+
+
+def baselines_for(agent_class: str) -> tuple[str, ...]:
+    """The baselines scored for a class: constant lane follows a lane of the road map, where vehicles
+    and cyclists ride; the maps hold no sidewalks, so for a pedestrian only constant velocity."""
+    return ("constant_velocity",) if agent_class == "pedestrian" else BASELINES
 
 
 def _summary(ade: np.ndarray, fde: np.ndarray, elapsed_s: float) -> MethodErrors:
@@ -160,16 +167,17 @@ def baseline_errors(name: str, examples: ExampleSet, rows: np.ndarray, horizon: 
 
 def evaluate_rollout(examples: ExampleSet, models: dict[str, RolloutCVAE], *, horizon: int = 10,
                      num_samples: int = 5, seed: int = 0, batch_size: int = 64,
-                     max_examples: int = 0) -> RolloutEvaluation:
-    """Score the baselines and every model on the examples with a full ``horizon`` past
-    (``max_examples`` > 0: a seeded subset of that many)."""
+                     max_examples: int = 0, agent_class: str = "vehicle") -> RolloutEvaluation:
+    """Score the baselines of ``agent_class`` (:func:`baselines_for`), the class of the examples, and
+    every model on the examples with a full ``horizon`` past (``max_examples`` > 0: a seeded subset
+    of that many)."""
     rows = np.flatnonzero(examples.index[:, 3] >= horizon) if len(examples) else np.zeros(0, np.int64)
     if max_examples > 0 and len(rows) > max_examples:
         rows = np.sort(np.random.default_rng(seed).choice(rows, max_examples, replace=False))
     if len(rows) == 0:
-        raise InputError(f"no vehicle with a full {horizon * 0.5:g} s past to evaluate on")
+        raise InputError(f"no {agent_class} with a full {horizon * 0.5:g} s past to evaluate on")
     methods: dict[str, MethodErrors] = {}
-    for name in BASELINES:
+    for name in baselines_for(agent_class):
         methods[name] = baseline_errors(name, examples, rows, horizon)
     for name, model in models.items():
         if model.cfg.max_horizon < horizon:

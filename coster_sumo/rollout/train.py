@@ -1,6 +1,7 @@
 """Training of the rollout CVAE: ``coster-sumo train rollout --data DATASET -o models/rollout.pt``.
 
-Examples: every vehicle of every scene (resampled to 2 Hz) at every t_rev with at least
+Examples: every agent of the model's class (``RolloutConfig.agent_class``, ``--agent-class``:
+vehicles by default, or pedestrians, or cyclists) of every scene (resampled to 2 Hz) at every t_rev with at least
 ``min_steps`` valid steps before it, the horizon ``min(max_horizon, t_rev)`` (shorter segments are
 masked: the model learns the adaptive horizon). Scenes are split into training and held-out sets
 by :func:`coster_sumo.data.dataset.split` (hash of the file name), never examples of one scene across
@@ -442,7 +443,7 @@ def train_rollout(data: str | Path, out: str | Path, cfg: RolloutConfig | None =
     train_paths, val_paths = split_scene_files(data, tcfg.val_fraction, tcfg.seed)
     train_set, val_set = _example_sets(train_paths, val_paths, cfg, tcfg, cache, cache_dir, quiet)
     if len(train_set) == 0:
-        raise InputError(f"{data}: no training examples (no vehicle with {tcfg.min_steps} valid past steps)")
+        raise InputError(f"{data}: no training examples (no {cfg.agent_class} with {tcfg.min_steps} valid past steps)")
     torch.manual_seed(tcfg.seed)
     model = RolloutCVAE(cfg)
     if start_weights is not None:

@@ -13,7 +13,7 @@ from typing import Any
 
 from coster_sumo.errors import InputError, not_found
 from coster_sumo.infra.atomic import write_json
-from coster_sumo.rollout.config import RolloutConfig
+from coster_sumo.rollout.config import AGENT_CLASSES, CLASS_SCALES, VEHICLE_CLASS, RolloutConfig
 
 DEFAULT_CHECKPOINT = "models/rollout.pt"
 DEFAULT_CHECKPOINT_NO_DSA = "models/rollout_nodsa.pt"
@@ -34,6 +34,16 @@ def _register_train(cli) -> None:  # type: ignore[no-untyped-def]
                     "Writes the checkpoint to OUTPUT after every epoch, metrics to OUTPUT with .json and a "
                     "training state to OUTPUT.state: rerun the same command to resume.",
         out=DEFAULT_CHECKPOINT, what="checkpoint")
+    train.add_argument("--agent-class", choices=tuple(AGENT_CLASSES), default="vehicle",
+                       help="whose tracks to learn (their object type): one model per class; the class is "
+                            "stored in the checkpoint, and sets the output scales (%(default)s)")
+    train.add_argument("--disp-scale", type=float, nargs=3, default=None, metavar=("DX", "DY", "DYAW"),
+                       help="scale of the decoder's correction of the constant-velocity step [m, m, rad] "
+                            "(default: the --init checkpoint's, else the class's: "
+                            "coster_sumo.rollout.config.CLASS_SCALES)")
+    train.add_argument("--recon-sigma", type=float, nargs=3, default=None, metavar=("DX", "DY", "DYAW"),
+                       help="sigma of the reconstruction term [m, m, rad] (default: the --init checkpoint's, "
+                            "else the class's)")
     train.add_argument("--no-dsa", action="store_true",
                        help="the w/o-DSA ablation: neighbours only as they were at t_rev")
     train.add_argument("--no-map-steps", action="store_true", help="attend to the map only for the first state")
@@ -114,10 +124,14 @@ def _register_eval(cli) -> None:  # type: ignore[no-untyped-def]
                     "dataset folder (its held-out split unless --split all) or scene files (.npz, WOMD "
                     ".tfrecord, ScenarioNet .pkl).")
     ev.add_argument("--data", required=True, nargs="+", help="dataset folder or scene file(s)")
+    ev.add_argument("--agent-class", choices=tuple(AGENT_CLASSES), default="vehicle",
+                    help="whose tracks to reconstruct; a checkpoint of another class is refused (%(default)s)")
     ev.add_argument("--checkpoint", default=None,
-                    help=f"CVAE with DSA (default {DEFAULT_CHECKPOINT} when it exists)")
+                    help=f"CVAE with DSA (default {DEFAULT_CHECKPOINT} when it exists; for pedestrians and "
+                         "cyclists models/rollout_CLASS.pt)")
     ev.add_argument("--checkpoint-no-dsa", default=None,
-                    help=f"CVAE without DSA (default {DEFAULT_CHECKPOINT_NO_DSA} when it exists)")
+                    help=f"CVAE without DSA (default {DEFAULT_CHECKPOINT_NO_DSA} when it exists; for pedestrians "
+                         "and cyclists models/rollout_CLASS_nodsa.pt)")
     ev.add_argument("--split", choices=("val", "all"), default="val",
                     help="which scenes of a dataset folder to evaluate (%(default)s)")
     ev.add_argument("--val-fraction", type=float, default=0.1)
@@ -146,6 +160,25 @@ def _write_json(path: Path, obj: Any) -> None:
     write_json(path, obj)
 
 
+def _output_scales(args: argparse.Namespace) -> dict[str, tuple[float, float, float]]:
+    """``disp_scale`` and ``recon_sigma`` of a training run: ``--disp-scale`` / ``--recon-sigma`` when
+    given, else those of the ``--init`` checkpoint (its weights mean corrections at its scales: a
+    pedestrian model fine-tuned from the vehicle model keeps the vehicle's), else the class's."""
+    scales = dict(CLASS_SCALES[args.agent_class])
+    if args.init is not None and (args.disp_scale is None or args.recon_sigma is None):
+        from coster_sumo.rollout.checkpoint import load_model
+
+        init_cfg = load_model(args.init).cfg
+        scales = {"disp_scale": init_cfg.disp_scale, "recon_sigma": init_cfg.recon_sigma}
+    for name in ("disp_scale", "recon_sigma"):
+        given = getattr(args, name)
+        if given is not None:
+            if min(given) <= 0.0:
+                raise InputError(f"--{name.replace('_', '-')} must be three values above 0, not {given}")
+            scales[name] = (float(given[0]), float(given[1]), float(given[2]))
+    return scales
+
+
 def run_train(args: argparse.Namespace) -> int:
     if "torch" not in sys.modules:  # OpenMP reads this when torch loads
         # on a machine shared with other jobs, threads spinning at OpenMP barriers while their
@@ -159,9 +192,11 @@ def run_train(args: argparse.Namespace) -> int:
                          "--lr-drop-epoch at least 0")
     if not 0.0 < args.lr_drop_factor <= 1.0:
         raise InputError(f"--lr-drop-factor must be in (0, 1], not {args.lr_drop_factor}")
+    scales = _output_scales(args)
     cfg = RolloutConfig(hidden=args.hidden, heads=args.heads, latent=args.latent, use_dsa=not args.no_dsa,
                         map_every_step=not args.no_map_steps, kl_weight=args.kl_weight,
-                        neighbor_radius_m=args.neighbor_radius)
+                        neighbor_radius_m=args.neighbor_radius, agent_class=args.agent_class,
+                        disp_scale=scales["disp_scale"], recon_sigma=scales["recon_sigma"])
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                        val_fraction=args.val_fraction, examples_per_epoch=args.examples_per_epoch,
                        max_val_examples=args.max_val_examples, threads=args.threads,
@@ -231,27 +266,51 @@ def _eval_scenes(args: argparse.Namespace) -> list:  # type: ignore[type-arg]
     return scenes
 
 
+def default_checkpoints(agent_class: str) -> tuple[str, str]:
+    """The checkpoints ``eval rollout`` reads when none is given: (with DSA, without DSA)."""
+    if agent_class == VEHICLE_CLASS:
+        return DEFAULT_CHECKPOINT, DEFAULT_CHECKPOINT_NO_DSA
+    return f"models/rollout_{agent_class}.pt", f"models/rollout_{agent_class}_nodsa.pt"
+
+
+def load_class_model(path: str | Path, agent_class: str) -> Any:
+    """The rollout model of checkpoint ``path``; one error line when it models another class."""
+    from coster_sumo.rollout.checkpoint import load_model
+
+    model = load_model(path)
+    if model.cfg.agent_class != agent_class:
+        raise InputError(f"{path}: a {model.cfg.agent_class} rollout checkpoint, but --agent-class is {agent_class} "
+                         f"(train one with `coster-sumo train rollout --agent-class {agent_class}`)")
+    return model
+
+
+def _eval_models(args: argparse.Namespace, device: Any) -> tuple[dict[str, Any], dict[str, str], dict[str, str]]:
+    """The models ``eval rollout`` scores, the ones it skips and why, and the checkpoint of each."""
+    models, skipped = {}, {}
+    dsa, nodsa = default_checkpoints(args.agent_class)
+    for name, given, default in (("cvae_no_dsa", args.checkpoint_no_dsa, nodsa), ("cvae_dsa", args.checkpoint, dsa)):
+        if given is not None:
+            models[name] = load_class_model(given, args.agent_class).to(device)
+        elif Path(default).is_file():
+            models[name] = load_class_model(default, args.agent_class).to(device)
+        else:
+            skipped[name] = f"no checkpoint ({default} not found)"
+    return models, skipped, {"cvae_dsa": args.checkpoint or dsa, "cvae_no_dsa": args.checkpoint_no_dsa or nodsa}
+
+
 def run_eval(args: argparse.Namespace) -> int:
+    import dataclasses
+
     import torch
 
     from coster_sumo.infra.devices import training_device
-    from coster_sumo.rollout.checkpoint import load_model
     from coster_sumo.rollout.data import build_examples
     from coster_sumo.rollout.evaluate import LANE_NEIGHBOUR_ALONG_M, evaluate_rollout
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     device = training_device(args.device)
-    models = {}
-    skipped = {}
-    for name, given, default in (("cvae_no_dsa", args.checkpoint_no_dsa, DEFAULT_CHECKPOINT_NO_DSA),
-                                 ("cvae_dsa", args.checkpoint, DEFAULT_CHECKPOINT)):
-        if given is not None:
-            models[name] = load_model(given).to(device)
-        elif Path(default).is_file():
-            models[name] = load_model(default).to(device)
-        else:
-            skipped[name] = f"no checkpoint ({default} not found)"
+    models, skipped, checkpoints = _eval_models(args, device)
     scenes = _eval_scenes(args)
     if not scenes:
         raise InputError("no scenes to evaluate (an empty held-out split? try --split all)")
@@ -260,15 +319,15 @@ def run_eval(args: argparse.Namespace) -> int:
     for name, m in models.items():
         if (m.cfg.lane_spacing_m, m.cfg.chunk_vectors) != (cfg.lane_spacing_m, cfg.chunk_vectors):
             raise InputError(f"{name}: its map chunking differs from the other checkpoint's; evaluate them apart")
+    cfg = dataclasses.replace(cfg, agent_class=args.agent_class)
     examples = build_examples(scenes, cfg, full_only=True, t_indices=[-1] if args.t_rev == "last" else None)
     t0 = time.perf_counter()
     result = evaluate_rollout(examples, models, horizon=10, num_samples=args.samples, seed=args.seed,
-                              batch_size=args.batch_size, max_examples=args.max_examples)
+                              batch_size=args.batch_size, max_examples=args.max_examples,
+                              agent_class=args.agent_class)
     report = {"format": "coster-sumo-rollout-eval", "data": [str(d) for d in args.data], "split": args.split,
-              "t_rev": args.t_rev,
-              "scenes": len(scenes), **result.to_json(), "skipped": skipped,
-              "checkpoints": {"cvae_dsa": args.checkpoint or DEFAULT_CHECKPOINT,
-                              "cvae_no_dsa": args.checkpoint_no_dsa or DEFAULT_CHECKPOINT_NO_DSA},
+              "t_rev": args.t_rev, "agent_class": args.agent_class,
+              "scenes": len(scenes), **result.to_json(), "skipped": skipped, "checkpoints": checkpoints,
               "seed": args.seed, "threads": torch.get_num_threads(), "torch": torch.__version__,
               "machine": platform.machine(), "wall_time_s": time.perf_counter() - t0, "command": _command(),
               "units": {"ADE/FDE": "m", "time_per_trajectory_s": "s (CPU wall time)"}}

@@ -104,8 +104,9 @@ def add_method_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rollout", default="cvae", choices=tuple(ROLLOUTS),
                    help="cvae = time-reversed CVAE; cv = constant-velocity baseline")
     p.add_argument("--adversary", default="vehicle", choices=ADVERSARY_CHOICES,
-                   help="the adversary's class: vehicle (default), cyclist or pedestrian (their own placement "
-                        "and kinematic rollout, injected as SUMO bicycle / pedestrian), or any (each draw picks one)")
+                   help="the adversary's class: vehicle (default), cyclist or pedestrian (their own placement; "
+                        "the class's learned rollout, models/rollout_CLASS.pt, with --rollout cvae, else its kinematic "
+                        "one; injected as SUMO bicycle / pedestrian), or any (each draw picks one)")
 
 
 def add_avoidability_arguments(p: argparse.ArgumentParser) -> None:

@@ -4,7 +4,9 @@
 :data:`~coster_sumo.rollout.methods.ROLLOUTS`) untouched. ``pedestrian`` and ``cyclist`` take the
 class's placement (:mod:`coster_sumo.method.vru.snapshot`; with ``--init snapshot`` its collision time reads
 the prior's entropy, with ``--init random`` the random init's rule) and the class's kinematic rollout
-(:mod:`coster_sumo.method.vru.rollout`, whatever ``--rollout`` says: no VRU rollout is learned yet).
+(:func:`coster_sumo.method.vru.rollout.vru_rollout`): with ``--rollout cvae`` (the default) the class's
+learned rollout when ``rollout_<class>.pt`` is in the models folder (:mod:`coster_sumo.method.vru.learned`),
+else, and with any other ``--rollout``, the class's kinematic one (the rollout's info says which and why).
 ``any``: each draw picks one of the three classes uniformly with the generation's seeded generator.
 """
 
@@ -20,6 +22,7 @@ from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest, SnapshotInit
 from coster_sumo.method.vru.areas import ClassArea
 from coster_sumo.method.vru.classes import VEHICLE, VRU_CLASSES
+from coster_sumo.method.vru.learned import class_checkpoint, class_checkpoint_name, load_class_rollout
 from coster_sumo.method.vru.rollout import vru_rollout
 from coster_sumo.method.vru.snapshot import vru_snapshot
 from coster_sumo.rollout.methods import ROLLOUTS, Rollout
@@ -54,6 +57,12 @@ def methods_for(name: str, init: str, rollout: str, area: ClassArea | None) -> t
         return vru_snapshot(request, vru, area, use_prior, init)
 
     def generate(request: RolloutRequest) -> RolloutResult:
-        return vru_rollout(request, vru, area)
+        if rollout != "cvae":
+            return vru_rollout(request, vru, area, note=f"--rollout {rollout}: the {vru.name}'s kinematic rollout")
+        path = class_checkpoint(vru, request.models_dir)
+        if path is None:
+            return vru_rollout(request, vru, area, note=f"no {class_checkpoint_name(vru)} in the models folder: "
+                               f"the {vru.name}'s kinematic rollout")
+        return vru_rollout(request, vru, area, model=load_class_rollout(path, vru))
 
     return SnapshotInit(place), Rollout(generate)

@@ -1,9 +1,12 @@
 """The time-reversed rollout of a pedestrian or cyclist adversary (docs/method.md, "Pedestrian and
 cyclist adversaries", rollout).
 
-Nothing of it is learned: the shipped CVAE was trained on vehicle tracks only, so a VRU's approach
-is sampled backwards from the snapshot under the class's kinematics and then selected as COSTER
-selects (K-means on lateral displacement and arc length, the member nearest each centroid):
+Where the class's learned rollout is in the models folder (``rollout_pedestrian.pt``,
+``rollout_cyclist.pt``: the CVAE trained on that class's tracks, :mod:`coster_sumo.method.vru.learned`)
+its samples are drawn backwards from the snapshot, those outside the class's limits rejected. Else
+(or when none of them is kept) the approach is sampled backwards from the snapshot under the class's
+kinematics. Either way the samples are then selected as COSTER selects (K-means on lateral
+displacement and arc length, the member nearest each centroid). The kinematic samples:
 
 - speed, backwards in :data:`SUBSTEP_S` steps: a forward acceleration held for each 0.5 s, drawn
   uniformly inside the class's limits, the speed kept in [0, the class's fastest]; a pedestrian may
@@ -17,7 +20,7 @@ selects (K-means on lateral displacement and arc length, the member nearest each
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,9 +29,13 @@ from coster_sumo.core.scene import Scene
 from coster_sumo.geometry.boxes import box_signed_distance, boxes_overlap, make_boxes
 from coster_sumo.method.vru.areas import ClassArea
 from coster_sumo.method.vru.classes import Kinematics, VruClass, within_limits
+from coster_sumo.method.vru.learned import learned_knots, within_class
 from coster_sumo.rollout.methods import HORIZON_STEPS
 from coster_sumo.rollout.request import RolloutRequest, RolloutResult
 from coster_sumo.rollout.sample import cluster_trajectories
+
+if TYPE_CHECKING:
+    from coster_sumo.rollout.model import RolloutCVAE
 
 SUBSTEP_S = 0.1  # [s] integration step
 KNOT_S = 0.5  # [s] the 2 Hz knots
@@ -94,20 +101,33 @@ def _clear(request: RolloutRequest, knots: np.ndarray, vru: VruClass, steps: np.
     return ok
 
 
-def vru_rollout(request: RolloutRequest, vru: VruClass, area: ClassArea) -> RolloutResult:
-    """Plans of a ``vru`` adversary ending in ``request.snapshot`` (module docstring)."""
+def vru_rollout(request: RolloutRequest, vru: VruClass, area: ClassArea, model: RolloutCVAE | None = None,
+                note: str | None = None) -> RolloutResult:
+    """Plans of a ``vru`` adversary ending in ``request.snapshot`` (module docstring): samples of
+    ``model``, the class's learned rollout (:mod:`coster_sumo.method.vru.learned`), those outside
+    the class's limits rejected; without it, or when it leaves nothing, the kinematic samples.
+    ``note`` goes into the info (why the kinematic rollout ran)."""
     snap = request.snapshot
-    rng = np.random.default_rng([request.seed, snap.t_index, 62])  # the draw's own stream
     h = min(HORIZON_STEPS, snap.t_index)
     times = request.scene_2hz.timestamps[snap.t_index - h: snap.t_index + 1]
     a = snap.adversary
-    n = min(request.samples, MAX_SAMPLES)
-    knots = sample_backwards(vru, a.x, a.y, a.yaw, a.speed, h, n, rng)
-    in_area = area.contains(knots[..., :2]).all(axis=1)
-    clear = _clear(request, knots, vru, np.arange(snap.t_index - h, snap.t_index + 1))
-    keep = np.flatnonzero(in_area & clear)
-    info: dict[str, Any] = {"rollout": f"kinematic:{vru.name}", "samples": n, "in_area": int(in_area.sum()),
-                            "clear": int((in_area & clear).sum())}
+    if model is not None:
+        knots = learned_knots(request, model, h)
+        in_limits = within_class(vru, knots)
+    else:
+        rng = np.random.default_rng([request.seed, snap.t_index, 62])  # the draw's own stream
+        n = min(request.samples, MAX_SAMPLES)
+        knots = sample_backwards(vru, a.x, a.y, a.yaw, a.speed, h, n, rng)
+        in_limits = np.ones(n, bool)  # by construction
+    in_area = in_limits & area.contains(knots[..., :2]).all(axis=1)
+    clear = in_area & _clear(request, knots, vru, np.arange(snap.t_index - h, snap.t_index + 1))
+    keep = np.flatnonzero(clear)
+    info: dict[str, Any] = {"rollout": f"{'cvae' if model is not None else 'kinematic'}:{vru.name}",
+                            "samples": len(knots), "in_area": int(in_area.sum()), "clear": int(clear.sum())}
+    if model is not None:
+        info["within_limits"] = int(in_limits.sum())
+    if note:
+        info["rollout_note"] = note
     plans: list[AdversaryPlan] = []
     rejected: list[dict[str, Any]] = []
     if len(keep):
@@ -120,6 +140,10 @@ def vru_rollout(request: RolloutRequest, vru: VruClass, area: ClassArea) -> Roll
             else:
                 rejected.append({"cluster": c, "reason": f"all {len(members)} trajectories leave the {vru.name}'s "
                                  "area or exceed its speed or acceleration limits once densified"})
+    if model is not None and not plans:  # nothing learned fits here: the kinematic samples instead
+        return vru_rollout(request, vru, area, note=f"none of the {len(knots)} learned samples kept "
+                           f"({info['within_limits']} within the limits, {info['clear']} also in the area and clear): "
+                           f"the {vru.name}'s kinematic rollout")
     info["rejected_clusters"] = rejected
     plans = [_renamed(p, i) for i, p in enumerate(plans)]
     info["kept"] = len(plans)
