@@ -4,7 +4,8 @@
 
 Reads ``<arm>_s<seed>/progress.json`` (``curve``: [steps, mean training-episode return since the
 previous checkpoint] at every checkpoint) and draws, per arm, the mean over its seeds with the
-seeds' range shaded.
+seeds' range shaded. A last point that covers less than half a checkpoint interval (the few steps a
+run makes past its budget to finish its rollout: a handful of episodes) is left out as noise.
 """
 
 from __future__ import annotations
@@ -18,6 +19,14 @@ from pathlib import Path
 import numpy as np
 
 ARMS = ("nominal", "coster", "coster-one-per-snapshot", "random-cvae")
+
+
+def _full_intervals(curve: np.ndarray) -> np.ndarray:
+    """``curve`` (N, 2) without a last point whose interval is under half the median one."""
+    if len(curve) < 3:
+        return curve
+    gaps = np.diff(curve[:, 0])
+    return curve[:-1] if gaps[-1] < 0.5 * float(np.median(gaps)) else curve
 
 
 def main() -> None:
@@ -34,7 +43,7 @@ def main() -> None:
     for path in sorted(args.root.glob("*_s*/progress.json")):
         m = re.fullmatch(r"(.+)_s(\d+)", path.parent.name)
         if m and json.loads(path.read_text()).get("curve"):
-            curves[m.group(1)].append(np.array(json.loads(path.read_text())["curve"], float))
+            curves[m.group(1)].append(_full_intervals(np.array(json.loads(path.read_text())["curve"], float)))
     fig, ax = plt.subplots(figsize=(7, 4))
     for arm in [a for a in ARMS if a in curves] + sorted(set(curves) - set(ARMS)):
         n = min(len(c) for c in curves[arm])
