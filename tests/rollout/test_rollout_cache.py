@@ -34,13 +34,6 @@ def dataset(tmp_path):
     return root
 
 
-@pytest.fixture(autouse=True)
-def restore_threads():
-    n = torch.get_num_threads()
-    yield
-    torch.set_num_threads(n)
-
-
 def scene_files(root):
     return sorted((root / "scenes").glob("*.npz"))
 

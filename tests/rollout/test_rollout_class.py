@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from coster_sumo.cli.command_line import main
 from coster_sumo.core.scene import ObjectType, resample
@@ -31,13 +30,6 @@ def dataset(tmp_path_factory):
     for name, fn in synthetic.ALL.items():
         save_scene(synthetic.with_vulnerable_road_users(fn()), root / "scenes" / f"{name}.npz")
     return root
-
-
-@pytest.fixture(autouse=True)
-def restore_threads():
-    n = torch.get_num_threads()
-    yield
-    torch.set_num_threads(n)
 
 
 @pytest.mark.parametrize("agent_class", ["vehicle", "pedestrian", "cyclist"])

@@ -27,13 +27,6 @@ def dataset(tmp_path_factory):
     return root
 
 
-@pytest.fixture(autouse=True)
-def restore_threads():
-    n = torch.get_num_threads()
-    yield
-    torch.set_num_threads(n)
-
-
 def train(dataset, out, *extra):
     return main(["-q", "train", "rollout", "--data", str(dataset), "-o", str(out), *TINY, *extra])
 
