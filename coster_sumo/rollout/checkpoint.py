@@ -84,3 +84,11 @@ def load_checkpoint(path: str | Path) -> tuple[RolloutCVAE, dict]:
     model.load_state_dict(state)
     meta = obj.get("meta", {})
     return model.eval(), meta if isinstance(meta, dict) else {}
+
+
+def require_class(model: RolloutCVAE, agent_class: str, path: str | Path) -> RolloutCVAE:
+    """``model`` (loaded from ``path``) when it models ``agent_class``'s tracks; else one error line."""
+    if model.cfg.agent_class != agent_class:
+        raise InputError(f"{path}: a {model.cfg.agent_class} rollout checkpoint where the {agent_class}'s was "
+                         f"expected (train one with `coster-sumo train rollout --agent-class {agent_class}`)")
+    return model

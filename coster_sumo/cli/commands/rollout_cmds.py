@@ -273,26 +273,17 @@ def default_checkpoints(agent_class: str) -> tuple[str, str]:
     return f"models/rollout_{agent_class}.pt", f"models/rollout_{agent_class}_nodsa.pt"
 
 
-def load_class_model(path: str | Path, agent_class: str) -> Any:
-    """The rollout model of checkpoint ``path``; one error line when it models another class."""
-    from coster_sumo.rollout.checkpoint import load_model
-
-    model = load_model(path)
-    if model.cfg.agent_class != agent_class:
-        raise InputError(f"{path}: a {model.cfg.agent_class} rollout checkpoint, but --agent-class is {agent_class} "
-                         f"(train one with `coster-sumo train rollout --agent-class {agent_class}`)")
-    return model
-
-
 def _eval_models(args: argparse.Namespace, device: Any) -> tuple[dict[str, Any], dict[str, str], dict[str, str]]:
     """The models ``eval rollout`` scores, the ones it skips and why, and the checkpoint of each."""
+    from coster_sumo.rollout.checkpoint import load_model, require_class
+
     models, skipped = {}, {}
     dsa, nodsa = default_checkpoints(args.agent_class)
     for name, given, default in (("cvae_no_dsa", args.checkpoint_no_dsa, nodsa), ("cvae_dsa", args.checkpoint, dsa)):
         if given is not None:
-            models[name] = load_class_model(given, args.agent_class).to(device)
+            models[name] = require_class(load_model(given), args.agent_class, given).to(device)
         elif Path(default).is_file():
-            models[name] = load_class_model(default, args.agent_class).to(device)
+            models[name] = require_class(load_model(default), args.agent_class, default).to(device)
         else:
             skipped[name] = f"no checkpoint ({default} not found)"
     return models, skipped, {"cvae_dsa": args.checkpoint or dsa, "cvae_no_dsa": args.checkpoint_no_dsa or nodsa}

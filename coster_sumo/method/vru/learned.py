@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from coster_sumo.errors import InputError
 from coster_sumo.infra import weights
 from coster_sumo.method.vru.classes import Kinematics, VruClass, within_limits
 
@@ -48,12 +47,9 @@ def class_checkpoint(vru: VruClass, models_dir: str | Path | None) -> Path | Non
 def load_class_rollout(path: Path, vru: VruClass) -> RolloutCVAE:
     """The rollout model of ``path`` (loaded once per process); one error line when it models
     another class than ``vru``."""
-    from coster_sumo.rollout.checkpoint import load_model
+    from coster_sumo.rollout.checkpoint import load_model, require_class
 
-    model = weights.load_cached(path, load_model)
-    if model.cfg.agent_class != vru.name:
-        raise InputError(f"{path}: a {model.cfg.agent_class} rollout checkpoint where the {vru.name}'s was expected")
-    return model
+    return require_class(weights.load_cached(path, load_model), vru.name, path)
 
 
 def within_turn_limits(vru: VruClass, kin: Kinematics) -> np.ndarray:
