@@ -88,6 +88,17 @@ def vtype_for(object_type: int) -> tuple[str, str, str, float, float]:
     return VTYPES.get(int(object_type), VTYPES[ObjectType.OTHER])
 
 
+# SUMO vehicle class -> WOMD object type (everything else on wheels is a VEHICLE)
+_OBJECT_TYPE_OF_VCLASS = {"bicycle": ObjectType.CYCLIST, "pedestrian": ObjectType.PEDESTRIAN,
+                          "wheelchair": ObjectType.PEDESTRIAN}
+
+
+def object_type_of_vclass(vclass: str) -> ObjectType:
+    """The WOMD object type a SUMO vehicle class is recorded as (bicycle: CYCLIST, pedestrian and
+    wheelchair: PEDESTRIAN, anything else: VEHICLE)."""
+    return _OBJECT_TYPE_OF_VCLASS.get(vclass, ObjectType.VEHICLE)
+
+
 def tls_state_strings(scene: Scene, tls: dict[str, dict]) -> dict[str, list[str]]:
     """Per traffic light, the SUMO state string at every step of the log.
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -25,12 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.core.scene import ObjectType, Scene, SignalState, Tracks
+from coster_sumo.core.scene import Scene
 from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.formats.scene_file import save_scene
 from coster_sumo.geometry.boxes import make_boxes, sat_overlap_depth
+from coster_sumo.gym.hard import AVOIDANCE_TAIL_S, hard_variants
 from coster_sumo.gym.scenario_set import MANIFEST, ScenarioEntry, SetNetwork, write_manifest, write_vtypes
+from coster_sumo.gym.scene_edit import append_agent, crop_steps
 
 
 @dataclass(frozen=True)
@@ -53,19 +54,8 @@ METHODS: dict[str, Method] = {
     "hard": Method(None, None),
 }
 
-HARD_START_S = 0.0  # [s] a hand-made adversity's episode starts this long after the target departs (9.1 s clips)
-ADVERSITY_ONSET_S = 3.0  # [s] the adversity (the leader's braking, the cut-in's move) starts this long into it
-AVOIDANCE_TAIL_S = 5.0  # [s] an episode runs at least this long past the adversity's onset or t_col
-LEADER_GAP_M = 20.0  # [m] bumper-to-bumper gap of the braking leader at the start
-LEADER_DECEL = 7.0  # [m/s^2]
-CUT_IN_AHEAD_M = 8.0  # [m] centre-to-centre, ahead of the target, in the next lane
-CUT_IN_LATERAL_M = 3.5  # [m] the next lane
-CUT_IN_AFTER_S = ADVERSITY_ONSET_S  # [s] it moves over after this long, as far ahead then as if it had after 1 s
-CUT_IN_DURATION_S = 2.5  # [s] to reach the target's path
 LEAD_S = 3.0  # [s] an episode of a variant starts this long before its adversary appears
 HORIZON_S = 20.0  # [s] an episode of a nominal scene lasts at most this long from the target's departure
-RED_RUNNER_SPEED = 12.0  # [m/s] the red-light runner's constant speed through the junction
-RED_RUNNER_MIN_ANGLE = math.radians(30.0)  # a crossing movement, not one beside the target's
 TTC_HORIZON_S = 5.0  # [s] criticality's time-to-collision looks this far ahead
 POST_COLLISION_S = AVOIDANCE_TAIL_S + 3.0  # [s] after t_col: the route goes on 5 s past it (it ends 3 s early)
 
@@ -118,37 +108,6 @@ def _net_file(config: Path) -> Path:
     if not nets:
         raise InputError(f"{config}: names no net file")
     return Path(nets[0])
-
-
-def _append_agent(scene: Scene, agent_id: str, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, speed: np.ndarray,
-                  valid: np.ndarray, size: tuple[float, float]) -> Scene:
-    """``scene`` with one more (vehicle) agent of ``size`` (length, width) [m]; arrays (T,) on its timestamps."""
-    tr = scene.tracks
-    T = tr.num_steps
-
-    def row(a: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return np.concatenate([a, v.reshape(1, T).astype(a.dtype)], axis=0)
-
-    tracks = Tracks(ids=np.array([*tr.ids.tolist(), agent_id], dtype=str),  # widened to the longest id
-                    object_type=np.append(tr.object_type, ObjectType.VEHICLE).astype(tr.object_type.dtype),
-                    x=row(tr.x, x), y=row(tr.y, y), heading=row(tr.heading, yaw),
-                    vx=row(tr.vx, speed * np.cos(yaw)), vy=row(tr.vy, speed * np.sin(yaw)),
-                    length=row(tr.length, np.full(T, size[0])), width=row(tr.width, np.full(T, size[1])),
-                    valid=row(tr.valid, valid))
-    return dataclasses.replace(scene, tracks=tracks)
-
-
-def _crop_steps(scene: Scene, t0: float, t1: float) -> Scene:
-    """The scene between SUMO times ``t0`` and ``t1`` [s] (both kept), agents never valid there dropped."""
-    ts = scene.timestamps
-    steps = np.flatnonzero((ts >= t0 - 1e-6) & (ts <= t1 + 1e-6))
-    tracks = scene.tracks.select(steps=steps)
-    keep = np.flatnonzero(tracks.valid.any(axis=1))
-    tracks = tracks.select(agents=keep)
-    signals = scene.signals
-    signals = dataclasses.replace(signals, state=signals.state[steps] if signals.state.ndim == 2 else signals.state)
-    return dataclasses.replace(scene, timestamps=ts[steps], tracks=tracks, signals=signals, current_time_index=0,
-                               sdc_index=-1)
 
 
 @dataclass
@@ -216,7 +175,7 @@ def _register_source(opts: BuildOptions, spec: ScenarioSpec, progress: _SetProgr
 def _nominal_entry(opts: BuildOptions, src: _Source) -> ScenarioEntry:
     """Write the nominal scenario (from the target's departure, at most ``horizon_s`` long)."""
     t_end = min(src.t_last, src.t_dep + opts.horizon_s)
-    save_scene(_crop_steps(src.scene, src.t_dep - 0.1, t_end), opts.out / "scenarios" / f"{src.base}_nominal.npz")
+    save_scene(crop_steps(src.scene, src.t_dep - 0.1, t_end), opts.out / "scenarios" / f"{src.base}_nominal.npz")
     return ScenarioEntry(id=f"{src.base}_nominal", kind="nominal", method="nominal", t_start=src.t_dep, t_end=t_end,
                          extra={"criticality": criticality(src.scene, src.target)}, **src.common)
 
@@ -227,6 +186,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
     the nominal pass with the adversary's plan as one more agent."""
     from coster_sumo.avoidability.labels import ProofSettings, label_plans
     from coster_sumo.errors import NoSnapshot
+    from coster_sumo.formats.scene_folder import object_type_of_vclass
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import DrawMemo, plan_scenarios
 
@@ -247,10 +207,10 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
             t_stop = min(src.t_last, plan.t_col + POST_COLLISION_S)
             xs, ys, yaws, speeds = plan.sample(ts, lead=0.05)
             valid = (ts >= plan.t_start - 0.05) & (ts <= t_stop + 1e-6)
-            with_adv = _append_agent(src.scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
-                                     (float(plan.length), float(plan.width)))
+            with_adv = append_agent(src.scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
+                                    (float(plan.length), float(plan.width)), object_type_of_vclass(plan.vclass))
             sid = f"{src.base}_{opts.method}_k{k}_v{j}"
-            save_scene(_crop_steps(with_adv, t_start - 0.1, t_stop), opts.out / "scenarios" / f"{sid}.npz")
+            save_scene(crop_steps(with_adv, t_start - 0.1, t_stop), opts.out / "scenarios" / f"{sid}.npz")
             new.append(ScenarioEntry(id=sid, kind="variant", method=opts.method, t_start=t_start, t_end=t_stop,
                                      t_col=float(plan.t_col), adversary=plan.vehicle_id, avoidable=lab.avoidable,
                                      extra={"snapshot": k, "variant": j, "contact": lab.contact_kind,
@@ -301,7 +261,7 @@ def build_set(opts: BuildOptions) -> dict[str, Any]:
                       float(valid_t[-1]))
         new = [_nominal_entry(opts, src)]
         if opts.method == "hard":
-            new.extend(_hard_variants(out, scene, target, src.base, src.common, src.t_dep, src.t_last,
+            new.extend(hard_variants(out, scene, target, src.base, src.common, src.t_dep, src.t_last,
                                       opts.horizon_s))
         if gen is not None:
             new.extend(_generated_entries(opts, method, gen, src, progress.failed))
@@ -360,139 +320,6 @@ def criticality(scene: Scene, target: int) -> dict[str, float]:
                 conflicts += 1
     score = 1.0 / max(min_ttc, 0.5) + decel / 4.0 + conflicts
     return {"min_ttc_s": float(min_ttc), "max_decel": decel, "conflicts": float(conflicts), "score": float(score)}
-
-
-def _hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict[str, Any], t_dep: float,
-                   t_last: float, horizon_s: float) -> list[ScenarioEntry]:
-    """The hand-specified adversities against ``target`` (leader emergency braking, cut-in, and a
-    red-light runner where a crossing lane shows stop as the target passes)."""
-    from coster_sumo.gym.env import Route
-
-    tr = scene.tracks
-    ts = scene.timestamps
-    v = tr.valid[target]
-    t0 = t_dep + HARD_START_S
-    if t0 + ADVERSITY_ONSET_S + AVOIDANCE_TAIL_S > t_last:
-        return []
-    k0 = int(np.argmin(np.abs(ts - t0)))
-    route = Route(np.stack([tr.x[target, v & (ts >= t0 - 1e-6)], tr.y[target, v & (ts >= t0 - 1e-6)]], -1),
-                  float(tr.heading[target, k0]))
-    length = float(np.median(tr.length[target, v]))
-    speed0 = max(float(np.hypot(tr.vx[target, k0], tr.vy[target, k0])), 5.0)
-    t_stop = min(t_last, t_dep + horizon_s)
-    times = ts
-    after = (times >= t0 - 1e-6) & (times <= t_stop + 1e-6)
-    dt = np.clip(times - t0, 0.0, None)
-    entries = []
-    # leader emergency braking: ahead on the target's path at its speed, then a hard stop
-    t_b = ADVERSITY_ONSET_S  # the leader drives at the target's speed this long, then brakes
-    braking = np.clip(dt - t_b, 0.0, speed0 / LEADER_DECEL)  # [s] spent braking (until it stands)
-    s_lead = speed0 * np.minimum(dt, t_b) + speed0 * braking - 0.5 * LEADER_DECEL * braking**2
-    v_lead = np.where(dt <= t_b, speed0, np.maximum(speed0 - LEADER_DECEL * (dt - t_b), 0.0))
-    s_lead = s_lead + LEADER_GAP_M + length
-    # cut-in: the next lane (left) a little ahead at the target's speed, moving onto its path
-    f = np.clip((dt - CUT_IN_AFTER_S) / CUT_IN_DURATION_S, 0.0, 1.0)
-    lateral = CUT_IN_LATERAL_M * (1.0 - (3 * f**2 - 2 * f**3))  # smooth step
-    s_cut = CUT_IN_AHEAD_M + 0.1 * speed0 * (CUT_IN_AFTER_S - 1.0) + 0.9 * speed0 * dt
-    for name, s_along, d_off, speed in (("leader-braking", s_lead, np.zeros_like(dt), v_lead),
-                                        ("cut-in", s_cut, lateral, np.full_like(dt, 0.9 * speed0))):
-        xs, ys, hs = np.zeros(len(times)), np.zeros(len(times)), np.zeros(len(times))
-        for k in np.flatnonzero(after):
-            x, y, h = route.pose(float(s_along[k]))
-            xs[k], ys[k], hs[k] = x - d_off[k] * np.sin(h), y + d_off[k] * np.cos(h), h
-        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, after, (4.5, 1.9))
-        sid = f"{base}_hard_{name}"
-        save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
-        entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
-                                     adversary="adversity", extra={"adversity": name}, **common))
-    runner = red_light_runner(scene, target, t0, t_stop)
-    if runner is not None:
-        xs, ys, hs, speed, present, t_hit, signal = runner
-        with_adv = _append_agent(scene, "adversity", xs, ys, hs, speed, present, (4.5, 1.9))
-        sid = f"{base}_hard_red-light-runner"
-        save_scene(_crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
-        entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
-                                     adversary="adversity",
-                                     extra={"adversity": "red-light-runner", "signal": signal, "t_conflict": t_hit},
-                                     **common))
-    return entries
-
-
-def red_light_runner(scene: Scene, target: int, t0: float, t_stop: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, int] | None:
-    """A vehicle that runs a red light across the target's path: its states on the scene's steps
-    (x, y, heading, speed, present), the time it reaches the target's path and the column of
-    ``scene.signals`` of the lane it runs, or None.
-
-    The conflict: the first signal-controlled lane whose centreline crosses the target's logged path
-    (at more than 30 degrees) at a point the target reaches at least 3 s after ``t0`` and 5 s
-    before ``t_stop``, while that lane's signal shows stop (red or red arrow). The runner drives along the
-    lane (extended straight before and after it) at 12 m/s, timed so that its centre is at the
-    crossing point when the target's is; before ``t0`` and after ``t_stop`` it is absent.
-    """
-    tr, ts, lanes, sig = scene.tracks, scene.timestamps, scene.road_map.lanes, scene.signals
-    v = tr.valid[target] & (ts >= t0 - 1e-6) & (ts <= t_stop + 1e-6)
-    if v.sum() < 2 or not len(sig.lane_index):
-        return None
-    path = np.stack([tr.x[target, v], tr.y[target, v]], -1)  # (P, 2), on the scene's steps
-    path_t = ts[v]
-    red = {int(SignalState.STOP), int(SignalState.ARROW_STOP)}
-    best: tuple[float, int, np.ndarray, int, int] | None = None  # (time, lane, point, lane segment, column)
-    for c, lane in enumerate(sig.lane_index.tolist()):
-        line = np.asarray(lanes.centerline[lane], np.float64)
-        if len(line) < 2:
-            continue
-        hit = _first_crossing(path, line)
-        if hit is None:
-            continue
-        i, j, point = hit  # path segment i, lane segment j
-        t_hit = float(path_t[i])
-        if not (t0 + ADVERSITY_ONSET_S <= t_hit <= t_stop - AVOIDANCE_TAIL_S):  # 3 s in, 5 s before the end
-            continue
-        k_hit = int(np.argmin(np.abs(ts - t_hit)))
-        if int(sig.state[k_hit, c]) not in red:
-            continue
-        d_path, d_lane = path[i + 1] - path[i], line[j + 1] - line[j]
-        cross = abs(math.atan2(d_path[0] * d_lane[1] - d_path[1] * d_lane[0], float(d_path @ d_lane)))
-        if cross < RED_RUNNER_MIN_ANGLE or (best is not None and t_hit >= best[0]):
-            continue
-        best = (t_hit, lane, point, j, c)
-    if best is None:
-        return None
-    t_hit, lane, point, j, column = best
-    line = np.asarray(lanes.centerline[lane], np.float64)
-    # the runner's route: the lane's centreline, extended straight backwards far enough to start from
-    back = RED_RUNNER_SPEED * (t_hit - t0) + 10.0
-    start_dir = (line[1] - line[0]) / max(float(np.hypot(*(line[1] - line[0]))), 1e-9)
-    points = np.concatenate([line[:1] - back * start_dir, line])
-    from coster_sumo.gym.env import Route
-
-    route = Route(points, math.atan2(start_dir[1], start_dir[0]))
-    s_hit = back + float(np.sum(np.hypot(*np.diff(line[:j + 1], axis=0).T))) + float(np.hypot(*(point - line[j])))
-    present = (ts >= t0 - 1e-6) & (ts <= t_stop + 1e-6)
-    n = len(ts)
-    xs, ys, hs = np.zeros(n), np.zeros(n), np.zeros(n)
-    for k in np.flatnonzero(present):
-        xs[k], ys[k], hs[k] = route.pose(s_hit + RED_RUNNER_SPEED * (float(ts[k]) - t_hit))
-    return xs, ys, hs, np.full(n, RED_RUNNER_SPEED), present, t_hit, column
-
-
-def _first_crossing(path: np.ndarray, line: np.ndarray) -> tuple[int, int, np.ndarray] | None:
-    """Where polyline ``path`` (P, 2) first crosses polyline ``line`` (L, 2): (segment of path,
-    segment of line, point), or None."""
-    p0, p1 = path[:-1, None, :], path[1:, None, :]  # (P-1, 1, 2)
-    q0, q1 = line[None, :-1, :], line[None, 1:, :]  # (1, L-1, 2)
-    r, s_ = p1 - p0, q1 - q0
-    denom = r[..., 0] * s_[..., 1] - r[..., 1] * s_[..., 0]  # (P-1, L-1)
-    qp = q0 - p0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (qp[..., 0] * s_[..., 1] - qp[..., 1] * s_[..., 0]) / denom
-        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
-    ok = (np.abs(denom) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-    if not ok.any():
-        return None
-    i, j = (int(x) for x in np.argwhere(ok)[0])  # argwhere is row-major: the earliest path segment first
-    return i, j, path[i] + t[i, j] * (path[i + 1] - path[i])
 
 
 def parse_networks(text: Sequence[str]) -> tuple[str, ...]:

@@ -255,7 +255,8 @@ class ScenarioEnv(gymnasium.Env, Driver):
             from coster_sumo.sim.reactive import ReactiveTraffic
 
             self._reactive = ReactiveTraffic(replayed, entry.target, exclude=far, adversary=entry.adversary,
-                                             route=self.route.points, car_following=self.car_following, log=log)
+                                             route=self.route.points, car_following=self.car_following, log=log,
+                                             scripted=entry.extra.get("scripted", ()))
         drivable = self._drivable.get(net)
         if drivable is None:
             drivable = DrivableArea.from_road_map(scene.road_map)

@@ -81,7 +81,7 @@ class PolicyPlanner(Driver):
 
     def set_plan(self, plan: AdversaryPlan) -> None:
         """Drive up to the end of the variant's episode (t_col + the episodes' tail)."""
-        from coster_sumo.gym.build import AVOIDANCE_TAIL_S
+        from coster_sumo.gym.hard import AVOIDANCE_TAIL_S
 
         self.until = float(plan.t_col) + AVOIDANCE_TAIL_S
 

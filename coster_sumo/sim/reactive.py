@@ -34,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import math
 import tempfile
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -183,13 +184,15 @@ class ReactiveTraffic:
         target: the target's id (driven by someone else; never put into SUMO here).
         exclude: agent ids never replayed (too far to matter).
         adversary: the adversary's id: it follows its plan, never reacts (None: none).
+        scripted: more agents that follow their logs and never react (a Hard set's stopped vehicle).
         route: (P, 2) [m] the target's route, for its corridor.
         car_following: ``Krauss`` or ``IDM`` (the reacting agents' model).
     """
 
     def __init__(self, scene: Scene, target: str, exclude: set[str] | frozenset[str] = frozenset(),
                  adversary: str | None = None, route: np.ndarray | None = None,
-                 car_following: str = "Krauss", log: LogTraffic | None = None) -> None:
+                 car_following: str = "Krauss", log: LogTraffic | None = None,
+                 scripted: Collection[str] = ()) -> None:
         from coster_sumo.sim.replay import LogTraffic
 
         self.scene = scene
@@ -208,7 +211,8 @@ class ReactiveTraffic:
         # pedestrians stay on their logs (SUMO's car-following models drive vehicles) and are not put
         # into SUMO for the reacting vehicles to see
         self.replayed = in_log & (tr.object_type != int(ObjectType.PEDESTRIAN))
-        self.may_react = self.replayed & np.array([i != adversary for i in ids], bool)
+        fixed = {adversary, *scripted}
+        self.may_react = self.replayed & np.array([i not in fixed for i in ids], bool)
         self.in_sumo: dict[int, str] = {}  # agent -> SUMO id while SUMO holds it
         self.released: set[int] = set()  # driven by SUMO (never back to the log)
         self.pending: set[int] = set()  # react from the next step on

@@ -20,17 +20,14 @@ from typing import Any, cast
 
 import numpy as np
 
-from coster_sumo.core.scene import Lanes, ObjectType, RoadMap, Scene, SignalStates, Tracks
+from coster_sumo.core.scene import Lanes, RoadMap, Scene, SignalStates, Tracks
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_folder import object_type_of_vclass
 from coster_sumo.formats.sumo_net import SumoNet, load_sumo_net
 from coster_sumo.formats.sumocfg import read_sumocfg
 from coster_sumo.sim.session import SumoSession, VehicleStates
 from coster_sumo.sim.signals import SignalReader, SignalTable
 from coster_sumo.sim.states import empty_states
-
-# SUMO vehicle class -> WOMD object type (everything else on wheels is a VEHICLE)
-_OBJECT_TYPE = {"bicycle": ObjectType.CYCLIST, "pedestrian": ObjectType.PEDESTRIAN,
-                "wheelchair": ObjectType.PEDESTRIAN}
 
 BeforeStep = Callable[[SumoSession], None]
 AfterStep = Callable[[SumoSession, VehicleStates], bool | None]
@@ -235,7 +232,7 @@ class _Rows:
         for i in [i for i, vid in enumerate(names) if vid not in agent]:  # first appearances
             if names[i] not in agent:
                 agent[names[i]] = len(agent)
-                self.kinds.append(int(_OBJECT_TYPE.get(str(st.vclass[i]), ObjectType.VEHICLE)))
+                self.kinds.append(int(object_type_of_vclass(str(st.vclass[i]))))
                 self.vclasses[names[i]] = str(st.vclass[i])
         idx = np.fromiter(map(agent.__getitem__, names), np.int64, len(names))
         self.times.append(t)

@@ -9,8 +9,9 @@ import pytest
 
 pytest.importorskip("gymnasium")
 
-from coster_sumo.gym.build import ADVERSITY_ONSET_S, AVOIDANCE_TAIL_S, BuildOptions, build_set  # noqa: E402
+from coster_sumo.gym.build import BuildOptions, build_set  # noqa: E402
 from coster_sumo.gym.env import ScenarioEnv  # noqa: E402
+from coster_sumo.gym.hard import ADVERSITY_ONSET_S, AVOIDANCE_TAIL_S  # noqa: E402
 from coster_sumo.gym.scenario_set import ScenarioSet  # noqa: E402
 from tests.conftest import REPO  # noqa: E402
 
@@ -97,7 +98,7 @@ def test_a_clip_of_9_s_holds_both_adversities(tmp_path):
     """A corpus clip is 9.1 s: an adversity's episode (onset 3 s in, 5 s past it) fits when it starts
     as the target departs (with 2 s more, no held-out clip had one)."""
     from coster_sumo.data import synthetic
-    from coster_sumo.gym.build import _hard_variants
+    from coster_sumo.gym.hard import hard_variants
 
     scene = synthetic.four_way_junction()
     target = int(scene.sdc_index)
@@ -106,7 +107,7 @@ def test_a_clip_of_9_s_holds_both_adversities(tmp_path):
     (tmp_path / "scenarios").mkdir()
     common = {"network": "n", "split": "test", "source": "s", "target": str(scene.tracks.ids[target]),
               "net": "n.net.xml"}
-    entries = _hard_variants(tmp_path, scene, target, "x", common, float(valid[0]), float(valid[-1]), 20.0)
+    entries = hard_variants(tmp_path, scene, target, "x", common, float(valid[0]), float(valid[-1]), 20.0)
     assert {"leader-braking", "cut-in"} <= {e.extra["adversity"] for e in entries}
     for entry in entries:
         assert entry.t_end >= entry.t_start + ADVERSITY_ONSET_S + AVOIDANCE_TAIL_S - 1e-6

@@ -255,8 +255,8 @@ def test_hard_set_leader_braking_hits_a_target_that_keeps_its_speed(tmp_path):
     out = tmp_path / "hard"
     build_set(BuildOptions(sources=CONFIGS[2:], out=out, method="hard"))
     s = ScenarioSet.load(out)
-    assert {e.extra.get("adversity") for e in s.select(kind="variant")} == {"leader-braking", "cut-in",
-                                                                          "red-light-runner"}
+    assert {e.extra.get("adversity") for e in s.select(kind="variant")} == {
+        "leader-braking", "cut-in", "red-light-runner", "pedestrian-behind-vehicle"}
     assert "score" in s.select(kind="nominal")[0].extra["criticality"]
     (entry,) = [e for e in s.entries if e.extra.get("adversity") == "leader-braking"]
     env = ScenarioEnv(out)

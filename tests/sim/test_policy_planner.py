@@ -70,7 +70,7 @@ def test_a_policy_target_at_its_routes_end_is_handed_to_sumo_and_arrives(tmp_pat
 
 def test_a_policy_drives_a_variant_only_as_long_as_its_episodes_ran(tmp_path):
     """With a plan, SUMO's driver takes the target at t_col + AVOIDANCE_TAIL_S, route or not."""
-    from coster_sumo.gym.build import AVOIDANCE_TAIL_S
+    from coster_sumo.gym.hard import AVOIDANCE_TAIL_S
 
     planner, released_at, arrived = _drive(tmp_path, 500.0, 1.0)
     assert released_at is not None and arrived
