@@ -100,7 +100,10 @@ def variants_of(run_out: Path) -> list[dict[str, Any]]:
             plan = AdversaryPlan.from_dict(json.loads(vfile.read_text())["plan"])
             kin = plan_kinematics(plan)
             cls = VRU_CLASSES[class_of_vclass(plan.vclass)]
+            gens = [doc.get("generation") or {}, *((s.get("generation") or {}) for s in doc.get("snapshots", ()))]
+            rollout = sorted({str(g["rollout"]) for g in gens if "rollout" in g})
             rows.append({"class": v["adversary_class"], "contact": v["collision"], "offset_s": v["contact_offset_s"],
+                         "rollout": "+".join(rollout),
                          "off_area": v["adversary_off_road"], "max_speed": float(kin.speed.max()),
                          "max_accel": float(kin.accel.max()), "max_decel": float(-kin.accel.min()),
                          "speed_limit": cls.fast_max, "accel_limit": cls.max_accel, "decel_limit": cls.max_decel})
@@ -198,6 +201,7 @@ def main() -> int:
                 print(f"{name:34s} {cls:10s} rc={proc.returncode} variants={len(rows)} "
                       f"contact@t_col±0.1s={len(within)}/{len(rows)} within-limits={len(ok_kin)}/{len(rows)} "
                       f"off-area={sum(r['off_area'] for r in rows)}/{len(rows)} "
+                      f"rollout={','.join(sorted({r['rollout'] for r in rows})) or '-'} "
                       + (f"max speed {max(r['max_speed'] for r in rows):.2f} m/s, accel "
                          f"{max(r['max_accel'] for r in rows):.2f}, decel {max(r['max_decel'] for r in rows):.2f}"
                          if rows else (table[-1]["error"] or [""])[0]), flush=True)
