@@ -129,7 +129,7 @@ class DrawMemo:
 
     low: Scene
     prior: PriorMemo = field(default_factory=PriorMemo)
-    areas: dict[str, Any] = field(default_factory=dict)  # the VRU classes' areas (coster_sumo.method.vru.methods)
+    areas: dict[str, Any] = field(default_factory=dict)  # VRU areas, a target's `any` shares (method.vru.methods)
 
     @classmethod
     def of(cls, scene: Scene) -> DrawMemo:
@@ -184,9 +184,14 @@ class _Draws:
 
     def class_methods(self) -> tuple[Any, Any]:
         """The snapshot init and rollout of this draw's adversary class (``any``: drawn now)."""
-        from coster_sumo.method.vru.methods import class_area, draw_class, methods_for
+        from coster_sumo.method.vru.methods import class_area, class_shares, draw_class, methods_for
 
-        name = draw_class(self.gen.adversary, self.rng)
+        shares = None
+        if self.gen.adversary == "any":
+            shares = self.areas.get(f"any shares {self.target}")
+            if shares is None:
+                shares = self.areas[f"any shares {self.target}"] = class_shares(self.low, self.target)
+        name = draw_class(self.gen.adversary, self.rng, shares)
         area = None if name == "vehicle" else class_area(name, self.scene.road_map, self.drivable, self.areas)
         return methods_for(name, self.gen.init, self.gen.rollout, area)
 

@@ -130,15 +130,34 @@ def test_generation_draws_the_class_asked_for(adversary: str) -> None:
         assert all(p.road is None for p in planned.plans)  # a missed VRU walks / rides straight on, no lane
 
 
-def test_any_draws_every_class_over_seeds() -> None:
-    scene = synthetic.four_way_junction()
+def test_any_takes_the_classes_in_the_shares_they_travel_near_the_target() -> None:
+    from coster_sumo.method.vru.methods import ANY_CLASSES, ANY_FLOOR, class_shares
+
+    cars_only = synthetic.four_way_junction()
+    shares = dict(zip(ANY_CLASSES, class_shares(cars_only, cars_only.sdc_index), strict=True))
+    assert shares == pytest.approx({"vehicle": 1.0 - 2 * ANY_FLOOR, "cyclist": ANY_FLOOR, "pedestrian": ANY_FLOOR})
+    scene = synthetic.with_vulnerable_road_users(cars_only)  # two walkers and a rider beside the SDC's path
+    shares = dict(zip(ANY_CLASSES, class_shares(scene, scene.sdc_index), strict=True))
+    import shapely
+
+    tr = scene.tracks
+    me = scene.sdc_index
+    path = shapely.LineString(np.stack([tr.x[me, tr.valid[me]], tr.y[me, tr.valid[me]]], -1))
+    kind = {2: "pedestrian", 3: "cyclist"}
+    steps = dict.fromkeys(ANY_CLASSES, 0)
+    for a in range(tr.num_agents):
+        for k in np.flatnonzero(tr.valid[a]) if a != me else ():
+            if path.distance(shapely.Point(tr.x[a, k], tr.y[a, k])) <= 30.0:
+                steps[kind.get(int(tr.object_type[a]), "vehicle")] += 1
+    total = sum(steps.values())
+    assert steps["pedestrian"] > 0 and steps["cyclist"] > 0
+    assert shares == pytest.approx({c: ANY_FLOOR + (1 - 3 * ANY_FLOOR) * steps[c] / total for c in ANY_CLASSES})
+    assert sum(shares.values()) == pytest.approx(1.0)
     drivable = DrivableArea.from_road_map(scene.road_map)
     gen = GenerationConfig(init="random", rollout="cv", samples=100, variants=1, adversary="any")
-    seen = set()
-    for seed in range(8):
-        seen.add(plan_scenarios(scene, scene.sdc_index, seed, gen, drivable, DrawMemo.of(scene))[0]
-                 .snapshot.adversary_class)
-    assert seen == {"vehicle", "pedestrian", "cyclist"}
+    seen = [plan_scenarios(scene, scene.sdc_index, seed, gen, drivable, DrawMemo.of(scene))[0].snapshot.adversary_class
+            for seed in range(10)]
+    assert set(seen) == {"vehicle", "pedestrian", "cyclist"}, seen
 
 
 def test_eval_parts_of_a_vru_adversary_are_keyed_apart_and_vehicle_keys_unchanged() -> None:
