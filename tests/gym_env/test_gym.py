@@ -51,6 +51,21 @@ def nominal_action(env: ScenarioEnv) -> np.ndarray:
     return np.array([a / MAX_ACCEL if a >= 0 else a / MAX_DECEL, 0.0], np.float32)
 
 
+def keep_or_brake(env: ScenarioEnv, scenario: str) -> dict[str, tuple[str | None, float]]:
+    """``scenario`` driven twice, at the target's logged speed (``nominal``) and braking fully from the
+    start (``brake``): whom the target touched first and when."""
+    outcomes = {}
+    for name in ("nominal", "brake"):
+        env.reset(options={"scenario": scenario})
+        done, info = False, {}
+        while not done:
+            action = nominal_action(env) if name == "nominal" else np.array([-1.0, 0.0], np.float32)
+            _, _, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+        outcomes[name] = (info["collided_with"], info["time"])
+    return outcomes
+
+
 def test_check_env_passes(nominal_set):
     from gymnasium.utils.env_checker import check_env
 
@@ -324,15 +339,7 @@ def test_hard_set_red_light_runner_crosses_on_red_into_a_target_that_keeps_its_n
 
     assert shapely.LineString(line).distance(shapely.Point(tr.x[runner, k], tr.y[runner, k])) < 0.5
     env = ScenarioEnv(out)
-    outcomes = {}
-    for name in ("nominal", "brake"):
-        env.reset(options={"scenario": entry.id})
-        done, info = False, {}
-        while not done:
-            action = nominal_action(env) if name == "nominal" else np.array([-1.0, 0.0], np.float32)
-            _, _, terminated, truncated, info = env.step(action)
-            done = terminated or truncated
-        outcomes[name] = (info["collided_with"], info["time"])
+    outcomes = keep_or_brake(env, entry.id)
     env.close()
     assert outcomes["nominal"][0] == "adversity" and abs(outcomes["nominal"][1] - t_conflict) < 1.0, outcomes
     assert outcomes["brake"][0] != "adversity", outcomes

@@ -14,7 +14,7 @@ from coster_sumo.gym.env import ScenarioEnv  # noqa: E402
 from coster_sumo.gym.hard import ADVERSITY_ONSET_S, PED_SPEED  # noqa: E402
 from coster_sumo.gym.scenario_set import ScenarioSet  # noqa: E402
 from tests.conftest import REPO  # noqa: E402
-from tests.gym_env.test_gym import nominal_action  # noqa: E402
+from tests.gym_env.test_gym import keep_or_brake, nominal_action  # noqa: E402
 
 pytestmark = pytest.mark.sumo
 
@@ -62,18 +62,10 @@ def test_a_target_that_keeps_its_speed_hits_the_pedestrian_and_one_that_brakes_d
     s = ScenarioSet.load(hard_set)
     (entry,) = [e for e in s.select(kind="variant") if e.extra.get("adversity") == NAME]
     env = ScenarioEnv(hard_set, traffic=traffic)
-    outcomes = {}
-    for name in ("nominal", "brake"):
-        env.reset(options={"scenario": entry.id})
-        if traffic == "reactive":  # the stopped vehicle never drives off
-            assert env._reactive is not None
-            assert not env._reactive.may_react[env.scene.tracks.index_of("occluder")]
-        done, info = False, {}
-        while not done:
-            action = nominal_action(env) if name == "nominal" else np.array([-1.0, 0.0], np.float32)
-            _, _, terminated, truncated, info = env.step(action)
-            done = terminated or truncated
-        outcomes[name] = (info["collided_with"], info["time"])
+    outcomes = keep_or_brake(env, entry.id)
+    if traffic == "reactive":  # the stopped vehicle never drives off
+        assert env._reactive is not None
+        assert not env._reactive.may_react[env.scene.tracks.index_of("occluder")]
     env.close()
     assert outcomes["nominal"][0] == "adversity" and abs(outcomes["nominal"][1] - entry.extra["t_conflict"]) < 1.0
     assert outcomes["brake"][0] != "adversity", outcomes
