@@ -41,13 +41,13 @@ PED_SIZE = (0.5, 0.5)  # [m] length, width (the converters' pedestrian box)
 OCCLUDER_RIGHT_M = 2.85  # [m] the stopped vehicle's centre right of the path (kerb or next lane: 0.95 m clear)
 OCCLUDER_GAP_M = 0.3  # [m] between its front bumper and the waiting pedestrian
 OCCLUDER_SIZE = (4.5, 1.9)  # [m]
-PED_MIN_TARGET_SPEED = 3.0  # [m/s] the target must be moving as it reaches the pedestrian's path,
+PED_MIN_TARGET_SPEED = 3.0  # [m/s] the target must be moving as it reaches the pedestrian's path
 PED_MAX_TARGET_SPEED = 16.7  # [m/s] on a street where people walk (60 km/h at most)
 OCCLUDER_CLEAR_M = 0.3  # [m] a logged agent's bounding circle closer than this to the stopped vehicle is left out
 
 
 def hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict[str, Any], t_dep: float,
-                   t_last: float, horizon_s: float) -> list[ScenarioEntry]:
+                  t_last: float, horizon_s: float) -> list[ScenarioEntry]:
     """The hand-specified adversities against ``target`` (leader emergency braking, cut-in, a
     red-light runner where a crossing lane shows stop as the target passes, and a pedestrian stepping
     out from behind a stopped vehicle where the target is moving as it arrives)."""
