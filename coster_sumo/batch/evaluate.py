@@ -75,6 +75,10 @@ class EvalOptions(sources.BatchOptions):
     adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.method.vru)
 
 
+# the classes whose adversaries are compared with their own class's agents (WOMD object type codes)
+VRU_OBJECT_TYPES = {"pedestrian": 2, "cyclist": 3}
+
+
 def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[int]:
     return np.histogram(np.clip(values, lo, hi), bins=bins)[0].astype(int).tolist()
 
@@ -92,21 +96,29 @@ def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     choose_target(scene, spec.target, spec.config)
     t = scene.tracks
     v, a = speeds_and_accels(t.xy, t.valid, scene.dt)
+    by_class = {}  # the reference of a pedestrian or cyclist adversary: the scene's agents of its class
+    for name, kind in VRU_OBJECT_TYPES.items():
+        mine = t.object_type == kind
+        if mine.any():
+            cv, ca = speeds_and_accels(t.xy[mine], t.valid[mine], scene.dt)
+            by_class[name] = {"speed_hist": _hist(cv, SPEED_BINS, 0, 50), "accel_hist": _hist(ca, ACCEL_BINS, -10, 10),
+                              "speed_hist_by_lane_type": nominal_speeds_by_lane_type(scene, kind)}
     return {"scene_file": path.name, "speed_hist": _hist(v, SPEED_BINS, 0, 50),
             "accel_hist": _hist(a, ACCEL_BINS, -10, 10),
-            "speed_hist_by_lane_type": nominal_speeds_by_lane_type(scene)}
+            "speed_hist_by_lane_type": nominal_speeds_by_lane_type(scene), "by_class": by_class}
 
 
-def nominal_speeds_by_lane_type(scene: Any) -> dict[str, list[int]]:
-    """Speed histograms (:data:`~coster_sumo.metrics.SPEED_BINS`) of the scene's vehicles at 2 Hz,
-    one per :class:`~coster_sumo.core.scene.LaneType` name of the lane nearest to each vehicle: the
-    reference the adversaries' speeds at t_col are compared with, class by class."""
-    from coster_sumo.core.scene import LaneType, ObjectType, resample
+def nominal_speeds_by_lane_type(scene: Any, object_type: int = 1) -> dict[str, list[int]]:
+    """Speed histograms (:data:`~coster_sumo.metrics.SPEED_BINS`) of the scene's agents of
+    ``object_type`` (vehicles by default) at 2 Hz, one per :class:`~coster_sumo.core.scene.LaneType`
+    name of the lane nearest to each: the reference the adversaries' speeds at t_col are compared
+    with, lane type by lane type."""
+    from coster_sumo.core.scene import LaneType, resample
     from coster_sumo.metrics import SPEED_BINS
 
     low = resample(scene, 2.0)
     t = low.tracks
-    ok = t.valid & (t.object_type == ObjectType.VEHICLE)[:, None]
+    ok = t.valid & (t.object_type == object_type)[:, None]
     speed = np.hypot(t.vx[ok], t.vy[ok])
     kind = low.road_map.lane_type_at(np.stack([t.x[ok], t.y[ok]], -1))
     return {LaneType(k).name: _hist(speed[kind == k], SPEED_BINS, 0, 50) for k in np.unique(kind).tolist()}
@@ -337,7 +349,7 @@ def aggregate_generator_metrics(parts_dir: Path, keys: dict[str, ScenarioSpec], 
         if sp is None or not sp.ok:
             failed_scenes.append(SceneFailure(key, sp.reason if sp is not None else "not run"))
             continue
-        nominal.add(key, sp)
+        nominal.add(key, sp, adversary)
     per_scene: dict[str, dict[str, tuple[list[float | None], list[float | None]]]] = {}  # method -> scene -> contacts
     table: dict[str, GeneratorEntry] = {}
     for m in methods:
@@ -369,9 +381,16 @@ class NominalTraffic:
     accel_hist: np.ndarray | None = None
     speed_hist_by_lane_type: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def add(self, key: str, part: ScenePart) -> None:
-        """A scene's part (:func:`scene_task`) added."""
+    def add(self, key: str, part: ScenePart, adversary: str = "vehicle") -> None:
+        """A scene's part (:func:`scene_task`) added; for a pedestrian or cyclist ``adversary`` the
+        histograms of the scene's agents of that class (none: the scene adds no counts)."""
         self.scenes.append(key)
+        if adversary in VRU_OBJECT_TYPES:
+            mine = part.by_class.get(adversary)
+            if mine is None:
+                return
+            part = dataclasses.replace(part, speed_hist=mine["speed_hist"], accel_hist=mine["accel_hist"],
+                                       speed_hist_by_lane_type=mine["speed_hist_by_lane_type"])
         v, a = np.asarray(part.speed_hist), np.asarray(part.accel_hist)
         self.speed_hist = v if self.speed_hist is None else np.add(self.speed_hist, part.speed_hist)
         self.accel_hist = a if self.accel_hist is None else np.add(self.accel_hist, part.accel_hist)

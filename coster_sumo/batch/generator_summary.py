@@ -95,7 +95,8 @@ class ScenePart:
     """``OUT/parts/<scene_key>__scene.json``: a scene's nominal pass (status "ok", or "failed" with
     ``reason``): its cached scene file and the histograms of its vehicles' speeds, (100,) over
     :data:`~coster_sumo.metrics.SPEED_BINS`, and accelerations, (200,) over
-    :data:`~coster_sumo.metrics.ACCEL_BINS`, all vehicles and per lane type name."""
+    :data:`~coster_sumo.metrics.ACCEL_BINS`, all vehicles and per lane type name; ``by_class``: the
+    same of its pedestrians and of its cyclists, where it has any (a VRU adversary's reference)."""
 
     status: str
     reason: str | None = None
@@ -103,6 +104,7 @@ class ScenePart:
     speed_hist: list[int] = field(default_factory=list)
     accel_hist: list[int] = field(default_factory=list)
     speed_hist_by_lane_type: dict[str, list[int]] = field(default_factory=dict)
+    by_class: dict[str, dict[str, Any]] = field(default_factory=dict)  # the same three for its pedestrians, cyclists
 
     @property
     def ok(self) -> bool:
@@ -111,7 +113,8 @@ class ScenePart:
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> ScenePart:
         return cls(str(d.get("status")), d.get("reason"), d.get("scene_file", ""), list(d.get("speed_hist") or ()),
-                   list(d.get("accel_hist") or ()), dict(d.get("speed_hist_by_lane_type") or {}))
+                   list(d.get("accel_hist") or ()), dict(d.get("speed_hist_by_lane_type") or {}),
+                   dict(d.get("by_class") or {}))
 
 
 @dataclass(frozen=True)

@@ -479,9 +479,11 @@ def write_generator_report(out: Path, summary: EvalSummary) -> list[str]:
           "figures.", "",
           "SUR: share of scenes with at least one colliding variant; CR: colliding variants; ORR: adversaries "
           "leaving the road (a VRU: its class's area); VDD/ADD: Jensen-Shannon divergence (nats) of the adversaries' "
-          "speed / acceleration histograms (10 Hz, plan start to contact) against every vehicle of the raw scenes; "
+          "speed / acceleration histograms (10 Hz, plan start to contact) against every agent of the raw scenes "
+          "(a pedestrian or cyclist adversary: the raw scenes' agents of its class); "
           "CSD: std of the relative speed at contact; CPD: std of the impact angle (linear, circular); VDD at t_col: "
-          "the same divergence between the adversaries' speeds at t_col and the nominal speeds on lanes of the same "
+          "the same divergence between the adversaries' speeds at t_col and the nominal speeds (of vehicles; of its "
+          "class for a VRU) on lanes of the same "
           "type (in brackets: its floor, what speeds drawn from the nominal traffic itself would score with as "
           "many adversaries); sizes in class: adversaries whose length and width fit one vehicle class of the "
           "corpus.", "",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -72,3 +73,29 @@ def test_nominal_speeds_are_split_by_the_nearest_lanes_type():
     hists = nominal_speeds_by_lane_type(scene)
     assert set(hists) == {"SURFACE_STREET"}  # the synthetic road is a surface street
     assert sum(hists["SURFACE_STREET"]) == int(scene.tracks.valid[:, ::5].sum())  # every vehicle at 2 Hz
+
+
+def test_a_vru_adversary_is_compared_with_its_own_class_of_the_raw_scenes():
+    """eval scenarios --adversary pedestrian|cyclist: VDD, ADD and VDD at t_col against the raw scenes'
+    agents of that class, not every agent; a scene without them adds no counts."""
+    from coster_sumo.batch.evaluate import NominalTraffic
+    from coster_sumo.batch.generator_summary import ScenePart
+    from coster_sumo.data.synthetic import four_way_junction, with_vulnerable_road_users
+
+    walker = {"speed_hist": [0, 7] + [0] * 98, "accel_hist": [1] * 200, "speed_hist_by_lane_type": {"CROSS": [2] * 100}}
+    with_walkers = ScenePart("ok", speed_hist=[5] * 100, accel_hist=[3] * 200,
+                             speed_hist_by_lane_type={"SURFACE_STREET": [4] * 100}, by_class={"pedestrian": walker})
+    read_back = ScenePart.from_json(dataclasses.asdict(with_walkers))
+    assert read_back == with_walkers
+    cars_only = dataclasses.replace(with_walkers, by_class={})
+    vehicles, walkers = NominalTraffic(), NominalTraffic()
+    for key, part in (("a", read_back), ("b", cars_only)):
+        vehicles.add(key, part)
+        walkers.add(key, part, "pedestrian")
+    assert vehicles.speed_hist.tolist() == [10] * 100 and walkers.speed_hist.tolist() == walker["speed_hist"]
+    assert walkers.accel_hist.tolist() == [1] * 200 and set(walkers.speed_hist_by_lane_type) == {"CROSS"}
+    assert walkers.scenes == vehicles.scenes == ["a", "b"]
+    # the scene's pedestrians at 2 Hz, by the lane type nearest each
+    scene = with_vulnerable_road_users(four_way_junction())
+    per_type = nominal_speeds_by_lane_type(scene, 2)
+    assert sum(sum(h) for h in per_type.values()) == 2 * len(np.arange(0, scene.timestamps[-1] + 1e-9, 0.5))
