@@ -477,16 +477,14 @@ def write_generator_report(out: Path, summary: EvalSummary) -> list[str]:
           f"{len(summary.scenes)} scenes, up to {summary.variants} {summary.adversary} variants per scene and method, "
           f"target driven by `{summary.planner}`. Measured on these scenes with this installation; not the paper's "
           "figures.", "",
-          "SUR: share of scenes with at least one colliding variant; CR: colliding variants; ORR: adversaries "
-          "leaving the road (a VRU: its class's area); VDD/ADD: Jensen-Shannon divergence (nats) of the adversaries' "
-          "speed / acceleration histograms (10 Hz, plan start to contact) against every agent of the raw scenes "
-          "(a pedestrian or cyclist adversary: the raw scenes' agents of its class); "
-          "CSD: std of the relative speed at contact; CPD: std of the impact angle (linear, circular); VDD at t_col: "
-          "the same divergence between the adversaries' speeds at t_col and the nominal speeds (of vehicles; of its "
-          "class for a VRU) on lanes of the same "
-          "type (in brackets: its floor, what speeds drawn from the nominal traffic itself would score with as "
-          "many adversaries); sizes in class: adversaries whose length and width fit one vehicle class of the "
-          "corpus.", "",
+          "SUR: share of scenes with at least one colliding variant; CR: colliding variants; ORR: adversaries leaving "
+          "the road (a VRU: its class's area); VDD/ADD: Jensen-Shannon divergence (nats) of the adversaries' speed / "
+          "acceleration histograms (10 Hz, plan start to contact) against every agent of the raw scenes (a VRU: its "
+          "class's); CSD: std of the relative speed at contact; CPD: std of the impact angle (linear, circular); VDD "
+          "at t_col: the same divergence between the adversaries' speeds at t_col and the nominal vehicles' (a VRU: "
+          "its class's) on lanes of the same type (in brackets: its floor, what speeds drawn from the nominal traffic "
+          "itself would score with as many adversaries); sizes in class: adversaries whose length and width fit one "
+          "vehicle class of the corpus.", "",
           _md_table(head, rows), "", "![metrics](metrics.png)", "", *diversity_section(summary)]
     a_head, a_rows = avoidability_report_table(methods.ran)
     if a_rows:

@@ -207,7 +207,7 @@ def _generated_entries(opts: BuildOptions, method: Method, gen: GenerationConfig
             t_stop = min(src.t_last, plan.t_col + POST_COLLISION_S)
             xs, ys, yaws, speeds = plan.sample(ts, lead=0.05)
             valid = (ts >= plan.t_start - 0.05) & (ts <= t_stop + 1e-6)
-            with_adv = append_agent(src.scene, plan.vehicle_id, xs, ys, yaws, speeds, valid,
+            with_adv = append_agent(src.scene, plan.vehicle_id, (xs, ys, yaws), speeds, valid,
                                     (float(plan.length), float(plan.width)), object_type_of_vclass(plan.vclass))
             sid = f"{src.base}_{opts.method}_k{k}_v{j}"
             save_scene(crop_steps(with_adv, t_start - 0.1, t_stop), opts.out / "scenarios" / f"{sid}.npz")

@@ -85,7 +85,7 @@ def hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict[
         for k in np.flatnonzero(after):
             x, y, h = route.pose(float(s_along[k]))
             xs[k], ys[k], hs[k] = x - d_off[k] * np.sin(h), y + d_off[k] * np.cos(h), h
-        with_adv = append_agent(scene, "adversity", xs, ys, hs, speed, after, (4.5, 1.9))
+        with_adv = append_agent(scene, "adversity", (xs, ys, hs), speed, after, (4.5, 1.9))
         sid = f"{base}_hard_{name}"
         save_scene(crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
         entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
@@ -93,7 +93,7 @@ def hard_variants(out: Path, scene: Scene, target: int, base: str, common: dict[
     runner = red_light_runner(scene, target, t0, t_stop)
     if runner is not None:
         xs, ys, hs, speed, present, t_hit, signal = runner
-        with_adv = append_agent(scene, "adversity", xs, ys, hs, speed, present, (4.5, 1.9))
+        with_adv = append_agent(scene, "adversity", (xs, ys, hs), speed, present, (4.5, 1.9))
         sid = f"{base}_hard_red-light-runner"
         save_scene(crop_steps(with_adv, t0 - 0.1, t_stop), out / "scenarios" / f"{sid}.npz")
         entries.append(ScenarioEntry(id=sid, kind="variant", method="hard", t_start=t0, t_end=t_stop,
@@ -169,9 +169,9 @@ def pedestrian_behind_vehicle(scene: Scene, target: int, t0: float, t_stop: floa
     px, py, ph = route.pose(s_ped)
     walking = (ts > t_walk) & (lateral < PED_WALK_ON_M - 1e-9)
     xs, ys = px - lateral * math.sin(ph), py + lateral * math.cos(ph)
-    with_occ = append_agent(scene, "occluder", np.full(n, ox), np.full(n, oy), np.full(n, oh), np.zeros(n),
+    with_occ = append_agent(scene, "occluder", (np.full(n, ox), np.full(n, oy), np.full(n, oh)), np.zeros(n),
                             window, OCCLUDER_SIZE)
-    both = append_agent(with_occ, "adversity", xs, ys, np.full(n, ph + 0.5 * math.pi),
+    both = append_agent(with_occ, "adversity", (xs, ys, np.full(n, ph + 0.5 * math.pi)),
                         np.where(walking, PED_SPEED, 0.0), window, PED_SIZE, ObjectType.PEDESTRIAN)
     return both, float(t_hit), [str(i) for i in tr.ids[blocked]]
 

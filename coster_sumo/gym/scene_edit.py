@@ -13,12 +13,15 @@ import numpy as np
 
 from coster_sumo.core.scene import ObjectType, Scene, Tracks
 
+Poses = tuple[np.ndarray, np.ndarray, np.ndarray]  # x [m], y [m], heading [rad], each (T,)
 
-def append_agent(scene: Scene, agent_id: str, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, speed: np.ndarray,
-                 valid: np.ndarray, size: tuple[float, float], object_type: int = ObjectType.VEHICLE) -> Scene:
+
+def append_agent(scene: Scene, agent_id: str, pose: Poses, speed: np.ndarray, valid: np.ndarray,
+                 size: tuple[float, float], object_type: int = ObjectType.VEHICLE) -> Scene:
     """``scene`` with one more agent of ``size`` (length, width) [m] and WOMD ``object_type`` (the
-    replay adds it with that type's vType: a pedestrian as a vehicle of class pedestrian); arrays
-    (T,) on the scene's timestamps."""
+    replay adds it with that type's vType: a pedestrian as a vehicle of class pedestrian); ``pose``,
+    ``speed`` [m/s] and ``valid`` (T,) on the scene's timestamps."""
+    x, y, yaw = pose
     tr = scene.tracks
     T = tr.num_steps
 
