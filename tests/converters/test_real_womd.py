@@ -7,10 +7,10 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from conftest import WOMD_PKL, WOMD_PROTO, requires_womd
 from coster_sumo.converters.read import read_scenes
 
 from coster_sumo.core.scene import ObjectType, Scene, SignalState
+from tests.conftest import WOMD_PKL, WOMD_PROTO, requires_womd
 
 pytestmark = [pytest.mark.realdata, requires_womd()]
 

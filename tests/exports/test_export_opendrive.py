@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import shapely
-from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 from defusedxml import ElementTree as SafeET
 from test_export_openscenario import (
     LANE_END_TOLERANCE_M,
@@ -45,6 +44,7 @@ from coster_sumo.exports.opendrive_solve import (
     solve_borders,
 )
 from coster_sumo.infra import sumo_install
+from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 REPO = Path(__file__).resolve().parents[2]
 

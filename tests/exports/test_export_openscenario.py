@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 from coster_sumo.cli.command_line import main
 from coster_sumo.core.plan import AdversaryPlan
@@ -31,6 +30,7 @@ from coster_sumo.exports.trajectories import (
     write_selection,
     write_trajectories_csv,
 )
+from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 from coster_sumo.cli.command_line import main
 from coster_sumo.core.plan import AdversaryPlan
@@ -28,6 +27,7 @@ from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
 from coster_sumo.infra import sumo_install
 from coster_sumo.pipeline.outputs import sim_time_of
 from coster_sumo.sim.events import CONTACT_TOLERANCE_M
+from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "networks" / "intersection" / "intersection.sumocfg"

@@ -15,12 +15,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import WOMD_PKL, WOMD_PROTO
 from defusedxml import ElementTree as SafeET
 
 from coster_sumo.cli.command_line import main
 from coster_sumo.exports import opendrive as odr
 from coster_sumo.infra import sumo_install
+from tests.conftest import WOMD_PKL, WOMD_PROTO
 
 pytestmark = [pytest.mark.sumo, pytest.mark.slow]
 

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import WOMD_PKL, WOMD_PROTO
 from defusedxml import ElementTree as SafeET
 from test_xodr_readers import VERSION_SKIPPED, _probe
 
 from coster_sumo.exports import opendrive as odr
+from tests.conftest import WOMD_PKL, WOMD_PROTO
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 import xodr_scenes  # noqa: E402

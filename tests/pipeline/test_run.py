@@ -6,10 +6,9 @@ import json
 from pathlib import Path
 
 import pytest
-from conftest import visible_lines
 
 from coster_sumo.cli.command_line import main
-from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO
+from tests.conftest import NO_WOMD_REASON, WOMD_PKL, WOMD_PROTO, visible_lines
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.sumo

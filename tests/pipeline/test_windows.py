@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import visible_lines
 
 from coster_sumo.cli.command_line import main
 from coster_sumo.core.spec import GenerationConfig, ScenarioSpec
@@ -16,6 +15,7 @@ from coster_sumo.formats.targets import choose_target
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.generation import plan_scenario
 from coster_sumo.pipeline.scenario import nominal_scene
+from tests.conftest import visible_lines
 
 REPO = Path(__file__).resolve().parents[2]
 NET = REPO / "networks" / "intersection" / "intersection.net.xml"
