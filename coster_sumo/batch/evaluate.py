@@ -41,12 +41,14 @@ from coster_sumo.batch.generator_summary import (
 )
 from coster_sumo.batch.shared_pass import PASS_FILE, SharedPasses, shared_nominal
 from coster_sumo.batch.sources import scene_key
+from coster_sumo.core.scene import ObjectType, resample
 from coster_sumo.core.spec import GenerationConfig, InjectionSettings, ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.infra.atomic import write_json
 from coster_sumo.infra.outdir import MARKER, OutputLock, check_output, staged_names, write_marker
 from coster_sumo.infra.weights import WEIGHT_FILES, weights_digest
 from coster_sumo.method.generation import missing_weights
+from coster_sumo.method.vru.classes import VRU_CLASSES
 from coster_sumo.metrics import (
     MetricSample,
     compute,
@@ -75,10 +77,6 @@ class EvalOptions(sources.BatchOptions):
     adversary: str = "vehicle"  # vehicle | cyclist | pedestrian | any (coster_sumo.method.vru)
 
 
-# the classes whose adversaries are compared with their own class's agents (WOMD object type codes)
-VRU_OBJECT_TYPES = {"pedestrian": 2, "cyclist": 3}
-
-
 def _hist(values: np.ndarray, bins: np.ndarray, lo: float, hi: float) -> list[int]:
     return np.histogram(np.clip(values, lo, hi), bins=bins)[0].astype(int).tolist()
 
@@ -96,27 +94,32 @@ def scene_task(payload: dict[str, Any]) -> dict[str, Any]:
     choose_target(scene, spec.target, spec.config)
     t = scene.tracks
     v, a = speeds_and_accels(t.xy, t.valid, scene.dt)
+    low = resample(scene, 2.0)
     by_class = {}  # the reference of a pedestrian or cyclist adversary: the scene's agents of its class
-    for name, kind in VRU_OBJECT_TYPES.items():
-        mine = t.object_type == kind
+    for name, vru in VRU_CLASSES.items():
+        mine = t.object_type == vru.object_type
         if mine.any():
             cv, ca = speeds_and_accels(t.xy[mine], t.valid[mine], scene.dt)
             by_class[name] = {"speed_hist": _hist(cv, SPEED_BINS, 0, 50), "accel_hist": _hist(ca, ACCEL_BINS, -10, 10),
-                              "speed_hist_by_lane_type": nominal_speeds_by_lane_type(scene, kind)}
+                              "speed_hist_by_lane_type": speeds_by_lane_type(low, vru.object_type)}
     return {"scene_file": path.name, "speed_hist": _hist(v, SPEED_BINS, 0, 50),
             "accel_hist": _hist(a, ACCEL_BINS, -10, 10),
-            "speed_hist_by_lane_type": nominal_speeds_by_lane_type(scene), "by_class": by_class}
+            "speed_hist_by_lane_type": speeds_by_lane_type(low), "by_class": by_class}
 
 
-def nominal_speeds_by_lane_type(scene: Any, object_type: int = 1) -> dict[str, list[int]]:
-    """Speed histograms (:data:`~coster_sumo.metrics.SPEED_BINS`) of the scene's agents of
-    ``object_type`` (vehicles by default) at 2 Hz, one per :class:`~coster_sumo.core.scene.LaneType`
-    name of the lane nearest to each: the reference the adversaries' speeds at t_col are compared
-    with, lane type by lane type."""
-    from coster_sumo.core.scene import LaneType, resample
+def nominal_speeds_by_lane_type(scene: Any, object_type: int = ObjectType.VEHICLE) -> dict[str, list[int]]:
+    """:func:`speeds_by_lane_type` of ``scene`` resampled to 2 Hz."""
+    return speeds_by_lane_type(resample(scene, 2.0), object_type)
+
+
+def speeds_by_lane_type(low: Any, object_type: int = ObjectType.VEHICLE) -> dict[str, list[int]]:
+    """Speed histograms (:data:`~coster_sumo.metrics.SPEED_BINS`) of the 2 Hz scene ``low``'s agents
+    of ``object_type`` (vehicles by default), one per :class:`~coster_sumo.core.scene.LaneType` name
+    of the lane nearest to each: the reference the adversaries' speeds at t_col are compared with,
+    lane type by lane type."""
+    from coster_sumo.core.scene import LaneType
     from coster_sumo.metrics import SPEED_BINS
 
-    low = resample(scene, 2.0)
     t = low.tracks
     ok = t.valid & (t.object_type == object_type)[:, None]
     speed = np.hypot(t.vx[ok], t.vy[ok])
@@ -385,7 +388,7 @@ class NominalTraffic:
         """A scene's part (:func:`scene_task`) added; for a pedestrian or cyclist ``adversary`` the
         histograms of the scene's agents of that class (none: the scene adds no counts)."""
         self.scenes.append(key)
-        if adversary in VRU_OBJECT_TYPES:
+        if adversary in VRU_CLASSES:
             mine = part.by_class.get(adversary)
             if mine is None:
                 return

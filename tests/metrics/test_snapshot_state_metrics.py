@@ -80,6 +80,7 @@ def test_a_vru_adversary_is_compared_with_its_own_class_of_the_raw_scenes():
     agents of that class, not every agent; a scene without them adds no counts."""
     from coster_sumo.batch.evaluate import NominalTraffic
     from coster_sumo.batch.generator_summary import ScenePart
+    from coster_sumo.core.scene import ObjectType
     from coster_sumo.data.synthetic import four_way_junction, with_vulnerable_road_users
 
     walker = {"speed_hist": [0, 7] + [0] * 98, "accel_hist": [1] * 200, "speed_hist_by_lane_type": {"CROSS": [2] * 100}}
@@ -97,5 +98,5 @@ def test_a_vru_adversary_is_compared_with_its_own_class_of_the_raw_scenes():
     assert walkers.scenes == vehicles.scenes == ["a", "b"]
     # the scene's pedestrians at 2 Hz, by the lane type nearest each
     scene = with_vulnerable_road_users(four_way_junction())
-    per_type = nominal_speeds_by_lane_type(scene, 2)
+    per_type = nominal_speeds_by_lane_type(scene, ObjectType.PEDESTRIAN)
     assert sum(sum(h) for h in per_type.values()) == 2 * len(np.arange(0, scene.timestamps[-1] + 1e-9, 0.5))

@@ -11,8 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coster_sumo.core.scene import ObjectType
 from coster_sumo.core.spec import ADVERSARY_CHOICES
 from coster_sumo.errors import InputError
+from coster_sumo.formats.scene_folder import object_type_of_vclass
 
 VEHICLE = "vehicle"
 
@@ -54,6 +56,11 @@ class VruClass:
     max_lateral_accel: float | None
     min_turn_radius: float
     area_band: float
+
+    @property
+    def object_type(self) -> ObjectType:
+        """The WOMD object type the class's agents are recorded as (pedestrian, cyclist)."""
+        return object_type_of_vclass(self.vclass)
 
     def draw_speed(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """(n,) [m/s] speeds from the class's distribution (module docstring of docs/method.md)."""

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from coster_sumo.core.scene import ObjectType, RoadMap, Scene
+from coster_sumo.core.scene import RoadMap, Scene
 from coster_sumo.core.snapshot import CollisionSnapshot
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.snapshot import SNAPSHOT_INITS, PlacementRequest, SnapshotInit
@@ -34,7 +34,6 @@ from coster_sumo.rollout.request import RolloutRequest, RolloutResult
 ANY_CLASSES = ("vehicle", "cyclist", "pedestrian")
 ANY_RADIUS_M = 30.0  # [m] the region of ``any``: agents' centres this close to the target's path count
 ANY_FLOOR = 0.1  # every class keeps this share at least (a network without walkers still gets some)
-_CLASS_OF_TYPE = {int(ObjectType.CYCLIST): "cyclist", int(ObjectType.PEDESTRIAN): "pedestrian"}  # else vehicle
 
 
 def class_area(name: str, road_map: RoadMap, drivable: DrivableArea, cache: dict[str, Any]) -> ClassArea:
@@ -62,8 +61,9 @@ def class_shares(scene: Scene, target: int) -> np.ndarray:
         others[target] = False
         agent, step = np.nonzero(others)
         near = shapely.dwithin(line, shapely.points(tr.x[agent, step], tr.y[agent, step]), ANY_RADIUS_M)
-        kinds = [_CLASS_OF_TYPE.get(int(k), VEHICLE) for k in tr.object_type[agent[near]]]
-        counts = np.array([kinds.count(c) for c in ANY_CLASSES], np.float64)
+        kinds = tr.object_type[agent[near]]
+        vru = {name: int(np.count_nonzero(kinds == VRU_CLASSES[name].object_type)) for name in VRU_CLASSES}
+        counts = np.array([vru.get(c, len(kinds) - sum(vru.values())) for c in ANY_CLASSES], np.float64)
     shares = counts / counts.sum() if counts.sum() > 0 else np.full(len(ANY_CLASSES), 1.0 / len(ANY_CLASSES))
     return ANY_FLOOR + (1.0 - ANY_FLOOR * len(ANY_CLASSES)) * shares  # type: ignore[no-any-return]
 
