@@ -131,7 +131,7 @@ def pedestrian_behind_vehicle(scene: Scene, target: int, t0: float, t_stop: floa
     """
     import shapely
 
-    from coster_sumo.geometry.boxes import project_points
+    from coster_sumo.geometry.boxes import box_corners, project_points
     from coster_sumo.sim.driver import Route
 
     tr, ts = scene.tracks, scene.timestamps
@@ -151,9 +151,7 @@ def pedestrian_behind_vehicle(scene: Scene, target: int, t0: float, t_stop: floa
     s_occ = s_ped - 0.5 * PED_SIZE[0] - OCCLUDER_GAP_M - 0.5 * OCCLUDER_SIZE[0]
     ox, oy, oh = route.pose(s_occ)
     ox, oy = ox + OCCLUDER_RIGHT_M * math.sin(oh), oy - OCCLUDER_RIGHT_M * math.cos(oh)
-    occ = shapely.affinity.rotate(shapely.box(-OCCLUDER_SIZE[0] / 2, -OCCLUDER_SIZE[1] / 2, OCCLUDER_SIZE[0] / 2,
-                                              OCCLUDER_SIZE[1] / 2), oh, use_radians=True, origin=(0, 0))
-    occ = shapely.affinity.translate(occ, ox, oy)
+    occ = shapely.Polygon(box_corners(ox, oy, oh, *OCCLUDER_SIZE))
     if occ.distance(shapely.LineString(path)) < 0.5 * width + 0.2:
         return None
     window = (ts >= t0 - 1e-6) & (ts <= t_stop + 1e-6)

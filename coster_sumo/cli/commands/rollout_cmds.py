@@ -280,12 +280,11 @@ def _eval_models(args: argparse.Namespace, device: Any) -> tuple[dict[str, Any],
     models, skipped = {}, {}
     dsa, nodsa = default_checkpoints(args.agent_class)
     for name, given, default in (("cvae_no_dsa", args.checkpoint_no_dsa, nodsa), ("cvae_dsa", args.checkpoint, dsa)):
-        if given is not None:
-            models[name] = require_class(load_model(given), args.agent_class, given).to(device)
-        elif Path(default).is_file():
-            models[name] = require_class(load_model(default), args.agent_class, default).to(device)
-        else:
+        path = given if given is not None else default if Path(default).is_file() else None
+        if path is None:
             skipped[name] = f"no checkpoint ({default} not found)"
+            continue
+        models[name] = require_class(load_model(path), args.agent_class, path).to(device)
     return models, skipped, {"cvae_dsa": args.checkpoint or dsa, "cvae_no_dsa": args.checkpoint_no_dsa or nodsa}
 
 
