@@ -1,13 +1,16 @@
 """Pack a share of the corpus, and the wheels the CLI lacks there, for training on a lent GPU machine.
 
 Usage: python bench/pack_for_device.py CORPUS [--out .device] [--max-mb 36] [--seed 0] [--no-wheels]
+                                        [--agent-class vehicle|pedestrian|cyclist]
 
 The device machine (``device`` tool) receives only the working tree, at most 64 MiB with what is
 carried, and reaches no package index. The corpus is ten times that (its clips hold 91 steps at
 10 Hz; the rollout trains at 2 Hz), so this script writes a seeded share of ``CORPUS/scenes`` at
 2 Hz (:func:`coster_sumo.core.scene.resample`, the same steps the training keeps: the features are
 those of the full clips) into ``OUT/scenes`` until ``--max-mb`` is reached. Training and
-validation files keep their split (it hashes the file name). It also downloads the wheels of the
+validation files keep their split (it hashes the file name). With ``--agent-class`` only the
+scenes that hold an agent of that class are packed (a pedestrian model learns nothing from a
+freeway clip without one). It also downloads the wheels of the
 packages the CLI imports that the machine's Python 3.12 image lacks (shapely, defusedxml, and
 google-crc32c for the WOMD readers that ``eval rollout`` imports) into ``OUT/whl``, adds
 ``/OUT/`` to ``.git/info/exclude`` and writes ``OUT/pack.json`` (what was packed).
@@ -28,6 +31,7 @@ import numpy as np
 from coster_sumo.core.scene import resample
 from coster_sumo.data.dataset import list_scenes
 from coster_sumo.formats.scene_file import load_scene, save_scene
+from coster_sumo.rollout.config import AGENT_CLASSES
 from coster_sumo.rollout.data import ROLLOUT_HZ
 
 REPO = Path(__file__).resolve().parents[1]
@@ -53,6 +57,8 @@ def main() -> None:
     ap.add_argument("--max-mb", type=float, default=36.0, help="scene files at most (MiB, %(default)s)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-wheels", action="store_true", help="pack the scenes only")
+    ap.add_argument("--agent-class", choices=sorted(AGENT_CLASSES), default=None,
+                    help="only scenes with an agent of this class (default: every scene)")
     args = ap.parse_args()
     files = list_scenes(args.corpus)
     if not files:
@@ -65,8 +71,11 @@ def main() -> None:
     budget, used, packed = args.max_mb * 2**20, 0, []
     for i in order:
         src = files[int(i)]
+        scene = load_scene(src)
+        if args.agent_class and not (scene.tracks.object_type == AGENT_CLASSES[args.agent_class]).any():
+            continue
         dst = out / "scenes" / src.name
-        save_scene(resample(load_scene(src), ROLLOUT_HZ), dst)
+        save_scene(resample(scene, ROLLOUT_HZ), dst)
         size = dst.stat().st_size
         if used + size > budget:
             dst.unlink()
@@ -83,6 +92,7 @@ def main() -> None:
         wheels = sorted(p.name for p in (out / "whl").glob("*.whl"))
     record = {"corpus": str(args.corpus.resolve()), "scenes_in_corpus": len(files), "scenes": len(packed),
               "share": len(packed) / len(files), "mb": used / 2**20, "hz": ROLLOUT_HZ, "seed": args.seed,
+              "agent_class": args.agent_class,
               "wheels": wheels, "files": sorted(packed)}
     (out / "pack.json").write_text(json.dumps(record, indent=1))
     print(f"{len(packed)} of {len(files)} scenes ({100 * len(packed) / len(files):.0f} %), {used / 2**20:.1f} MiB "

@@ -40,6 +40,13 @@ class RolloutConfig:
         recon_sigma: (3,) fixed standard deviation of the Gaussian reconstruction term.
         kl_weight: weight of the KL term (1 = the ELBO).
         free_nats: per step, KL below this is not penalised (0 = the plain ELBO).
+        best_of: K > 0 adds a best-of-K term to the training loss: K samples from the prior, and
+            the smallest of their errors (mean over the valid steps plus the last valid step's
+            distance, in metres) times ``best_of_weight``. The ELBO trains the prior to match the
+            posterior one sample at a time; minADE / minFDE score the best of several prior
+            samples, which this term rewards directly (0: the plain ELBO). Left out of
+            :meth:`to_dict` at 0, like ``agent_class``.
+        best_of_weight: [1/m] weight of the best-of-K term.
         agent_class: whose tracks the model learns and reconstructs: ``vehicle``, ``pedestrian`` or
             ``cyclist`` (:data:`AGENT_CLASSES`; one model per class). Left out of :meth:`to_dict`
             for ``vehicle``, so that vehicle checkpoints, training states and feature caches are
@@ -68,6 +75,8 @@ class RolloutConfig:
     kl_weight: float = 1.0
     free_nats: float = 0.0
     agent_class: str = "vehicle"
+    best_of: int = 0
+    best_of_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if self.agent_class not in AGENT_CLASSES:
@@ -80,6 +89,8 @@ class RolloutConfig:
             raise InputError(f"rollout config: hidden {self.hidden} is not divisible by heads {self.heads}")
         if self.max_horizon < 1:
             raise InputError("rollout config: max_horizon must be >= 1")
+        if self.best_of < 0 or self.best_of_weight < 0:
+            raise InputError("rollout config: best_of and best_of_weight must be at least 0")
         self.disp_scale = tuple(float(v) for v in self.disp_scale)  # type: ignore[assignment]
         self.recon_sigma = tuple(float(v) for v in self.recon_sigma)  # type: ignore[assignment]
 
@@ -89,6 +100,8 @@ class RolloutConfig:
         d["recon_sigma"] = list(self.recon_sigma)
         if self.agent_class == VEHICLE_CLASS:
             del d["agent_class"]
+        if not self.best_of:
+            del d["best_of"], d["best_of_weight"]
         return d
 
     @classmethod
@@ -110,7 +123,7 @@ class RolloutConfig:
 # sees; the KL weight and the reconstruction sigma only weigh the terms of the loss. The class only
 # chooses the training tracks: a pedestrian model may start from a vehicle model's weights (at the
 # vehicle's ``disp_scale``, which gives the decoder's output its meaning, see CLASS_SCALES).
-FREE_ON_INIT = ("neighbor_radius_m", "kl_weight", "agent_class", "recon_sigma")
+FREE_ON_INIT = ("neighbor_radius_m", "kl_weight", "agent_class", "recon_sigma", "best_of", "best_of_weight")
 
 # The output scales of each class's model (``--agent-class``; ``--disp-scale`` / ``--recon-sigma``
 # override them). The decoder corrects a constant-velocity step by ``disp_scale * output`` and the

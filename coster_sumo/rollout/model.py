@@ -31,7 +31,8 @@ neighbour slots only (:func:`packed`; padding is masked anyway), which about hal
 training step; the forward pass gives the same numbers as computing them for every slot.
 
 Loss: the negative ELBO averaged over valid steps: Gaussian reconstruction of the displacement
-(fixed ``recon_sigma``) plus ``kl_weight`` times the per-step KL(q || p).
+(fixed ``recon_sigma``) plus ``kl_weight`` times the per-step KL(q || p); with ``best_of`` K, plus
+the best of K prior samples' errors (:func:`best_of_error`).
 """
 
 from __future__ import annotations
@@ -195,6 +196,18 @@ class RolloutOutput:
 def _gaussian_kl(mu_q: Tensor, lv_q: Tensor, mu_p: Tensor, lv_p: Tensor) -> Tensor:
     """KL(N(mu_q, exp lv_q) || N(mu_p, exp lv_p)) summed over the last axis."""
     return 0.5 * (lv_p - lv_q + (lv_q.exp() + (mu_q - mu_p) ** 2) / lv_p.exp() - 1.0).sum(-1)
+
+
+def best_of_error(poses: Tensor, traj: Tensor, step_mask: Tensor) -> Tensor:
+    """(C,) the smallest over S samples of (mean distance over the valid steps + distance at the last
+    valid step) [m], for sampled ``poses`` (C, S, H, 3), true ``traj`` (C, H, 3), ``step_mask`` (C, H)
+    (valid steps form a prefix)."""
+    gap = (poses[..., :2] - traj[:, None, :, :2]).norm(dim=-1)  # (C, S, H)
+    m = step_mask[:, None, :].to(gap.dtype)
+    n = step_mask.sum(-1).clamp(min=1)  # (C,)
+    ade = (gap * m).sum(-1) / n[:, None]
+    fde = gap.gather(-1, (n - 1)[:, None, None].expand(-1, gap.shape[1], 1)).squeeze(-1)
+    return (ade + fde).min(dim=1).values
 
 
 def true_displacements(traj: Tensor) -> Tensor:
@@ -444,6 +457,10 @@ class RolloutCVAE(nn.Module):
         rec = (recon * w).sum() / denom
         kl_mean = (kl * w).sum() / denom
         loss = ((recon + self.cfg.kl_weight * kl_pen) * w).sum() / denom
+        if self.training and self.cfg.best_of > 0:
+            eps_p = torch.randn(horizon, c, self.cfg.best_of, self.cfg.latent, device=enc.h0.device)
+            prior_poses, _, _ = self.rollout(enc, self.cfg.best_of, eps_p)
+            loss = loss + self.cfg.best_of_weight * best_of_error(prior_poses, traj, step_mask).mean()
         return RolloutOutput(poses=poses, loss=loss, recon=rec.detach(), kl=kl_mean.detach())
 
     @torch.inference_mode()

@@ -153,6 +153,21 @@ def test_train_without_dsa_writes_that_config(dataset, tmp_path):
     assert load_model(out).cfg.use_dsa is False
 
 
+def test_best_of_fine_tunes_a_plain_checkpoint_and_is_stored(dataset, tmp_path, capsys):
+    """--best-of K --init a plain checkpoint: allowed (it only weighs the loss), written into the new
+    checkpoint; a negative K is one line."""
+    base = tmp_path / "base.pt"
+    assert train(dataset, base, "--epochs", "1") == 0
+    best = tmp_path / "best.pt"
+    assert train(dataset, best, "--epochs", "1", "--init", str(base), "--best-of", "3", "--best-of-weight", "0.5") == 0
+    cfg = load_model(best).cfg
+    assert (cfg.best_of, cfg.best_of_weight) == (3, 0.5) and load_model(base).cfg.best_of == 0
+    capsys.readouterr()
+    assert train(dataset, tmp_path / "bad.pt", "--epochs", "1", "--best-of", "-1") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "best_of" in err[0], err
+
+
 def test_vocab_command(dataset, tmp_path):
     out = tmp_path / "vocab.npz"
     assert main(["-q", "train", "vocab", "--data", str(dataset), "-o", str(out), "--size", "24"]) == 0

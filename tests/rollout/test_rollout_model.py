@@ -13,7 +13,7 @@ from coster_sumo.data import synthetic
 from coster_sumo.errors import InputError
 from coster_sumo.rollout import data as D
 from coster_sumo.rollout.checkpoint import load_model, save_checkpoint
-from coster_sumo.rollout.model import RelativeAttention, RolloutConfig, RolloutCVAE, true_displacements
+from coster_sumo.rollout.model import RelativeAttention, RolloutConfig, RolloutCVAE, best_of_error, true_displacements
 
 
 @pytest.fixture(autouse=True)
@@ -150,6 +150,40 @@ def test_overfits_a_tiny_batch():
     assert out.loss is not None and float(out.loss.detach()) < 0.05 * first
     err = (out.poses[:, 0, :, :2] - traj[..., :2]).norm(dim=-1)[mask]
     assert float(err.detach().mean()) < 0.5  # [m] posterior reconstruction of the training batch
+
+
+def test_best_of_error_by_hand():
+    # one context, two samples, three steps of which the first two are valid
+    traj = torch.zeros(1, 3, 3)
+    poses = torch.zeros(1, 2, 3, 3)
+    poses[0, 0, :, 0] = torch.tensor([3.0, 4.0, 100.0])  # errors 3, 4 (the third step is invalid)
+    poses[0, 1, :, 1] = torch.tensor([1.0, 6.0, 0.0])  # errors 1, 6
+    mask = torch.tensor([[True, True, False]])
+    # sample 0: mean 3.5 + last valid 4 = 7.5; sample 1: 3.5 + 6 = 9.5
+    assert best_of_error(poses, traj, mask).tolist() == [7.5]
+
+
+def test_best_of_term_joins_the_training_loss_only():
+    cfg = tiny_config()
+    ctx, traj, mask = batch_of(synthetic.four_way_junction, cfg, rows=np.arange(4))
+    torch.manual_seed(0)
+    plain = RolloutCVAE(cfg)
+    best = RolloutCVAE(tiny_config(best_of=3, best_of_weight=2.0))
+    best.load_state_dict(plain.state_dict())
+    torch.manual_seed(1)
+    lp = plain(ctx, traj, mask).loss
+    torch.manual_seed(1)
+    lb = best(ctx, traj, mask).loss
+    assert lp is not None and lb is not None
+    # the same ELBO draw (the posterior noise comes first), then a positive best-of term
+    assert float(lb.detach()) > float(lp) + 1e-3
+    lb.backward()
+    assert all(p.grad is not None for p in best.parameters() if p.requires_grad)
+    best.eval()
+    torch.manual_seed(1)
+    assert float(best(ctx, traj, mask).loss) == pytest.approx(float(lp), rel=1e-6)
+    # a default config stores no best-of keys: checkpoints and their config dicts stay as they were
+    assert "best_of" not in cfg.to_dict() and best.cfg.to_dict()["best_of"] == 3
 
 
 def test_checkpoint_round_trip(tmp_path):

@@ -44,6 +44,11 @@ def _register_train(cli) -> None:  # type: ignore[no-untyped-def]
     train.add_argument("--recon-sigma", type=float, nargs=3, default=None, metavar=("DX", "DY", "DYAW"),
                        help="sigma of the reconstruction term [m, m, rad] (default: the --init checkpoint's, "
                             "else the class's)")
+    train.add_argument("--best-of", type=int, default=0, metavar="K",
+                       help="add the best of K prior samples' error to the loss (minADE / minFDE's own "
+                            "measure; 0: the plain ELBO, %(default)s)")
+    train.add_argument("--best-of-weight", type=float, default=1.0, metavar="W",
+                       help="weight of the best-of-K term per metre (%(default)s)")
     train.add_argument("--no-dsa", action="store_true",
                        help="the w/o-DSA ablation: neighbours only as they were at t_rev")
     train.add_argument("--no-map-steps", action="store_true", help="attend to the map only for the first state")
@@ -196,7 +201,8 @@ def run_train(args: argparse.Namespace) -> int:
     cfg = RolloutConfig(hidden=args.hidden, heads=args.heads, latent=args.latent, use_dsa=not args.no_dsa,
                         map_every_step=not args.no_map_steps, kl_weight=args.kl_weight,
                         neighbor_radius_m=args.neighbor_radius, agent_class=args.agent_class,
-                        disp_scale=scales["disp_scale"], recon_sigma=scales["recon_sigma"])
+                        disp_scale=scales["disp_scale"], recon_sigma=scales["recon_sigma"],
+                        best_of=args.best_of, best_of_weight=args.best_of_weight)
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                        val_fraction=args.val_fraction, examples_per_epoch=args.examples_per_epoch,
                        max_val_examples=args.max_val_examples, threads=args.threads,
