@@ -25,8 +25,11 @@ VOCAB = "vocab.npz"
 # takes the class's kinematic rollout)
 ROLLOUT_PEDESTRIAN = "rollout_pedestrian.pt"
 ROLLOUT_CYCLIST = "rollout_cyclist.pt"
+# the learned speed and heading of pedestrian and cyclist adversaries at contact (optional: without
+# it the classes' rules draw them)
+VRU_STATES = "vru_states.npz"
 # what a models folder holds
-WEIGHT_FILES = (PRIOR, ROLLOUT, ROLLOUT_NO_DSA, VOCAB, ROLLOUT_PEDESTRIAN, ROLLOUT_CYCLIST)
+WEIGHT_FILES = (PRIOR, ROLLOUT, ROLLOUT_NO_DSA, VOCAB, ROLLOUT_PEDESTRIAN, ROLLOUT_CYCLIST, VRU_STATES)
 
 # what trains each file, for the "not found" message
 _TRAIN_COMMAND = {PRIOR: "coster-sumo train prior --data DATASET -o {path}",
@@ -34,7 +37,8 @@ _TRAIN_COMMAND = {PRIOR: "coster-sumo train prior --data DATASET -o {path}",
                   ROLLOUT_NO_DSA: "coster-sumo train rollout --no-dsa --data DATASET -o {path}",
                   VOCAB: "coster-sumo train vocab --data DATASET -o {path}",
                   ROLLOUT_PEDESTRIAN: "coster-sumo train rollout --agent-class pedestrian --data DATASET -o {path}",
-                  ROLLOUT_CYCLIST: "coster-sumo train rollout --agent-class cyclist --data DATASET -o {path}"}
+                  ROLLOUT_CYCLIST: "coster-sumo train rollout --agent-class cyclist --data DATASET -o {path}",
+                  VRU_STATES: "coster-sumo train vru-states --data DATASET -o {path}"}
 
 
 def shipped_models_dir() -> Path:

@@ -3,9 +3,13 @@ cyclist adversaries", snapshot).
 
 The collision time is chosen as for a vehicle (the rule of ``--collision-time``; ``entropy`` reads
 the traffic prior's velocity entropy around the target). At that time candidates of the class are
-drawn around the target: a heading relative to the target's (a pedestrian mostly crosses its
-path; a cyclist mostly rides along it, sometimes crosses), a speed from the class's distribution
-(:meth:`~coster_sumo.method.vru.classes.VruClass.draw_speed`), a start beside or ahead of the target; each
+drawn around the target: a speed and a heading relative to the target's. With the traffic prior
+(COSTER's init) and the shipped counts of the class (``models/vru_states.npz``,
+:mod:`~coster_sumo.method.vru.contact_states`) both are drawn from what the class does on the road in
+the corpus, the heading's angle to the target's direction turned towards the target's path; else
+(``--init random``, or no counts) by the class's rules: a pedestrian mostly crosses the target's
+path, a cyclist mostly rides along it, a speed from the class's literature distribution
+(:meth:`~coster_sumo.method.vru.classes.VruClass.draw_speed`). Then a start beside or ahead of the target; each
 is translated towards the target until the boxes touch (the vehicle placement's geometry). A
 placement is kept when it lies in the class's area (:mod:`coster_sumo.method.vru.areas`), overlaps no other
 agent and closes in on the target; among those, one is drawn with weight ``exp(-d / EDGE_SCALE_M)``
@@ -15,6 +19,8 @@ road, not in the middle of it.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from coster_sumo.core.snapshot import AgentState, CollisionSnapshot
@@ -23,6 +29,7 @@ from coster_sumo.method.collision_time import choose_collision_time, search_wind
 from coster_sumo.method.snapshot import Obstacles, PlacementRequest, _scene_prior, closing, contact_placements
 from coster_sumo.method.vru.areas import ClassArea
 from coster_sumo.method.vru.classes import VruClass
+from coster_sumo.method.vru.contact_states import ContactStates
 
 CANDIDATES = 400  # placements drawn per snapshot
 EDGE_SCALE_M = 1.5  # [m] the weight's length scale: a placement this much further in is e times less likely
@@ -37,6 +44,28 @@ def _headings(vru: VruClass, target_yaw: float, side: np.ndarray, rng: np.random
     across = target_yaw - side * 0.5 * np.pi  # from the left moving right, and the reverse
     along = target_yaw + np.where(rng.random(n) < 0.8, 0.0, np.pi)  # mostly the target's direction
     return np.where(crossing, across, along) + rng.normal(0.0, HEADING_SD_RAD, n)
+
+
+def learned_states(models_dir: str | Path | None, name: str) -> ContactStates | None:
+    """The shipped (or ``models_dir``'s) counts when they hold class ``name``, else None."""
+    from coster_sumo.infra import weights
+
+    path = weights.weights_path(weights.VRU_STATES, models_dir, required=False)
+    if not path.is_file():
+        return None
+    states = weights.load_cached(path, ContactStates.load)
+    return states if states.has(name) else None
+
+
+def draw_states(vru: VruClass, target_yaw: float, side: np.ndarray, rng: np.random.Generator,
+                states: ContactStates | None) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) [rad] headings and (N,) [m/s] speeds of candidates starting on ``side``: learned from
+    ``states``, else by the class's rules (module docstring)."""
+    if states is None:
+        return _headings(vru, target_yaw, side, rng), vru.draw_speed(rng, len(side))
+    speed, angle = states.draw(vru.name, rng, len(side))
+    # from the left (side +1) across is target_yaw - pi/2: towards the path, as the rules' crossing
+    return target_yaw - side * angle, speed
 
 
 def _starts(tgt: AgentState, side: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -78,8 +107,8 @@ def vru_snapshot(request: PlacementRequest, vru: VruClass, area: ClassArea, use_
     tr = r.scene.tracks
     tgt = AgentState.from_tracks(tr, r.target, t_col)
     side = np.where(rng.random(CANDIDATES) < 0.5, 1.0, -1.0)
-    heading = _headings(vru, tgt.yaw, side, rng)
-    speed = vru.draw_speed(rng, CANDIDATES)
+    states = learned_states(r.models_dir, vru.name) if use_prior else None
+    heading, speed = draw_states(vru, tgt.yaw, side, rng, states)
     boxes, sd = contact_placements(tgt, heading, np.full(CANDIDATES, vru.length), np.full(CANDIDATES, vru.width),
                                    _starts(tgt, side, rng))
     ok = ~np.isnan(boxes).any(axis=1)

@@ -1,0 +1,150 @@
+"""The learned speed and heading of a pedestrian or cyclist where it meets a vehicle.
+
+A vehicle adversary's state at contact comes from the traffic prior, trained on vehicle tracks.
+For a pedestrian or cyclist, :class:`ContactStates` holds what the class does where a vehicle can
+reach it, counted on a corpus of scenes (``coster-sumo train vru-states``): at every 2 Hz step at
+which an agent of the class moves (at least :data:`MOVING_MPS`) on the road surface or a crossing,
+its speed and the angle between its heading and the nearest lane's direction, folded to [0, pi]
+(0: along the lane, pi/2: across it, pi: against it). One 2-D histogram per class; a draw picks a
+bin by its count and a point uniformly inside it. docs/method.md ("Pedestrian and cyclist
+adversaries") says how the snapshot uses it and what the shipped file holds.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+
+from coster_sumo.core.scene import Scene, resample
+from coster_sumo.errors import InputError
+from coster_sumo.geometry.drivable import DrivableArea
+from coster_sumo.method.vru.areas import ClassArea
+from coster_sumo.method.vru.classes import VRU_CLASSES, VruClass
+
+MOVING_MPS = 0.3  # [m/s] slower, a heading says little (a waiting pedestrian turns on the spot)
+SPEED_EDGES = np.round(np.arange(0.0, 10.0 + 1e-9, 0.1), 6)  # [m/s] up to the fastest class's limit
+HEADING_EDGES = np.linspace(0.0, np.pi, 19)  # [rad] 10-degree bins
+MIN_SAMPLES = 200  # a class with fewer counted steps is not drawn from (the rules apply instead)
+STEP_HZ = 2.0  # the rollout's rate: neighbouring 10 Hz steps of one walk would count five times
+
+
+@dataclass(frozen=True)
+class ContactStates:
+    """Per class, counts of (speed, heading to the lane) on the road surface.
+
+    Attributes:
+        counts: class name -> (len(SPEED_EDGES) - 1, len(HEADING_EDGES) - 1) int64 counts.
+        meta: what was counted (scenes, steps per class, the settings above).
+    """
+
+    counts: dict[str, np.ndarray]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def has(self, name: str) -> bool:
+        """Whether class ``name`` has enough counted steps to be drawn from."""
+        c = self.counts.get(name)
+        return c is not None and int(c.sum()) >= MIN_SAMPLES
+
+    def draw(self, name: str, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) speeds [m/s] and (n,) angles to the lane [rad, 0..pi] of class ``name``."""
+        c = self.counts[name].astype(np.float64)
+        flat = rng.choice(c.size, size=n, p=(c / c.sum()).ravel())
+        i, j = np.unravel_index(flat, c.shape)
+        speed = rng.uniform(SPEED_EDGES[i], SPEED_EDGES[i + 1])
+        angle = rng.uniform(HEADING_EDGES[j], HEADING_EDGES[j + 1])
+        return speed, angle
+
+    def crossing_share(self, name: str) -> float:
+        """Share of the class's counted steps at 50-130 degrees to the lane (the bins whose middle lies
+        between 45 and 135 degrees)."""
+        c = self.counts[name]
+        mid = 0.5 * (HEADING_EDGES[:-1] + HEADING_EDGES[1:])
+        across = (mid > np.pi / 4) & (mid < 3 * np.pi / 4)
+        return float(c[:, across].sum() / max(c.sum(), 1))
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        arrays = {"speed_edges": SPEED_EDGES, "heading_edges": HEADING_EDGES, "meta": np.array(json.dumps(self.meta)),
+                  **{f"counts_{k}": v for k, v in self.counts.items()}}
+        np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> ContactStates:
+        with np.load(path, allow_pickle=False) as z:
+            same = np.array_equal(z["speed_edges"], SPEED_EDGES) and np.array_equal(z["heading_edges"], HEADING_EDGES)
+            if not same:
+                raise InputError(f"{path}: its bins are not this version's (train it again with "
+                                 "`coster-sumo train vru-states`)")
+            counts = {k[len("counts_"):]: z[k].astype(np.int64) for k in z.files if k.startswith("counts_")}
+            return cls(counts=counts, meta=json.loads(str(z["meta"])))
+
+
+def _lane_directions(scene: Scene) -> tuple[shapely.STRtree, np.ndarray] | None:
+    """A tree of the map's lane segments and each segment's direction [rad] (None without lanes)."""
+    cl = scene.road_map.lanes.centerline
+    starts, ends = [], []
+    for i in range(len(cl)):
+        p = cl.values[cl.offsets[i]:cl.offsets[i + 1]]
+        if len(p) >= 2:
+            starts.append(p[:-1])
+            ends.append(p[1:])
+    if not starts:
+        return None
+    a, b = np.concatenate(starts), np.concatenate(ends)
+    seg = shapely.linestrings(np.stack([a, b], axis=1))
+    return shapely.STRtree(seg), np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+
+
+def scene_samples(scene: Scene, vru: VruClass) -> tuple[np.ndarray, np.ndarray]:
+    """(speeds [m/s], angles to the nearest lane [rad, 0..pi]) of ``vru``'s moving agents on the road
+    surface or a crossing in ``scene``, at :data:`STEP_HZ` (speeds above the class's limit left out)."""
+    tr = scene.tracks
+    agents = np.flatnonzero(tr.object_type == vru.object_type)
+    lanes = _lane_directions(scene) if len(agents) else None
+    if lanes is None:
+        return np.zeros(0), np.zeros(0)
+    s = resample(scene, STEP_HZ)
+    tr = s.tracks
+    valid = tr.valid[agents]
+    speed = np.hypot(tr.vx[agents], tr.vy[agents])
+    keep = valid & (speed >= MOVING_MPS) & (speed <= vru.fast_max)
+    if not keep.any():
+        return np.zeros(0), np.zeros(0)
+    xy = np.stack([tr.x[agents][keep], tr.y[agents][keep]], axis=-1)
+    area = ClassArea.build(vru, s.road_map, DrivableArea.from_road_map(s.road_map))
+    on = area.on_road(xy)
+    if not area.crossings.is_empty:
+        on |= np.asarray(shapely.contains_xy(area.crossings, xy[:, 0], xy[:, 1]), bool)
+    if not on.any():
+        return np.zeros(0), np.zeros(0)
+    tree, direction = lanes
+    nearest = tree.query_nearest(shapely.points(xy[on]), return_distance=False, all_matches=False)[1]
+    angle = np.abs(np.angle(np.exp(1j * (tr.heading[agents][keep][on] - direction[nearest]))))
+    return speed[keep][on], angle
+
+
+def fit_contact_states(scenes: Iterable[Scene], progress: Callable[[Iterable[Scene]], Iterable[Scene]] | None = None,
+                       source: str = "") -> ContactStates:
+    """Count every class of :data:`VRU_CLASSES` over ``scenes`` (module docstring)."""
+    shape = (len(SPEED_EDGES) - 1, len(HEADING_EDGES) - 1)
+    counts = {name: np.zeros(shape, np.int64) for name in VRU_CLASSES}
+    n_scenes = 0
+    for scene in progress(scenes) if progress is not None else scenes:
+        n_scenes += 1
+        for name, vru in VRU_CLASSES.items():
+            speed, angle = scene_samples(scene, vru)
+            if len(speed):
+                counts[name] += np.histogram2d(speed, angle, bins=[SPEED_EDGES, HEADING_EDGES])[0].astype(np.int64)
+    meta = {"source": source, "scenes": n_scenes, "steps": {k: int(v.sum()) for k, v in counts.items()},
+            "moving_mps": MOVING_MPS, "step_hz": STEP_HZ, "min_samples": MIN_SAMPLES}
+    return ContactStates(counts=counts, meta=meta)
