@@ -58,10 +58,12 @@ def main() -> None:
             continue
         row = {}
         for label, c in (("learned", learned.counts[name].astype(float)), ("rules", rules_counts(name))):
-            row[label] = {"speed_jsd": round(jsd(h.sum(1), c.sum(1)), 4), "angle_jsd": round(jsd(h.sum(0), c.sum(0)), 4)}
+            row[label] = {"speed_jsd": round(jsd(h.sum(1), c.sum(1)), 4),
+                          "angle_jsd": round(jsd(h.sum(0), c.sum(0)), 4)}
         out[name] = row
-        print(f"{name}: {int(h.sum())} held-out steps; JSD speed / angle: learned {row['learned']['speed_jsd']:.3f} / "
-              f"{row['learned']['angle_jsd']:.3f}, rules {row['rules']['speed_jsd']:.3f} / {row['rules']['angle_jsd']:.3f}")
+        lr, ru = row["learned"], row["rules"]
+        print(f"{name}: {int(h.sum())} held-out steps; JSD speed / angle: learned {lr['speed_jsd']:.3f} / "
+              f"{lr['angle_jsd']:.3f}, rules {ru['speed_jsd']:.3f} / {ru['angle_jsd']:.3f}")
     print(json.dumps(out))
 
 
