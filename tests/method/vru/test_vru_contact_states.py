@@ -103,3 +103,22 @@ def test_the_snapshot_draws_the_learned_state_only_with_the_prior(tmp_path, use_
             assert lateral * np.sin(a.yaw - t.yaw) < 0
     inside = [(2.0 <= s <= 2.1) for s in speeds]
     assert all(inside) if use_prior else not all(inside)
+
+
+def test_train_vru_states_command_counts_a_dataset_and_refuses_an_empty_one(tmp_path, capsys):
+    from coster_sumo.cli.command_line import main
+    from coster_sumo.formats.scene_file import save_scene
+
+    (tmp_path / "data" / "scenes").mkdir(parents=True)
+    for name, fn in synthetic.ALL.items():
+        save_scene(fn(), tmp_path / "data" / "scenes" / f"{name}.npz")
+    out = tmp_path / "states.npz"
+    assert main(["-q", "train", "vru-states", "--data", str(tmp_path / "data"), "-o", str(out)]) == 0
+    states = ContactStates.load(out)
+    assert states.meta["scenes"] == len(synthetic.ALL)
+    assert set(states.counts) == {"pedestrian", "cyclist"}
+    (tmp_path / "empty").mkdir()
+    capsys.readouterr()
+    assert main(["train", "vru-states", "--data", str(tmp_path / "empty"), "-o", str(tmp_path / "e.npz")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "empty" in err[0], err
