@@ -19,24 +19,11 @@ DEADLINE=${DEADLINE:-470}
 THREADS=${THREADS:-3}
 EXTRA=${EXTRA:-}
 END=$((T0 + DEADLINE))
-W=/tmp/w; L=/tmp/w/logs
-mkdir -p $L
-export PYTHONUNBUFFERED=1 PYTHONPATH=/tmp/site
-# the wheels the image lacks, then this checkout in editable mode (the import package maps the
-# top-level converters/ and models/ into coster_sumo: run from the tree alone, they are missing)
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .device/whl/*.whl \
-  > $L/pip.log 2>&1
-python3 -m pip install -q --no-index --no-deps --no-build-isolation -e . >> $L/pip.log 2>&1
-(nvidia-smi; python3 -c "import torch; print(torch.__version__, torch.cuda.is_available())"; nproc) > $L/machine.txt 2>&1
-(nvidia-smi dmon -s u -d 10 > $L/dmon.log 2>&1 &)
+W=/tmp/w; L=/tmp/w/logs; CLASS=vehicle
+source bench/device_setup.sh
 (timeout 200 python3 -m pytest -q -p no:cacheprovider -m gpu tests/rollout/test_rollout_cli.py tests/prior/test_prior.py \
   > $L/pytest_gpu.log 2>&1; echo "rc=$?" >> $L/pytest_gpu.log) &
-python3 -c "
-from coster_sumo.rollout.train import split_scene_files as s, load_cached_examples as l
-from coster_sumo.rollout.config import RolloutConfig as R
-t, v = s('$DATA', 0.1, 0)
-print(len(t), len(v), [len(l(p, R(), 2, None)) for p in (t, v)])" > $L/cache.log 2>&1
-echo "cache ready after $(( $(date +%s) - T0 )) s" >> $L/cache.log
+build_cache
 
 train() {  # NAME FLAGS... : the project's command, stopped at the deadline
   local name=$1; shift

@@ -24,20 +24,8 @@ THREADS=${THREADS:-2}
 DEADLINE=${DEADLINE:-470}
 END=$((T0 + DEADLINE))
 W=/tmp/w; L=/tmp/w/logs
-mkdir -p $L
-export PYTHONUNBUFFERED=1 PYTHONPATH=/tmp/site
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .device/whl/*.whl \
-  > $L/pip.log 2>&1
-python3 -m pip install -q --no-index --no-deps --no-build-isolation -e . >> $L/pip.log 2>&1
-(nvidia-smi; python3 -c "import torch; print(torch.__version__, torch.cuda.is_available())"; nproc) > $L/machine.txt 2>&1
-(nvidia-smi dmon -s u -d 10 > $L/dmon.log 2>&1 &)
-# the feature cache once, on every core, before the runs read it
-python3 -c "
-from coster_sumo.rollout.train import split_scene_files as s, load_cached_examples as l
-from coster_sumo.rollout.config import RolloutConfig as R
-t, v = s('$DATA', 0.1, 0)
-print(len(t), len(v), [len(l(p, R(agent_class='$CLASS'), 2, None)) for p in (t, v)])" > $L/cache.log 2>&1
-echo "cache ready after $(( $(date +%s) - T0 )) s" >> $L/cache.log
+source bench/device_setup.sh
+build_cache
 
 run() {  # NAME INIT FLAGS...: the project's command from the class's shipped weights, stopped at the deadline
   local name=$1 init=$2; shift 2
