@@ -66,10 +66,4 @@ one nodsa 0.8 --no-dsa --lr 2e-3 --warmup-steps 300 --seed 0 &
 one dsa_ft 0.7 --init models/rollout.pt --lr 4e-4 --warmup-steps 100 --seed 1 &
 one nodsa_ft 0.7 --no-dsa --init models/rollout_nodsa.pt --lr 4e-4 --warmup-steps 100 --seed 1 &
 wait
-pkill -f "nvidia-smi dmon" 2>/dev/null
-cp $W/*.json $L/ 2>/dev/null
-cp $W/*.pt "$OUT"/ 2>/dev/null
-tar -czf "$OUT/logs.tgz" -C $W logs
-echo "done after $(( $(date +%s) - T0 )) s"
-ls -la "$OUT"
-tail -n 3 $L/*.log
+finish 3

@@ -45,10 +45,4 @@ for w in $NODSA_WEIGHTS; do
   run nodsa_bo${K}_w$w models/rollout_${CLASS}_nodsa.pt --no-dsa --best-of $K --best-of-weight $w &
 done
 wait
-pkill -f "nvidia-smi dmon" 2>/dev/null
-cp $W/*.json $L/ 2>/dev/null
-cp $W/*.pt "$OUT"/ 2>/dev/null
-tar -czf "$OUT/logs.tgz" -C $W logs
-echo "done after $(( $(date +%s) - T0 )) s"
-ls -la "$OUT"
-tail -n 2 $L/*.log
+finish 2

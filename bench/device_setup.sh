@@ -1,7 +1,8 @@
 # Sourced by the device scripts (bench/device_rollout.sh, bench/device_rollout_class.sh) on the lent
 # GPU machine, from the repository root, with DATA (the packed scenes), CLASS (the rollout's agent
 # class), T0 (the call's start) and L (the log folder) set: installs the wheels the machine's image
-# lacks and this checkout, records the machine, starts nvidia-smi dmon, builds the feature cache once.
+# lacks and this checkout, records the machine, starts nvidia-smi dmon; build_cache builds the feature
+# cache once, finish sends the checkpoints and logs back (W: the runs' folder).
 mkdir -p $L
 export PYTHONUNBUFFERED=1 PYTHONPATH=/tmp/site
 # the wheels the image lacks, then this checkout in editable mode (the import package maps the
@@ -19,4 +20,14 @@ from coster_sumo.rollout.config import RolloutConfig as R
 t, v = s('$DATA', 0.1, 0)
 print(len(t), len(v), [len(l(p, R(agent_class='$CLASS'), 2, None)) for p in (t, v)])" > $L/cache.log 2>&1
   echo "cache ready after $(( $(date +%s) - T0 )) s" >> $L/cache.log
+}
+
+finish() {  # TAIL: after the runs: stop dmon, send the checkpoints and logs.tgz back in $OUT
+  pkill -f "nvidia-smi dmon" 2>/dev/null
+  cp $W/*.json $L/ 2>/dev/null
+  cp $W/*.pt "$OUT"/ 2>/dev/null
+  tar -czf "$OUT/logs.tgz" -C $W logs
+  echo "done after $(( $(date +%s) - T0 )) s"
+  ls -la "$OUT"
+  tail -n $1 $L/*.log
 }
