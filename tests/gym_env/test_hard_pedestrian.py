@@ -76,7 +76,10 @@ def test_a_target_that_keeps_its_speed_hits_the_pedestrian_and_one_that_brakes_d
 def test_a_vru_variant_keeps_its_class_and_meets_a_nominal_target_at_t_col(tmp_path, adversary):
     """``scenarios build --adversary pedestrian|cyclist``: the adversary joins the scene with its class's
     object type (the replay adds it as a vehicle of class pedestrian / bicycle) and a target that
-    keeps its nominal speed meets it at t_col."""
+    keeps its nominal speed meets it at t_col. A cyclist mostly rides along the target's direction
+    (its learned contact states: models/vru_states.md), and then its box can run alongside the
+    target's within centimetres for a while before t_col (here 0.8 s, with the target tracking its
+    nominal path within 0.1 m): the first touch may come up to 1 s early; never late."""
     out = tmp_path / adversary
     build_set(BuildOptions(sources=[str(REPO / "networks" / "intersection" / "intersection.sumocfg")], out=out,
                            method="coster", snapshots=1, variants=2, samples=200, adversary=adversary))
@@ -85,14 +88,17 @@ def test_a_vru_variant_keeps_its_class_and_meets_a_nominal_target_at_t_col(tmp_p
     assert variants
     want = {"pedestrian": ObjectType.PEDESTRIAN, "cyclist": ObjectType.CYCLIST}[adversary]
     env = ScenarioEnv(out, kind="variant", order="cycle")
-    for i, entry in enumerate(variants):
-        tr = s.scene(entry).tracks
-        assert int(tr.object_type[tr.index_of(entry.adversary)]) == want
-        _, info = env.reset(seed=i)
-        assert info["scenario"] == entry.id
-        terminated = truncated = False
-        while not (terminated or truncated):
-            _, _, terminated, truncated, info = env.step(nominal_action(env))
-        assert info["collided_with_adversary"], info
-        assert info["time"] == pytest.approx(entry.t_col, abs=0.25)
-    env.close()
+    try:  # a failed assertion must not leave libsumo's one simulation running for the next test
+        for i, entry in enumerate(variants):
+            tr = s.scene(entry).tracks
+            assert int(tr.object_type[tr.index_of(entry.adversary)]) == want
+            _, info = env.reset(seed=i)
+            assert info["scenario"] == entry.id
+            terminated = truncated = False
+            while not (terminated or truncated):
+                _, _, terminated, truncated, info = env.step(nominal_action(env))
+            assert info["collided_with_adversary"], info
+            early = 1.0 if adversary == "cyclist" else 0.25
+            assert entry.t_col - early <= info["time"] <= entry.t_col + 0.25, (info["time"], entry.t_col)
+    finally:
+        env.close()
