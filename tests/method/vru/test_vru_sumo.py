@@ -79,10 +79,12 @@ def test_pedestrian_on_a_network_with_guessed_sidewalks_and_crossings(tmp_path: 
 @pytest.mark.sumo
 def test_regress_reports_the_defect_rate_per_class(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "regress"
-    # the kinematic rollout (``--rollout cv``): its two variants here include an avoidable one, which the
-    # per-class defect rate needs; the learned cyclist rollout gives one unavoidable variant on this net
+    # the kinematic rollout (``--rollout cv``) and the random init (the class's literature rules for
+    # speed and heading): their two variants here are avoidable, which the per-class defect rate needs;
+    # the learned cyclist rollout gives one unavoidable variant on this net, and so do the learned
+    # contact states (a cyclist alongside the target)
     main(["-q", "regress", str(DEMO), "--planner", "replay", "--adversary", "cyclist", "--variants", "2",
-          "--rollout", "cv", "--samples", "150", "--no-report", "-o", str(out)])
+          "--rollout", "cv", "--init", "random", "--samples", "150", "--no-report", "-o", str(out)])
     summary = json.loads((out / "summary.json").read_text())
     assert summary["options"]["adversary"] == "cyclist"
     per = summary["defects_by_class"]["replay"]
