@@ -80,6 +80,14 @@ class ContactStates:
 
     @classmethod
     def load(cls, path: str | Path) -> ContactStates:
+        """The counts in ``path``; one :class:`InputError` line for a file that is not such counts."""
+        try:
+            return cls._read(path)
+        except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: not a counts file of `coster-sumo train vru-states` ({exc})") from None
+
+    @classmethod
+    def _read(cls, path: str | Path) -> ContactStates:
         with np.load(path, allow_pickle=False) as z:
             same = np.array_equal(z["speed_edges"], SPEED_EDGES) and np.array_equal(z["heading_edges"], HEADING_EDGES)
             if not same:

@@ -76,6 +76,12 @@ def test_draws_stay_in_the_counted_bins_and_the_file_round_trips(tmp_path):
     np.savez(bad, speed_edges=SPEED_EDGES[:-1], heading_edges=HEADING_EDGES, meta=np.array("{}"))
     with pytest.raises(InputError, match="train it again"):
         ContactStates.load(bad)
+    junk = tmp_path / "junk.npz"
+    junk.write_text("not a zip")
+    with pytest.raises(InputError, match="not a counts file"):
+        ContactStates.load(junk)
+    with pytest.raises(InputError, match="not a counts file"):
+        ContactStates.load(tmp_path / "missing.npz")
 
 
 @pytest.mark.parametrize("use_prior", [True, False])
