@@ -100,59 +100,100 @@ class ContactStates:
 def _lane_directions(scene: Scene) -> tuple[shapely.STRtree, np.ndarray] | None:
     """A tree of the map's lane segments and each segment's direction [rad] (None without lanes)."""
     cl = scene.road_map.lanes.centerline
-    starts, ends = [], []
-    for i in range(len(cl)):
-        p = cl.values[cl.offsets[i]:cl.offsets[i + 1]]
-        if len(p) >= 2:
-            starts.append(p[:-1])
-            ends.append(p[1:])
-    if not starts:
+    pts = cl.values
+    # a segment joins point i to i + 1 of one lane: every point but each lane's last starts one
+    first = np.ones(len(pts), bool)
+    first[np.asarray(cl.offsets[1:], np.int64) - 1] = False
+    i = np.flatnonzero(first[:-1]) if len(pts) else np.zeros(0, np.int64)
+    if not len(i):
         return None
-    a, b = np.concatenate(starts), np.concatenate(ends)
+    a, b = pts[i], pts[i + 1]
     seg = shapely.linestrings(np.stack([a, b], axis=1))
     return shapely.STRtree(seg), np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """Moving agents' steps on the road of one scene at :data:`STEP_HZ`: per step its agent's id,
+    time [s], speed [m/s], angle to the nearest lane [rad] and object type."""
+
+    ids: np.ndarray
+    times: np.ndarray
+    speed: np.ndarray
+    angle: np.ndarray
+    object_type: np.ndarray
+
+
+def _road_samples(scene: Scene) -> _Samples | None:
+    """Every pedestrian's and cyclist's moving steps on the road surface or a crossing of ``scene``
+    (once per scene: one resample, one lane tree, one road surface for both classes)."""
+    types = np.array([vru.object_type for vru in VRU_CLASSES.values()])
+    agents = np.flatnonzero(np.isin(scene.tracks.object_type, types))
+    lanes = _lane_directions(scene) if len(agents) else None
+    if lanes is None:
+        return None
+    s = resample(scene, STEP_HZ)
+    tr = s.tracks
+    speed = np.hypot(tr.vx[agents], tr.vy[agents])
+    keep = tr.valid[agents] & (speed >= MOVING_MPS)
+    if not keep.any():
+        return None
+    row, step = np.nonzero(keep)
+    xy = np.stack([tr.x[agents][keep], tr.y[agents][keep]], axis=-1)
+    # the road surface and the crossings do not depend on the class (only the band beside the road does)
+    area = ClassArea.build(VRU_CLASSES["pedestrian"], s.road_map, DrivableArea.from_road_map(s.road_map))
+    on = area.on_road(xy)
+    if not area.crossings.is_empty:
+        on |= np.asarray(shapely.contains_xy(area.crossings, xy[:, 0], xy[:, 1]), bool)
+    if not on.any():
+        return None
+    tree, direction = lanes
+    nearest = tree.query_nearest(shapely.points(xy[on]), return_distance=False, all_matches=False)[1]
+    angle = np.abs(np.angle(np.exp(1j * (tr.heading[agents][keep][on] - direction[nearest]))))
+    a = agents[row[on]]
+    return _Samples(ids=tr.ids[a], times=s.timestamps[step[on]], speed=speed[keep][on], angle=angle,
+                    object_type=tr.object_type[a])
 
 
 def scene_samples(scene: Scene, vru: VruClass) -> tuple[np.ndarray, np.ndarray]:
     """(speeds [m/s], angles to the nearest lane [rad, 0..pi]) of ``vru``'s moving agents on the road
     surface or a crossing in ``scene``, at :data:`STEP_HZ` (speeds above the class's limit left out)."""
-    tr = scene.tracks
-    agents = np.flatnonzero(tr.object_type == vru.object_type)
-    lanes = _lane_directions(scene) if len(agents) else None
-    if lanes is None:
+    got = _road_samples(scene)
+    if got is None:
         return np.zeros(0), np.zeros(0)
-    s = resample(scene, STEP_HZ)
-    tr = s.tracks
-    valid = tr.valid[agents]
-    speed = np.hypot(tr.vx[agents], tr.vy[agents])
-    keep = valid & (speed >= MOVING_MPS) & (speed <= vru.fast_max)
-    if not keep.any():
-        return np.zeros(0), np.zeros(0)
-    xy = np.stack([tr.x[agents][keep], tr.y[agents][keep]], axis=-1)
-    area = ClassArea.build(vru, s.road_map, DrivableArea.from_road_map(s.road_map))
-    on = area.on_road(xy)
-    if not area.crossings.is_empty:
-        on |= np.asarray(shapely.contains_xy(area.crossings, xy[:, 0], xy[:, 1]), bool)
-    if not on.any():
-        return np.zeros(0), np.zeros(0)
-    tree, direction = lanes
-    nearest = tree.query_nearest(shapely.points(xy[on]), return_distance=False, all_matches=False)[1]
-    angle = np.abs(np.angle(np.exp(1j * (tr.heading[agents][keep][on] - direction[nearest]))))
-    return speed[keep][on], angle
+    m = (got.object_type == vru.object_type) & (got.speed <= vru.fast_max)
+    return got.speed[m], got.angle[m]
+
+
+def window_of(scenario_id: str) -> str:
+    """The recorded window a clip was cut from: the corpus names its clips ``NET_rRUN_START_TARGET``,
+    one per target of a window, and clips of one window share their agents; another id is its own."""
+    head, _, tail = scenario_id.rpartition("_")
+    return head if head.count("_") >= 2 and tail.isdigit() else scenario_id
 
 
 def fit_contact_states(scenes: Iterable[Scene], progress: Callable[[Iterable[Scene]], Iterable[Scene]] | None = None,
                        source: str = "") -> ContactStates:
-    """Count every class of :data:`VRU_CLASSES` over ``scenes`` (module docstring)."""
+    """Count every class of :data:`VRU_CLASSES` over ``scenes`` (module docstring); an agent's step
+    is counted once however many clips of its window (:func:`window_of`) hold it."""
     shape = (len(SPEED_EDGES) - 1, len(HEADING_EDGES) - 1)
     counts = {name: np.zeros(shape, np.int64) for name in VRU_CLASSES}
+    seen: set[tuple[str, str, float]] = set()
     n_scenes = 0
     for scene in progress(scenes) if progress is not None else scenes:
         n_scenes += 1
+        got = _road_samples(scene)
+        if got is None:
+            continue
+        window = window_of(scene.scenario_id)
+        keys = [(window, str(i), round(float(t), 3)) for i, t in zip(got.ids, got.times, strict=True)]
+        new = np.array([k not in seen for k in keys], bool)
+        seen.update(keys)
         for name, vru in VRU_CLASSES.items():
-            speed, angle = scene_samples(scene, vru)
-            if len(speed):
-                counts[name] += np.histogram2d(speed, angle, bins=[SPEED_EDGES, HEADING_EDGES])[0].astype(np.int64)
+            m = new & (got.object_type == vru.object_type) & (got.speed <= vru.fast_max)
+            if m.any():
+                counts[name] += np.histogram2d(got.speed[m], got.angle[m],
+                                               bins=[SPEED_EDGES, HEADING_EDGES])[0].astype(np.int64)
     meta = {"source": source, "scenes": n_scenes, "steps": {k: int(v.sum()) for k, v in counts.items()},
             "moving_mps": MOVING_MPS, "step_hz": STEP_HZ, "min_samples": MIN_SAMPLES}
     return ContactStates(counts=counts, meta=meta)

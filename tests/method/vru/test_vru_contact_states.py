@@ -3,6 +3,8 @@ what is counted, the draw, the file, and the snapshot that uses them."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -21,6 +23,7 @@ from coster_sumo.method.vru.contact_states import (
     ContactStates,
     fit_contact_states,
     scene_samples,
+    window_of,
 )
 from coster_sumo.method.vru.snapshot import vru_snapshot
 
@@ -51,9 +54,23 @@ def test_only_moving_pedestrians_on_the_road_count_with_their_angle_to_the_lane(
     assert np.allclose(angle[across], np.pi / 2, atol=1e-6) and np.allclose(angle[against], np.pi, atol=1e-6)
     # 2 Hz: the crossing walker is on the road for at most 7.4 / 1.2 s, that is at most 13 steps
     assert across.sum() <= 13
+    # the same clip twice (or two clips of one recorded window) counts each agent's step once;
+    # another window's clip counts again
     states = fit_contact_states([scene, scene])
-    assert states.meta["scenes"] == 2 and states.meta["steps"]["pedestrian"] == 2 * len(speed)
+    assert states.meta["scenes"] == 2 and states.meta["steps"]["pedestrian"] == len(speed)
     assert states.meta["steps"]["cyclist"] == 0 and not states.has("cyclist")
+    a = dataclasses.replace(scene, scenario_id="grid_r0_00063.8_1")
+    b = dataclasses.replace(scene, scenario_id="grid_r0_00063.8_6")
+    c = dataclasses.replace(scene, scenario_id="grid_r1_00063.8_1")
+    assert fit_contact_states([a, b]).meta["steps"]["pedestrian"] == len(speed)
+    assert fit_contact_states([a, c]).meta["steps"]["pedestrian"] == 2 * len(speed)
+
+
+def test_window_of_a_clip():
+    assert window_of("arterial_r0_00063.8_6") == "arterial_r0_00063.8"
+    assert window_of("fkk_in_r3_00120.0_12") == "fkk_in_r3_00120.0"
+    assert window_of("2a1e44d405a6833f") == "2a1e44d405a6833f"
+    assert window_of("two_lane_road") == "two_lane_road"
 
 
 def _concentrated(speed_bin: int, angle_bin: int, n: int = MIN_SAMPLES) -> ContactStates:
