@@ -38,6 +38,17 @@ BEND_KINK_FACTOR = 1.5
 # linked lane's width: the SUMO shape then stays within the middle half of the exported lane (the
 # converted corpus cuts' junction lanes: kinked shapes that a lane 3.2 m wide cannot follow)
 FOLD_ESCAPE_WIDTH_SHARE = 0.25
+# [m] ... or by up to this much, whatever the width: for lanes under 1.6 m (bicycle lanes and their
+# turnarounds) a quarter of the width is closer than the 0.4 m the export lets any junction lane
+# leave its SUMO shape on roads it can keep whole (the WOMD samples' tight turns, docs/sumo.md §12a),
+# and a folded lane is one no reader can draw
+FOLD_ESCAPE_MIN_M = 0.4
+
+
+def fold_escape(width: float) -> float:
+    """How far [m] a connecting road's curve may leave its SUMO shape so that a lane ``width`` [m]
+    wide does not fold: a quarter of the width, at least :data:`FOLD_ESCAPE_MIN_M`."""
+    return max(FOLD_ESCAPE_WIDTH_SHARE * width, FOLD_ESCAPE_MIN_M)
 
 
 def lane_at(road: ET.Element, s: float, lane_id: int, sample: Sampler) -> tuple[np.ndarray, float, float] | None:
@@ -141,7 +152,7 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
     within = [w for w in whole if w[0] <= bound]
     if within:
         return within[0][1], within[0][2], False
-    escape = FOLD_ESCAPE_WIDTH_SHARE * min(start[1], end[1])
+    escape = fold_escape(min(start[1], end[1]))
     near = sorted((w for w in whole if w[0] <= escape), key=lambda w: w[0])
     if near:
         return near[0][1], near[0][2], False
@@ -213,7 +224,7 @@ def _smooth_unlinked(road: ET.Element, sample: Sampler) -> None:
     if width <= 0.0:
         return
     c = _Connecting(road, plan, lanes[0], path, (path[0], width, float(h[0])), (path[-1], width, float(h[-1])))
-    escape = FOLD_ESCAPE_WIDTH_SHARE * width
+    escape = fold_escape(width)
     if fold_ratio(through, width, width) < 1.0 and deviation(through, path) <= escape:
         _write_joined(c, through, None)
         return

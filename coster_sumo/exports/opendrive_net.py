@@ -95,11 +95,17 @@ class NetLanes:
         """Whether a connection leaves its lane's end and enters its next lane's start at one left
         border point (within :data:`PINCH_M`): a U-turn between two lanes side by side. Its lane's
         inner border would start and end there, and no lane outline can pass one point twice
-        (commonroad-scenario-designer's lanelets of such a connecting road are invalid polygons)."""
+        (commonroad-scenario-designer's lanelets of such a connecting road are invalid polygons).
+        A U-turn by its heading change (more than :data:`MAX_PINCHED_TURN`), not by SUMO's ``dir``:
+        the left borders of a one-way road's lanes also meet where it bends at a node or runs
+        straight on, and of the leftmost lanes where two one-way roads meet at a right angle; those
+        connections are turns (:meth:`corner_is_pinched`), not U-turns to leave out."""
         ends = self._connected_shapes(key)
         if ends is None:
             return False
         a, b, width_a, width_b = ends
+        if abs(_wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2]))) <= MAX_PINCHED_TURN:
+            return False
         left_a = _left_border(a[-1], a[-1] - a[-2], width_a)
         left_b = _left_border(b[0], b[1] - b[0], width_b)
         return float(np.hypot(*(left_a - left_b))) <= PINCH_M

@@ -17,6 +17,11 @@ OpenDRIVE conversion and pyxodr (``docs/sumo.md §12a``). :func:`make_readable` 
   a reference line whose headings agree to 1e-6 rad (one line says the same); netconvert writes one
   line per collinear SUMO shape segment, and a straight end piece may continue a straight line.
   Such pieces are merged into one (:func:`merge_collinear_lines`).
+- **closed rings of lanes read as more than one lanelet**: commonroad joins a lane with its only
+  successor, so a loop of lanes that follow one another one to one (a ring road, a cut's closed
+  loop) becomes one lanelet ending where it starts, an outline no polygon can be. One road of each
+  such loop is written the other way round, its lanes as left lanes
+  (:mod:`~coster_sumo.exports.opendrive_rings`): the same lanes, and the reader stops joining there.
 - **no roads of (almost) no length**: a junction whose connecting roads are all shorter than
   :data:`MIN_ROAD_M` (SUMO internal lanes of length 0 where two edges meet end to end) is
   replaced by direct road-to-road links; its lane links carry over.
@@ -44,6 +49,8 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
+from coster_sumo.exports.opendrive_rings import break_lane_rings
+
 OPENDRIVE_REV_MINOR = 8  # OpenDRIVE 1.8
 MIN_ROAD_M = 0.05  # [m] shorter connecting roads are bypassed (readers choke on 1 cm roads)
 LINE_HEADING_TOL = 1e-6  # [rad] ASAM's checker takes two lines this close in heading for one
@@ -60,6 +67,7 @@ def make_readable(root: ET.Element) -> dict[str, int]:
     counts["junctions_bypassed"] = _bypass_short_junctions(root)
     counts["lines_merged"] = sum(merge_collinear_lines(road) for road in root.findall("road"))
     counts["dangling_links_dropped"] = _drop_dangling_junction_links(root)
+    counts["rings_broken"] = break_lane_rings(root)
     counts["lengths_corrected"] = _true_curve_lengths(root)
     counts["lengths_to_mm"] = _whole_mm_lengths(root)
     return counts

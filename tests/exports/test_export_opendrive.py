@@ -172,6 +172,119 @@ def test_a_turnaround_too_tight_for_its_lane_narrows_further_rather_than_fold():
     assert max(line.distance(shapely.Point(q)) for q in piece_points(pieces)) <= 0.8  # a quarter of 3.2 m
 
 
+def test_a_turnaround_onto_a_bicycle_lane_keeps_its_lane_whole_within_the_junction_bound():
+    # the corpus' DRT cut converted: a turnaround leaves a lane 3.2 m wide 0.63 rad off its heading
+    # and turns 2.2 rad within 6.5 m onto a lane 1.15 m wide. No curve whose lane keeps whole lies
+    # within a quarter of 1.15 m (0.29 m) of the SUMO shape; the closest lies 0.39 m from it, within
+    # the 0.4 m every junction lane may leave its shape (opendrive_join.FOLD_ESCAPE_MIN_M): it is
+    # written whole rather than folded
+    import xml.etree.ElementTree as ET
+
+    from coster_sumo.exports.opendrive_join import FOLD_ESCAPE_WIDTH_SHARE, _Connecting, _joining_curve, fold_escape
+
+    path = np.array([[0.0, 0.0], [-2.01, -0.13], [-3.05, -0.81], [-3.13, -2.05], [-2.24, -3.86]])
+    el = ET.Element("road")
+    pieces, half, folds = _joining_curve(_Connecting(el, el, el, path, (path[0], 3.2, -2.4498594),
+                                                     (path[-1], 1.149, -0.26211942)))
+    assert not folds
+    assert fold_ratio(pieces, 3.2, 1.149, half=half) < 1.0
+    line = shapely.LineString(path)
+    off = max(line.distance(shapely.Point(q)) for q in piece_points(pieces))
+    assert FOLD_ESCAPE_WIDTH_SHARE * 1.149 < off <= fold_escape(1.149) == 0.4
+    assert fold_escape(3.2) == pytest.approx(0.8)  # wide lanes: a quarter of the width, as before
+
+
+def ring_net(tmp_path: Path, lanes: int = 1, name: str = "ring") -> Path:
+    """A one-way ring road of 8 edges round a circle of 60 m radius, ``lanes`` lanes each and no
+    way in or out (the phantom-jam experiment's network), built by netconvert."""
+    import subprocess
+
+    a = np.linspace(0.0, 2 * math.pi, 9)[:-1]
+    nodes = "".join(f'<node id="n{k}" x="{60 * math.cos(t):.3f}" y="{60 * math.sin(t):.3f}" type="priority"/>'
+                    for k, t in enumerate(a))
+    edges = "".join(f'<edge id="e{k}" from="n{k}" to="n{(k + 1) % 8}" numLanes="{lanes}" speed="13.89"/>'
+                    for k in range(8))
+    (tmp_path / f"{name}.nod.xml").write_text(f"<nodes>{nodes}</nodes>")
+    (tmp_path / f"{name}.edg.xml").write_text(f"<edges>{edges}</edges>")
+    net = tmp_path / f"{name}.net.xml"
+    subprocess.run([sumo_install.binary("netconvert"), "-n", str(tmp_path / f"{name}.nod.xml"), "-e",
+                    str(tmp_path / f"{name}.edg.xml"), "-o", str(net), "--no-turnarounds", "true"],
+                   check=True, capture_output=True, env=sumo_install.subprocess_env(), timeout=120)
+    return net
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("lanes", [1, 2])
+def test_a_ring_road_is_written_with_one_road_the_other_way_round(tmp_path, lanes):
+    # every lane of a ring road follows its only predecessor round to itself: commonroad would
+    # join each into one lanelet ending where it starts (an outline no polygon can be). One road
+    # is written the other way round, its lanes as left lanes: the same lanes, the same direction
+    from coster_sumo.exports.opendrive_rings import lane_rings
+    from coster_sumo.formats.sumo_net import read_sumolib_net
+
+    net = ring_net(tmp_path, lanes)
+    raw = odr.write_xodr(net, tmp_path / "raw.xodr", fit=False)
+    assert len(lane_rings(SafeET.parse(str(raw)).getroot())) == lanes
+    xodr = odr.write_xodr(net, tmp_path / "ring.xodr")
+    root = SafeET.parse(str(xodr)).getroot()
+    assert lane_rings(root) == []
+    reversed_roads = [r for r in root.findall("road") if r.find("lanes/laneSection/left/lane") is not None]
+    assert len(reversed_roads) == 1
+    road = reversed_roads[0]
+    assert road.get("junction") == "-1" and road.find("lanes/laneSection/right/lane") is None
+    assert sorted(int(ln.get("id")) for ln in road.iter("lane")) == list(range(lanes + 1))
+    # the lanes where SUMO has them, every lane link closed at both borders
+    assert_xodr_on_lanes(xodr, net, roads=0.05)
+    gaps = [g for *_, g in odr.lane_link_gaps(xodr)]
+    assert len(gaps) == 16 * lanes and max(gaps) <= LINK_TOLERANCE_M  # both ends of 8 connecting roads
+    assert_readable(xodr)
+    # driven as SUMO drives it: a left lane's centre line, read against s, runs along its SUMO lane
+    # (lane k the k-th from the reference line, as -k was; the ends cut back for the bends' room)
+    sumo_edge = read_sumolib_net(str(net)).getEdge(road.find("userData[@code='sumoId']").get("value"))
+    centres = [x for x in odr.xodr_lane_centres(xodr) if x.road == road.get("id")]
+    assert sorted(x.lane for x in centres) == list(range(1, lanes + 1))
+    for ln in centres:
+        line = shapely.LineString(np.asarray(sumo_edge.getLane(lanes - ln.lane).getShape())[:, :2])
+        assert max(line.distance(shapely.Point(p)) for p in ln.xy) < 0.01
+        assert line.project(shapely.Point(ln.xy[-1])) + 40.0 < line.project(shapely.Point(ln.xy[0]))
+
+
+def test_reversed_pieces_and_records_trace_the_same_curve_backwards():
+    import xml.etree.ElementTree as ET
+
+    from coster_sumo.exports.opendrive import _reference_line
+    from coster_sumo.exports.opendrive_rings import _reverse_cubics, _reverse_geometry
+    from coster_sumo.exports.opendrive_roads import records_at
+
+    plan = ET.fromstring(
+        '<planView><geometry s="0" x="10" y="-4" hdg="0.3" length="5"><line/></geometry>'
+        '<geometry s="5" x="14.777" y="-2.522" hdg="0.3" length="8"><arc curvature="0.12"/></geometry>'
+        '<geometry s="13" x="20" y="3" hdg="1.2" length="6.2"><paramPoly3 aU="0" bU="6" cU="0.3" dU="-0.1" '
+        'aV="0" bV="0" cV="1.1" dV="-0.4" pRange="normalized"/></geometry></planView>')
+    length = 19.2
+    # each piece alone, read backwards: the same points, the heading turned by pi
+    for g in list(plan):
+        one = ET.Element("planView")
+        one.append(ET.fromstring(ET.tostring(g)))
+        one[0].set("s", "0")
+        piece_len = float(g.get("length"))
+        s = np.linspace(0.0, piece_len, 25)
+        x, y, h = _reference_line(one, s)
+        _reverse_geometry(one[0], 0.0)
+        xr, yr, hr = _reference_line(one, piece_len - s)
+        # (a normalized paramPoly3 is read at p = s / length: p and 1 - p, the same points too)
+        assert np.allclose(x, xr, atol=1e-5) and np.allclose(y, yr, atol=1e-5), g[0].tag
+        assert np.allclose(np.cos(h - hr), -1.0, atol=1e-8), g[0].tag
+    rec = [ET.Element("laneOffset", {"s": "0", "a": "0.5", "b": "0.1", "c": "-0.02", "d": "0.001"}),
+           ET.Element("laneOffset", {"s": "7.5", "a": "1.2", "b": "-0.3", "c": "0", "d": "0.004"})]
+    s = np.linspace(0.0, length, 40)
+    before = np.array([records_at(rec, "s", v) for v in s])
+    back = _reverse_cubics([ET.fromstring(ET.tostring(r)) for r in rec], "s", length, -1.0)
+    after = np.array([records_at(back, "s", length - v) for v in s])
+    inside = np.abs(s - 7.5) > 1e-6  # the records jump at 7.5 m: either side's value is right there
+    assert np.allclose(after[inside], -before[inside], atol=1e-6)
+
+
 def test_a_uturn_between_lanes_side_by_side_is_pinched_whatever_its_direction(tmp_path):
     # the corpus cuts of grid_tls3 mark a U-turn between two lanes that share their left border
     # as a left turn ("l"): its inner border would pass that border point twice, no lane outline
@@ -184,9 +297,12 @@ def test_a_uturn_between_lanes_side_by_side_is_pinched_whatever_its_direction(tm
   <edge id="out"><lane id="out_0" index="0" width="3.2" shape="1.6,93.6 1.6,150.4"/></edge>
   <edge id="left"><lane id="left_0" index="0" width="3.2" shape="-10.0,88.0 -60.0,88.0"/></edge>
   <connection from="in" to="out" fromLane="0" toLane="0" via=":n_0_0" dir="l"/>
+  <edge id="on"><lane id="on_0" index="0" width="3.2" shape="-1.6,93.6 -1.6,40.0"/></edge>
   <connection from="in" to="left" fromLane="0" toLane="0" via=":n_1_0" dir="l"/>
+  <connection from="in" to="on" fromLane="0" toLane="0" via=":n_2_0" dir="s"/>
 </net>""")
     lanes = NetLanes.read(net)
+    # (a one-way road running straight on: its left borders meet too, but it turns by 0 rad)
     assert lanes.pinched_uturns == {("in", 0, "out", 0)}
 
 

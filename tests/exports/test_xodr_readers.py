@@ -3,7 +3,8 @@ environment (``make xodr-readers``; skipped where absent): ASAM's OpenDRIVE chec
 scenario-designer's conversion to lanelets, pyxodr.
 
 Exports: the demo networks (intersection, arterial, merge), the SUMO wheel's game/square and
-game/grid6, and the four real WOMD samples converted (when ../shared has them).
+game/grid6, one-way ring roads of one and two lanes, and the four real WOMD samples converted
+(when ../shared has them).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import pytest
 from defusedxml import ElementTree as SafeET
+from test_export_opendrive import ring_net
 
 from coster_sumo.cli.command_line import main
 from coster_sumo.exports import opendrive as odr
@@ -58,6 +60,8 @@ def exports(tmp_path_factory) -> dict[str, Path]:
         net = sumo_install.sumo_home() / "tools" / "game" / name / f"{name}.net.xml"
         if net.is_file():
             nets[name] = net
+    for lanes in (1, 2):  # ring roads: every lane its own only successor's only predecessor, round
+        nets[f"ring{lanes}"] = ring_net(out, lanes, name=f"ring{lanes}")
     samples = [*WOMD_PROTO, *WOMD_PKL]
     if samples:
         assert main(["-q", "convert", *map(str, samples), "-o", str(out / "conv")]) == 0
