@@ -2,7 +2,7 @@
 
     python bench/bench_xodr_checker.py [--work DIR] [--seed 0] [--per-sample 15] [--per-net 2]
                                        [--only NAME ...] [--readers asam commonroad pyxodr] [--jobs 1]
-                                       [--reuse-nets | --reuse] [--names NAME ...]
+                                       [--reuse-nets | --reuse] [--names NAME ...] [--clips DIR ...]
 
 Generates the scenes of ``bench/xodr_scenes.py`` (WOMD crops and transforms, cuts of every corpus
 network and of extra netgenerate nets, and those cuts converted by the project's converter),
@@ -12,7 +12,9 @@ all of them. Prints per reader the totals and every file with a finding, and wri
 ``WORK/summary.json`` (each reader's rows also go to ``WORK/rows_<reader>.jsonl`` as they come).
 ``--reuse-nets``: export the nets of an earlier run (``WORK/nets.json``) again;
 ``--reuse``: check the ``.xodr`` files already in ``WORK/xodr/``;
-``--names``: generate only the scenes of these names (the same nets the whole list has).
+``--names``: generate only the scenes of these names (the same nets the whole list has);
+``--clips``: instead, folders of converted corpus clips (``coster-sumo convert`` of a ``corpus
+build``), one clip per network (the first by name) with its converted net as it is.
 Exit status 0 when every reader found nothing.
 """
 
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -50,6 +53,20 @@ def generate(work: Path, args: argparse.Namespace) -> list[dict]:
         print(f"generated {test.name} ({test.family})", flush=True)
         (work / "nets.json").write_text(json.dumps(nets, indent=1))
     return nets
+
+
+def corpus_clips(folders: list[Path]) -> list[dict]:
+    """One converted clip per network of each folder (clip folders ``<network>_r<run>_...``, the
+    first by name), as scenes of family ``corpus-clip``; recorded like :func:`generate`'s."""
+    first: dict[str, Path] = {}
+    for folder in folders:
+        for clip in sorted(p for p in folder.iterdir() if p.is_dir()):
+            network = re.sub(r"_r\d+_.*$", "", clip.name)
+            nets = sorted(clip.glob("*.net.xml"))
+            if nets and network not in first:
+                first[network] = nets[0]
+    return [{"name": f"clip_{net.parent.name}", "family": "corpus-clip", "net": str(net)}
+            for _, net in sorted(first.items())]
 
 
 def export_one(name: str, net: str, out: Path) -> tuple[str, str, float]:
@@ -132,6 +149,8 @@ def main() -> int:
     ap.add_argument("--per-net", type=int, default=2)
     ap.add_argument("--only", nargs="*", default=None, help="'womd' and/or source net names")
     ap.add_argument("--names", nargs="*", default=None, help="only the scenes of these names")
+    ap.add_argument("--clips", nargs="*", type=Path, default=None,
+                    help="folders of converted corpus clips: one clip per network instead of generated scenes")
     ap.add_argument("--readers", nargs="*", default=list(ENVS), choices=list(ENVS))
     ap.add_argument("--jobs", type=int, default=1, help="export and reader processes at a time")
     ap.add_argument("--reuse-nets", action="store_true", help="export the nets WORK/nets.json lists again")
@@ -141,6 +160,10 @@ def main() -> int:
     t0 = time.perf_counter()
     if args.reuse_nets or args.reuse:
         nets = json.loads((work / "nets.json").read_text())
+    elif args.clips:
+        nets = corpus_clips(args.clips)
+        work.mkdir(parents=True, exist_ok=True)
+        (work / "nets.json").write_text(json.dumps(nets, indent=1))
     else:
         nets = generate(work, args)
     failed = [] if args.reuse else export_all(work, nets, args.jobs)

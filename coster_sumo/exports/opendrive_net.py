@@ -108,7 +108,14 @@ class NetLanes:
             return False
         left_a = _left_border(a[-1], a[-1] - a[-2], width_a)
         left_b = _left_border(b[0], b[1] - b[0], width_b)
-        return float(np.hypot(*(left_a - left_b))) <= PINCH_M
+        if float(np.hypot(*(left_a - left_b))) <= PINCH_M:
+            return True
+        # staggered: the one lane's left border end lies on the other's left border (the two lanes
+        # side by side, the one ending beside the other's first metres; a converted clip of
+        # grid_family03: 1 m apart), so the U-turn's inner border has to run back along a border
+        # already drawn
+        return (_segment_distance(left_b, _left_border(a[-2], a[-1] - a[-2], width_a), left_a) <= PINCH_M
+                or _segment_distance(left_a, left_b, _left_border(b[1], b[1] - b[0], width_b)) <= PINCH_M)
 
     def corner_is_pinched(self, key: tuple[str, int, str, int]) -> bool:
         """Whether a turn (not a U-turn) leaves its lane's end and enters its next lane's start at
@@ -258,6 +265,13 @@ def _straight(shape: np.ndarray) -> float:
     bad = np.flatnonzero(off > STRAIGHT_TOL_M)
     end = int(bad[0]) - 1 if len(bad) else len(shape) - 1
     return float((shape[end] - shape[0]) @ d)
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """[m] distance of point ``p`` from the segment ``a``-``b``."""
+    ab = b - a
+    t = float(np.clip(np.dot(p - a, ab) / max(float(np.dot(ab, ab)), 1e-18), 0.0, 1.0))
+    return float(np.hypot(*(p - (a + t * ab))))
 
 
 def _left_border(point: np.ndarray, direction: np.ndarray, width: float) -> np.ndarray:

@@ -306,6 +306,24 @@ def test_a_uturn_between_lanes_side_by_side_is_pinched_whatever_its_direction(tm
     assert lanes.pinched_uturns == {("in", 0, "out", 0)}
 
 
+def test_a_uturn_between_lanes_side_by_side_but_staggered_is_pinched_too(tmp_path):
+    # a converted clip of grid_family03: the lane back starts 1 m behind where the lane in ends,
+    # their left borders on one line; the U-turn's inner border would run back along the border
+    # of the lane in (commonroad: the joined lanelet crosses itself). Starting 1 m beyond that end,
+    # the lane in's end lies on the lane back's border: the same. With 0.8 m between the two
+    # borders, the inner border turns in that room: no pinch
+    from coster_sumo.exports.opendrive_net import NetLanes
+
+    for back_x, back_y, pinched in ((452.6, 214.4, True), (450.6, 214.4, True), (452.6, 213.6, False)):
+        net = tmp_path / f"s{back_x}_{back_y}.net.xml"
+        net.write_text(f"""<net>
+  <edge id="in"><lane id="in_0" index="0" width="3.2" shape="581.4,217.6 451.6,217.6"/></edge>
+  <edge id="back"><lane id="back_0" index="0" width="3.2" shape="{back_x},{back_y} 581.4,{back_y}"/></edge>
+  <connection from="in" to="back" fromLane="0" toLane="0" via=":n_0_0" dir="t"/>
+</net>""")
+        assert (NetLanes.read(net).pinched_uturns == {("in", 0, "back", 0)}) is pinched, (back_x, back_y)
+
+
 def test_a_short_connection_between_lanes_apart_sideways_gets_room_for_an_s_curve(tmp_path):
     # the converted OSM cuts of fkk_in: a one-lane road continues into one lane of a two-lane road
     # whose line lies 0.55 m to its left, through an internal lane of 0.72 m; no curve that short
