@@ -254,7 +254,7 @@ def simulate_run(task: RunTask) -> RunOutcome:
                 picks = ds.plan_clips(scene, budget, rng, ds.ClipRules(task.targets_per_window, warmup_s=warmup))
                 for start, target in picks:
                     t0 = float(scene.timestamps[start]) - begin
-                    name = f"{task.run_id}_{t0:07.1f}_{ds.safe_name(str(scene.tracks.ids[target]))}"
+                    name = ds.clip_name(task.run_id, t0, str(scene.tracks.ids[target]))
                     clip = ds.clip_scene(scene, start, target, scenario_id=name)
                     save_scene(clip, out_dir / f"{name}.npz")
                     if sampler is not None:

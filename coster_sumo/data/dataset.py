@@ -325,6 +325,22 @@ def safe_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-") or "x"
 
 
+def clip_name(run_id: str, t0: float, target_id: str) -> str:
+    """A corpus clip's name: its run (``NET_rRUN``), its window's start [s] in the run and its target.
+    A window gives one clip per target, and those clips share their agents (:func:`clip_window`)."""
+    return f"{run_id}_{t0:07.1f}_{safe_name(target_id)}"
+
+
+_CLIP = re.compile(r"^(.+?_r\d+_\d+\.\d)_.+$")
+
+
+def clip_window(scenario_id: str) -> str:
+    """The recorded window a clip of :func:`clip_name` was cut from (``NET_rRUN_START``), whatever
+    its target id holds (``veh_mw1816``, ``O10.16``); any other id is its own window."""
+    m = _CLIP.match(scenario_id)
+    return m.group(1) if m else scenario_id
+
+
 # ----------------------------------------------------------------------------- reading
 
 def scenes_dir(dataset: str | Path) -> Path:

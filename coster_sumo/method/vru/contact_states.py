@@ -22,6 +22,7 @@ import numpy as np
 import shapely
 
 from coster_sumo.core.scene import Scene, resample
+from coster_sumo.data.dataset import clip_window
 from coster_sumo.errors import InputError
 from coster_sumo.geometry.drivable import DrivableArea
 from coster_sumo.method.vru.areas import ClassArea
@@ -165,17 +166,11 @@ def scene_samples(scene: Scene, vru: VruClass) -> tuple[np.ndarray, np.ndarray]:
     return got.speed[m], got.angle[m]
 
 
-def window_of(scenario_id: str) -> str:
-    """The recorded window a clip was cut from: the corpus names its clips ``NET_rRUN_START_TARGET``,
-    one per target of a window, and clips of one window share their agents; another id is its own."""
-    head, _, tail = scenario_id.rpartition("_")
-    return head if head.count("_") >= 2 and tail.isdigit() else scenario_id
-
-
 def fit_contact_states(scenes: Iterable[Scene], progress: Callable[[Iterable[Scene]], Iterable[Scene]] | None = None,
                        source: str = "") -> ContactStates:
     """Count every class of :data:`VRU_CLASSES` over ``scenes`` (module docstring); an agent's step
-    is counted once however many clips of its window (:func:`window_of`) hold it."""
+    is counted once however many clips of its window
+    (:func:`~coster_sumo.data.dataset.clip_window`) hold it."""
     shape = (len(SPEED_EDGES) - 1, len(HEADING_EDGES) - 1)
     counts = {name: np.zeros(shape, np.int64) for name in VRU_CLASSES}
     seen: set[tuple[str, str, float]] = set()
@@ -185,7 +180,7 @@ def fit_contact_states(scenes: Iterable[Scene], progress: Callable[[Iterable[Sce
         got = _road_samples(scene)
         if got is None:
             continue
-        window = window_of(scene.scenario_id)
+        window = clip_window(scene.scenario_id)
         keys = [(window, str(i), round(float(t), 3)) for i, t in zip(got.ids, got.times, strict=True)]
         new = np.array([k not in seen for k in keys], bool)
         seen.update(keys)

@@ -23,7 +23,6 @@ from coster_sumo.method.vru.contact_states import (
     ContactStates,
     fit_contact_states,
     scene_samples,
-    window_of,
 )
 from coster_sumo.method.vru.snapshot import vru_snapshot
 
@@ -66,11 +65,17 @@ def test_only_moving_pedestrians_on_the_road_count_with_their_angle_to_the_lane(
     assert fit_contact_states([a, c]).meta["steps"]["pedestrian"] == 2 * len(speed)
 
 
-def test_window_of_a_clip():
-    assert window_of("arterial_r0_00063.8_6") == "arterial_r0_00063.8"
-    assert window_of("fkk_in_r3_00120.0_12") == "fkk_in_r3_00120.0"
-    assert window_of("2a1e44d405a6833f") == "2a1e44d405a6833f"
-    assert window_of("two_lane_road") == "two_lane_road"
+def test_the_window_of_a_clip_whatever_its_target_id():
+    from coster_sumo.data.dataset import clip_name, clip_window
+
+    assert clip_window("arterial_r0_00063.8_6") == "arterial_r0_00063.8"
+    assert clip_window("fkk_in_r3_00120.0_12") == "fkk_in_r3_00120.0"
+    # target ids with underscores and dots (A10KW, corridor, fokr_bs_demo): the same window
+    assert clip_window(clip_name("A10KW_r0", 63.8, "veh_mw1816")) == "A10KW_r0_00063.8"
+    assert clip_window(clip_name("corridor_r0", 63.8, "O10.16")) == "corridor_r0_00063.8"
+    assert clip_window(clip_name("fokr_bs_demo_r2", 1200.0, "1695567669790585.1")) == "fokr_bs_demo_r2_01200.0"
+    assert clip_window("2a1e44d405a6833f") == "2a1e44d405a6833f"
+    assert clip_window("two_lane_road") == "two_lane_road"
 
 
 def _concentrated(speed_bin: int, angle_bin: int, n: int = MIN_SAMPLES) -> ContactStates:
