@@ -134,7 +134,7 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
     # shape (or BEND_KINK_FACTOR times the curve through the points' distance: netconvert's kinked
     # internal lanes); else that lane narrowed where it turns; else the curve through the points
     # where its lane keeps whole; else the closest of those or of the lane narrowed further (TIGHT)
-    # within FOLD_ESCAPE_WIDTH_SHARE of the lane's width; else the curve through the points, folded.
+    # within fold_escape of the narrower lane's width; else the curve through the points, folded.
     through = hermite_through(path, start[2], end[2])
     bound = max(BEND_KINK_FACTOR * deviation(through, path), BEND_DEVIATION_M)
     smooth = cubic_pieces(*smooth_path(path, start[2], end[2], start[1], end[1]), samples=64)
@@ -210,7 +210,7 @@ def _write_joined(c: _Connecting, pieces: list[dict[str, float]], half: np.ndarr
 def _smooth_unlinked(road: ET.Element, sample: Sampler) -> None:
     """A one-lane connecting road linked at neither end, left on its SUMO polyline (converted OSM
     cuts' bicycle turns), gets the curve through the polyline's points where its lane keeps whole
-    and within :data:`FOLD_ESCAPE_WIDTH_SHARE` of its width: the kinks fold its inner border. Where
+    and within :func:`fold_escape` of its width: the kinks fold its inner border. Where
     that lane folds on every such curve (netconvert's cut of bs3d: a bus lane 3.2 m wide turning
     1.97 rad within 2.5 m), the lane narrowed where it turns, as a joined road's
     (:func:`_narrowed`), its SUMO width kept at both ends, within the same distance."""

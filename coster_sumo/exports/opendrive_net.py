@@ -104,7 +104,7 @@ class NetLanes:
         if ends is None:
             return False
         a, b, width_a, width_b = ends
-        if abs(_wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2]))) <= MAX_PINCHED_TURN:
+        if abs(_turn(a, b)) <= MAX_PINCHED_TURN:
             return False
         left_a = _left_border(a[-1], a[-1] - a[-2], width_a)
         left_b = _left_border(b[0], b[1] - b[0], width_b)
@@ -125,7 +125,7 @@ class NetLanes:
         if ends is None:
             return False
         a, b, width_a, width_b = ends
-        turn = _wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2]))
+        turn = _turn(a, b)
         if abs(turn) > MAX_PINCHED_TURN:
             return False
         side = 1.0 if turn > 0 else -1.0  # the left border on a left turn, the right on a right turn
@@ -182,7 +182,7 @@ class NetLanes:
             if a is None or b is None or len(a) < 2 or len(b) < 2 or not parts:
                 continue
             length = sum(piece_length(part) for part in parts)
-            turn = abs(_wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2])))
+            turn = abs(_turn(a, b))
             half = 0.5 * self.width.get(internal[0], DEFAULT_LANE_WIDTH_M)
             need = turn * half / FOLD_RATIO
             side = side_gap(a, b)
@@ -235,7 +235,7 @@ def side_gap(a: np.ndarray, b: np.ndarray) -> float:
     d = a[-1] - a[-2]
     d = d / max(float(np.hypot(*d)), 1e-12)
     v = b[0] - a[-1]
-    turn = _wrap(_heading(b[1] - b[0]) - _heading(d))
+    turn = _turn(a, b)
     return abs(float(d[0] * v[1] - d[1] * v[0]) - float(np.hypot(*v)) * float(np.sin(turn / 2.0)))
 
 
@@ -250,6 +250,12 @@ def shift_arc(side: float, radius: float) -> float:
 
 def _heading(v: np.ndarray) -> float:
     return float(np.arctan2(v[1], v[0]))
+
+
+def _turn(a: np.ndarray, b: np.ndarray) -> float:
+    """[rad] the heading change from the end of lane shape ``a`` to the start of lane shape ``b``
+    (left positive, within [-pi, pi))."""
+    return _wrap(_heading(b[1] - b[0]) - _heading(a[-1] - a[-2]))
 
 
 def _wrap(a: float) -> float:
