@@ -33,6 +33,13 @@ import numpy as np
 FOLD_RATIO = 0.9  # [-] the fold ratio smooth_path keeps below where it can (1: the border stops)
 PATH_STEP_M = 0.25  # [m] spacing of the points of a connecting road's smoothed centre line
 MIN_POINTS = 12  # ... at least this many steps (a short turn needs room to spread its bending)
+# A finer grid for short roads where no curve on the default one keeps the lane whole: a lane
+# 3-4 m wide moving 4.6 m sideways within 2.8 m (a converted fokr_bs_demo junction) needs turns of
+# under 0.5 m radius, which points 0.44 m apart cannot draw. Its cost grows with the cube of the
+# points (one dense solve a round), so only roads up to FINE_MAX_M get it.
+FINE_STEP_M = 0.05  # [m]
+FINE_MIN_POINTS = 48
+FINE_MAX_M = 12.0  # [m]
 BASE_STIFFNESS = 1e-4  # [m^4] bending weight against 1 for the squared distance to a SUMO vertex
 MAX_STIFFNESS = 1e3  # [m^4] ... its ceiling (the vertices no longer count; the system stays well conditioned)
 STIFFEN = 10.0  # [-] most the bending weight grows (or shrinks) in one round
@@ -130,15 +137,17 @@ def _clamped_system(pts: np.ndarray, sigma: np.ndarray, s: np.ndarray, step: flo
 
 
 def bend(points: np.ndarray, start_heading: float, end_heading: float, start_width: float,
-         end_width: float, narrow: Narrowing | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+         end_width: float, narrow: Narrowing | None = None, step_m: float = PATH_STEP_M,
+         min_points: int = MIN_POINTS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A connecting road's centre line along its polyline (N, 2) [m] (first and last point: the
     contacts with its two lanes), leaving the first point at ``start_heading`` and reaching the last
     at ``end_heading`` [rad], bending no tighter than its lane's border can follow.
 
-    Points p every :data:`PATH_STEP_M` along the polyline minimise the squared distances from the
-    polyline's inner vertices to the curve plus sum mu_i |second difference_i / step^2|^2 (the
-    squared curvature), the two contacts held and the ends clamped to their headings (the points
-    one step outside each end lie so that the central difference there runs along the heading):
+    Points p every ``step_m`` (at least ``min_points`` + 1 of them) along the polyline minimise the
+    squared distances from the polyline's inner vertices to the curve plus
+    sum mu_i |second difference_i / step^2|^2 (the squared curvature), the two contacts held and
+    the ends clamped to their headings (the points one step outside each end lie so that the
+    central difference there runs along the heading):
     with a small mu (:data:`BASE_STIFFNESS`) a smooth curve through the vertices. Where the
     curvature of the points or of the cubic pieces written between them, times half the lane's width
     (changing linearly between the two lanes'), exceeds :data:`FOLD_RATIO`, mu grows (by up to
@@ -157,7 +166,7 @@ def bend(points: np.ndarray, start_heading: float, end_heading: float, start_wid
     pts = np.asarray(points, np.float64) - origin  # (WOMD coordinates are kilometres: keep digits)
     sigma = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])  # arc length of each vertex
     length = float(sigma[-1])
-    n = max(int(np.ceil(length / PATH_STEP_M)), MIN_POINTS)
+    n = max(int(np.ceil(length / step_m)), min_points)
     step = max(length / n, 1e-6)
     s = np.linspace(0.0, length, n + 1)
     basis, const, at, d2 = _clamped_system(pts, sigma, s, step, start_heading, end_heading)

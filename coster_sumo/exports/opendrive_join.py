@@ -13,12 +13,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from coster_sumo.exports.opendrive_bend import (
+    FINE_MAX_M,
+    FINE_MIN_POINTS,
+    FINE_STEP_M,
+    MIN_POINTS,
     NARROW,
+    PATH_STEP_M,
     TIGHT,
     Narrowing,
     bend,
+    crossings,
     deviation,
     fold_ratio,
+    outline,
     smooth_path,
     untangle,
 )
@@ -43,6 +50,9 @@ FOLD_ESCAPE_WIDTH_SHARE = 0.25
 # leave its SUMO shape on roads it can keep whole (the WOMD samples' tight turns, docs/sumo.md §12a),
 # and a folded lane is one no reader can draw
 FOLD_ESCAPE_MIN_M = 0.4
+# vertices before the first and after the last folding piece of the curve through the points where
+# a stretch bent on its own may begin and end (the rest of the road keeps that curve)
+STRETCH_REACH = 2
 
 
 def fold_escape(width: float) -> float:
@@ -154,16 +164,76 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
         return within[0][1], within[0][2], False
     escape = fold_escape(min(start[1], end[1]))
     near = sorted((w for w in whole if w[0] <= escape), key=lambda w: w[0])
+    if not near:  # the last resort before a folded lane: only the stretch where it turns bent
+        near = sorted((w for w in _stretches_bent(c, through) if w[0] <= escape), key=lambda w: w[0])
     if near:
         return near[0][1], near[0][2], False
     return through, None, True
 
 
-def _narrowed(c: _Connecting, narrowing: Narrowing
+def _stretches_bent(c: _Connecting, through: list[dict[str, float]]
+                    ) -> list[tuple[float, list[dict[str, float]], np.ndarray]]:
+    """Whole curves (deviation from the SUMO shape [m], pieces, half widths at their ends) that
+    keep the curve through the points except on one stretch around where its lane folds, which is
+    bent on its own (:func:`_narrowed`, also on :data:`FINE_STEP_M`'s grid where the stretch is
+    short). Where the SUMO shape turns round at the end of a long straight (a converted DRT
+    junction: 58 m straight, then a U-turn of a 3.2 m lane within 3 m), a curve bent along the whole
+    road spreads its stiffening over the straight and leaves it by 1.7 m; bent from the last vertex
+    before the turn it stays within 0.4 m. A short road is its own stretch, bent on the fine grid."""
+    path = _distinct(c.path)
+    n = len(path) - 1
+    if n < 1 or len(through) != n:  # (hermite_through drops the same points)
+        return []
+    sigma = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    half = 0.5 * (c.start[1] + (c.end[1] - c.start[1]) * sigma / max(float(sigma[-1]), 1e-12))
+    folds = [k for k in range(n) if fold_ratio([through[k]], 2 * half[k], 2 * half[k + 1]) >= 1.0]
+    if not folds:
+        return []
+    firsts = range(max(0, folds[0] - STRETCH_REACH), folds[0] + 1)
+    lasts = range(folds[-1] + 1, min(n, folds[-1] + 1 + STRETCH_REACH) + 1)
+    heading = [c.start[2], *(float(np.arctan2(d[1], d[0])) for d in path[2:] - path[:-2]), c.end[2]]
+    found = []
+    for i in firsts:
+        for j in lasts:
+            part = _Connecting(c.road, c.plan, c.lane, path[i:j + 1].copy(), (path[i].copy(), 2 * half[i], heading[i]),
+                               (path[j].copy(), 2 * half[j], heading[j]))
+            # (the whole road on the default grid is what _joining_curve tried first)
+            grids = ([] if (i, j) == (0, n) else [(PATH_STEP_M, MIN_POINTS)]) \
+                + ([(FINE_STEP_M, FINE_MIN_POINTS)] if sigma[j] - sigma[i] <= FINE_MAX_M else [])
+            for narrowing in (NARROW, TIGHT):
+                for step_m, min_points in grids:
+                    bent = _narrowed(part, narrowing, step_m, min_points)
+                    if bent is None:
+                        continue
+                    pieces = through[:i] + bent[1] + through[j:]
+                    widths = np.concatenate([half[:i], bent[2], half[j + 1:]])
+                    whole = fold_ratio(pieces, 0.0, 0.0, half=widths) < 1.0
+                    if whole and not len(crossings(outline(pieces, widths)[0])):
+                        found.append((deviation(pieces, c.path), pieces, widths))
+    return found
+
+
+def _distinct(path: np.ndarray, min_step: float = 0.01) -> np.ndarray:
+    """The polyline's points without those within ``min_step`` [m] of the last one kept, its last
+    point kept (as :func:`~coster_sumo.exports.opendrive_solve.hermite_through` keeps them)."""
+    kept = [path[0]]
+    for p in path[1:]:
+        if np.hypot(*(p - kept[-1])) >= min_step:
+            kept.append(p)
+    if len(kept) < 2:
+        kept.append(path[-1])
+    else:
+        kept[-1] = path[-1]
+    return np.asarray(kept, np.float64)
+
+
+def _narrowed(c: _Connecting, narrowing: Narrowing, step_m: float = PATH_STEP_M, min_points: int = MIN_POINTS
               ) -> tuple[float, list[dict[str, float]], np.ndarray] | None:
     """The joined road's curve with its lane narrowed where it turns (its deviation from the SUMO
-    shape [m], its pieces, half its width at their ends), or None where its lane folds all the same."""
-    p, hd, half = bend(c.path, c.start[2], c.end[2], c.start[1], c.end[1], narrow=narrowing)
+    shape [m], its pieces, half its width at their ends), or None where its lane folds all the same
+    (``step_m``, ``min_points``: :func:`~coster_sumo.exports.opendrive_bend.bend`'s grid)."""
+    p, hd, half = bend(c.path, c.start[2], c.end[2], c.start[1], c.end[1], narrow=narrowing, step_m=step_m,
+                       min_points=min_points)
     bent = cubic_pieces(p, hd, samples=64)
     if fold_ratio(bent, c.start[1], c.end[1], half=half) >= 1.0:
         return None

@@ -194,6 +194,54 @@ def test_a_turnaround_onto_a_bicycle_lane_keeps_its_lane_whole_within_the_juncti
     assert fold_escape(3.2) == pytest.approx(0.8)  # wide lanes: a quarter of the width, as before
 
 
+def _whole_and_near(path: np.ndarray, start: tuple[float, float], end: tuple[float, float]) -> float:
+    """Join a connecting road along ``path`` between contacts (width [m], heading [rad]); assert
+    its lane keeps whole (no border folds, its outline crosses itself nowhere, the linked widths
+    kept); return how far [m] the written curve lies from the SUMO shape at most."""
+    import xml.etree.ElementTree as ET
+
+    from coster_sumo.exports.opendrive_bend import deviation
+    from coster_sumo.exports.opendrive_join import _Connecting, _joining_curve
+
+    el = ET.Element("road")
+    pieces, half, folds = _joining_curve(_Connecting(el, el, el, path, (path[0], *start), (path[-1], *end)))
+    assert not folds and half is not None
+    assert fold_ratio(pieces, start[0], end[0], half=half) < 1.0
+    assert len(crossings(outline(pieces, half)[0])) == 0
+    assert 2 * half[0] == pytest.approx(start[0]) and 2 * half[-1] == pytest.approx(end[0])
+    return deviation(pieces, path)
+
+
+def test_a_uturn_at_the_end_of_a_long_connecting_road_is_bent_there_only():
+    # a converted DRT clip's junction lane (3.2 m wide): 58 m nearly straight, then it turns round
+    # within 3 m onto the lane beside it. Bent along its whole length, the closest whole curve
+    # leaves the SUMO shape by 1.7 m; bent from the last vertex before the turn (the straight
+    # kept), it stays within a quarter of its width
+    from coster_sumo.exports.opendrive_join import fold_escape
+
+    path = np.array([[0.0, 0.0], [-6.72, -3.38], [-12.24, -5.87], [-27.942, -14.496], [-51.45, -27.41],
+                     [-52.12, -28.69], [-52.08, -29.58], [-51.97, -29.66], [-51.35, -30.09], [-49.91, -30.22],
+                     [-49.907, -30.219]])
+    off = _whole_and_near(path, (3.2, -2.6334524), (3.196059, 0.50224428))
+    assert off <= fold_escape(3.196059)
+
+
+@pytest.mark.parametrize("path, start, end", [
+    # converted fokr_bs_demo junction lanes: 4.1 -> 2.9 m wide, 4.6 m sideways within 2.8 m ...
+    ([[0.0, 0.0], [2.76, 4.57]], (4.1, -0.028096845), (2.9457239, 0.019246696)),
+    # ... and 4.4 -> 3.2 m wide, 1.1 m sideways within 3.1 m on a kinked shape
+    ([[0.0, 0.0], [-0.44, 0.77], [-0.96, 1.17], [-1.48, 1.58], [-1.88, 2.36]], (4.4, 1.8923483),
+     (3.2, 1.8528358)),
+])
+def test_a_short_connecting_road_too_tight_for_the_default_grid_keeps_whole_on_a_finer_one(path, start, end):
+    # every curve on points 0.25 m (at least 12 steps) apart folds or lies beyond a quarter of the
+    # narrower width; on opendrive_bend.FINE_STEP_M's grid a whole one lies within it
+    from coster_sumo.exports.opendrive_join import fold_escape
+
+    off = _whole_and_near(np.array(path), start, end)
+    assert off <= fold_escape(min(start[0], end[0]))
+
+
 def ring_net(tmp_path: Path, lanes: int = 1, name: str = "ring") -> Path:
     """A one-way ring road of 8 edges round a circle of 60 m radius, ``lanes`` lanes each and no
     way in or out (the phantom-jam experiment's network), built by netconvert."""
