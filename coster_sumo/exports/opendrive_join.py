@@ -11,6 +11,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
+import shapely
 
 from coster_sumo.exports.opendrive_bend import (
     FINE_MAX_M,
@@ -26,6 +27,7 @@ from coster_sumo.exports.opendrive_bend import (
     deviation,
     fold_ratio,
     outline,
+    piece_points,
     smooth_path,
     untangle,
 )
@@ -165,52 +167,66 @@ def _joining_curve(c: _Connecting) -> tuple[list[dict[str, float]], np.ndarray |
     escape = fold_escape(min(start[1], end[1]))
     near = sorted((w for w in whole if w[0] <= escape), key=lambda w: w[0])
     if not near:  # the last resort before a folded lane: only the stretch where it turns bent
-        near = sorted((w for w in _stretches_bent(c, through) if w[0] <= escape), key=lambda w: w[0])
+        near = [w for w in [_stretch_bent(c, through, escape)] if w is not None]
     if near:
         return near[0][1], near[0][2], False
     return through, None, True
 
 
-def _stretches_bent(c: _Connecting, through: list[dict[str, float]]
-                    ) -> list[tuple[float, list[dict[str, float]], np.ndarray]]:
-    """Whole curves (deviation from the SUMO shape [m], pieces, half widths at their ends) that
-    keep the curve through the points except on one stretch around where its lane folds, which is
-    bent on its own (:func:`_narrowed`, also on :data:`FINE_STEP_M`'s grid where the stretch is
-    short). Where the SUMO shape turns round at the end of a long straight (a converted DRT
-    junction: 58 m straight, then a U-turn of a 3.2 m lane within 3 m), a curve bent along the whole
-    road spreads its stiffening over the straight and leaves it by 1.7 m; bent from the last vertex
-    before the turn it stays within 0.4 m. A short road is its own stretch, bent on the fine grid."""
+def _stretch_bent(c: _Connecting, through: list[dict[str, float]], escape: float
+                  ) -> tuple[float, list[dict[str, float]], np.ndarray] | None:
+    """A whole curve within ``escape`` [m] of the SUMO shape (its deviation [m], pieces, half
+    widths at their ends) that keeps the curve through the points except on one stretch around
+    where its lane folds, which is bent on its own (:func:`_narrowed`, also on
+    :data:`FINE_STEP_M`'s grid where the stretch is short); None where there is none. Where the
+    SUMO shape turns round at the end of a long straight (a converted DRT junction: 58 m straight,
+    then a U-turn of a 3.2 m lane within 3 m), a curve bent along the whole road spreads its
+    stiffening over the straight and leaves it by 1.7 m; bent from the last vertex before the turn
+    it stays within 0.4 m. A short road is its own stretch, bent on the fine grid. The shortest
+    stretches are tried first (the least of the road changed, and the cheapest), and the first
+    curve within ``escape`` is taken."""
     path = _distinct(c.path)
     n = len(path) - 1
     if n < 1 or len(through) != n:  # (hermite_through drops the same points)
-        return []
+        return None
     sigma = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
     half = 0.5 * (c.start[1] + (c.end[1] - c.start[1]) * sigma / max(float(sigma[-1]), 1e-12))
     folds = [k for k in range(n) if fold_ratio([through[k]], 2 * half[k], 2 * half[k + 1]) >= 1.0]
     if not folds:
-        return []
-    firsts = range(max(0, folds[0] - STRETCH_REACH), folds[0] + 1)
-    lasts = range(folds[-1] + 1, min(n, folds[-1] + 1 + STRETCH_REACH) + 1)
+        return None
+    stretches = sorted(((i, j) for i in range(max(0, folds[0] - STRETCH_REACH), folds[0] + 1)
+                        for j in range(folds[-1] + 1, min(n, folds[-1] + 1 + STRETCH_REACH) + 1)),
+                       key=lambda ij: (sigma[ij[1]] - sigma[ij[0]], ij))
     heading = [c.start[2], *(float(np.arctan2(d[1], d[0])) for d in path[2:] - path[:-2]), c.end[2]]
-    found = []
-    for i in firsts:
-        for j in lasts:
-            part = _Connecting(c.road, c.plan, c.lane, path[i:j + 1].copy(), (path[i].copy(), 2 * half[i], heading[i]),
-                               (path[j].copy(), 2 * half[j], heading[j]))
-            # (the whole road on the default grid is what _joining_curve tried first)
-            grids = ([] if (i, j) == (0, n) else [(PATH_STEP_M, MIN_POINTS)]) \
-                + ([(FINE_STEP_M, FINE_MIN_POINTS)] if sigma[j] - sigma[i] <= FINE_MAX_M else [])
-            for narrowing in (NARROW, TIGHT):
-                for step_m, min_points in grids:
-                    bent = _narrowed(part, narrowing, step_m, min_points)
-                    if bent is None:
-                        continue
-                    pieces = through[:i] + bent[1] + through[j:]
-                    widths = np.concatenate([half[:i], bent[2], half[j + 1:]])
-                    whole = fold_ratio(pieces, 0.0, 0.0, half=widths) < 1.0
-                    if whole and not len(crossings(outline(pieces, widths)[0])):
-                        found.append((deviation(pieces, c.path), pieces, widths))
-    return found
+    # how far each piece of the curve through the points strays from the SUMO shape: a stretch
+    # that leaves a piece straying beyond escape unchanged cannot give a curve within it
+    line = shapely.LineString(c.path)
+    stray = [float(shapely.distance(line, shapely.points(piece_points([pc]))).max()) for pc in through]
+    # the lane narrowed within NARROW on every stretch before any within TIGHT: a lane narrowed to
+    # 0.6 m on a turn of 0.33 m radius keeps whole, but a reader that samples its borders every
+    # half metre (commonroad) cuts across the turn (a converted fokr_bs_demo junction lane)
+    for narrowing in (NARROW, TIGHT):
+        for i, j in stretches:
+            if max(stray[:i] + stray[j:], default=0.0) > escape:
+                continue
+            part = _Connecting(c.road, c.plan, c.lane, path[i:j + 1].copy(),
+                               (path[i].copy(), 2 * half[i], heading[i]), (path[j].copy(), 2 * half[j], heading[j]))
+            # the fine grid first where the stretch is short: its lane narrows smoothly where the
+            # default grid's narrows in a saw-tooth (width following each point's curvature); the
+            # whole road on the default grid is what _joining_curve tried first
+            grids = ([(FINE_STEP_M, FINE_MIN_POINTS)] if sigma[j] - sigma[i] <= FINE_MAX_M else []) \
+                + ([] if (i, j) == (0, n) else [(PATH_STEP_M, MIN_POINTS)])
+            for step_m, min_points in grids:
+                bent = _narrowed(part, narrowing, step_m, min_points)
+                if bent is None:
+                    continue
+                pieces = through[:i] + bent[1] + through[j:]
+                widths = np.concatenate([half[:i], bent[2], half[j + 1:]])
+                off = deviation(pieces, c.path)
+                if off <= escape and fold_ratio(pieces, 0.0, 0.0, half=widths) < 1.0 \
+                        and not len(crossings(outline(pieces, widths)[0])):
+                    return off, pieces, widths
+    return None
 
 
 def _distinct(path: np.ndarray, min_step: float = 0.01) -> np.ndarray:
