@@ -182,9 +182,9 @@ def _stretch_bent(c: _Connecting, through: list[dict[str, float]], escape: float
     SUMO shape turns round at the end of a long straight (a converted DRT junction: 58 m straight,
     then a U-turn of a 3.2 m lane within 3 m), a curve bent along the whole road spreads its
     stiffening over the straight and leaves it by 1.7 m; bent from the last vertex before the turn
-    it stays within 0.4 m. A short road is its own stretch, bent on the fine grid. The shortest
-    stretches are tried first (the least of the road changed, and the cheapest), and the first
-    curve within ``escape`` is taken."""
+    it stays within 0.7 m (its bound 0.8 m). A short road is its own stretch, bent on the fine
+    grid. The shortest stretches are tried first (the least of the road changed, and the
+    cheapest), and the first curve within ``escape`` is taken (docs/sumo.md §12a)."""
     path = _distinct(c.path)
     n = len(path) - 1
     if n < 1 or len(through) != n:  # (hermite_through drops the same points)
