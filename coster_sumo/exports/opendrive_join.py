@@ -32,7 +32,7 @@ from coster_sumo.exports.opendrive_bend import (
     untangle,
 )
 from coster_sumo.exports.opendrive_roads import Sampler, fmt, records_at
-from coster_sumo.exports.opendrive_solve import cubic_pieces, hermite_through, records
+from coster_sumo.exports.opendrive_solve import cubic_pieces, distinct_points, hermite_through, records
 
 # [m] a connecting road joins a lane at least this wide at the contact: every lane the fit gave a
 # SUMO shape there (at least opendrive_solve.MIN_WIDTH_M), not one that has not begun (width 0)
@@ -185,9 +185,9 @@ def _stretch_bent(c: _Connecting, through: list[dict[str, float]], escape: float
     it stays within 0.7 m (its bound 0.8 m). A short road is its own stretch, bent on the fine
     grid. The shortest stretches are tried first (the least of the road changed, and the
     cheapest), and the first curve within ``escape`` is taken (docs/sumo.md §12a)."""
-    path = _distinct(c.path)
+    path = distinct_points(c.path)
     n = len(path) - 1
-    if n < 1 or len(through) != n:  # (hermite_through drops the same points)
+    if n < 1 or len(through) != n:  # (hermite_through drops the same points: one piece each)
         return None
     sigma = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
     half = 0.5 * (c.start[1] + (c.end[1] - c.start[1]) * sigma / max(float(sigma[-1]), 1e-12))
@@ -227,20 +227,6 @@ def _stretch_bent(c: _Connecting, through: list[dict[str, float]], escape: float
                         and not len(crossings(outline(pieces, widths)[0])):
                     return off, pieces, widths
     return None
-
-
-def _distinct(path: np.ndarray, min_step: float = 0.01) -> np.ndarray:
-    """The polyline's points without those within ``min_step`` [m] of the last one kept, its last
-    point kept (as :func:`~coster_sumo.exports.opendrive_solve.hermite_through` keeps them)."""
-    kept = [path[0]]
-    for p in path[1:]:
-        if np.hypot(*(p - kept[-1])) >= min_step:
-            kept.append(p)
-    if len(kept) < 2:
-        kept.append(path[-1])
-    else:
-        kept[-1] = path[-1]
-    return np.asarray(kept, np.float64)
 
 
 def _narrowed(c: _Connecting, narrowing: Narrowing, step_m: float = PATH_STEP_M, min_points: int = MIN_POINTS
