@@ -32,7 +32,7 @@ from coster_sumo.exports.opendrive_bend import (
     untangle,
 )
 from coster_sumo.exports.opendrive_roads import Sampler, fmt, records_at
-from coster_sumo.exports.opendrive_solve import cubic_pieces, distinct_points, hermite_through, records
+from coster_sumo.exports.opendrive_solve import cubic_pieces, hermite_through, records
 
 # [m] a connecting road joins a lane at least this wide at the contact: every lane the fit gave a
 # SUMO shape there (at least opendrive_solve.MIN_WIDTH_M), not one that has not begun (width 0)
@@ -185,10 +185,11 @@ def _stretch_bent(c: _Connecting, through: list[dict[str, float]], escape: float
     it stays within 0.7 m (its bound 0.8 m). A short road is its own stretch, bent on the fine
     grid. The shortest stretches are tried first (the least of the road changed, and the
     cheapest), and the first curve within ``escape`` is taken (docs/sumo.md §12a)."""
-    path = distinct_points(c.path)
-    n = len(path) - 1
-    if n < 1 or len(through) != n:  # (hermite_through drops the same points: one piece each)
-        return None
+    # the through curve's vertices and headings (one piece per segment of the SUMO polyline, points
+    # closer than a centimetre dropped) are where a stretch may begin and end
+    path = np.array([[pc["x"], pc["y"]] for pc in through] + [c.path[-1]], np.float64)
+    heading = [pc["hdg"] for pc in through] + [c.end[2]]
+    n = len(through)
     sigma = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
     half = 0.5 * (c.start[1] + (c.end[1] - c.start[1]) * sigma / max(float(sigma[-1]), 1e-12))
     folds = [k for k in range(n) if fold_ratio([through[k]], 2 * half[k], 2 * half[k + 1]) >= 1.0]
@@ -197,11 +198,11 @@ def _stretch_bent(c: _Connecting, through: list[dict[str, float]], escape: float
     stretches = sorted(((i, j) for i in range(max(0, folds[0] - STRETCH_REACH), folds[0] + 1)
                         for j in range(folds[-1] + 1, min(n, folds[-1] + 1 + STRETCH_REACH) + 1)),
                        key=lambda ij: (sigma[ij[1]] - sigma[ij[0]], ij))
-    heading = [c.start[2], *(float(np.arctan2(d[1], d[0])) for d in path[2:] - path[:-2]), c.end[2]]
     # how far each piece of the curve through the points strays from the SUMO shape: a stretch
     # that leaves a piece straying beyond escape unchanged cannot give a curve within it
-    line = shapely.LineString(c.path)
-    stray = [float(shapely.distance(line, shapely.points(piece_points([pc]))).max()) for pc in through]
+    samples = 8  # points a piece (piece_points' default)
+    off = shapely.distance(shapely.LineString(c.path), shapely.points(piece_points(through, samples)))
+    stray = [float(off[k * samples:(k + 1) * samples + 1].max()) for k in range(n)]
     # the lane narrowed within NARROW on every stretch before any within TIGHT: a lane narrowed to
     # 0.6 m on a turn of 0.33 m radius keeps whole, but a reader that samples its borders every
     # half metre (commonroad) cuts across the turn (a converted fokr_bs_demo junction lane)

@@ -382,21 +382,6 @@ def cubic_pieces(points: np.ndarray, heading: np.ndarray, samples: int) -> list[
     return out
 
 
-def distinct_points(points: np.ndarray, min_step: float = 0.01) -> np.ndarray:
-    """(K, 2) [m] a polyline's points (N, 2) without those closer than ``min_step`` [m] to the last
-    one kept, ending exactly at its last point (everything within ``min_step``: the first and the
-    last)."""
-    pts = [np.asarray(points[0], np.float64)]
-    for p in np.asarray(points, np.float64)[1:]:
-        if np.hypot(*(p - pts[-1])) >= min_step:
-            pts.append(p)
-    if len(pts) < 2:  # everything within min_step: one piece to the last point
-        pts.append(np.asarray(points[-1], np.float64))
-    else:
-        pts[-1] = np.asarray(points[-1], np.float64)  # end exactly at the last point
-    return np.stack(pts)
-
-
 def hermite_through(points: np.ndarray, start_heading: float, end_heading: float,
                     min_step: float = 0.01) -> list[dict[str, float]]:
     """Cubic pieces (as :func:`hermite_pieces`) through every point of a polyline (N, 2) (points
@@ -404,7 +389,15 @@ def hermite_through(points: np.ndarray, start_heading: float, end_heading: float
     ``start_heading`` and reaching the last at ``end_heading`` [rad]; inside, each point's tangent
     is the direction from its predecessor to its successor, so the heading is continuous at every
     joint of two pieces."""
-    p = distinct_points(points, min_step)
+    pts = [np.asarray(points[0], np.float64)]
+    for p in np.asarray(points, np.float64)[1:]:
+        if np.hypot(*(p - pts[-1])) >= min_step:
+            pts.append(p)
+    if len(pts) < 2:  # everything within min_step: one piece to the last point
+        pts.append(np.asarray(points[-1], np.float64))
+    elif np.hypot(*(np.asarray(points[-1]) - pts[-1])) > 0:
+        pts[-1] = np.asarray(points[-1], np.float64)  # end exactly at the last point
+    p = np.stack(pts)
     heading = np.empty(len(p))
     heading[0], heading[-1] = start_heading, end_heading
     if len(p) > 2:
