@@ -237,18 +237,22 @@ class _Candidates:
         s_u, v_u, a_u, d_u, lon_of, lat_of = _profiles(ctx, act_k)
         # poses: along the path plus the sideways shift; the nominal part is the log itself
         xy_u, hd_u = point_at_arc_length(ctx.path, s_u)  # (K, L, n, 2), (K, L, n)
-        normal_u = np.stack([-np.sin(hd_u), np.cos(hd_u)], -1)
         v, a_lon, d = v_u[:, lon_of], a_u[:, lon_of], d_u[:, lat_of]  # (K, M, n)
         hd = hd_u[:, lon_of]
-        pos = xy_u[:, lon_of] + d[..., None] * normal_u[:, lon_of]
+        # x and y each in an array of its own (contiguous for the gradients), stacked at the end
+        px = xy_u[..., 0][:, lon_of] + d * -np.sin(hd_u)[:, lon_of]
+        py = xy_u[..., 1][:, lon_of] + d * np.cos(hd_u)[:, lon_of]
         dd = np.gradient(d_u, DT_S, axis=-1)[:, lat_of]
         yaw = hd + np.arctan2(dd, np.maximum(v, 0.5))
         pre = np.arange(n)[None, :] < act_k[:, None]  # (K, n) steps before acting: the log
-        pos = np.where(pre[:, None, :, None], np.stack([nx, ny], -1)[None, None], pos)
-        yaw = np.where(pre[:, None, :], nyaw[None, None], yaw)
+        for j, k in enumerate(act_k.tolist()):  # written in place: px, py and yaw are new arrays
+            px[j, :, :k] = nx[:k]
+            py[j, :, :k] = ny[:k]
+            yaw[j, :, :k] = nyaw[:k]
         # kinematic limits: curvature and accelerations from the poses themselves
-        dyaw = np.gradient(np.unwrap(yaw, axis=-1), DT_S, axis=-1)
-        speed_pos = np.hypot(*np.moveaxis(np.gradient(pos, DT_S, axis=2), -1, 0))
+        dyaw = np.gradient(_unwrapped(yaw), DT_S, axis=-1)
+        speed_pos = np.hypot(np.gradient(px, DT_S, axis=-1), np.gradient(py, DT_S, axis=-1))
+        pos = np.stack([px, py], -1)  # (K, M, n, 2)
         a_lat = np.abs(dyaw * speed_pos)
         after = ~pre[:, None, :]  # (K, 1, n)
         moving = speed_pos > 1.0
@@ -384,6 +388,18 @@ def _profiles(ctx: _SearchContext, act_k: np.ndarray
         d[j, :, :k] = d_nom[:k]
         d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
     return s, v, a_lon, d, lon_of, lat_of
+
+
+def _unwrapped(yaw: np.ndarray) -> np.ndarray:
+    """``np.unwrap(yaw, axis=-1)``, run only on the rows that jump by pi or more between two steps
+    (few do: a candidate's heading follows its path). A row without such a jump is its own
+    unwrapping (numpy adds a zero correction to it), so the numbers are the same."""
+    jump = (np.abs(np.diff(yaw, axis=-1)) >= np.pi).any(-1)
+    if not jump.any():
+        return yaw
+    out = yaw.copy()
+    out[jump] = np.unwrap(yaw[jump], axis=-1)
+    return out
 
 
 class _RoadCheck:
