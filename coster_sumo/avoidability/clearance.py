@@ -76,13 +76,25 @@ def too_close(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], 
 
     Only pairs whose centres are within reach of each other (half diagonals) are tested exactly.
     """
-    dx = centres[:, None, :, 0] - o_box[None, :, :, 0]  # (G, N, T)
-    dy = centres[:, None, :, 1] - o_box[None, :, :, 1]
-    reach = 0.5 * (np.hypot(*size) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
-    near = o_valid[None] & acted[:, None, :] & (dx * dx + dy * dy < (reach * reach)[None])
     hit = np.zeros(len(centres), bool)
+    if not len(centres):
+        return hit
+    reach = 0.5 * (np.hypot(*size) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
+    # only the (vehicle, step) pairs within reach of the box around every candidate at that step
+    # can be near one: the pairwise test runs on those (a margin keeps rounding on the safe side)
+    x, y = centres[..., 0], centres[..., 1]  # (G, T)
+    pad = reach * (1.0 + 1e-6) + 1e-6
+    ox, oy = o_box[..., 0], o_box[..., 1]
+    o, t = np.nonzero(o_valid & (ox >= x.min(0) - pad) & (ox <= x.max(0) + pad)
+                      & (oy >= y.min(0) - pad) & (oy <= y.max(0) + pad))
+    if not len(o):
+        return hit
+    dx = x[:, t] - ox[o, t]  # (G, P)
+    dy = y[:, t] - oy[o, t]
+    near = acted[:, t] & (dx * dx + dy * dy < (reach[o, t] * reach[o, t])[None])
     if near.any():
-        c, o, t = np.nonzero(near)
+        c, p = np.nonzero(near)
+        o, t = o[p], t[p]
         boxes = make_boxes(centres[c, t, 0], centres[c, t, 1], yaws[c, t], *size)
         hit[c[sat_overlap_depth(boxes, o_box[o, t]) > 0.0]] = True
     return hit

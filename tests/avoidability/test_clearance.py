@@ -1,0 +1,68 @@
+"""The clearance tests of the avoidability search against the plain pairwise test they shortcut."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coster_sumo.avoidability.clearance import too_close
+from coster_sumo.avoidability.search import _unwrapped
+from coster_sumo.geometry.boxes import make_boxes, sat_overlap_depth
+
+
+def _every_pair(centres, yaws, size, o_box, o_valid, acted):
+    """Every candidate box against every other vehicle's box at every step it exists after acting."""
+    g_n, t_n = yaws.shape
+    hit = np.zeros(g_n, bool)
+    for g in range(g_n):
+        for t in range(t_n):
+            if not acted[g, t]:
+                continue
+            box = make_boxes(centres[g, t, 0:1], centres[g, t, 1:2], yaws[g, t:t + 1], *size)
+            for o in np.flatnonzero(o_valid[:, t]):
+                if sat_overlap_depth(box, o_box[o, t][None])[0] > 0.0:
+                    hit[g] = True
+    return hit
+
+
+@pytest.mark.parametrize("seed", range(3, 11))
+def test_too_close_is_the_pairwise_test(seed):
+    """A bundle of candidate paths and vehicles around it, some within touching distance of its
+    edge, some beyond it: the same answer as testing every pair (steps before acting included)."""
+    rng = np.random.default_rng(seed)
+    g_n, o_n, t_n = 30, 8, 10
+    base = np.stack([np.linspace(0.0, 30.0, t_n), np.zeros(t_n)], -1)  # (T, 2) the bundle's middle
+    centres = base[None] + rng.uniform(-2.0, 2.0, (g_n, t_n, 2))
+    yaws = rng.normal(0.0, 0.2, (g_n, t_n))
+    ox = base[None, :, 0] + rng.uniform(-12.0, 12.0, (o_n, t_n))
+    oy = rng.choice([-1.0, 1.0], (o_n, 1)) * rng.uniform(4.0, 10.0, (o_n, t_n))  # beside the bundle
+    o_box = make_boxes(ox, oy, rng.uniform(-np.pi, np.pi, (o_n, t_n)), rng.uniform(3.0, 12.0, (o_n, t_n)),
+                       rng.uniform(1.5, 2.6, (o_n, t_n)))
+    o_valid = rng.random((o_n, t_n)) < 0.8
+    acted = np.arange(t_n)[None, :] >= rng.integers(0, t_n, g_n)[:, None]
+    size = (5.0, 2.2)
+    got = too_close(centres, yaws, size, o_box, o_valid, acted)
+    want = _every_pair(centres, yaws, size, o_box, o_valid, acted)
+    assert want.any() and not want.all()  # the case tests both answers
+    np.testing.assert_array_equal(got, want)
+
+
+def test_too_close_without_candidates_or_vehicles_nearby():
+    o_box = make_boxes(np.full((1, 3), 500.0), np.zeros((1, 3)), np.zeros((1, 3)), np.full((1, 3), 4.5),
+                       np.full((1, 3), 1.8))
+    centres = np.zeros((2, 3, 2))
+    assert not too_close(centres, np.zeros((2, 3)), (5.0, 2.0), o_box, np.ones((1, 3), bool),
+                         np.ones((2, 3), bool)).any()
+    assert too_close(np.zeros((0, 3, 2)), np.zeros((0, 3)), (5.0, 2.0), o_box, np.ones((1, 3), bool),
+                     np.ones((0, 3), bool)).shape == (0,)
+
+
+def test_unwrapped_is_numpy_unwrap():
+    """Rows with and without jumps of pi or more: the same numbers as ``np.unwrap`` on every row."""
+    rng = np.random.default_rng(3)
+    yaw = np.cumsum(rng.normal(0.0, 0.3, (4, 5, 30)), -1)
+    yaw = (yaw + np.pi) % (2 * np.pi) - np.pi  # wrapped: some rows now jump
+    yaw[0] = np.linspace(-1.0, 1.0, 30)  # these never do
+    np.testing.assert_array_equal(_unwrapped(yaw), np.unwrap(yaw, axis=-1))
+    smooth = np.linspace(0.0, 2.0, 30)[None].repeat(3, 0)
+    assert _unwrapped(smooth) is smooth
