@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coster_sumo.avoidability.clearance import too_close
+from coster_sumo.avoidability.clearance import hits_adversary, too_close
 from coster_sumo.avoidability.search import _unwrapped
 from coster_sumo.geometry.boxes import make_boxes, sat_overlap_depth
 
@@ -66,3 +66,22 @@ def test_unwrapped_is_numpy_unwrap():
     np.testing.assert_array_equal(_unwrapped(yaw), np.unwrap(yaw, axis=-1))
     smooth = np.linspace(0.0, 2.0, 30)[None].repeat(3, 0)
     assert _unwrapped(smooth) is smooth
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_hits_adversary_is_the_pairwise_test(seed):
+    """An adversary crossing a bundle of candidate paths: the same answer as testing every step."""
+    rng = np.random.default_rng(seed)
+    g_n, t_n = 40, 12
+    base = np.stack([np.linspace(0.0, 30.0, t_n), np.zeros(t_n)], -1)
+    centres = base[None] + rng.uniform(-4.0, 4.0, (g_n, t_n, 2))
+    yaws = rng.normal(0.0, 0.3, (g_n, t_n))
+    # across the bundle's middle, at the bundle's own pace
+    adv_box = make_boxes(np.full(t_n, 15.0) + rng.uniform(-1.0, 1.0), np.linspace(-20.0, 20.0, t_n),
+                         np.full(t_n, np.pi / 2), 4.6, 1.9)
+    acted = np.arange(t_n)[None, :] >= rng.integers(0, t_n, g_n)[:, None]
+    size = (5.0, 2.2)
+    got = hits_adversary(centres, yaws, size, adv_box, acted)
+    want = _every_pair(centres, yaws, size, adv_box[None], np.ones((1, t_n), bool), acted)
+    assert want.any() and not want.all()
+    np.testing.assert_array_equal(got, want)
