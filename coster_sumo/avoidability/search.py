@@ -329,12 +329,14 @@ class _Candidates:
         """Candidate (kb, mb) as an :class:`Escape`, its clearance and the vehicles closer than
         :data:`MIN_CLEARANCE_M` (none for an escape)."""
         pos, yaw, ctx = self.pos, self.yaw, self.ctx
-        box = make_boxes(pos[kb, mb, :, 0], pos[kb, mb, :, 1], yaw[kb, mb], ctx.length, ctx.width)  # (n, 5)
         acted = self.after[kb, 0]
-        gap = box_signed_distance(box, self.adv_box)[acted].min()
+        # the steps after acting only: the clearance counts nowhere else
+        box = make_boxes(pos[kb, mb, acted, 0], pos[kb, mb, acted, 1], yaw[kb, mb, acted], ctx.length, ctx.width)
+        gap = box_signed_distance(box, self.adv_box[acted]).min()
         blocked_by: tuple[str, ...] = ()
         if self.others is not None:
-            per = np.where(self.others[1], box_signed_distance(box[None], self.others[0]), np.inf)[:, acted]
+            o_box, o_valid = self.others[0][:, acted], self.others[1][:, acted]
+            per = np.where(o_valid, box_signed_distance(box[None], o_box), np.inf)
             near = per.min(1) if per.shape[1] else np.full(len(per), np.inf)
             gap = min(gap, near.min())
             blocked_by = tuple(self.other_ids[near < MIN_CLEARANCE_M].tolist())
@@ -409,7 +411,7 @@ class _RoadCheck:
     search when run on every clear candidate; the search needs it for few of them.
     """
 
-    CHUNK = 32  # candidates tested at a time, in order of demand
+    CHUNK = 8  # candidates tested at a time, in order of demand
 
     def __init__(self, ctx: _SearchContext, pos: np.ndarray, yaw: np.ndarray, acted: np.ndarray):
         """``pos`` (K, M, n, 2) [m] and ``yaw`` (K, M, n) [rad]: the candidates' poses on ``ctx``'s time
