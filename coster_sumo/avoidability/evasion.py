@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.core.scene import ObjectType
-from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
+from coster_sumo.geometry.boxes import box_signed_distance, make_boxes, sat_overlap_depth
 
 DT_S = 0.1  # [s] the plans' step (SUMO's step in the injection pass)
 DEFAULT_REACTION_S = 1.0  # [s] a careful driver's reaction time: the one ``avoidable`` is stated for
@@ -134,8 +134,16 @@ def threat_time(times: np.ndarray, target: Motion, adversary: Motion) -> float:
                        ty[:, None] + tv[:, None] * np.sin(tyaw)[:, None] * tau, tyaw[:, None], tl, tw)
     a_box = make_boxes(ax[:, None] + av[:, None] * np.cos(ayaw)[:, None] * tau,
                        ay[:, None] + av[:, None] * np.sin(ayaw)[:, None] * tau, ayaw[:, None], al, aw)
-    hit = (box_signed_distance(t_box, a_box) <= 0.0).any(axis=1)  # (K,)
-    return float(times[np.argmax(hit)]) if hit.any() else float(times[-1])
+    # in contact or touching: box_signed_distance <= 0. The SAT depth alone decides it where it is
+    # positive (overlap) or clearly negative (a separating axis, so a gap of at least that much);
+    # only the boxes about to touch need the exact distance
+    depth = sat_overlap_depth(t_box, a_box)  # (K, L)
+    hit = depth > 0.0
+    close = ~hit & (depth > -1e-6)
+    if close.any():
+        hit[close] = box_signed_distance(t_box[close], a_box[close]) <= 0.0
+    first = hit.any(axis=1)  # (K,)
+    return float(times[np.argmax(first)]) if first.any() else float(times[-1])
 
 
 @dataclass(frozen=True)

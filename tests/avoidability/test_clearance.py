@@ -85,3 +85,38 @@ def test_hits_adversary_is_the_pairwise_test(seed):
     want = _every_pair(centres, yaws, size, adv_box[None], np.ones((1, t_n), bool), acted)
     assert want.any() and not want.all()
     np.testing.assert_array_equal(got, want)
+
+
+def test_threat_time_is_the_signed_distance_rule():
+    """The SAT shortcut in threat_time gives the first moment of the plain rule (the boxes,
+    extrapolated at constant velocity, within signed distance 0), touching boxes included."""
+    from coster_sumo.avoidability.evasion import DT_S, THREAT_LOOKAHEAD_S, Motion, threat_time
+    from coster_sumo.geometry.boxes import box_signed_distance
+
+    def plain(times, tgt, adv):
+        tau = np.arange(0.0, THREAT_LOOKAHEAD_S + 1e-9, DT_S)
+
+        def boxes(m):
+            return make_boxes(m.x[:, None] + m.speed[:, None] * np.cos(m.yaw)[:, None] * tau,
+                              m.y[:, None] + m.speed[:, None] * np.sin(m.yaw)[:, None] * tau,
+                              m.yaw[:, None], m.length, m.width)
+
+        hit = (box_signed_distance(boxes(tgt), boxes(adv)) <= 0.0).any(axis=1)
+        return float(times[np.argmax(hit)]) if hit.any() else float(times[-1])
+
+    k = 20
+    times = np.arange(k) * 0.1
+    tgt = Motion(np.zeros(k), np.zeros(k), np.zeros(k), np.full(k, 10.0), 4.0, 2.0)
+    # side by side at the same speed, exactly touching (centres 2 m apart, half widths 1 m) from the
+    # 6th moment on: the SAT depth is 0 there, and only the exact distance says "touching"
+    touching = Motion(np.zeros(k), np.where(np.arange(k) >= 5, 2.0, 2.5), np.zeros(k), np.full(k, 10.0), 4.0, 2.0)
+    assert threat_time(times, tgt, touching) == plain(times, tgt, touching) == times[5]
+    rng = np.random.default_rng(5)
+    found = set()
+    for _ in range(40):  # an adversary crossing ahead: some pass in front, some hit
+        adv = Motion(np.full(k, rng.uniform(20.0, 45.0)), rng.uniform(-30.0, -5.0) + np.arange(k) * 0.8,
+                     np.full(k, np.pi / 2), np.full(k, 8.0), 4.5, 1.9)
+        want = plain(times, tgt, adv)
+        assert threat_time(times, tgt, adv) == want
+        found.add(want < times[-1])
+    assert found == {True, False}
