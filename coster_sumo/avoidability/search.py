@@ -336,7 +336,15 @@ class _Candidates:
         blocked_by: tuple[str, ...] = ()
         if self.others is not None:
             o_box, o_valid = self.others[0][:, acted], self.others[1][:, acted]
-            per = np.where(o_valid, box_signed_distance(box[None], o_box), np.inf)
+            # a pair whose centres are farther apart than their half diagonals plus the larger of
+            # this gap and the clearance is at least that far apart: it changes neither; the exact
+            # distance is computed for the others only
+            reach = 0.5 * (np.hypot(ctx.length, ctx.width) + np.hypot(o_box[..., 3], o_box[..., 4]))
+            centres = np.hypot(o_box[..., 0] - box[None, :, 0], o_box[..., 1] - box[None, :, 1])
+            need = o_valid & (centres - reach <= max(gap, MIN_CLEARANCE_M) + 1e-6)
+            per = np.full_like(o_box[..., 0], np.inf)  # (N, steps after acting)
+            if need.any():
+                per[need] = box_signed_distance(np.broadcast_to(box[None], o_box.shape)[need], o_box[need])
             near = per.min(1) if per.shape[1] else np.full(len(per), np.inf)
             gap = min(gap, near.min())
             blocked_by = tuple(self.other_ids[near < MIN_CLEARANCE_M].tolist())
