@@ -9,6 +9,7 @@ Times are simulation seconds on the search's grid, distances metres.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from coster_sumo.core.scene import Scene
 from coster_sumo.geometry.boxes import make_boxes, sat_overlap_depth
@@ -53,7 +54,7 @@ def hits_adversary(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, flo
     Two boxes overlap only where their centres are closer than the sum of their half diagonals:
     the exact test runs on those steps alone (the same answer as on every step).
     """
-    reach = 0.5 * (np.hypot(*size) + np.hypot(adv_box[0, 3], adv_box[0, 4]))
+    reach = outer_reach(size, adv_box[0, 3], adv_box[0, 4])
     dx = centres[..., 0] - adv_box[None, :, 0]
     dy = centres[..., 1] - adv_box[None, :, 1]
     d2 = dx * dx + dy * dy
@@ -83,7 +84,7 @@ def too_close(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], 
     hit = np.zeros(len(centres), bool)
     if not len(centres):
         return hit
-    reach = 0.5 * (np.hypot(*size) + np.hypot(o_box[..., 3], o_box[..., 4]))  # (N, T)
+    reach = outer_reach(size, o_box[..., 3], o_box[..., 4])  # (N, T)
     # only the (vehicle, step) pairs within reach of the box around every candidate at that step
     # can be near one: the pairwise test runs on those (a margin keeps rounding on the safe side)
     x, y = centres[..., 0], centres[..., 1]  # (G, T)
@@ -106,6 +107,12 @@ def too_close(centres: np.ndarray, yaws: np.ndarray, size: tuple[float, float], 
         boxes = make_boxes(centres[c, t, 0], centres[c, t, 1], yaws[c, t], *size)
         hit[c[sat_overlap_depth(boxes, o_box[o, t]) > 0.0]] = True
     return hit
+
+
+def outer_reach(size: tuple[float, float], length: ArrayLike, width: ArrayLike) -> np.ndarray:
+    """[m] a centre distance beyond which two boxes (``size`` and ``length`` x ``width``) cannot
+    overlap: the sum of their half diagonals (the circles round them)."""
+    return 0.5 * (np.hypot(*size) + np.hypot(length, width))  # type: ignore[no-any-return]
 
 
 def _inner_reach(size: tuple[float, float], length: np.ndarray, width: np.ndarray) -> np.ndarray:

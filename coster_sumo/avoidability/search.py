@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coster_sumo.avoidability.clearance import hits_adversary, other_boxes, too_close
+from coster_sumo.avoidability.clearance import hits_adversary, other_boxes, outer_reach, too_close
 from coster_sumo.avoidability.evasion import (
     DEFAULT_REACTION_S,
     DT_S,
@@ -339,7 +339,7 @@ class _Candidates:
             # a pair whose centres are farther apart than their half diagonals plus the larger of
             # this gap and the clearance is at least that far apart: it changes neither; the exact
             # distance is computed for the others only
-            reach = 0.5 * (np.hypot(ctx.length, ctx.width) + np.hypot(o_box[..., 3], o_box[..., 4]))
+            reach = outer_reach((ctx.length, ctx.width), o_box[..., 3], o_box[..., 4])
             centres = np.hypot(o_box[..., 0] - box[None, :, 0], o_box[..., 1] - box[None, :, 1])
             need = o_valid & (centres - reach <= max(gap, MIN_CLEARANCE_M) + 1e-6)
             per = np.full_like(o_box[..., 0], np.inf)  # (N, steps after acting)
