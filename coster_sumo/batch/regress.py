@@ -127,7 +127,7 @@ def label_variants(spec: ScenarioSpec, scene: Any, target: int, variants: list[V
         tried += len(more)
         kept += [(v, lab) for v, lab in zip(more, label(more), strict=True) if lab.avoidable]
     kept = kept[:gen.variants]
-    out = [dataclasses.replace(v, plan=dataclasses.replace(v.plan, vehicle_id=f"adversary{i}"))
+    out = [dataclasses.replace(v, plan=v.plan.replaced(vehicle_id=f"adversary{i}"))
            for i, (v, _) in enumerate(kept)]
     if not out:
         raise NoSnapshot(f"none of the {tried} variants was avoidable at a reaction time of {reaction:g} s "

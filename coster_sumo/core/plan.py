@@ -16,6 +16,7 @@ state, exactly). SUMO steps at 0.1 s, so the controller needs the state at every
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 from dataclasses import dataclass
@@ -31,6 +32,8 @@ from coster_sumo.infra.atomic import write_json
 # [s] after t_col: how long an escape must stay clear (the labels' horizon, docs/method.md step 8),
 # and when SUMO's driver takes over an adversary that missed
 HORIZON_AFTER_TCOL_S = 3.0
+# what the position and heading splines are built from (:meth:`AdversaryPlan.replaced`)
+_SPLINE_FIELDS = frozenset({"times", "x", "y", "yaw", "final_speed"})
 
 
 def sim_time_of(t: float, step_length: float) -> float:
@@ -87,6 +90,14 @@ class AdversaryPlan:
         return cls(times=np.asarray(times, np.float64), x=k[:, 0], y=k[:, 1], yaw=k[:, 2],
                    final_speed=float(snapshot_state.speed), length=float(snapshot_state.length),
                    width=float(snapshot_state.width), vehicle_id=vehicle_id, vclass=vclass)
+
+    def replaced(self, **changes: object) -> AdversaryPlan:
+        """``dataclasses.replace(self, **changes)`` that keeps the splines already built where the
+        knots and the final speed stay (a new id, a road after t_col): the same numbers, built once."""
+        new = dataclasses.replace(self, **changes)  # type: ignore[arg-type]
+        if "_splines" in self.__dict__ and not _SPLINE_FIELDS & changes.keys():
+            new.__dict__["_splines"] = self.__dict__["_splines"]  # a cached_property's own slot
+        return new
 
     @functools.cached_property
     def _splines(self) -> tuple[CubicSpline, CubicSpline, PchipInterpolator] | None:

@@ -23,8 +23,6 @@ the constant-velocity run-on.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan
@@ -153,4 +151,4 @@ def follow_road(plan: AdversaryPlan, road_map: RoadMap) -> AdversaryPlan:
     ax, ay, ayaw, _ = (float(v[0]) for v in plan.sample(np.array([plan.t_col])))
     v = max(plan.final_speed, 0.0)
     path = road_path(road_map, ax, ay, ayaw, v, v * (HORIZON_AFTER_TCOL_S + RUN_ON_AFTER_HORIZON_S) + RUN_ON_EXTRA_M)
-    return plan if path is None else dataclasses.replace(plan, road=path)
+    return plan if path is None else plan.replaced(road=path)

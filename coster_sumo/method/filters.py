@@ -10,7 +10,6 @@ What a variant's SUMO pass must show to be kept is the injection's
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -104,5 +103,5 @@ def keep_clear_plans(plans: Sequence[AdversaryPlan], scene: Scene, target: int
             dropped.append({"candidate": i, "reason": f"would hit {other[1]} at {other[0]:.1f} s, before "
                                                       "t_col (on its nominal path)"})
         else:
-            kept.append(dataclasses.replace(plan, vehicle_id=f"adversary{len(kept)}"))
+            kept.append(plan.replaced(vehicle_id=f"adversary{len(kept)}"))
     return kept, dropped

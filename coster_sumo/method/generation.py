@@ -19,7 +19,6 @@ The nominal scene and the target come from :mod:`coster_sumo.pipeline.scenario`;
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import itertools
 from collections.abc import Callable, Collection, Iterator
@@ -321,7 +320,7 @@ def plan_scenarios(scene: Scene, target: int, seed: int, gen: GenerationConfig, 
         taken.append(drawn)
     offset = 0
     for p in taken:  # adversary ids unique across snapshots
-        p.plans = [dataclasses.replace(plan, vehicle_id=f"adversary{offset + i}") for i, plan in enumerate(p.plans)]
+        p.plans = [plan.replaced(vehicle_id=f"adversary{offset + i}") for i, plan in enumerate(p.plans)]
         offset += len(p.plans)
     return taken
 
@@ -387,7 +386,7 @@ def keep_avoidable(planned: list[PlannedScenario], labels: dict[str, Avoidabilit
         if extra is None:
             continue
         ids = [f"adversary{tried + i}" for i in range(len(extra.plans))]
-        extra.plans = [dataclasses.replace(pl, vehicle_id=v) for pl, v in zip(extra.plans, ids, strict=True)]
+        extra.plans = [pl.replaced(vehicle_id=v) for pl, v in zip(extra.plans, ids, strict=True)]
         tried += len(extra.plans)
         for pl, lab in zip(extra.plans, label(extra.plans), strict=True):
             labels[pl.vehicle_id] = lab
@@ -444,7 +443,7 @@ def generate_variants(scene: Scene, target: int, seed: int, gen: GenerationConfi
                 continue
             infos.append({k: v for k, v in planned.info.items() if k != "dropped"} | {"draw": j, "seed": draw_seed})
             for plan in planned.plans[:gen.variants - len(variants)]:
-                plan = dataclasses.replace(plan, vehicle_id=f"adversary{len(variants)}")
+                plan = plan.replaced(vehicle_id=f"adversary{len(variants)}")
                 variants.append(Variant(plan, planned.snapshot, j))
             if not one_each or len(variants) >= gen.variants:
                 break  # the rollout's K representatives are the variants, or K are there

@@ -44,3 +44,23 @@ def test_plan_json_round_trip(tmp_path):
     back = AdversaryPlan.load(plan.save(tmp_path / "p.json"))
     np.testing.assert_array_equal(back.x, plan.x)
     assert back.final_speed == plan.final_speed
+
+
+def test_replaced_keeps_the_splines_only_while_the_knots_stay():
+    plan, _ = _plan()
+    t = np.arange(plan.t_start, plan.t_col + 1.0, 0.1)
+    before = plan.sample(t)
+    renamed = plan.replaced(vehicle_id="adversary7", road=np.array([[20.0, 20.0], [20.0, 60.0]]))
+    assert renamed.vehicle_id == "adversary7" and renamed._splines is plan._splines  # built once
+    inside = t <= plan.t_col
+    for a, b in zip(before, renamed.sample(t), strict=True):
+        np.testing.assert_array_equal(a[inside], b[inside])  # the road changes only what comes after t_col
+    moved = plan.replaced(x=plan.x + 1.0)
+    assert moved._splines is not plan._splines
+    np.testing.assert_allclose(moved.sample(t)[0][inside], before[0][inside] + 1.0, atol=1e-9)
+    fresh = AdversaryPlan.from_knots(plan.times, np.stack([plan.x, plan.y, plan.yaw], 1),
+                                     AgentState(x=float(plan.x[-1]), y=float(plan.y[-1]), yaw=float(plan.yaw[-1]),
+                                                speed=plan.final_speed, length=4.6, width=1.9))
+    at_tcol = np.array([plan.t_col])
+    assert fresh.sample(at_tcol)[3][0] == pytest.approx(8.0)  # the splines built, clamped to 8 m/s
+    assert fresh.replaced(final_speed=3.0).sample(at_tcol)[3][0] == pytest.approx(3.0)  # rebuilt, not carried

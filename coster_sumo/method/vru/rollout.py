@@ -151,9 +151,8 @@ def vru_rollout(request: RolloutRequest, vru: VruClass, area: ClassArea, model: 
 
 
 def _renamed(plan: AdversaryPlan, i: int) -> AdversaryPlan:
-    import dataclasses
 
-    return dataclasses.replace(plan, vehicle_id=f"adversary{i}")
+    return plan.replaced(vehicle_id=f"adversary{i}")
 
 
 def plan_kinematics(plan: AdversaryPlan) -> Kinematics:
