@@ -51,7 +51,7 @@ from coster_sumo.sim.states import VehicleStates, empty_states
 
 STAGING_SPACING_M = 25.0  # [m] between agents parked on the staging lane (longer than any vehicle)
 TIME_EPS_S = 1e-6  # [s] two simulation times this close are the same step
-_FAR_BLOCK = 256  # agents boxed at once by far_agents (a city pass has thousands of rows of 10^4 steps)
+_FAR_BLOCK = 256  # agents looked up at once by far_agents (a city pass has thousands of rows of 10^4 steps)
 
 
 @dataclass(slots=True)
@@ -100,27 +100,29 @@ def far_agents(tracks: Tracks, path: np.ndarray, radius_m: float, from_step: int
     A replay may leave such agents out where nothing closer matters (the proof of an escape, an
     environment's observation radius): they react to nothing and cannot touch the path.
 
-    Every agent's valid positions are boxed first (all agents at once, a block of rows at a time); an
-    agent whose box, grown by ``radius_m``, holds no point of the path is far, and only the others
-    are measured point to point against the path's points inside their box."""
+    Every valid position is looked up at once in a k-d tree of the path's points (its nearest point
+    within a hair more than ``radius_m``, then measured against ``radius_m`` itself); an agent with a
+    position that is not finite is far (no distance to it is under the radius)."""
+    from scipy.spatial import cKDTree
+
     path = np.asarray(path, np.float64).reshape(-1, 2)
-    far: set[str] = set()
-    for a0 in range(0, tracks.num_agents, _FAR_BLOCK):
-        rows = slice(a0, min(a0 + _FAR_BLOCK, tracks.num_agents))
-        keep = tracks.valid[rows, from_step:]
-        xs, ys = tracks.x[rows, from_step:], tracks.y[rows, from_step:]
-        seen = keep.any(axis=1)
-        lo = np.stack([np.where(keep, xs, np.inf).min(axis=1), np.where(keep, ys, np.inf).min(axis=1)], -1) - radius_m
-        hi = np.stack([np.where(keep, xs, -np.inf).max(axis=1), np.where(keep, ys, -np.inf).max(axis=1)], -1) + radius_m
-        inside = np.all((path[None] >= lo[:, None]) & (path[None] <= hi[:, None]), axis=2)  # (B, P)
-        for j in np.flatnonzero(seen).tolist():
-            near = path[inside[j]]  # the path's points around the agent
-            if len(near):
-                pts = np.stack([xs[j][keep[j]], ys[j][keep[j]]], -1)  # (n, 2)
-                if np.min(np.hypot(*(pts[:, None, :] - near[None, :, :]).transpose(2, 0, 1))) <= radius_m:
-                    continue
-            far.add(str(tracks.ids[a0 + j]))
-    return far
+    seen = tracks.valid[:, from_step:].any(axis=1)
+    near = np.zeros(tracks.num_agents, bool)
+    broken = np.zeros(tracks.num_agents, bool)
+    tree = cKDTree(path) if len(path) else None
+    for a0 in range(0, tracks.num_agents if tree is not None else 0, _FAR_BLOCK):
+        agent, step = np.nonzero(tracks.valid[a0:a0 + _FAR_BLOCK, from_step:])
+        if not len(agent):
+            continue
+        agent += a0
+        step += from_step
+        pts = np.stack([tracks.x[agent, step], tracks.y[agent, step]], -1)
+        finite = np.isfinite(pts).all(-1)
+        dist, _ = tree.query(pts[finite], distance_upper_bound=radius_m * (1.0 + 1e-9) + 1e-9)  # type: ignore[union-attr]
+        near[agent[finite][dist <= radius_m]] = True
+        broken[agent[~finite]] = True
+    # a broken log value (NaN) puts no point of the agent near the path: far, as measured one by one
+    return {str(i) for i in tracks.ids[seen & (~near | broken)]}
 
 
 class LogReplayer:
