@@ -30,6 +30,7 @@ Times are simulation seconds, distances metres, accelerations m/s^2.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,11 +80,13 @@ def _path(xy: np.ndarray, heading: np.ndarray, extend_m: float) -> np.ndarray:
     """The target's nominal path as a polyline with points >= 0.2 m apart, extended straight
     by ``extend_m`` at both ends (an escape may drive further or back less far than the log)."""
     keep = [0]
-    last = xy[0]
-    for i in range(1, len(xy)):  # once per variant over the target's own log, not per candidate
-        if np.hypot(*(xy[i] - last)) >= 0.2:
+    pts_list = xy.tolist()  # Python floats: a numpy call per point costs more than the test
+    lx, ly = pts_list[0]
+    for i in range(1, len(pts_list)):  # once per variant over the target's own log, not per candidate
+        x, y = pts_list[i]
+        if math.hypot(x - lx, y - ly) >= 0.2:
             keep.append(i)
-            last = xy[i]
+            lx, ly = x, y
     pts = xy[keep]
     h0 = heading[0] if len(pts) < 2 else np.arctan2(*(pts[1] - pts[0])[::-1])
     h1 = heading[-1] if len(pts) < 2 else np.arctan2(*(pts[-1] - pts[-2])[::-1])
@@ -213,6 +216,14 @@ class _SearchContext:
         sub = self.road_steps
         return self.drivable.off_road(self.nx[sub], self.ny[sub], self.nyaw[sub], np.asarray(self.length),
                                       np.asarray(self.width))
+
+    @functools.cached_property
+    def nominal_along(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(T,) each: the nominal states' arc length along the path and sideways offset from it [m],
+        and the nominal longitudinal acceleration [m/s^2]: what every batch of candidates starts from."""
+        s_nom, d_nom, _ = project_points(np.stack([self.nx, self.ny], 1), self.path)
+        a_nom = np.gradient(self.nv, DT_S) if len(self.times) > 1 else np.zeros(len(self.times))
+        return s_nom, d_nom, a_nom
 
     @property
     def road_steps(self) -> np.ndarray:
@@ -363,16 +374,14 @@ def _profiles(ctx: _SearchContext, act_k: np.ndarray
     acceleration [m/s^2], each (K, L, T); for every moment and distinct lateral part (A) the sideways
     shift [m], (K, A, T); and each manoeuvre's longitudinal and lateral part, (M,) indices. The
     nominal log before acting, the part's profile from then on."""
-    nx, ny, nv, man, times = ctx.nx, ctx.ny, ctx.nv, ctx.man, ctx.times
+    nv, man, times = ctx.nv, ctx.man, ctx.times
     n = len(times)
     lon_keys = list(dict.fromkeys((m.longitudinal, m.accel) for m in man))
     lat_keys = list(dict.fromkeys((m.lateral_m, m.lateral_accel) for m in man))
     lon_of = np.array([lon_keys.index((m.longitudinal, m.accel)) for m in man])
     lat_of = np.array([lat_keys.index((m.lateral_m, m.lateral_accel)) for m in man])
     l_count, a_count, k_count = len(lon_keys), len(lat_keys), len(act_k)
-    s_nom, d_nom, _ = project_points(np.stack([nx, ny], 1), ctx.path)  # (T,)
-    # nominal acceleration at each moment to act
-    a_nom = np.gradient(nv, DT_S) if n > 1 else np.zeros(n)
+    s_nom, d_nom, a_nom = ctx.nominal_along  # (T,) each
     v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
     # longitudinal: arc length along the path for every (act, longitudinal part) pair
     goals = np.array([acc for _, acc in lon_keys])

@@ -102,7 +102,7 @@ class ReplayPlanner:
         if not present:
             return
         # nearest recorded step; WOMD timestamps are not exactly on SUMO's 0.1 s grid (ms jitter)
-        k = int(np.clip(np.searchsorted(self.times, t_next), 1, len(self.times) - 1))
+        k = min(max(int(np.searchsorted(self.times, t_next)), 1), len(self.times) - 1)  # scalars: no np.clip
         k = k - 1 if abs(self.times[k - 1] - t_next) <= abs(self.times[k] - t_next) else k
         if abs(self.times[k] - t_next) > self.half_step or not self.valid[k]:
             return  # outside the recording: SUMO drives it
