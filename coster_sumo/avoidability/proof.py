@@ -193,7 +193,9 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     the adversary and the target), so with ``together`` every escape is replayed in one pass
     (:class:`_JointProof`), each by a copy of the target facing its own copy of the adversary; the
     verdicts are those of one pass per escape (``together=False``). ``traffic="reactive"``: the
-    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape.
+    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape
+    that makes an agent react; the escapes that make none
+    (:func:`~coster_sumo.sim.reactive.reaches_no_one`) are passes of the log, replayed together.
     """
     drivable, held, traci, horizon_s = proof.drivable, proof.held, proof.traci, proof.horizon_s
     tr = scene.tracks
@@ -218,6 +220,17 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             out[i] = v if ok else Verdict(False, f"SUMO failed replaying it: {v}")
     if converted and together and not traci and jobs and proof.traffic == "log":
         return _JointProof(spec, scene, target, jobs, drivable, horizon_s).run()
+    if converted and together and not traci and jobs:
+        # reactive traffic: an escape that makes no logged agent react has the log's pass, so those
+        # escapes share one joint pass; the others get a pass each, where the agents react
+        from coster_sumo.sim.reactive import reaches_no_one
+
+        quiet = [i for i, job in enumerate(jobs) if out[i] is None and reaches_no_one(
+            scene, target, job.escape.times, job.escape.x, job.escape.y, job.escape.yaw, job.escape.speed)]
+        if quiet:
+            joint = _JointProof(spec, scene, target, [jobs[i] for i in quiet], drivable, horizon_s).run()
+            for i, v in zip(quiet, joint, strict=True):
+                out[i] = v
     for i, job in enumerate(jobs):
         if out[i] is not None:
             continue

@@ -282,3 +282,57 @@ def test_an_agent_that_left_the_network_is_not_asked_for_its_state():
                                dt=scene.dt)
     _react(replayer, session, "t")
     assert set(replayer.handover) == {1}  # the follower reacts; the agent that left is left alone
+
+
+def _reached_one_by_one(scene: Scene, target: int, times, x, y, yaw, speed, margin_m: float) -> bool:
+    """reaches_no_one by its definition: reacting_agents pose by pose, at the log steps next to each."""
+    tr = scene.tracks
+    others = np.flatnonzero((np.arange(tr.num_agents) != target) & (tr.object_type != int(ObjectType.PEDESTRIAN)))
+    length = float(np.median(tr.length[target])) + 2 * margin_m
+    width = float(np.median(tr.width[target])) + 2 * margin_m
+    for i, t in enumerate(times):
+        k0 = int(np.clip(np.searchsorted(scene.timestamps, t), 0, scene.num_steps - 1))
+        for k in range(max(k0 - 1, 0), min(k0 + 2, scene.num_steps)):
+            cand = others[tr.valid[others, k]]
+            pose = Pose(float(x[i]), float(y[i]), float(yaw[i]), float(speed[i]), length, width)
+            if reacting_agents(scene, k, [pose], cand, dt=round(scene.dt, 6)).any():
+                return True
+    return False
+
+
+def test_reaches_no_one_is_reacting_agents_pose_by_pose():
+    # escapes of the lane scene's target (braking or not, shifted and turned at random), many of
+    # them at the edge of reaching an agent: the batched test must say what the pose-by-pose one says
+    from coster_sumo.sim.reactive import reaches_no_one
+
+    whole = _lane_scene()
+    rng = np.random.default_rng(0)
+    outcomes = []
+    for case in range(150):
+        scene = whole
+        if case % 2:  # agents that come and go (the target stays)
+            valid = rng.random(whole.tracks.valid.shape) < rng.choice([0.3, 0.7])
+            valid[0] = True
+            scene = dataclasses.replace(whole, tracks=dataclasses.replace(whole.tracks, valid=valid))
+        times = np.arange(rng.uniform(0.5, 2.0), 5.0, 0.1) + rng.uniform(-0.003, 0.003)
+        v = np.maximum(10.0 - rng.uniform(0, 8) * (times - times[0]), 0.0)
+        x = 10.0 * times[0] + np.cumsum(v) * 0.1 + rng.uniform(-60, 60)
+        y = np.full_like(times, rng.uniform(-12, 12))
+        yaw = np.full_like(times, rng.uniform(-0.5, 0.5))
+        for margin in (0.0, 1.0):
+            expect = not _reached_one_by_one(scene, 0, times, x, y, yaw, v, margin)
+            assert reaches_no_one(scene, 0, times, x, y, yaw, v, margin_m=margin) == expect
+            outcomes.append(expect)
+    assert 0.2 < np.mean(outcomes) < 0.8  # both outcomes, often
+
+
+def test_a_braking_target_reaches_its_follower_and_a_far_one_no_one():
+    from coster_sumo.sim.reactive import reaches_no_one
+
+    scene = _lane_scene()
+    times = np.arange(1.0, 4.0, 0.1)
+    v = np.maximum(10.0 - 4.0 * (times - 1.0), 0.0)  # braking at 4 m/s^2 from its log's 10 m/s
+    x = 10.0 + np.concatenate([[0.0], np.cumsum(v[:-1]) * 0.1])
+    zeros = np.zeros_like(times)
+    assert not reaches_no_one(scene, 0, times, x, zeros, zeros, v)  # "behind" closes in on it
+    assert reaches_no_one(scene, 0, times, x, zeros - 200.0, zeros, v)  # 200 m aside: nobody's path
