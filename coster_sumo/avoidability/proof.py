@@ -195,7 +195,7 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     verdicts are those of one pass per escape (``together=False``). ``traffic="reactive"``: the
     logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape
     that makes an agent react; the escapes that make none
-    (:func:`~coster_sumo.sim.reactive.reaches_no_one`) are passes of the log, replayed together.
+    (:func:`~coster_sumo.sim.quiet_escapes.reaches_no_one`) are passes of the log, replayed together.
     """
     drivable, held, traci, horizon_s = proof.drivable, proof.held, proof.traci, proof.horizon_s
     tr = scene.tracks
@@ -223,7 +223,7 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     if converted and together and not traci and jobs:
         # reactive traffic: an escape that makes no logged agent react has the log's pass, so those
         # escapes share one joint pass; the others get a pass each, where the agents react
-        from coster_sumo.sim.reactive import reaches_no_one
+        from coster_sumo.sim.quiet_escapes import reaches_no_one
 
         quiet = [i for i, job in enumerate(jobs) if out[i] is None and reaches_no_one(
             scene, target, job.escape.times, job.escape.x, job.escape.y, job.escape.yaw, job.escape.speed)]

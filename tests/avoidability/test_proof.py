@@ -55,7 +55,7 @@ def test_reactive_traffic_replays_together_only_the_escapes_no_agent_reacts_to(t
     from coster_sumo.geometry.drivable import DrivableArea
     from coster_sumo.method.generation import generate_variants
     from coster_sumo.pipeline.scenario import nominal_scene
-    from coster_sumo.sim import reactive
+    from coster_sumo.sim import quiet_escapes
 
     (cfg,) = convert_scene(synthetic.four_way_junction(), tmp_path).folder.glob("*.sumocfg")
     spec = ScenarioSpec(cfg, seed=2)
@@ -66,8 +66,8 @@ def test_reactive_traffic_replays_together_only_the_escapes_no_agent_reacts_to(t
     jobs = [proof.EscapeJob(v.plan, e) for v in variants
             for e in proof._all_to_prove(assess(scene, target, v.plan, drivable, reactive_others=True))]
     said: list[bool] = []
-    quiet = reactive.reaches_no_one
-    monkeypatch.setattr(reactive, "reaches_no_one", lambda *a, **k: said.append(quiet(*a, **k)) or said[-1])
+    quiet = quiet_escapes.reaches_no_one
+    monkeypatch.setattr(quiet_escapes, "reaches_no_one", lambda *a, **k: said.append(quiet(*a, **k)) or said[-1])
     joint: list[int] = []
     real_run = proof._JointProof.run
     monkeypatch.setattr(proof._JointProof, "run", lambda self: joint.append(len(self.jobs)) or real_run(self))

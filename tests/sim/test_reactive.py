@@ -303,7 +303,7 @@ def _reached_one_by_one(scene: Scene, target: int, times, x, y, yaw, speed, marg
 def test_reaches_no_one_is_reacting_agents_pose_by_pose():
     # escapes of the lane scene's target (braking or not, shifted and turned at random), many of
     # them at the edge of reaching an agent: the batched test must say what the pose-by-pose one says
-    from coster_sumo.sim.reactive import reaches_no_one
+    from coster_sumo.sim.quiet_escapes import reaches_no_one
 
     whole = _lane_scene()
     rng = np.random.default_rng(0)
@@ -327,7 +327,7 @@ def test_reaches_no_one_is_reacting_agents_pose_by_pose():
 
 
 def test_a_braking_target_reaches_its_follower_and_a_far_one_no_one():
-    from coster_sumo.sim.reactive import reaches_no_one
+    from coster_sumo.sim.quiet_escapes import reaches_no_one
 
     scene = _lane_scene()
     times = np.arange(1.0, 4.0, 0.1)

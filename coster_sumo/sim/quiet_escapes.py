@@ -1,0 +1,58 @@
+"""Whether an escape makes any logged agent react: decided before SUMO runs it.
+
+In reactive traffic (:mod:`coster_sumo.sim.reactive`) an escape whose target makes nobody react is a
+pass of the log, so the avoidability proof replays it with the others in one joint pass
+(:func:`coster_sumo.avoidability.proof.prove_escapes`, docs/method.md step 8).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from coster_sumo.core.scene import ObjectType, Scene
+from coster_sumo.formats.scene_folder import agent_sizes
+from coster_sumo.sim.reactive import CONFLICT_MARGIN_M, HORIZON_S, HORIZON_STEP_S
+
+
+def reaches_no_one(scene: Scene, target: int, times: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray,
+                   speed: np.ndarray, margin_m: float = 1.0) -> bool:
+    """True where a target driven along these poses ((T,) each: times [s], centre [m], yaw [rad],
+    speed [m/s]) makes no logged agent react in a pass of
+    :func:`~coster_sumo.sim.reactive.reactive_replayer`: that pass is then the log's (every agent
+    keeps to its log), and its outcome the same as in log replay.
+
+    There the target counts as deviating from its handover on, and nobody else deviates before an
+    agent has reacted, so the target's poses alone decide (the replayer's step test:
+    :func:`~coster_sumo.sim.reactive.reacting_agents` without a route). Tested on the safe side:
+    each pose against the log steps next to its time (the step before and after too), the target's
+    box grown by ``margin_m`` on every side, every vehicle or cyclist of the log a candidate."""
+    tr = scene.tracks
+    lengths, widths = agent_sizes(scene)
+    others = np.flatnonzero((np.arange(tr.num_agents) != target) & (tr.object_type != int(ObjectType.PEDESTRIAN)))
+    if not len(others) or not len(times):
+        return True
+    length = float(np.median(tr.length[target][tr.valid[target]])) + 2 * margin_m
+    width = float(np.median(tr.width[target][tr.valid[target]])) + 2 * margin_m
+    n = scene.num_steps
+    near = np.clip(np.searchsorted(scene.timestamps, np.asarray(times, np.float64)), 0, n - 1)
+    # every (pose, log step next to its time) pair at once: reacting_agents' constant-velocity test
+    pose = np.repeat(np.arange(len(near)), 3)  # (Q,)
+    k = np.clip(np.repeat(near, 3) + np.tile([-1, 0, 1], len(near)), 0, n - 1)
+    horizon = np.arange(0.0, HORIZON_S + 1e-9, HORIZON_STEP_S)  # (H,)
+    steps = np.minimum(k[:, None] + np.round(horizon / round(scene.dt, 6)).astype(np.int64), n - 1)  # (Q, H)
+    c, s = np.cos(np.asarray(yaw, np.float64)[pose]), np.sin(np.asarray(yaw, np.float64)[pose])  # (Q,)
+    v = np.asarray(speed, np.float64)[pose]
+    px = np.asarray(x, np.float64)[pose][:, None] + (v * c)[:, None] * horizon  # (Q, H)
+    py = np.asarray(y, np.float64)[pose][:, None] + (v * s)[:, None] * horizon
+    reach_l = 0.5 * (lengths[others] + length) + CONFLICT_MARGIN_M  # (A,)
+    reach_w = 0.5 * (widths[others] + width) + CONFLICT_MARGIN_M
+    for a0 in range(0, len(others), 64):  # (64, Q, H) at a time
+        rows = others[a0:a0 + 64]
+        dx = tr.x[rows][:, steps] - px  # (B, Q, H)
+        dy = tr.y[rows][:, steps] - py
+        meet = ((np.abs(c[:, None] * dx + s[:, None] * dy) <= reach_l[a0:a0 + 64, None, None])
+                & (np.abs(-s[:, None] * dx + c[:, None] * dy) <= reach_w[a0:a0 + 64, None, None])
+                & tr.valid[rows][:, steps] & tr.valid[rows][:, k][:, :, None])
+        if meet.any():
+            return False
+    return True
