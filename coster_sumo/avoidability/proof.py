@@ -223,10 +223,13 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     if converted and together and not traci and jobs:
         # reactive traffic: an escape that makes no logged agent react has the log's pass, so those
         # escapes share one joint pass; the others get a pass each, where the agents react
+        from coster_sumo.formats.scene_folder import agent_sizes
         from coster_sumo.sim.quiet_escapes import reaches_no_one
 
-        quiet = [i for i, job in enumerate(jobs) if out[i] is None and reaches_no_one(
-            scene, target, job.escape.times, job.escape.x, job.escape.y, job.escape.yaw, job.escape.speed)]
+        sizes = agent_sizes(scene)
+        quiet = [i for i, job in enumerate(jobs) if reaches_no_one(
+            scene, target, job.escape.times, job.escape.x, job.escape.y, job.escape.yaw, job.escape.speed,
+            sizes=sizes)]
         if quiet:
             joint = _JointProof(spec, scene, target, [jobs[i] for i in quiet], drivable, horizon_s).run()
             for i, v in zip(quiet, joint, strict=True):

@@ -15,7 +15,8 @@ from coster_sumo.sim.reactive import CONFLICT_MARGIN_M, HORIZON_S, HORIZON_STEP_
 
 
 def reaches_no_one(scene: Scene, target: int, times: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray,
-                   speed: np.ndarray, margin_m: float = 1.0) -> bool:
+                   speed: np.ndarray, margin_m: float = 1.0,
+                   sizes: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
     """True where a target driven along these poses ((T,) each: times [s], centre [m], yaw [rad],
     speed [m/s]) makes no logged agent react in a pass of
     :func:`~coster_sumo.sim.reactive.reactive_replayer`: that pass is then the log's (every agent
@@ -25,14 +26,16 @@ def reaches_no_one(scene: Scene, target: int, times: np.ndarray, x: np.ndarray, 
     agent has reacted, so the target's poses alone decide (the replayer's step test:
     :func:`~coster_sumo.sim.reactive.reacting_agents` without a route). Tested on the safe side:
     each pose against the log steps next to its time (the step before and after too), the target's
-    box grown by ``margin_m`` on every side, every vehicle or cyclist of the log a candidate."""
+    box grown by ``margin_m`` on every side, every vehicle or cyclist of the log a candidate.
+    ``sizes``: every agent's length and width [m] as the replayer has them (:func:`agent_sizes`;
+    a caller with many escapes of one scene passes them once computed)."""
     tr = scene.tracks
-    lengths, widths = agent_sizes(scene)
+    lengths, widths = sizes if sizes is not None else agent_sizes(scene)
     others = np.flatnonzero((np.arange(tr.num_agents) != target) & (tr.object_type != int(ObjectType.PEDESTRIAN)))
     if not len(others) or not len(times):
         return True
-    length = float(np.median(tr.length[target][tr.valid[target]])) + 2 * margin_m
-    width = float(np.median(tr.width[target][tr.valid[target]])) + 2 * margin_m
+    length = float(lengths[target]) + 2 * margin_m  # the target's size in SUMO: the replayer's
+    width = float(widths[target]) + 2 * margin_m
     n = scene.num_steps
     near = np.clip(np.searchsorted(scene.timestamps, np.asarray(times, np.float64)), 0, n - 1)
     # every (pose, log step next to its time) pair at once: reacting_agents' constant-velocity test
