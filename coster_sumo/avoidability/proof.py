@@ -89,16 +89,18 @@ def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> Verdict:
 def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: str, job: EscapeJob) -> Verdict:
     """:func:`verdict` from a pass's events and recording, the target and adversary by their ids there."""
     plan, esc = job.plan, job.escape
-    t0 = plan.t_start - TIME_EPS
-    contacts = [e for e in events if e.kind == "collision" and target_id in e.vehicles and e.time >= t0]
-    off = [e for e in events if e.kind == "off_road" and e.vehicles == [target_id] and e.time >= t0]
+    # the escape's window, from the adversary's appearance to its last pose (t_col + the horizon): a
+    # pass that steps once more, or SUMO driving the target after it, says nothing about the escape
+    t0, t1 = plan.t_start - TIME_EPS, esc.times[-1] + TIME_EPS
+    contacts = [e for e in events if e.kind == "collision" and target_id in e.vehicles and t0 <= e.time <= t1]
+    off = [e for e in events if e.kind == "off_road" and e.vehicles == [target_id] and t0 <= e.time <= t1]
     tr = scene.tracks
     ids = tr.ids.tolist()
     gap = deviation = dev_at = None
     if target_id in ids:
         a = tr.index_of(target_id)
         ts_all = scene.timestamps
-        steps = np.flatnonzero(tr.valid[a] & (ts_all >= t0) & (ts_all <= esc.times[-1] + TIME_EPS))
+        steps = np.flatnonzero(tr.valid[a] & (ts_all >= t0) & (ts_all <= t1))
         if len(steps):
             ts = ts_all[steps]
             k = np.clip(np.round((ts - esc.times[0]) / 0.1).astype(int), 0, len(esc.times) - 1)
