@@ -1,6 +1,6 @@
 """The SUMO proof of escapes: one pass for every escape of a converted scene gives the verdicts of
-one pass per escape, in log traffic and, for the escapes no logged agent reacts to, in reactive
-traffic (coster_sumo.avoidability.proof)."""
+one pass per escape: in log traffic every escape, in reactive traffic those no logged agent reacts
+to (coster_sumo.avoidability.proof)."""
 
 from __future__ import annotations
 
@@ -20,14 +20,13 @@ from tests.conftest import WOMD_PKL, requires_womd
 pytestmark = [pytest.mark.sumo, pytest.mark.slow, pytest.mark.realdata, requires_womd()]
 
 
-def _verdicts(cfg: Path, seed: int, out: Path, traffic: str = "log") -> list[list[dict | None]]:
+def _verdicts(cfg: Path, seed: int, out: Path) -> list[list[dict | None]]:
     s = run(RunOptions(spec=ScenarioSpec(cfg, seed=seed), out=out, generation=GenerationConfig(), planner="replay",
-                       render=False, traffic=traffic), bars(quiet=True)).to_json()
+                       render=False), bars(quiet=True)).to_json()
     return [[e and e.get("proof") for e in v["avoidability"]["escapes"].values()] for v in s["variants"]]
 
 
-@pytest.mark.parametrize("traffic", ["log", "reactive"])
-def test_every_escape_in_one_pass_gives_the_verdicts_of_a_pass_per_escape(tmp_path, monkeypatch, traffic):
+def test_every_escape_in_one_pass_gives_the_verdicts_of_a_pass_per_escape(tmp_path, monkeypatch):
     assert main(["-q", "convert", "-o", str(tmp_path / "conv"), str(WOMD_PKL[0])]) == 0
     (cfg,) = (tmp_path / "conv").glob("*/*.sumocfg")
     checked = 0
@@ -36,7 +35,7 @@ def test_every_escape_in_one_pass_gives_the_verdicts_of_a_pass_per_escape(tmp_pa
         got = {}
         for together in (False, True):
             monkeypatch.setattr(proof, "prove_escapes", functools.partial(prove_escapes, together=together))
-            got[together] = _verdicts(cfg, seed, tmp_path / f"run{seed}{together}", traffic)
+            got[together] = _verdicts(cfg, seed, tmp_path / f"run{seed}{together}")
         # the same replays in SUMO: equal to the last digit the verdicts keep
         assert json.dumps(got[True], sort_keys=True) == json.dumps(got[False], sort_keys=True)
         checked += sum(1 for v in got[True] for e in v if e)
