@@ -229,9 +229,7 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
         from coster_sumo.sim.quiet_escapes import reaches_no_one
 
         sizes = agent_sizes(scene)
-        quiet = [i for i, job in enumerate(jobs) if reaches_no_one(
-            scene, target, job.escape.times, job.escape.x, job.escape.y, job.escape.yaw, job.escape.speed,
-            sizes=sizes)]
+        quiet = [i for i, job in enumerate(jobs) if reaches_no_one(scene, target, job.escape, sizes=sizes)]
         if quiet:
             joint = _JointProof(spec, scene, target, [jobs[i] for i in quiet], drivable, horizon_s).run()
             for i, v in zip(quiet, joint, strict=True):

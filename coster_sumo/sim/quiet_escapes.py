@@ -7,6 +7,8 @@ pass of the log, so the avoidability proof replays it with the others in one joi
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
 from coster_sumo.core.scene import ObjectType, Scene
@@ -14,11 +16,20 @@ from coster_sumo.formats.scene_folder import agent_sizes
 from coster_sumo.sim.reactive import CONFLICT_MARGIN_M, HORIZON_S, HORIZON_STEP_S
 
 
-def reaches_no_one(scene: Scene, target: int, times: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray,
-                   speed: np.ndarray, margin_m: float = 1.0,
+class TimedPoses(Protocol):
+    """A target's poses over time, (T,) each: times [s], centre x and y [m], yaw [rad], speed [m/s]
+    (an :class:`~coster_sumo.avoidability.evasion.Escape` is one)."""
+
+    times: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    speed: np.ndarray
+
+
+def reaches_no_one(scene: Scene, target: int, poses: TimedPoses, margin_m: float = 1.0,
                    sizes: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
-    """True where a target driven along these poses ((T,) each: times [s], centre [m], yaw [rad],
-    speed [m/s]) makes no logged agent react in a pass of
+    """True where a target driven along ``poses`` makes no logged agent react in a pass of
     :func:`~coster_sumo.sim.reactive.reactive_replayer`: that pass is then the log's (every agent
     keeps to its log), and its outcome the same as in log replay.
 
@@ -32,21 +43,21 @@ def reaches_no_one(scene: Scene, target: int, times: np.ndarray, x: np.ndarray, 
     tr = scene.tracks
     lengths, widths = sizes if sizes is not None else agent_sizes(scene)
     others = np.flatnonzero((np.arange(tr.num_agents) != target) & (tr.object_type != int(ObjectType.PEDESTRIAN)))
-    if not len(others) or not len(times):
+    if not len(others) or not len(poses.times):
         return True
     length = float(lengths[target]) + 2 * margin_m  # the target's size in SUMO: the replayer's
     width = float(widths[target]) + 2 * margin_m
     n = scene.num_steps
-    near = np.clip(np.searchsorted(scene.timestamps, np.asarray(times, np.float64)), 0, n - 1)
+    near = np.clip(np.searchsorted(scene.timestamps, np.asarray(poses.times, np.float64)), 0, n - 1)
     # every (pose, log step next to its time) pair at once: reacting_agents' constant-velocity test
     pose = np.repeat(np.arange(len(near)), 3)  # (Q,)
     k = np.clip(np.repeat(near, 3) + np.tile([-1, 0, 1], len(near)), 0, n - 1)
     horizon = np.arange(0.0, HORIZON_S + 1e-9, HORIZON_STEP_S)  # (H,)
     steps = np.minimum(k[:, None] + np.round(horizon / round(scene.dt, 6)).astype(np.int64), n - 1)  # (Q, H)
-    c, s = np.cos(np.asarray(yaw, np.float64)[pose]), np.sin(np.asarray(yaw, np.float64)[pose])  # (Q,)
-    v = np.asarray(speed, np.float64)[pose]
-    px = np.asarray(x, np.float64)[pose][:, None] + (v * c)[:, None] * horizon  # (Q, H)
-    py = np.asarray(y, np.float64)[pose][:, None] + (v * s)[:, None] * horizon
+    c, s = np.cos(np.asarray(poses.yaw, np.float64)[pose]), np.sin(np.asarray(poses.yaw, np.float64)[pose])  # (Q,)
+    v = np.asarray(poses.speed, np.float64)[pose]
+    px = np.asarray(poses.x, np.float64)[pose][:, None] + (v * c)[:, None] * horizon  # (Q, H)
+    py = np.asarray(poses.y, np.float64)[pose][:, None] + (v * s)[:, None] * horizon
     reach_l = 0.5 * (lengths[others] + length) + CONFLICT_MARGIN_M  # (A,)
     reach_w = 0.5 * (widths[others] + width) + CONFLICT_MARGIN_M
     for a0 in range(0, len(others), 64):  # (64, Q, H) at a time

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -284,6 +285,10 @@ def test_an_agent_that_left_the_network_is_not_asked_for_its_state():
     assert set(replayer.handover) == {1}  # the follower reacts; the agent that left is left alone
 
 
+def _poses(times, x, y, yaw, speed) -> SimpleNamespace:
+    return SimpleNamespace(times=times, x=x, y=y, yaw=yaw, speed=speed)
+
+
 def _reached_one_by_one(scene: Scene, target: int, times, x, y, yaw, speed, margin_m: float) -> bool:
     """reaches_no_one by its definition: reacting_agents pose by pose, at the log steps next to each."""
     tr = scene.tracks
@@ -321,7 +326,7 @@ def test_reaches_no_one_is_reacting_agents_pose_by_pose():
         yaw = np.full_like(times, rng.uniform(-0.5, 0.5))
         for margin in (0.0, 1.0):
             expect = not _reached_one_by_one(scene, 0, times, x, y, yaw, v, margin)
-            assert reaches_no_one(scene, 0, times, x, y, yaw, v, margin_m=margin) == expect
+            assert reaches_no_one(scene, 0, _poses(times, x, y, yaw, v), margin_m=margin) == expect
             outcomes.append(expect)
     assert 0.2 < np.mean(outcomes) < 0.8  # both outcomes, often
 
@@ -334,5 +339,5 @@ def test_a_braking_target_reaches_its_follower_and_a_far_one_no_one():
     v = np.maximum(10.0 - 4.0 * (times - 1.0), 0.0)  # braking at 4 m/s^2 from its log's 10 m/s
     x = 10.0 + np.concatenate([[0.0], np.cumsum(v[:-1]) * 0.1])
     zeros = np.zeros_like(times)
-    assert not reaches_no_one(scene, 0, times, x, zeros, zeros, v)  # "behind" closes in on it
-    assert reaches_no_one(scene, 0, times, x, zeros - 200.0, zeros, v)  # 200 m aside: nobody's path
+    assert not reaches_no_one(scene, 0, _poses(times, x, zeros, zeros, v))  # "behind" closes in on it
+    assert reaches_no_one(scene, 0, _poses(times, x, zeros - 200.0, zeros, v))  # 200 m aside: nobody's path
