@@ -195,9 +195,9 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     the adversary and the target), so with ``together`` every escape is replayed in one pass
     (:class:`_JointProof`), each by a copy of the target facing its own copy of the adversary; the
     verdicts are those of one pass per escape (``together=False``). ``traffic="reactive"``: the
-    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`), one pass per escape
-    that makes an agent react; the escapes that make none
-    (:func:`~coster_sumo.sim.quiet_escapes.reaches_no_one`) are passes of the log, replayed together.
+    logged agents react to the escaping target (:mod:`coster_sumo.sim.reactive`); an escape that
+    makes none react is a pass of the log and keeps its verdict from the joint pass, one that makes
+    an agent react gets a pass of its own (:func:`joint_verdicts`).
     """
     drivable, held, traci, horizon_s = proof.drivable, proof.held, proof.traci, proof.horizon_s
     tr = scene.tracks
@@ -220,20 +220,8 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             # a copy SUMO crashed in (a pedestrian-class adversary moved onto a walking area of
             # fokr_bs_demo: SIGSEGV in the step) proves nothing: the escape stands refuted, the run goes on
             out[i] = v if ok else Verdict(False, f"SUMO failed replaying it: {v}")
-    if converted and together and not traci and jobs and proof.traffic == "log":
-        return _JointProof(spec, scene, target, jobs, drivable, horizon_s).run()
     if converted and together and not traci and jobs:
-        # reactive traffic: an escape that makes no logged agent react has the log's pass, so those
-        # escapes share one joint pass; the others get a pass each, where the agents react
-        from coster_sumo.formats.scene_folder import agent_sizes
-        from coster_sumo.sim.quiet_escapes import reaches_no_one
-
-        sizes = agent_sizes(scene)
-        quiet = [i for i, job in enumerate(jobs) if reaches_no_one(scene, target, job.escape, sizes=sizes)]
-        if quiet:
-            joint = _JointProof(spec, scene, target, [jobs[i] for i in quiet], drivable, horizon_s).run()
-            for i, v in zip(quiet, joint, strict=True):
-                out[i] = v
+        out = joint_verdicts(spec, scene, target, jobs, proof)
     for i, job in enumerate(jobs):
         if out[i] is not None:
             continue
@@ -255,6 +243,26 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
     return [v for v in out if v is not None]
 
 
+def joint_verdicts(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
+                   proof: ProofSettings) -> list[Verdict | None]:
+    """The verdicts of a converted scene's escapes from one joint pass (:class:`_JointProof`), None
+    where the escape needs a pass of its own: in reactive traffic, one that makes a logged agent react.
+
+    There an escape that makes nobody react is a pass of the log. Those that
+    :func:`~coster_sumo.sim.quiet_escapes.reaches_no_one` tells in advance join the pass as in log
+    traffic; the others join it watched (:class:`~coster_sumo.sim.quiet_escapes.ReactionWatch`), and
+    one whose target copy would make an agent react leaves it at that step (its verdict None)."""
+    if proof.traffic == "log":
+        return list(_JointProof(spec, scene, target, jobs, proof.drivable, proof.horizon_s).run())
+    from coster_sumo.formats.scene_folder import agent_sizes
+    from coster_sumo.sim.quiet_escapes import reaches_no_one
+
+    sizes = agent_sizes(scene)
+    watch = [i for i, job in enumerate(jobs) if not reaches_no_one(scene, target, job.escape, sizes=sizes)]
+    joint = _JointProof(spec, scene, target, jobs, proof.drivable, proof.horizon_s, watch=watch)
+    return [None if i in joint.would_react else v for i, v in enumerate(joint.run())]
+
+
 class _JointProof:
     """Every escape of a converted scene in one SUMO pass from the configuration's begin.
 
@@ -268,7 +276,8 @@ class _JointProof:
     """
 
     def __init__(self, spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
-                 drivable: DrivableArea | None, horizon_s: float) -> None:
+                 drivable: DrivableArea | None, horizon_s: float, watch: Sequence[int] = ()) -> None:
+        from coster_sumo.sim.quiet_escapes import ReactionWatch
         from coster_sumo.sim.replay import LogReplayer, far_agents
 
         self.spec, self.scene, self.jobs = spec, scene, jobs
@@ -289,6 +298,12 @@ class _JointProof:
         self.copies = {v for pair in self.ids for v in pair}
         self.added: set[int] = set()
         self.removed: set[int] = set()
+        # the jobs watched for a logged agent that would react (each leaves the pass at that step)
+        self.watched = list(watch)
+        self.watch = ReactionWatch(scene, target, [far_agents(tr, np.stack([jobs[k].escape.x, jobs[k].escape.y], -1),
+                                                              PROOF_RADIUS_M) for k in self.watched],
+                                   (self.replayer.lengths, self.replayer.widths), self.replayer.dt)
+        self.would_react: set[int] = set()
 
     def _live(self, k: int, t: float) -> bool:
         return self.starts[k] - TIME_EPS <= t <= self.ends[k] and k not in self.removed
@@ -316,6 +331,7 @@ class _JointProof:
     def after(self, session: SumoSession, states: VehicleStates) -> bool:
         t = session.time
         names = states.id_list()
+        self._watch(session, states, names)
         rows = {v: i for i, v in enumerate(names) if v in self.copies}
         base = [i for i, v in enumerate(names) if v not in self.copies]
         for k, (tid, aid) in enumerate(self.ids):
@@ -330,6 +346,29 @@ class _JointProof:
                 if adversary.frozen_pose is not None:
                     self.detectors[k].settle_adversary()
         return False
+
+    def _watch(self, session: SumoSession, states: VehicleStates, names: list[str]) -> None:
+        """Take out of the pass every watched job whose target copy would make a logged agent react now."""
+        t = session.time
+        live = [(w, k) for w, k in enumerate(self.watched) if self._live(k, t) and self.ids[k][0] in names]
+        k_log = self.replayer.step_at(t)
+        if not live or k_log is None:
+            return
+        from coster_sumo.sim.reactive import Pose
+
+        in_sumo = set(names) - session.hidden
+        present = np.zeros(self.scene.tracks.num_agents, bool)
+        present[[a for a, sid in self.replayer.active.items() if sid in in_sumo]] = True
+        for w, k in live:
+            i = names.index(self.ids[k][0])
+            pose = Pose(float(states.x[i]), float(states.y[i]), float(states.yaw[i]), float(states.speed[i]),
+                        float(states.length[i]), float(states.width[i]))
+            if self.watch.reacts(w, k_log, pose, present):
+                self.would_react.add(k)
+                self.removed.add(k)
+                for vid in self.ids[k]:
+                    if vid in names:
+                        session.remove_vehicle(vid)
 
     def run(self) -> list[Verdict]:
         end = max(self.ends)
@@ -367,8 +406,8 @@ def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: 
     verdict. The blocked plans of a label (``Avoidability.blocked``) are replayed too, and one SUMO
     clears becomes an escape (:meth:`~coster_sumo.avoidability.evasion.Avoidability.adopt_cleared`).
 
-    Where every escape costs a SUMO pass of its own (every case but the joint pass of a converted
-    scene in log traffic, :class:`_JointProof`), the escapes are replayed in rounds, the latest
+    Where an escape may cost a SUMO pass of its own (every case but a converted scene in log
+    traffic, whose escapes all share one joint pass), the escapes are replayed in rounds, the latest
     reaction time first (:func:`_next_to_prove`): a driver who may act later may also act earlier,
     so once one clears, the earlier reaction times' escapes need no replay (they stay unproven,
     ``proven=None``, and their labels stand on the later one)."""

@@ -1,19 +1,23 @@
-"""Whether an escape makes any logged agent react: decided before SUMO runs it.
+"""Whether an escape makes any logged agent react: decided before SUMO runs it, or watched while
+a joint pass replays it.
 
 In reactive traffic (:mod:`coster_sumo.sim.reactive`) an escape whose target makes nobody react is a
 pass of the log, so the avoidability proof replays it with the others in one joint pass
-(:func:`coster_sumo.avoidability.proof.prove_escapes`, docs/method.md step 8).
+(:func:`coster_sumo.avoidability.proof.prove_escapes`, docs/method.md step 8). :func:`reaches_no_one`
+tells some in advance, on the safe side; :class:`ReactionWatch` tells the others during the joint
+pass, with the reactive replayer's own test on the target copy's SUMO state.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
 
 from coster_sumo.core.scene import ObjectType, Scene
 from coster_sumo.formats.scene_folder import agent_sizes
-from coster_sumo.sim.reactive import CONFLICT_MARGIN_M, HORIZON_S, HORIZON_STEP_S
+from coster_sumo.sim.reactive import CONFLICT_MARGIN_M, HORIZON_S, HORIZON_STEP_S, Pose, reacting_agents
 
 
 class TimedPoses(Protocol):
@@ -70,3 +74,40 @@ def reaches_no_one(scene: Scene, target: int, poses: TimedPoses, margin_m: float
         if meet.any():
             return False
     return True
+
+
+class ReactionWatch:
+    """Watches target copies in a joint pass of the log for the first step at which the reactive
+    replayer would hand a logged agent to SUMO, had the copy been the target of a pass of its own.
+
+    That pass (:func:`~coster_sumo.sim.reactive.reactive_replayer`) tests, every step from the
+    target's handover on, the target's SUMO state against the logged agents in SUMO there: valid at
+    the log step, no pedestrians, none of the agents the pass leaves out (``far``: never near the
+    escape). Until an agent reacts, the target is the only vehicle that deviates, and the pass is the
+    log's; so a copy that never meets that test had the joint pass's outcome in a pass of its own,
+    and one that meets it needs that pass. Here the same test runs on the copy's SUMO state at
+    every step it is in the joint pass (from its appearance on: a step more than the pass tests).
+
+    Args:
+        scene: the log; target: the target's row in it.
+        far: per watched copy, the agent ids its own pass would leave out.
+        sizes: every agent's length and width [m] as the replayer has them; dt: [s] its step.
+    """
+
+    def __init__(self, scene: Scene, target: int, far: Sequence[set[str]], sizes: tuple[np.ndarray, np.ndarray],
+                 dt: float) -> None:
+        tr = scene.tracks
+        self.scene, self.sizes, self.dt = scene, sizes, dt
+        base = (np.arange(tr.num_agents) != target) & (tr.object_type != int(ObjectType.PEDESTRIAN))
+        ids = tr.ids.astype(str)
+        self.eligible = [base & ~np.isin(ids, sorted(f)) for f in far]  # (A,) each
+
+    def reacts(self, copy: int, k: int, pose: Pose, present: np.ndarray) -> bool:
+        """Whether a logged agent reacts to watched copy ``copy`` (its index in ``far``) at ``pose``,
+        at log step ``k``, the agents in SUMO then being ``present`` ((A,) bool)."""
+        tr = self.scene.tracks
+        if not 0 <= k < self.scene.num_steps:
+            return False
+        cand = np.flatnonzero(self.eligible[copy] & present & tr.valid[:, k])
+        return bool(len(cand)) and bool(reacting_agents(self.scene, k, [pose], cand, sizes=self.sizes,
+                                                        dt=self.dt).any())
