@@ -21,8 +21,8 @@ import numpy as np
 
 from coster_sumo.avoidability.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.avoidability.proof import ProofSettings, prove_labels
-from coster_sumo.avoidability.search import HORIZON_AFTER_TCOL_S, assess
-from coster_sumo.core.plan import AdversaryPlan
+from coster_sumo.avoidability.search import assess
+from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan
 from coster_sumo.core.results import LabelCounts, TargetResult
 from coster_sumo.core.scene import Scene
 from coster_sumo.core.spec import ScenarioSpec
@@ -53,9 +53,10 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
     reactive = not source.converted or proof.traffic == "reactive"
     t0 = time.perf_counter()
     labels = []
+    shared: dict = {}  # the plans' time grids' candidates, each built once (assess)
     for plan in plans:
         labels.append(assess(scene, target, plan, proof.drivable, reaction_times=reaction_times,
-                             reaction_time_s=reaction_time_s, reactive_others=reactive))
+                             reaction_time_s=reaction_time_s, reactive_others=reactive, shared=shared))
         if done is not None:
             done(1)
     t1 = time.perf_counter()

@@ -29,35 +29,25 @@ Times are simulation seconds, distances metres, accelerations m/s^2.
 
 from __future__ import annotations
 
-import functools
-import math
-from dataclasses import dataclass
-
 import numpy as np
 
-from coster_sumo.avoidability.clearance import hits_adversary, other_boxes, outer_reach, too_close
+from coster_sumo.avoidability.candidates import SearchContext
+from coster_sumo.avoidability.clearance import hits_adversary, outer_reach, too_close
 from coster_sumo.avoidability.evasion import (
     DEFAULT_REACTION_S,
     DT_S,
     Avoidability,
-    ClassLimits,
     Escape,
     Manoeuvre,
     Motion,
     contact_kind,
-    lateral_profile,
-    manoeuvres,
-    speed_profiles,
     threat_time,
-    vehicle_class,
 )
-from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan
+from coster_sumo.core.plan import AdversaryPlan
 from coster_sumo.core.scene import Scene
 from coster_sumo.geometry.boxes import (
     box_signed_distance,
     make_boxes,
-    point_at_arc_length,
-    project_points,
 )
 from coster_sumo.geometry.drivable import DrivableArea
 
@@ -65,7 +55,6 @@ from coster_sumo.geometry.drivable import DrivableArea
 MIN_CLEARANCE_M = 0.3  # [m] smallest gap an escape keeps to every box (the SUMO replay is the arbiter)
 REACTION_TIMES_S = (0.5, 1.0, 1.5)  # [s] reaction times reported for every variant
 ACT_SPACING_S = 0.2  # [s] moments to act are searched on this grid (plus the reaction moments)
-OFF_ROAD_SPACING_S = 0.2  # [s] on-road checks every other step (a car moves < 8 m in it)
 # candidates clear of the adversary and blocked only by traffic that reacts, tried in SUMO per
 # reaction time without an escape: the least demanding few (docs/method.md step 8)
 BLOCKED_TRIED_PER_REACTION = 2
@@ -74,66 +63,33 @@ EARLY_CHUNK = 5  # moments to act before the shortest reaction, built at a time 
 
 
 
-# ----------------------------------------------------------------------------- the target's path
-
-def _path(xy: np.ndarray, heading: np.ndarray, extend_m: float) -> np.ndarray:
-    """The target's nominal path as a polyline with points >= 0.2 m apart, extended straight
-    by ``extend_m`` at both ends (an escape may drive further or back less far than the log)."""
-    keep = [0]
-    pts_list = xy.tolist()  # Python floats: a numpy call per point costs more than the test
-    lx, ly = pts_list[0]
-    for i in range(1, len(pts_list)):  # once per variant over the target's own log, not per candidate
-        x, y = pts_list[i]
-        if math.hypot(x - lx, y - ly) >= 0.2:
-            keep.append(i)
-            lx, ly = x, y
-    pts = xy[keep]
-    h0 = heading[0] if len(pts) < 2 else np.arctan2(*(pts[1] - pts[0])[::-1])
-    h1 = heading[-1] if len(pts) < 2 else np.arctan2(*(pts[-1] - pts[-2])[::-1])
-    start = pts[0] - extend_m * np.array([np.cos(h0), np.sin(h0)])
-    end = pts[-1] + extend_m * np.array([np.cos(h1), np.sin(h1)])
-    return np.concatenate([start[None], pts, end[None]])
-
-
 # ----------------------------------------------------------------------------- the search
 
 def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableArea | None,
            reaction_times: tuple[float, ...] = REACTION_TIMES_S, reaction_time_s: float = DEFAULT_REACTION_S,
-           reactive_others: bool = False) -> Avoidability:
+           reactive_others: bool = False, shared: dict[tuple[float, float], SearchContext] | None = None
+           ) -> Avoidability:
     """Search the target's escapes from ``plan`` in ``scene`` (module docstring); kinematic only
     (the SUMO replay, :mod:`coster_sumo.avoidability.proof`, confirms or refutes each escape).
 
     ``reactive_others``: the other vehicles are SUMO's drivers in the proof (a SUMO configuration);
     then, for every reaction time without an escape, the :data:`BLOCKED_TRIED_PER_REACTION` least
     demanding plans that keep clear of the adversary but not of another vehicle are kept in
-    ``Avoidability.blocked`` for the proof to try: there that vehicle reacts."""
-    tr = scene.tracks
-    ts = scene.timestamps
-    valid_t = tr.valid[target]
+    ``Avoidability.blocked`` for the proof to try: there that vehicle reacts.
+
+    ``shared``: a dict a caller keeps while it labels several plans of one scene, target and
+    drivable area. The target's candidates (poses, kinematic limits, road check, the other vehicles
+    near its path) depend on the time grid alone, that is on the plan's appearance and t_col, so
+    plans that share the grid (a snapshot's variants do) share them: the same numbers, built once."""
     t_col = plan.t_col
-    times = np.round(np.arange(plan.t_start, t_col + HORIZON_AFTER_TCOL_S + 1e-9, DT_S), 6)  # (T,)
-    # the target's nominal state on the grid (its log's nearest step)
-    idx = np.clip(np.searchsorted(ts, times - 1e-6), 0, len(ts) - 1)
-    prev = np.clip(idx - 1, 0, len(ts) - 1)
-    idx = np.where(np.abs(ts[prev] - times) < np.abs(ts[idx] - times), prev, idx)
-    ok = valid_t[idx]
-    steps_valid = np.flatnonzero(valid_t)
-    last_valid = steps_valid[-1]
-    idx = np.where(ok, idx, np.minimum(idx, last_valid))
-    length = float(np.median(tr.length[target][valid_t]))
-    width = float(np.median(tr.width[target][valid_t]))
-    path = _path(np.stack([tr.x[target][valid_t], tr.y[target][valid_t]], 1), tr.heading[target][valid_t], 400.0)
-    # what the target can do: its class's limits and the manoeuvres they allow
-    limits = vehicle_class(int(tr.object_type[target]), length, width)
-    man = manoeuvres(limits)
-    nx, ny, nyaw = tr.x[target, idx], tr.y[target, idx], tr.heading[target, idx]
-    nv = np.hypot(tr.vx[target, idx], tr.vy[target, idx])
-    # after the log ends the nominal target drives on at its last speed (only the horizon needs it)
-    beyond = times > ts[last_valid] + 1e-6
-    if beyond.any():
-        extra = times[beyond] - ts[last_valid]
-        nx[beyond] += nv[beyond] * np.cos(nyaw[beyond]) * extra
-        ny[beyond] += nv[beyond] * np.sin(nyaw[beyond]) * extra
+    key = (float(plan.t_start), float(t_col))
+    ctx = shared.get(key) if shared is not None else None
+    if ctx is None:
+        ctx = SearchContext.build(scene, target, plan.t_start, t_col, drivable)
+        if shared is not None:
+            shared[key] = ctx
+    times, nx, ny, nyaw, nv = ctx.times, ctx.nx, ctx.ny, ctx.nyaw, ctx.nv
+    length, width, limits, man = ctx.length, ctx.width, ctx.limits, ctx.man
     tcol_k = int(np.argmin(np.abs(times - t_col)))
     # the kind of contact, from both states at t_col
     ax_c, ay_c, ayaw_c, av_c = (float(v[0]) for v in plan.sample(np.array([t_col])))
@@ -152,19 +108,20 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
     if not len(act_k):
         return Avoidability(t_col, plan.t_start, t_threat, kind, limits.name, None, escapes, reaction_time_s)
 
-    ctx = _SearchContext(scene, target, plan, drivable, man, limits, times, nx, ny, nyaw, nv, length, width, path)
+    ax, ay, ayaw, _ = plan.sample(times)
+    adv_box = make_boxes(ax, ay, ayaw, plan.length, plan.width)  # (T, 5): its plan, then along the road
     t_acts_all = times[act_k]
     # the moments before the shortest reaction serve only the last moment to act, which is searched
     # from the latest moment back: they are computed only when no later moment has an escape, a
     # few moments at a time from the latest (each row is computed on its own: the same answer)
     late = t_acts_all >= t_threat + min(reaction_times) - 1e-6
-    late_cand = _Candidates(ctx, act_k[late]) if late.any() else None
+    late_cand = _Candidates(ctx, act_k[late], adv_box) if late.any() else None
     last_moment = late_cand.last_moment(t_col) if late_cand is not None else None
     early = act_k[~late]
     for stop in range(len(early), 0, -EARLY_CHUNK):
         if last_moment is not None:
             break
-        last_moment = _Candidates(ctx, early[max(0, stop - EARLY_CHUNK):stop]).last_moment(t_col)
+        last_moment = _Candidates(ctx, early[max(0, stop - EARLY_CHUNK):stop], adv_box).last_moment(t_col)
     blocked: dict[tuple[float, Manoeuvre], Escape] = {}
     if late_cand is not None:
         for r in reaction_times:
@@ -176,61 +133,6 @@ def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableAre
                         candidates=int(len(act_k) * len(man)), blocked=list(blocked.values()))
 
 
-@dataclass(frozen=True)
-class _SearchContext:
-    """What every candidate of one variant's search shares: the scene, the plan, the target's nominal
-    states on the time grid (nx, ny, nyaw, nv), its size and its path."""
-
-    scene: Scene
-    target: int
-    plan: AdversaryPlan
-    drivable: DrivableArea | None
-    man: list[Manoeuvre]
-    limits: ClassLimits
-    times: np.ndarray
-    nx: np.ndarray
-    ny: np.ndarray
-    nyaw: np.ndarray
-    nv: np.ndarray
-    length: float
-    width: float
-    path: np.ndarray
-
-    @functools.cached_property
-    def adv_box(self) -> np.ndarray:
-        """(T, 5) the adversary's boxes on the grid (its plan, then along the road)."""
-        ax, ay, ayaw, _ = self.plan.sample(self.times)
-        return make_boxes(ax, ay, ayaw, self.plan.length, self.plan.width)
-
-    @functools.cached_property
-    def others(self) -> tuple[tuple[np.ndarray, np.ndarray] | None, np.ndarray]:
-        """The other vehicles near the path (:func:`~coster_sumo.avoidability.clearance.other_boxes`)."""
-        return other_boxes(self.scene, self.target, self.times, self.path)
-
-    @functools.cached_property
-    def nominal_off(self) -> np.ndarray | None:
-        """(S,) where the log itself is off the drivable area, at the road check's steps (None: no
-        area). A map that misses a driveway: forgiven."""
-        if self.drivable is None:
-            return None
-        sub = self.road_steps
-        return self.drivable.off_road(self.nx[sub], self.ny[sub], self.nyaw[sub], np.asarray(self.length),
-                                      np.asarray(self.width))
-
-    @functools.cached_property
-    def nominal_along(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(T,) each: the nominal states' arc length along the path and sideways offset from it [m],
-        and the nominal longitudinal acceleration [m/s^2]: what every batch of candidates starts from."""
-        s_nom, d_nom, _ = project_points(np.stack([self.nx, self.ny], 1), self.path)
-        a_nom = np.gradient(self.nv, DT_S) if len(self.times) > 1 else np.zeros(len(self.times))
-        return s_nom, d_nom, a_nom
-
-    @property
-    def road_steps(self) -> np.ndarray:
-        """The grid steps the road check tests (every :data:`OFF_ROAD_SPACING_S`)."""
-        return np.arange(0, len(self.times), max(1, round(OFF_ROAD_SPACING_S / DT_S)))
-
-
 class _Candidates:
     """The (act, manoeuvre) candidates of the moments to act ``act_k`` (steps of the time grid): their
     poses, kinematic feasibility and clearance to the adversary and the other vehicles.
@@ -239,45 +141,15 @@ class _Candidates:
     after acting, so a subset of the moments gives the same rows as the whole grid.
     """
 
-    def __init__(self, ctx: _SearchContext, act_k: np.ndarray) -> None:
+    def __init__(self, ctx: SearchContext, act_k: np.ndarray, adv_box: np.ndarray) -> None:
+        """``adv_box`` (n, 5): the adversary's boxes on ``ctx``'s grid (its plan, then along the road)."""
         self.ctx, self.act_k = ctx, act_k
-        nx, ny, nyaw, times = ctx.nx, ctx.ny, ctx.nyaw, ctx.times
-        n = len(times)
-        # the profiles of the distinct longitudinal and lateral parts, each computed once and shared
-        # by every manoeuvre that combines them (the same numbers as computing each manoeuvre's own)
-        s_u, v_u, a_u, d_u, lon_of, lat_of = _profiles(ctx, act_k)
-        # poses: along the path plus the sideways shift; the nominal part is the log itself
-        xy_u, hd_u = point_at_arc_length(ctx.path, s_u)  # (K, L, n, 2), (K, L, n)
-        v, a_lon, d = v_u[:, lon_of], a_u[:, lon_of], d_u[:, lat_of]  # (K, M, n)
-        hd = hd_u[:, lon_of]
-        # x and y each in an array of its own (contiguous for the gradients), stacked at the end
-        px = xy_u[..., 0][:, lon_of] + d * -np.sin(hd_u)[:, lon_of]
-        py = xy_u[..., 1][:, lon_of] + d * np.cos(hd_u)[:, lon_of]
-        dd = np.gradient(d_u, DT_S, axis=-1)[:, lat_of]
-        yaw = hd + np.arctan2(dd, np.maximum(v, 0.5))
-        pre = np.arange(n)[None, :] < act_k[:, None]  # (K, n) steps before acting: the log
-        for j, k in enumerate(act_k.tolist()):  # written in place: px, py and yaw are new arrays
-            px[j, :, :k] = nx[:k]
-            py[j, :, :k] = ny[:k]
-            yaw[j, :, :k] = nyaw[:k]
-        # kinematic limits: curvature and accelerations from the poses themselves
-        dyaw = np.gradient(_unwrapped(yaw), DT_S, axis=-1)
-        speed_pos = np.hypot(np.gradient(px, DT_S, axis=-1), np.gradient(py, DT_S, axis=-1))
-        pos = np.stack([px, py], -1)  # (K, M, n, 2)
-        a_lat = np.abs(dyaw * speed_pos)
-        after = ~pre[:, None, :]  # (K, 1, n)
-        moving = speed_pos > 1.0
-        curv = np.where(moving, np.abs(dyaw) / np.maximum(speed_pos, 1e-6), 0.0)
-        # a sideways shift at a crawl turns the wheels further than they go: that is the curvature check
-        slow_shift = (np.abs(dd) > 0.05) & (speed_pos <= 1.0)
-        a_comb = np.hypot(a_lon, np.where(moving, a_lat, 0.0))
-        limits, length, width = ctx.limits, ctx.length, ctx.width
-        feasible = ~(after & ((curv > limits.max_curvature(length) * 1.02) | slow_shift
-                              | (a_comb > limits.emergency_decel * 1.02))).any(-1)  # (K, M)
+        pos, yaw, v, after, feasible, self.demand, self.peak_decel, self.peak_lat = ctx.rows_of(act_k)
+        after = after[:, None, :]  # (K, 1, n)
         # clearance to the adversary (its plan, then constant velocity) and to every other vehicle
-        self.adv_box = ctx.adv_box  # (n, 5)
+        self.adv_box = adv_box  # (n, 5)
         # boxes grown by the clearance on every side: an overlap (SAT, no corners) means too close
-        grown = (length + 2 * MIN_CLEARANCE_M, width + 2 * MIN_CLEARANCE_M)
+        grown = (ctx.length + 2 * MIN_CLEARANCE_M, ctx.width + 2 * MIN_CLEARANCE_M)
         good = feasible.copy()
         kk, mm = np.nonzero(good)
         if len(kk):  # the adversary first: it rules out most candidates
@@ -292,11 +164,8 @@ class _Candidates:
             good[kk[hit], mm[hit]] = False
         # only what is clear is checked against the road (the costlier test), and only as far as the
         # answer needs it: the least demanding escape per reaction time and the last moment to act
-        self.on_road = _RoadCheck(ctx, pos, yaw, after[:, 0])
-        self.demand = np.max(np.where(after, a_comb, 0.0), -1)  # (K, M)
-        self.peak_decel = np.max(np.where(after, np.maximum(-a_lon, 0.0), 0.0), -1)
-        self.peak_lat = np.max(np.where(after & moving, a_lat, 0.0), -1)
-        self.t_acts = times[act_k]
+        self.on_road = _RoadCheck(ctx, act_k, pos, yaw, after[:, 0])
+        self.t_acts = ctx.times[act_k]
         self.pos, self.yaw, self.v, self.after, self.good = pos, yaw, v, after, good
 
     def last_moment(self, t_col: float) -> float | None:
@@ -367,60 +236,6 @@ class _Candidates:
                       blocked_by=blocked_by)
 
 
-def _profiles(ctx: _SearchContext, act_k: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The candidates' profiles, each part computed once: for every moment to act and distinct
-    longitudinal part (L of them) the arc length along the path [m], speed [m/s] and longitudinal
-    acceleration [m/s^2], each (K, L, T); for every moment and distinct lateral part (A) the sideways
-    shift [m], (K, A, T); and each manoeuvre's longitudinal and lateral part, (M,) indices. The
-    nominal log before acting, the part's profile from then on."""
-    nv, man, times = ctx.nv, ctx.man, ctx.times
-    n = len(times)
-    lon_keys = list(dict.fromkeys((m.longitudinal, m.accel) for m in man))
-    lat_keys = list(dict.fromkeys((m.lateral_m, m.lateral_accel) for m in man))
-    lon_of = np.array([lon_keys.index((m.longitudinal, m.accel)) for m in man])
-    lat_of = np.array([lat_keys.index((m.lateral_m, m.lateral_accel)) for m in man])
-    l_count, a_count, k_count = len(lon_keys), len(lat_keys), len(act_k)
-    s_nom, d_nom, a_nom = ctx.nominal_along  # (T,) each
-    v_cap = float(max(nv.max(), 1.0) * 1.2 + 2.0)
-    # longitudinal: arc length along the path for every (act, longitudinal part) pair
-    goals = np.array([acc for _, acc in lon_keys])
-    nominal = np.array([kind == "nominal" for kind, _ in lon_keys])
-    tau = np.arange(n) * DT_S  # time since acting, long enough for the earliest act
-    s = np.empty((k_count, l_count, n))
-    v = np.empty((k_count, l_count, n))
-    a_lon = np.empty((k_count, l_count, n))
-    d_prof = lateral_profile(tau, np.array([d for d, _ in lat_keys]), np.array([a for _, a in lat_keys]))  # (A, n)
-    d = np.empty((k_count, a_count, n))
-    for j, k in enumerate(act_k):  # once per moment to act; each call is batched over the parts and steps
-        rest = n - k
-        sp, ac = speed_profiles(float(nv[k]), float(a_nom[k]), goals, rest - 1, v_cap)  # (L, rest)
-        sp[nominal] = nv[k:]
-        ac[nominal] = a_nom[k:]
-        ds = np.concatenate([np.zeros((l_count, 1)), np.cumsum(0.5 * (sp[:, 1:] + sp[:, :-1]) * DT_S, 1)], 1)
-        s[j, :, :k] = s_nom[:k]
-        s[j, :, k:] = np.where(nominal[:, None], s_nom[k:], s_nom[k] + ds)
-        v[j, :, :k] = nv[:k]
-        v[j, :, k:] = sp
-        a_lon[j, :, :k] = a_nom[:k]
-        a_lon[j, :, k:] = ac
-        d[j, :, :k] = d_nom[:k]
-        d[j, :, k:] = d_nom[k] + d_prof[:, :rest]
-    return s, v, a_lon, d, lon_of, lat_of
-
-
-def _unwrapped(yaw: np.ndarray) -> np.ndarray:
-    """``np.unwrap(yaw, axis=-1)``, run only on the rows that jump by pi or more between two steps
-    (few do: a candidate's heading follows its path). A row without such a jump is its own
-    unwrapping (numpy adds a zero correction to it), so the numbers are the same."""
-    jump = (np.abs(np.diff(yaw, axis=-1)) >= np.pi).any(-1)
-    if not jump.any():
-        return yaw
-    out = yaw.copy()
-    out[jump] = np.unwrap(yaw[jump], axis=-1)
-    return out
-
-
 class _RoadCheck:
     """Whether candidate escapes stay on the drivable area, computed on demand and remembered.
 
@@ -430,21 +245,24 @@ class _RoadCheck:
 
     CHUNK = 8  # candidates tested at a time, in order of demand
 
-    def __init__(self, ctx: _SearchContext, pos: np.ndarray, yaw: np.ndarray, acted: np.ndarray):
+    def __init__(self, ctx: SearchContext, act_k: np.ndarray, pos: np.ndarray, yaw: np.ndarray, acted: np.ndarray):
         """``pos`` (K, M, n, 2) [m] and ``yaw`` (K, M, n) [rad]: the candidates' poses on ``ctx``'s time
-        grid; ``acted`` (K, n): the steps after acting."""
+        grid, acting at its steps ``act_k`` (K,); ``acted`` (K, n): the steps after acting. What is
+        known is kept in ``ctx`` (by act step and manoeuvre): every plan of the grid shares it."""
         drivable, length, width = ctx.drivable, ctx.length, ctx.width
         self.drivable, self.pos, self.yaw, self.length, self.width = drivable, pos, yaw, length, width
         self.acted = acted  # (K, n): steps after acting
         self.sub = ctx.road_steps
-        self.known: dict[tuple[int, int], bool] = {}
+        self.act_k = act_k.tolist()
+        self.known = ctx.road_known
         self.nominal_off = ctx.nominal_off  # where the log itself is off the road: forgiven
 
     def __call__(self, kk: np.ndarray, mm: np.ndarray) -> np.ndarray:
         """(G,) on the road, for candidates (kk[i], mm[i])."""
         if self.drivable is None or self.nominal_off is None:
             return np.ones(len(kk), bool)
-        todo = [i for i, key in enumerate(zip(kk.tolist(), mm.tolist(), strict=True)) if key not in self.known]
+        keys = [(self.act_k[k], m) for k, m in zip(kk.tolist(), mm.tolist(), strict=True)]
+        todo = [i for i, key in enumerate(keys) if key not in self.known]
         if todo:
             tk, tm = kk[todo], mm[todo]
             sub = self.sub
@@ -455,9 +273,9 @@ class _RoadCheck:
                 np.asarray(self.length), np.asarray(self.width),
                 where=self.acted[tk][:, sub] & ~self.nominal_off[None, :])
             bad_any: list[bool] = bad_rows.tolist()
-            for k, m, bad in zip(tk.tolist(), tm.tolist(), bad_any, strict=True):
-                self.known[(k, m)] = not bad
-        return np.array([self.known[key] for key in zip(kk.tolist(), mm.tolist(), strict=True)], bool)
+            for i, bad in zip(todo, bad_any, strict=True):
+                self.known[keys[i]] = not bad
+        return np.array([self.known[key] for key in keys], bool)
 
     def least(self, allowed: np.ndarray, demand: np.ndarray) -> tuple[int, int] | None:
         """The allowed candidate on the road with the smallest demand (ties within 1e-9: the first

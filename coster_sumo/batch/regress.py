@@ -147,7 +147,7 @@ def _target_path(res: Any, target_id: str, every: int = 5) -> list[list[float]]:
 def run_task(payload: dict[str, Any]) -> ResultRow:
     """Task: one planner on one variant of one scene -> a result row (``store.RESULT_FIELDS``)."""
     from coster_sumo.avoidability.labels import escape_replay, planner_outcome
-    from coster_sumo.avoidability.search import HORIZON_AFTER_TCOL_S
+    from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S
     from coster_sumo.core.spec import InjectionSettings
     from coster_sumo.formats.scene_file import load_scene
     from coster_sumo.geometry.drivable import DrivableArea

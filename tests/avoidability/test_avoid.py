@@ -18,11 +18,11 @@ T_COL = 8.0  # [s]
 LENGTH, WIDTH = 4.5, 1.9  # [m] every vehicle (synthetic._tracks)
 
 
-def straight_road(lanes: int, agents: list[tuple[str, int, float, float]]) -> Scene:
-    """A one-way road along +x with ``lanes`` lanes (lane 0 on the right) and vehicles at constant
-    speed: (id, lane, x at t=0 [m], speed [m/s]); the first one is the target."""
+def straight_road(lanes: int, agents: list[tuple[str, int, float, float]], end_x: float = 600.0) -> Scene:
+    """A one-way road along +x to ``end_x`` [m] with ``lanes`` lanes (lane 0 on the right) and vehicles
+    at constant speed: (id, lane, x at t=0 [m], speed [m/s]); the first one is the target."""
     b = synthetic._MapBuilder()
-    ids = [b.lane(synthetic._line((-100.0, k * synthetic.LANE_WIDTH), (600.0, k * synthetic.LANE_WIDTH)))
+    ids = [b.lane(synthetic._line((-100.0, k * synthetic.LANE_WIDTH), (end_x, k * synthetic.LANE_WIDTH)))
            for k in range(lanes)]
     for right, left in zip(ids, ids[1:], strict=False):
         b.neighbours(left, right)
@@ -133,3 +133,43 @@ def test_braking_profiles_are_jerk_limited_and_stop_at_zero():
     assert np.all(np.abs(np.diff(a[0]))[moving] <= evasion.JERK_MPS3 * evasion.DT_S + 1e-9)
     assert v[0].min() == 0.0 and v[0, -1] == 0.0 and a[0].min() >= -9.0 - 1e-9
     assert v[1].max() == pytest.approx(12.0)
+
+
+def test_plans_of_one_time_grid_share_their_candidates_and_get_the_labels_they_get_alone(monkeypatch):
+    # three adversaries appearing at 3 s with t_col 8 s (one grid): ahead, from behind, beside; the
+    # road ends 150 m on, so speeding up leaves it when done early enough (road checks differ by moment)
+    from coster_sumo.avoidability import candidates
+
+    scene = straight_road(2, [("ego", 0, 0.0, 12.0)], end_x=150.0)
+    plans = [straight_plan(12.0 * T_COL + LENGTH, 0.0, 0.0, 0.0), straight_plan(12.0 * T_COL - LENGTH, 0.0, 0.0, 25.0),
+             straight_plan(12.0 * T_COL, WIDTH, 0.0, 11.0)]
+    drivable = DrivableArea.from_road_map(scene.road_map)
+    alone = [search.assess(scene, 0, p, drivable, reactive_others=True) for p in plans]
+    built: list[int] = []
+    rows = candidates.candidate_rows
+    monkeypatch.setattr(candidates, "candidate_rows", lambda ctx, k: built.extend(k.tolist()) or rows(ctx, k))
+    shared: dict = {}
+    together = [search.assess(scene, 0, p, drivable, reactive_others=True, shared=shared) for p in plans[::-1]][::-1]
+    assert len(shared) == 1 and len(built) == len(set(built))  # each moment's candidates built once
+    for a, b in zip(alone, together, strict=True):
+        assert a.summary() == b.summary()
+        for ea, eb in zip([*a.escapes.values(), *a.blocked], [*b.escapes.values(), *b.blocked], strict=True):
+            assert (ea is None) == (eb is None)
+            if ea is not None:
+                np.testing.assert_array_equal(np.stack([ea.x, ea.y, ea.yaw, ea.speed]),
+                                              np.stack([eb.x, eb.y, eb.yaw, eb.speed]))
+    assert {a.avoidable for a in alone} == {True, False}  # not one answer for all
+    # the road checks the grid keeps (from every plan's search) are those of their own moments and
+    # manoeuvres: asked again for every pair at once, they agree with a fresh context's
+    (ctx,) = shared.values()
+    ks = np.array(sorted(ctx.rows))
+    fresh = candidates.SearchContext.build(scene, 0, plans[0].t_start, plans[0].t_col, drivable)
+    kk, mm = (a.ravel() for a in np.meshgrid(np.arange(len(ks)), np.arange(len(ctx.man)), indexing="ij"))
+    checks = []
+    for c in (ctx, fresh):
+        pos, yaw, _, after, *_ = c.rows_of(ks)
+        checks.append(search._RoadCheck(c, ks, pos, yaw, after)(kk, mm))
+    np.testing.assert_array_equal(checks[0], checks[1])
+    by_moment = checks[1].reshape(len(ks), len(ctx.man))
+    # some manoeuvre is on the road when done at one moment and off it at another
+    assert ctx.road_known and (by_moment.any(0) & ~by_moment.all(0)).any()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from coster_sumo.avoidability.candidates import _unwrapped
 from coster_sumo.avoidability.clearance import hits_adversary, too_close
-from coster_sumo.avoidability.search import _unwrapped
 from coster_sumo.geometry.boxes import make_boxes, sat_overlap_depth
 
 
