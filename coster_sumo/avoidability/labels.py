@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from coster_sumo.avoidability.candidates import SearchContext
 from coster_sumo.avoidability.evasion import DEFAULT_REACTION_S, Avoidability, Escape
 from coster_sumo.avoidability.proof import ProofSettings, prove_labels
 from coster_sumo.avoidability.search import assess
@@ -53,7 +54,7 @@ def label_plans(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: i
     reactive = not source.converted or proof.traffic == "reactive"
     t0 = time.perf_counter()
     labels = []
-    shared: dict = {}  # the plans' time grids' candidates, each built once (assess)
+    shared: dict[tuple[float, float], SearchContext] = {}  # each time grid's candidates, built once (assess)
     for plan in plans:
         labels.append(assess(scene, target, plan, proof.drivable, reaction_times=reaction_times,
                              reaction_time_s=reaction_time_s, reactive_others=reactive, shared=shared))

@@ -61,8 +61,6 @@ BLOCKED_TRIED_PER_REACTION = 2
 EARLY_CHUNK = 5  # moments to act before the shortest reaction, built at a time (latest first)
 
 
-
-
 # ----------------------------------------------------------------------------- the search
 
 def assess(scene: Scene, target: int, plan: AdversaryPlan, drivable: DrivableArea | None,
