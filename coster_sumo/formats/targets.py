@@ -16,9 +16,11 @@ What the demand says, and how it is read:
   the best few per target asked are routed;
 * a ``<flow>`` is a series of vehicles ``<flow id>.<k>`` that share a route; its departures follow
   from ``begin`` and ``period`` / ``vehsPerHour`` / ``number``; where they are random
-  (``probability``, ``period="exp(rate)"``) the mean gap stands in for the period. One vehicle per
-  flow at most, the first that departs in the window: several targets from one flow would be the
-  same drive;
+  (``probability``, ``period="exp(rate)"``) the mean gap stands in for the period, and the k-th
+  vehicle is expected k + 1 mean gaps after ``begin`` (the mean time of a random process's k-th
+  arrival), not at ``begin``: a rare flow's first vehicle (``probability="0.0117"`` on the shipped
+  arterial: one in 85 s on average) is not expected at once. One vehicle per flow at most, the
+  first expected to depart in the window: several targets from one flow would be the same drive;
 * departures that are not times (``triggered``, ``containerTriggered``) are left out;
 * so are vehicles whose ``vType`` has a class that uses no road (``vClass="rail"``, ships, ...,
   :data:`OFF_ROAD_CLASSES`): the prior places road vehicles around a target on road lanes (the
@@ -84,7 +86,7 @@ class _Demand:
     src: str | None = None  # trip / flow endpoints (edge ids), ``via`` in between
     dst: str | None = None
     via: tuple[str, ...] = ()
-    flow: tuple[float, float, int] | None = None  # begin, period, count of a flow's vehicles
+    flow: tuple[float, float, int, bool] | None = None  # begin, period, count of a flow's vehicles; random
     vtype: str = ""  # its type="..." ("": SUMO's default type)
     vclass: str = "passenger"  # its vType's class, resolved once every file is read
 
@@ -98,17 +100,19 @@ def _depart(text: str | None, where: str) -> float | None:
         return None
 
 
-def _flow_series(el: Any, where: str, default_end: float) -> tuple[float, float, int] | None:
-    """(begin, period, count) of a flow's departures (random ones: the mean gap), None when unknown."""
+def _flow_series(el: Any, where: str, default_end: float) -> tuple[float, float, int, bool] | None:
+    """(begin, period, count, random) of a flow's departures (random ones: the mean gap), None when
+    unknown."""
     begin = _depart(el.get("begin", "0"), where)
     end = _depart(el.get("end"), where) if el.get("end") else default_end
     if begin is None or end is None:
         return None
     number = int(float(el.get("number"))) if el.get("number") else None
     period_text = (el.get("period") or "").strip()
+    random = bool(el.get("probability")) or (period_text.startswith("exp(") and period_text.endswith(")"))
     if el.get("probability"):  # random, on average one vehicle per 1 / probability seconds
         period = 1.0 / max(float(el.get("probability")), 1e-9)
-    elif period_text.startswith("exp(") and period_text.endswith(")"):  # random gaps, mean 1 / rate
+    elif random:  # exp(rate): random gaps, mean 1 / rate
         period = 1.0 / max(float(period_text[4:-1]), 1e-9)
     elif period_text:
         period = parse_time(period_text, where)
@@ -123,7 +127,7 @@ def _flow_series(el: Any, where: str, default_end: float) -> tuple[float, float,
     count = int(math.floor((end - begin) / period + 1e-9)) + 1 if end > begin else 0
     if number is not None:
         count = min(count, number) if el.get("end") else number
-    return (begin, period, max(count, 0))
+    return (begin, period, max(count, 0), random)
 
 
 def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
@@ -274,12 +278,15 @@ def _in_window(depart: float, duration: float, begin: float, end: float) -> floa
 
 
 def _first_member(d: _Demand, begin: float) -> tuple[str, float] | None:
-    """A flow's first vehicle departing at or after ``begin``: of all its vehicles in the window it
-    has the most time in it (a later one's route fits at best as well). None: none departs by then."""
+    """A flow's first vehicle (expected to be) departing at or after ``begin``, and when: of all its
+    vehicles in the window it has the most time in it (a later one's route fits at best as well).
+    A random flow's k-th vehicle is expected k + 1 mean gaps after the flow's begin. None: none
+    departs by then."""
     assert d.flow is not None
-    fb, period, count = d.flow
-    k = max(0, math.ceil((begin - fb) / period - 1e-9))
-    return None if k >= count else (f"{d.vehicle_id}.{k}", fb + k * period)
+    fb, period, count, random = d.flow
+    first = fb + period if random else fb  # when vehicle 0 is expected
+    k = max(0, math.ceil((begin - first) / period - 1e-9))
+    return None if k >= count else (f"{d.vehicle_id}.{k}", first + k * period)
 
 
 def long_lived(config: str | Path, n: int, begin: float | None = None, end: float | None = None,

@@ -49,18 +49,38 @@ def test_long_lived_reads_routes_trips_and_flows(tmp_path: Path) -> None:
     chosen = long_lived(_config(tmp_path), 20)
     ids = [c.vehicle_id for c in chosen]
     # named, nested and late-defined routes; a trip (routed); one vehicle per flow, the first that
-    # departs at or after the begin (periodic: 0, 7 -> "periodic.1"; random: mean gap 4 s -> .1)
-    assert set(ids) == {"named_route", "nested_route", "late_route", "trip", "periodic.1", "random.1"}
+    # departs at or after the begin (periodic: 0, 7 -> "periodic.1"; random: mean gap 4 s, vehicle k
+    # expected at 4 (k + 1) s -> .0 at 4 s)
+    assert set(ids) == {"named_route", "nested_route", "late_route", "trip", "periodic.1", "random.0"}
     # left out: departs before the begin, no departure time, too little of its life in the window
     assert not {"before_begin", "waits", "too_late"} & set(ids)
     by_id = {c.vehicle_id: c for c in chosen}
     assert by_id["periodic.1"].depart_s == pytest.approx(7.0)
+    assert by_id["random.0"].depart_s == pytest.approx(4.0)
     assert by_id["trip"].route_m > 100  # routed through the junction, not a guess
     assert all(c.in_window_s >= MIN_IN_WINDOW_S for c in chosen)
     # ranked by time in the window (5 s ties by departure)
     assert [round(c.in_window_s / 5) for c in chosen] == sorted((round(c.in_window_s / 5) for c in chosen),
                                                                   reverse=True)
     assert len(long_lived(_config(tmp_path), 2)) == 2
+
+
+def test_a_rare_random_flow_is_not_expected_at_its_begin(tmp_path: Path) -> None:
+    # one vehicle in 100 s on average: its first is expected 100 s after the flow's begin, so a
+    # vehicle departing at 5 s on the same route has more of the window (the shipped arterial's
+    # rare flows were expected at 0 s and chosen, and never ran in a 150 s window)
+    (tmp_path / "d.rou.xml").write_text("""<routes>
+  <flow id="rare" begin="0" end="3600" probability="0.01"><route edges="W2C C2E"/></flow>
+  <flow id="every_3s" begin="0" end="3600" period="exp(0.33333)"><route edges="W2C C2E"/></flow>
+  <vehicle id="car" depart="5"><route edges="N2C C2S"/></vehicle>
+</routes>""")
+    cfg = tmp_path / "t.sumocfg"
+    cfg.write_text(f"""<configuration><input><net-file value="{NET}"/><route-files value="d.rou.xml"/></input>
+<time><end value="150"/></time></configuration>""")
+    by_id = {c.vehicle_id: c for c in long_lived(cfg, 5)}
+    assert by_id["rare.0"].depart_s == pytest.approx(100.0)
+    assert by_id["every_3s.0"].depart_s == pytest.approx(3.0, abs=1e-3)
+    assert [c.vehicle_id for c in long_lived(cfg, 2)] == ["every_3s.0", "car"]
 
 
 def test_long_lived_respects_the_window(tmp_path: Path) -> None:
@@ -75,7 +95,9 @@ def test_long_lived_respects_the_window(tmp_path: Path) -> None:
 
 def test_targets_are_road_vehicles(tmp_path: Path, monkeypatch) -> None:
     """A train is no target (the prior places road vehicles); a config with trains only says so."""
-    monkeypatch.setattr(session, "SumoSession", lambda *_a, **_k: pytest.fail("simulated"))
+    # any simulation fails the test: the class's start is replaced, not the class (modules imported
+    # lazily while the test runs would keep a replaced class for the tests after it)
+    monkeypatch.setattr(session.SumoSession, "start", lambda *_a, **_k: pytest.fail("simulated"))
     (tmp_path / "d.rou.xml").write_text("""<routes>
   <vehicle id="train" type="loco" depart="0"><route edges="W2C C2E"/></vehicle>
   <vehicle id="car" depart="5"><route edges="N2C C2S"/></vehicle>
@@ -130,7 +152,7 @@ def test_a_target_not_in_the_demand_fails_before_the_pass(tmp_path: Path, monkey
     def no_pass(*_a, **_k):
         raise AssertionError("simulated although the demand has no such vehicle")
 
-    monkeypatch.setattr(session, "SumoSession", no_pass)
+    monkeypatch.setattr(session.SumoSession, "start", no_pass)  # the class stays (see above)
     with pytest.raises(InputError) as err:
         nominal_scene(ScenarioSpec(_config(tmp_path), target=target))
     assert message in str(err.value) and "t.sumocfg" in str(err.value)
@@ -187,3 +209,4 @@ def test_run_with_chosen_targets(tmp_path: Path) -> None:
     chosen = [c["target"] for c in summary["options"]["target_choice"]]
     assert len(chosen) == 2 and [t["target"] for t in summary["targets"]] == chosen
     assert chosen == [c.vehicle_id for c in choose_targets(cfg_dir / "intersection.sumocfg", 2)]
+
