@@ -349,10 +349,12 @@ class _JointProof:
 
     def _watch(self, session: SumoSession, states: VehicleStates, names: list[str]) -> None:
         """Take out of the pass every watched job whose target copy would make a logged agent react now."""
+        if not self.watched:  # log traffic, or every escape cleared in advance: nothing to do per step
+            return
         t = session.time
         live = [(w, k) for w, k in enumerate(self.watched) if self._live(k, t) and self.ids[k][0] in names]
-        k_log = self.replayer.step_at(t)
-        if not live or k_log is None:
+        k_log = self.replayer.step_at(t) if live else None
+        if k_log is None:
             return
         from coster_sumo.sim.reactive import Pose
 
