@@ -109,10 +109,10 @@ def _flow_series(el: Any, where: str, default_end: float) -> tuple[float, float,
         return None
     number = int(float(el.get("number"))) if el.get("number") else None
     period_text = (el.get("period") or "").strip()
-    random = bool(el.get("probability")) or (period_text.startswith("exp(") and period_text.endswith(")"))
+    is_random = bool(el.get("probability")) or (period_text.startswith("exp(") and period_text.endswith(")"))
     if el.get("probability"):  # random, on average one vehicle per 1 / probability seconds
         period = 1.0 / max(float(el.get("probability")), 1e-9)
-    elif random:  # exp(rate): random gaps, mean 1 / rate
+    elif is_random:  # exp(rate): random gaps, mean 1 / rate
         period = 1.0 / max(float(period_text[4:-1]), 1e-9)
     elif period_text:
         period = parse_time(period_text, where)
@@ -127,7 +127,7 @@ def _flow_series(el: Any, where: str, default_end: float) -> tuple[float, float,
     count = int(math.floor((end - begin) / period + 1e-9)) + 1 if end > begin else 0
     if number is not None:
         count = min(count, number) if el.get("end") else number
-    return (begin, period, max(count, 0), random)
+    return (begin, period, max(count, 0), is_random)
 
 
 def _read_demand(files: list[Path], default_end: float) -> list[_Demand]:
@@ -283,8 +283,8 @@ def _first_member(d: _Demand, begin: float) -> tuple[str, float] | None:
     A random flow's k-th vehicle is expected k + 1 mean gaps after the flow's begin. None: none
     departs by then."""
     assert d.flow is not None
-    fb, period, count, random = d.flow
-    first = fb + period if random else fb  # when vehicle 0 is expected
+    fb, period, count, is_random = d.flow
+    first = fb + period if is_random else fb  # when vehicle 0 is expected
     k = max(0, math.ceil((begin - first) / period - 1e-9))
     return None if k >= count else (f"{d.vehicle_id}.{k}", first + k * period)
 
