@@ -11,7 +11,6 @@ the target touches nobody (our box check, the ground truth of every pass) and st
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -19,19 +18,18 @@ from typing import Any
 import numpy as np
 
 from coster_sumo.avoidability.evasion import Avoidability, Escape, Manoeuvre
+from coster_sumo.avoidability.verdict import EscapeJob, Verdict, _joined, _verdict, verdict
 from coster_sumo.core.plan import HORIZON_AFTER_TCOL_S, AdversaryPlan, sim_time_of
 from coster_sumo.core.scene import Scene
 from coster_sumo.core.spec import ScenarioSpec
 from coster_sumo.errors import InputError
 from coster_sumo.formats.source import ScenarioSource
-from coster_sumo.geometry.boxes import box_signed_distance, make_boxes
 from coster_sumo.geometry.drivable import DrivableArea
-from coster_sumo.sim.events import Event, EventDetector
+from coster_sumo.sim.events import EventDetector
 from coster_sumo.sim.hold import HeldStates
 from coster_sumo.sim.inject import (
     TIME_EPS,
     AdversaryController,
-    InjectionResult,
     PassSettings,
     StepActor,
     continue_injection,
@@ -44,89 +42,10 @@ from coster_sumo.sim.session import SumoSession
 from coster_sumo.sim.states import VehicleStates
 
 
-@dataclass(frozen=True)
-class EscapeJob:
-    """One escape to prove: the variant's adversary plan and the target's escape."""
-
-    plan: AdversaryPlan
-    escape: Escape
-
-
 def escape_planner(escape: Escape, length_m: float) -> ReplayPlanner:
     """The target's planner that drives the escape (box centres, 10 Hz) with moveToXY."""
     return ReplayPlanner(escape.times, escape.x, escape.y, escape.yaw, escape.speed,
                          np.ones(len(escape.times), bool), length_m)
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """What SUMO's replay of one escape showed.
-
-    Attributes:
-        ok: no contact of the target and no off-road after the adversary appeared.
-        reason: one line (``no contact, on road``, ``touched X at T s``, ``left the road at T s``).
-        min_gap_to_adversary_m: [m] the smallest gap of the two boxes (None: never in the pass together).
-        max_deviation_m: [m] how far SUMO's target strayed from the escape; max_deviation_at_s: [s] when.
-    """
-
-    ok: bool
-    reason: str
-    min_gap_to_adversary_m: float | None = None
-    max_deviation_m: float | None = None
-    max_deviation_at_s: float | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        """The verdict as an escape's ``proof`` in summary.json."""
-        return dataclasses.asdict(self)
-
-
-def verdict(res: InjectionResult, target_id: str, job: EscapeJob) -> Verdict:
-    """What the replay shows: contacts of the target, off-road, the smallest gap to the adversary
-    and how far SUMO's target strayed from the escape (moveToXY places it exactly)."""
-    return _verdict(res.events, res.scene, target_id, job.plan.vehicle_id, job)
-
-
-def _verdict(events: list[Event], scene: Scene, target_id: str, adversary_id: str, job: EscapeJob) -> Verdict:
-    """:func:`verdict` from a pass's events and recording, the target and adversary by their ids there."""
-    plan, esc = job.plan, job.escape
-    # the escape's window, from the adversary's appearance to its last pose (t_col + the horizon): a
-    # pass that steps once more, or SUMO driving the target after it, says nothing about the escape
-    t0, t1 = plan.t_start - TIME_EPS, esc.times[-1] + TIME_EPS
-    contacts = [e for e in events if e.kind == "collision" and target_id in e.vehicles and t0 <= e.time <= t1]
-    off = [e for e in events if e.kind == "off_road" and e.vehicles == [target_id] and t0 <= e.time <= t1]
-    tr = scene.tracks
-    ids = tr.ids.tolist()
-    gap = deviation = dev_at = None
-    if target_id in ids:
-        a = tr.index_of(target_id)
-        ts_all = scene.timestamps
-        steps = np.flatnonzero(tr.valid[a] & (ts_all >= t0) & (ts_all <= t1))
-        if len(steps):
-            ts = ts_all[steps]
-            k = np.clip(np.round((ts - esc.times[0]) / 0.1).astype(int), 0, len(esc.times) - 1)
-            dev = np.hypot(tr.x[a, steps] - esc.x[k], tr.y[a, steps] - esc.y[k])
-            deviation = float(dev.max())
-            dev_at = float(ts[int(np.argmax(dev))])
-            if adversary_id in ids:
-                b = tr.index_of(adversary_id)
-                both = steps[tr.valid[b, steps]]
-                if len(both):
-                    gap = float(box_signed_distance(
-                        make_boxes(tr.x[a, both], tr.y[a, both], tr.heading[a, both], tr.length[a, both],
-                                   tr.width[a, both]),
-                        make_boxes(tr.x[b, both], tr.y[b, both], tr.heading[b, both], tr.length[b, both],
-                                   tr.width[b, both])).min())
-    ok = not contacts and not off
-    if ok:
-        reason = "no contact, on road"
-    elif contacts:
-        first = contacts[0]
-        other = next((v for v in first.vehicles if v != target_id), "?")
-        reason = f"touched {other} at {first.time:.1f} s"
-    else:
-        reason = f"left the road at {off[0].time:.1f} s"
-    return Verdict(ok, reason, min_gap_to_adversary_m=None if gap is None else round(gap, 3),
-                   max_deviation_m=None if deviation is None else round(deviation, 4), max_deviation_at_s=dev_at)
 
 
 @dataclass(frozen=True)
@@ -220,8 +139,9 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             # a copy SUMO crashed in (a pedestrian-class adversary moved onto a walking area of
             # fokr_bs_demo: SIGSEGV in the step) proves nothing: the escape stands refuted, the run goes on
             out[i] = v if ok else Verdict(False, f"SUMO failed replaying it: {v}")
+    resumed: dict[int, tuple[float, Verdict]] = {}  # job -> (begin of its own pass, the joint pass's verdict before it)
     if converted and together and not traci and jobs:
-        out = joint_verdicts(spec, scene, target, jobs, proof)
+        out = joint_verdicts(spec, scene, target, jobs, proof, resumed)
     for i, job in enumerate(jobs):
         if out[i] is not None:
             continue
@@ -234,24 +154,31 @@ def prove_escapes(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target:
             # react to nothing, and the verdict is about the target's contacts
             far = far_agents(scene.tracks, np.stack([job.escape.x, job.escape.y], -1), PROOF_RADIUS_M)
             actors = (replayer_for(spec.config, scene, target_id, {target_id: job.plan.t_start}, proof.traffic, far),)
-        settings = PassSettings(end=job.plan.t_col + horizon_s + 1e-6, begin=spec.begin, drivable=drivable,
+        begin, head = resumed.get(i, (spec.begin, None))
+        settings = PassSettings(end=job.plan.t_col + horizon_s + 1e-6, begin=begin, drivable=drivable,
                                 actors=actors, surroundings_m=None if converted else SURROUNDINGS_RADIUS_M,
                                 road=False)  # the verdict reads the tracks alone
         res = run_injection(spec.config, target_id, job.plan, escape_planner(job.escape, length), settings,
                             seed=spec.seed, traci=traci)
-        out[i] = verdict(res, target_id, job)
+        out[i] = verdict(res, target_id, job) if head is None else _joined(head, verdict(res, target_id, job))
     return [v for v in out if v is not None]
 
 
 def joint_verdicts(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[EscapeJob],
-                   proof: ProofSettings) -> list[Verdict | None]:
+                   proof: ProofSettings, resumed: dict[int, tuple[float, Verdict]] | None = None
+                   ) -> list[Verdict | None]:
     """The verdicts of a converted scene's escapes from one joint pass (:class:`_JointProof`), None
     where the escape needs a pass of its own: in reactive traffic, one that makes a logged agent react.
 
     There an escape that makes nobody react is a pass of the log. Those that
     :func:`~coster_sumo.sim.quiet_escapes.reaches_no_one` tells in advance join the pass as in log
     traffic; the others join it watched (:class:`~coster_sumo.sim.quiet_escapes.ReactionWatch`), and
-    one whose target copy would make an agent react leaves it at that step (its verdict None)."""
+    one whose target copy would make an agent react leaves it at that step (its verdict None).
+
+    ``resumed`` gains, for such a job, where its own pass may begin (:data:`RESUME_LEAD_S` before it
+    left, on the log's step grid) and the joint pass's verdict on the steps before that: up to the
+    first reaction nobody in its own pass deviates from the log, so those steps are the joint pass's
+    (not where its adversary froze at a contact before then: that pass begins at the scene's begin)."""
     if proof.traffic == "log":
         return list(_JointProof(spec, scene, target, jobs, proof.drivable, proof.horizon_s).run())
     from coster_sumo.formats.scene_folder import agent_sizes
@@ -260,7 +187,10 @@ def joint_verdicts(spec: ScenarioSpec, scene: Scene, target: int, jobs: list[Esc
     sizes = agent_sizes(scene)
     watch = [i for i, job in enumerate(jobs) if not reaches_no_one(scene, target, job.escape, sizes=sizes)]
     joint = _JointProof(spec, scene, target, jobs, proof.drivable, proof.horizon_s, watch=watch)
-    return [None if i in joint.would_react else v for i, v in enumerate(joint.run())]
+    out = [None if i in joint.would_react else v for i, v in enumerate(joint.run())]
+    if resumed is not None:
+        resumed.update(joint.resumed)
+    return out
 
 
 class _JointProof:
@@ -304,6 +234,8 @@ class _JointProof:
                                                               PROOF_RADIUS_M) for k in self.watched],
                                    (self.replayer.lengths, self.replayer.widths), self.replayer.dt)
         self.would_react: set[int] = set()
+        self.left_at: dict[int, float] = {}  # [s] when each of them left, its adversary not frozen then
+        self.resumed: dict[int, tuple[float, Verdict]] = {}  # filled by run()
 
     def _live(self, k: int, t: float) -> bool:
         return self.starts[k] - TIME_EPS <= t <= self.ends[k] and k not in self.removed
@@ -345,7 +277,9 @@ class _JointProof:
                 adversary.on_events(sub, new)
                 if adversary.frozen_pose is not None:
                     self.detectors[k].settle_adversary()
-        return False
+        # over once no job has a step left (each ended, or left the pass for one of its own)
+        t_next = round(t + session.step_length, 9)
+        return all(k in self.removed or t_next > end for k, end in enumerate(self.ends))
 
     def _watch(self, session: SumoSession, states: VehicleStates, names: list[str]) -> None:
         """Take out of the pass every watched job whose target copy would make a logged agent react now."""
@@ -367,6 +301,8 @@ class _JointProof:
                         float(states.length[i]), float(states.width[i]))
             if self.watch.reacts(w, k_log, pose, present):
                 self.would_react.add(k)
+                if self.adversaries[k].frozen_pose is None:
+                    self.left_at[k] = t
                 self.removed.add(k)
                 for vid in self.ids[k]:
                     if vid in names:
@@ -379,9 +315,15 @@ class _JointProof:
             rec = record(session, begin=self.spec.begin, end=end, before_step=self.before, after_step=self.after,
                          road=False)
         out = []
-        for det, (tid, aid), job in zip(self.detectors, self.ids, self.jobs, strict=True):
+        origin = self.spec.begin if self.spec.begin is not None else float(self.scene.timestamps[0])
+        step = round(self.scene.dt, 6)
+        for k, (det, (tid, aid), job) in enumerate(zip(self.detectors, self.ids, self.jobs, strict=True)):
             det.flush()
             out.append(_verdict(det.events, rec, tid, aid, job))
+            if k in self.left_at:
+                begin = origin + max(0, round((self.left_at[k] - RESUME_LEAD_S - origin) / step)) * step
+                # the step at ``begin`` in both: the own pass may not record its first state
+                self.resumed[k] = (begin, _verdict(det.events, rec, tid, aid, job, before=begin + 0.5 * step))
         return out
 
 
@@ -398,6 +340,10 @@ def _take(states: VehicleStates, rows: list[int]) -> VehicleStates:
 # vehicles are under 25 m long, so two boxes in contact have centres under 15 m apart, and the path's
 # points are at most a few metres apart
 PROOF_RADIUS_M = 30.0
+# [s] an escape's own reactive pass begins this long before its target copy left the joint pass: the
+# logged agents, the copy and the adversary are placed by moveToXY every step before then, so SUMO has
+# their poses and speeds of 10 steps before anyone reacts
+RESUME_LEAD_S = 1.0
 
 
 def prove_labels(scenario: ScenarioSpec | ScenarioSource, scene: Scene, target: int, plans: Sequence[AdversaryPlan],
