@@ -103,6 +103,12 @@ def test_reactive_traffic_gives_a_pass_of_its_own_only_to_an_escape_an_agent_rea
     assert len(joint.jobs) == len(jobs) and joint.watched
     left = sorted(joint.would_react)
     assert len(own) == len(left) and all(len(r.handover) > 1 for r in own)  # each had an agent react
+    # each own pass resumed 1 s before its job left, on the log's grid, not from the scene's begin
+    origin = spec.begin if spec.begin is not None else float(scene.timestamps[0])
+    assert sorted(joint.resumed) == left
+    assert all(b > origin if joint.left_at[k] - proof.RESUME_LEAD_S > origin + 0.05 else b == origin
+               for k, (b, _) in joint.resumed.items())
+    assert any(b > origin for b, _ in joint.resumed.values()) if source == "follower" else True
     own.clear()
     apart = proof.prove_escapes(spec, scene, target, jobs, settings, together=False)
     assert len(own) == len(jobs)
